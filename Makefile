@@ -1,0 +1,45 @@
+# Two entry points for a newcomer: `make demo` and `make test`. Both create .venv themselves.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.physar-installed
+PYTEST_ARGS ?=
+
+.PHONY: demo test test-slow bench env clean
+
+env: $(STAMP)
+
+$(STAMP): pyproject.toml
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip setuptools wheel
+	$(PY) -m pip install -q -e '.[dev]'
+	@# CHOLMOD (sparse Cholesky, factor once / re-solve many) needs SuiteSparse headers.
+	@if [ ! -e /usr/include/suitesparse/cholmod.h ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libsuitesparse-dev) >/dev/null \
+	      || echo "warning: could not install libsuitesparse-dev; physar will use the slower scipy solver"; \
+	  else \
+	    echo "note: for the fast CHOLMOD solver run: sudo apt-get install libsuitesparse-dev && make env"; \
+	  fi; \
+	fi
+	@if [ -e /usr/include/suitesparse/cholmod.h ]; then \
+	  $(PY) -m pip install -q -e '.[cholmod]' \
+	    || echo "warning: scikit-sparse did not build; physar will use the slower scipy solver"; \
+	fi
+	touch $(STAMP)
+
+test: $(STAMP)
+	$(PY) -m pytest -q -m "not slow" $(PYTEST_ARGS)
+
+test-slow: $(STAMP)
+	$(PY) -m pytest -q -m slow $(PYTEST_ARGS)
+
+demo: $(STAMP)
+	$(VENV)/bin/physar demo --out demo_out
+
+bench: $(STAMP)
+	$(PY) benchmarks/bench_fem.py
+
+clean:
+	rm -rf $(VENV) demo_out .pytest_cache

@@ -1,0 +1,50 @@
+"""Shared CLI plumbing: user errors become one line on stderr and exit code 2; JSON goes to stdout."""
+
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from typing import Any, Callable
+
+import numpy as np
+import typer
+
+from physar.errors import PhysarError
+
+
+def _to_jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _to_jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+def print_json(obj: Any) -> None:
+    """Print `obj` (numpy arrays allowed) as JSON on stdout."""
+    sys.stdout.write(json.dumps(_to_jsonable(obj), indent=None) + "\n")
+    sys.stdout.flush()
+
+
+def log(msg: str) -> None:
+    """Human-readable progress/info to stderr (stdout stays clean for --json)."""
+    typer.echo(msg, err=True)
+
+
+def user_errors(fn: Callable) -> Callable:
+    """Decorator: a PhysarError (bad input) prints `error: <message>` to stderr and exits with code 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except PhysarError as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(code=2) from None
+
+    return wrapper

@@ -1,0 +1,108 @@
+"""Mesh I/O through meshio (VTU, XDMF, Gmsh .msh, Medit .mesh, PLY, OBJ, STL, OFF).
+
+Writes are atomic: a file is written under a temporary name in the target folder and renamed, so a
+failed write never leaves a half-written output.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from physar.errors import MeshError, PhysarError
+from physar.geometry.mesh import TetMesh, TriMesh
+
+VOLUME_FORMATS = {".vtu", ".xdmf", ".xmf", ".msh", ".mesh", ".vtk"}
+SURFACE_FORMATS = {".ply", ".obj", ".stl", ".off", ".vtu", ".vtk", ".msh", ".mesh", ".xdmf"}
+
+
+def _meshio():
+    import meshio
+
+    return meshio
+
+
+def read_mesh(path: str | os.PathLike, kind: str = "auto") -> TetMesh | TriMesh:
+    """Read a tetrahedral (`kind="tet"`) or triangle (`kind="tri"`) mesh; `auto` prefers tetrahedra.
+
+    Second-order tetrahedra (tetra10) are read as their four corner nodes (physar builds P2 nodes itself).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise PhysarError(f"mesh file not found: {path}")
+    meshio = _meshio()
+    try:
+        m = meshio.read(path)
+    except Exception as exc:  # meshio raises many types for corrupt or unknown files
+        raise MeshError(f"cannot read mesh {path}: {type(exc).__name__}: {exc}".splitlines()[0]) from None
+    tets = [c.data[:, :4] for c in m.cells if c.type in ("tetra", "tetra10")]
+    tris = [c.data[:, :3] for c in m.cells if c.type in ("triangle", "triangle6")]
+    points = np.asarray(m.points, dtype=float)
+    if points.ndim == 2 and points.shape[1] == 2:
+        points = np.column_stack([points, np.zeros(len(points))])
+    if kind in ("auto", "tet") and tets:
+        cells = np.concatenate(tets)
+        used = np.unique(cells)
+        if len(used) < len(points):  # drop points not used by tets (e.g. gmsh geometry points)
+            remap = -np.ones(len(points), dtype=np.int64)
+            remap[used] = np.arange(len(used))
+            points, cells = points[used], remap[cells]
+        return TetMesh(points, cells, name=path.name)
+    if kind in ("auto", "tri") and tris:
+        return TriMesh(points, np.concatenate(tris), name=path.name)
+    want = {"auto": "tetrahedra or triangles", "tet": "tetrahedra", "tri": "triangles"}.get(kind, kind)
+    found = sorted({c.type for c in m.cells}) or ["no cells"]
+    raise MeshError(f"{path}: expected {want}, found {', '.join(found)}")
+
+
+def _atomic_target(path: Path):
+    """Context: yields a temporary path with the same suffix; moves it (and siblings) into place."""
+
+    class _Ctx:
+        def __enter__(self):
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self.tmpdir = Path(tempfile.mkdtemp(prefix=".physar-", dir=path.parent))
+            return self.tmpdir / path.name
+
+        def __exit__(self, exc_type, exc, tb):
+            try:
+                if exc_type is None:
+                    for f in self.tmpdir.iterdir():  # XDMF writes a companion .h5
+                        os.replace(f, path.parent / f.name)
+            finally:
+                shutil.rmtree(self.tmpdir, ignore_errors=True)
+            return False
+
+    return _Ctx()
+
+
+def write_mesh(
+    path: str | os.PathLike,
+    mesh: TetMesh | TriMesh,
+    point_data: Mapping[str, np.ndarray] | None = None,
+    cell_data: Mapping[str, np.ndarray] | None = None,
+) -> Path:
+    """Write `mesh` with optional nodal and per-element fields; the format follows the file suffix."""
+    path = Path(path)
+    meshio = _meshio()
+    if isinstance(mesh, TetMesh):
+        cells = [("tetra", mesh.cells)]
+    else:
+        cells = [("triangle", mesh.faces)]
+    cd = {k: [np.asarray(v)] for k, v in (cell_data or {}).items()}
+    pd = {k: np.asarray(v) for k, v in (point_data or {}).items()}
+    for k, v in pd.items():
+        if len(v) != mesh.n_points:
+            raise PhysarError(f"point field {k!r} has {len(v)} rows, the mesh has {mesh.n_points} points")
+    m = meshio.Mesh(mesh.points, cells, point_data=pd, cell_data=cd)
+    with _atomic_target(path) as tmp:
+        try:
+            m.write(tmp)
+        except KeyError:
+            raise PhysarError(f"unknown mesh format {path.suffix!r} for {path}") from None
+    return path

@@ -1,0 +1,303 @@
+"""Mesh containers, generators and selection helpers.
+
+`TetMesh` and `TriMesh` are frozen dataclasses of numpy arrays, validated on construction: a bad mesh
+raises :class:`physar.errors.MeshError` naming the first offending element.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from physar.errors import MeshError
+
+# Local faces of a positively oriented tetrahedron (vol = det[x1-x0, x2-x0, x3-x0] / 6 > 0), ordered
+# so that the right-hand normal points outward; face k is opposite local vertex k.
+TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
+
+
+def tet_signed_volumes(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Signed volume of each tetrahedron, det[x1-x0, x2-x0, x3-x0] / 6 (m^3)."""
+    x = points[cells[:, :4]]
+    d = x[:, 1:4] - x[:, 0:1]
+    return np.linalg.det(d) / 6.0
+
+
+def _check_points(points: np.ndarray, name: str) -> np.ndarray:
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise MeshError(f"{name}: points must have shape (n, 3), got {points.shape}")
+    bad = ~np.isfinite(points).all(axis=1)
+    if bad.any():
+        raise MeshError(f"{name}: point {int(np.flatnonzero(bad)[0])} has a NaN or infinite coordinate")
+    return points
+
+
+def _check_cells(cells: np.ndarray, npts: int, width: int, name: str) -> np.ndarray:
+    cells = np.asarray(cells)
+    if cells.ndim != 2 or cells.shape[1] != width:
+        raise MeshError(f"{name}: cells must have shape (m, {width}), got {cells.shape}")
+    if not np.issubdtype(cells.dtype, np.integer):
+        raise MeshError(f"{name}: cells must be integer indices, got dtype {cells.dtype}")
+    cells = cells.astype(np.int64)
+    if cells.size:
+        bad = (cells < 0) | (cells >= npts)
+        if bad.any():
+            e = int(np.flatnonzero(bad.any(axis=1))[0])
+            raise MeshError(f"{name}: element {e} refers to a node outside 0..{npts - 1}: {cells[e].tolist()}")
+    return cells
+
+
+@dataclass(frozen=True)
+class TetMesh:
+    """A linear tetrahedral mesh: `points` (n, 3) in metres, `cells` (m, 4) node indices.
+
+    Every tetrahedron must be positively oriented with a volume above `rel_tol` times the mean volume;
+    otherwise a MeshError names the element. Use :meth:`reoriented` to fix orientation of a mesh read
+    from a tool that uses the other convention.
+    """
+
+    points: np.ndarray
+    cells: np.ndarray
+    name: str = field(default="mesh", compare=False)
+    rel_tol: float = field(default=1e-12, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        pts = _check_points(self.points, self.name)
+        cells = _check_cells(self.cells, len(pts), 4, self.name)
+        if len(cells) == 0:
+            raise MeshError(f"{self.name}: the mesh has no tetrahedra")
+        vol = tet_signed_volumes(pts, cells)
+        scale = np.abs(vol).mean()
+        inverted = vol < -self.rel_tol * scale
+        if inverted.any():
+            e = int(np.flatnonzero(inverted)[0])
+            raise MeshError(
+                f"{self.name}: element {e} is inverted (signed volume {vol[e]:.3e}); "
+                f"{int(inverted.sum())} inverted in all (TetMesh.reoriented fixes orientation)"
+            )
+        degenerate = np.abs(vol) <= self.rel_tol * scale
+        if degenerate.any():
+            e = int(np.flatnonzero(degenerate)[0])
+            raise MeshError(f"{self.name}: element {e} is degenerate (volume {vol[e]:.3e})")
+        object.__setattr__(self, "points", pts)
+        object.__setattr__(self, "cells", cells)
+        pts.setflags(write=False)
+        cells.setflags(write=False)
+
+    @classmethod
+    def reoriented(cls, points: np.ndarray, cells: np.ndarray, name: str = "mesh") -> "TetMesh":
+        """Build a mesh after swapping two nodes of every negatively oriented tetrahedron."""
+        points = _check_points(points, name)
+        cells = _check_cells(cells, len(points), 4, name).copy()
+        neg = tet_signed_volumes(points, cells) < 0
+        cells[neg, 2], cells[neg, 3] = cells[neg, 3].copy(), cells[neg, 2].copy()
+        return cls(points, cells, name=name)
+
+    @property
+    def n_points(self) -> int:
+        return len(self.points)
+
+    @property
+    def n_cells(self) -> int:
+        return len(self.cells)
+
+    @property
+    def volumes(self) -> np.ndarray:
+        return tet_signed_volumes(self.points, self.cells)
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.points.min(axis=0), self.points.max(axis=0)
+
+    def checksum(self) -> str:
+        """A SHA-256 of points and cells, to tie derived data (reduced models) to this mesh."""
+        import hashlib
+
+        h = hashlib.sha256()
+        h.update(np.ascontiguousarray(self.points).tobytes())
+        h.update(np.ascontiguousarray(self.cells).tobytes())
+        return h.hexdigest()
+
+    def boundary(self) -> "BoundarySurface":
+        return boundary_surface(self)
+
+
+@dataclass(frozen=True)
+class TriMesh:
+    """A triangle surface mesh: `points` (n, 3), `faces` (m, 3); validated for NaN and index range."""
+
+    points: np.ndarray
+    faces: np.ndarray
+    name: str = field(default="surface", compare=False)
+
+    def __post_init__(self) -> None:
+        pts = _check_points(self.points, self.name)
+        faces = _check_cells(self.faces, len(pts), 3, self.name)
+        object.__setattr__(self, "points", pts)
+        object.__setattr__(self, "faces", faces)
+        pts.setflags(write=False)
+        faces.setflags(write=False)
+
+    @property
+    def n_points(self) -> int:
+        return len(self.points)
+
+    @property
+    def n_faces(self) -> int:
+        return len(self.faces)
+
+    def face_normals(self, normalize: bool = True) -> np.ndarray:
+        """Right-hand face normals (x1 - x0) x (x2 - x0); unit length if `normalize`, else 2 * area."""
+        x = self.points[self.faces]
+        n = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])
+        if normalize:
+            nn = np.linalg.norm(n, axis=1, keepdims=True)
+            n = n / np.where(nn > 0, nn, 1.0)
+        return n
+
+    def face_areas(self) -> np.ndarray:
+        return 0.5 * np.linalg.norm(self.face_normals(normalize=False), axis=1)
+
+    def with_points(self, points: np.ndarray) -> "TriMesh":
+        return TriMesh(points, self.faces, name=self.name)
+
+
+@dataclass(frozen=True)
+class BoundarySurface:
+    """Boundary of a tet mesh.
+
+    `mesh` is a TriMesh on its own compact node numbering, outward oriented; `node_map[i]` is the volume
+    node of surface node i; `face_cell[f]` and `face_local[f]` give the tetrahedron and its local face
+    (see TET_FACES) of surface face f.
+    """
+
+    mesh: TriMesh
+    node_map: np.ndarray
+    face_cell: np.ndarray
+    face_local: np.ndarray
+
+    @property
+    def faces_global(self) -> np.ndarray:
+        """Surface faces in volume node numbering."""
+        return self.node_map[self.mesh.faces]
+
+    def face_centroids(self) -> np.ndarray:
+        return self.mesh.points[self.mesh.faces].mean(axis=1)
+
+
+def boundary_surface(mesh: TetMesh) -> BoundarySurface:
+    """Faces that belong to exactly one tetrahedron, outward oriented (vectorised, O(m log m))."""
+    cells = mesh.cells
+    all_faces = cells[:, TET_FACES].reshape(-1, 3)  # (4m, 3), outward for each tet
+    key = np.sort(all_faces, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    is_bnd = counts[inverse] == 1
+    if (counts > 2).any():
+        raise MeshError(f"{mesh.name}: a face is shared by more than two tetrahedra (non-manifold mesh)")
+    idx = np.flatnonzero(is_bnd)
+    faces = all_faces[idx]
+    node_map, local = np.unique(faces, return_inverse=True)
+    tri = TriMesh(mesh.points[node_map], local.reshape(-1, 3), name=f"{mesh.name}-boundary")
+    return BoundarySurface(tri, node_map, idx // 4, idx % 4)
+
+
+def in_box(points: np.ndarray, box: Sequence[Sequence[float]], tol: float | None = None) -> np.ndarray:
+    """Boolean mask of points inside the closed box [[xmin, ymin, zmin], [xmax, ymax, zmax]].
+
+    `tol` (default: 1e-9 times the box/point-cloud diagonal) makes the test robust to round-off for
+    boxes of zero thickness (a face of the domain).
+    """
+    b = np.asarray(box, dtype=np.float64)
+    if b.shape != (2, 3):
+        raise MeshError(f"box must be [[xmin, ymin, zmin], [xmax, ymax, zmax]], got shape {b.shape}")
+    lo, hi = np.minimum(b[0], b[1]), np.maximum(b[0], b[1])
+    if tol is None:
+        span = np.ptp(points, axis=0).max() if len(points) else 1.0
+        tol = 1e-9 * max(span, np.linalg.norm(hi - lo), 1e-300)
+    return np.all((points >= lo - tol) & (points <= hi + tol), axis=1)
+
+
+def select_nodes(
+    mesh: TetMesh | TriMesh,
+    box: Sequence[Sequence[float]] | None = None,
+    where: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> np.ndarray:
+    """Indices of nodes in `box` and/or satisfying `where(points) -> bool mask` (both if both given)."""
+    mask = np.ones(mesh.n_points, dtype=bool)
+    if box is not None:
+        mask &= in_box(mesh.points, box)
+    if where is not None:
+        mask &= np.asarray(where(mesh.points), dtype=bool)
+    return np.flatnonzero(mask)
+
+
+def select_boundary_faces(
+    surface: BoundarySurface,
+    box: Sequence[Sequence[float]] | None = None,
+    where: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> np.ndarray:
+    """Indices of boundary faces whose centroid lies in `box` and/or satisfies `where`."""
+    c = surface.face_centroids()
+    mask = np.ones(len(c), dtype=bool)
+    if box is not None:
+        mask &= in_box(c, box, tol=1e-9 * max(np.ptp(surface.mesh.points, axis=0).max(), 1e-300))
+    if where is not None:
+        mask &= np.asarray(where(c), dtype=bool)
+    return np.flatnonzero(mask)
+
+
+# Kuhn (Freudenthal) subdivision of the unit cube into 6 tets sharing the diagonal 0 -> 7; corners are
+# numbered by bits (x + 2 y + 4 z). Neighbouring cubes then share conforming face diagonals.
+def _kuhn_tets() -> np.ndarray:
+    import itertools
+
+    tets = []
+    for perm in itertools.permutations(range(3)):
+        corner = 0
+        path = [corner]
+        for axis in perm:
+            corner |= 1 << axis
+            path.append(corner)
+        tets.append(path)
+    tets = np.array(tets, dtype=np.int64)
+    xyz = np.array([[(c >> 0) & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)], dtype=float)
+    neg = tet_signed_volumes(xyz, tets) < 0
+    tets[neg, 2], tets[neg, 3] = tets[neg, 3].copy(), tets[neg, 2].copy()
+    return tets
+
+
+_KUHN = _kuhn_tets()
+
+
+def box_mesh(
+    size: Sequence[float], cells: Sequence[int], origin: Sequence[float] = (0.0, 0.0, 0.0)
+) -> TetMesh:
+    """Structured tetrahedral mesh of the box origin + [0, L] x [0, W] x [0, H].
+
+    `cells = (nx, ny, nz)` hexahedra, each split into 6 Kuhn tetrahedra (6 nx ny nz tets in all).
+    """
+    size = np.asarray(size, dtype=float)
+    n = np.asarray(cells, dtype=int)
+    if size.shape != (3,) or np.any(size <= 0) or not np.all(np.isfinite(size)):
+        raise MeshError(f"box size must be three positive lengths, got {list(np.atleast_1d(size))}")
+    if n.shape != (3,) or np.any(n < 1):
+        raise MeshError(f"box cells must be three positive integers, got {list(np.atleast_1d(n))}")
+    nx, ny, nz = n
+    axes = [np.linspace(0.0, size[i], n[i] + 1) + origin[i] for i in range(3)]
+    X, Y, Z = np.meshgrid(*axes, indexing="ij")
+    points = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+
+    def nid(i, j, k):
+        return (i * (ny + 1) + j) * (nz + 1) + k
+
+    I, J, K = np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij")
+    I, J, K = I.ravel(), J.ravel(), K.ravel()
+    corners = np.column_stack(
+        [nid(I + ((c >> 0) & 1), J + ((c >> 1) & 1), K + ((c >> 2) & 1)) for c in range(8)]
+    )
+    tets = corners[:, _KUHN].reshape(-1, 4)
+    return TetMesh(points, tets, name=f"box{tuple(float(s) for s in size)}")
