@@ -1,0 +1,43 @@
+"""FEM layer: P1/P2 tetrahedra, hyperelastic materials, assembly, loads, static solvers.
+
+Everything is vectorised over elements (numpy); the dof of node a, component i is 3 a + i.
+"""
+
+from physar.fem.assembly import CSRPattern, ElasticModel
+from physar.fem.elements import FESpace, shape_functions, tet_quadrature, tri_quadrature
+from physar.fem.loads import bump, fixed_dofs, gravity_load, point_load, traction_load
+from physar.fem.materials import (
+    MATERIALS,
+    Corotated,
+    LinearElastic,
+    Material,
+    NeoHookean,
+    NeoHookeanIncompressible,
+    StVK,
+    lame,
+    make_material,
+    polar,
+)
+from physar.fem.post import cauchy_stress, locate, nodal_average, probe, von_mises
+from physar.fem.reference import timoshenko_cantilever_tip
+from physar.fem.solvers import (
+    Factor,
+    LinearSolver,
+    StaticResult,
+    check_constraints,
+    factorize,
+    has_cholmod,
+    rigid_body_modes,
+    solve_linear,
+    solve_static,
+)
+
+__all__ = [
+    "CSRPattern", "ElasticModel", "FESpace", "shape_functions", "tet_quadrature", "tri_quadrature",
+    "bump", "fixed_dofs", "gravity_load", "point_load", "traction_load",
+    "MATERIALS", "Corotated", "LinearElastic", "Material", "NeoHookean", "NeoHookeanIncompressible",
+    "StVK", "lame", "make_material", "polar",
+    "cauchy_stress", "locate", "nodal_average", "probe", "von_mises", "timoshenko_cantilever_tip",
+    "Factor", "LinearSolver", "StaticResult", "check_constraints", "factorize", "has_cholmod",
+    "rigid_body_modes", "solve_linear", "solve_static",
+]
