@@ -18,7 +18,7 @@ app = typer.Typer(
 )
 
 # Topic modules registering their commands; each is physar.cli.<name> with a `register(app)` function.
-TOPICS = ["mesh"]
+TOPICS = ["mesh", "fem", "demo"]
 
 
 def _version(value: bool) -> None:

@@ -214,11 +214,14 @@ def solve_static(
             du = np.zeros(n)
             du[free] = -factorize(K[free][:, free]).solve(r[free])
             alpha = 1.0
-            for _ in range(12):  # backtracking: accept the first step that lowers the residual
+            pi0 = model.energy(u) - f @ u
+            for _ in range(16):
+                # backtracking: accept the first step that lowers the residual or the total potential
+                # energy Π = E(u) - f·u (the Newton step is a descent direction of Π where K > 0)
                 trial = u + alpha * du
                 r_t = model.internal_force(trial) - f
                 rn_t = np.linalg.norm(r_t[free])
-                if np.isfinite(rn_t) and rn_t < rn:
+                if np.isfinite(rn_t) and (rn_t < rn or model.energy(trial) - f @ trial < pi0):
                     break
                 alpha *= 0.5
             else:

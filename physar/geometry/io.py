@@ -6,6 +6,8 @@ failed write never leaves a half-written output.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import shutil
 import tempfile
@@ -36,10 +38,14 @@ def read_mesh(path: str | os.PathLike, kind: str = "auto") -> TetMesh | TriMesh:
     if not path.exists():
         raise PhysarError(f"mesh file not found: {path}")
     meshio = _meshio()
-    try:
-        m = meshio.read(path)
-    except Exception as exc:  # meshio raises many types for corrupt or unknown files
-        raise MeshError(f"cannot read mesh {path}: {type(exc).__name__}: {exc}".splitlines()[0]) from None
+    sink = io.StringIO()
+    try:  # meshio raises many types for corrupt files, and calls sys.exit for unreadable ones
+        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+            m = meshio.read(path)
+    except (Exception, SystemExit) as exc:
+        detail = str(exc) if not isinstance(exc, SystemExit) else sink.getvalue().strip()
+        detail = " ".join(detail.split()) or type(exc).__name__
+        raise MeshError(f"cannot read mesh {path}: {detail}"[:300]) from None
     tets = [c.data[:, :4] for c in m.cells if c.type in ("tetra", "tetra10")]
     tris = [c.data[:, :3] for c in m.cells if c.type in ("triangle", "triangle6")]
     points = np.asarray(m.points, dtype=float)

@@ -1,0 +1,53 @@
+"""`physar fem …`: static finite-element solves from a TOML problem file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from physar.cli._common import log, print_json, user_errors
+
+fem_app = typer.Typer(help="Finite-element statics.", no_args_is_help=True)
+
+
+@fem_app.command("solve")
+@user_errors
+def solve(
+    config: Path = typer.Argument(..., help="problem file (TOML), see README"),
+    out: Path = typer.Option(..., "--out", "-o", help="result mesh (.vtu/.xdmf) with displacement, von Mises"),
+    json_out: bool = typer.Option(False, "--json", help="print results as JSON on stdout"),
+) -> None:
+    """Solve a static problem and write the deformed fields."""
+    from tqdm import tqdm
+
+    from physar.fem.config import run_config
+    from physar.geometry import write_mesh
+
+    bar = None
+
+    def progress(step: int, steps: int) -> None:
+        nonlocal bar
+        if steps > 1:
+            bar = bar or tqdm(total=steps, desc="load steps", file=__import__("sys").stderr)
+            bar.update(1)
+
+    result = run_config(config, progress)
+    if bar is not None:
+        bar.close()
+    write_mesh(out, result.problem.space.mesh, point_data=result.point_data(),
+               cell_data={"von_mises": result.von_mises})
+    summary = result.summary()
+    summary["output"] = str(out)
+    if json_out:
+        print_json(summary)
+    else:
+        log(f"wrote {out}")
+        log(f"max displacement {summary['max_displacement']:.6e} m, "
+            f"max von Mises {summary['max_von_mises']:.4e} Pa, Newton iterations {summary['newton_iterations']}")
+        for p in summary["probes"]:
+            log(f"probe {p['point']}: u = {p['u']}")
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(fem_app, name="fem")

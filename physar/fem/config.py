@@ -1,0 +1,284 @@
+"""The FEM problem file (TOML), validated with pydantic, and the problem it builds.
+
+See README.md ("The FEM problem file") for the format. Every error names the file, the table and the
+key, in one line.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Literal, Optional
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from physar.errors import ConfigError, PhysarError
+from physar.fem.assembly import ElasticModel
+from physar.fem.elements import FESpace
+from physar.fem.loads import fixed_dofs, gravity_load, point_load, traction_load
+from physar.fem.materials import MATERIALS, make_material
+from physar.fem.post import nodal_average, probe, von_mises
+from physar.fem.solvers import StaticResult, solve_static
+from physar.geometry import TetMesh, box_mesh, read_mesh
+
+Vec3 = tuple[float, float, float]
+Box = tuple[Vec3, Vec3]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class MeshSection(_Strict):
+    file: Optional[str] = None
+    box: Optional[Vec3] = None
+    cells: Optional[tuple[int, int, int]] = None
+
+    @model_validator(mode="after")
+    def _one_source(self):
+        if (self.file is None) == (self.box is None):
+            raise ValueError("give either file = \"...\" or box = [L, W, H] with cells = [nx, ny, nz]")
+        if self.box is not None and self.cells is None:
+            raise ValueError("box needs cells = [nx, ny, nz]")
+        return self
+
+
+class MaterialSection(_Strict):
+    model: Literal["linear", "stvk", "neohookean", "neohookean_incompressible", "corotated"]
+    E: Optional[float] = Field(None, description="Young's modulus [Pa]")
+    nu: Optional[float] = Field(None, description="Poisson ratio")
+    C1: Optional[float] = Field(None, description="neo-Hookean C1 [Pa]")
+    kappa: Optional[float] = Field(None, description="bulk penalty [Pa]")
+    density: float = Field(0.0, ge=0, description="kg/m^3")
+
+
+class FixSection(_Strict):
+    box: Box
+    components: list[Literal["x", "y", "z"]] = ["x", "y", "z"]
+
+
+class LoadSection(_Strict):
+    type: Literal["point", "traction", "gravity"]
+    box: Optional[Box] = None
+    total: Optional[Vec3] = None
+    point: Optional[Vec3] = None
+    radius: Optional[float] = Field(None, gt=0)
+    g: Vec3 = (0.0, 0.0, -9.81)
+
+    @model_validator(mode="after")
+    def _needed(self):
+        need = {"traction": ("box", "total"), "point": ("point", "total", "radius"), "gravity": ()}[self.type]
+        missing = [k for k in need if getattr(self, k) is None]
+        if missing:
+            raise ValueError(f"a {self.type} load needs {', '.join(missing)}")
+        return self
+
+
+class ProbeSection(_Strict):
+    point: Vec3
+
+
+class FemSection(_Strict):
+    element: Literal["P1", "P2"] = "P2"
+
+
+class SolverSection(_Strict):
+    steps: int = Field(1, ge=1)
+    tol: float = Field(1e-10, gt=0)
+    max_iter: int = Field(30, ge=1)
+
+
+class FemConfig(_Strict):
+    """Top level of a `physar fem solve` file."""
+
+    mesh: MeshSection
+    material: MaterialSection
+    fix: list[FixSection] = []
+    load: list[LoadSection] = []
+    probe: list[ProbeSection] = []
+    fem: FemSection = FemSection()
+    solver: SolverSection = SolverSection()
+
+
+def format_validation_error(exc: ValidationError, source: str, model: type[BaseModel]) -> str:
+    """One line naming the file, the table/key and the problem."""
+    e = exc.errors()[0]
+    loc = [str(p) for p in e["loc"]]
+    where = ".".join(loc) if loc else "(top level)"
+    table = ".".join(p for p in loc[:-1] if not p.isdigit()) or "top level"
+    kind = e["type"]
+    if kind == "extra_forbidden":
+        allowed = _allowed_keys(model, loc[:-1])
+        hint = f" (allowed: {', '.join(allowed)})" if allowed else ""
+        return f"{source}: unknown key {loc[-1]!r} in [{table}]{hint}"
+    if kind == "missing":
+        return f"{source}: missing key {loc[-1]!r} in [{table}]"
+    if kind == "literal_error":
+        return f"{source}: {where} = {e.get('input')!r} is not allowed; {e['msg'].lower()}"
+    msg = e["msg"].removeprefix("Value error, ")
+    if kind == "value_error":
+        return f"{source}: [{where}] {msg}"
+    return f"{source}: {where}: {msg} (got {e.get('input')!r})"
+
+
+def _allowed_keys(model: type[BaseModel], path: list[str]) -> list[str]:
+    cur = model
+    for p in path:
+        if p.isdigit():
+            continue
+        field_ = cur.model_fields.get(p)
+        if field_ is None:
+            return []
+        ann = field_.annotation
+        args = getattr(ann, "__args__", ())
+        cand = [a for a in (ann, *args) if isinstance(a, type) and issubclass(a, BaseModel)]
+        if not cand:
+            return []
+        cur = cand[0]
+    return list(cur.model_fields)
+
+
+def read_toml(path: str | Path) -> dict:
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"config file not found: {path}")
+    try:
+        return tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+
+
+def parse_config(data: dict, source: str = "config", model: type[BaseModel] = FemConfig):
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(format_validation_error(exc, source, model)) from None
+
+
+def load_config(path: str | Path, model: type[BaseModel] = FemConfig):
+    """Read and validate a TOML problem file (any `model` deriving from FemConfig)."""
+    cfg = parse_config(read_toml(path), str(path), model)
+    cfg._base_dir = Path(path).resolve().parent  # type: ignore[attr-defined]
+    return cfg
+
+
+@dataclass
+class Problem:
+    """A static problem built from a FemConfig."""
+
+    space: FESpace
+    model: ElasticModel
+    f_ext: np.ndarray
+    fixed: np.ndarray
+    probes: np.ndarray  # (p, 3)
+    config: FemConfig
+
+
+def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
+    if section.file is not None:
+        p = Path(section.file)
+        if not p.is_absolute() and base_dir is not None:
+            p = base_dir / p
+        mesh = read_mesh(p, kind="tet")
+        if not isinstance(mesh, TetMesh):  # pragma: no cover - read_mesh(kind="tet") guarantees it
+            raise ConfigError(f"{p}: not a tetrahedral mesh")
+        return mesh
+    return box_mesh(section.box, section.cells)
+
+
+def build_problem(cfg: FemConfig, base_dir: Path | None = None) -> Problem:
+    base_dir = base_dir or getattr(cfg, "_base_dir", None)
+    mesh = build_mesh(cfg.mesh, base_dir)
+    space = FESpace(mesh, cfg.fem.element)
+    mat = cfg.material
+    params = {k: v for k, v in mat.model_dump().items() if k not in ("model", "density") and v is not None}
+    try:
+        material = make_material(mat.model, **params)
+    except ConfigError as exc:
+        raise ConfigError(f"[material] {exc}") from None
+    model = ElasticModel(space, material, density=mat.density)
+    fixed = np.unique(
+        np.concatenate(
+            [fixed_dofs(space, box=f.box, components="".join(f.components)) for f in cfg.fix]
+            or [np.zeros(0, dtype=np.int64)]
+        )
+    ).astype(np.int64)
+    for i, f in enumerate(cfg.fix):
+        if len(fixed_dofs(space, box=f.box)) == 0:
+            raise ConfigError(f"[[fix]] #{i + 1}: no node lies in box {list(map(list, f.box))}")
+    f_ext = np.zeros(space.n_dofs)
+    for i, ld in enumerate(cfg.load):
+        try:
+            if ld.type == "traction":
+                f_ext += traction_load(space, ld.box, ld.total)
+            elif ld.type == "point":
+                f_ext += point_load(space, ld.point, ld.total, ld.radius)
+            else:
+                if mat.density <= 0:
+                    raise ConfigError("a gravity load needs [material] density > 0")
+                f_ext += gravity_load(space, mat.density, ld.g)
+        except ConfigError as exc:
+            raise ConfigError(f"[[load]] #{i + 1}: {exc}") from None
+    probes = np.array([p.point for p in cfg.probe], dtype=float).reshape(-1, 3)
+    return Problem(space, model, f_ext, fixed, probes, cfg)
+
+
+@dataclass
+class FemResult:
+    problem: Problem
+    static: StaticResult
+    von_mises: np.ndarray  # per element [Pa]
+
+    def summary(self) -> dict:
+        u = self.static.u.reshape(-1, 3)
+        probes = [
+            {"point": p.tolist(), "u": probe(self.problem.space, self.static.u, p).tolist()}
+            for p in self.problem.probes
+        ]
+        return {
+            "max_displacement": float(np.linalg.norm(u, axis=1).max()),
+            "probes": probes,
+            "newton_iterations": list(self.static.newton_iterations),
+            "max_von_mises": float(self.von_mises.max()),
+            "dofs": int(self.problem.space.n_dofs),
+            "elements": int(self.problem.space.mesh.n_cells),
+            "element": self.problem.space.element,
+            "material": self.problem.model.material.name,
+        }
+
+    def point_data(self) -> dict:
+        sp_ = self.problem.space
+        u = sp_.vertex_values(self.static.u)
+        return {
+            "displacement": u,
+            "displacement_magnitude": np.linalg.norm(u, axis=1),
+            "von_mises": nodal_average(sp_, self.von_mises),
+        }
+
+
+def solve_problem(problem: Problem, progress: Callable[[int, int], None] | None = None) -> FemResult:
+    s = problem.config.solver
+    for p in problem.probes:  # fail before the solve if a probe is outside the mesh
+        probe(problem.space, np.zeros(problem.space.n_dofs), p)
+    res = solve_static(problem.model, problem.f_ext, problem.fixed, steps=s.steps, tol=s.tol,
+                       max_iter=s.max_iter, progress=progress)
+    return FemResult(problem, res, von_mises(problem.model, res.u))
+
+
+def run_config(path: str | Path, progress=None) -> FemResult:
+    """Load a problem file, build and solve it (the Python equivalent of `physar fem solve`)."""
+    cfg = load_config(path)
+    try:
+        return solve_problem(build_problem(cfg), progress)
+    except PhysarError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise type(exc)(f"{path}: {exc}") from None
+
+
+__all__ = [
+    "FemConfig", "FemResult", "Problem", "build_mesh", "build_problem", "format_validation_error",
+    "load_config", "parse_config", "read_toml", "run_config", "solve_problem", "MATERIALS",
+]
