@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List
+from typing import Tuple
 
 import typer
 
@@ -16,8 +16,8 @@ mesh_app = typer.Typer(help="Create and convert meshes.", no_args_is_help=True)
 @mesh_app.command("box")
 @user_errors
 def box(
-    size: List[float] = typer.Option(..., "--size", help="L W H in metres", min=0),
-    cells: List[int] = typer.Option(..., "--cells", help="nx ny nz hexahedra (6 tets each)"),
+    size: Tuple[float, float, float] = typer.Option(..., "--size", help="L W H in metres"),
+    cells: Tuple[int, int, int] = typer.Option(..., "--cells", help="nx ny nz hexahedra (6 tets each)"),
     out: Path = typer.Option(..., "-o", "--out", help="output mesh (.vtu, .xdmf, .msh, .mesh)"),
     json_out: bool = typer.Option(False, "--json", help="print a JSON summary on stdout"),
 ) -> None:
