@@ -38,11 +38,14 @@ def probe(space: FESpace, u: np.ndarray, point: Sequence[float] | np.ndarray) ->
 
 
 def cauchy_stress(model, u: np.ndarray) -> np.ndarray:
-    """Cauchy stress sigma = P Fᵀ / J averaged over each element's quadrature points: (m, 3, 3) [Pa]."""
+    """Cauchy stress sigma = P Fᵀ / J (small-strain sigma for the linear material) averaged over each element's quadrature points: (m, 3, 3) [Pa]."""
     F = model.deformation_gradient(u)
     P = model.material.stress(F.reshape(-1, 3, 3)).reshape(F.shape)
-    J = np.linalg.det(F)
-    sig = np.einsum("mqij,mqkj->mqik", P, F) / J[..., None, None]
+    if model.material.linear:  # small strain: no distinction between stress measures
+        sig = P
+    else:
+        J = np.linalg.det(F)
+        sig = np.einsum("mqij,mqkj->mqik", P, F) / J[..., None, None]
     _, wdet = model._quad
     return np.einsum("mq,mqij->mij", wdet, sig) / wdet.sum(axis=1)[:, None, None]
 
