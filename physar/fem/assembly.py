@@ -51,6 +51,14 @@ class CSRPattern:
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
 
 
+def assemble_coo(cell_dofs: np.ndarray, element_matrices: np.ndarray, n: int) -> sp.csr_matrix:
+    """One-shot assembly through scipy's COO -> CSR (faster than building a reusable pattern)."""
+    nd = cell_dofs.shape[1]
+    rows = np.repeat(cell_dofs, nd, axis=1).ravel()
+    cols = np.tile(cell_dofs, (1, nd)).ravel()
+    return sp.coo_matrix((element_matrices.ravel(), (rows, cols)), shape=(n, n)).tocsr()
+
+
 class ElasticModel:
     """Hyperelastic body discretised on an FESpace (seed 000 §5; Lagrange P1/P2 tetrahedra).
 
@@ -66,6 +74,7 @@ class ElasticModel:
         self.material = material
         self.density = float(density)
         self._K_linear = None
+        self._n_assembled = 0
 
     # -- geometry at quadrature points ------------------------------------------------------------
     @cached_property
@@ -150,7 +159,12 @@ class ElasticModel:
         if self.linear and self._K_linear is not None:
             return self._K_linear
         blocks = [self.element_stiffness(u, sl) for sl in self._blocks()]
-        K = self.pattern.assemble(np.concatenate(blocks) if len(blocks) > 1 else blocks[0])
+        Ke = np.concatenate(blocks) if len(blocks) > 1 else blocks[0]
+        self._n_assembled += 1
+        if self._n_assembled == 1:  # the reusable pattern pays off from the second assembly on
+            K = assemble_coo(self.space.cell_dofs, Ke, self.n_dofs)
+        else:
+            K = self.pattern.assemble(Ke)
         if self.linear:
             self._K_linear = K
         return K
@@ -172,7 +186,7 @@ class ElasticModel:
             return sp.diags(np.repeat(nodal, 3)).tocsr()
         nen = self.space.nen
         Mfull = np.einsum("mab,ij->maibj", Me, np.eye(3)).reshape(-1, 3 * nen, 3 * nen)
-        return self.pattern.assemble(Mfull)
+        return assemble_coo(self.space.cell_dofs, Mfull, self.n_dofs)
 
     def volume_integrals(self) -> np.ndarray:
         """∫ N_a dV per node (n_nodes,) [m^3]: consistent weights for body forces."""

@@ -55,3 +55,14 @@ def test_mass_matrix_total_and_lumped(element):
     if element == "P2":
         M = model.mass_matrix()
         assert np.isclose(x @ M @ np.where(np.arange(space.n_dofs) % 3 == 0, 1.0, 0.0), 2700 * vol * 0.5, rtol=1e-12)
+
+
+def test_pattern_and_coo_assembly_agree():
+    from physar.fem import StVK
+
+    space = FESpace(distorted_box(2), "P2")
+    model = ElasticModel(space, StVK(1e6, 0.3))
+    u = 0.01 * np.random.default_rng(0).standard_normal(space.n_dofs)
+    K1 = model.tangent_stiffness(u)  # first assembly: COO
+    K2 = model.tangent_stiffness(u)  # later assemblies: cached CSR pattern + bincount
+    assert abs(K1 - K2).max() <= 1e-12 * abs(K1).max()
