@@ -32,6 +32,8 @@ class CSRPattern:
 
     def __init__(self, cell_dofs: np.ndarray, n: int):
         m, nd = cell_dofs.shape
+        if n < 2**31 - 1:  # scipy is several times faster with 32-bit indices
+            cell_dofs = cell_dofs.astype(np.int32)
         rows = np.repeat(cell_dofs, nd, axis=1).ravel()
         cols = np.tile(cell_dofs, (1, nd)).ravel()
         # CSR via a COO matrix whose data are entry ids; duplicates are summed, so use ones for the
@@ -54,6 +56,8 @@ class CSRPattern:
 def assemble_coo(cell_dofs: np.ndarray, element_matrices: np.ndarray, n: int) -> sp.csr_matrix:
     """One-shot assembly through scipy's COO -> CSR (faster than building a reusable pattern)."""
     nd = cell_dofs.shape[1]
+    if n < 2**31 - 1:  # scipy is several times faster with 32-bit indices
+        cell_dofs = cell_dofs.astype(np.int32)
     rows = np.repeat(cell_dofs, nd, axis=1).ravel()
     cols = np.tile(cell_dofs, (1, nd)).ravel()
     return sp.coo_matrix((element_matrices.ravel(), (rows, cols)), shape=(n, n)).tocsr()

@@ -16,7 +16,7 @@ from skfem.quadrature import get_quadrature
 from skfem.refdom import RefTet, RefTri
 
 from physar.errors import ConfigError
-from physar.geometry.mesh import TetMesh
+from physar.geometry.mesh import TetMesh, row_keys
 
 P2_EDGES = np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]], dtype=np.int64)
 N_NODES = {"P1": 4, "P2": 10}
@@ -67,7 +67,8 @@ def p2_nodes(mesh: TetMesh) -> tuple[np.ndarray, np.ndarray]:
     """P2 node coordinates (mesh points, then unique edge midpoints) and (m, 10) connectivity."""
     cells = mesh.cells
     edges = np.sort(cells[:, P2_EDGES].reshape(-1, 2), axis=1)
-    uniq, inv = np.unique(edges, axis=0, return_inverse=True)
+    _, first, inv = np.unique(row_keys(edges, mesh.n_points), return_index=True, return_inverse=True)
+    uniq = edges[first]
     mid = 0.5 * (mesh.points[uniq[:, 0]] + mesh.points[uniq[:, 1]])
     nodes = np.vstack([mesh.points, mid])
     conn = np.hstack([cells, mesh.n_points + inv.reshape(-1, 6)])

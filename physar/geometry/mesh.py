@@ -188,12 +188,27 @@ class BoundarySurface:
         return self.mesh.points[self.mesh.faces].mean(axis=1)
 
 
+def row_keys(rows: np.ndarray, n: int) -> np.ndarray:
+    """One integer per row of small non-negative integers < n (for fast 1-D np.unique).
+
+    Falls back to a structured void view when n ** width does not fit in 63 bits.
+    """
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    w = rows.shape[1]
+    if float(n) ** w < 2.0**63:
+        key = np.zeros(len(rows), dtype=np.int64)
+        for j in range(w):
+            key = key * n + rows[:, j]
+        return key
+    return rows.view(np.dtype((np.void, rows.dtype.itemsize * w))).ravel()
+
+
 def boundary_surface(mesh: TetMesh) -> BoundarySurface:
     """Faces that belong to exactly one tetrahedron, outward oriented (vectorised, O(m log m))."""
     cells = mesh.cells
     all_faces = cells[:, TET_FACES].reshape(-1, 3)  # (4m, 3), outward for each tet
-    key = np.sort(all_faces, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    _, inverse, counts = np.unique(row_keys(np.sort(all_faces, axis=1), mesh.n_points),
+                                   return_inverse=True, return_counts=True)
     inverse = inverse.ravel()
     is_bnd = counts[inverse] == 1
     if (counts > 2).any():
