@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Callable, Literal, Optional
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 
 from physar.errors import ConfigError, PhysarError
 from physar.fem.assembly import ElasticModel
@@ -100,6 +100,7 @@ class FemConfig(_Strict):
     probe: list[ProbeSection] = []
     fem: FemSection = FemSection()
     solver: SolverSection = SolverSection()
+    _base_dir: Optional[Path] = PrivateAttr(default=None)  # folder of the file, for relative paths
 
 
 def format_validation_error(exc: ValidationError, source: str, model: type[BaseModel]) -> str:
@@ -160,7 +161,8 @@ def parse_config(data: dict, source: str = "config", model: type[BaseModel] = Fe
 def load_config(path: str | Path, model: type[BaseModel] = FemConfig):
     """Read and validate a TOML problem file (any `model` deriving from FemConfig)."""
     cfg = parse_config(read_toml(path), str(path), model)
-    cfg._base_dir = Path(path).resolve().parent  # type: ignore[attr-defined]
+    if isinstance(cfg, FemConfig):
+        cfg._base_dir = Path(path).resolve().parent
     return cfg
 
 
@@ -189,7 +191,7 @@ def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
 
 
 def build_problem(cfg: FemConfig, base_dir: Path | None = None) -> Problem:
-    base_dir = base_dir or getattr(cfg, "_base_dir", None)
+    base_dir = base_dir or cfg._base_dir
     mesh = build_mesh(cfg.mesh, base_dir)
     space = FESpace(mesh, cfg.fem.element)
     mat = cfg.material

@@ -1,6 +1,5 @@
 """Loads, stresses and solver paths against closed forms."""
 
-import warnings
 
 import numpy as np
 import pytest
