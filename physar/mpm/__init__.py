@@ -1,0 +1,11 @@
+"""Differentiable MLS-MPM (seed 002, §3.2, §4.2-4.3): Warp kernels, expert and neural-residual laws.
+
+``MPMModel`` (constants) + ``MPMState`` (x, v, C, F) + ``MPMSolver.step(state_in, state_out, control, dt)``
+for forward runs; :mod:`physar.mpm.torch_bridge` for gradients through PyTorch.
+"""
+
+from physar.mpm.model import Control, MPMModel, MPMSolver, MPMState, diagnostics
+from physar.mpm.scene import build_model, load_scene, parse_scene
+
+__all__ = ["Control", "MPMModel", "MPMSolver", "MPMState", "build_model", "diagnostics", "load_scene",
+           "parse_scene"]

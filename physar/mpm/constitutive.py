@@ -1,0 +1,177 @@
+"""Expert constitutive laws and plastic return maps as Warp functions (seed 002, §3.2, Alg. 1 lines 3 and 5).
+
+All functions work in float64 and return the **Kirchhoff** stress tau = J sigma = P F^T (Pa); the
+MLS-MPM force of Alg. 1 uses tau directly (Hu et al. 2018, Eq. 18).  The Cauchy stress of the seed
+is sigma = tau / J.
+
+Elastic laws (``ELASTIC_*`` codes), with Lamé parameters mu = E / (2 (1 + nu)),
+lambda = E nu / ((1 + nu)(1 - 2 nu)):
+
+* fixed-corotated (Stomakhin et al. 2012): tau = 2 mu (F - R) F^T + lambda (J - 1) J I, R = polar(F);
+* Kirchhoff–Saint Venant (StVK): tau = F (2 mu G + lambda tr(G) I) F^T, G = (F^T F - I) / 2;
+* compressible neo-Hookean: tau = mu (F F^T - I) + lambda log(J) I;
+* Hencky (StVK in logarithmic strain, used with the Hencky-strain return maps):
+  tau = U (2 mu log S + lambda tr(log S) I) U^T for F = U S V^T.
+
+Plastic return maps (``PLASTIC_*`` codes), F = P(F_trial) of Alg. 1 line 5, acting on the singular values
+S of F_trial = U S V^T:
+
+* identity: F = F_trial;
+* von Mises (metal): Hencky strain e = log S, deviatoric part e^ = e - tr(e)/3; if
+  2 mu ||e^|| > sqrt(2/3) sigma_Y the deviatoric strain is scaled back onto the yield surface;
+* Drucker–Prager (sand, Klar et al. 2016, Alg. 2): tr(e) > 0 -> S = I; else
+  dgamma = ||e^|| + (3 lambda + 2 mu) / (2 mu) tr(e) alpha, alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi));
+  if dgamma > 0, e <- e - dgamma e^ / ||e^||;
+* snow (Stomakhin et al. 2013): S clamped to [1 - theta_c, 1 + theta_s], the removed volume goes into the
+  plastic Jacobian J_p, and the Lamé parameters harden as exp(xi (1 - J_p)).
+
+Per-particle plastic parameters are packed into a vec4d ``pp``: von Mises (sigma_Y [Pa], -, -, -),
+Drucker–Prager (alpha [-], -, -, -), snow (theta_c, theta_s, xi, -).
+"""
+
+from __future__ import annotations
+
+import math
+
+import warp as wp
+
+ELASTIC_FIXED_COROTATED = 0
+ELASTIC_STVK = 1
+ELASTIC_NEOHOOKEAN = 2
+ELASTIC_HENCKY = 3
+
+PLASTIC_IDENTITY = 0
+PLASTIC_VON_MISES = 1
+PLASTIC_DRUCKER_PRAGER = 2
+PLASTIC_SNOW = 3
+
+ELASTIC_CODES = {
+    "fixed_corotated": ELASTIC_FIXED_COROTATED,
+    "stvk": ELASTIC_STVK,
+    "neohookean": ELASTIC_NEOHOOKEAN,
+    "hencky": ELASTIC_HENCKY,
+}
+PLASTIC_CODES = {
+    "identity": PLASTIC_IDENTITY,
+    "von_mises": PLASTIC_VON_MISES,
+    "drucker_prager": PLASTIC_DRUCKER_PRAGER,
+    "snow": PLASTIC_SNOW,
+}
+
+_f = wp.float64
+SV_MIN = wp.constant(wp.float64(1.0e-6))  # smallest singular value fed to log (guards inverted elements)
+
+
+def drucker_prager_alpha(friction_angle_deg: float) -> float:
+    """alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi)) of Klar et al. 2016 for a friction angle phi (degrees)."""
+    s = math.sin(math.radians(friction_angle_deg))
+    return math.sqrt(2.0 / 3.0) * 2.0 * s / (3.0 - s)
+
+
+@wp.func
+def lame(E: wp.float64, nu: wp.float64):
+    mu = E / (_f(2.0) * (_f(1.0) + nu))
+    la = E * nu / ((_f(1.0) + nu) * (_f(1.0) - _f(2.0) * nu))
+    return mu, la
+
+
+@wp.func
+def kirchhoff_stress(
+    F: wp.mat33d, E: wp.float64, nu: wp.float64, elastic: wp.int32, hardening: wp.float64
+) -> wp.mat33d:
+    """Kirchhoff stress tau(F) (Pa) of the elastic law ``elastic``; Lamé parameters scaled by ``hardening``."""
+    mu, la = lame(E, nu)
+    mu = mu * hardening
+    la = la * hardening
+    I = wp.identity(n=3, dtype=wp.float64)
+    J = wp.determinant(F)
+    tau = wp.mat33d()
+    if elastic == 0:
+        U = wp.mat33d()
+        s = wp.vec3d()
+        V = wp.mat33d()
+        wp.svd3(F, U, s, V)
+        R = U * wp.transpose(V)
+        tau = _f(2.0) * mu * (F - R) * wp.transpose(F) + la * (J - _f(1.0)) * J * I
+    elif elastic == 1:
+        G = _f(0.5) * (wp.transpose(F) * F - I)
+        S = _f(2.0) * mu * G + la * wp.trace(G) * I
+        tau = F * S * wp.transpose(F)
+    elif elastic == 2:
+        Jc = wp.max(J, SV_MIN)
+        tau = mu * (F * wp.transpose(F) - I) + la * wp.log(Jc) * I
+    else:
+        U = wp.mat33d()
+        s = wp.vec3d()
+        V = wp.mat33d()
+        wp.svd3(F, U, s, V)
+        e = wp.vec3d(
+            wp.log(wp.max(s[0], SV_MIN)), wp.log(wp.max(s[1], SV_MIN)), wp.log(wp.max(s[2], SV_MIN))
+        )
+        tr = e[0] + e[1] + e[2]
+        d = _f(2.0) * mu * e + la * tr * wp.vec3d(_f(1.0), _f(1.0), _f(1.0))
+        tau = U * wp.diag(d) * wp.transpose(U)
+    return tau
+
+
+@wp.func
+def singular_values(F: wp.mat33d) -> wp.vec3d:
+    U = wp.mat33d()
+    s = wp.vec3d()
+    V = wp.mat33d()
+    wp.svd3(F, U, s, V)
+    return s
+
+
+@wp.func
+def hencky_project(
+    F: wp.mat33d, E: wp.float64, nu: wp.float64, plastic: wp.int32, pp: wp.vec4d
+) -> wp.mat33d:
+    """Return map of von Mises (plastic == 1) or Drucker–Prager (plastic == 2) on the Hencky strain."""
+    U = wp.mat33d()
+    s = wp.vec3d()
+    V = wp.mat33d()
+    wp.svd3(F, U, s, V)
+    mu, la = lame(E, nu)
+    e = wp.vec3d(wp.log(wp.max(s[0], SV_MIN)), wp.log(wp.max(s[1], SV_MIN)), wp.log(wp.max(s[2], SV_MIN)))
+    tr = e[0] + e[1] + e[2]
+    ones = wp.vec3d(_f(1.0), _f(1.0), _f(1.0))
+    eh = e - tr / _f(3.0) * ones
+    nrm = wp.sqrt(wp.dot(eh, eh) + _f(1.0e-30))
+    out = F
+    if plastic == 1:
+        sy = pp[0] * wp.sqrt(_f(2.0) / _f(3.0))
+        if _f(2.0) * mu * nrm > sy:
+            e2 = e - (nrm - sy / (_f(2.0) * mu)) / nrm * eh
+            out = U * wp.diag(wp.vec3d(wp.exp(e2[0]), wp.exp(e2[1]), wp.exp(e2[2]))) * wp.transpose(V)
+    else:
+        alpha = pp[0]
+        if tr > _f(0.0):
+            out = U * wp.transpose(V)
+        else:
+            dg = nrm + (_f(3.0) * la + _f(2.0) * mu) / (_f(2.0) * mu) * tr * alpha
+            if dg > _f(0.0):
+                e2 = e - dg / nrm * eh
+                out = U * wp.diag(wp.vec3d(wp.exp(e2[0]), wp.exp(e2[1]), wp.exp(e2[2]))) * wp.transpose(V)
+    return out
+
+
+@wp.func
+def snow_project(F: wp.mat33d, pp: wp.vec4d) -> wp.mat33d:
+    """Snow return map: singular values clamped to [1 - theta_c, 1 + theta_s] (Stomakhin et al. 2013)."""
+    U = wp.mat33d()
+    s = wp.vec3d()
+    V = wp.mat33d()
+    wp.svd3(F, U, s, V)
+    lo = _f(1.0) - pp[0]
+    hi = _f(1.0) + pp[1]
+    c = wp.vec3d(wp.clamp(s[0], lo, hi), wp.clamp(s[1], lo, hi), wp.clamp(s[2], lo, hi))
+    return U * wp.diag(c) * wp.transpose(V)
+
+
+@wp.func
+def hardening_factor(Jp: wp.float64, plastic: wp.int32, pp: wp.vec4d) -> wp.float64:
+    h = _f(1.0)
+    if plastic == 3:
+        h = wp.exp(pp[2] * (_f(1.0) - Jp))
+    return h

@@ -1,0 +1,517 @@
+"""MLS-MPM with APIC transfers and quadratic B-splines in 3-D (seed 002, §3.2, Alg. 1), in NVIDIA Warp.
+
+Newton-style split: :class:`MPMModel` holds the constants (grid, particle masses/volumes, materials,
+boundaries, gravity, time step), :class:`MPMState` the per-particle state s = {x, v, C, F} (+ the plastic
+Jacobian J_p of the snow law), and :class:`MPMSolver` advances ``step(state_in, state_out, control, dt)`` by one
+substep of Alg. 1:
+
+1. sigma = E(F, E, nu)                         (:func:`stress_kernel`, Kirchhoff stress tau = J sigma)
+2. P2G: m_i = sum_p w_ip m_p,  (m v)_i = sum_p w_ip [m_p v_p + (m_p C_p - dt V_p 4/dx^2 tau_p)(x_i - x_p)
+   + dt f_ex,p]                                 (MLS-MPM, Hu et al. 2018, Eq. 29; f_ex of seed Eq. 7)
+3. grid: v_i = (m v)_i / m_i + dt g, then wall/ground boundary conditions
+4. G2P: v_p = sum_i w_ip v_i,  C_p = 4/dx^2 sum_i w_ip v_i (x_i - x_p)^T,  F_trial = (I + dt C_p) F_p,
+   x_p += dt v_p                               (APIC, Jiang et al. 2015)
+5. F = P(F_trial)                               (:mod:`physar.mpm.constitutive`)
+
+Units: SI (m, s, kg, Pa).  All arrays are float64.  The grid covers the cube [0, size]^3 with ``pad``
+extra nodes on each side; walls sit at the faces of the cube (the ground is the face z = 0).  Particles
+are clamped to the padded grid so that they can never index outside it (a NaN state is reported by
+:meth:`MPMSolver.simulate_frame` as a :class:`physar.errors.SolverError`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from physar.errors import ConfigError, SolverError
+from physar.mpm.actuation import pd_force
+from physar.mpm.constitutive import (
+    hardening_factor,
+    hencky_project,
+    kirchhoff_stress,
+    singular_values,
+    snow_project,
+)
+
+wp.config.quiet = True
+wp.init()
+
+_f = wp.float64
+
+BC_NONE, BC_STICKY, BC_SLIP, BC_SEPARATE = 0, 1, 2, 3
+BC_CODES = {"none": BC_NONE, "sticky": BC_STICKY, "slip": BC_SLIP, "separate": BC_SEPARATE}
+WALLS = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")  # z_min is the ground
+
+
+# ----------------------------------------------------------------------------------------------- kernels
+@wp.func
+def _base(xp: wp.vec3d, origin: wp.float64, inv_dx: wp.float64, nmax: wp.int32) -> wp.vec3i:
+    """Lower-left node of the 3x3x3 quadratic B-spline stencil, clamped to the grid."""
+    g = (xp - wp.vec3d(origin, origin, origin)) * inv_dx
+    return wp.vec3i(
+        wp.clamp(wp.int32(wp.floor(g[0] - _f(0.5))), 0, nmax),
+        wp.clamp(wp.int32(wp.floor(g[1] - _f(0.5))), 0, nmax),
+        wp.clamp(wp.int32(wp.floor(g[2] - _f(0.5))), 0, nmax),
+    )
+
+
+@wp.func
+def _frac(xp: wp.vec3d, origin: wp.float64, inv_dx: wp.float64, b: wp.vec3i) -> wp.vec3d:
+    g = (xp - wp.vec3d(origin, origin, origin)) * inv_dx
+    return g - wp.vec3d(wp.float64(b[0]), wp.float64(b[1]), wp.float64(b[2]))
+
+
+@wp.func
+def _weights(fx: wp.vec3d) -> wp.mat33d:
+    """Quadratic B-spline weights; row r holds the weights of node offset r along x, y, z."""
+    h = wp.vec3d(_f(1.5), _f(1.5), _f(1.5)) - fx
+    a = fx - wp.vec3d(_f(1.0), _f(1.0), _f(1.0))
+    b = fx - wp.vec3d(_f(0.5), _f(0.5), _f(0.5))
+    w0 = _f(0.5) * wp.cw_mul(h, h)
+    w1 = wp.vec3d(_f(0.75), _f(0.75), _f(0.75)) - wp.cw_mul(a, a)
+    w2 = _f(0.5) * wp.cw_mul(b, b)
+    return wp.matrix_from_rows(w0, w1, w2)
+
+
+@wp.kernel
+def stress_kernel(
+    F: wp.array(dtype=wp.mat33d),
+    Jp: wp.array(dtype=wp.float64),
+    E: wp.array(dtype=wp.float64),
+    nu: wp.array(dtype=wp.float64),
+    elastic: wp.array(dtype=wp.int32),
+    plastic: wp.array(dtype=wp.int32),
+    pp: wp.array(dtype=wp.vec4d),
+    tau: wp.array(dtype=wp.mat33d),
+):
+    p = wp.tid()
+    h = hardening_factor(Jp[p], plastic[p], pp[p])
+    tau[p] = kirchhoff_stress(F[p], E[p], nu[p], elastic[p], h)
+
+
+@wp.kernel
+def singular_values_kernel(F: wp.array(dtype=wp.mat33d), s: wp.array(dtype=wp.vec3d)):
+    p = wp.tid()
+    s[p] = singular_values(F[p])
+
+
+@wp.kernel
+def p2g_kernel(
+    x: wp.array(dtype=wp.vec3d),
+    v: wp.array(dtype=wp.vec3d),
+    C: wp.array(dtype=wp.mat33d),
+    tau: wp.array(dtype=wp.mat33d),
+    mass: wp.array(dtype=wp.float64),
+    vol: wp.array(dtype=wp.float64),
+    omega: wp.array(dtype=wp.float64),
+    x_ref: wp.array(dtype=wp.vec3d),
+    v_ref: wp.array(dtype=wp.vec3d),
+    kp: wp.float64,
+    kd: wp.float64,
+    origin: wp.float64,
+    dx: wp.float64,
+    dt: wp.float64,
+    nmax: wp.int32,
+    grid_mv: wp.array3d(dtype=wp.vec3d),
+    grid_m: wp.array3d(dtype=wp.float64),
+):
+    p = wp.tid()
+    inv_dx = _f(1.0) / dx
+    b = _base(x[p], origin, inv_dx, nmax)
+    fx = _frac(x[p], origin, inv_dx, b)
+    W = _weights(fx)
+    m = mass[p]
+    affine = (-dt * vol[p] * _f(4.0) * inv_dx * inv_dx) * tau[p] + m * C[p]
+    f = pd_force(m, omega[p], x[p], v[p], x_ref[p], v_ref[p], kp, kd)
+    mom = m * v[p] + dt * f
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                ii = b[0] + wp.int32(i)
+                jj = b[1] + wp.int32(j)
+                kk = b[2] + wp.int32(k)
+                dpos = (wp.vec3d(wp.float64(i), wp.float64(j), wp.float64(k)) - fx) * dx
+                wgt = W[i, 0] * W[j, 1] * W[k, 2]
+                wp.atomic_add(grid_mv, ii, jj, kk, wgt * (mom + affine * dpos))
+                wp.atomic_add(grid_m, ii, jj, kk, wgt * m)
+
+
+@wp.func
+def _apply_bc(v: wp.vec3d, n: wp.vec3d, code: wp.int32, mu: wp.float64) -> wp.vec3d:
+    """Wall condition for inward normal n: sticky v=0; slip v.n=0; separate v.n>=0; Coulomb friction mu."""
+    out = v
+    vn = wp.dot(v, n)
+    if code == 1:
+        out = wp.vec3d()
+    elif code == 2 or (code == 3 and vn < _f(0.0)):
+        vt = v - vn * n
+        if vn < _f(0.0) and mu > _f(0.0):
+            vtn = wp.length(vt)
+            if vtn <= -mu * vn:
+                vt = wp.vec3d()
+            else:
+                vt = vt * (_f(1.0) + mu * vn / vtn)
+        out = vt
+    return out
+
+
+@wp.kernel
+def grid_update_kernel(
+    grid_mv: wp.array3d(dtype=wp.vec3d),
+    grid_m: wp.array3d(dtype=wp.float64),
+    gravity: wp.vec3d,
+    dt: wp.float64,
+    lo: wp.int32,
+    hi: wp.int32,
+    bc: wp.array(dtype=wp.int32),
+    friction: wp.array(dtype=wp.float64),
+    grid_v: wp.array3d(dtype=wp.vec3d),
+):
+    i, j, k = wp.tid()
+    m = grid_m[i, j, k]
+    v = wp.vec3d()
+    if m > _f(1.0e-14):
+        v = grid_mv[i, j, k] / m + dt * gravity
+        if i <= lo:
+            v = _apply_bc(v, wp.vec3d(_f(1.0), _f(0.0), _f(0.0)), bc[0], friction[0])
+        if i >= hi:
+            v = _apply_bc(v, wp.vec3d(_f(-1.0), _f(0.0), _f(0.0)), bc[1], friction[1])
+        if j <= lo:
+            v = _apply_bc(v, wp.vec3d(_f(0.0), _f(1.0), _f(0.0)), bc[2], friction[2])
+        if j >= hi:
+            v = _apply_bc(v, wp.vec3d(_f(0.0), _f(-1.0), _f(0.0)), bc[3], friction[3])
+        if k <= lo:
+            v = _apply_bc(v, wp.vec3d(_f(0.0), _f(0.0), _f(1.0)), bc[4], friction[4])
+        if k >= hi:
+            v = _apply_bc(v, wp.vec3d(_f(0.0), _f(0.0), _f(-1.0)), bc[5], friction[5])
+    grid_v[i, j, k] = v
+
+
+@wp.kernel
+def g2p_kernel(
+    grid_v: wp.array3d(dtype=wp.vec3d),
+    x: wp.array(dtype=wp.vec3d),
+    F: wp.array(dtype=wp.mat33d),
+    origin: wp.float64,
+    dx: wp.float64,
+    dt: wp.float64,
+    nmax: wp.int32,
+    x_lo: wp.float64,
+    x_hi: wp.float64,
+    x_out: wp.array(dtype=wp.vec3d),
+    v_out: wp.array(dtype=wp.vec3d),
+    C_out: wp.array(dtype=wp.mat33d),
+    F_trial: wp.array(dtype=wp.mat33d),
+):
+    p = wp.tid()
+    inv_dx = _f(1.0) / dx
+    b = _base(x[p], origin, inv_dx, nmax)
+    fx = _frac(x[p], origin, inv_dx, b)
+    W = _weights(fx)
+    nv = wp.vec3d()
+    nC = wp.mat33d()
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                ii = b[0] + wp.int32(i)
+                jj = b[1] + wp.int32(j)
+                kk = b[2] + wp.int32(k)
+                dpos = (wp.vec3d(wp.float64(i), wp.float64(j), wp.float64(k)) - fx) * dx
+                wgt = W[i, 0] * W[j, 1] * W[k, 2]
+                gv = grid_v[ii, jj, kk]
+                nv = nv + wgt * gv
+                nC = nC + (_f(4.0) * inv_dx * inv_dx * wgt) * wp.outer(gv, dpos)
+    v_out[p] = nv
+    C_out[p] = nC
+    F_trial[p] = (wp.identity(n=3, dtype=wp.float64) + dt * nC) * F[p]
+    xn = x[p] + dt * nv
+    x_out[p] = wp.vec3d(wp.clamp(xn[0], x_lo, x_hi), wp.clamp(xn[1], x_lo, x_hi), wp.clamp(xn[2], x_lo, x_hi))
+
+
+@wp.kernel
+def plastic_kernel(
+    F_trial: wp.array(dtype=wp.mat33d),
+    Jp: wp.array(dtype=wp.float64),
+    E: wp.array(dtype=wp.float64),
+    nu: wp.array(dtype=wp.float64),
+    plastic: wp.array(dtype=wp.int32),
+    pp: wp.array(dtype=wp.vec4d),
+    F_out: wp.array(dtype=wp.mat33d),
+    Jp_out: wp.array(dtype=wp.float64),
+):
+    p = wp.tid()
+    Ft = F_trial[p]
+    code = plastic[p]
+    Fn = Ft
+    J = Jp[p]
+    if code == 1 or code == 2:
+        Fn = hencky_project(Ft, E[p], nu[p], code, pp[p])
+    elif code == 3:
+        Fn = snow_project(Ft, pp[p])
+        J = J * wp.determinant(Ft) / wp.determinant(Fn)
+    F_out[p] = Fn
+    Jp_out[p] = J
+
+
+# ----------------------------------------------------------------------------------------------- objects
+@dataclass
+class MPMModel:
+    """Static description of an MPM scene (SI units).
+
+    ``size`` (m) is the side of the simulated cube [0, size]^3, ``resolution`` the number of grid cells per
+    side (dx = size / resolution), ``dt`` the substep (s) and ``substeps`` the substeps per frame.  Per-particle
+    arrays: ``mass`` (kg), ``volume`` (m^3), ``E`` (Pa), ``nu``, ``elastic``/``plastic`` codes of
+    :mod:`physar.mpm.constitutive`, ``plastic_params`` (N, 4), ``body`` (index of the body it came from).
+    ``walls`` maps each of x_min … z_max to none | sticky | slip | separate and ``friction`` to a Coulomb
+    coefficient (used for slip/separate walls).
+    """
+
+    size: float
+    resolution: int
+    dt: float
+    substeps: int
+    mass: np.ndarray
+    volume: np.ndarray
+    E: np.ndarray
+    nu: np.ndarray
+    elastic: np.ndarray
+    plastic: np.ndarray
+    plastic_params: np.ndarray
+    body: np.ndarray
+    gravity: tuple = (0.0, 0.0, -9.81)
+    walls: dict = field(default_factory=lambda: {w: "slip" for w in WALLS})
+    friction: dict = field(default_factory=lambda: {w: 0.0 for w in WALLS})
+    pad: int = 3
+
+    def __post_init__(self):
+        n = len(self.mass)
+        if n == 0:
+            raise ConfigError("MPM model has no particles (every body is empty or outside the domain)")
+        if self.resolution < 4:
+            raise ConfigError(f"grid.resolution = {self.resolution}: must be >= 4")
+        if not (self.size > 0 and self.dt > 0 and self.substeps >= 1):
+            raise ConfigError(f"size={self.size}, dt={self.dt}, substeps={self.substeps} must be positive")
+        for name in ("mass", "volume", "E", "nu"):
+            a = np.asarray(getattr(self, name), dtype=np.float64)
+            if a.shape != (n,) or not np.all(np.isfinite(a)):
+                raise ConfigError(f"MPM model: '{name}' must be {n} finite numbers")
+            setattr(self, name, a)
+        if np.any(self.E <= 0) or np.any((self.nu <= -1) | (self.nu >= 0.5)):
+            raise ConfigError("MPM model: need E > 0 and -1 < nu < 0.5")
+        for w in self.walls:
+            if w not in WALLS or self.walls[w] not in BC_CODES:
+                raise ConfigError(f"boundary wall '{w}' = '{self.walls[w]}': walls are {WALLS}, "
+                                  f"types {sorted(BC_CODES)}")
+        self.elastic = np.asarray(self.elastic, dtype=np.int32)
+        self.plastic = np.asarray(self.plastic, dtype=np.int32)
+        self.plastic_params = np.asarray(self.plastic_params, dtype=np.float64).reshape(n, 4)
+        self.body = np.asarray(self.body, dtype=np.int32)
+        self._wp = None
+
+    # grid geometry
+    @property
+    def n_particles(self) -> int:
+        return len(self.mass)
+
+    @property
+    def dx(self) -> float:
+        return self.size / self.resolution
+
+    @property
+    def n_grid(self) -> int:
+        return self.resolution + 2 * self.pad + 1
+
+    @property
+    def origin(self) -> float:
+        return -self.pad * self.dx
+
+    @property
+    def clamp_range(self) -> tuple[float, float]:
+        """Particles are kept in [lo, hi]^3 so that their 3x3x3 stencil stays on the grid."""
+        return self.origin + self.dx, self.origin + (self.n_grid - 2) * self.dx
+
+    @property
+    def frame_dt(self) -> float:
+        return self.dt * self.substeps
+
+    def warp_arrays(self) -> dict:
+        """Constant per-particle arrays on the Warp device (built once, cached)."""
+        if self._wp is None:
+            self._wp = {
+                "mass": wp.array(self.mass, dtype=wp.float64),
+                "volume": wp.array(self.volume, dtype=wp.float64),
+                "E": wp.array(self.E, dtype=wp.float64),
+                "nu": wp.array(self.nu, dtype=wp.float64),
+                "elastic": wp.array(self.elastic, dtype=wp.int32),
+                "plastic": wp.array(self.plastic, dtype=wp.int32),
+                "pp": wp.array(self.plastic_params, dtype=wp.vec4d),
+                "bc": wp.array([BC_CODES[self.walls.get(w, "slip")] for w in WALLS], dtype=wp.int32),
+                "friction": wp.array([float(self.friction.get(w, 0.0)) for w in WALLS], dtype=wp.float64),
+                "zero_omega": wp.zeros(self.n_particles, dtype=wp.float64),
+                "zero_vec": wp.zeros(self.n_particles, dtype=wp.vec3d),
+            }
+        return self._wp
+
+    def state(self, x: np.ndarray, v: np.ndarray | None = None) -> "MPMState":
+        """A state at positions x (N, 3) with velocities v, C = 0, F = I, J_p = 1."""
+        n = self.n_particles
+        x = np.asarray(x, dtype=np.float64).reshape(n, 3)
+        v = np.zeros((n, 3)) if v is None else np.broadcast_to(np.asarray(v, dtype=np.float64), (n, 3))
+        return MPMState.from_numpy(x, v, np.zeros((n, 3, 3)), np.tile(np.eye(3), (n, 1, 1)), np.ones(n))
+
+
+@dataclass
+class MPMState:
+    """Per-particle state s = {x (m), v (m/s), C (1/s), F (-)} of Alg. 1, plus the plastic Jacobian J_p."""
+
+    x: wp.array
+    v: wp.array
+    C: wp.array
+    F: wp.array
+    Jp: wp.array
+
+    @staticmethod
+    def from_numpy(x, v, C, F, Jp) -> "MPMState":
+        return MPMState(
+            wp.array(np.ascontiguousarray(x, dtype=np.float64), dtype=wp.vec3d),
+            wp.array(np.ascontiguousarray(v, dtype=np.float64), dtype=wp.vec3d),
+            wp.array(np.ascontiguousarray(C, dtype=np.float64), dtype=wp.mat33d),
+            wp.array(np.ascontiguousarray(F, dtype=np.float64), dtype=wp.mat33d),
+            wp.array(np.ascontiguousarray(Jp, dtype=np.float64), dtype=wp.float64),
+        )
+
+    def numpy(self) -> dict:
+        return {k: getattr(self, k).numpy() for k in ("x", "v", "C", "F", "Jp")}
+
+    def copy(self) -> "MPMState":
+        d = self.numpy()
+        return MPMState.from_numpy(d["x"], d["v"], d["C"], d["F"], d["Jp"])
+
+
+@dataclass
+class Control:
+    """PD actuation of seed Eq. (6)-(7): gate omega (N,), references x_ref, v_ref (N, 3), gains kp, kd."""
+
+    omega: np.ndarray
+    x_ref: np.ndarray
+    v_ref: np.ndarray
+    kp: float = 2.0e2
+    kd: float = 2.0e1
+
+    def warp(self):
+        return (
+            wp.array(np.asarray(self.omega, dtype=np.float64), dtype=wp.float64),
+            wp.array(np.asarray(self.x_ref, dtype=np.float64), dtype=wp.vec3d),
+            wp.array(np.asarray(self.v_ref, dtype=np.float64), dtype=wp.vec3d),
+        )
+
+
+class MPMSolver:
+    """Forward MLS-MPM substeps on preallocated buffers (no autodiff; see :mod:`physar.mpm.torch_bridge`)."""
+
+    def __init__(self, model: MPMModel):
+        self.model = model
+        n, g = model.n_particles, model.n_grid
+        self.tau = wp.zeros(n, dtype=wp.mat33d)
+        self.F_trial = wp.zeros(n, dtype=wp.mat33d)
+        self.grid_mv = wp.zeros((g, g, g), dtype=wp.vec3d)
+        self.grid_m = wp.zeros((g, g, g), dtype=wp.float64)
+        self.grid_v = wp.zeros((g, g, g), dtype=wp.vec3d)
+        self._ctrl_cache = None
+
+    def step(self, state_in: MPMState, state_out: MPMState, control: Control | None = None, dt: float | None = None):
+        """One substep of Alg. 1 from ``state_in`` into ``state_out`` (the two must not alias)."""
+        m = self.model
+        a = m.warp_arrays()
+        dt = float(m.dt if dt is None else dt)
+        n, g = m.n_particles, m.n_grid
+        if control is None:
+            omega, x_ref, v_ref, kp, kd = a["zero_omega"], a["zero_vec"], a["zero_vec"], 0.0, 0.0
+        else:
+            if self._ctrl_cache is None or self._ctrl_cache[0] is not control:
+                self._ctrl_cache = (control, control.warp())
+            omega, x_ref, v_ref = self._ctrl_cache[1]
+            kp, kd = control.kp, control.kd
+        nmax = g - 3
+        wp.launch(stress_kernel, n, inputs=[state_in.F, state_in.Jp, a["E"], a["nu"], a["elastic"], a["plastic"],
+                                            a["pp"]], outputs=[self.tau])
+        self.grid_mv.zero_()
+        self.grid_m.zero_()
+        wp.launch(p2g_kernel, n, inputs=[state_in.x, state_in.v, state_in.C, self.tau, a["mass"], a["volume"],
+                                         omega, x_ref, v_ref, kp, kd, m.origin, m.dx, dt, nmax],
+                  outputs=[self.grid_mv, self.grid_m])
+        wp.launch(grid_update_kernel, (g, g, g),
+                  inputs=[self.grid_mv, self.grid_m, wp.vec3d(*m.gravity), dt, m.pad, m.pad + m.resolution,
+                          a["bc"], a["friction"]], outputs=[self.grid_v])
+        lo, hi = m.clamp_range
+        wp.launch(g2p_kernel, n, inputs=[self.grid_v, state_in.x, state_in.F, m.origin, m.dx, dt, nmax, lo, hi],
+                  outputs=[state_out.x, state_out.v, state_out.C, self.F_trial])
+        wp.launch(plastic_kernel, n, inputs=[self.F_trial, state_in.Jp, a["E"], a["nu"], a["plastic"], a["pp"]],
+                  outputs=[state_out.F, state_out.Jp])
+
+    def simulate_frame(self, state: MPMState, scratch: MPMState, control: Control | None = None,
+                       check: bool = True) -> tuple[MPMState, MPMState]:
+        """T = ``model.substeps`` substeps; returns (new state, scratch) — the two buffers swap roles."""
+        a, b = state, scratch
+        for _ in range(self.model.substeps):
+            self.step(a, b, control)
+            a, b = b, a
+        if check and not np.all(np.isfinite(a.x.numpy())):
+            raise SolverError("MPM simulation diverged (non-finite particle positions): reduce time.substeps' "
+                              "dt (increase substeps) or stiffness")
+        return a, b
+
+
+# ----------------------------------------------------------------------------------------------- diagnostics
+def _lame_np(E, nu):
+    return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
+
+
+def elastic_energy_density(F: np.ndarray, E: np.ndarray, nu: np.ndarray, elastic: np.ndarray) -> np.ndarray:
+    """Strain energy density psi(F) (J/m^3) matching the stresses of :mod:`physar.mpm.constitutive`."""
+    mu, la = _lame_np(np.asarray(E), np.asarray(nu))
+    s = np.linalg.svd(F, compute_uv=False)
+    J = np.prod(s, axis=1)
+    psi = np.zeros(len(F))
+    fc = elastic == 0
+    psi[fc] = mu[fc] * np.sum((s[fc] - 1) ** 2, axis=1) + 0.5 * la[fc] * (J[fc] - 1) ** 2
+    sv = elastic == 1
+    G = 0.5 * (s[sv] ** 2 - 1)
+    psi[sv] = mu[sv] * np.sum(G**2, axis=1) + 0.5 * la[sv] * np.sum(G, axis=1) ** 2
+    nh = elastic == 2
+    lJ = np.log(np.maximum(J[nh], 1e-6))
+    psi[nh] = 0.5 * mu[nh] * (np.sum(s[nh] ** 2, axis=1) - 3) - mu[nh] * lJ + 0.5 * la[nh] * lJ**2
+    hk = elastic == 3
+    e = np.log(np.maximum(s[hk], 1e-6))
+    psi[hk] = mu[hk] * np.sum(e**2, axis=1) + 0.5 * la[hk] * np.sum(e, axis=1) ** 2
+    return psi
+
+
+def diagnostics(model: MPMModel, st: dict) -> dict:
+    """Centre of mass (m), linear momentum (kg m/s), APIC angular momentum (kg m^2/s) and energies (J).
+
+    The angular momentum includes the affine part, L = sum_p m_p [x_p x v_p + (dx^2/4) eps : C_p^T], which is
+    what APIC conserves exactly (Jiang et al. 2015).
+    """
+    m = model.mass
+    x, v, C, F = st["x"], st["v"], st["C"], st["F"]
+    M = m.sum()
+    D = model.dx**2 / 4.0
+    aff = np.stack([C[:, 2, 1] - C[:, 1, 2], C[:, 0, 2] - C[:, 2, 0], C[:, 1, 0] - C[:, 0, 1]], axis=1)
+    L = np.sum(m[:, None] * (np.cross(x, v) + D * aff), axis=0)
+    g = np.asarray(model.gravity)
+    ke = 0.5 * np.sum(m * np.sum(v * v, axis=1))
+    pe = -np.sum(m * (x @ g))
+    ee = np.sum(model.volume * elastic_energy_density(F, model.E, model.nu, model.elastic))
+    return {
+        "com": (m[:, None] * x).sum(0) / M,
+        "momentum": (m[:, None] * v).sum(0),
+        "angular_momentum": L,
+        "kinetic_energy": ke,
+        "potential_energy": pe,
+        "elastic_energy": ee,
+        "total_energy": ke + pe + ee,
+    }

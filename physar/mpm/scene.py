@@ -1,0 +1,246 @@
+"""TOML scene files for ``physar mpm run`` (validated with pydantic, unknown keys rejected).
+
+Example (all lengths in m, times in s, stresses in Pa, densities in kg/m^3)::
+
+    [grid]
+    size = 1.0
+    resolution = 32
+    [time]
+    frame_dt = 0.0333
+    substeps = 50
+    frames = 30
+    [gravity]
+    g = [0, 0, -9.81]
+    [boundary]
+    ground = "slip"        # sticky | slip | separate | none   (ground = the face z = 0)
+    walls = "slip"         # the five other faces
+    friction = 0.0         # Coulomb coefficient of the ground
+    [[body]]
+    shape = "box"          # box | sphere | mesh (file = "...", watertight)
+    min = [0.4, 0.4, 0.6]
+    max = [0.6, 0.6, 0.8]
+    particles_per_cell = 8 # 1, 8, 27 or 64 (a regular lattice of n^3 particles per cell)
+    material = "fixed_corotated"
+    E = 1e5
+    nu = 0.3
+    density = 1000
+    velocity = [0, 0, 0]
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from physar.errors import ConfigError
+from physar.mpm.constitutive import ELASTIC_CODES, PLASTIC_CODES, drucker_prager_alpha
+from physar.mpm.model import MPMModel
+
+# material name -> (elastic law, plastic return map)
+MATERIALS = {
+    "fixed_corotated": ("fixed_corotated", "identity"),
+    "stvk": ("stvk", "identity"),
+    "neohookean": ("neohookean", "identity"),
+    "hencky": ("hencky", "identity"),
+    "von_mises": ("hencky", "von_mises"),
+    "metal": ("hencky", "von_mises"),
+    "drucker_prager": ("hencky", "drucker_prager"),
+    "sand": ("hencky", "drucker_prager"),
+    "snow": ("fixed_corotated", "snow"),
+}
+
+Vec3 = tuple[float, float, float]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class Grid(_Strict):
+    size: float = Field(1.0, gt=0, description="side of the cubic domain [0, size]^3, m")
+    resolution: int = Field(32, ge=4, le=512, description="cells per side")
+
+
+class Time(_Strict):
+    frame_dt: float = Field(1.0 / 30.0, gt=0, description="s")
+    substeps: int = Field(50, ge=1, le=100000)
+    frames: int = Field(30, ge=1, le=100000)
+
+
+class Gravity(_Strict):
+    g: Vec3 = (0.0, 0.0, -9.81)
+
+
+class Boundary(_Strict):
+    ground: Literal["sticky", "slip", "separate", "none"] = "slip"
+    walls: Literal["sticky", "slip", "separate", "none"] = "slip"
+    friction: float = Field(0.0, ge=0, description="Coulomb coefficient of the ground")
+
+
+class Body(_Strict):
+    shape: Literal["box", "sphere", "mesh"] = "box"
+    min: Vec3 | None = None
+    max: Vec3 | None = None
+    center: Vec3 | None = None
+    radius: float | None = Field(None, gt=0)
+    file: str | None = None
+    particles_per_cell: int = 8
+    material: str = "fixed_corotated"
+    E: float = Field(1.0e5, gt=0, description="Young's modulus, Pa")
+    nu: float = Field(0.3, gt=-1, lt=0.5)
+    density: float = Field(1000.0, gt=0, description="kg/m^3")
+    velocity: Vec3 = (0.0, 0.0, 0.0)
+    yield_stress: float = Field(1.0e4, gt=0, description="von Mises yield stress, Pa")
+    friction_angle: float = Field(30.0, gt=0, lt=90, description="Drucker-Prager friction angle, degrees")
+    theta_c: float = Field(2.5e-2, ge=0, lt=1)
+    theta_s: float = Field(7.5e-3, ge=0)
+    hardening: float = Field(10.0, ge=0)
+
+    @field_validator("material")
+    @classmethod
+    def _known_material(cls, v: str) -> str:
+        if v not in MATERIALS:
+            raise ValueError(f"unknown material '{v}'; choose one of {sorted(MATERIALS)}")
+        return v
+
+    @field_validator("particles_per_cell")
+    @classmethod
+    def _cube(cls, v: int) -> int:
+        k = round(v ** (1 / 3))
+        if k < 1 or k**3 != v:
+            raise ValueError(f"particles_per_cell = {v} must be a cube (1, 8, 27, 64)")
+        return v
+
+    @model_validator(mode="after")
+    def _shape_fields(self):
+        if self.shape == "box" and (self.min is None or self.max is None):
+            raise ValueError("a box body needs 'min' and 'max'")
+        if self.shape == "box" and any(a >= b for a, b in zip(self.min, self.max)):
+            raise ValueError(f"box min {self.min} must be below max {self.max} in every coordinate")
+        if self.shape == "sphere" and (self.center is None or self.radius is None):
+            raise ValueError("a sphere body needs 'center' and 'radius'")
+        if self.shape == "mesh" and not self.file:
+            raise ValueError("a mesh body needs 'file'")
+        return self
+
+
+class Scene(_Strict):
+    grid: Grid = Grid()
+    time: Time = Time()
+    gravity: Gravity = Gravity()
+    boundary: Boundary = Boundary()
+    body: list[Body] = Field(min_length=1)
+
+
+def _lattice(lo, hi, h):
+    """Points of the lattice with spacing h, offset h/2 from the cell corners, inside [lo, hi]."""
+    axes = []
+    for a, b in zip(lo, hi):
+        start = (np.floor(a / h)) * h + h / 2
+        pts = np.arange(start, b, h)
+        axes.append(pts[(pts >= a) & (pts < b)])
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+
+
+def sample_body(body: Body, dx: float, base_dir: Path | None = None) -> np.ndarray:
+    """Particle positions (N, 3) on a lattice of spacing dx / n, n^3 = particles_per_cell, inside the body."""
+    h = dx / round(body.particles_per_cell ** (1 / 3))
+    if body.shape == "box":
+        return _lattice(body.min, body.max, h)
+    if body.shape == "sphere":
+        c, r = np.asarray(body.center), body.radius
+        pts = _lattice(c - r, c + r, h)
+        return pts[np.sum((pts - c) ** 2, axis=1) <= r * r]
+    import trimesh
+
+    path = Path(body.file)
+    if base_dir is not None and not path.is_absolute():
+        path = base_dir / path
+    if not path.exists():
+        raise ConfigError(f"body.file '{path}' does not exist")
+    try:
+        mesh = trimesh.load(path, force="mesh")
+    except Exception as exc:  # noqa: BLE001 - any reader failure is a user error about this file
+        raise ConfigError(f"body.file '{path}' could not be read as a surface mesh: {exc}") from None
+    if not mesh.is_watertight:
+        raise ConfigError(f"body.file '{path}' is not a closed (watertight) surface; cannot sample its inside")
+    pts = _lattice(mesh.bounds[0], mesh.bounds[1], h)
+    return pts[mesh.contains(pts)]
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a scene TOML file; errors name the file and the field."""
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError(f"scene file '{path}' does not exist")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: invalid TOML: {exc}") from None
+    return parse_scene(data, str(path))
+
+
+def parse_scene(data: dict, name: str = "scene") -> Scene:
+    try:
+        return Scene.model_validate(data)
+    except ValidationError as exc:
+        e = exc.errors()[0]
+        loc = ".".join(str(p) for p in e["loc"])
+        raise ConfigError(f"{name}: field '{loc}': {e['msg']} (got {e.get('input')!r})") from None
+
+
+def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: int | None = None,
+                substeps: int | None = None) -> tuple[MPMModel, np.ndarray, np.ndarray]:
+    """MPM model, initial positions (N, 3) and velocities (N, 3) of a scene.
+
+    ``particles_per_cell``/``substeps`` override the scene (used to make identification targets at a finer
+    sampling than the model that is fitted to them).
+    """
+    dx = scene.grid.size / scene.grid.resolution
+    cols = {k: [] for k in ("x", "v", "mass", "vol", "E", "nu", "el", "pl", "pp", "body")}
+    for b_id, body in enumerate(scene.body):
+        if particles_per_cell is not None:
+            body = body.model_copy(update={"particles_per_cell": particles_per_cell})
+        x = sample_body(body, dx, base_dir)
+        inside = np.all((x > 0) & (x < scene.grid.size), axis=1)
+        if not np.all(inside):
+            raise ConfigError(f"body[{b_id}] extends outside the domain [0, {scene.grid.size}]^3")
+        n = len(x)
+        if n == 0:
+            raise ConfigError(f"body[{b_id}] contains no particles at this resolution; enlarge it or refine the grid")
+        vol = (dx / round(body.particles_per_cell ** (1 / 3))) ** 3
+        el, pl = MATERIALS[body.material]
+        if pl == "von_mises":
+            pp = (body.yield_stress, 0, 0, 0)
+        elif pl == "drucker_prager":
+            pp = (drucker_prager_alpha(body.friction_angle), 0, 0, 0)
+        elif pl == "snow":
+            pp = (body.theta_c, body.theta_s, body.hardening, 0)
+        else:
+            pp = (0, 0, 0, 0)
+        cols["x"].append(x)
+        cols["v"].append(np.tile(body.velocity, (n, 1)))
+        cols["vol"].append(np.full(n, vol))
+        cols["mass"].append(np.full(n, vol * body.density))
+        cols["E"].append(np.full(n, body.E))
+        cols["nu"].append(np.full(n, body.nu))
+        cols["el"].append(np.full(n, ELASTIC_CODES[el]))
+        cols["pl"].append(np.full(n, PLASTIC_CODES[pl]))
+        cols["pp"].append(np.tile(pp, (n, 1)))
+        cols["body"].append(np.full(n, b_id))
+    c = {k: np.concatenate(v) for k, v in cols.items()}
+    T = substeps or scene.time.substeps
+    walls = {w: scene.boundary.walls for w in ("x_min", "x_max", "y_min", "y_max", "z_max")}
+    walls["z_min"] = scene.boundary.ground
+    friction = {w: 0.0 for w in walls}
+    friction["z_min"] = scene.boundary.friction
+    model = MPMModel(
+        size=scene.grid.size, resolution=scene.grid.resolution, dt=scene.time.frame_dt / T, substeps=T,
+        mass=c["mass"], volume=c["vol"], E=c["E"], nu=c["nu"], elastic=c["el"], plastic=c["pl"],
+        plastic_params=c["pp"], body=c["body"], gravity=tuple(scene.gravity.g), walls=walls, friction=friction,
+    )
+    return model, c["x"], c["v"]
