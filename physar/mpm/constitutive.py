@@ -7,7 +7,8 @@ is sigma = tau / J.
 Elastic laws (``ELASTIC_*`` codes), with Lamé parameters mu = E / (2 (1 + nu)),
 lambda = E nu / ((1 + nu)(1 - 2 nu)):
 
-* fixed-corotated (Stomakhin et al. 2012): tau = 2 mu (F - R) F^T + lambda (J - 1) J I, R = polar(F);
+* fixed-corotated (Stomakhin et al. 2012): tau = 2 mu (F - R) F^T + lambda (J - 1) J I, R = polar(F),
+  evaluated as 2 mu (B - sqrt(B)) + ..., B = F F^T (valid for J > 0), with a Newton matrix square root;
 * Kirchhoff–Saint Venant (StVK): tau = F (2 mu G + lambda tr(G) I) F^T, G = (F^T F - I) / 2;
 * compressible neo-Hookean: tau = mu (F F^T - I) + lambda log(J) I;
 * Hencky (StVK in logarithmic strain, used with the Hencky-strain return maps):
@@ -76,6 +77,17 @@ def lame(E: wp.float64, nu: wp.float64):
 
 
 @wp.func
+def sym_sqrt(B: wp.mat33d) -> wp.mat33d:
+    """Square root of a symmetric positive-definite matrix by 10 Newton steps Y <- (Y + Y^-1 B) / 2 from
+    Y0 = sqrt(tr B / 3) I.  Smooth in B (no eigen/SVD), so its derivative is exact at repeated eigenvalues."""
+    a = wp.sqrt(wp.trace(B) / _f(3.0))
+    Y = a * wp.identity(n=3, dtype=wp.float64)
+    for _ in range(10):
+        Y = _f(0.5) * (Y + wp.inverse(Y) * B)
+    return _f(0.5) * (Y + wp.transpose(Y))
+
+
+@wp.func
 def kirchhoff_stress(
     F: wp.mat33d, E: wp.float64, nu: wp.float64, elastic: wp.int32, hardening: wp.float64
 ) -> wp.mat33d:
@@ -87,12 +99,9 @@ def kirchhoff_stress(
     J = wp.determinant(F)
     tau = wp.mat33d()
     if elastic == 0:
-        U = wp.mat33d()
-        s = wp.vec3d()
-        V = wp.mat33d()
-        wp.svd3(F, U, s, V)
-        R = U * wp.transpose(V)
-        tau = _f(2.0) * mu * (F - R) * wp.transpose(F) + la * (J - _f(1.0)) * J * I
+        # (F - R) F^T = F F^T - R S R^T = B - sqrt(B) with B = F F^T (F = R S); no SVD, exact gradient at F = I
+        B = F * wp.transpose(F)
+        tau = _f(2.0) * mu * (B - sym_sqrt(B)) + la * (J - _f(1.0)) * J * I
     elif elastic == 1:
         G = _f(0.5) * (wp.transpose(F) * F - I)
         S = _f(2.0) * mu * G + la * wp.trace(G) * I

@@ -1,0 +1,87 @@
+"""Neural residual constitutive laws of seed 002, Eq. (8), with the regulariser of Eq. (11).
+
+sigma = E(F, E, nu) + E_theta(F, l_e),    F = P(F_trial) + P_theta(F_trial, l_p)          (Eq. 8)
+
+Both residuals are NCLaw-style MLPs (13 -> 64 -> 64 -> 9, seed 002 App. A) on the rotation-invariant features
+[singular values of F (3), F^T F (9), det F (1)]; the per-particle latent (64) is added to the output of the
+first hidden layer.  The last layer is zero-initialised, so a fresh network returns 0 and training starts from
+the expert law.  Output scaling (physar's choice, so that the unit network output is meaningful):
+
+* E_theta: Cauchy stress residual sigma_theta = stress_scale * sym(reshape(out, 3, 3)) (Pa); it enters the MPM
+  force as the Kirchhoff stress J sigma_theta (symmetric, so angular momentum stays conserved);
+* P_theta: deformation-gradient residual = F_scale * reshape(out, 3, 3) (dimensionless).
+
+The singular values come from Warp's ``svd3`` (finite gradients at F = I, unlike ``torch.linalg.svd``).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+def invariant_features(F: torch.Tensor, sv: torch.Tensor) -> torch.Tensor:
+    """(N, 13) features [sigma_1..3, (F^T F) row-major, det F] of deformation gradients F (N, 3, 3)."""
+    C = F.transpose(1, 2) @ F
+    return torch.cat([sv, C.reshape(-1, 9), torch.linalg.det(F)[:, None]], dim=1)
+
+
+class ResidualMLP(nn.Module):
+    """13 -> hidden -> hidden -> 9 MLP with the per-particle latent added after the first layer."""
+
+    def __init__(self, latent_dim: int = 64, hidden: int = 64, scale: float = 1.0):
+        super().__init__()
+        self.latent_dim = latent_dim
+        self.scale = float(scale)
+        self.l1 = nn.Linear(13, hidden, dtype=torch.float64)
+        self.l2 = nn.Linear(hidden, hidden, dtype=torch.float64)
+        self.l3 = nn.Linear(hidden, 9, dtype=torch.float64)
+        if latent_dim != hidden:
+            raise ValueError(f"latent_dim ({latent_dim}) must equal the hidden width ({hidden}) (seed 002 App. A)")
+        nn.init.zeros_(self.l3.weight)
+        nn.init.zeros_(self.l3.bias)
+        self.act = nn.GELU()
+
+    def forward(self, feat: torch.Tensor, latent: torch.Tensor | None) -> torch.Tensor:
+        h = self.l1(feat)
+        if latent is not None:
+            h = h + latent
+        h = self.act(h)
+        h = self.act(self.l2(h))
+        return self.scale * self.l3(h).reshape(-1, 3, 3)
+
+
+class NeuralResidual(nn.Module):
+    """The pair (E_theta, P_theta) of Eq. (8); either may be disabled (None)."""
+
+    def __init__(self, elastic: bool = True, plastic: bool = True, latent_dim: int = 64,
+                 stress_scale: float = 1.0e4, F_scale: float = 1.0e-3):
+        super().__init__()
+        self.elastic = ResidualMLP(latent_dim, latent_dim, stress_scale) if elastic else None
+        self.plastic = ResidualMLP(latent_dim, latent_dim, F_scale) if plastic else None
+        self.latent_dim = latent_dim
+
+    def stress(self, F, sv, l_e):
+        """Cauchy residual sigma_theta (N, 3, 3), symmetrised, Pa."""
+        out = self.elastic(invariant_features(F, sv), l_e)
+        return 0.5 * (out + out.transpose(1, 2))
+
+    def deformation(self, F_trial, sv, l_p):
+        """Residual added to the projected deformation gradient, (N, 3, 3)."""
+        return self.plastic(invariant_features(F_trial, sv), l_p)
+
+
+def regulariser(nets: NeuralResidual, F, sv_F, l_e, F_trial, sv_Ft, l_p, omega, lam_law: float = 10.0,
+                lam_omega: float = 0.1, lam_feat: float = 1.0) -> torch.Tensor:
+    """R = lam_law (||E_theta(F, l_e)||_2 + ||P_theta(F_trial, l_p)||_2) + lam_omega ||omega||_2     (Eq. 11)
+    + lam_feat (||l_e||_2 + ||l_p||_2) (seed 002 App. A, R_feat).  Defaults are the seed's weights."""
+    r = lam_omega * torch.linalg.vector_norm(omega) if omega is not None else torch.zeros((), dtype=torch.float64)
+    if nets.elastic is not None:
+        r = r + lam_law * torch.linalg.vector_norm(nets.stress(F, sv_F, l_e))
+        if l_e is not None:
+            r = r + lam_feat * torch.linalg.vector_norm(l_e)
+    if nets.plastic is not None:
+        r = r + lam_law * torch.linalg.vector_norm(nets.deformation(F_trial, sv_Ft, l_p))
+        if l_p is not None:
+            r = r + lam_feat * torch.linalg.vector_norm(l_p)
+    return r

@@ -1,0 +1,214 @@
+"""Differentiable MPM in PyTorch: Warp kernels wrapped as ``torch.autograd.Function`` s (seed 002, Alg. 1-2).
+
+Each substep is stress -> transfer (P2G, grid update, G2P) -> plastic return map, each a Warp launch whose
+backward replays it on a ``wp.Tape``; the neural residuals of Eq. (8) are ordinary PyTorch modules in
+between.  :func:`simulate` runs frames of T substeps; with ``checkpoint=True`` each frame is a
+``torch.utils.checkpoint`` segment: only the frame-boundary states are kept and a frame's substeps are
+recomputed (and taped) during its backward pass, so memory is O(frames * particles + one frame's tapes).
+
+Differentiable inputs: initial state (x, v, C, F), per-particle E (Pa), nu, omega (actuation gate),
+PD references, latents l_e/l_p and the network weights.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.utils.checkpoint
+import warp as wp
+
+from physar.errors import SolverError
+from physar.mpm.model import (
+    MPMModel,
+    g2p_kernel,
+    grid_update_kernel,
+    p2g_kernel,
+    plastic_kernel,
+    singular_values_kernel,
+    stress_kernel,
+)
+from physar.mpm.neural import NeuralResidual
+
+_DT = {1: wp.float64, 2: wp.vec3d, 3: wp.mat33d}
+
+
+def _to_wp(t: torch.Tensor, grad: bool):
+    t = t.detach().contiguous()
+    return wp.from_torch(t, dtype=_DT[t.dim()], requires_grad=grad)
+
+
+class _WarpOp(torch.autograd.Function):
+    """Runs ``op(model, *wp_inputs) -> wp outputs``; backward replays it on a tape (recompute, O(1) memory)."""
+
+    @staticmethod
+    def forward(ctx, op, model, *inputs):
+        ctx.op, ctx.model = op, model
+        ctx.save_for_backward(*inputs)
+        with torch.no_grad():
+            outs = op(model, *[_to_wp(t, False) for t in inputs], grad=False)
+        return tuple(wp.to_torch(o).clone() for o in outs)
+
+    @staticmethod
+    def backward(ctx, *grads):
+        inputs = ctx.saved_tensors
+        wins = [_to_wp(t, True) for t in inputs]
+        tape = wp.Tape()
+        with tape:
+            outs = ctx.op(ctx.model, *wins, grad=True)
+        tape.backward(grads={o: _to_wp(g, False) for o, g in zip(outs, grads)})
+        res = [wp.to_torch(w.grad).clone() if need else None
+               for w, need in zip(wins, ctx.needs_input_grad[2:])]
+        tape.reset()
+        return (None, None, *res)
+
+
+def _stress_op(model: MPMModel, F, Jp, E, nu, grad=False):
+    a = model.warp_arrays()
+    tau = wp.zeros(model.n_particles, dtype=wp.mat33d, requires_grad=grad)
+    wp.launch(stress_kernel, model.n_particles, inputs=[F, Jp, E, nu, a["elastic"], a["plastic"], a["pp"]],
+              outputs=[tau])
+    return (tau,)
+
+
+def _sv_op(model: MPMModel, F, grad=False):
+    s = wp.zeros(F.shape[0], dtype=wp.vec3d, requires_grad=grad)
+    wp.launch(singular_values_kernel, F.shape[0], inputs=[F], outputs=[s])
+    return (s,)
+
+
+def _transfer_op(model: MPMModel, x, v, C, F, tau, omega, x_ref, v_ref, gains, grad=False):
+    """P2G, grid update and G2P of one substep; ``gains`` = [kp, kd] (1/s^2, 1/s)."""
+    a = model.warp_arrays()
+    n, g = model.n_particles, model.n_grid
+    kp, kd = (float(z) for z in gains.numpy())
+    grid_mv = wp.zeros((g, g, g), dtype=wp.vec3d, requires_grad=grad)
+    grid_m = wp.zeros((g, g, g), dtype=wp.float64, requires_grad=grad)
+    grid_v = wp.zeros((g, g, g), dtype=wp.vec3d, requires_grad=grad)
+    xo = wp.zeros(n, dtype=wp.vec3d, requires_grad=grad)
+    vo = wp.zeros(n, dtype=wp.vec3d, requires_grad=grad)
+    Co = wp.zeros(n, dtype=wp.mat33d, requires_grad=grad)
+    Ft = wp.zeros(n, dtype=wp.mat33d, requires_grad=grad)
+    nmax, dt = g - 3, model.dt
+    wp.launch(p2g_kernel, n, inputs=[x, v, C, tau, a["mass"], a["volume"], omega, x_ref, v_ref, kp, kd,
+                                     model.origin, model.dx, dt, nmax], outputs=[grid_mv, grid_m])
+    wp.launch(grid_update_kernel, (g, g, g), inputs=[grid_mv, grid_m, wp.vec3d(*model.gravity), dt, model.pad,
+                                                     model.pad + model.resolution, a["bc"], a["friction"]],
+              outputs=[grid_v])
+    lo, hi = model.clamp_range
+    wp.launch(g2p_kernel, n, inputs=[grid_v, x, F, model.origin, model.dx, dt, nmax, lo, hi],
+              outputs=[xo, vo, Co, Ft])
+    return xo, vo, Co, Ft
+
+
+def _plastic_op(model: MPMModel, Ft, Jp, E, nu, grad=False):
+    a = model.warp_arrays()
+    n = model.n_particles
+    F = wp.zeros(n, dtype=wp.mat33d, requires_grad=grad)
+    Jo = wp.zeros(n, dtype=wp.float64, requires_grad=grad)
+    wp.launch(plastic_kernel, n, inputs=[Ft, Jp, E, nu, a["plastic"], a["pp"]], outputs=[F, Jo])
+    return F, Jo
+
+
+def _transfer_wrapped(model, x, v, C, F, tau, omega, x_ref, v_ref, kp, kd):
+    gains = torch.tensor([kp, kd], dtype=torch.float64)
+
+    def op(m, x, v, C, F, tau, omega, x_ref, v_ref, grad=False):
+        return _transfer_op(m, x, v, C, F, tau, omega, x_ref, v_ref, gains, grad=grad)
+
+    return _WarpOp.apply(op, model, x, v, C, F, tau, omega, x_ref, v_ref)
+
+
+@dataclass
+class Params:
+    """Differentiable per-particle parameters (torch float64 tensors; ``None`` = not used).
+
+    E (N,) Pa, nu (N,), omega (N,) actuation gate, x_ref/v_ref (N, 3) PD references (constant over a frame, or
+    a callable frame -> (x_ref, v_ref)), l_e/l_p (N, latent) latents, kp (1/s^2), kd (1/s).
+    """
+
+    E: torch.Tensor
+    nu: torch.Tensor
+    omega: torch.Tensor | None = None
+    x_ref: object = None
+    v_ref: torch.Tensor | None = None
+    l_e: torch.Tensor | None = None
+    l_p: torch.Tensor | None = None
+    kp: float = 2.0e2
+    kd: float = 2.0e1
+
+
+def substep(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref=None, v_ref=None,
+            nets: NeuralResidual | None = None):
+    """One differentiable substep of Alg. 1 with the residuals of Eq. (8) and the actuation of Eq. (6)-(7)."""
+    n = model.n_particles
+    (tau,) = _WarpOp.apply(_stress_op, model, F, Jp, p.E, p.nu)
+    if nets is not None and nets.elastic is not None:
+        (sv,) = _WarpOp.apply(_sv_op, model, F)
+        J = torch.linalg.det(F)
+        tau = tau + J[:, None, None] * nets.stress(F, sv, p.l_e)
+    if p.omega is None or x_ref is None:
+        omega = torch.zeros(n, dtype=torch.float64)
+        x_ref = torch.zeros(n, 3, dtype=torch.float64)
+        v_ref = torch.zeros(n, 3, dtype=torch.float64)
+        kp = kd = 0.0
+    else:
+        omega, kp, kd = p.omega, p.kp, p.kd
+        v_ref = torch.zeros(n, 3, dtype=torch.float64) if v_ref is None else v_ref
+    x, v, C, Ft = _transfer_wrapped(model, x, v, C, F, tau, omega, x_ref, v_ref, kp, kd)
+    F, Jp = _WarpOp.apply(_plastic_op, model, Ft, Jp, p.E, p.nu)
+    if nets is not None and nets.plastic is not None:
+        (svt,) = _WarpOp.apply(_sv_op, model, Ft)
+        F = F + nets.deformation(Ft, svt, p.l_p)
+    return x, v, C, F, Jp
+
+
+def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralResidual | None = None,
+             checkpoint: bool = True, C0=None, F0=None, Jp0=None):
+    """Differentiable simulation of ``frames`` frames of ``model.substeps`` substeps.
+
+    Returns the list of positions (N, 3) at frames 0..frames and the final state (x, v, C, F, Jp).  The PD
+    references may be given per frame by a callable ``params.x_ref(frame) -> (x_ref, v_ref)``.
+    """
+    n = model.n_particles
+    t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
+    x, v = t(x0), t(v0)
+    C = torch.zeros(n, 3, 3, dtype=torch.float64) if C0 is None else t(C0)
+    F = torch.eye(3, dtype=torch.float64).repeat(n, 1, 1) if F0 is None else t(F0)
+    Jp = torch.ones(n, dtype=torch.float64) if Jp0 is None else t(Jp0)
+    xs = [x]
+    for f in range(frames):
+        if callable(params.x_ref):
+            x_ref, v_ref = params.x_ref(f)
+        else:
+            x_ref, v_ref = params.x_ref, params.v_ref
+
+        def frame_fn(x, v, C, F, Jp, *_params):
+            for _ in range(model.substeps):
+                x, v, C, F, Jp = substep(model, x, v, C, F, Jp, params, x_ref, v_ref, nets)
+            return x, v, C, F, Jp
+
+        leaves = [z for z in (params.E, params.nu, params.omega, params.l_e, params.l_p)
+                  if isinstance(z, torch.Tensor)]
+        if checkpoint and torch.is_grad_enabled():
+            x, v, C, F, Jp = torch.utils.checkpoint.checkpoint(frame_fn, x, v, C, F, Jp, *leaves,
+                                                               use_reentrant=False)
+        else:
+            x, v, C, F, Jp = frame_fn(x, v, C, F, Jp)
+        if not torch.isfinite(x).all():
+            raise SolverError(f"MPM simulation diverged at frame {f + 1}: reduce the substep or the stiffness")
+        xs.append(x)
+    return xs, (x, v, C, F, Jp)
+
+
+def per_body_moments(x: torch.Tensor, body: np.ndarray, n_bodies: int):
+    """Centre (n_bodies, 3) and covariance (n_bodies, 3, 3) of each body's particles (sampling-independent)."""
+    out_c, out_s = [], []
+    for b in range(n_bodies):
+        xb = x[torch.as_tensor(body == b)]
+        c = xb.mean(0)
+        d = xb - c
+        out_c.append(c)
+        out_s.append(d.T @ d / len(xb))
+    return torch.stack(out_c), torch.stack(out_s)
