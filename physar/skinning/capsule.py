@@ -1,0 +1,116 @@
+"""A tiny procedural humanoid made of capsules, for fast tests and synthetic scenes (seed 002, §4.1-4.2).
+
+Each bone k carries a capsule: the set of points within radius r_k (m) of the segment [a_k, b_k] (its
+rest-pose head and tail). The body volume is the union of the capsules; the inside test gives the gating
+mask of seed 002, Eq. 7 (omega_i = 0 for particles outside the body). Skinning weights come from the
+distances d_k(x) to the bone segments: W_k(x) = softmax_k(-d_k(x)^2 / (2 sigma^2)) (so they sum to 1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from physar.errors import PhysarError
+from physar.skinning.lbs import lbs
+from physar.skinning.skeleton import Skeleton, rigid
+
+
+def segment_distance(points: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Distances (N, B) from points (N, 3) to segments [a_k, b_k] ((B, 3) each), m."""
+    ab = b - a  # (B, 3)
+    ap = points[:, None, :] - a[None]  # (N, B, 3)
+    denom = torch.clamp_min((ab * ab).sum(-1), 1e-30)
+    s = torch.clamp((ap * ab[None]).sum(-1) / denom, 0.0, 1.0)
+    return torch.linalg.vector_norm(ap - s[..., None] * ab[None], dim=-1)
+
+
+@dataclass
+class CapsuleBody:
+    """Skeleton + one capsule (head, tail, radius) per bone; radius 0 = bone without volume."""
+
+    skeleton: Skeleton
+    heads: torch.Tensor  # (B, 3) m
+    tails: torch.Tensor  # (B, 3) m
+    radii: torch.Tensor  # (B,) m
+    sigma: float = 0.05  # m, width of the skinning-weight falloff
+
+    def __post_init__(self) -> None:
+        b = self.skeleton.n_bones
+        for name, shape in (("heads", (b, 3)), ("tails", (b, 3)), ("radii", (b,))):
+            if tuple(getattr(self, name).shape) != shape:
+                raise PhysarError(f"CapsuleBody: {name} must have shape {shape}")
+        if torch.any(self.radii < 0):
+            raise PhysarError("CapsuleBody: radii must be >= 0")
+
+    def _active(self) -> torch.Tensor:
+        return self.radii > 0
+
+    def signed_distance(self, points: torch.Tensor) -> torch.Tensor:
+        """min_k (d_k(x) - r_k) over bones with volume (m): < 0 inside the body; exact outside."""
+        act = self._active()
+        d = segment_distance(points, self.heads[act].to(points.dtype), self.tails[act].to(points.dtype))
+        return (d - self.radii[act].to(points.dtype)).min(-1).values
+
+    def inside(self, points: torch.Tensor) -> torch.Tensor:
+        """(N,) bool: point strictly inside the union of capsules (rest pose) — the omega gating mask."""
+        return self.signed_distance(points) < 0
+
+    def skinning_weights(self, points: torch.Tensor) -> torch.Tensor:
+        """Dense weights (N, B), rows sum to 1; zero on bones without volume."""
+        act = self._active()
+        d = segment_distance(points, self.heads.to(points.dtype), self.tails.to(points.dtype))
+        logits = -(d * d) / (2 * self.sigma**2)
+        logits = torch.where(act[None], logits, torch.full_like(logits, -torch.inf))
+        return torch.softmax(logits, dim=-1)
+
+    def sample_volume(self, n: int, generator: torch.Generator | None = None,
+                      dtype: torch.dtype = torch.float32) -> torch.Tensor:
+        """``n`` points uniformly distributed inside the body (rejection sampling in the bounding box)."""
+        act = self._active()
+        r = self.radii[act, None]
+        lo = torch.minimum(self.heads[act] - r, self.tails[act] - r).min(0).values.to(dtype)
+        hi = torch.maximum(self.heads[act] + r, self.tails[act] + r).max(0).values.to(dtype)
+        out, have = [], 0
+        while have < n:
+            p = lo + (hi - lo) * torch.rand(4 * n, 3, generator=generator, dtype=dtype)
+            p = p[self.inside(p)]
+            out.append(p)
+            have += p.shape[0]
+        return torch.cat(out)[:n]
+
+    def pose_points(self, points: torch.Tensor, rotations: torch.Tensor,
+                    root_translation: torch.Tensor | None = None) -> torch.Tensor:
+        """Rest points (N, 3) skinned to the pose (local joint rotations (B, 3, 3)) by Eq. 1."""
+        B = self.skeleton.bone_transforms(self.skeleton.pose(rotations, root_translation))
+        return lbs(points, self.skinning_weights(points), B.to(points.dtype))[0]
+
+
+def procedural_humanoid(height: float = 1.7, dtype: torch.dtype = torch.float32) -> CapsuleBody:
+    """A 12-bone capsule humanoid standing on z = 0, facing -y, height ``height`` (m).
+
+    Bones: root (no volume), pelvis, spine, head, upper/lower arms and legs (left and right). Bone
+    frames have identity rotation at the rest pose and sit at the bone heads (the joints).
+    """
+    h = height / 1.7
+    P = lambda *v: [h * c for c in v]
+    bones = [  # name, parent, head, tail, radius
+        ("root", -1, P(0, 0, 0.95), P(0, 0, 0.95), 0.0),
+        ("pelvis", 0, P(0, 0, 0.95), P(0, 0, 1.05), 0.13),
+        ("spine", 1, P(0, 0, 1.05), P(0, 0, 1.40), 0.14),
+        ("head", 2, P(0, 0, 1.50), P(0, 0, 1.60), 0.10),
+        ("upperarm.L", 2, P(0.20, 0, 1.42), P(0.48, 0, 1.42), 0.05),
+        ("forearm.L", 4, P(0.48, 0, 1.42), P(0.74, 0, 1.42), 0.04),
+        ("upperarm.R", 2, P(-0.20, 0, 1.42), P(-0.48, 0, 1.42), 0.05),
+        ("forearm.R", 6, P(-0.48, 0, 1.42), P(-0.74, 0, 1.42), 0.04),
+        ("thigh.L", 1, P(0.10, 0, 0.90), P(0.10, 0, 0.50), 0.07),
+        ("shin.L", 8, P(0.10, 0, 0.50), P(0.10, 0, 0.08), 0.05),
+        ("thigh.R", 1, P(-0.10, 0, 0.90), P(-0.10, 0, 0.50), 0.07),
+        ("shin.R", 10, P(-0.10, 0, 0.50), P(-0.10, 0, 0.08), 0.05),
+    ]
+    heads = torch.tensor([b[2] for b in bones], dtype=dtype)
+    tails = torch.tensor([b[3] for b in bones], dtype=dtype)
+    rest = rigid(torch.eye(3, dtype=dtype).expand(len(bones), 3, 3), heads)
+    sk = Skeleton(torch.tensor([b[1] for b in bones]), rest, [b[0] for b in bones])
+    return CapsuleBody(sk, heads, tails, torch.tensor([b[4] * h for b in bones], dtype=dtype), sigma=0.05 * h)

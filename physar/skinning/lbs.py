@@ -1,0 +1,58 @@
+"""Linear blend skinning (seed 002, Eq. 1).
+
+A^i = sum_k W_k^i B_k (a 4x4 affine blend of the bone transforms B_k in SE(3));
+mu_lbs^i = A_rot^i mu_c^i + A_t^i and R_lbs^i = A_rot^i R_c^i. A_rot is a blend of rotations, in general
+not orthogonal; for Gaussians it therefore enters the covariance like a deformation gradient,
+Sigma = A_rot R_c S S^T R_c^T A_rot^T (seed 002, Eq. 3 with F = A_rot), which
+:func:`lbs_gaussians` returns for :func:`physar.gaussians.render` (``F=``).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from physar.errors import PhysarError
+
+Weights = torch.Tensor | tuple[torch.Tensor, torch.Tensor]
+
+
+def blend_transforms(weights: Weights, bone_transforms: torch.Tensor) -> torch.Tensor:
+    """A^i = sum_k W_k^i B_k, (N, 4, 4). ``weights`` is dense (N, B) or sparse (indices (N, m), w (N, m));
+    ``bone_transforms`` (B, 4, 4)."""
+    if isinstance(weights, tuple):
+        idx, w = weights
+        if idx.shape != w.shape:
+            raise PhysarError(f"lbs: sparse weight indices {tuple(idx.shape)} and values {tuple(w.shape)} "
+                              "must have the same shape")
+        return (w[..., None, None] * bone_transforms[idx]).sum(-3)
+    if weights.ndim != 2 or weights.shape[1] != bone_transforms.shape[-3]:
+        raise PhysarError(f"lbs: weights must have shape (N, {bone_transforms.shape[-3]}), "
+                          f"got {tuple(weights.shape)}")
+    return torch.einsum("nk,kij->nij", weights, bone_transforms)
+
+
+def lbs(points: torch.Tensor, weights: Weights, bone_transforms: torch.Tensor,
+        rotations: torch.Tensor | None = None):
+    """Skin points (N, 3) (m) and optionally per-point rotations (N, 3, 3) by Eq. 1.
+
+    Returns (mu_lbs (N, 3), R_lbs (N, 3, 3) or None, A (N, 4, 4)).
+    """
+    A = blend_transforms(weights, bone_transforms)
+    mu = (A[:, :3, :3] @ points[..., None])[..., 0] + A[:, :3, 3]
+    R = None if rotations is None else A[:, :3, :3] @ rotations
+    return mu, R, A
+
+
+def lbs_gaussians(g, weights: Weights, bone_transforms: torch.Tensor):
+    """Skinned copy of Gaussians ``g`` (means moved by Eq. 1) and the per-Gaussian A_rot (N, 3, 3) to pass
+    as ``F`` to the renderer so that Sigma = A_rot R S S^T R^T A_rot^T."""
+    mu, _, A = lbs(g.means, weights, bone_transforms)
+    return g.replace(means=mu), A[:, :3, :3]
+
+
+def normalize_weights(w: torch.Tensor, dim: int = -1) -> torch.Tensor:
+    """Weights rescaled to sum to 1 along ``dim``; raises PhysarError if any row has zero total."""
+    s = w.sum(dim, keepdim=True)
+    if torch.any(s <= 0):
+        raise PhysarError("skinning weights: a point has no positive weight on any bone")
+    return w / s
