@@ -74,8 +74,13 @@ def project(means: torch.Tensor, cov3d: torch.Tensor, opacities: torch.Tensor, c
     zs = torch.where(valid, z, torch.ones_like(z))
     u = cam.fx * x / zs + cam.cx
     v = cam.fy * y / zs + cam.cy
+    # as in 3DGS/gsplat, the Jacobian of Gaussians far outside the view is evaluated at x/z, y/z clamped
+    # to 1.3 times the half field of view (keeps their footprints bounded); no effect on visible means
+    tx, ty = 0.5 * cam.width / cam.fx, 0.5 * cam.height / cam.fy
+    xz = torch.clamp(x / zs, -(cam.cx / cam.fx + 0.3 * tx), (cam.width - cam.cx) / cam.fx + 0.3 * tx)
+    yz = torch.clamp(y / zs, -(cam.cy / cam.fy + 0.3 * ty), (cam.height - cam.cy) / cam.fy + 0.3 * ty)
     zero = torch.zeros_like(zs)
-    J = torch.stack([cam.fx / zs, zero, -cam.fx * x / zs**2, zero, cam.fy / zs, -cam.fy * y / zs**2],
+    J = torch.stack([cam.fx / zs, zero, -cam.fx * xz / zs, zero, cam.fy / zs, -cam.fy * yz / zs],
                     -1).reshape(-1, 2, 3)
     M = J @ R
     cov2d = M @ cov3d @ M.transpose(-1, -2)
@@ -128,8 +133,11 @@ def _sh_colors(g: Gaussians, cam: Camera) -> torch.Tensor:
 
 
 def rasterize_tiles(pr: Projected, width: int, height: int, background: torch.Tensor | None = None,
-                    tile_size: int = 4) -> RenderResult:
-    """Tile-bucketed rasterisation of projected Gaussians (see module docstring). Differentiable."""
+                    tile_size: int = 4, max_elements: float = 2e8) -> RenderResult:
+    """Tile-bucketed rasterisation of projected Gaussians (see module docstring). Differentiable.
+
+    Memory grows with (pairs x tile pixels), about the total footprint area; more than ``max_elements``
+    raises a PhysarError instead of exhausting memory."""
     dtype, dev = pr.means2d.dtype, pr.means2d.device
     ts = tile_size
     tx, ty = -(-width // ts), -(-height // ts)
@@ -157,6 +165,11 @@ def rasterize_tiles(pr: Projected, width: int, height: int, background: torch.Te
         tile, g_local = tile[perm], gid[perm]
         gsel = vis[g_local]
         n_pairs = int(tile.numel())
+        if n_pairs * ts * ts > max_elements:
+            raise PhysarError(
+                f"render: {n_pairs} (tile, Gaussian) pairs x {ts * ts} pixels exceed max_elements="
+                f"{max_elements:.0e} (memory); the Gaussians' footprints are too large for this image size: "
+                "lower the resolution, prune large or near-camera Gaussians, or raise max_elements")
         seg_start = torch.searchsorted(tile, tile.unique_consecutive())
         seg_of = torch.searchsorted(seg_start, torch.arange(n_pairs, device=dev), right=True) - 1
         # pixel centres of every tile: (n_tiles, ts*ts, 2)
@@ -185,7 +198,7 @@ def _finish(rgb, dsum, alpha, background, n_pairs=0) -> RenderResult:
 
 
 def rasterize_dense(pr: Projected, width: int, height: int, background: torch.Tensor | None = None,
-                    pixel_chunk: int | None = None) -> RenderResult:
+                    pixel_chunk: int | None = None, max_elements: float = 2e8) -> RenderResult:
     """Naive reference: every visible Gaussian evaluated at every pixel, sorted by depth (no tiles).
 
     ``pixel_chunk`` bounds memory (pixels per chunk); differentiable by autograd.
@@ -233,7 +246,7 @@ def _render_gsplat(g: Gaussians, cam: Camera, cov3d, colors, background, eps2d, 
 def render(g: Gaussians, cam: Camera, *, F: torch.Tensor | None = None, cov3d: torch.Tensor | None = None,
            colors: torch.Tensor | None = None, background: torch.Tensor | None = None,
            backend: str = "auto", tile_size: int = 4, eps2d: float = 0.3, near: float = 0.01,
-           pixel_chunk: int | None = None) -> RenderResult:
+           pixel_chunk: int | None = None, max_elements: float = 2e8) -> RenderResult:
     """Render Gaussians ``g`` seen by ``cam``: RGB, alpha mask and expected depth (m).
 
     ``F`` (N, 3, 3): deformation gradients, giving Sigma = F R S S^T R^T F^T (seed 002, Eq. 3);
@@ -242,6 +255,7 @@ def render(g: Gaussians, cam: Camera, *, F: torch.Tensor | None = None, cov3d: t
     low-pass filter (0.3); ``near`` (m) culls Gaussians with p_z <= near.
     ``backend``: "torch" (tiles, CPU/any device), "dense" (naive reference), "gsplat" (CUDA, untested
     here), "auto" (gsplat when the tensors are on CUDA and gsplat imports, torch otherwise).
+    ``max_elements``: memory guard of the tile backend (pairs x tile pixels), see :func:`rasterize_tiles`.
     """
     if backend == "auto":
         backend = "torch"
@@ -269,4 +283,4 @@ def render(g: Gaussians, cam: Camera, *, F: torch.Tensor | None = None, cov3d: t
     pr = project(g.means, cov3d, g.opacities, colors, cam, eps2d, near)
     if backend == "dense":
         return rasterize_dense(pr, cam.width, cam.height, background, pixel_chunk)
-    return rasterize_tiles(pr, cam.width, cam.height, background, tile_size)
+    return rasterize_tiles(pr, cam.width, cam.height, background, tile_size, max_elements)

@@ -201,3 +201,14 @@ def test_gaussians_behind_camera_are_culled():
                               torch.tensor([0.9], dtype=D), torch.tensor([[1.0, 1.0, 1.0]], dtype=D))
     out = render(g, _cam(16, 16))
     assert out.alpha.abs().max() == 0
+
+
+def test_memory_guard_and_offscreen_jacobian_clamp():
+    g = _random_scene(50, seed=7)
+    with pytest.raises(PhysarError, match="max_elements"):
+        render(g, _cam(32, 32), max_elements=1e3)
+    # a Gaussian just in front of the camera plane and far off to the side: footprint stays bounded
+    near = Gaussians.from_values(torch.tensor([[5.0, 0.0, 0.05]], dtype=D), torch.tensor([0.01], dtype=D),
+                                 torch.tensor([0.9], dtype=D), torch.ones(1, 3, dtype=D))
+    out = render(near, _cam(32, 32))
+    assert out.alpha.max() == 0 and out.n_pairs == 0
