@@ -154,3 +154,19 @@ def test_eq3_covariance_equals_covariance_of_transformed_samples():
         assert torch.linalg.matrix_norm(emp - sigma[i], ord=2) < 0.02 * scale
     assert torch.allclose(sigma, sigma.transpose(1, 2))
     assert torch.allclose(covariance(q, s), Rm @ torch.diag_embed(s**2) @ Rm.transpose(1, 2), atol=1e-14)
+
+
+def test_sh_basis_is_orthonormal_on_the_sphere():
+    """The degree-3 real SH basis used for view-dependent colour satisfies int Y_i Y_j dOmega = delta_ij
+    (quadrature: Gauss-Legendre in cos(theta) x uniform in phi, exact for these polynomials)."""
+    from physar.gaussians.sh import sh_basis
+
+    x, w = np.polynomial.legendre.leggauss(12)
+    phi = np.arange(16) * 2 * np.pi / 16
+    ct, ph = np.meshgrid(x, phi, indexing="ij")
+    st = np.sqrt(1 - ct**2)
+    dirs = torch.tensor(np.stack([st * np.cos(ph), st * np.sin(ph), ct], -1).reshape(-1, 3))
+    wq = torch.tensor((w[:, None] * np.full(16, 2 * np.pi / 16)[None]).reshape(-1))
+    Y = sh_basis(3, dirs)
+    gram = (Y * wq[:, None]).T @ Y
+    assert torch.allclose(gram, torch.eye(16, dtype=torch.float64), atol=1e-12)
