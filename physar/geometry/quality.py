@@ -1,0 +1,135 @@
+"""Evaluation helpers for surface denoising (seed 001 §3.2.1): noise, error measures, mesh checks.
+
+Distances to the clean reference use exact point-to-triangle projection (``trimesh.proximity``, rtree
+accelerated), not a sampled approximation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+
+from physar.errors import MeshError
+from physar.geometry.mesh import TriMesh
+
+
+def check_surface(mesh: TriMesh) -> None:
+    """Raise MeshError for an empty mesh, degenerate faces or a non-manifold edge (> 2 incident faces)."""
+    if mesh.n_points == 0 or mesh.n_faces == 0:
+        raise MeshError(f"{mesh.name}: the surface mesh is empty ({mesh.n_points} points, {mesh.n_faces} faces)")
+    f = mesh.faces
+    rep = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
+    if rep.any():
+        e = int(np.flatnonzero(rep)[0])
+        raise MeshError(f"{mesh.name}: face {e} repeats a vertex: {f[e].tolist()}")
+    e = np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    key = e[:, 0] * np.int64(mesh.n_points) + e[:, 1]
+    uniq, counts = np.unique(key, return_counts=True)
+    bad = counts > 2
+    if bad.any():
+        k = uniq[np.flatnonzero(bad)[0]]
+        a, b = divmod(int(k), mesh.n_points)
+        raise MeshError(
+            f"{mesh.name}: non-manifold edge ({a}, {b}) is shared by {int(counts[bad][0])} faces "
+            f"({int(bad.sum())} non-manifold edges in all)"
+        )
+
+
+def unique_edges(faces: np.ndarray, n: int) -> np.ndarray:
+    """Undirected edges (e, 2) with e[:, 0] < e[:, 1] from triangle faces."""
+    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    key = np.unique(e[:, 0] * np.int64(n) + e[:, 1])
+    return np.stack(divmod(key, np.int64(n)), axis=1)
+
+
+def mean_edge_length(mesh: TriMesh) -> float:
+    """Mean length of the unique edges (m)."""
+    e = unique_edges(mesh.faces, mesh.n_points)
+    return float(np.linalg.norm(mesh.points[e[:, 1]] - mesh.points[e[:, 0]], axis=1).mean())
+
+
+def vertex_normals(mesh: TriMesh) -> np.ndarray:
+    """Unit vertex normals: area-weighted average of incident face normals (seed 001 §3.2.1)."""
+    fn = mesh.face_normals(normalize=False)  # length = 2 * area
+    n = np.zeros_like(mesh.points)
+    for k in range(3):  # loop over the 3 corners, not over vertices
+        for d in range(3):
+            n[:, d] += np.bincount(mesh.faces[:, k], weights=fn[:, d], minlength=mesh.n_points)
+    nn = np.linalg.norm(n, axis=1, keepdims=True)
+    return n / np.where(nn > 0, nn, 1.0)
+
+
+def add_noise(
+    mesh: TriMesh, sigma: float = 0.2, seed: int = 0, direction: str = "normal"
+) -> TriMesh:
+    """Gaussian noise of standard deviation ``sigma * mean_edge_length`` (m), seeded.
+
+    ``direction="normal"`` displaces each vertex along its vertex normal by N(0, s^2); ``"random"`` adds
+    an isotropic N(0, s^2 I) displacement.
+    """
+    if sigma < 0:
+        raise MeshError(f"noise sigma must be >= 0, got {sigma}")
+    check_surface(mesh)
+    rng = np.random.default_rng(seed)
+    s = sigma * mean_edge_length(mesh)
+    if direction == "normal":
+        d = rng.normal(0.0, s, mesh.n_points)[:, None] * vertex_normals(mesh)
+    elif direction == "random":
+        d = rng.normal(0.0, s, mesh.points.shape)
+    else:
+        raise MeshError(f"noise direction must be 'normal' or 'random', got {direction!r}")
+    return mesh.with_points(mesh.points + d)
+
+
+def normal_angle_error(mesh: TriMesh, reference: TriMesh, faces: np.ndarray | None = None) -> float:
+    """Mean angle (degrees) between face normals of `mesh` and `reference` (same connectivity)."""
+    if mesh.faces.shape != reference.faces.shape:
+        raise MeshError("normal_angle_error needs two meshes with the same faces")
+    a, b = mesh.face_normals(), reference.face_normals()
+    c = np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0)
+    ang = np.degrees(np.arccos(c))
+    if faces is not None:
+        ang = ang[faces]
+    return float(ang.mean())
+
+
+def _to_trimesh(mesh: TriMesh):
+    import trimesh
+
+    return trimesh.Trimesh(mesh.points, mesh.faces, process=False)
+
+
+def point_to_surface_distance(points: np.ndarray, reference: TriMesh) -> np.ndarray:
+    """Exact distance (m) of each point to the reference triangle surface (trimesh.proximity)."""
+    import trimesh.proximity
+
+    _, d, _ = trimesh.proximity.closest_point(_to_trimesh(reference), np.asarray(points, float))
+    return np.asarray(d)
+
+
+def surface_distances(mesh: TriMesh, reference: TriMesh) -> dict:
+    """Mean vertex-to-surface distance (m) and vertex-based symmetric Hausdorff distance (m)."""
+    d1 = point_to_surface_distance(mesh.points, reference)
+    d2 = point_to_surface_distance(reference.points, mesh)
+    return {"mean": float(d1.mean()), "hausdorff": float(max(d1.max(), d2.max()))}
+
+
+def signed_volume(mesh: TriMesh) -> float:
+    """Enclosed volume (m^3) by the divergence theorem, sum over faces of x0 . (x1 x x2) / 6."""
+    x = mesh.points[mesh.faces]
+    return float(np.einsum("ij,ij->i", x[:, 0], np.cross(x[:, 1], x[:, 2])).sum() / 6.0)
+
+
+def volume_change(mesh: TriMesh, reference: TriMesh) -> float:
+    """Relative volume change (V - V_ref) / |V_ref| (dimensionless)."""
+    v0 = signed_volume(reference)
+    if v0 == 0:
+        raise MeshError(f"{reference.name}: reference encloses zero volume")
+    return (signed_volume(mesh) - v0) / abs(v0)
+
+
+def adjacency(edges: np.ndarray, n: int) -> sparse.csr_matrix:
+    """Symmetric 0/1 adjacency matrix from undirected edges."""
+    i = np.concatenate([edges[:, 0], edges[:, 1]])
+    j = np.concatenate([edges[:, 1], edges[:, 0]])
+    return sparse.csr_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
