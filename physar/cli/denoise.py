@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
@@ -45,8 +46,8 @@ def register(app: typer.Typer) -> None:
     @app.command("denoise")
     @user_errors
     def denoise_cmd(
-        inp: Path = typer.Argument(..., help="input mesh (PLY/OBJ/STL/OFF) or PLY point cloud"),
-        out: Path = typer.Argument(..., help="output file (same kinds)"),
+        inp: Annotated[Path, typer.Argument(help="input mesh (PLY/OBJ/STL/OFF) or PLY point cloud")],
+        out: Annotated[Path, typer.Argument(help="output file (same kinds)")],
         method: str = typer.Option("msal", "--method", help="al | msal | laplacian | taubin"),
         iterations: int = typer.Option(None, "--iterations", help="iterations (default per method)"),
         k: int = typer.Option(10, "--k", help="neighbours for point clouds"),
@@ -59,7 +60,7 @@ def register(app: typer.Typer) -> None:
         from physar.geometry.pointcloud import denoise_points
 
         mesh, pts = _load(inp)
-        prog = lambda i, q: log(f"iteration {i + 1}")  # noqa: E731
+        prog = lambda i, q: log(f"iteration {i + 1}")
         if mesh is not None:
             res = denoise(mesh, method, iterations, progress=prog)
             moved = np.linalg.norm(res.points - mesh.points, axis=1)
@@ -80,8 +81,8 @@ def register(app: typer.Typer) -> None:
     @app.command("noise")
     @user_errors
     def noise_cmd(
-        inp: Path = typer.Argument(..., help="input surface mesh"),
-        out: Path = typer.Argument(..., help="output surface mesh"),
+        inp: Annotated[Path, typer.Argument(help="input surface mesh")],
+        out: Annotated[Path, typer.Argument(help="output surface mesh")],
         sigma: float = typer.Option(0.2, "--sigma", help="noise std as a fraction of the mean edge length"),
         seed: int = typer.Option(0, "--seed"),
         direction: str = typer.Option("normal", "--direction", help="normal | random"),
@@ -90,7 +91,7 @@ def register(app: typer.Typer) -> None:
         """Add seeded Gaussian noise to a surface mesh."""
         from physar.geometry.quality import add_noise, mean_edge_length
 
-        mesh, pts = _load(inp)
+        mesh, _ = _load(inp)
         if mesh is None:
             raise PhysarError(f"{inp}: `noise` needs a surface mesh (faces), got a point cloud")
         noisy = add_noise(mesh, sigma, seed, direction)

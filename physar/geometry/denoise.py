@@ -17,7 +17,7 @@ positions are in metres; τ, λ, ξ, κ are dimensionless.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -71,7 +71,7 @@ def al_iterate(
     dst: np.ndarray,
     taus: np.ndarray,
     lam: np.ndarray | float,
-    kappa: float = 2.0,
+    kappa: float = 0.5,
     progress: Progress = None,
 ) -> np.ndarray:
     """Run q <- q + τ_k Δq + λ (q̂ - q) for each τ_k in `taus`; `normals(q)` gives unit normals.
@@ -97,7 +97,7 @@ def al_iterate(
 def _mesh_graph(mesh: TriMesh):
     check_surface(mesh)
     src, dst = directed_edges(unique_edges(mesh.faces, mesh.n_points))
-    normals = lambda q: vertex_normals(mesh.with_points(q))  # noqa: E731
+    normals = lambda q: vertex_normals(mesh.with_points(q))
     return src, dst, normals
 
 
@@ -107,7 +107,7 @@ def _check_iter(iterations: int) -> None:
 
 
 def anisotropic_laplacian(
-    mesh: TriMesh, iterations: int = 10, tau: float = 0.5, lam: float = 0.0, kappa: float = 2.0,
+    mesh: TriMesh, iterations: int = 10, tau: float = 0.5, lam: float = 0.0, kappa: float = 0.5,
     progress: Progress = None,
 ) -> TriMesh:
     """AL denoising (Huang & Ascher 2008; seed 001 §3.2.1) with constant τ and fidelity λ."""
@@ -127,7 +127,7 @@ def msal_lambda(qhat: np.ndarray, normals, src: np.ndarray, dst: np.ndarray) -> 
 
 
 def msal(
-    mesh: TriMesh, iterations: int = 4, xi: float = 0.5, kappa: float = 2.0, fidelity: float = 1.0,
+    mesh: TriMesh, iterations: int = 4, xi: float = 0.5, kappa: float = 0.5, fidelity: float = 1.0,
     progress: Progress = None,
 ) -> TriMesh:
     """MSAL: τ = ξ^k, λ_i = fidelity · σ_i / max σ (seed 001 §3.2.1; fidelity = 1 is the seed's choice)."""

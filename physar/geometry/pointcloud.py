@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from physar.errors import MeshError, PhysarError
-from physar.geometry.denoise import MAD, Progress, al_iterate, local_scale, heights
+from physar.geometry.denoise import MAD, Progress, al_iterate, heights, local_scale
 
 
 def _check_cloud(points: np.ndarray, k: int) -> np.ndarray:
@@ -58,12 +58,12 @@ def pca_normals(points: np.ndarray, k: int = 10, viewpoint: np.ndarray | None = 
 
 def denoise_points(
     points: np.ndarray, method: str = "msal", iterations: int | None = None, k: int = 10,
-    tau: float = 0.5, xi: float = 0.5, kappa: float = 2.0, progress: Progress = None,
+    tau: float = 0.5, xi: float = 0.5, kappa: float = 0.5, progress: Progress = None,
 ) -> np.ndarray:
     """AL (constant τ, λ = 0) or MSAL (τ = ξ^k, λ_i = σ_i / max σ) on the k-NN graph; returns (n, 3) m."""
     p = _check_cloud(points, k)
     src, dst = knn_graph(p, k)
-    normals = lambda q: pca_normals(q, k)  # noqa: E731
+    normals = lambda q: pca_normals(q, k)
     if method == "al":
         it = 10 if iterations is None else int(iterations)
         if it < 1:
@@ -116,4 +116,4 @@ def write_ply(path: str | os.PathLike, points: np.ndarray) -> Path:
     return path
 
 
-__all__ = ["knn_graph", "pca_normals", "denoise_points", "read_ply", "write_ply", "MAD"]
+__all__ = ["MAD", "denoise_points", "knn_graph", "pca_normals", "read_ply", "write_ply"]
