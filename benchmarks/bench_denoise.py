@@ -90,7 +90,8 @@ def run_meshlab(filt, per_call_iters: bool):
 
 METHODS = {
     "AL (physar)": (lambda m, it: D.anisotropic_laplacian(m, it), [2, 5, 10, 20]),
-    "MSAL (physar)": (lambda m, it: D.msal(m, it), [1, 2, 3, 4]),
+    "MSAL (physar, seed: ξ=0.5, λ=σ/σmax)": (lambda m, it: D.msal(m, it), [1, 2, 3, 4]),
+    "MSAL (physar, ξ=0.9, λ=0.1σ/σmax)": (lambda m, it: D.msal(m, it, xi=0.9, fidelity=0.1), [2, 4, 8]),
     "Taubin (physar)": (lambda m, it: D.taubin_smooth(m, it), [5, 10, 20, 50]),
     "Taubin (trimesh)": (run_trimesh(trimesh.smoothing.filter_taubin), [5, 10, 20, 50]),
     "Laplacian (trimesh)": (run_trimesh(trimesh.smoothing.filter_laplacian), [1, 2, 5, 10]),
@@ -158,7 +159,7 @@ def timing_table() -> None:
         m = Q.add_noise(TriMesh(pts, f), 0.2, 0)
         stamps = []
         t0 = time.perf_counter()
-        D.msal(m, 4, progress=lambda k, q: stamps.append(time.perf_counter()))
+        D.msal(m, 4, progress=lambda k, q: stamps.append(time.perf_counter()))  # noqa: B023
         per_iter = np.diff(stamps).mean()  # excludes the one-off setup (edges, σ_i)
         setup = stamps[0] - t0
         t = tm(m)
