@@ -23,7 +23,7 @@ import numpy as np
 
 from physar.errors import PhysarError
 from physar.geometry.mesh import TriMesh
-from physar.geometry.quality import check_surface, unique_edges, vertex_normals
+from physar.geometry.quality import check_surface, unique_edges, vertex_normals_arrays
 
 Progress = Callable[[int, np.ndarray], None] | None
 MAD = 1.4826  # median absolute deviation -> standard deviation for Gaussian data
@@ -97,7 +97,8 @@ def al_iterate(
 def _mesh_graph(mesh: TriMesh):
     check_surface(mesh)
     src, dst = directed_edges(unique_edges(mesh.faces, mesh.n_points))
-    normals = lambda q: vertex_normals(mesh.with_points(q))
+    faces = mesh.faces
+    normals = lambda q: vertex_normals_arrays(q, faces)
     return src, dst, normals
 
 

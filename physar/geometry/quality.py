@@ -50,12 +50,18 @@ def mean_edge_length(mesh: TriMesh) -> float:
 
 def vertex_normals(mesh: TriMesh) -> np.ndarray:
     """Unit vertex normals: area-weighted average of incident face normals (seed 001 §3.2.1)."""
-    fn = mesh.face_normals(normalize=False)  # length = 2 * area
-    n = np.zeros_like(mesh.points)
-    for k in range(3):  # loop over the 3 corners, not over vertices
-        for d in range(3):
-            n[:, d] += np.bincount(mesh.faces[:, k], weights=fn[:, d], minlength=mesh.n_points)
-    nn = np.linalg.norm(n, axis=1, keepdims=True)
+    return vertex_normals_arrays(mesh.points, mesh.faces)
+
+
+def vertex_normals_arrays(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """:func:`vertex_normals` on raw arrays (no validation; used inside iterative loops)."""
+    x0, x1, x2 = points[faces[:, 0]], points[faces[:, 1]], points[faces[:, 2]]
+    fn = np.cross(x1 - x0, x2 - x0)  # length = 2 * area: area weighting
+    idx = faces.T.ravel()  # corner-major: all corner-0 vertices, then corner-1, corner-2
+    n = np.empty_like(points)
+    for d in range(3):  # loop over coordinates, not over vertices
+        n[:, d] = np.bincount(idx, weights=np.tile(fn[:, d], 3), minlength=len(points))
+    nn = np.sqrt(np.einsum("ij,ij->i", n, n))[:, None]
     return n / np.where(nn > 0, nn, 1.0)
 
 
