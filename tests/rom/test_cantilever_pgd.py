@@ -1,0 +1,52 @@
+import numpy as np
+import pytest
+
+from physar.fem import ElasticModel, FESpace, LinearElastic, LinearSolver, fixed_dofs, point_load
+from physar.geometry import box_mesh
+from physar.rom.elastic import build_moving_load_pgd
+
+L, W, H = 1.0, 0.1, 0.1
+PATH = [[0.0, W / 2, H], [L, W / 2, H]]
+
+
+def _setup(cells):
+    space = FESpace(box_mesh((L, W, H), cells), "P1")
+    model = ElasticModel(space, LinearElastic(E=1e7, nu=0.3))
+    fixed = fixed_dofs(space, box=[[-1e-9, -1, -1], [1e-9, 1, 1]])
+    return space, model, fixed
+
+
+@pytest.fixture(scope="module")
+def rom():
+    space, model, fixed = _setup((16, 2, 2))
+    m, info = build_moving_load_pgd(model, fixed, PATH, points=81, load=(0, 0, -1.0), radius=0.08,
+                                    max_modes=20, tol=1e-5)
+    return space, model, fixed, m, info
+
+
+def test_pgd_matches_full_solves(rom):
+    space, model, fixed, m, info = rom
+    assert m.n_modes <= 20
+    solver = LinearSolver(model, fixed)
+    errs, norms, ss = [], [], np.random.default_rng(1).uniform(0, L, 50)
+    for s in ss:
+        u = solver.solve(point_load(space, [s, W / 2, H], (0, 0, -1.0), 0.08))
+        errs.append(np.linalg.norm(m.evaluate([s]) - u))
+        norms.append(np.linalg.norm(u))
+    errs, norms = np.array(errs), np.array(norms)
+    # error relative to the largest response over the parameter domain (L2 norm)
+    assert errs.max() / norms.max() < 1e-3
+    # pointwise relative error away from the clamp (near it u -> 0 and the ratio is ill-conditioned)
+    far = ss > 0.1 * L
+    assert np.all(errs[far] / norms[far] < 1e-3), (errs / norms).max()
+    a = info["amplitudes"]
+    assert a[-1] < 1e-3 * a[0] and np.all(a[2:] < a[:-2])
+
+
+def test_sensitivity_fd(rom):
+    m = rom[3]
+    for s in (0.3, 0.77):
+        h = 1e-6
+        fd = (m.evaluate([s + h]) - m.evaluate([s - h])) / (2 * h)
+        d = m.sensitivities([s])[0]
+        assert np.linalg.norm(d - fd) / np.linalg.norm(d) < 1e-5
