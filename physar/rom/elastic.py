@@ -26,11 +26,13 @@ def load_path_matrix(space, path, points, load, radius):
 
 
 def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radius=0.04,
-                          max_modes=20, tol=1e-4, svd_tol=1e-10):
+                          max_modes=20, tol=1e-4, svd_tol=1e-10, magnitude_range=None):
     """PGD model u(x, s) of K u = f(x; s) with u = 0 on `fixed` (linear elastic `model`).
 
     The load is written as a separated sum f(x; s) = sum_k f_k(x) g_k(s) by a truncated SVD
     of the sampled load matrix (relative singular value tolerance `svd_tol`).
+    With ``magnitude_range=(P_lo, P_hi)`` (N) a second parameter "P", the load magnitude, is added:
+    u(x; s, P) = sum_i F_i(x) G_i(s) P / |load| (exact, linear elasticity).
     """
     if not model.linear:
         raise ConfigError("intrusive PGD needs a linear material; use method='pgd_nonintrusive'")
@@ -47,7 +49,17 @@ def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radi
     F = np.zeros((red.n_modes, space.n_dofs))
     F[:, free] = red.F
     from physar.rom.separated import SeparatedModel
-    out = SeparatedModel(F, red.grids, red.G, ["s"], ["m"],
+    grids, G, names, units = list(red.grids), list(red.G), ["s"], ["m"]
+    if magnitude_range is not None:
+        lo, hi = map(float, magnitude_range)
+        if not hi > lo:
+            raise ConfigError(f"magnitude_range must be increasing, got {magnitude_range}")
+        gp = np.linspace(lo, hi, 3)
+        grids.append(gp)
+        G.append(np.tile(gp / np.linalg.norm(load), (red.n_modes, 1)))
+        names.append("P")
+        units.append("N")
+    out = SeparatedModel(F, grids, G, names, units,
                          {"kind": "load_position", "path": np.asarray(path, float).tolist(),
                           "load": list(map(float, load)), "radius": float(radius),
                           "material": type(model.material).__name__, "svd_rank": r})
