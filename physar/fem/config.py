@@ -57,6 +57,7 @@ class MaterialSection(_Strict):
 class FixSection(_Strict):
     box: Box
     components: list[Literal["x", "y", "z"]] = ["x", "y", "z"]
+    value: Optional[Vec3] = Field(None, description="prescribed displacement [m] (x, y, z); default 0")
 
 
 class LoadSection(_Strict):
@@ -176,6 +177,7 @@ class Problem:
     fixed: np.ndarray
     probes: np.ndarray  # (p, 3)
     config: FemConfig
+    prescribed: np.ndarray | None = None  # Dirichlet values on `fixed` (n_dofs,), None = all zero
 
 
 def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
@@ -207,9 +209,15 @@ def build_problem(cfg: FemConfig, base_dir: Path | None = None) -> Problem:
             or [np.zeros(0, dtype=np.int64)]
         )
     ).astype(np.int64)
+    prescribed = None
     for i, f in enumerate(cfg.fix):
         if len(fixed_dofs(space, box=f.box)) == 0:
             raise ConfigError(f"[[fix]] #{i + 1}: no node lies in box {list(map(list, f.box))}")
+    if any(f.value is not None for f in cfg.fix):
+        prescribed = np.zeros(space.n_dofs)
+        for f in cfg.fix:  # in file order: a later [[fix]] overrides an earlier one where boxes overlap
+            for c in f.components:
+                prescribed[fixed_dofs(space, box=f.box, components=c)] = 0.0 if f.value is None else f.value["xyz".index(c)]
     f_ext = np.zeros(space.n_dofs)
     for i, ld in enumerate(cfg.load):
         try:
@@ -224,7 +232,7 @@ def build_problem(cfg: FemConfig, base_dir: Path | None = None) -> Problem:
         except ConfigError as exc:
             raise ConfigError(f"[[load]] #{i + 1}: {exc}") from None
     probes = np.array([p.point for p in cfg.probe], dtype=float).reshape(-1, 3)
-    return Problem(space, model, f_ext, fixed, probes, cfg)
+    return Problem(space, model, f_ext, fixed, probes, cfg, prescribed)
 
 
 @dataclass
@@ -265,7 +273,7 @@ def solve_problem(problem: Problem, progress: Callable[[int, int], None] | None 
     for p in problem.probes:  # fail before the solve if a probe is outside the mesh
         probe(problem.space, np.zeros(problem.space.n_dofs), p)
     res = solve_static(problem.model, problem.f_ext, problem.fixed, steps=s.steps, tol=s.tol,
-                       max_iter=s.max_iter, progress=progress)
+                       max_iter=s.max_iter, progress=progress, prescribed=problem.prescribed)
     return FemResult(problem, res, von_mises(problem.model, res.u))
 
 

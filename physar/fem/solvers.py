@@ -167,10 +167,15 @@ def solve_static(
     tol: float = 1e-10,
     max_iter: int = 30,
     progress: Callable[[int, int], None] | None = None,
+    prescribed: np.ndarray | None = None,
 ) -> StaticResult:
-    """Static equilibrium f_int(u) = f_ext, u = 0 on `fixed` (Newton, line search, load steps).
+    """Static equilibrium f_int(u) = f_ext on the free dofs, u = u_D on `fixed` (Newton, line search, load steps).
 
-    Convergence: |R_free| <= tol * max(|f_ext|, |f_int(u)|, tiny). For a linear model one
+    `prescribed` (shape (n_dofs,), only its entries at `fixed` are used; default 0) gives u_D, the
+    Dirichlet values, e.g. a rigid rotation of a clamped lever. Load step k of `steps` applies
+    lambda_k f_ext and lambda_k u_D with lambda_k = k / steps.
+    Convergence: |R_free| <= tol * max(lambda |f_ext|, |f_int(u)|, tiny), where f_int over all dofs
+    includes the reactions (the scale of a displacement-driven problem). For a linear model one
     factorisation and one solve. `progress(step, steps)` is called after each load step.
     Raises SolverError if a load step does not converge (try more `steps`).
     """
@@ -181,11 +186,20 @@ def solve_static(
         raise SolverError(f"external force must have shape ({n},), got {f_ext.shape}")
     if steps < 1:
         raise SolverError(f"load steps must be >= 1, got {steps}")
+    if prescribed is None:
+        u_d = np.zeros(n)
+    else:
+        u_d = np.asarray(prescribed, dtype=float)
+        if u_d.shape != (n,):
+            raise SolverError(f"prescribed displacements must have shape ({n},), got {u_d.shape}")
+        if not np.all(np.isfinite(u_d[fixed])):
+            raise SolverError("prescribed displacements contain NaN or inf")
     check_constraints(model.space.nodes, fixed)
     free = _free_dofs(n, fixed)
     u = np.zeros(n) if u0 is None else np.array(u0, dtype=float)
     u[fixed] = 0.0
     if model.linear:
+        u[fixed] = u_d[fixed]
         K = model.tangent_stiffness(u)
         r = model.internal_force(u) - f_ext
         u[free] -= factorize(K[free][:, free]).solve(r[free])
@@ -195,16 +209,18 @@ def solve_static(
         return StaticResult(u, [1], [[float(res)]])
 
     result = StaticResult(u)
-    fnorm = max(np.linalg.norm(f_ext[free]), 1e-300)
+    fnorm = np.linalg.norm(f_ext[free])
     for step in range(1, steps + 1):
         lam = step / steps
         history = []
         f = lam * f_ext
-        r = model.internal_force(u) - f
+        u[fixed] = lam * u_d[fixed]
+        f_int = model.internal_force(u)
+        r = f_int - f
         rn = np.linalg.norm(r[free])
         history.append(float(rn))
         it = 0
-        while rn > tol * max(lam * fnorm, 1e-300):
+        while rn > tol * max(lam * fnorm, np.linalg.norm(f_int), 1e-300):
             if it >= max_iter:
                 raise SolverError(
                     f"Newton did not converge in {max_iter} iterations at load step {step}/{steps} "
@@ -219,7 +235,8 @@ def solve_static(
                 # backtracking: accept the first step that lowers the residual or the total potential
                 # energy Π = E(u) - f·u (the Newton step is a descent direction of Π where K > 0)
                 trial = u + alpha * du
-                r_t = model.internal_force(trial) - f
+                f_int_t = model.internal_force(trial)
+                r_t = f_int_t - f
                 rn_t = np.linalg.norm(r_t[free])
                 if np.isfinite(rn_t) and (rn_t < rn or model.energy(trial) - f @ trial < pi0):
                     break
@@ -229,7 +246,7 @@ def solve_static(
                     f"line search failed at load step {step}/{steps} (residual {rn:.3e}); "
                     "increase [solver] steps"
                 )
-            u, r, rn = trial, r_t, rn_t
+            u, r, rn, f_int = trial, r_t, rn_t, f_int_t
             history.append(float(rn))
             it += 1
         result.newton_iterations.append(it)

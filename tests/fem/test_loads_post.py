@@ -104,3 +104,81 @@ def test_load_steps_reach_the_same_solution_and_errors():
         solve_static(model, 50 * f, fixed, steps=1, max_iter=2)
     with pytest.raises(SolverError, match="not fully constrained"):
         solve_static(model, f, fixed_dofs(space, box=[[0, 0, 0], [0, 0.1, 0.1]], components="z"))
+
+
+def _roller_stretch(material, d, steps=1, element="P1"):
+    """Bar [0,L]x[0,b]x[0,h] on rollers (u_x = 0 at x = 0, u_y = 0 at y = 0, u_z = 0 at z = 0), end x = L
+    pulled by a prescribed u_x = d. Returns the space, the solution and the x-reaction on the pulled end."""
+    L, b, h = 1.0, 0.2, 0.1
+    space = FESpace(box_mesh((L, b, h), (4, 2, 2)), element)
+    model = ElasticModel(space, material)
+    end = fixed_dofs(space, box=[[L - 1e-9, -1, -1], [L + 1, 2, 2]], components="x")
+    fixed = np.unique(np.concatenate([
+        fixed_dofs(space, box=[[-1, -1, -1], [1e-9, 2, 2]], components="x"),
+        fixed_dofs(space, box=[[-1, -1, -1], [2, 1e-9, 2]], components="y"),
+        fixed_dofs(space, box=[[-1, -1, -1], [2, 2, 1e-9]], components="z"),
+        end,
+    ]))
+    u_d = np.zeros(space.n_dofs)
+    u_d[end] = d
+    u = solve_static(model, np.zeros(space.n_dofs), fixed, steps=steps, prescribed=u_d).u
+    reaction = model.internal_force(u)[end].sum()
+    return space, u, reaction, (L, b, h)
+
+
+@pytest.mark.parametrize("element", ["P1", "P2"])
+def test_prescribed_stretch_linear_matches_uniaxial_closed_form(element):
+    """Linear elasticity: u_x = d x / L, u_y = -nu d y / L, reaction E A d / L (exact for a linear field)."""
+    E, nu, d = 2e9, 0.3, 1e-3
+    space, u, reaction, (L, b, h) = _roller_stretch(LinearElastic(E, nu), d, element=element)
+    x = space.nodes
+    U = u.reshape(-1, 3)
+    np.testing.assert_allclose(U[:, 0], d * x[:, 0] / L, atol=1e-12)
+    np.testing.assert_allclose(U[:, 1], -nu * d * x[:, 1] / L, atol=1e-12)
+    np.testing.assert_allclose(reaction, E * b * h * d / L, rtol=1e-9)
+
+
+def test_prescribed_stretch_stvk_matches_finite_strain_closed_form():
+    """St.VK under homogeneous uniaxial stretch lambda_1 = 1 + d/L with free lateral faces: S_22 = 0 gives the
+    lateral Green strain E_22 = -nu E_11, and the first Piola stress P_11 = lambda_1 E_young E_11, so the
+    end reaction is b h lambda_1 E_young E_11 (seed 000 §5.2 material, a 30 % stretch, 4 load steps)."""
+    E, nu, d = 1e6, 0.3, 0.3
+    space, u, reaction, (L, b, h) = _roller_stretch(StVK(E, nu), d, steps=4)
+    lam1 = 1 + d / L
+    e11 = 0.5 * (lam1**2 - 1)
+    lam2 = np.sqrt(1 - 2 * nu * e11)
+    U = u.reshape(-1, 3)
+    x = space.nodes
+    np.testing.assert_allclose(U[:, 1], (lam2 - 1) * x[:, 1], atol=1e-9)
+    np.testing.assert_allclose(U[:, 2], (lam2 - 1) * x[:, 2], atol=1e-9)
+    np.testing.assert_allclose(reaction, b * h * lam1 * E * e11, rtol=1e-8)
+
+
+def test_prescribed_values_must_match_dofs():
+    space = FESpace(box_mesh((1, 1, 1), (1, 1, 1)), "P1")
+    model = ElasticModel(space, LinearElastic(1e6, 0.3))
+    fixed = fixed_dofs(space, box=[[-1, -1, -1], [1e-9, 2, 2]])
+    with pytest.raises(SolverError, match="prescribed displacements must have shape"):
+        solve_static(model, np.zeros(space.n_dofs), fixed, prescribed=np.zeros(5))
+
+
+def test_config_fix_value_prescribes_displacement():
+    """[[fix]] value = [...] in a problem file: the pulled end moves by exactly that value, the rest follows
+    the linear closed form u_x = d x / L."""
+    from physar.fem.config import build_problem, parse_config, solve_problem
+
+    d = 2e-3
+    cfg = parse_config({
+        "mesh": {"box": [1.0, 0.2, 0.1], "cells": [4, 2, 2]},
+        "material": {"model": "linear", "E": 1e9, "nu": 0.25},
+        "fem": {"element": "P1"},
+        "fix": [
+            {"box": [[-1, -1, -1], [1e-9, 2, 2]], "components": ["x"]},
+            {"box": [[-1, -1, -1], [2, 1e-9, 2]], "components": ["y"]},
+            {"box": [[-1, -1, -1], [2, 2, 1e-9]], "components": ["z"]},
+            {"box": [[1 - 1e-9, -1, -1], [2, 2, 2]], "components": ["x"], "value": [d, 0, 0]},
+        ],
+    })
+    res = solve_problem(build_problem(cfg))
+    U = res.static.u.reshape(-1, 3)
+    np.testing.assert_allclose(U[:, 0], d * res.problem.space.nodes[:, 0], atol=1e-12)
