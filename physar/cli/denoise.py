@@ -48,29 +48,40 @@ def register(app: typer.Typer) -> None:
     def denoise_cmd(
         inp: Annotated[Path, typer.Argument(help="input mesh (PLY/OBJ/STL/OFF) or PLY point cloud")],
         out: Annotated[Path, typer.Argument(help="output file (same kinds)")],
-        method: str = typer.Option("msal", "--method", help="al | msal | laplacian | taubin"),
+        method: str = typer.Option("msal", "--method", help="al | msal | laplacian | taubin | bnf (meshes)"),
         iterations: int = typer.Option(None, "--iterations", help="iterations (default per method)"),
         k: int = typer.Option(10, "--k", help="neighbours for point clouds"),
         json_out: bool = typer.Option(False, "--json", help="print a JSON summary on stdout"),
     ) -> None:
-        """Denoise a surface mesh or point cloud with AL/MSAL (Huang & Ascher 2008) or a baseline."""
-        import numpy as np
+        """Denoise a surface mesh or point cloud with AL/MSAL (seed 001 §3.2.1) or a baseline."""
+        import sys
 
-        from physar.geometry.denoise import denoise
+        import numpy as np
+        from tqdm import tqdm
+
+        from physar.geometry.denoise import METHODS, denoise
         from physar.geometry.pointcloud import denoise_points
 
+        if method not in METHODS:
+            raise PhysarError(f"unknown denoising method {method!r}; choose one of {sorted(METHODS)}")
+        if iterations is not None and iterations < 1:
+            raise PhysarError(f"--iterations must be >= 1, got {iterations}")
         mesh, pts = _load(inp)
-        prog = lambda i, q: log(f"iteration {i + 1}")
-        if mesh is not None:
-            res = denoise(mesh, method, iterations, progress=prog)
-            moved = np.linalg.norm(res.points - mesh.points, axis=1)
-            _save(out, res, None)
-            n = mesh.n_points
-        else:
-            q = denoise_points(pts, method, iterations, k=k, progress=prog)
-            moved = np.linalg.norm(q - pts, axis=1)
-            _save(out, None, q)
-            n = len(pts)
+        bar = tqdm(total=iterations, desc=f"{method} iterations", file=sys.stderr, disable=json_out)
+        prog = lambda i, q: bar.update(1)
+        try:
+            if mesh is not None:
+                res = denoise(mesh, method, iterations, progress=prog)
+                moved = np.linalg.norm(res.points - mesh.points, axis=1)
+                _save(out, res, None)
+                n = mesh.n_points
+            else:
+                q = denoise_points(pts, method, iterations, k=k, progress=prog)
+                moved = np.linalg.norm(q - pts, axis=1)
+                _save(out, None, q)
+                n = len(pts)
+        finally:
+            bar.close()
         summary = {"input": str(inp), "output": str(out), "method": method, "points": n,
                    "mean_displacement_m": float(moved.mean()), "max_displacement_m": float(moved.max())}
         if json_out:

@@ -16,7 +16,18 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from physar.errors import MeshError, PhysarError
-from physar.geometry.denoise import MAD, Progress, al_iterate, heights, local_scale
+from physar.geometry.denoise import (
+    G_DEFAULT,
+    KAPPA,
+    MAD,
+    MSAL_FIDELITY,
+    MSAL_XI,
+    Progress,
+    al_iterate,
+    directed_edges,
+    msal_lambda,
+    scales_of,
+)
 
 
 def _check_cloud(points: np.ndarray, k: int) -> np.ndarray:
@@ -30,16 +41,20 @@ def _check_cloud(points: np.ndarray, k: int) -> np.ndarray:
     return p
 
 
-def knn_graph(points: np.ndarray, k: int = 10) -> tuple[np.ndarray, np.ndarray]:
-    """Symmetrised k-NN graph as directed edges (src, dst), both directions present, no duplicates."""
+def knn_edges(points: np.ndarray, k: int = 10) -> np.ndarray:
+    """Undirected edges (e, 2), a < b, of the symmetrised k-nearest-neighbour graph (no duplicates)."""
     p = _check_cloud(points, k)
     _, idx = cKDTree(p).query(p, k + 1)
     i = np.repeat(np.arange(len(p)), k)
     j = idx[:, 1:].ravel()
     a, b = np.minimum(i, j), np.maximum(i, j)
     key = np.unique(a * np.int64(len(p)) + b)
-    a, b = np.divmod(key, np.int64(len(p)))
-    return np.concatenate([a, b]), np.concatenate([b, a])
+    return np.stack(np.divmod(key, np.int64(len(p))), axis=1)
+
+
+def knn_graph(points: np.ndarray, k: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """Symmetrised k-NN graph as directed edges (src, dst), both directions present, sorted by src."""
+    return directed_edges(knn_edges(points, k))
 
 
 def pca_normals(points: np.ndarray, k: int = 10, viewpoint: np.ndarray | None = None) -> np.ndarray:
@@ -58,25 +73,33 @@ def pca_normals(points: np.ndarray, k: int = 10, viewpoint: np.ndarray | None = 
 
 def denoise_points(
     points: np.ndarray, method: str = "msal", iterations: int | None = None, k: int = 10,
-    tau: float = 0.5, xi: float = 0.5, kappa: float = 0.5, progress: Progress = None,
+    tau: float = 0.5, xi: float = MSAL_XI, fidelity: float = MSAL_FIDELITY, kappa: float = KAPPA,
+    g: str = G_DEFAULT, shrink_correction: float = 1.0, progress: Progress = None,
 ) -> np.ndarray:
-    """AL (constant τ, λ = 0) or MSAL (τ = ξ^k, λ_i = σ_i / max σ) on the k-NN graph; returns (n, 3) m."""
+    """AL (constant τ, λ = 0) or MSAL (τ = ξ^k, λ_i = fidelity · σ_i / max σ) on the k-NN graph.
+
+    Same update, edge-stopping function and robust scales as :mod:`physar.geometry.denoise` (seed 001
+    §3.2.1), with PCA normals and the same optional shrinkage correction; no volume correction (a point
+    cloud encloses no defined volume).
+    Returns the (n, 3) denoised points (m).
+    """
     p = _check_cloud(points, k)
-    src, dst = knn_graph(p, k)
-    normals = lambda q: pca_normals(q, k)
+    edges = knn_edges(p, k)
+    geometry = lambda q32: (pca_normals(q32.astype(np.float64), k), None, None)  # centred positions
+    if method not in ("al", "msal"):
+        raise PhysarError(f"point clouds support methods 'al' and 'msal', got {method!r}")
+    it = (10 if method == "al" else 8) if iterations is None else int(iterations)
+    if it < 1:
+        raise PhysarError(f"iterations must be >= 1, got {it}")
     if method == "al":
-        it = 10 if iterations is None else int(iterations)
-        if it < 1:
-            raise PhysarError(f"iterations must be >= 1, got {it}")
-        return al_iterate(p, normals, src, dst, np.full(it, tau), 0.0, kappa, progress)
-    if method == "msal":
-        it = 4 if iterations is None else int(iterations)
-        if it < 1:
-            raise PhysarError(f"iterations must be >= 1, got {it}")
-        sig = local_scale(heights(p, normals(p), src, dst), src, len(p))
-        lam = sig / sig.max() if sig.max() > 0 else np.zeros(len(p))
-        return al_iterate(p, normals, src, dst, xi ** np.arange(it, dtype=float), lam, kappa, progress)
-    raise PhysarError(f"point clouds support methods 'al' and 'msal', got {method!r}")
+        return al_iterate(p, geometry, edges, np.full(it, tau), 0.0, kappa, g, False, progress,
+                          shrink_correction=shrink_correction)
+    if not (0 < xi < 1) or not (0 <= fidelity <= 1):
+        raise PhysarError(f"MSAL needs 0 < xi < 1 and 0 <= fidelity <= 1, got xi={xi}, fidelity={fidelity}")
+    sig_e, sig_i = scales_of(p, pca_normals(p, k), edges)
+    lam = fidelity * msal_lambda(sig_i)
+    return al_iterate(p, geometry, edges, xi ** np.arange(it, dtype=float), lam, kappa, g, False, progress,
+                      sigma_e=sig_e, shrink_correction=shrink_correction)
 
 
 def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
@@ -116,4 +139,4 @@ def write_ply(path: str | os.PathLike, points: np.ndarray) -> Path:
     return path
 
 
-__all__ = ["MAD", "denoise_points", "knn_graph", "pca_normals", "read_ply", "write_ply"]
+__all__ = ["MAD", "denoise_points", "knn_edges", "knn_graph", "pca_normals", "read_ply", "write_ply"]
