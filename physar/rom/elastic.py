@@ -26,13 +26,17 @@ def load_path_matrix(space, path, points, load, radius):
 
 
 def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radius=0.04,
-                          max_modes=20, tol=1e-4, svd_tol=1e-10, magnitude_range=None):
+                          max_modes=20, tol=1e-4, svd_tol=1e-10, magnitude_range=None, n_check=0,
+                          progress=None, seed=0):
     """PGD model u(x, s) of K u = f(x; s) with u = 0 on `fixed` (linear elastic `model`).
 
     The load is written as a separated sum f(x; s) = sum_k f_k(x) g_k(s) by a truncated SVD
     of the sampled load matrix (relative singular value tolerance `svd_tol`).
     With ``magnitude_range=(P_lo, P_hi)`` (N) a second parameter "P", the load magnitude, is added:
     u(x; s, P) = sum_i F_i(x) G_i(s) P / |load| (exact, linear elasticity).
+    Stopping: relative mode amplitude < `tol` (info["amplitudes"]); with ``n_check > 0`` also an error
+    estimate against full solves at `n_check` random positions s (info["check_error"]: max over them
+    of ||u_PGD - u_FE|| / max ||u_FE||, L2 over the dofs). ``progress(mode, max_modes)``.
     """
     if not model.linear:
         raise ConfigError("intrusive PGD needs a linear material; use method='pgd_nonintrusive'")
@@ -45,7 +49,16 @@ def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radi
     fac = factorize(K)
     f = (U[free, :r] * S[:r]).T
     red, info = pgd_linear(K, f, Vt[:r], s, max_modes=max_modes, tol=tol, solve=fac.solve,
-                           name="s", unit="m")
+                           name="s", unit="m", progress=progress)
+    if n_check:
+        length = float(s[-1])
+        d = (np.asarray(path[1], float) - np.asarray(path[0], float)) / length
+        checks = np.random.default_rng(seed).uniform(0, length, int(n_check))
+        Fc = np.stack([point_load(space, np.asarray(path[0], float) + c * d, load, radius)[free] for c in checks], 1)
+        Uc = fac.solve(Fc).reshape(len(free), -1)
+        Ur = np.stack([red.evaluate([c]) for c in checks], 1)
+        info["check_error"] = float(np.linalg.norm(Ur - Uc, axis=0).max() / np.linalg.norm(Uc, axis=0).max())
+        info["check_points"] = checks
     F = np.zeros((red.n_modes, space.n_dofs))
     F[:, free] = red.F
     from physar.rom.separated import SeparatedModel

@@ -22,12 +22,12 @@ def _trapz_weights(x):
     return w
 
 
-def pgd_linear(K, f, g, grid, max_modes=20, tol=1e-4, max_fp=50, fp_tol=1e-8, solve=None,
-               name="mu", unit=""):
+def pgd_linear(K, f, g, grid, max_modes=20, tol=1e-4, max_fp=50, fp_tol=1e-6, solve=None,
+               name="mu", unit="", progress=None):
     """Build a SeparatedModel for K u = sum_k f[k] g[k](mu) (f: (r, n), g: (r, n_grid) on grid).
 
     Stops when the relative mode amplitude ||F_n|| ||G_n|| / (||F_1|| ||G_1||) < tol.
-    Returns (model, info) with info["amplitudes"].
+    Returns (model, info) with info["amplitudes"]. ``progress(n, max_modes)`` after each mode.
     """
     f = np.atleast_2d(np.asarray(f, float))
     g = np.atleast_2d(np.asarray(g, float))
@@ -63,6 +63,8 @@ def pgd_linear(K, f, g, grid, max_modes=20, tol=1e-4, max_fp=50, fp_tol=1e-8, so
         Gs.append(G)
         KFs.append(K @ F)
         amps.append(np.linalg.norm(G * np.sqrt(w)))
+        if progress:
+            progress(len(Fs), max_modes)
         if amps[-1] < tol * amps[0]:
             break
     model = SeparatedModel(np.array(Fs), [grid], [np.array(Gs)], [name], [unit])

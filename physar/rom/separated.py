@@ -4,8 +4,10 @@ Displacements in m, parameters in the units given by ``units``.
 """
 from __future__ import annotations
 
+import json
 import os
 import tempfile
+from bisect import bisect_right
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -15,11 +17,19 @@ from physar.errors import PhysarError
 FORMAT_VERSION = 1
 
 
+class ReducedModelError(PhysarError, ValueError):
+    """A reduced-model file is unreadable, of another format version, or built on another mesh."""
+
+
 class SeparatedModel:
     """u(mu) = sum_i F_i prod_j G_i^j(mu_j) with F (n_modes, n_dof) and G^j (n_modes, n_grid_j).
 
     The 1-D parameter modes are interpolated by cubic splines, so du/dmu_j (seed 000 §4,
     sensitivities for the Gauss-Newton/LM update) is the exact derivative of the interpolant.
+    On interval k of the grid of parameter j, G_i^j(mu) = sum_d a_{k,d,i} t^(3-d), t = mu - x_k; the
+    coefficients a are precomputed once (shape (n_intervals, 4, n_modes)), so an evaluation is a
+    bisection and one (2, 4) x (4, n_modes) product (value and derivative) per parameter, in plain numpy.
+    Outside the grid the end polynomials extrapolate (as scipy's CubicSpline does).
     """
 
     def __init__(self, F, grids, G, names, units=None, metadata=None):
@@ -39,9 +49,12 @@ class SeparatedModel:
         self.names = list(names)
         self.units = list(units) if units is not None else [""] * len(names)
         self.metadata = dict(metadata or {})
-        self._splines = [CubicSpline(x, g, axis=1) for x, g in zip(self.grids, self.G)]
-        self._dsplines = [s.derivative() for s in self._splines]
+        # piecewise-cubic coefficients per interval, rows for t^3, t^2, t, 1: (n_int, 4, n_modes)
+        self._coef = [np.ascontiguousarray(CubicSpline(x, g, axis=1).c.transpose(1, 0, 2))
+                      for x, g in zip(self.grids, self.G)]
+        self._knots = [x.tolist() for x in self.grids]
         self._obs = None
+        self._obs_qr = None
 
     @property
     def n_modes(self):
@@ -64,12 +77,31 @@ class SeparatedModel:
     def coefficients(self, mu):
         """Mode coefficients c_i(mu) = prod_j G_i^j(mu_j) and dc_i/dmu_j, shapes (n,), (p, n)."""
         mu = self._check_mu(mu)
-        vals = np.array([s(m) for s, m in zip(self._splines, mu)])  # (p, n)
-        ders = np.array([d(m) for d, m in zip(self._dsplines, mu)])
+        return self._coeffs(mu.tolist())
+
+    def _value_derivative(self, j, m):
+        """(2, n_modes): G^j(m) and dG^j/dmu_j(m) from the precomputed cubic coefficients."""
+        x = self._knots[j]
+        k = bisect_right(x, m) - 1
+        k = 0 if k < 0 else (len(x) - 2 if k > len(x) - 2 else k)
+        t = m - x[k]
+        t2 = t * t
+        return np.dot(((t2 * t, t2, t, 1.0), (3.0 * t2, 2.0 * t, 1.0, 0.0)), self._coef[j][k])
+
+    def _coeffs(self, mu):
+        """c(mu), dc/dmu for a list of floats (no validation; the fast path of the LM loop)."""
+        if len(mu) == 1:
+            vd = self._value_derivative(0, mu[0])
+            return vd[0], vd[1:]
+        vds = [self._value_derivative(j, m) for j, m in enumerate(mu)]
+        if len(mu) == 2:
+            (v0, d0), (v1, d1) = vds
+            return v0 * v1, np.array([d0 * v1, v0 * d1])
+        vals = np.array([vd[0] for vd in vds])
         c = np.prod(vals, axis=0)
         dc = np.empty_like(vals)
-        for j in range(self.n_params):
-            dc[j] = ders[j] * np.prod(np.delete(vals, j, axis=0), axis=0)
+        for j, vd in enumerate(vds):
+            dc[j] = vd[1] * np.prod(np.delete(vals, j, axis=0), axis=0)
         return c, dc
 
     def evaluate(self, mu, observed=False):
@@ -91,11 +123,30 @@ class SeparatedModel:
             if dofs.size and (dofs.min() < 0 or dofs.max() >= self.F.shape[1]):
                 raise PhysarError("observed DOF index out of range")
             self._obs = self.F[:, dofs]
+        # thin QR of C F^T = Q R (m x k, k x n): the LM loop then works on k <= n_modes numbers,
+        # ||y - C F^T c||^2 = ||Q^T y - R c||^2 + ||(I - Q Q^T) y||^2 (see physar.assimilation)
+        Q, R = np.linalg.qr(self._obs.T)
+        self._obs_qr = (np.ascontiguousarray(Q.T), np.ascontiguousarray(R))
+
+    @property
+    def observation_qr(self):
+        """(Q^T, R) of the thin QR of the observed spatial modes (C F^T), set by set_observation."""
+        if self._obs_qr is None:
+            raise PhysarError("no observation set: call set_observation() first")
+        return self._obs_qr
 
     def _F_obs(self):
         if self._obs is None:
             raise PhysarError("no observation set: call set_observation() first")
         return self._obs
+
+    def truncated(self, n):
+        """The model with its first `n` modes only (a PGD truncated after n enrichments)."""
+        n = int(n)
+        if not 1 <= n <= self.n_modes:
+            raise PhysarError(f"cannot keep {n} of {self.n_modes} modes")
+        return SeparatedModel(self.F[:n], self.grids, [g[:n] for g in self.G], self.names, self.units,
+                              self.metadata)
 
     def mode_amplitudes(self):
         """||F_i|| prod_j ||G_i^j||_inf, the amplitude of each mode (decreasing for a good PGD)."""
@@ -104,18 +155,28 @@ class SeparatedModel:
             a = a * np.abs(g).max(axis=1)
         return a
 
-    def save(self, path, mesh=None):
-        """Write a .npz (format version, metadata, optional mesh checksum) atomically."""
+    def save(self, path, mesh=None, space=None):
+        """Write a .npz atomically (temp file + os.replace): format version, modes, grids, metadata
+        (JSON), and with ``mesh`` its SHA-256 checksum, with ``space`` (an FESpace) also the mesh
+        arrays and element so that the file alone can be probed (`physar rom eval`, `assimilate`)."""
         meta = dict(self.metadata)
+        if space is not None:
+            mesh = space.mesh
+            meta["element"] = space.element
         if mesh is not None:
             meta["mesh_checksum"] = mesh.checksum()
         arrays = {"format_version": np.array(FORMAT_VERSION), "F": self.F,
                   "names": np.array(self.names, dtype=str), "units": np.array(self.units, dtype=str),
                   "meta_keys": np.array(list(meta), dtype=str),
-                  "meta_values": np.array([str(v) for v in meta.values()], dtype=str)}
+                  "meta_values": np.array([str(v) for v in meta.values()], dtype=str),
+                  "metadata_json": np.array(json.dumps(meta, default=_jsonable))}
+        if space is not None:
+            arrays["mesh_points"] = np.asarray(mesh.points, float)
+            arrays["mesh_cells"] = np.asarray(mesh.cells)
         for j, (x, g) in enumerate(zip(self.grids, self.G)):
             arrays[f"grid_{j}"] = x
             arrays[f"G_{j}"] = g
+        path = os.fspath(path)
         d = os.path.dirname(os.path.abspath(path))
         fd, tmp = tempfile.mkstemp(suffix=".npz", dir=d)
         os.close(fd)
@@ -129,22 +190,85 @@ class SeparatedModel:
 
     @classmethod
     def load(cls, path, mesh=None):
+        """Read a model written by :meth:`save` (``allow_pickle=False``).
+
+        Raises :class:`ReducedModelError` for a file that is not a physar reduced model, of another
+        format version, or (with ``mesh``) built on another mesh (SHA-256 checksum mismatch).
+        """
         try:
             z = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as e:
-            raise PhysarError(f"{path}: cannot read reduced model ({e})") from None
+        except Exception as e:  # OSError, ValueError (pickled / not npz), zipfile.BadZipFile
+            raise ReducedModelError(f"{path}: cannot read reduced model ({e})") from None
+        if not hasattr(z, "files"):
+            raise ReducedModelError(f"{path}: not a physar reduced model (a single array, not an .npz)")
         with z:
-            if "format_version" not in z:
-                raise PhysarError(f"{path}: not a physar reduced model (no format_version)")
-            v = int(z["format_version"])
+            if "format_version" not in z.files:
+                raise ReducedModelError(f"{path}: not a physar reduced model (no format_version)")
+            try:
+                v = int(z["format_version"])
+            except (TypeError, ValueError):
+                raise ReducedModelError(f"{path}: unreadable format_version") from None
             if v != FORMAT_VERSION:
-                raise PhysarError(f"{path}: reduced-model format version {v}, this physar reads {FORMAT_VERSION}")
-            names = [str(s) for s in z["names"]]
-            meta = dict(zip([str(k) for k in z["meta_keys"]], [str(s) for s in z["meta_values"]]))
-            model = cls(z["F"], [z[f"grid_{j}"] for j in range(len(names))],
-                        [z[f"G_{j}"] for j in range(len(names))], names,
-                        [str(s) for s in z["units"]], meta)
-        if mesh is not None and "mesh_checksum" in meta and meta["mesh_checksum"] != mesh.checksum():
-            raise PhysarError(f"{path}: reduced model was built on another mesh (checksum "
-                              f"{meta['mesh_checksum']} != {mesh.checksum()})")
+                raise ReducedModelError(
+                    f"{path}: reduced-model format version {v}, this physar reads version {FORMAT_VERSION}; "
+                    "rebuild it with `physar rom build`")
+            try:
+                names = [str(s) for s in z["names"]]
+                if "metadata_json" in z.files:
+                    meta = json.loads(str(z["metadata_json"]))
+                else:
+                    meta = dict(zip([str(k) for k in z["meta_keys"]], [str(s) for s in z["meta_values"]]))
+                model = cls(z["F"], [z[f"grid_{j}"] for j in range(len(names))],
+                            [z[f"G_{j}"] for j in range(len(names))], names,
+                            [str(s) for s in z["units"]], meta)
+                if "mesh_points" in z.files:
+                    model._mesh_arrays = (z["mesh_points"], z["mesh_cells"])
+            except KeyError as e:
+                raise ReducedModelError(f"{path}: reduced model is incomplete (missing {e})") from None
+            except ValueError as e:  # e.g. an object array, which would need pickle
+                raise ReducedModelError(f"{path}: cannot read reduced model ({e})") from None
+        if model._mesh_arrays is not None:
+            stored = model.mesh()
+            if "mesh_checksum" in meta and stored.checksum() != meta["mesh_checksum"]:
+                raise ReducedModelError(f"{path}: stored mesh does not match its checksum (corrupt file)")
+        if mesh is not None:
+            model.check_mesh(mesh, source=str(path))
         return model
+
+    _mesh_arrays = None
+
+    def check_mesh(self, mesh, source="reduced model"):
+        """Raise :class:`ReducedModelError` unless `mesh` is the one the model was built on."""
+        want = self.metadata.get("mesh_checksum")
+        if want is None:
+            raise ReducedModelError(f"{source}: the model records no mesh checksum; cannot check the mesh")
+        got = mesh.checksum()
+        if got != want:
+            raise ReducedModelError(
+                f"{source}: reduced model was built on another mesh (checksum {want[:12]}…, the given mesh "
+                f"has {got[:12]}…, {mesh.n_points} points, {mesh.n_cells} cells); rebuild the model for this mesh")
+
+    def mesh(self):
+        """The TetMesh stored in the file (models saved with ``space=``)."""
+        if self._mesh_arrays is None:
+            raise ReducedModelError("this reduced model stores no mesh (save it with space=...)")
+        from physar.geometry import TetMesh
+
+        return TetMesh(*self._mesh_arrays)
+
+    def space(self):
+        """The FESpace (stored mesh and element) the spatial modes F live on."""
+        from physar.fem import FESpace
+
+        cache = self.__dict__.setdefault("_space_cache", [])
+        if not cache:
+            cache.append(FESpace(self.mesh(), self.metadata.get("element", "P2")))
+        return cache[0]
+
+
+def _jsonable(v):
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, np.generic):
+        return v.item()
+    return str(v)

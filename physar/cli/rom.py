@@ -1,0 +1,197 @@
+"""`physar rom …` (reduced models: build, info, eval) and `physar assimilate` (seed 000 §3-§5)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import List, Optional, Tuple
+
+import numpy as np
+import typer
+
+from physar.cli._common import log, print_json, user_errors
+
+rom_app = typer.Typer(help="Reduced parametric models (PGD, non-intrusive PGD, POD).", no_args_is_help=True)
+
+
+def _parse_params(model, items: list[str]) -> np.ndarray:
+    from physar.errors import ConfigError
+
+    given = {}
+    for it in items:
+        name, sep, val = it.partition("=")
+        name = name.strip()
+        if not sep or name not in model.names:
+            raise ConfigError(f"--param {it!r}: expected NAME=VALUE with NAME one of {model.names}")
+        try:
+            given[name] = float(val)
+        except ValueError:
+            raise ConfigError(f"--param {it!r}: {val!r} is not a number") from None
+    missing = [n for n in model.names if n not in given]
+    if missing:
+        raise ConfigError(f"missing --param for {', '.join(missing)} (model parameters: {model.names})")
+    mu = np.array([given[n] for n in model.names])
+    for n, v, (lo, hi), u in zip(model.names, mu, model.ranges, model.units):
+        if not lo - 1e-12 * max(1.0, abs(hi - lo)) <= v <= hi + 1e-12 * max(1.0, abs(hi - lo)):
+            raise ConfigError(f"--param {n}={v}: outside the model's range [{lo}, {hi}] {u}")
+    return mu
+
+
+@rom_app.command("build")
+@user_errors
+def build(
+    config: Path = typer.Argument(..., help="FEM problem file (TOML) with [[parameter]] tables and [rom]"),
+    out: Path = typer.Option(..., "--out", "-o", help="reduced model file (.npz)"),
+    workers: Optional[int] = typer.Option(None, "--workers", min=1,
+                                          help="non-intrusive: start a Dask LocalCluster with N workers"),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="non-intrusive: Dask scheduler address"),
+    json_out: bool = typer.Option(False, "--json", help="print a summary as JSON on stdout"),
+) -> None:
+    """Build a reduced model offline (PGD, non-intrusive PGD or POD) and save it."""
+    from tqdm import tqdm
+
+    from physar.errors import PhysarError
+    from physar.rom.config import build_rom, load_rom_config
+
+    cfg = load_rom_config(config)
+    bar = tqdm(desc=f"rom build ({cfg.rom.method})", file=sys.stderr, unit="mode" if cfg.rom.method == "pgd" else "solve")
+
+    def progress(done: int, total: int) -> None:
+        if total and bar.total != total:
+            bar.total = total
+        bar.n = done
+        bar.refresh()
+
+    try:
+        rom, space, info = build_rom(cfg, progress, str(config), workers=workers, scheduler=scheduler)
+    except PhysarError as exc:
+        bar.close()
+        if str(exc).startswith(str(config)):
+            raise
+        raise type(exc)(f"{config}: {exc}") from None
+    bar.close()
+    rom.save(out, space=space)
+    summary = _info(rom)
+    summary["output"] = str(out)
+    if json_out:
+        print_json(summary)
+    else:
+        log(f"wrote {out}: {rom.n_modes} modes, parameters {rom.names}, "
+            f"build {rom.metadata['build_time_s']:.2f} s")
+        for k in ("check_error", "error_estimate"):
+            if k in rom.metadata:
+                log(f"{k.replace('_', ' ')}: {rom.metadata[k]:.3e}")
+
+
+def _info(rom) -> dict:
+    from physar.rom import FORMAT_VERSION
+
+    meta = dict(rom.metadata)
+    d = {"format_version": FORMAT_VERSION, "method": meta.get("method"), "n_modes": rom.n_modes,
+         "n_dofs": int(rom.F.shape[1]),
+         "parameters": [{"name": n, "unit": u, "range": list(r), "grid_points": int(g.size)}
+                        for n, u, r, g in zip(rom.names, rom.units, rom.ranges, rom.grids)],
+         "mode_amplitudes": rom.mode_amplitudes().tolist()}
+    for k in ("check_error", "error_estimate", "n_solves", "build_time_s", "material", "element",
+              "mesh_checksum", "path", "load", "radius"):
+        if k in meta:
+            d[k] = meta[k]
+    if rom._mesh_arrays is not None:
+        d["mesh"] = {"points": int(len(rom._mesh_arrays[0])), "cells": int(len(rom._mesh_arrays[1]))}
+    return d
+
+
+@rom_app.command("info")
+@user_errors
+def info(
+    model_file: Path = typer.Argument(..., help="reduced model (.npz)"),
+    json_out: bool = typer.Option(False, "--json", help="print as JSON on stdout"),
+) -> None:
+    """Describe a reduced model: method, modes, parameters and ranges, mesh, error estimates."""
+    from physar.rom import SeparatedModel
+
+    d = _info(SeparatedModel.load(model_file))
+    if json_out:
+        print_json(d)
+        return
+    for k, v in d.items():
+        if k == "mode_amplitudes":
+            v = ", ".join(f"{a:.2e}" for a in v)
+        log(f"{k}: {v}")
+
+
+@rom_app.command("eval")
+@user_errors
+def evaluate(
+    model_file: Path = typer.Argument(..., help="reduced model (.npz)"),
+    param: List[str] = typer.Option([], "--param", help="NAME=VALUE, one per parameter, e.g. s=0.3"),
+    probe: Optional[Tuple[float, float, float]] = typer.Option(None, "--probe", help="probe point x y z (m)"),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="write the displacement field (.vtu/.xdmf)"),
+    json_out: bool = typer.Option(False, "--json", help="print results as JSON on stdout"),
+) -> None:
+    """Evaluate u(mu) of a reduced model, at probe points and/or on the whole mesh."""
+    from physar.fem import probe as fe_probe
+    from physar.rom import SeparatedModel
+
+    rom = SeparatedModel.load(model_file)
+    mu = _parse_params(rom, param)
+    u = rom.evaluate(mu)
+    pts = np.array([] if probe is None else probe, float).reshape(-1, 3)
+    space = rom.space() if (len(pts) or out) else None
+    probes = [{"point": p.tolist(), "u": fe_probe(space, u, p).tolist()} for p in pts]
+    res = {"params": dict(zip(rom.names, mu.tolist())),
+           "max_displacement": float(np.linalg.norm(u.reshape(-1, 3), axis=1).max()), "probes": probes}
+    if out is not None:
+        from physar.geometry import write_mesh
+
+        uv = space.vertex_values(u)
+        write_mesh(out, space.mesh, point_data={"displacement": uv,
+                                                "displacement_magnitude": np.linalg.norm(uv, axis=1)})
+        res["output"] = str(out)
+    if json_out:
+        print_json(res)
+    else:
+        log(f"max displacement {res['max_displacement']:.6e} m at {res['params']}")
+        for p in probes:
+            log(f"probe {p['point']}: u = {p['u']}")
+
+
+@user_errors
+def assimilate_cmd(
+    model_file: Path = typer.Argument(..., help="reduced model (.npz) with its mesh (from `physar rom build`)"),
+    observations: Path = typer.Argument(..., help="CSV with header x,y,z,ux,uy,uz (m)"),
+    mu0: List[str] = typer.Option([], "--mu0", help="start NAME=VALUE (default: centre of the ranges)"),
+    alpha: float = typer.Option(0.0, "--alpha", min=0.0, help="Tikhonov weight towards --mu0"),
+    restart: float = typer.Option(0.05, "--restart-residual",
+                                  help="multi-start when ||r||/||u_obs|| stays above this"),
+    json_out: bool = typer.Option(False, "--json", help="print results as JSON on stdout"),
+) -> None:
+    """Estimate the model parameters from observed displacements (Levenberg-Marquardt on the ROM)."""
+    from physar.assimilation import assimilate, observation_matrix, read_observations
+    from physar.errors import PhysarError
+    from physar.rom import SeparatedModel
+
+    rom = SeparatedModel.load(model_file)
+    pts, disp = read_observations(observations)
+    try:
+        C = observation_matrix(rom.space(), pts)
+    except PhysarError as exc:
+        raise type(exc)(f"{observations}: {exc}") from None
+    rom.set_observation(matrix=C)
+    start = _parse_params(rom, mu0) if mu0 else None
+    res = assimilate(rom, disp.ravel(), mu0=start, alpha=alpha, restart_residual=restart)
+    out = {"params": dict(zip(rom.names, res.params.tolist())), "std": dict(zip(rom.names, res.std.tolist())),
+           "residual": res.residual, "iterations": res.iterations, "time_us": res.time_us,
+           "relative_residual": res.residual / max(float(np.linalg.norm(disp)), 1e-300),
+           "observations": int(len(pts)), "units": dict(zip(rom.names, rom.units))}
+    if json_out:
+        print_json(out)
+    else:
+        for n, v, s, u in zip(rom.names, res.params, res.std, rom.units):
+            log(f"{n} = {v:.6g} ± {s:.2g} {u}")
+        log(f"residual {res.residual:.3e} m, {res.iterations} LM iterations, {res.time_us:.0f} µs")
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(rom_app, name="rom")
+    app.command("assimilate")(assimilate_cmd)
