@@ -1,0 +1,136 @@
+"""`physar damping` (artificial damping of the time steppers, seed 001 §2.1) and `physar simulate`."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from physar.cli._common import log, print_json, user_errors
+from physar.errors import ConfigError
+
+_METHODS = ["symplectic_euler", "be", "si", "midpoint", "genalpha", "theta", "trbdf2"]
+
+
+def _parse_hw(hw: List[str] | None, extra: List[str]) -> list[float]:
+    vals = []
+    for tok in list(hw or []) + list(extra):
+        for part in str(tok).split(","):
+            if not part:
+                continue
+            try:
+                x = float(part)
+            except ValueError:
+                raise ConfigError(f"--hw: {part!r} is not a number") from None
+            if not x > 0:
+                raise ConfigError(f"--hw values must be > 0, got {x}")
+            vals.append(x)
+    return vals
+
+
+@user_errors
+def damping(
+    ctx: typer.Context,
+    method: Optional[str] = typer.Option(None, "--method", "-m", help="be | si | midpoint | genalpha | theta | trbdf2 | symplectic_euler"),
+    r: Optional[float] = typer.Option(None, "--r", help="generalized-alpha knob r = rho_inf in [0, 1] (default 0.5)"),
+    theta: Optional[float] = typer.Option(None, "--theta", help="theta method knob in [0, 1] (default 0.5)"),
+    hw: Optional[List[str]] = typer.Option(None, "--hw", help="h*omega values: --hw 0.1 1 10 (or 0.1,1,10)"),
+    json_out: bool = typer.Option(False, "--json", help="print {hw, rho, d_over_omega} as JSON"),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="PNG with the seed's Fig. 2.1 (gen-alpha) and Fig. 2.2 (theta)"),
+) -> None:
+    """Spectral radius rho and artificial damping d/omega = -(2/(h omega)) ln rho of a stepper on q'' + w^2 q = 0."""
+    import numpy as np
+
+    from physar.integrators.analysis import damping_curve, plot_damping_figures
+
+    values = _parse_hw(hw, ctx.args)
+    if method is None and plot is None:
+        raise ConfigError("give --method (with --hw) and/or --plot PNG")
+    if method is not None:
+        if method not in _METHODS:
+            raise ConfigError(f"--method {method!r} is unknown; choose one of {', '.join(_METHODS)}")
+        if not values:
+            values = [0.01, 0.1, 1.0, 10.0, 100.0]
+        c = damping_curve(method, values, r=r, theta=theta)
+        d = [float(x) if np.isfinite(x) else None for x in c["d_over_omega"]]
+        out = {"method": method, "hw": c["hw"], "rho": c["rho"], "d_over_omega": d}
+        if r is not None:
+            out["r"] = r
+        if theta is not None:
+            out["theta"] = theta
+        if json_out:
+            print_json(out)
+        else:
+            log(f"{'h*omega':>10} {'rho':>14} {'d/omega':>14}")
+            for x, p, dd in zip(c["hw"], c["rho"], d):
+                log(f"{x:10.4g} {p:14.8g} {dd if dd is not None else float('inf'):14.8g}")
+    elif ctx.args:
+        raise ConfigError(f"unexpected arguments: {' '.join(ctx.args)}")
+    if plot is not None:
+        plot_damping_figures(plot)
+        log(f"wrote {plot}")
+
+
+@user_errors
+def simulate(
+    config: Path = typer.Argument(..., help="problem file (TOML): the fem tables plus [dynamics]"),
+    out: Path = typer.Option(..., "--out", "-o", help="trajectory (.xdmf + .h5) with displacement, velocity"),
+    video: Optional[Path] = typer.Option(None, "--video", help="MP4 of the deformed surface (H.264)"),
+    energy_csv: Optional[Path] = typer.Option(None, "--energy", help="energy per step CSV (default: OUT with .csv)"),
+    fps: float = typer.Option(30.0, "--fps", help="video frame rate"),
+    json_out: bool = typer.Option(False, "--json", help="print a run summary as JSON"),
+) -> None:
+    """Integrate M q'' = f_els + f_dmp + f_ext in time and write the trajectory, energies and a video."""
+    from tqdm import tqdm
+
+    from physar.errors import PhysarError
+    from physar.integrators.config import (
+        build_simulation,
+        load_dynamics_config,
+        run_simulation,
+        summarize,
+        write_energy_csv,
+        write_xdmf,
+    )
+
+    if out.suffix.lower() != ".xdmf":
+        raise ConfigError(f"--out must end in .xdmf, got {out.name}")
+    if video is not None and video.suffix.lower() != ".mp4":
+        raise ConfigError(f"--video must end in .mp4, got {video.name}")
+    cfg = load_dynamics_config(config)
+    try:
+        sim = build_simulation(cfg)
+        bar = tqdm(total=cfg.dynamics.steps, desc=f"{cfg.dynamics.method} steps", file=sys.stderr,
+                   disable=None)
+        traj = run_simulation(sim, lambda k, n: bar.update(1))
+        bar.close()
+    except PhysarError as exc:
+        if str(exc).startswith(str(config)):
+            raise
+        raise type(exc)(f"{config}: {exc}") from None
+    write_xdmf(out, sim, traj)
+    csv_path = energy_csv or out.with_suffix(".csv")
+    write_energy_csv(csv_path, traj)
+    summary = summarize(sim, traj)
+    summary.update({"output": str(out), "energy_csv": str(csv_path)})
+    if video is not None:
+        from physar.integrators.render import write_video
+
+        surf = sim.problem.space.mesh.boundary()
+        log(f"rendering {len(traj.u)} frames")
+        write_video(video, surf.mesh.points, surf.mesh.faces, [u[surf.node_map] for u in traj.u], traj.times,
+                    fps=fps, title=f"{cfg.dynamics.method}, h = {cfg.dynamics.h:g} s")
+        summary["video"] = str(video)
+    if json_out:
+        print_json(summary)
+    else:
+        log(f"wrote {out}, {csv_path}" + (f", {video}" if video else ""))
+        log(f"energy {summary['energy_initial']:.6g} J -> {summary['energy_final']:.6g} J, "
+            f"Newton iterations mean {summary['newton_iterations_mean']:.2f} (max {summary['newton_iterations_max']})")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("damping", context_settings={"allow_extra_args": True, "ignore_unknown_options": True})(damping)
+    app.command("simulate")(simulate)

@@ -1,0 +1,45 @@
+"""Time integrators for elastodynamics M q'' = f_els(q) + f_dmp(q, v) + f_ext (seed 001 §2).
+
+Models (:mod:`physar.integrators.model`), steppers sharing one Newton/sparse-solve machinery
+(:mod:`physar.integrators.steppers`), and the artificial-damping analysis
+(:mod:`physar.integrators.analysis`).
+"""
+
+from physar.integrators.analysis import (
+    amplification_matrix,
+    d_backward_euler,
+    damping_curve,
+    rho_backward_euler,
+    spectral_radius,
+)
+from physar.integrators.model import (
+    CorotatedP1Kernel,
+    DynamicsModel,
+    FemKernel,
+    Ground,
+    LinearDynamics,
+    SolidModel,
+    make_kernel,
+)
+from physar.integrators.steppers import (
+    METHODS,
+    TRBDF2,
+    BackwardEuler,
+    GeneralizedAlpha,
+    ImplicitMidpoint,
+    Integrator,
+    SemiImplicit,
+    State,
+    SymplecticEuler,
+    ThetaMethod,
+    genalpha_coefficients,
+    make_integrator,
+    simulate,
+)
+
+__all__ = [
+    "amplification_matrix", "d_backward_euler", "damping_curve", "rho_backward_euler", "spectral_radius",
+    "CorotatedP1Kernel", "DynamicsModel", "FemKernel", "Ground", "LinearDynamics", "SolidModel", "make_kernel",
+    "METHODS", "TRBDF2", "BackwardEuler", "GeneralizedAlpha", "ImplicitMidpoint", "Integrator", "SemiImplicit",
+    "State", "SymplecticEuler", "ThetaMethod", "genalpha_coefficients", "make_integrator", "simulate",
+]

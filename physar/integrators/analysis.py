@@ -1,0 +1,135 @@
+"""Artificial damping of the time steppers (seed 001 §2.1).
+
+For the test equation q'' + ω² q = 0 every stepper is linear in its state, x_n = T x_{n-1}. T (the
+amplification matrix; for the two-step θ method the companion matrix on (q_n, v_n, q_{n-1}, v_{n-1}))
+is obtained here by applying the implemented `step` to the unit states of a one-degree-of-freedom
+:class:`LinearDynamics` model, so the analysis tests the real code. The artificial damping is the d of
+q'' + d q' + ω² q = 0 whose amplitude decays like ρ(T) per step: d = -(2/h) ln ρ(T) (seed Eq. 2.7-2.9);
+d/ω depends on hω only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from physar.integrators.model import LinearDynamics
+from physar.integrators.steppers import Integrator, make_integrator
+
+
+def amplification_matrix(integrator: Integrator, hw: float, omega: float = 1.0, zeta: float = 0.0) -> np.ndarray:
+    """T with x_n = T x_{n-1} for q'' + 2 zeta omega q' + omega² q = 0 and h = hw / omega."""
+    D = None if zeta == 0 else [[2 * zeta * omega]]
+    model = LinearDynamics([[1.0]], [[omega * omega]], D)
+    h = hw / omega
+    base = integrator.init(model, np.zeros(1), np.zeros(1))
+    comps = integrator.state_components
+    k = len(comps)
+    T = np.zeros((k, k))
+    for j in range(k):
+        e = np.zeros(k)
+        e[j] = 1.0
+        s = integrator.unpack(e, 1)
+        for c in ("a", "q_prev", "v_prev"):
+            if c not in comps and getattr(base, c) is not None:
+                setattr(s, c, getattr(base, c))
+        T[:, j] = integrator.pack(integrator.step(model, s, h))
+    return T
+
+
+def spectral_radius(T: np.ndarray) -> float:
+    return float(np.max(np.abs(np.linalg.eigvals(T))))
+
+
+def damping_curve(method: str, hw, r: float | None = None, theta: float | None = None) -> dict:
+    """{"hw", "rho", "d_over_omega"} for a method name (see make_integrator) at the given h·omega values.
+
+    d/ω = -(2/(hω)) ln ρ. ρ = 0 (an L-stable method at hω = ∞) gives d/ω = inf.
+    """
+    integ = make_integrator(method, r=r, theta=theta)
+    hw = np.atleast_1d(np.asarray(hw, dtype=float))
+    rho = np.array([spectral_radius(amplification_matrix(integ, x)) for x in hw])
+    with np.errstate(divide="ignore"):
+        d = -2.0 / hw * np.log(rho)
+    return {"hw": hw, "rho": rho, "d_over_omega": d}
+
+
+# closed forms (independent references for the tests)
+def rho_backward_euler(hw):
+    """BE/SI on q'' + ω² q = 0: ρ = 1 / √(1 + (hω)²) (seed Eq. 2.8)."""
+    hw = np.asarray(hw, dtype=float)
+    return 1.0 / np.sqrt(1.0 + hw * hw)
+
+
+def d_backward_euler(hw, h=1.0):
+    """d_BE = ln(1 + (hω)²) / h (seed Eq. 2.9)."""
+    return np.log1p(np.asarray(hw, dtype=float) ** 2) / h
+
+
+def plot_damping_figures(path, hw=None, rs=(0.0, 0.25, 0.5, 0.75, 1.0), thetas=(0.0, 0.25, 0.5, 0.75, 1.0)):
+    """Seed Fig. 2.1 (generalized-α, r = 0:.25:1) and Fig. 2.2 (θ method, θ = 0:.25:1), plus BE/SI,
+    midpoint and TR-BDF2 for reference: d/ω versus hω (log axis). Written atomically as PNG."""
+    import os
+    from pathlib import Path
+
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    hw = np.logspace(-2, 3, 161) if hw is None else np.asarray(hw, dtype=float)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
+    ax = axes[0]
+    for r in rs:
+        c = damping_curve("genalpha", hw, r=r)
+        ax.semilogx(hw, c["d_over_omega"], label=f"r = {r:g}")
+    ax.set_title("Fig. 2.1  generalized-α, r = 0:.25:1")
+    ax = axes[1]
+    for th in thetas:
+        c = damping_curve("theta", hw, theta=th)
+        ax.semilogx(hw, c["d_over_omega"], label=f"θ = {th:g}")
+    ax.set_title("Fig. 2.2  θ method (Eq. 2.15), θ = 0:.25:1")
+    ax = axes[2]
+    for m, lab in (("be", "BE / SI"), ("midpoint", "implicit midpoint"), ("trbdf2", "TR-BDF2"),
+                   ("genalpha", "gen-α r = 0"), ("theta", "θ = 1 (BDF2)")):
+        kw = {"r": 0.0} if m == "genalpha" else {"theta": 1.0} if m == "theta" else {}
+        c = damping_curve(m, hw, **kw)
+        ax.semilogx(hw, np.minimum(c["d_over_omega"], 1e3), label=lab)
+    ax.set_ylim(0, 0.9)
+    ax.set_title("other methods")
+    for ax in axes:
+        ax.set_xlabel("h ω")
+        ax.set_ylabel("d / ω")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(".tmp_" + path.name)
+    fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+def dominant_frequency(signal, dt: float, pad: int = 16) -> float:
+    """Angular frequency [rad/s] of the strongest FFT peak of a sampled signal (mean removed, Hann window,
+    zero-padded `pad` times, parabolic interpolation of the log-magnitude around the peak)."""
+    x = np.asarray(signal, dtype=float)
+    x = (x - x.mean()) * np.hanning(len(x))
+    n = pad * len(x)
+    spec = np.abs(np.fft.rfft(x, n))
+    k = int(np.argmax(spec[1:])) + 1
+    if 0 < k < len(spec) - 1:
+        a, b, c = np.log(spec[k - 1:k + 2] + 1e-300)
+        k = k + 0.5 * (a - c) / (a - 2 * b + c)
+    return 2 * np.pi * k / (n * dt)
+
+
+def euler_bernoulli_cantilever_omega(E: float, rho: float, length: float, width: float, height: float,
+                                     mode: int = 1) -> float:
+    """First bending angular frequencies of a clamped-free Euler-Bernoulli beam [rad/s], bending about
+    the width axis (deflection along `height`): ω = (β L)² √(E I / (ρ A L⁴)), β L = 1.8751, 4.6941, 7.8548."""
+    bl = [1.875104068711961, 4.694091132974175, 7.854757438237613][mode - 1]
+    I = width * height**3 / 12.0
+    A = width * height
+    return bl**2 * np.sqrt(E * I / (rho * A * length**4))

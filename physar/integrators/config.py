@@ -1,0 +1,246 @@
+"""The dynamics problem file: a physar.fem TOML problem plus a `[dynamics]` table (validated by pydantic).
+
+```toml
+[dynamics]
+method = "genalpha"       # symplectic_euler | be | si | midpoint | genalpha | theta | trbdf2
+h = 0.01                  # time step [s]
+steps = 300
+r = 0.5                   # generalized-alpha knob (rho_inf), 0 = most damping, 1 = none
+theta = 0.5               # theta method knob (Eq. 2.15), 0 = trapezoid, 1 = BDF2
+mass = "lumped"           # or "consistent"
+gravity = [0, 0, -9.81]   # optional, applied as M g
+initial = "rest"          # or "static": start from the static solution under the [[load]]s, released at t = 0
+initial_velocity = [0, 0, 0]
+output_every = 1          # write every k-th step to the XDMF/MP4
+[dynamics.damping]        # Rayleigh D = alpha M + beta K(q)
+alpha = 0.0               # [1/s]
+beta = 0.0                # [s]
+[dynamics.ground]         # optional penalty ground plane
+z = 0.0
+stiffness = 1e5           # [N/m] per node
+[dynamics.newton]
+tol = 1e-9
+max_iter = 25
+```
+[[fix]] boxes pin nodes (at their `value`, default 0); [[load]]s act during the run (constant), unless
+`initial = "static"`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Literal, Optional
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from physar.errors import ConfigError, PhysarError
+from physar.fem.config import FemConfig, Problem, _Strict, build_problem, load_config
+from physar.fem.solvers import solve_static
+from physar.integrators.model import Ground, SolidModel
+from physar.integrators.steppers import Integrator, State, make_integrator
+
+Vec3 = tuple[float, float, float]
+
+
+class DampingSection(_Strict):
+    alpha: float = Field(0.0, ge=0, description="Rayleigh mass coefficient [1/s]")
+    beta: float = Field(0.0, ge=0, description="Rayleigh stiffness coefficient [s]")
+
+
+class GroundSection(_Strict):
+    z: float = 0.0
+    stiffness: float = Field(1e5, gt=0, description="penalty stiffness [N/m] per node")
+
+
+class NewtonSection(_Strict):
+    tol: float = Field(1e-9, gt=0)
+    max_iter: int = Field(25, ge=1)
+
+
+class DynamicsSection(_Strict):
+    method: Literal["symplectic_euler", "be", "si", "midpoint", "genalpha", "theta", "trbdf2"]
+    h: float = Field(..., gt=0, description="time step [s]")
+    steps: int = Field(..., ge=1)
+    r: Optional[float] = Field(None, ge=0, le=1)
+    theta: Optional[float] = Field(None, ge=0, le=1)
+    mass: Literal["lumped", "consistent"] = "lumped"
+    gravity: Optional[Vec3] = None
+    initial: Literal["rest", "static"] = "rest"
+    initial_velocity: Vec3 = (0.0, 0.0, 0.0)
+    kernel: Literal["auto", "fem", "corotated-p1"] = "auto"
+    output_every: int = Field(1, ge=1)
+    damping: DampingSection = DampingSection()
+    ground: Optional[GroundSection] = None
+    newton: NewtonSection = NewtonSection()
+
+    @model_validator(mode="after")
+    def _knobs(self):
+        if self.r is not None and self.method != "genalpha":
+            raise ValueError(f"r applies to method = \"genalpha\" only (method is {self.method!r})")
+        if self.theta is not None and self.method != "theta":
+            raise ValueError(f"theta applies to method = \"theta\" only (method is {self.method!r})")
+        return self
+
+
+class DynamicsConfig(FemConfig):
+    """A `physar simulate` file: every FemConfig table plus [dynamics]."""
+
+    dynamics: DynamicsSection
+
+
+def load_dynamics_config(path: str | Path) -> DynamicsConfig:
+    return load_config(path, DynamicsConfig)
+
+
+@dataclass
+class Simulation:
+    problem: Problem
+    model: SolidModel
+    integrator: Integrator
+    q0: np.ndarray
+    v0: np.ndarray
+    config: DynamicsConfig
+
+
+def build_simulation(cfg: DynamicsConfig, base_dir: Path | None = None) -> Simulation:
+    """Mesh, material, pins and loads from the fem tables; model and integrator from [dynamics]."""
+    problem = build_problem(cfg, base_dir)
+    d = cfg.dynamics
+    if problem.model.density <= 0:
+        raise ConfigError("[material] density must be > 0 for dynamics")
+    q_fixed = problem.prescribed
+    ground = None if d.ground is None else Ground(d.ground.z, d.ground.stiffness)
+    f_ext = problem.f_ext
+    q0 = None
+    if d.initial == "static":
+        if not np.any(f_ext) and q_fixed is None:
+            raise ConfigError("[dynamics] initial = \"static\" needs at least one [[load]] (or a [[fix]] value)")
+        s = cfg.solver
+        q0 = solve_static(problem.model, f_ext, problem.fixed, steps=s.steps, tol=s.tol, max_iter=s.max_iter,
+                          prescribed=q_fixed).u
+        f_ext = np.zeros_like(f_ext)
+    model = SolidModel(problem.model, problem.fixed, q_fixed=q_fixed, mass=d.mass,
+                       rayleigh=(d.damping.alpha, d.damping.beta), gravity=d.gravity, f_ext=f_ext,
+                       ground=ground, kernel=d.kernel)
+    integ = make_integrator(d.method, r=d.r, theta=d.theta, tol=d.newton.tol, max_iter=d.newton.max_iter)
+    v0 = np.tile(np.asarray(d.initial_velocity, dtype=float), problem.space.n_nodes)
+    q0, v0 = model.initial_state(q0, v0)
+    return Simulation(problem, model, integ, q0, v0, cfg)
+
+
+@dataclass
+class Trajectory:
+    """Frames (every `output_every` steps) of vertex displacements/velocities and the energy per step."""
+
+    times: list = field(default_factory=list)
+    u: list = field(default_factory=list)
+    v: list = field(default_factory=list)
+    energy: list = field(default_factory=list)  # dicts: step, t, kinetic, elastic, potential, total, newton
+
+
+def run_simulation(sim: Simulation, progress: Callable[[int, int], None] | None = None) -> Trajectory:
+    """Integrate; record the energy at every step and the vertex fields at every output_every-th step."""
+    d = sim.config.dynamics
+    space = sim.problem.space
+    nv = space.mesh.n_points
+    traj = Trajectory()
+    integ, model = sim.integrator, sim.model
+    state: State = integ.init(model, sim.q0, sim.v0)
+
+    def record(k, s):
+        e = model.energy(s.q, s.v)
+        traj.energy.append({"step": k, "t": s.t, **e, "newton_iterations": s.newton_iterations})
+        if k % d.output_every == 0 or k == d.steps:
+            traj.times.append(s.t)
+            traj.u.append(s.q.reshape(-1, 3)[:nv].astype(np.float64).copy())
+            traj.v.append(s.v.reshape(-1, 3)[:nv].astype(np.float32).copy())
+
+    record(0, state)
+    for k in range(1, d.steps + 1):
+        state = integ.step(model, state, d.h)
+        if not (np.all(np.isfinite(state.q)) and np.all(np.isfinite(state.v))):
+            raise PhysarError(f"{integ.name}: the solution blew up at step {k} (t = {state.t:.4g} s); "
+                              "reduce [dynamics] h or use an implicit method")
+        record(k, state)
+        if progress:
+            progress(k, d.steps)
+    return traj
+
+
+class _AtomicDir:
+    """Write files into a temporary folder next to `path`, then move them into place together."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+
+    def __enter__(self) -> Path:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = Path(tempfile.mkdtemp(prefix=".physar-", dir=self.path.parent))
+        return self.tmp / self.path.name
+
+    def __exit__(self, exc_type, exc, tb):
+        try:
+            if exc_type is None:
+                for f in self.tmp.iterdir():
+                    os.replace(f, self.path.parent / f.name)
+        finally:
+            shutil.rmtree(self.tmp, ignore_errors=True)
+        return False
+
+
+def write_xdmf(path: str | Path, sim: Simulation, traj: Trajectory) -> Path:
+    """XDMF time series (meshio, with its .h5): reference mesh, per-frame displacement and velocity."""
+    import meshio
+
+    path = Path(path)
+    if path.suffix.lower() != ".xdmf":
+        raise ConfigError(f"trajectory output must end in .xdmf, got {path.name}")
+    mesh = sim.problem.space.mesh
+    with _AtomicDir(path) as tmp, contextlib.chdir(tmp.parent):
+        # meshio's TimeSeriesWriter opens its .h5 relative to the working directory: write from inside
+        # the temporary folder (single-threaded CLI use)
+        with meshio.xdmf.TimeSeriesWriter(tmp.name) as w:
+            w.write_points_cells(mesh.points, [("tetra", mesh.cells)])
+            for t, u, v in zip(traj.times, traj.u, traj.v):
+                w.write_data(t, point_data={"displacement": u, "velocity": v.astype(np.float64)})
+    return path
+
+
+ENERGY_COLUMNS = ["step", "t", "kinetic", "elastic", "potential", "total", "newton_iterations"]
+
+
+def write_energy_csv(path: str | Path, traj: Trajectory) -> Path:
+    path = Path(path)
+    with _AtomicDir(path) as tmp:
+        with open(tmp, "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=ENERGY_COLUMNS)
+            w.writeheader()
+            for row in traj.energy:
+                w.writerow({k: (f"{row[k]:.17g}" if isinstance(row[k], float) else row[k]) for k in ENERGY_COLUMNS})
+    return path
+
+
+def summarize(sim: Simulation, traj: Trajectory) -> dict:
+    e = traj.energy
+    it = [r["newton_iterations"] for r in e[1:]]
+    umax = max(float(np.linalg.norm(u, axis=1).max()) for u in traj.u)
+    return {
+        "method": sim.integrator.name, "h": sim.config.dynamics.h, "steps": sim.config.dynamics.steps,
+        "dofs": sim.model.n_dofs, "elements": int(sim.problem.space.mesh.n_cells),
+        "kernel": sim.model.kernel.name,
+        "energy_initial": e[0]["total"], "energy_final": e[-1]["total"],
+        "newton_iterations_mean": float(np.mean(it)) if it else 0.0,
+        "newton_iterations_max": int(max(it)) if it else 0,
+        "max_displacement": umax, "frames": len(traj.times),
+    }
+
+
+__all__ = ["DynamicsConfig", "DynamicsSection", "Simulation", "Trajectory", "build_simulation",
+           "load_dynamics_config", "run_simulation", "summarize", "write_energy_csv", "write_xdmf"]

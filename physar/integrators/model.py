@@ -1,0 +1,451 @@
+"""Dynamics models M q'' = f_els(q) + f_dmp(q, v) + f_ext (seed 001 §2, Eq. 2.1).
+
+q is the nodal displacement vector (n_dofs,) [m], v = q' [m/s]. A model gives the total force
+f(q, v) = f_els(q) + f_dmp(q, v) + f_ext [N] and its linearisation K = -df/dq, D = -df/dv, on the free
+dofs (pinned dofs are held at constant values, with zero velocity).
+
+* :class:`LinearDynamics`: constant matrices, f = -K q - D v + f_ext (the seed's analysis case, §2.1).
+* :class:`SolidModel`: a physar.fem ElasticModel (any material, P1/P2) with lumped or consistent mass,
+  Rayleigh damping D = alpha M + beta K(q) (K the current tangent), gravity M g, pinned nodes and a
+  penalty ground plane z = z0: f_z = k (z0 - z) on nodes below it. For the co-rotated material on P1
+  tetrahedra a fast element kernel is used: one polar decomposition F = R S per element, force
+  P = 2 mu (F - R) + lambda tr(S - I) R (identical to physar.fem's Corotated), and the stiffness-warping
+  tangent R K0 Rᵀ per element (the dR terms are dropped: SPD, as in SOFA-class engines).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from physar.errors import ConfigError
+from physar.fem.assembly import CSRPattern, ElasticModel
+from physar.fem.materials import Corotated, lame, polar
+
+
+@dataclass
+class Linearization:
+    """Total force f (n,) at (q, v) and, on the free dofs, K = -df/dq and D = -df/dv (or None = 0).
+
+    `rayleigh` = (alpha, beta) when D = alpha M + beta K_elastic exactly (lets the model add matrices once).
+    """
+
+    f: np.ndarray
+    K: sp.csr_matrix | None = None
+    D: sp.csr_matrix | None = None
+    scale: float = 0.0  # magnitude of the largest force term (for relative Newton tolerances)
+    floor: float = 0.0  # round-off level of f [N] (absolute Newton tolerance)
+
+
+class DynamicsModel:
+    """Base class: subclasses set n_dofs, free, q_fixed, mass (n x n CSR) and implement force/linearize."""
+
+    n_dofs: int
+    free: np.ndarray
+    q_fixed: np.ndarray
+    mass: sp.csr_matrix
+    linear: bool = False
+
+    # -- to implement ---------------------------------------------------------------------------
+    def force(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def linearize(self, q: np.ndarray, v: np.ndarray) -> Linearization:  # pragma: no cover
+        raise NotImplementedError
+
+    def energy(self, q: np.ndarray, v: np.ndarray) -> dict:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    # -- shared ---------------------------------------------------------------------------------
+    def system_matrix(self, lin: Linearization, cm: float, cd: float, ck: float) -> sp.csr_matrix:
+        """cm M + cd D + ck K on the free dofs."""
+        A = cm * self.mass_ff
+        if lin.K is not None and ck != 0:
+            A = A + ck * lin.K
+        if lin.D is not None and cd != 0:
+            A = A + cd * lin.D
+        return sp.csr_matrix(A)
+
+    @property
+    def mass_ff(self) -> sp.csr_matrix:
+        if getattr(self, "_mass_ff", None) is None:
+            self._mass_ff = restrict(self.mass, self.free)
+        return self._mass_ff
+
+    def kinetic(self, v: np.ndarray) -> float:
+        return 0.5 * float(v @ (self.mass @ v))
+
+    def initial_state(self, q0=None, v0=None) -> tuple[np.ndarray, np.ndarray]:
+        q = np.array(self.q_fixed if q0 is None else q0, dtype=float)
+        v = np.zeros(self.n_dofs) if v0 is None else np.array(v0, dtype=float)
+        if q.shape != (self.n_dofs,) or v.shape != (self.n_dofs,):
+            raise ConfigError(f"initial q and v must have shape ({self.n_dofs},), got {q.shape}, {v.shape}")
+        fixed = np.setdiff1d(np.arange(self.n_dofs), self.free)
+        q[fixed] = self.q_fixed[fixed]
+        v[fixed] = 0.0
+        return q, v
+
+
+def restrict(A: sp.spmatrix, free: np.ndarray) -> sp.csr_matrix:
+    """A[free][:, free] as CSR."""
+    A = sp.csr_matrix(A)
+    if len(free) == A.shape[0]:
+        return A
+    return A[free][:, free].tocsr()
+
+
+class LinearDynamics(DynamicsModel):
+    """M q'' + D q' + K q = f_ext with constant matrices (seed §2.1); all dofs free unless `fixed` given."""
+
+    linear = True
+
+    def __init__(self, M, K, D=None, f_ext=None, fixed=()):
+        self.mass = sp.csr_matrix(np.atleast_2d(M) if not sp.issparse(M) else M, dtype=float)
+        n = self.mass.shape[0]
+        self.K = sp.csr_matrix(np.atleast_2d(K) if not sp.issparse(K) else K, dtype=float)
+        self.D = None if D is None else sp.csr_matrix(np.atleast_2d(D) if not sp.issparse(D) else D, dtype=float)
+        if self.K.shape != (n, n) or (self.D is not None and self.D.shape != (n, n)):
+            raise ConfigError(f"M, K, D must all be {n} x {n}")
+        self.n_dofs = n
+        self.f_ext = np.zeros(n) if f_ext is None else np.asarray(f_ext, dtype=float)
+        fixed = np.asarray(fixed, dtype=np.int64)
+        self.free = np.setdiff1d(np.arange(n), fixed)
+        self.q_fixed = np.zeros(n)
+        self._lin = None
+
+    def force(self, q, v):
+        f = self.f_ext - self.K @ q
+        if self.D is not None:
+            f -= self.D @ v
+        return f
+
+    def linearize(self, q, v):
+        if self._lin is None:
+            self._lin = (restrict(self.K, self.free), None if self.D is None else restrict(self.D, self.free))
+        K, D = self._lin
+        f = self.force(q, v)
+        return Linearization(f, K, D, float(max(np.linalg.norm(f), np.linalg.norm(self.f_ext))))
+
+    def energy(self, q, v):
+        kin = self.kinetic(v)
+        el = 0.5 * float(q @ (self.K @ q))
+        pot = -float(self.f_ext @ q)
+        return {"kinetic": kin, "elastic": el, "potential": pot, "total": kin + el + pot}
+
+
+# ---------------------------------------------------------------------------------------------------
+# elastic force kernels
+# ---------------------------------------------------------------------------------------------------
+class FemKernel:
+    """Any physar.fem ElasticModel: f_int, exact tangent K(u), energy (assembled by physar.fem)."""
+
+    name = "fem"
+
+    def __init__(self, elastic: ElasticModel):
+        self.elastic = elastic
+
+    def force(self, u):
+        return self.elastic.internal_force(u)
+
+    def force_tangent(self, u):
+        K = self.elastic.tangent_stiffness(u)
+        self._last = (np.array(u, copy=True), K)
+        return self.elastic.internal_force(u), K
+
+    def tangent_matvec(self, u, v):
+        last = getattr(self, "_last", None)
+        if last is not None and np.array_equal(last[0], u):
+            return last[1] @ v
+        return self.elastic.tangent_stiffness(u) @ v
+
+    def energy(self, u):
+        return self.elastic.energy(u)
+
+
+def fast_polar(F: np.ndarray, tol: float = 1e-13, max_iter: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation R and stretch S = Rᵀ F of F = R S, batched (m, 3, 3).
+
+    Scaled Newton iteration R <- ½ (g R + R⁻ᵀ / g), g = |det R|^(-1/3) (Higham), vectorised with explicit
+    cofactors; elements with det F <= 0 (inverted) or not converged fall back to physar.fem's SVD polar
+    (which keeps det R = +1).
+    """
+    R = F.copy()
+    det0 = np.einsum("mi,mi->m", R[:, :, 0], np.cross(R[:, :, 1], R[:, :, 2]))
+    bad = ~(det0 > 1e-12 * np.einsum("mij,mij->m", F, F) ** 1.5)
+    done = bad.copy()
+    for _ in range(max_iter):
+        act = np.flatnonzero(~done)
+        if len(act) == 0:
+            break
+        a = R[act]
+        c0 = np.cross(a[:, :, 1], a[:, :, 2])
+        c1 = np.cross(a[:, :, 2], a[:, :, 0])
+        c2 = np.cross(a[:, :, 0], a[:, :, 1])
+        det = np.einsum("mi,mi->m", a[:, :, 0], c0)
+        g = np.abs(det) ** (-1.0 / 3.0)
+        inv_t = np.stack([c0, c1, c2], axis=2) / det[:, None, None]
+        new = 0.5 * (g[:, None, None] * a + inv_t / g[:, None, None])
+        conv = np.abs(new - a).max(axis=(1, 2)) <= tol
+        R[act] = new
+        done[act[conv]] = True
+    fallback = np.flatnonzero(~done | bad)
+    if len(fallback):
+        R[fallback] = polar(F[fallback])[0]
+    S = np.swapaxes(R, 1, 2) @ F
+    return R, 0.5 * (S + np.swapaxes(S, 1, 2))
+
+
+class CorotatedP1Kernel:
+    """Co-rotated linear P1 tetrahedra, vectorised (one polar decomposition per element).
+
+    F = I + Σ_a u_a ⊗ G_a = R S;  f_a = V P G_a with P = 2 mu (F - R) + lambda tr(S - I) R (this is
+    exactly physar.fem's Corotated stress on P1). Tangent: 'exact' (with the dR terms, quadratic Newton)
+    or 'warped' K_e = R K0_e Rᵀ (stiffness warping, dR dropped, always SPD), K0_e = V Bᵀ C B. Energy W = mu |S - I|² + lambda/2 tr(S - I)².
+    """
+
+    name = "corotated-p1"
+
+    def __init__(self, elastic: ElasticModel, tangent: str = "exact"):
+        if tangent not in ("exact", "warped"):
+            raise ConfigError(f"tangent must be 'exact' or 'warped', got {tangent!r}")
+        self.tangent = tangent
+        space = elastic.space
+        if space.element != "P1" or not isinstance(elastic.material, Corotated):
+            raise ConfigError("the fast co-rotated kernel needs P1 elements and the 'corotated' material")
+        self.elastic = elastic
+        self.lam, self.mu = lame(elastic.material.E, elastic.material.nu)
+        G, wdet = elastic._quad  # (m, 1, 4, 3), (m, 1)
+        self.G = np.ascontiguousarray(G[:, 0])  # (m, 4, 3)
+        self.vol = np.ascontiguousarray(wdet[:, 0])  # (m,)
+        self.cells = space.cells
+        self.n = space.n_dofs
+        self.dofs = space.cell_dofs
+        lam, mu = self.lam, self.mu
+        # K0_e[a i, b k] = V (lam G_ai G_bk + mu G_ak G_bi + mu δ_ik G_a·G_b)
+        GG = np.einsum("maj,mbj->mab", self.G, self.G)
+        K0 = (
+            lam * np.einsum("mai,mbk->maibk", self.G, self.G)
+            + mu * np.einsum("mak,mbi->maibk", self.G, self.G)
+            + mu * np.einsum("mab,ik->maibk", GG, np.eye(3))
+        ) * self.vol[:, None, None, None, None]
+        # blocks K0[m, a, b] (3 x 3) for the warping R K0ab Rᵀ
+        self.K0ab = np.ascontiguousarray(K0.transpose(0, 1, 3, 2, 4))  # (m, a, b, i, k)
+        self._pattern = None
+
+    def _F(self, u):
+        ue = u.reshape(-1, 3)[self.cells]  # (m, 4, 3)
+        return np.eye(3) + np.einsum("mai,maj->mij", ue, self.G)
+
+    def _stress(self, F):
+        R, S = fast_polar(F)
+        trD = np.trace(S, axis1=1, axis2=2) - 3.0
+        P = 2 * self.mu * (F - R) + self.lam * trD[:, None, None] * R
+        return R, S, P
+
+    def _scatter(self, fe):
+        return np.bincount(self.dofs.ravel(), weights=fe.ravel(), minlength=self.n)
+
+    def force(self, u):
+        _, _, P = self._stress(self._F(u))
+        return self._scatter(np.einsum("m,mij,maj->mai", self.vol, P, self.G))
+
+    def _warped(self, R):
+        # Ke[a, b] = R K0ab Rᵀ, returned as (m, 12, 12) with dof order (a, i)
+        m = len(R)
+        T1 = np.matmul(self.K0ab.reshape(m, 48, 3), np.swapaxes(R, 1, 2))  # [m, (a, b, j), l]
+        T1 = T1.reshape(m, 4, 4, 3, 3).transpose(0, 3, 1, 2, 4).reshape(m, 3, 48)  # [m, j, (a, b, l)]
+        T2 = np.matmul(R, T1).reshape(m, 3, 4, 4, 3)  # [m, i, a, b, l]
+        return T2.transpose(0, 2, 1, 3, 4).reshape(m, 12, 12)
+
+    def _exact(self, R, S):
+        """Exact element tangent (m, 12, 12): the warped part plus the dR terms of the co-rotated P.
+
+        dP = 2 mu (dF - dR) + lambda tr(Rᵀ dF) R + lambda tr(S - I) dR, dR = R [w]x,
+        w = (tr S I - S)⁻¹ axial(Rᵀ dF - dFᵀ R); for dF = e_k ⊗ G_b: axial(...) = G_b x (Rᵀ e_k).
+        """
+        m = len(R)
+        G, V = self.G, self.vol
+        trS = np.trace(S, axis1=1, axis2=2)
+        Minv = np.linalg.inv(trS[:, None, None] * np.eye(3) - S)
+        rk = np.swapaxes(R, 1, 2)  # rk[m, :, k] = Rᵀ e_k ; as rows: R[m, k, :]
+        cr = np.cross(G[:, :, None, :], R[:, None, :, :])  # (m, b, k, 3) = G_b x R[k, :]
+        w = np.einsum("mij,mbkj->mbki", Minv, cr)
+        wxg = np.cross(w[:, None], G[:, :, None, None, :])  # (m, a, b, k, 3) = w_bk x G_a
+        c = self.lam * (trS - 3.0) - 2 * self.mu
+        Krot = np.einsum("m,mij,mabkj->maibk", c * V, R, wxg)
+        RG = np.einsum("mij,maj->mai", R, G)
+        GG = np.einsum("maj,mbj->mab", G, G)
+        Klin = (2 * self.mu) * np.einsum("mab,ik->maibk", GG * V[:, None, None], np.eye(3)) + self.lam * np.einsum(
+            "m,mai,mbk->maibk", V, RG, RG)
+        del rk
+        return (Klin + Krot).reshape(m, 12, 12)
+
+    def force_tangent(self, u):
+        R, S, P = self._stress(self._F(u))
+        f = self._scatter(np.einsum("m,mij,maj->mai", self.vol, P, self.G))
+        if self._pattern is None:
+            self._pattern = CSRPattern(self.dofs, self.n)
+        Ke = self._warped(R) if self.tangent == "warped" else self._exact(R, S)
+        return f, self._pattern.assemble(Ke)
+
+    def tangent_matvec(self, u, v):
+        R, _, _ = self._stress(self._F(u))
+        ve = v.reshape(-1, 3)[self.cells]  # (m, 4, 3)
+        w = np.einsum("mji,mbj->mbi", R, ve)  # Rᵀ v_b
+        y = np.einsum("mabik,mbk->mai", self.K0ab, w)
+        return self._scatter(np.einsum("mij,maj->mai", R, y))
+
+    def energy(self, u):
+        _, S = fast_polar(self._F(u))
+        D = S - np.eye(3)
+        W = self.mu * np.einsum("mij,mij->m", D, D) + 0.5 * self.lam * np.trace(D, axis1=1, axis2=2) ** 2
+        return float(self.vol @ W)
+
+
+def make_kernel(elastic: ElasticModel, kernel: str = "auto", tangent: str = "exact"):
+    """'auto': the fast co-rotated P1 kernel when it applies, else physar.fem assembly; 'fem'; 'corotated-p1'.
+
+    `tangent` ('exact' | 'warped') applies to the co-rotated P1 kernel only.
+    """
+    if kernel == "fem":
+        return FemKernel(elastic)
+    if kernel == "corotated-p1":
+        return CorotatedP1Kernel(elastic, tangent)
+    if kernel != "auto":
+        raise ConfigError(f"unknown kernel {kernel!r}; use auto, fem or corotated-p1")
+    if elastic.space.element == "P1" and isinstance(elastic.material, Corotated):
+        return CorotatedP1Kernel(elastic, tangent)
+    return FemKernel(elastic)
+
+
+@dataclass(frozen=True)
+class Ground:
+    """Penalty ground plane z = z0 [m] with stiffness k [N/m per node]: f_z = k max(z0 - z, 0)."""
+
+    z0: float = 0.0
+    stiffness: float = 1e5
+
+    def __post_init__(self):
+        if not (self.stiffness > 0 and np.isfinite(self.stiffness)):
+            raise ConfigError(f"ground stiffness must be positive, got {self.stiffness}")
+
+
+class SolidModel(DynamicsModel):
+    """An elastic body (physar.fem) as a dynamics model (seed Eq. 2.1).
+
+    f(q, v) = -f_int(q) - D(q) v + M g + f_ext + f_ground(q), D = alpha M + beta K_D(q), with K_D the
+    tangent K(q) (physar.fem kernel) or the warped stiffness R K0 Rᵀ (co-rotated P1 kernel, SPD); the
+    Newton matrix uses the stiffness tangent in place of K_D and neglects dK_D/dq v.
+    Parameters: `fixed` pinned dofs held at `q_fixed` (default 0), `mass` 'lumped' | 'consistent',
+    `rayleigh` = (alpha [1/s], beta [s]), `gravity` (3,) [m/s²], `f_ext` (n,) [N] constant,
+    `ground` a :class:`Ground` or None, `kernel` and `tangent` see :func:`make_kernel`.
+    """
+
+    def __init__(self, elastic: ElasticModel, fixed=(), q_fixed=None, mass: str = "lumped",
+                 rayleigh=(0.0, 0.0), gravity=None, f_ext=None, ground: Ground | None = None,
+                 kernel: str = "auto", tangent: str = "exact"):
+        if mass not in ("lumped", "consistent"):
+            raise ConfigError(f"mass must be 'lumped' or 'consistent', got {mass!r}")
+        alpha, beta = (float(x) for x in rayleigh)
+        if alpha < 0 or beta < 0 or not np.isfinite(alpha + beta):
+            raise ConfigError(f"Rayleigh coefficients must be >= 0, got alpha={alpha}, beta={beta}")
+        self.elastic = elastic
+        self.space = elastic.space
+        self.n_dofs = n = elastic.n_dofs
+        self.kernel = make_kernel(elastic, kernel, tangent)
+        self.linear = bool(elastic.linear) and ground is None
+        self.mass = elastic.mass_matrix(lumped=(mass == "lumped"))
+        self.mass_kind = mass
+        self.alpha, self.beta = alpha, beta
+        fixed = np.unique(np.asarray(fixed, dtype=np.int64))
+        self.fixed = fixed
+        self.free = np.setdiff1d(np.arange(n), fixed)
+        self.q_fixed = np.zeros(n) if q_fixed is None else np.asarray(q_fixed, dtype=float).copy()
+        self.f_ext = np.zeros(n) if f_ext is None else np.asarray(f_ext, dtype=float)
+        if self.f_ext.shape != (n,) or self.q_fixed.shape != (n,):
+            raise ConfigError(f"f_ext and q_fixed must have shape ({n},)")
+        self.gravity = None if gravity is None else np.asarray(gravity, dtype=float)
+        if self.gravity is not None:
+            self.f_ext = self.f_ext + self.mass @ np.tile(self.gravity, n // 3)
+        self.ground = ground
+        self._K_lin = None
+        self._floor = None
+
+    # -- pieces ------------------------------------------------------------------------------------
+    def _ground(self, q):
+        """Contact force (n,), active dofs and penetration, from the node heights z = Z + q_z."""
+        g = self.ground
+        z = self.space.nodes[:, 2] + q[2::3]
+        pen = g.z0 - z
+        active = np.flatnonzero(pen > 0)
+        f = np.zeros(self.n_dofs)
+        f[3 * active + 2] = g.stiffness * pen[active]
+        return f, 3 * active + 2, pen[active]
+
+    def force(self, q, v):
+        f = self.f_ext - self.kernel.force(q)
+        if self.alpha:
+            f -= self.alpha * (self.mass @ v)
+        if self.beta:
+            f -= self.beta * self.kernel.tangent_matvec(q, v)
+        if self.ground is not None:
+            f += self._ground(q)[0]
+        return f
+
+    def _tangent(self, q):
+        if self.linear:
+            if self._K_lin is None:
+                f_int, K = self.kernel.force_tangent(q)
+                self._K_lin = restrict(K, self.free), K
+                return f_int, self._K_lin
+            return self.kernel.force(q), self._K_lin
+        f_int, K = self.kernel.force_tangent(q)
+        return f_int, (restrict(K, self.free), K)
+
+    def linearize(self, q, v):
+        f_int, (K_ff, K) = self._tangent(q)
+        f = self.f_ext - f_int
+        if self.alpha:
+            f -= self.alpha * (self.mass @ v)
+        if self.beta:
+            f -= self.beta * self.kernel.tangent_matvec(q, v)
+        Kt = K_ff
+        scale = max(np.linalg.norm(f_int), np.linalg.norm(self.f_ext))
+        if self.ground is not None:
+            fg, dofs, _ = self._ground(q)
+            f += fg
+            scale = max(scale, np.linalg.norm(fg))
+            if len(dofs):
+                pos = np.searchsorted(self.free, dofs)
+                ok = (pos < len(self.free)) & (self.free[np.minimum(pos, len(self.free) - 1)] == dofs)
+                diag = np.zeros(len(self.free))
+                diag[pos[ok]] = self.ground.stiffness
+                Kt = K_ff + sp.diags(diag)
+        if self._floor is None:
+            # f_int(q) is computed from F = I + grad u: its round-off is ~ eps |K| x (body size)
+            ext = float(np.ptp(self.space.nodes, axis=0).max())
+            self._floor = float(np.finfo(float).eps * np.linalg.norm(K_ff.diagonal()) * ext)
+        lin = Linearization(f, Kt, None, float(scale), self._floor)
+        lin.K_el = K_ff  # elastic part, for Rayleigh damping
+        return lin
+
+    def system_matrix(self, lin, cm, cd, ck):
+        """cm M + cd (alpha M + beta K_el) + ck K on the free dofs, one sparse sum."""
+        A = (cm + cd * self.alpha) * self.mass_ff
+        if ck:
+            A = A + ck * lin.K
+        if cd and self.beta:
+            A = A + (cd * self.beta) * lin.K_el
+        return sp.csr_matrix(A)
+
+    def energy(self, q, v):
+        """Kinetic ½vᵀMv, elastic W(q), potential -f_extᵀq (gravity, loads) + ½ k pen² (ground) [J]."""
+        kin = self.kinetic(v)
+        el = self.kernel.energy(q)
+        pot = -float(self.f_ext @ q)
+        if self.ground is not None:
+            _, _, pen = self._ground(q)
+            pot += 0.5 * self.ground.stiffness * float(pen @ pen)
+        return {"kinetic": kin, "elastic": el, "potential": pot, "total": kin + el + pot}

@@ -1,0 +1,392 @@
+"""Time steppers for M q'' = f(q, v) (seed 001 §2), sharing one Newton / sparse-solve machinery.
+
+Every implicit stage of every method below has the same form, solved for the velocity v on the free
+dofs by :meth:`Integrator._stage`:
+
+    M v - h_f f(q, v) = r,     q = q̂ + h_q v,                                            (S)
+
+with Newton matrix J = M + h_f D + h_f h_q K (K = -df/dq, D = -df/dv). Newton starts from the
+previous state (q_{n-1}, v_{n-1}) as linearisation point, so one iteration of backward Euler is the
+classic semi-implicit (linearly implicit) step (M + hD + h²K) Δv = h (f_{n-1} - h K v_{n-1}).
+
+Methods (h the step; f_n = f(q_n, v_n)):
+* symplectic Euler: v_n = v_{n-1} + h M⁻¹ f_{n-1}, q_n = q_{n-1} + h v_n (explicit).
+* backward Euler (BE): (S) with h_f = h_q = h, q̂ = q_{n-1}, r = M v_{n-1}; full Newton.
+* semi-implicit (SI): BE with exactly one Newton iteration.
+* implicit midpoint: (S) for v_{n-½} with h_f = h_q = h/2, r = M v_{n-1}; v_n = 2 v_{n-½} - v_{n-1},
+  q_n = q_{n-1} + h v_{n-½}.
+* generalized-α (seed Eq. 2.11-2.12, Chung-Hulbert): unknown a_{n+α};
+  q_n = q_{n-1} + h v_{n-1} + h²/2 ((1-2β) a_{n-1+α} + 2β a_{n+α}),
+  v_n = v_{n-1} + h ((1-γ) a_{n-1+α} + γ a_{n+α}),
+  (1-α_m) M a_{n+α} + α_m M a_{n-1+α} = (1-α_f) f_n + α_f f_{n-1},
+  α_m = (2r-1)/(r+1), α_f = r/(r+1), α = α_m - α_f, β = (1-α)²/4, γ = 1/2 - α;
+  as (S): h_q = hβ/γ, h_f = hγ(1-α_f)/(1-α_m). r = 1: no numerical damping, r = 0: most.
+* θ method (seed Eq. 2.15), trapezoid + BDF2 on u = (q, v), u' = b(u):
+  u_n = u_{n-1} + (1-θ) h/2 [b(u_{n-1}) + b(u_n)] + θ/3 [u_{n-1} - u_{n-2} + 2h b(u_n)],
+  so h_f = h_q = c h with c = (1-θ)/2 + 2θ/3; θ = 0 trapezoid, θ = 1 BDF2. Two-step: the first step
+  is one trapezoid step (second order, one-step).
+* TR-BDF2 (γ = 2 - √2): a trapezoid stage to t + γh, then BDF2 on (t, t + γh, t + h):
+  u_n = [u_γ - (1-γ)² u_{n-1}] / (γ(2-γ)) + (1-γ)/(2-γ) h b(u_n). L-stable, second order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from physar.errors import ConfigError, SolverError
+from physar.integrators.linalg import SparseSolver
+from physar.integrators.model import DynamicsModel
+
+
+@dataclass
+class State:
+    """Time t [s], displacement q [m], velocity v [m/s] and the method's memory.
+
+    `a`: generalized-α's a_{n+α} [m/s²]; `q_prev`, `v_prev`: the θ method's previous step; `f`: the
+    total force at (q, v) when known (a cache, never part of the method's state).
+    """
+
+    q: np.ndarray
+    v: np.ndarray
+    t: float = 0.0
+    a: np.ndarray | None = None
+    q_prev: np.ndarray | None = None
+    v_prev: np.ndarray | None = None
+    f: np.ndarray | None = field(default=None, repr=False)
+    newton_iterations: int = 0
+
+
+@dataclass
+class StepStats:
+    newton_iterations: list[int] = field(default_factory=list)
+    factorizations: int = 0
+
+
+class Integrator:
+    """Base class. `init(model, q0, v0)` -> State; `step(model, state, h)` -> new State.
+
+    Newton settings: `tol` (relative residual of (S), or relative Newton update of v), `max_iter`. `pack`/`unpack` map the method's
+    state to a flat vector (used by the amplification-matrix analysis).
+    """
+
+    name = "integrator"
+    order = 1
+    implicit = True
+    state_components = ("q", "v")
+
+    def __init__(self, tol: float = 1e-9, max_iter: int = 25):
+        if not (tol > 0):
+            raise ConfigError(f"Newton tol must be > 0, got {tol}")
+        if max_iter < 1:
+            raise ConfigError(f"Newton max_iter must be >= 1, got {max_iter}")
+        self.tol = tol
+        self.max_iter = max_iter
+        self.solver = SparseSolver()
+        self.stats = StepStats()
+
+    def __repr__(self):
+        return f"{type(self).__name__}()"
+
+    # -- state -------------------------------------------------------------------------------------
+    def init(self, model: DynamicsModel, q0=None, v0=None, t0: float = 0.0) -> State:
+        q, v = model.initial_state(q0, v0)
+        return State(q, v, t0)
+
+    def pack(self, state: State) -> np.ndarray:
+        return np.concatenate([getattr(state, c) for c in self.state_components])
+
+    def unpack(self, x: np.ndarray, n: int, t: float = 0.0) -> State:
+        parts = {c: np.array(x[i * n:(i + 1) * n], dtype=float) for i, c in enumerate(self.state_components)}
+        return State(t=t, **parts)
+
+    # -- shared machinery ------------------------------------------------------------------------
+    def _force(self, model, q, v, cached=None):
+        return cached if cached is not None else model.force(q, v)
+
+    def _stage(self, model: DynamicsModel, q_hat, rhs, hf, hq, q0, v0, max_iter=None):
+        """Solve (S): M v - hf f(q̂ + hq v, v) = rhs on the free dofs; returns (q, v, f or None, iters).
+
+        The first linearisation point is (q0, v0) (q0 need not equal q̂ + hq v0). f is the total force
+        at the returned (q, v) when Newton converged (None after a truncated iteration).
+        """
+        max_iter = self.max_iter if max_iter is None else max_iter
+        fr = model.free
+        M = model.mass_ff
+        q, v = q0.copy(), v0.copy()
+        key = ("stage", hf, hq) if model.linear else None
+        lin = model.linearize(q, v)
+        r_prev = np.inf
+        for it in range(1, max_iter + 1):
+            e = q_hat[fr] + hq * v[fr] - q[fr]  # inconsistency of the linearisation point
+            r = M @ v[fr] - hf * lin.f[fr] - rhs[fr]
+            rhs_n = -r
+            if np.any(e):
+                rhs_n = rhs_n - hf * (lin.K @ e)
+            J = model.system_matrix(lin, 1.0, hf, hf * hq)
+            dv = self.solver.solve(J, rhs_n, key)
+            v = v.copy()
+            v[fr] += dv
+            q = q.copy()
+            q[fr] = q_hat[fr] + hq * v[fr]
+            if it == max_iter and max_iter == 1:
+                return q, v, None, it
+            if model.linear:
+                return q, v, model.force(q, v), it
+            lin = model.linearize(q, v)
+            r = M @ v[fr] - hf * lin.f[fr] - rhs[fr]
+            scale = max(np.linalg.norm(M @ v[fr]), hf * np.linalg.norm(lin.f[fr]), hf * lin.scale,
+                        np.linalg.norm(rhs[fr]), 1e-300)
+            vscale = max(np.linalg.norm(v[fr]), np.linalg.norm(v0[fr]), np.linalg.norm(v[fr] - v0[fr]), 1e-300)
+            rn = np.linalg.norm(r)
+            if rn <= self.tol * scale + hf * lin.floor or np.linalg.norm(dv) <= self.tol * vscale:
+                return q, v, lin.f, it
+            if rn <= max(1e3 * self.tol, np.sqrt(self.tol)) * scale and rn >= 0.9 * r_prev:  # round-off floor
+                return q, v, lin.f, it
+            r_prev = rn
+            if not np.all(np.isfinite(v)):
+                break
+        raise SolverError(
+            f"{self.name}: Newton did not converge in {max_iter} iterations (relative residual "
+            f"{np.linalg.norm(r) / scale:.2e}); reduce the time step h or raise max_iter")
+
+    def step(self, model: DynamicsModel, state: State, h: float) -> State:  # pragma: no cover
+        raise NotImplementedError
+
+    def _done(self, state: State, it: int) -> State:
+        state.newton_iterations = it
+        self.stats.newton_iterations.append(it)
+        self.stats.factorizations = self.solver.n_factorizations
+        return state
+
+
+def _fixed_like(model, q, v):
+    """Hold the pinned dofs: q = q_fixed, v = 0 there."""
+    fixed = np.setdiff1d(np.arange(model.n_dofs), model.free)
+    q[fixed] = model.q_fixed[fixed]
+    v[fixed] = 0.0
+    return q, v
+
+
+class SymplecticEuler(Integrator):
+    """v_n = v_{n-1} + h M⁻¹ f(q_{n-1}, v_{n-1}), q_n = q_{n-1} + h v_n (explicit, stable for hω < 2)."""
+
+    name = "symplectic_euler"
+    implicit = False
+
+    def step(self, model, state, h):
+        fr = model.free
+        f = self._force(model, state.q, state.v, state.f)
+        v = state.v.copy()
+        v[fr] += h * self.solver.solve(model.mass_ff, f[fr], key=("mass",))
+        q = state.q.copy()
+        q[fr] += h * v[fr]
+        return self._done(State(q, v, state.t + h), 0)
+
+
+class BackwardEuler(Integrator):
+    """Backward Euler, q_n = q_{n-1} + h v_n, M (v_n - v_{n-1}) = h f(q_n, v_n); full Newton.
+
+    On q'' + ω² q = 0: ρ = 1/√(1 + (hω)²), d = ln(1 + (hω)²)/h (seed Eq. 2.9).
+    """
+
+    name = "be"
+    newton_iters: int | None = None
+
+    def step(self, model, state, h):
+        rhs = model.mass @ state.v
+        q, v, f, it = self._stage(model, state.q, rhs, h, h, state.q, state.v, self.newton_iters)
+        return self._done(State(q, v, state.t + h, f=f), it)
+
+
+class SemiImplicit(BackwardEuler):
+    """Semi-implicit Euler: one Newton iteration of backward Euler from (q_{n-1}, v_{n-1}) (seed §2)."""
+
+    name = "si"
+    newton_iters = 1
+
+
+class ImplicitMidpoint(Integrator):
+    """Implicit midpoint: v½ solves M v½ - (h/2) f(q_{n-1} + (h/2) v½, v½) = M v_{n-1}. ρ = 1, d = 0."""
+
+    name = "midpoint"
+    order = 2
+
+    def step(self, model, state, h):
+        rhs = model.mass @ state.v
+        qm, vm, _, it = self._stage(model, state.q, rhs, h / 2, h / 2, state.q, state.v)
+        q = state.q.copy()
+        v = state.v.copy()
+        fr = model.free
+        v[fr] = 2 * vm[fr] - state.v[fr]
+        q[fr] = state.q[fr] + h * vm[fr]
+        return self._done(State(q, v, state.t + h), it)
+
+
+def genalpha_coefficients(r: float) -> dict:
+    """Seed Eq. 2.12: α_m = (2r-1)/(r+1), α_f = r/(r+1), α = α_m - α_f, β = (1-α)²/4, γ = 1/2 - α."""
+    if not (0.0 <= r <= 1.0):
+        raise ConfigError(f"generalized-alpha r (rho_inf) must be in [0, 1], got {r}")
+    am = (2 * r - 1) / (r + 1)
+    af = r / (r + 1)
+    al = am - af
+    return {"alpha_m": am, "alpha_f": af, "alpha": al, "beta": (1 - al) ** 2 / 4, "gamma": 0.5 - al}
+
+
+class GeneralizedAlpha(Integrator):
+    """Generalized-α with the knob r = ρ∞ ∈ [0, 1] (seed Eq. 2.11-2.12); state (q, v, a_{n+α}).
+
+    a_α at t0 is M⁻¹ f(q0, v0). ρ(T) → r as hω → ∞; r = 1 is the energy-conserving trapezoid rule.
+    """
+
+    name = "genalpha"
+    order = 2
+    state_components = ("q", "v", "a")
+
+    def __init__(self, r: float = 0.5, **kw):
+        super().__init__(**kw)
+        self.r = float(r)
+        self.c = genalpha_coefficients(self.r)
+        self._msolver = SparseSolver()
+
+    def __repr__(self):
+        return f"GeneralizedAlpha(r={self.r})"
+
+    def init(self, model, q0=None, v0=None, t0=0.0):
+        q, v = model.initial_state(q0, v0)
+        f = model.force(q, v)
+        a = np.zeros(model.n_dofs)
+        a[model.free] = self._msolver.solve(model.mass_ff, f[model.free], key=("mass",))
+        return State(q, v, t0, a=a, f=f)
+
+    def step(self, model, state, h):
+        c = self.c
+        am, af, be, ga = c["alpha_m"], c["alpha_f"], c["beta"], c["gamma"]
+        a0 = state.a if state.a is not None else np.zeros(model.n_dofs)
+        f0 = self._force(model, state.q, state.v, state.f)
+        q_t = state.q + h * state.v + h * h / 2 * (1 - 2 * be) * a0
+        v_t = state.v + h * (1 - ga) * a0
+        hq = h * be / ga
+        hf = h * ga * (1 - af) / (1 - am)
+        q_hat = q_t - hq * v_t
+        rhs = model.mass @ v_t + (h * ga / (1 - am)) * (af * f0 - am * (model.mass @ a0))
+        q, v, f, it = self._stage(model, q_hat, rhs, hf, hq, state.q, state.v)
+        a = np.zeros(model.n_dofs)
+        fr = model.free
+        a[fr] = (v[fr] - v_t[fr]) / (h * ga)
+        return self._done(State(q, v, state.t + h, a=a, f=f), it)
+
+
+class ThetaMethod(Integrator):
+    """Seed Eq. 2.15, trapezoid/BDF2 blend with θ ∈ [0, 1], second order for every θ.
+
+    State (q_n, v_n, q_{n-1}, v_{n-1}); the first step (no history) is one trapezoid step.
+    """
+
+    name = "theta"
+    order = 2
+    state_components = ("q", "v", "q_prev", "v_prev")
+
+    def __init__(self, theta: float = 0.5, **kw):
+        super().__init__(**kw)
+        if not (0.0 <= theta <= 1.0):
+            raise ConfigError(f"theta must be in [0, 1], got {theta}")
+        self.theta = float(theta)
+
+    def __repr__(self):
+        return f"ThetaMethod(theta={self.theta})"
+
+    def step(self, model, state, h):
+        th = self.theta if state.q_prev is not None else 0.0
+        q1, v1 = state.q, state.v
+        q2 = state.q_prev if state.q_prev is not None else q1
+        v2 = state.v_prev if state.v_prev is not None else v1
+        f1 = self._force(model, q1, v1, state.f)
+        c = (1 - th) / 2 + 2 * th / 3
+        q_hat = q1 + (1 - th) * h / 2 * v1 + th / 3 * (q1 - q2)
+        rhs = model.mass @ (v1 + th / 3 * (v1 - v2)) + (1 - th) * h / 2 * f1
+        q, v, f, it = self._stage(model, q_hat, rhs, c * h, c * h, q1, v1)
+        return self._done(State(q, v, state.t + h, q_prev=q1.copy(), v_prev=v1.copy(), f=f), it)
+
+
+class TRBDF2(Integrator):
+    """TR-BDF2 with γ = 2 - √2 (trapezoid to t + γh, then BDF2); L-stable: ρ → 0 as hω → ∞."""
+
+    name = "trbdf2"
+    order = 2
+    gamma = 2 - np.sqrt(2)
+
+    def step(self, model, state, h):
+        g = self.gamma
+        q0, v0 = state.q, state.v
+        f0 = self._force(model, q0, v0, state.f)
+        # trapezoid stage over g h
+        q_hat = q0 + g * h / 2 * v0
+        rhs = model.mass @ v0 + g * h / 2 * f0
+        qg, vg, _, it1 = self._stage(model, q_hat, rhs, g * h / 2, g * h / 2, q0, v0)
+        # BDF2 stage
+        s = 1.0 / (g * (2 - g))
+        w = (1 - g) ** 2 * s
+        c = (1 - g) / (2 - g)
+        q_hat = s * qg - w * q0
+        rhs = model.mass @ (s * vg - w * v0)
+        q, v, f, it2 = self._stage(model, q_hat, rhs, c * h, c * h, qg, vg)
+        return self._done(State(q, v, state.t + h, f=f), it1 + it2)
+
+
+METHODS: dict[str, type[Integrator]] = {
+    "symplectic_euler": SymplecticEuler,
+    "be": BackwardEuler,
+    "si": SemiImplicit,
+    "midpoint": ImplicitMidpoint,
+    "genalpha": GeneralizedAlpha,
+    "theta": ThetaMethod,
+    "trbdf2": TRBDF2,
+}
+
+
+def make_integrator(method: str, r: float | None = None, theta: float | None = None, **kw) -> Integrator:
+    """An integrator by name: symplectic_euler | be | si | midpoint | genalpha (r) | theta (theta) | trbdf2."""
+    if method not in METHODS:
+        raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if r is not None and method != "genalpha":
+        raise ConfigError(f"r applies to method 'genalpha' only, not {method!r}")
+    if theta is not None and method != "theta":
+        raise ConfigError(f"theta applies to method 'theta' only, not {method!r}")
+    if method == "genalpha":
+        return GeneralizedAlpha(0.5 if r is None else r, **kw)
+    if method == "theta":
+        return ThetaMethod(0.5 if theta is None else theta, **kw)
+    return METHODS[method](**kw)
+
+
+def simulate(model: DynamicsModel, integrator: Integrator, h: float, steps: int, q0=None, v0=None,
+             callback: Callable[[int, State], None] | None = None,
+             progress: Callable[[int, int], None] | None = None) -> State:
+    """Run `steps` steps of size h [s] from (q0, v0); `callback(k, state)` after each step (k = 0 first)."""
+    if not (h > 0 and np.isfinite(h)):
+        raise ConfigError(f"time step h must be > 0, got {h}")
+    if steps < 0:
+        raise ConfigError(f"steps must be >= 0, got {steps}")
+    state = integrator.init(model, q0, v0)
+    if callback:
+        callback(0, state)
+    for k in range(1, steps + 1):
+        state = integrator.step(model, state, h)
+        if not (np.all(np.isfinite(state.q)) and np.all(np.isfinite(state.v))):
+            raise SolverError(f"{integrator.name}: the solution blew up at step {k} (t = {state.t:.4g} s); "
+                              "reduce h or use an implicit method")
+        if callback:
+            callback(k, state)
+        if progress:
+            progress(k, steps)
+    return state
+
+
+__all__ = [
+    "State", "Integrator", "SymplecticEuler", "BackwardEuler", "SemiImplicit", "ImplicitMidpoint",
+    "GeneralizedAlpha", "ThetaMethod", "TRBDF2", "METHODS", "make_integrator", "genalpha_coefficients",
+    "simulate",
+]

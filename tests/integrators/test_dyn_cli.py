@@ -1,0 +1,132 @@
+"""`physar damping` and `physar simulate` through a local typer app."""
+
+import csv
+import json
+
+import meshio
+import numpy as np
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from physar.cli.dynamics import register
+
+
+@pytest.fixture(scope="module")
+def app():
+    a = typer.Typer()
+    register(a)
+
+    @a.callback()
+    def _root():
+        pass
+
+    return a
+
+
+def test_damping_json_backward_euler(app):
+    res = CliRunner().invoke(app, ["damping", "--method", "be", "--hw", "0.1", "1", "10", "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    hw = np.array([0.1, 1.0, 10.0])
+    assert out["hw"] == [0.1, 1.0, 10.0]
+    np.testing.assert_allclose(out["rho"], 1 / np.sqrt(1 + hw**2), rtol=1e-12)
+    np.testing.assert_allclose(out["d_over_omega"], np.log1p(hw**2) / hw, rtol=1e-10)
+
+
+def test_damping_genalpha_r_and_plot(app, tmp_path):
+    res = CliRunner().invoke(app, ["damping", "--method", "genalpha", "--r", "0.25", "--hw", "1e6", "--json"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["rho"][0] == pytest.approx(0.25, abs=2e-3)
+    png = tmp_path / "curves.png"
+    res = CliRunner().invoke(app, ["damping", "--plot", str(png)])
+    assert res.exit_code == 0, res.output
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("args,msg", [
+    (["damping", "--method", "rk4", "--hw", "1"], "unknown"),
+    (["damping", "--method", "be", "--hw", "abc"], "not a number"),
+    (["damping", "--method", "be", "--r", "0.5", "--hw", "1"], "genalpha"),
+    (["damping"], "--method"),
+])
+def test_damping_bad_input(app, args, msg):
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2
+    assert msg in res.output
+
+
+CFG = """
+[mesh]
+box = [0.2, 0.2, 0.2]
+cells = [2, 2, 2]
+
+[material]
+model = "corotated"
+E = 5e4
+nu = 0.3
+density = 500
+
+[fem]
+element = "P1"
+
+[dynamics]
+method = "{method}"
+h = 0.01
+steps = 12
+gravity = [0, 0, -9.81]
+output_every = 4
+
+[dynamics.ground]
+z = -0.02
+stiffness = 2e4
+"""
+
+
+def test_simulate_writes_xdmf_csv_video(app, tmp_path):
+    cfg = tmp_path / "drop.toml"
+    cfg.write_text(CFG.format(method="midpoint"))
+    out = tmp_path / "traj.xdmf"
+    video = tmp_path / "out.mp4"
+    res = CliRunner().invoke(app, ["simulate", str(cfg), "--out", str(out), "--video", str(video), "--json"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout.strip().splitlines()[-1])
+    assert summary["frames"] == 4 and summary["method"] == "midpoint"
+    with meshio.xdmf.TimeSeriesReader(out) as r:
+        r.read_points_cells()
+        assert r.num_steps == 4
+        t, pd, _ = r.read_data(3)
+    assert t == pytest.approx(0.12)
+    rows = list(csv.DictReader(open(tmp_path / "traj.csv")))
+    assert len(rows) == 13 and float(rows[0]["kinetic"]) == 0.0
+    assert video.stat().st_size > 1000
+    import av
+
+    with av.open(str(video)) as c:
+        s = c.streams.video[0]
+        assert s.codec_context.name == "h264" and s.codec_context.pix_fmt == "yuv420p"
+
+
+def test_simulate_config_errors(app, tmp_path):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(CFG.format(method="rk4"))
+    res = CliRunner().invoke(app, ["simulate", str(cfg), "--out", str(tmp_path / "t.xdmf")])
+    assert res.exit_code == 2 and "dynamics.method" in res.output
+    cfg.write_text(CFG.format(method="be").replace("steps = 12", "steps = 12\nr = 0.5"))
+    res = CliRunner().invoke(app, ["simulate", str(cfg), "--out", str(tmp_path / "t.xdmf")])
+    assert res.exit_code == 2 and "genalpha" in res.output
+    cfg.write_text(CFG.format(method="be").replace("h = 0.01", "h = 0.01\nstep = 3"))
+    res = CliRunner().invoke(app, ["simulate", str(cfg), "--out", str(tmp_path / "t.xdmf")])
+    assert res.exit_code == 2 and "unknown key 'step'" in res.output
+    assert not list(tmp_path.glob("t.*"))
+
+
+@pytest.mark.parametrize("name", ["dynamics_cantilever.toml", "dynamics_drop.toml"])
+def test_examples_validate_and_build(name):
+    from pathlib import Path
+
+    from physar.integrators.config import build_simulation, load_dynamics_config
+
+    path = Path(__file__).resolve().parents[2] / "examples" / name
+    sim = build_simulation(load_dynamics_config(path))
+    assert sim.model.kernel.name == "corotated-p1"
