@@ -1,0 +1,321 @@
+"""The AR frame loop (seed 000 §2.1, §4, §5.1): decode -> markers/pose -> dots -> observations u* ->
+assimilation mu* = argmin ||u* - C u(mu)||² on the reduced model -> overlay -> encode.
+
+Decoding and encoding run in background threads (PyAV releases the GIL while it codes), so they overlap
+the computing on the main thread. Per-stage latencies are recorded for every frame.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable
+
+import cv2
+import numpy as np
+
+from physar.errors import ConfigError, PhysarError
+from physar.vision.camera import Camera
+from physar.vision.dots import DotTracker
+from physar.vision.markers import MarkerBoard, MarkerTracker
+from physar.vision.observation import surface_observation_matrix
+
+STAGES = ("decode", "markers_pose", "dots", "assimilate", "overlay", "encode")
+
+
+@dataclass
+class BeamObject:
+    """What the pipeline knows about the filmed object: a box beam [0, L]x[0, W]x[0, H] clamped at x = 0,
+    its reduced model's mesh (cells, element), material, dot centres (n, 3) on the front face y = 0 and the
+    marker board. Stored as JSON in the reduced model's metadata ("ar_object")."""
+
+    length: float
+    width: float
+    height: float
+    cells: tuple
+    element: str
+    E: float
+    nu: float
+    dots: list
+    marker_ids: list
+    marker_corners: list
+    dictionary: str
+    load: float = 1.0
+
+    def board(self) -> MarkerBoard:
+        return MarkerBoard(self.marker_ids, self.marker_corners, self.dictionary)
+
+    def space(self):
+        from physar.fem import FESpace
+        from physar.geometry import box_mesh
+
+        return FESpace(box_mesh((self.length, self.width, self.height), tuple(self.cells)), self.element)
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self))
+
+    @classmethod
+    def from_json(cls, text: str) -> "BeamObject":
+        try:
+            d = json.loads(text)
+            return cls(**d)
+        except (json.JSONDecodeError, TypeError) as e:
+            raise ConfigError(f"reduced model: invalid ar_object metadata ({e})") from None
+
+    @classmethod
+    def from_scene(cls, spec) -> "BeamObject":
+        b, board = spec.beam, spec.board()
+        return cls(b.length, b.width, b.height, tuple(b.model_cells), "P2", b.E, b.nu,
+                   spec.dot_positions().tolist(), board.ids.tolist(), board.corners.tolist(),
+                   board.dictionary, b.load)
+
+
+def build_scene_model(spec, progress: Callable[[int, int], None] | None = None, points: int = 81,
+                      max_modes: int = 20, tol: float = 1e-4):
+    """Reduced model u(x; s) of the scene's beam on its (coarser) model mesh, by intrusive PGD
+    (physar.rom.elastic.build_moving_load_pgd), with the AR object description in its metadata."""
+    from physar.fem import ElasticModel, LinearElastic, fixed_dofs
+    from physar.rom.elastic import build_moving_load_pgd
+
+    obj = BeamObject.from_scene(spec)
+    space = obj.space()
+    model = ElasticModel(space, LinearElastic(obj.E, obj.nu))
+    fixed = fixed_dofs(space, box=[[0, 0, 0], [0, obj.width, obj.height]])
+    if progress:
+        progress(0, 1)
+    rom, info = build_moving_load_pgd(model, fixed, spec.load_path(), points=points, load=(0, 0, -spec.beam.load),
+                                      radius=spec.beam.load_radius, max_modes=max_modes, tol=tol)
+    rom.metadata["ar_object"] = obj.to_json()
+    if progress:
+        progress(1, 1)
+    return rom, obj, space, info
+
+
+def object_from_model(rom) -> BeamObject:
+    text = rom.metadata.get("ar_object")
+    if not text:
+        raise ConfigError("reduced model has no AR object description (metadata 'ar_object'); build it with "
+                          "`physar scene model SCENE.toml -o model.npz`")
+    return BeamObject.from_json(text)
+
+
+@dataclass
+class FrameResult:
+    frame: int
+    status: str            # tracking | hold | lost
+    mu: np.ndarray
+    std: np.ndarray
+    residual_mm: float
+    n_markers: int
+    n_dots: int
+    latency_ms: float
+    stages_ms: dict = field(default_factory=dict)
+
+
+class ARPipeline:
+    """The frame loop on one reduced model (load position s, optionally magnitude P).
+
+    ``min_dots``: fraction of dots that must be seen to assimilate a frame (else the estimate is held).
+    ``rigid_offset``: treat a uniform in-plane offset b of all observed dots (pose bias, fixture drift) as a
+    nuisance: mu* = argmin_mu min_b ||u* - C u(mu) - A b||², solved by projecting out A (variable
+    projection: observations and C are centred per component).
+    ``smoothing``: gain of the temporal filter on the estimate (1 = none); a change larger than
+    ``jump_sigma`` standard deviations passes unfiltered, so a moving load is followed without lag.
+    """
+
+    def __init__(self, rom, camera: Camera, obj: BeamObject | None = None, field: str = "von_mises",
+                 exaggeration: float = 1.0, min_dots: float = 0.5, overlay: bool = True, rigid_offset: bool = True,
+                 smoothing: float = 0.4, jump_sigma: float = 4.0):
+        from physar.ar.overlay import BeamOverlay
+
+        self.rom, self.camera = rom, camera
+        self.obj = obj or object_from_model(rom)
+        self.space = self.obj.space()
+        if rom.F.shape[1] != self.space.n_dofs:
+            raise ConfigError(f"reduced model has {rom.F.shape[1]} dofs, its mesh {self.space.n_dofs}")
+        dots = np.asarray(self.obj.dots, float)
+        self.markers = MarkerTracker(camera, self.obj.board())
+        self.dots = DotTracker(camera, dots, [0, 0, 0], [0, 1.0, 0],
+                               radius_px=self._dot_radius_px(dots))
+        self.C = surface_observation_matrix(self.space, dots, components=(0, 2)).tocsr()
+        self.CF = np.asarray((self.C @ rom.F.T))  # (2n, n_modes): observation of every mode
+        self.min_dots, self.rigid_offset = min_dots, rigid_offset
+        self.smoothing, self.jump_sigma = smoothing, jump_sigma
+        self._fresh = True  # next measurement (re)initialises the temporal filter
+        self.overlay = BeamOverlay(self.space, rom, self.obj, field=field, exaggeration=exaggeration) if overlay \
+            else None
+        lo, hi = (np.array(b, float) for b in zip(*rom.ranges))
+        self.mu = (lo + hi) / 2
+        self.std = np.full(lo.size, np.nan)
+        self._mask = None
+        self._initialised = False
+        self._res_hist = []
+
+    def _dot_radius_px(self, dots):
+        d = self.obj.height / 3  # dot diameter assumed <= H/3 when not known
+        spacing = np.min(np.diff(dots[:, 0])) if len(dots) > 1 else d
+        dist = 0.55
+        return 0.5 * min(d, 0.6 * spacing) * self.camera.fx / dist
+
+    # -- estimation ---------------------------------------------------------------------------------------
+    def _assimilate(self, disp: np.ndarray, valid: np.ndarray):
+        from physar.assimilation import assimilate
+
+        rows = np.flatnonzero(np.repeat(valid, 2))
+        key = valid.tobytes()
+        y = disp[valid][:, [0, 2]].ravel()
+        if key != self._mask:
+            Cv = self.C[rows]
+            if self.rigid_offset:
+                Cv = Cv.toarray().reshape(-1, 2, Cv.shape[1])
+                Cv = (Cv - Cv.mean(0, keepdims=True)).reshape(-1, Cv.shape[2])
+            self.rom.set_observation(matrix=Cv)
+            self._mask = key
+        if self.rigid_offset:
+            y = (y.reshape(-1, 2) - y.reshape(-1, 2).mean(0)).ravel()
+        if not self._initialised:
+            res = assimilate(self.rom, y, restart_residual=0.0, n_starts=9, max_iter=30)
+            self._initialised = True
+        else:
+            res = assimilate(self.rom, y, mu0=self.mu, max_iter=15, tol=1e-7)
+            med = np.median(self._res_hist[-30:]) if self._res_hist else np.inf
+            if res.residual > 3 * med:  # warm start stuck (or the load jumped): global search
+                res2 = assimilate(self.rom, y, restart_residual=0.0, n_starts=9, max_iter=30)
+                if res2.residual < res.residual:
+                    res = res2
+        self._res_hist.append(res.residual)
+        return res
+
+    def _filter(self, mu, std):
+        """Exponential smoothing with a jump detector: mu <- mu + a (z - mu), a = smoothing unless
+        |z - mu| > jump_sigma * max(std, 0.2 % of the range) (then a = 1)."""
+        lo, hi = (np.array(b, float) for b in zip(*self.rom.ranges))
+        if self._fresh or self.smoothing >= 1:
+            self.mu, self.std = mu.copy(), std.copy()
+            self._fresh = False
+            return
+        scale = np.maximum(np.nan_to_num(std, nan=0.0), 2e-3 * (hi - lo))
+        jump = np.abs(mu - self.mu) > self.jump_sigma * scale
+        a = np.where(jump, 1.0, self.smoothing)
+        self.mu = self.mu + a * (mu - self.mu)
+        # variance of the smoothed estimate for white measurement noise: a / (2 - a) of the measurement's
+        self.std = np.sqrt(np.where(jump, 1.0, a / (2 - a))) * std
+
+    def process(self, frame: np.ndarray, index: int, draw: bool = True) -> tuple[np.ndarray, FrameResult]:
+        t0 = time.perf_counter()
+        st = {}
+        gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        pe = self.markers.update(gray)
+        t1 = time.perf_counter()
+        st["markers_pose"] = (t1 - t0) * 1e3
+        status, resid, n_dots = "lost", float("nan"), 0
+        if pe.status == "measured":
+            obs = self.dots.update(frame, gray, pe.pose)
+            n_dots = int(obs.valid.sum())
+            t2 = time.perf_counter()
+            st["dots"] = (t2 - t1) * 1e3
+            if n_dots >= max(2, self.min_dots * len(obs.valid)):
+                res = self._assimilate(obs.displacement, obs.valid)
+                self._filter(res.params, res.std)
+                resid = res.residual * 1e3
+                status = "tracking"
+            else:
+                status = "hold"
+            t3 = time.perf_counter()
+            st["assimilate"] = (t3 - t2) * 1e3
+        else:
+            self.dots.reset()
+            self._fresh = True
+            status = "hold" if pe.status == "predicted" else "lost"
+            t3 = time.perf_counter()
+            st["dots"] = st["assimilate"] = 0.0
+        out = frame
+        if draw and self.overlay is not None:
+            c = self.rom.coefficients(self.mu)[0]
+            vals = self.overlay.values(c)
+            u_tip = float(np.tensordot(c, self.overlay.Fg, 1)[len(self.overlay.zs) // 2, -1, 2]) * -1e3
+            info = {"markers": pe.n_markers, "dots": n_dots, "dots_total": len(self.obj.dots), "frame": index,
+                    "latency_ms": (t3 - t0) * 1e3, "field_max": float(vals.max()), "tip_mm": u_tip}
+            out = self.overlay.draw(frame, self.camera, pe.pose, c, self.mu, self.std,
+                                    status if pe.pose is not None else "lost", info)
+        t4 = time.perf_counter()
+        st["overlay"] = (t4 - t3) * 1e3
+        return out, FrameResult(index, status, self.mu.copy(), self.std.copy(), resid, pe.n_markers, n_dots,
+                                (t4 - t0) * 1e3, st)
+
+    # -- whole videos -------------------------------------------------------------------------------------
+    def run(self, source, out_video=None, out_csv=None, fps: float | None = None, crf: int = 20,
+            preset: str = "veryfast", progress: Callable[[int, int], None] | None = None,
+            max_frames: int | None = None, snapshots: dict | None = None) -> dict:
+        """Process a video file path or a frame source (VideoReader / CameraSource / iterable of frames).
+
+        Outputs are written atomically (temporary file renamed at the end). ``snapshots``: {frame index:
+        PNG path} of augmented frames to save. Returns a summary with fps and per-stage latency statistics.
+        """
+        from physar.ar.video import VideoReader, VideoWriter, atomic_path
+
+        reader = VideoReader(source) if isinstance(source, (str, Path)) else source
+        w, h = getattr(reader, "width", None), getattr(reader, "height", None)
+        if (w, h) != (None, None) and (w, h) != self.camera.size:
+            raise ConfigError(f"video is {w}x{h} but the camera file is for {self.camera.width}x"
+                              f"{self.camera.height}")
+        fps = fps or getattr(reader, "fps", 30.0)
+        total = getattr(reader, "frames_hint", 0)
+        results = []
+        import contextlib
+
+        with contextlib.ExitStack() as stack:
+            vtmp = stack.enter_context(atomic_path(out_video)) if out_video else None
+            ctmp = stack.enter_context(atomic_path(out_csv)) if out_csv else None
+            writer = stack.enter_context(VideoWriter(vtmp, self.camera.width, self.camera.height, fps, crf=crf,
+                                                     preset=preset, threaded=True)) if vtmp else None
+            fh = stack.enter_context(open(ctmp, "w", newline="")) if ctmp else None
+            wr = csv.writer(fh) if fh else None
+            if wr:
+                names = self.rom.names
+                wr.writerow(["frame", "time_s", "status"] + [f"{n}_est" for n in names] +
+                            [f"{n}_std" for n in names] + ["residual_mm", "markers", "dots", "latency_ms"])
+            t_start = time.perf_counter()
+            t_prev = t_start
+            for k, frame in enumerate(reader):
+                if max_frames is not None and k >= max_frames:
+                    break
+                t_in = time.perf_counter()
+                out, r = self.process(frame, k, draw=writer is not None)
+                r.stages_ms["decode"] = (t_in - t_prev) * 1e3  # waiting for the decoder thread
+                t_e = time.perf_counter()
+                if snapshots and k in snapshots:
+                    cv2.imwrite(str(snapshots[k]), out)
+                if writer is not None:
+                    writer.write(out)
+                t_prev = time.perf_counter()
+                r.stages_ms["encode"] = (t_prev - t_e) * 1e3  # waiting for the encoder queue
+                results.append(r)
+                if wr:
+                    wr.writerow([k, f"{k / fps:.4f}", r.status] + [f"{v:.6f}" for v in r.mu] +
+                                [f"{v:.6f}" for v in r.std] + [f"{r.residual_mm:.5f}", r.n_markers, r.n_dots,
+                                                               f"{r.latency_ms:.3f}"])
+                if progress:
+                    progress(k + 1, total)
+            if not results:
+                raise PhysarError(f"{source}: no frames")
+            if writer is not None:
+                writer.close()
+            wall = time.perf_counter() - t_start
+        lat = np.array([r.latency_ms for r in results])
+        stages = {s: [r.stages_ms.get(s, 0.0) for r in results] for s in STAGES}
+        return {"frames": len(results), "wall_s": wall, "fps": len(results) / wall,
+                "latency_ms_median": float(np.median(lat)), "latency_ms_p95": float(np.percentile(lat, 95)),
+                "stages_ms_median": {s: float(np.median(v)) for s, v in stages.items()},
+                "stages_ms_mean": {s: float(np.mean(v)) for s, v in stages.items()},
+                "results": results}
+
+
+def read_estimates(path) -> dict:
+    with open(path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    head, body = rows[0], rows[1:]
+    return {h: (np.array([r[j] for r in body]) if h == "status" else np.array([r[j] for r in body], float))
+            for j, h in enumerate(head)}

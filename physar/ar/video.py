@@ -1,0 +1,218 @@
+"""Video input/output: PyAV (FFmpeg) H.264 in yuv420p (plays in browsers), live cameras via OpenCV,
+background threads so that decoding and encoding overlap computing, atomic output files."""
+from __future__ import annotations
+
+import contextlib
+import os
+import queue
+import tempfile
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from physar.errors import PhysarError
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """Yield a temporary path next to `path`; rename it to `path` on success, delete it on failure."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+class VideoWriter:
+    """H.264 (libx264, yuv420p) writer. ``threaded=True`` encodes in a background thread (bounded queue)."""
+
+    def __init__(self, path, width: int, height: int, fps: float, crf: int = 20, preset: str = "veryfast",
+                 threaded: bool = False, threads: int = 0):
+        import av
+        from fractions import Fraction
+
+        if width % 2 or height % 2:
+            raise PhysarError(f"H.264 yuv420p needs an even frame size, got {width}x{height}")
+        self.path = str(path)
+        self._c = av.open(self.path, "w", format="mp4")
+        rate = Fraction(fps).limit_denominator(1001)
+        self._s = self._c.add_stream("libx264", rate=rate)
+        self._s.width, self._s.height, self._s.pix_fmt = width, height, "yuv420p"
+        self._s.options = {"preset": preset, "crf": str(int(crf))}
+        if threads:
+            self._s.codec_context.thread_count = int(threads)
+        self.size = (width, height)
+        self.frames = 0
+        self._q = queue.Queue(maxsize=16) if threaded else None
+        self._err = None
+        self._thread = None
+        if threaded:
+            self._thread = threading.Thread(target=self._run, daemon=True)
+            self._thread.start()
+
+    def _encode(self, img):
+        import av
+
+        f = av.VideoFrame.from_ndarray(img, format="bgr24")
+        for p in self._s.encode(f):
+            self._c.mux(p)
+
+    def _run(self):
+        while True:
+            img = self._q.get()
+            if img is None:
+                return
+            if self._err is None:
+                try:
+                    self._encode(img)
+                except Exception as e:  # reported on the next write/close
+                    self._err = e
+
+    def write(self, img: np.ndarray) -> None:
+        if img.shape[:2] != (self.size[1], self.size[0]) or img.dtype != np.uint8:
+            raise PhysarError(f"frame of shape {img.shape} {img.dtype} does not match the video "
+                              f"{self.size[0]}x{self.size[1]} uint8")
+        if self._err is not None:
+            raise self._err
+        self.frames += 1
+        if self._q is not None:
+            self._q.put(np.ascontiguousarray(img))
+        else:
+            self._encode(img)
+
+    def close(self) -> None:
+        if self._c is None:
+            return
+        try:
+            if self._thread is not None:
+                self._q.put(None)
+                self._thread.join()
+                if self._err is not None:
+                    raise self._err
+            for p in self._s.encode():
+                self._c.mux(p)
+        finally:
+            self._c.close()
+            self._c = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class VideoReader:
+    """Frames (BGR uint8) of a video file; ``threaded=True`` decodes ahead in a background thread.
+
+    Raises PhysarError for a missing, empty or undecodable file (checked on open: the first frame is decoded).
+    """
+
+    def __init__(self, path, threaded: bool = True, prefetch: int = 8):
+        import av
+
+        self.path = Path(path)
+        if not self.path.exists():
+            raise PhysarError(f"{path}: video file not found")
+        if self.path.is_dir():
+            raise PhysarError(f"{path}: is a folder, not a video file")
+        if self.path.stat().st_size == 0:
+            raise PhysarError(f"{path}: video file is empty")
+        try:
+            self._c = av.open(str(self.path))
+            streams = self._c.streams.video
+            if not streams:
+                raise PhysarError(f"{path}: no video stream in the file")
+            self._s = streams[0]
+            self._s.thread_type = "AUTO"
+            self._it = self._c.decode(self._s)
+            first = next(self._it)
+        except PhysarError:
+            raise
+        except StopIteration:
+            raise PhysarError(f"{path}: the video has no decodable frame") from None
+        except Exception as e:  # av.error.InvalidDataError and friends
+            raise PhysarError(f"{path}: cannot decode video ({type(e).__name__}: {e})") from None
+        self.width, self.height = first.width, first.height
+        rate = self._s.average_rate or self._s.guessed_rate
+        self.fps = float(rate) if rate else 30.0
+        self.frames_hint = int(self._s.frames or 0)
+        self._first = first.to_ndarray(format="bgr24")
+        self._q = queue.Queue(maxsize=prefetch) if threaded else None
+        self._err = None
+        if threaded:
+            self._thread = threading.Thread(target=self._run, daemon=True)
+            self._thread.start()
+
+    def _next(self):
+        try:
+            return next(self._it).to_ndarray(format="bgr24")
+        except StopIteration:
+            return None
+
+    def _run(self):
+        try:
+            while True:
+                img = self._next()
+                self._q.put(img)
+                if img is None:
+                    return
+        except Exception as e:
+            self._err = PhysarError(f"{self.path}: decoding failed ({type(e).__name__}: {e})")
+            self._q.put(None)
+
+    def __iter__(self):
+        yield self._first
+        while True:
+            img = self._q.get() if self._q is not None else self._next()
+            if img is None:
+                break
+            yield img
+        if self._err is not None:
+            raise self._err
+        self._c.close()
+
+    def close(self):
+        try:
+            self._c.close()
+        except Exception:
+            pass
+
+
+class CameraSource:
+    """Frames from a live camera (OpenCV VideoCapture index)."""
+
+    def __init__(self, index: int, width: int | None = None, height: int | None = None):
+        import cv2
+
+        self._cap = cv2.VideoCapture(int(index))
+        if not self._cap.isOpened():
+            raise PhysarError(f"cannot open camera {index}")
+        if width:
+            self._cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)
+        if height:
+            self._cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)
+        ok, first = self._cap.read()
+        if not ok:
+            raise PhysarError(f"camera {index} gives no frames")
+        self._first = first
+        self.height, self.width = first.shape[:2]
+        self.fps = float(self._cap.get(cv2.CAP_PROP_FPS) or 30.0)
+        self.frames_hint = 0
+
+    def __iter__(self):
+        yield self._first
+        while True:
+            ok, img = self._cap.read()
+            if not ok:
+                break
+            yield img
+
+    def close(self):
+        self._cap.release()

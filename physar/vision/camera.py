@@ -1,0 +1,276 @@
+"""Pinhole camera with lens distortion, rigid poses, plane back-projection (seed 000 §2.1).
+
+The projection is p = Π(x) = K [R | t] x (seed 000 §2.1, Eq. of the camera operator), followed by the
+OpenCV radial/tangential distortion model (k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4]]]). A :class:`Pose`
+maps world points to camera coordinates, x_c = R x_w + t (OpenCV convention: x right, y down, z forward).
+Lengths in m, pixels in px.
+"""
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from physar.errors import ConfigError, PhysarError
+
+_DIST_SIZES = (0, 4, 5, 8, 12, 14)
+
+
+def mat3(X: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """X @ M.T for X (n, 3), M (3, 3) without BLAS (tall-skinny products are slow and contended there)."""
+    X = np.asarray(X, float)
+    return X[:, :1] * M[:, 0] + X[:, 1:2] * M[:, 1] + X[:, 2:3] * M[:, 2]
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Rigid transform world -> camera: x_c = R x_w + t (R (3, 3) rotation, t (3,) in m)."""
+
+    R: np.ndarray
+    t: np.ndarray
+
+    def __post_init__(self):
+        R = np.asarray(self.R, float).reshape(3, 3)
+        t = np.asarray(self.t, float).reshape(3)
+        object.__setattr__(self, "R", R)
+        object.__setattr__(self, "t", t)
+
+    @classmethod
+    def from_rvec(cls, rvec, tvec) -> "Pose":
+        R, _ = cv2.Rodrigues(np.asarray(rvec, float).reshape(3, 1))
+        return cls(R, np.asarray(tvec, float).reshape(3))
+
+    @classmethod
+    def look_at(cls, eye, target, up=(0.0, 0.0, 1.0)) -> "Pose":
+        """Camera at `eye` looking at `target` with world `up` pointing up in the image."""
+        eye, target, up = (np.asarray(v, float) for v in (eye, target, up))
+        z = target - eye
+        z /= np.linalg.norm(z)
+        x = np.cross(z, up)
+        if np.linalg.norm(x) < 1e-12:
+            raise ConfigError("look_at: viewing direction is parallel to up")
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        R = np.stack([x, y, z])
+        return cls(R, -R @ eye)
+
+    @property
+    def rvec(self) -> np.ndarray:
+        return cv2.Rodrigues(self.R)[0].ravel()
+
+    @property
+    def center(self) -> np.ndarray:
+        """Camera centre in world coordinates, c = -R^T t (m)."""
+        return -self.R.T @ self.t
+
+    def inverse(self) -> "Pose":
+        return Pose(self.R.T, -self.R.T @ self.t)
+
+    def compose(self, other: "Pose") -> "Pose":
+        """self ∘ other: first `other`, then `self`."""
+        return Pose(self.R @ other.R, self.R @ other.t + self.t)
+
+    def apply(self, X) -> np.ndarray:
+        return mat3(np.asarray(X, float).reshape(-1, 3), self.R) + self.t
+
+    def angle_to(self, other: "Pose") -> float:
+        """Rotation angle of R_self^T R_other in degrees."""
+        c = (np.trace(self.R.T @ other.R) - 1.0) / 2.0
+        return math.degrees(math.acos(float(np.clip(c, -1.0, 1.0))))
+
+    def matrix(self) -> np.ndarray:
+        M = np.eye(4)
+        M[:3, :3], M[:3, 3] = self.R, self.t
+        return M
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Intrinsics K (3, 3) [px], distortion coefficients (OpenCV order), image size (width, height) [px]."""
+
+    K: np.ndarray
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    width: int = 1280
+    height: int = 720
+
+    def __post_init__(self):
+        K = np.asarray(self.K, float)
+        if K.shape != (3, 3):
+            raise ConfigError(f"camera matrix must be 3x3, got shape {K.shape}")
+        d = np.asarray(self.dist, float).ravel()
+        if d.size not in _DIST_SIZES:
+            raise ConfigError(f"distortion must have 0, 4, 5, 8, 12 or 14 coefficients, got {d.size}")
+        if not (np.all(np.isfinite(K)) and np.all(np.isfinite(d))):
+            raise ConfigError("camera matrix/distortion contain NaN or inf")
+        if K[0, 0] <= 0 or K[1, 1] <= 0 or abs(K[2, 2] - 1) > 1e-9 or np.any(K[1:, 0] != 0) or K[2, 1] != 0:
+            raise ConfigError(f"camera matrix must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, "
+                              f"got {K.tolist()}")
+        if int(self.width) <= 0 or int(self.height) <= 0:
+            raise ConfigError(f"image size must be positive, got {self.width}x{self.height}")
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "dist", d if d.size else np.zeros(5))
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+
+    # --- construction / conversion ---------------------------------------------------------------
+    @classmethod
+    def from_fov(cls, width: int, height: int, hfov_deg: float, dist=None) -> "Camera":
+        f = 0.5 * width / math.tan(math.radians(hfov_deg) / 2)
+        K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])
+        return cls(K, np.zeros(5) if dist is None else dist, width, height)
+
+    def to_opencv(self) -> tuple[np.ndarray, np.ndarray]:
+        """(cameraMatrix (3, 3), distCoeffs (1, n)) as OpenCV expects them."""
+        return self.K.copy(), self.dist.reshape(1, -1).copy()
+
+    @classmethod
+    def from_opencv(cls, camera_matrix, dist_coeffs, image_size) -> "Camera":
+        w, h = image_size
+        return cls(np.asarray(camera_matrix, float), np.asarray(dist_coeffs, float).ravel(), int(w), int(h))
+
+    def scaled(self, factor: float) -> "Camera":
+        """The same camera with an image `factor` times larger (pixel-centre convention)."""
+        K = self.K.copy()
+        K[:2, :2] *= factor
+        K[:2, 2] = (K[:2, 2] + 0.5) * factor - 0.5
+        return Camera(K, self.dist, round(self.width * factor), round(self.height * factor))
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return self.width, self.height
+
+    # --- geometry ---------------------------------------------------------------------------------
+    def project(self, X, pose: Pose) -> np.ndarray:
+        """Pixels (n, 2) of world points X (n, 3): p = distort(K [R|t] X)."""
+        X = np.asarray(X, float).reshape(-1, 3)
+        if not np.any(self.dist):
+            Xc = mat3(X, pose.R) + pose.t
+            uv = Xc[:, :2] / Xc[:, 2:3]
+            return uv[:, :1] * self.K[:2, 0] + uv[:, 1:] * self.K[:2, 1] + self.K[:2, 2]
+        p, _ = cv2.projectPoints(X, pose.rvec, pose.t, self.K, self.dist)
+        return p.reshape(-1, 2)
+
+    def normalized(self, pixels) -> np.ndarray:
+        """Undistorted normalised image coordinates (n, 2) of pixels (n, 2)."""
+        px = np.asarray(pixels, float).reshape(-1, 1, 2)
+        if not np.any(self.dist):
+            Ki = np.linalg.inv(self.K[:2, :2])
+            q = px.reshape(-1, 2) - self.K[:2, 2]
+            return q[:, :1] * Ki[:, 0] + q[:, 1:] * Ki[:, 1]
+        return cv2.undistortPoints(px, self.K, self.dist, None, None, None,
+                                       (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-10)).reshape(-1, 2)
+
+    def backproject_to_plane(self, pixels, pose: Pose, point, normal) -> np.ndarray:
+        """World points (n, 3) where the rays of `pixels` meet the plane n·(x - x0) = 0 (m).
+
+        x = c + λ d with c = -R^T t, d = R^T [x_n, y_n, 1], λ = n·(x0 - c) / n·d.
+        """
+        xn = self.normalized(pixels)
+        d = mat3(np.column_stack([xn, np.ones(len(xn))]), pose.R.T)  # R^T d_c, row-wise
+        c = pose.center
+        n = np.asarray(normal, float)
+        lam = (n @ (np.asarray(point, float) - c)) / (d @ n)
+        return c + lam[:, None] * d
+
+    # --- files ------------------------------------------------------------------------------------
+    def save(self, path, rms_px: float | None = None) -> None:
+        """Write the camera as TOML ([camera] width, height, matrix, distortion) atomically."""
+        lines = ["# physar camera (pinhole + OpenCV distortion k1, k2, p1, p2, k3, ...)", "[camera]",
+                 f"width = {self.width}", f"height = {self.height}",
+                 "matrix = [" + ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in self.K) + "]",
+                 "distortion = [" + ", ".join(repr(float(v)) for v in self.dist) + "]"]
+        if rms_px is not None:
+            lines.append(f"rms_px = {float(rms_px)!r}")
+        _atomic_write_text(path, "\n".join(lines) + "\n")
+
+    @classmethod
+    def load(cls, path) -> "Camera":
+        """Read a camera TOML written by :meth:`save` (or by hand); errors name the file and field."""
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"{path}: camera file not found") from None
+        except (OSError, UnicodeDecodeError) as e:
+            raise ConfigError(f"{path}: cannot read camera file ({e})") from None
+        except tomllib.TOMLDecodeError as e:
+            raise ConfigError(f"{path}: not valid TOML ({e})") from None
+        cam = data.get("camera")
+        if not isinstance(cam, dict):
+            raise ConfigError(f"{path}: missing [camera] table")
+        unknown = set(cam) - {"width", "height", "matrix", "distortion", "rms_px"}
+        if unknown:
+            raise ConfigError(f"{path}: [camera] has unknown key(s) {sorted(unknown)}")
+        for key in ("width", "height", "matrix"):
+            if key not in cam:
+                raise ConfigError(f"{path}: [camera] needs {key}")
+        for key in ("width", "height"):
+            if not isinstance(cam[key], int) or cam[key] <= 0:
+                raise ConfigError(f"{path}: [camera] {key} must be a positive integer, got {cam[key]!r}")
+        try:
+            K = np.array(cam["matrix"], dtype=float)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{path}: [camera] matrix must be a 3x3 array of numbers "
+                              f"[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]") from None
+        if K.shape != (3, 3):
+            raise ConfigError(f"{path}: [camera] matrix must be 3x3 [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], "
+                              f"got shape {K.shape}")
+        try:
+            d = np.array(cam.get("distortion", []), dtype=float)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{path}: [camera] distortion must be a list of numbers") from None
+        if d.ndim != 1 or d.size not in _DIST_SIZES:
+            raise ConfigError(f"{path}: [camera] distortion must be a flat list of 0, 4, 5, 8, 12 or 14 "
+                              f"numbers (k1, k2, p1, p2, k3, ...), got shape {d.shape}")
+        try:
+            return cls(K, d, cam["width"], cam["height"])
+        except ConfigError as e:
+            raise ConfigError(f"{path}: {e}") from None
+
+
+def _atomic_write_text(path, text: str) -> None:
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent if str(path.parent) else ".")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+
+
+def rotation_x(deg: float) -> np.ndarray:
+    a = math.radians(deg)
+    return np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+
+
+def rotation_y(deg: float) -> np.ndarray:
+    a = math.radians(deg)
+    return np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+
+
+def rotation_z(deg: float) -> np.ndarray:
+    a = math.radians(deg)
+    return np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+
+
+def check_image(img, name="image") -> np.ndarray:
+    if not isinstance(img, np.ndarray) or img.ndim not in (2, 3) or img.size == 0:
+        raise PhysarError(f"{name}: expected an image array (h, w[, 3]), got {getattr(img, 'shape', type(img))}")
+    return img

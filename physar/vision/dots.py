@@ -1,0 +1,138 @@
+"""Tracking of small coloured dots on the object and their displacements (seed 000 §2.1, §5.1: "small blue
+dots adhered to the beam for the determination of the beam deflection").
+
+Per frame: the dots are predicted by pyramidal Lucas-Kanade (KLT) optical flow from the previous frame
+(or, without a previous frame, by projecting their last 3-D positions with the current pose); each
+prediction is refined by the colour-weighted centroid of the blob in a small window,
+p = Σ w_i x_i / Σ w_i with w_i = max(0, c_i - τ) and c = B - max(R, G) the "blueness" of pixel i.
+The refined pixels are back-projected onto the object's plane (ray-plane intersection, :class:`Camera`),
+giving 3-D positions x and displacements u* = x - X_ref.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from physar.errors import ConfigError
+from physar.vision.camera import Camera, Pose
+
+
+@dataclass
+class DotObservation:
+    pixels: np.ndarray        # (n, 2) refined image positions (NaN where not seen)
+    valid: np.ndarray         # (n,) bool
+    world: np.ndarray         # (n, 3) back-projected positions [m] (NaN where not seen)
+    displacement: np.ndarray  # (n, 3) world - reference [m] (NaN where not seen)
+
+
+class DotTracker:
+    """Track dots with reference positions ``reference`` (n, 3) [m] lying on the plane (point, normal)."""
+
+    def __init__(self, camera: Camera, reference, plane_point, plane_normal, radius_px: float = 6.0,
+                 threshold: float = 30.0, min_mass: float = 4.0, gate_px: float = 6.0, colour: str = "blue"):
+        ref = np.asarray(reference, float)
+        if ref.ndim != 2 or ref.shape[1] != 3 or len(ref) == 0:
+            raise ConfigError(f"dot reference positions must have shape (n, 3), got {ref.shape}")
+        if colour not in ("blue", "red", "green"):
+            raise ConfigError(f"dot colour must be blue, red or green, got {colour!r}")
+        self.camera, self.reference = camera, ref
+        self.plane = (np.asarray(plane_point, float), np.asarray(plane_normal, float))
+        self.r = max(2, int(round(radius_px * 1.6)))
+        self.threshold, self.min_mass, self.gate_px = threshold, min_mass, gate_px
+        self.channel = {"blue": 0, "green": 1, "red": 2}[colour]
+        self._prev_gray = None
+        self._prev_px = None
+        self._prev_valid = None
+        self.displacement = np.zeros_like(ref)  # last known displacement, for predictions
+        off = np.arange(-self.r, self.r + 1)
+        self._oy, self._ox = np.meshgrid(off, off, indexing="ij")
+        self._lk = dict(winSize=(15, 15), maxLevel=2,
+                        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+
+    def reset(self):
+        self._prev_gray = None
+
+    def _centroid(self, frame, pred):
+        """Colour-weighted centroids around predictions (n, 2); returns (pixels, mass)."""
+        h, w = frame.shape[:2]
+        cx = np.clip(np.round(pred[:, 0]).astype(int), self.r, w - self.r - 1)
+        cy = np.clip(np.round(pred[:, 1]).astype(int), self.r, h - self.r - 1)
+        ys, xs = cy[:, None, None] + self._oy, cx[:, None, None] + self._ox
+        win = frame[ys, xs].astype(np.float32)  # (n, k, k, 3)
+        others = [c for c in range(3) if c != self.channel]
+        c = win[..., self.channel] - np.maximum(win[..., others[0]], win[..., others[1]])
+        wgt = np.maximum(c - self.threshold, 0.0)
+        mass = wgt.sum((1, 2))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            px = np.column_stack([(wgt * xs).sum((1, 2)) / mass, (wgt * ys).sum((1, 2)) / mass])
+        return px, mass / max(self.threshold, 1.0)
+
+    def detect_blobs(self, frame, pred, search_px):
+        """Blob detection: connected components of the colour mask in the region around `pred` (n, 2);
+        each prediction takes the nearest blob centroid within `search_px` (else stays NaN)."""
+        h, w = frame.shape[:2]
+        lo = np.floor(np.nanmin(pred, 0) - search_px).astype(int)
+        hi = np.ceil(np.nanmax(pred, 0) + search_px).astype(int)
+        x0, y0, x1, y1 = max(lo[0], 0), max(lo[1], 0), min(hi[0], w), min(hi[1], h)
+        out = np.full_like(pred, np.nan)
+        if x1 <= x0 or y1 <= y0:
+            return out
+        roi = frame[y0:y1, x0:x1].astype(np.int16)
+        others = [c for c in range(3) if c != self.channel]
+        c = roi[..., self.channel] - np.maximum(roi[..., others[0]], roi[..., others[1]])
+        mask = (c > self.threshold).astype(np.uint8)
+        n, _, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        area = stats[1:, cv2.CC_STAT_AREA]
+        cents = cents[1:][(area >= 3) & (area <= 4 * (2 * self.r + 1) ** 2)] + (x0, y0)
+        if len(cents) == 0:
+            return out
+        d = np.linalg.norm(pred[:, None, :] - cents[None], axis=2)
+        j = np.argmin(d, axis=1)
+        ok = d[np.arange(len(pred)), j] < search_px
+        out[ok] = cents[j[ok]]
+        return out
+
+    def update(self, frame, gray, pose: Pose | None, use_flow: bool = True) -> DotObservation:
+        """Track the dots in a BGR frame (uint8 (h, w, 3)) with its grey image and the camera pose."""
+        n = len(self.reference)
+        nan = np.full((n, 3), np.nan)
+        if pose is None:
+            self._prev_gray = None
+            return DotObservation(np.full((n, 2), np.nan), np.zeros(n, bool), nan, nan.copy())
+        proj = self.camera.project(self.reference + self.displacement, pose)
+        pred = proj.copy()
+        if use_flow and self._prev_gray is not None and self._prev_valid.any():
+            idx = np.flatnonzero(self._prev_valid)
+            p0 = self._prev_px[idx].astype(np.float32).reshape(-1, 1, 2)
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(self._prev_gray, gray, p0, None, **self._lk)
+            p1 = p1.reshape(-1, 2)
+            ok = (st.ravel() == 1) & (np.linalg.norm(p1 - proj[idx], axis=1) < self.gate_px)
+            pred[idx[ok]] = p1[ok]
+        # dots without a flow track: blob detection within half the dot spacing of their projection
+        lost = np.ones(n, bool) if self._prev_gray is None else ~self._prev_valid
+        if lost.any():
+            spacing = np.min(np.linalg.norm(np.diff(proj, axis=0), axis=1)) if n > 1 else 4 * self.r
+            found = self.detect_blobs(frame, proj[lost], 0.45 * spacing)
+            ok = np.isfinite(found).all(1)
+            idx = np.flatnonzero(lost)[ok]
+            pred[idx] = found[ok]
+            proj[idx] = found[ok]  # accept the blob as the new prediction (gate below)
+        px = pred
+        for _ in range(2):  # re-centre the window on the blob, then measure
+            px, mass = self._centroid(frame, px)
+            bad = ~np.isfinite(px).all(1)
+            px[bad] = pred[bad]
+        valid = (mass >= self.min_mass) & (np.linalg.norm(px - proj, axis=1) < self.gate_px) & ~bad
+        h, w = gray.shape[:2]
+        valid &= (px[:, 0] > self.r) & (px[:, 0] < w - self.r - 1) & (px[:, 1] > self.r) & (px[:, 1] < h - self.r - 1)
+        world = nan.copy()
+        if valid.any():
+            world[valid] = self.camera.backproject_to_plane(px[valid], pose, *self.plane)
+        disp = world - self.reference
+        self.displacement[valid] = disp[valid]
+        self._prev_gray, self._prev_px, self._prev_valid = gray, px, valid
+        px = px.copy()
+        px[~valid] = np.nan
+        return DotObservation(px, valid, world, disp)

@@ -1,0 +1,143 @@
+"""AR layer: scene truth vs closed form, the pipeline on a rendered, H.264-compressed scene (truth from a
+finer mesh than the reduced model's), occlusion recovery, bad inputs (clear errors, no partial outputs)."""
+import json
+
+import numpy as np
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from physar.ar.pipeline import ARPipeline, build_scene_model, read_estimates
+from physar.ar.scene import BeamTruth, Occlusion, SceneSpec, VideoSection, load_scene, read_truth, render_scene
+from physar.ar.video import VideoReader, VideoWriter
+from physar.cli import ar as ar_cli
+from physar.errors import ConfigError, PhysarError
+from physar.vision import Camera
+
+L = 0.5
+
+
+def _app():
+    app = typer.Typer()
+    ar_cli.register(app)
+    return app
+
+
+def test_truth_tip_deflection_matches_beam_theory():
+    """Fine-mesh truth of scene (a): tip deflection for the load at the tip vs Timoshenko beam theory."""
+    from physar.fem import timoshenko_cantilever_tip
+
+    spec = SceneSpec(beam={"truth_cells": (60, 3, 3), "load_radius": 0.01})
+    tr = BeamTruth(spec)
+    u = tr.solve(L - 0.01)  # load centred 1 cm from the end (its 1 cm bump must stay on the beam)
+    b = spec.beam
+    tip = -tr.front_grid(u)[len(tr.grid_z) // 2, -1, 2]
+    # cantilever with the load at a = L - 1 cm: w(L) = P a^2 (3 L - a) / (6 E I) + shear (Timoshenko)
+    a = L - 0.01
+    I = b.width * b.height ** 3 / 12
+    ref_tip = timoshenko_cantilever_tip(b.load, L, b.width, b.height, b.E, b.nu)
+    euler_tip = b.load * L ** 3 / (3 * b.E * I)
+    ref = ref_tip * (b.load * a ** 2 * (3 * L - a) / (6 * b.E * I)) / euler_tip
+    assert abs(tip - ref) / ref < 0.02, (tip, ref)
+
+
+@pytest.fixture(scope="module")
+def small_scene(tmp_path_factory):
+    """1280x720, 51 frames: load at 380 mm, then 220 mm; a full occlusion of 30 frames (12..41)."""
+    out = tmp_path_factory.mktemp("scene")
+    spec = SceneSpec(video=VideoSection(duration=1.7, crf=20),
+                     beam={"truth_cells": (60, 3, 3), "model_cells": (30, 2, 2)},
+                     load={"positions": [0.38, 0.22], "dwell": 0.8, "move": 0.1},
+                     occlusion=[Occlusion(start=0.4, frames=30, kind="full")])
+    info = render_scene(spec, out)
+    rom, obj, space, _ = build_scene_model(spec)
+    rom.save(out / "model.npz")
+    return spec, out, info, rom, obj
+
+
+def test_scene_outputs(small_scene):
+    spec, out, info, rom, obj = small_scene
+    r = VideoReader(out / "scene.mp4")
+    assert (r.width, r.height) == (1280, 720)
+    assert sum(1 for _ in r) == spec.n_frames == 51
+    t = read_truth(out / "truth.csv")
+    assert len(t["frame"]) == 51 and t["s_true_m"][0] == 0.38 and t["s_true_m"][-1] == 0.22
+    assert t["occluded"][12] == "full" and t["occluded"][11] == ""
+    assert Camera.load(out / "camera.toml").size == (1280, 720)
+
+
+def test_pipeline_accuracy_and_occlusion_recovery(small_scene, tmp_path):
+    """|s_est - s_true| <= 1 % of the span (load beyond 20 % of the span); held during the full occlusion,
+    back within the bound within 5 frames after it."""
+    spec, out, info, rom, obj = small_scene
+    cam = Camera.load(out / "camera.toml")
+    pipe = ARPipeline(rom, cam, obj)
+    summ = pipe.run(out / "scene.mp4", tmp_path / "aug.mp4", tmp_path / "est.csv")
+    est = read_estimates(tmp_path / "est.csv")
+    truth = read_truth(out / "truth.csv")
+    err = np.abs(est["s_est"] - truth["s_true_m"])
+    st = est["status"]
+    assert np.all(st[:12] == "tracking") and np.all(st[12:42] != "tracking")
+    assert np.all(err[:12] <= 0.01 * L), err[:12] * 1e3
+    # held estimate during the occlusion (the load moved meanwhile: the hold is the last estimate)
+    assert np.allclose(est["s_est"][12:42], est["s_est"][11])
+    ok = np.flatnonzero(err[42:] <= 0.01 * L)
+    assert ok.size and ok[0] < 5, err[42:] * 1e3
+    assert np.all(err[42 + ok[0]:] <= 0.01 * L), err[42:] * 1e3
+    assert summ["frames"] == 51 and (tmp_path / "aug.mp4").stat().st_size > 0
+    assert sum(1 for _ in VideoReader(tmp_path / "aug.mp4")) == 51
+
+
+def test_cli_ar_run(small_scene, tmp_path):
+    spec, out, info, rom, obj = small_scene
+    r = CliRunner().invoke(_app(), ["ar", "run", str(out / "model.npz"), str(out / "scene.mp4"), "--camera-file",
+                                    str(out / "camera.toml"), "--csv", str(tmp_path / "e.csv"), "--json",
+                                    "--max-frames", "10"])
+    assert r.exit_code == 0, r.output
+    rep = json.loads(r.stdout.strip().splitlines()[-1])
+    assert rep["frames"] == 10 and len(read_estimates(tmp_path / "e.csv")["frame"]) == 10
+
+
+def _run_bad(tmp_path, video, camera, model=None):
+    out = tmp_path / "out.mp4"
+    args = ["ar", "run", str(model or tmp_path / "model.npz"), str(video), "--camera-file", str(camera),
+            "--out", str(out), "--csv", str(tmp_path / "out.csv")]
+    r = CliRunner().invoke(_app(), args)
+    assert r.exit_code == 2, r.output
+    assert not out.exists() and not (tmp_path / "out.csv").exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
+    return r.stderr
+
+
+def test_bad_inputs_give_clear_errors_and_no_output(tmp_path):
+    cam = Camera.from_fov(64, 48, 60)
+    cam.save(tmp_path / "cam.toml")
+    (tmp_path / "model.npz").write_bytes(b"")  # never reached
+    assert "not found" in _run_bad(tmp_path, tmp_path / "missing.mp4", tmp_path / "cam.toml")
+    (tmp_path / "empty.mp4").write_bytes(b"")
+    assert "empty" in _run_bad(tmp_path, tmp_path / "empty.mp4", tmp_path / "cam.toml")
+    (tmp_path / "junk.mp4").write_bytes(np.random.default_rng(0).integers(0, 255, 5000, dtype=np.uint8).tobytes())
+    assert "cannot decode" in _run_bad(tmp_path, tmp_path / "junk.mp4", tmp_path / "cam.toml")
+    # a valid video with a camera file of the wrong shape / size
+    with VideoWriter(tmp_path / "ok.mp4", 64, 48, 10) as w:
+        for k in range(3):
+            w.write(np.full((48, 64, 3), 40 * k, np.uint8))
+    (tmp_path / "bad.toml").write_text("[camera]\nwidth = 64\nheight = 48\nmatrix = [[50.0, 0, 32], [0, 50.0, 24]]\n")
+    assert "3x3" in _run_bad(tmp_path, tmp_path / "ok.mp4", tmp_path / "bad.toml")
+    Camera.from_fov(640, 480, 60).save(tmp_path / "big.toml")
+    assert "640x480" in _run_bad(tmp_path, tmp_path / "ok.mp4", tmp_path / "big.toml")
+    with pytest.raises(PhysarError, match="empty"):
+        VideoReader(tmp_path / "empty.mp4")
+
+
+def test_scene_toml_errors(tmp_path):
+    f = tmp_path / "s.toml"
+    f.write_text("[beam]\nlength = -1\n")
+    with pytest.raises(ConfigError, match="beam.length"):
+        load_scene(f)
+    f.write_text("[load]\npositions = [0.2, 0.7]\n")
+    with pytest.raises(ConfigError, match="outside the beam"):
+        load_scene(f)
+    f.write_text("[video]\nfsp = 30\n")
+    with pytest.raises(ConfigError, match="video.fsp"):
+        load_scene(f)
