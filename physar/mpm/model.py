@@ -36,7 +36,8 @@ from physar.mpm.constitutive import (
     snow_project,
 )
 
-wp.config.quiet = True
+wp.config.quiet = True  # warp < 1.10
+wp.config.log_level = 30  # warp >= 1.10: no init banner or module-load lines on stdout (keeps --json clean)
 wp.init()
 
 _f = wp.float64
@@ -115,6 +116,7 @@ def p2g_kernel(
     dx: wp.float64,
     dt: wp.float64,
     nmax: wp.int32,
+    off: wp.vec3i,
     grid_mv: wp.array3d(dtype=wp.vec3d),
     grid_m: wp.array3d(dtype=wp.float64),
 ):
@@ -130,9 +132,9 @@ def p2g_kernel(
     for i in range(3):
         for j in range(3):
             for k in range(3):
-                ii = b[0] + wp.int32(i)
-                jj = b[1] + wp.int32(j)
-                kk = b[2] + wp.int32(k)
+                ii = b[0] + wp.int32(i) - off[0]
+                jj = b[1] + wp.int32(j) - off[1]
+                kk = b[2] + wp.int32(k) - off[2]
                 dpos = (wp.vec3d(wp.float64(i), wp.float64(j), wp.float64(k)) - fx) * dx
                 wgt = W[i, 0] * W[j, 1] * W[k, 2]
                 wp.atomic_add(grid_mv, ii, jj, kk, wgt * (mom + affine * dpos))
@@ -168,13 +170,22 @@ def grid_update_kernel(
     hi: wp.int32,
     bc: wp.array(dtype=wp.int32),
     friction: wp.array(dtype=wp.float64),
+    start: wp.vec3i,
+    off: wp.vec3i,
     grid_v: wp.array3d(dtype=wp.vec3d),
 ):
-    i, j, k = wp.tid()
-    m = grid_m[i, j, k]
+    """Grid velocities on the box of array indices start + tid; global node index = array index + off."""
+    a0, a1, a2 = wp.tid()
+    ai = a0 + start[0]
+    aj = a1 + start[1]
+    ak = a2 + start[2]
+    i = ai + off[0]
+    j = aj + off[1]
+    k = ak + off[2]
+    m = grid_m[ai, aj, ak]
     v = wp.vec3d()
     if m > _f(1.0e-14):
-        v = grid_mv[i, j, k] / m + dt * gravity
+        v = grid_mv[ai, aj, ak] / m + dt * gravity
         if i <= lo:
             v = _apply_bc(v, wp.vec3d(_f(1.0), _f(0.0), _f(0.0)), bc[0], friction[0])
         if i >= hi:
@@ -187,7 +198,14 @@ def grid_update_kernel(
             v = _apply_bc(v, wp.vec3d(_f(0.0), _f(0.0), _f(1.0)), bc[4], friction[4])
         if k >= hi:
             v = _apply_bc(v, wp.vec3d(_f(0.0), _f(0.0), _f(-1.0)), bc[5], friction[5])
-    grid_v[i, j, k] = v
+    grid_v[ai, aj, ak] = v
+
+
+@wp.kernel
+def clear_grid_kernel(start: wp.vec3i, grid_mv: wp.array3d(dtype=wp.vec3d), grid_m: wp.array3d(dtype=wp.float64)):
+    a0, a1, a2 = wp.tid()
+    grid_mv[a0 + start[0], a1 + start[1], a2 + start[2]] = wp.vec3d()
+    grid_m[a0 + start[0], a1 + start[1], a2 + start[2]] = _f(0.0)
 
 
 @wp.kernel
@@ -201,6 +219,7 @@ def g2p_kernel(
     nmax: wp.int32,
     x_lo: wp.float64,
     x_hi: wp.float64,
+    off: wp.vec3i,
     x_out: wp.array(dtype=wp.vec3d),
     v_out: wp.array(dtype=wp.vec3d),
     C_out: wp.array(dtype=wp.mat33d),
@@ -216,9 +235,9 @@ def g2p_kernel(
     for i in range(3):
         for j in range(3):
             for k in range(3):
-                ii = b[0] + wp.int32(i)
-                jj = b[1] + wp.int32(j)
-                kk = b[2] + wp.int32(k)
+                ii = b[0] + wp.int32(i) - off[0]
+                jj = b[1] + wp.int32(j) - off[1]
+                kk = b[2] + wp.int32(k) - off[2]
                 dpos = (wp.vec3d(wp.float64(i), wp.float64(j), wp.float64(k)) - fx) * dx
                 wgt = W[i, 0] * W[j, 1] * W[k, 2]
                 gv = grid_v[ii, jj, kk]
@@ -333,6 +352,18 @@ class MPMModel:
         """Particles are kept in [lo, hi]^3 so that their 3x3x3 stencil stays on the grid."""
         return self.origin + self.dx, self.origin + (self.n_grid - 2) * self.dx
 
+    def active_box(self, x: np.ndarray) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+        """Lower corner and shape (global node indices) of the box of grid nodes that particles at x (N, 3) touch.
+
+        The 3x3x3 stencil of a particle starts at floor((x - origin) / dx - 1/2) (clamped to the grid); one node
+        of margin on each side makes the box independent of rounding.  Only this box is allocated / updated
+        (the grid phase costs O(box) instead of O(resolution^3)).
+        """
+        g = np.floor((np.asarray(x) - self.origin) / self.dx - 0.5)
+        lo = np.clip(g.min(axis=0) - 1, 0, self.n_grid - 3).astype(int)
+        hi = np.clip(g.max(axis=0) + 1, 0, self.n_grid - 3).astype(int) + 3  # exclusive
+        return tuple(int(v) for v in lo), tuple(int(v) for v in hi - lo)
+
     @property
     def frame_dt(self) -> float:
         return self.dt * self.substeps
@@ -384,7 +415,7 @@ class MPMState:
         )
 
     def numpy(self) -> dict:
-        return {k: getattr(self, k).numpy() for k in ("x", "v", "C", "F", "Jp")}
+        return {k: getattr(self, k).numpy().copy() for k in ("x", "v", "C", "F", "Jp")}  # numpy() is a view on CPU
 
     def copy(self) -> "MPMState":
         d = self.numpy()
@@ -412,8 +443,10 @@ class Control:
 class MPMSolver:
     """Forward MLS-MPM substeps on preallocated buffers (no autodiff; see :mod:`physar.mpm.torch_bridge`)."""
 
-    def __init__(self, model: MPMModel):
+    def __init__(self, model: MPMModel, active_box: bool = True):
+        """``active_box``: grid phase only on the box of nodes touched by particles (same result, faster)."""
         self.model = model
+        self.active_box = active_box
         n, g = model.n_particles, model.n_grid
         self.tau = wp.zeros(n, dtype=wp.mat33d)
         self.F_trial = wp.zeros(n, dtype=wp.mat33d)
@@ -436,21 +469,23 @@ class MPMSolver:
             omega, x_ref, v_ref = self._ctrl_cache[1]
             kp, kd = control.kp, control.kd
         nmax = g - 3
+        zero = wp.vec3i(0, 0, 0)
+        lo_box, shape = m.active_box(state_in.x.numpy()) if self.active_box else ((0, 0, 0), (g, g, g))
+        start = wp.vec3i(*lo_box)
         wp.launch(stress_kernel, n, inputs=[state_in.F, state_in.Jp, a["E"], a["nu"], a["elastic"], a["plastic"],
                                             a["pp"]], outputs=[self.tau])
-        self.grid_mv.zero_()
-        self.grid_m.zero_()
         wp.launch(p2g_kernel, n, inputs=[state_in.x, state_in.v, state_in.C, self.tau, a["mass"], a["volume"],
-                                         omega, x_ref, v_ref, kp, kd, m.origin, m.dx, dt, nmax],
+                                         omega, x_ref, v_ref, kp, kd, m.origin, m.dx, dt, nmax, zero],
                   outputs=[self.grid_mv, self.grid_m])
-        wp.launch(grid_update_kernel, (g, g, g),
+        wp.launch(grid_update_kernel, shape,
                   inputs=[self.grid_mv, self.grid_m, wp.vec3d(*m.gravity), dt, m.pad, m.pad + m.resolution,
-                          a["bc"], a["friction"]], outputs=[self.grid_v])
+                          a["bc"], a["friction"], start, zero], outputs=[self.grid_v])
         lo, hi = m.clamp_range
-        wp.launch(g2p_kernel, n, inputs=[self.grid_v, state_in.x, state_in.F, m.origin, m.dx, dt, nmax, lo, hi],
+        wp.launch(g2p_kernel, n, inputs=[self.grid_v, state_in.x, state_in.F, m.origin, m.dx, dt, nmax, lo, hi, zero],
                   outputs=[state_out.x, state_out.v, state_out.C, self.F_trial])
         wp.launch(plastic_kernel, n, inputs=[self.F_trial, state_in.Jp, a["E"], a["nu"], a["plastic"], a["pp"]],
                   outputs=[state_out.F, state_out.Jp])
+        wp.launch(clear_grid_kernel, shape, inputs=[start], outputs=[self.grid_mv, self.grid_m])  # grid all-zero again
 
     def simulate_frame(self, state: MPMState, scratch: MPMState, control: Control | None = None,
                        check: bool = True) -> tuple[MPMState, MPMState]:

@@ -25,6 +25,7 @@ Example (all lengths in m, times in s, stresses in Pa, densities in kg/m^3)::
     nu = 0.3
     density = 1000
     velocity = [0, 0, 0]
+    velocity_gradient = [[0, 0, 0], [0, 0, 0], [0, 0, 0]]   # optional, 1/s
 """
 
 from __future__ import annotations
@@ -94,6 +95,8 @@ class Body(_Strict):
     nu: float = Field(0.3, gt=-1, lt=0.5)
     density: float = Field(1000.0, gt=0, description="kg/m^3")
     velocity: Vec3 = (0.0, 0.0, 0.0)
+    velocity_gradient: tuple[Vec3, Vec3, Vec3] | None = Field(
+        None, description="initial v = velocity + G (x - centroid), 1/s (e.g. to start a vibration)")
     yield_stress: float = Field(1.0e4, gt=0, description="von Mises yield stress, Pa")
     friction_angle: float = Field(30.0, gt=0, lt=90, description="Drucker-Prager friction angle, degrees")
     theta_c: float = Field(2.5e-2, ge=0, lt=1)
@@ -146,15 +149,24 @@ def _lattice(lo, hi, h):
     return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
 
 
-def sample_body(body: Body, dx: float, base_dir: Path | None = None) -> np.ndarray:
-    """Particle positions (N, 3) on a lattice of spacing dx / n, n^3 = particles_per_cell, inside the body."""
+def sample_body(body: Body, dx: float, base_dir: Path | None = None) -> tuple[np.ndarray, float]:
+    """Particle positions (N, 3) and the volume of each particle (m^3), n^3 = particles_per_cell per cell.
+
+    A box is filled with a lattice centred in it (spacing (max - min) / round((max - min) n / dx) per axis), so
+    its centroid and second moments are exact for every sampling; spheres and meshes use the lattice of
+    spacing dx / n aligned with the grid.
+    """
     h = dx / round(body.particles_per_cell ** (1 / 3))
     if body.shape == "box":
-        return _lattice(body.min, body.max, h)
+        lo, hi = np.asarray(body.min, dtype=np.float64), np.asarray(body.max, dtype=np.float64)
+        k = np.maximum(1, np.round((hi - lo) / h)).astype(int)
+        step = (hi - lo) / k
+        axes = [lo[i] + (np.arange(k[i]) + 0.5) * step[i] for i in range(3)]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3), float(np.prod(step))
     if body.shape == "sphere":
         c, r = np.asarray(body.center), body.radius
         pts = _lattice(c - r, c + r, h)
-        return pts[np.sum((pts - c) ** 2, axis=1) <= r * r]
+        return pts[np.sum((pts - c) ** 2, axis=1) <= r * r], h**3
     import trimesh
 
     path = Path(body.file)
@@ -169,7 +181,7 @@ def sample_body(body: Body, dx: float, base_dir: Path | None = None) -> np.ndarr
     if not mesh.is_watertight:
         raise ConfigError(f"body.file '{path}' is not a closed (watertight) surface; cannot sample its inside")
     pts = _lattice(mesh.bounds[0], mesh.bounds[1], h)
-    return pts[mesh.contains(pts)]
+    return pts[mesh.contains(pts)], h**3
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -205,14 +217,13 @@ def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: 
     for b_id, body in enumerate(scene.body):
         if particles_per_cell is not None:
             body = body.model_copy(update={"particles_per_cell": particles_per_cell})
-        x = sample_body(body, dx, base_dir)
+        x, vol = sample_body(body, dx, base_dir)
         inside = np.all((x > 0) & (x < scene.grid.size), axis=1)
         if not np.all(inside):
             raise ConfigError(f"body[{b_id}] extends outside the domain [0, {scene.grid.size}]^3")
         n = len(x)
         if n == 0:
             raise ConfigError(f"body[{b_id}] contains no particles at this resolution; enlarge it or refine the grid")
-        vol = (dx / round(body.particles_per_cell ** (1 / 3))) ** 3
         el, pl = MATERIALS[body.material]
         if pl == "von_mises":
             pp = (body.yield_stress, 0, 0, 0)
@@ -223,7 +234,10 @@ def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: 
         else:
             pp = (0, 0, 0, 0)
         cols["x"].append(x)
-        cols["v"].append(np.tile(body.velocity, (n, 1)))
+        v = np.tile(np.asarray(body.velocity, dtype=np.float64), (n, 1))
+        if body.velocity_gradient is not None:
+            v = v + (x - x.mean(0)) @ np.asarray(body.velocity_gradient, dtype=np.float64).T
+        cols["v"].append(v)
         cols["vol"].append(np.full(n, vol))
         cols["mass"].append(np.full(n, vol * body.density))
         cols["E"].append(np.full(n, body.E))

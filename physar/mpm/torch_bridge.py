@@ -48,7 +48,7 @@ class _WarpOp(torch.autograd.Function):
         ctx.save_for_backward(*inputs)
         with torch.no_grad():
             outs = op(model, *[_to_wp(t, False) for t in inputs], grad=False)
-        return tuple(wp.to_torch(o).clone() for o in outs)
+        return tuple(wp.to_torch(o) for o in outs)  # fresh arrays, aliased (the tensor keeps them alive)
 
     @staticmethod
     def backward(ctx, *grads):
@@ -83,21 +83,25 @@ def _transfer_op(model: MPMModel, x, v, C, F, tau, omega, x_ref, v_ref, gains, g
     a = model.warp_arrays()
     n, g = model.n_particles, model.n_grid
     kp, kd = (float(z) for z in gains.numpy())
-    grid_mv = wp.zeros((g, g, g), dtype=wp.vec3d, requires_grad=grad)
-    grid_m = wp.zeros((g, g, g), dtype=wp.float64, requires_grad=grad)
-    grid_v = wp.zeros((g, g, g), dtype=wp.vec3d, requires_grad=grad)
+    # grid arrays only on the box of nodes the particles touch (a function of x alone, so the tape replay in
+    # backward() rebuilds the same box); array index = global node index - box corner
+    corner, shape = model.active_box(x.numpy())
+    off = wp.vec3i(*corner)
+    grid_mv = wp.zeros(shape, dtype=wp.vec3d, requires_grad=grad)
+    grid_m = wp.zeros(shape, dtype=wp.float64, requires_grad=grad)
+    grid_v = wp.zeros(shape, dtype=wp.vec3d, requires_grad=grad)
     xo = wp.zeros(n, dtype=wp.vec3d, requires_grad=grad)
     vo = wp.zeros(n, dtype=wp.vec3d, requires_grad=grad)
     Co = wp.zeros(n, dtype=wp.mat33d, requires_grad=grad)
     Ft = wp.zeros(n, dtype=wp.mat33d, requires_grad=grad)
     nmax, dt = g - 3, model.dt
     wp.launch(p2g_kernel, n, inputs=[x, v, C, tau, a["mass"], a["volume"], omega, x_ref, v_ref, kp, kd,
-                                     model.origin, model.dx, dt, nmax], outputs=[grid_mv, grid_m])
-    wp.launch(grid_update_kernel, (g, g, g), inputs=[grid_mv, grid_m, wp.vec3d(*model.gravity), dt, model.pad,
-                                                     model.pad + model.resolution, a["bc"], a["friction"]],
-              outputs=[grid_v])
+                                     model.origin, model.dx, dt, nmax, off], outputs=[grid_mv, grid_m])
+    wp.launch(grid_update_kernel, shape, inputs=[grid_mv, grid_m, wp.vec3d(*model.gravity), dt, model.pad,
+                                                 model.pad + model.resolution, a["bc"], a["friction"],
+                                                 wp.vec3i(0, 0, 0), off], outputs=[grid_v])
     lo, hi = model.clamp_range
-    wp.launch(g2p_kernel, n, inputs=[grid_v, x, F, model.origin, model.dx, dt, nmax, lo, hi],
+    wp.launch(g2p_kernel, n, inputs=[grid_v, x, F, model.origin, model.dx, dt, nmax, lo, hi, off],
               outputs=[xo, vo, Co, Ft])
     return xo, vo, Co, Ft
 
