@@ -1,0 +1,5 @@
+"""Physics-based reconstruction of a human and a soft object from one video (seed 002, PhysHO §4-§5).
+
+Synthetic scenes (:mod:`physar.recon.synth`), metrics (:mod:`physar.recon.metrics`), and the training
+pipeline with its baselines (:mod:`physar.recon.train`).
+"""

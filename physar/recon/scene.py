@@ -1,0 +1,174 @@
+"""Scene geometry shared by the synthetic generator and the reconstruction (seed 002, §4.1-4.2, §5.1).
+
+A scene is a procedural capsule humanoid (:func:`physar.skinning.procedural_humanoid`) whose right forearm
+presses a soft box ("pillow") lying on a support.  World frame: z up, metres.  The MPM domain is the cube
+[0, size]^3 of simulation coordinates x_sim = x_world - origin; its face z = 0 is the support (sticky).
+The bones listed in ``simulated_bones`` are MPM particles actuated by the gated PD controller of Eq. (6)-(7)
+towards their LBS trajectory (Eq. 1); the other bones are rendered kinematically by LBS only.  Pose
+sequences are stored as local joint rotations (F, B, 3, 3) and a root translation (F, 3) (``poses.npz``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from physar.errors import ConfigError
+from physar.skinning import CapsuleBody, procedural_humanoid, segment_distance
+
+FORMAT_VERSION = 1
+
+
+def humanoid(height: float) -> CapsuleBody:
+    return procedural_humanoid(height, dtype=torch.float64)
+
+
+def rot_y(a: np.ndarray) -> np.ndarray:
+    """Rotations (..., 3, 3) about +y by angles a (rad)."""
+    a = np.asarray(a, dtype=np.float64)
+    c, s = np.cos(a), np.sin(a)
+    z, o = np.zeros_like(a), np.ones_like(a)
+    return np.stack([c, z, s, z, o, z, -s, z, c], -1).reshape(*a.shape, 3, 3)
+
+
+def press_poses(body: CapsuleBody, depth: np.ndarray, mode: str = "flat") -> dict:
+    """Pose sequence lowering the right forearm by ``depth`` (F,) metres.
+
+    ``flat``: shoulder rotation -a and elbow rotation +a keep the forearm horizontal and lower it by
+    L_upper sin a = depth.  ``tilt``: shoulder rotation only, the forearm's midpoint drops by ``depth``
+    (a wedge-shaped press).  Returns {"rotations": (F, B, 3, 3), "root_translation": (F, 3)}.
+    """
+    sk = body.skeleton
+    ish, iel = sk.index("upperarm.R"), sk.index("forearm.R")
+    heads, tails = body.heads.numpy(), body.tails.numpy()
+    depth = np.asarray(depth, dtype=np.float64)
+    rots = np.tile(np.eye(3), (len(depth), sk.n_bones, 1, 1))
+    if mode == "flat":
+        L = np.linalg.norm(heads[iel] - heads[ish])
+        a = np.arcsin(np.clip(depth / L, -1, 1))
+        rots[:, ish] = rot_y(-a)
+        rots[:, iel] = rot_y(a)
+    elif mode == "tilt":
+        L = np.linalg.norm(0.5 * (heads[iel] + tails[iel]) - heads[ish])
+        rots[:, ish] = rot_y(-np.arcsin(np.clip(depth / L, -1, 1)))
+    else:
+        raise ConfigError(f"press mode '{mode}': use 'flat' or 'tilt'")
+    return {"rotations": rots, "root_translation": np.zeros((len(depth), 3))}
+
+
+def smoothstep(s: np.ndarray) -> np.ndarray:
+    s = np.clip(s, 0.0, 1.0)
+    return s * s * (3 - 2 * s)
+
+
+def check_poses(poses: dict, n_bones: int, name: str = "poses") -> tuple[np.ndarray, np.ndarray]:
+    """Validated (rotations (F, B, 3, 3), root translations (F, 3)) from a poses dict/npz."""
+    if "rotations" not in poses:
+        raise ConfigError(f"{name}: missing array 'rotations' (F, {n_bones}, 3, 3)")
+    r = np.asarray(poses["rotations"], dtype=np.float64)
+    if r.ndim != 4 or r.shape[1:] != (n_bones, 3, 3) or r.shape[0] < 2:
+        raise ConfigError(f"{name}: 'rotations' must have shape (F >= 2, {n_bones}, 3, 3), got {r.shape}")
+    t = np.asarray(poses.get("root_translation", np.zeros((len(r), 3))), dtype=np.float64)
+    if t.shape != (len(r), 3):
+        raise ConfigError(f"{name}: 'root_translation' must have shape ({len(r)}, 3), got {t.shape}")
+    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(t))):
+        raise ConfigError(f"{name}: non-finite values")
+    return r, t
+
+
+def bone_transforms(body: CapsuleBody, rotations: np.ndarray, root: np.ndarray) -> torch.Tensor:
+    """Skinning transforms B_k (F, B, 4, 4) of Eq. 1 for a pose sequence."""
+    sk = body.skeleton
+    glob = sk.pose(torch.as_tensor(rotations, dtype=torch.float64), torch.as_tensor(root, dtype=torch.float64))
+    return sk.bone_transforms(glob)
+
+
+def skin_sequence(body: CapsuleBody, points: np.ndarray, rotations: np.ndarray, root: np.ndarray):
+    """LBS (Eq. 1) of rest points (N, 3) over a pose sequence: positions (F, N, 3) and A_rot (F, N, 3, 3)."""
+    X = torch.as_tensor(points, dtype=torch.float64)
+    W = body.skinning_weights(X)
+    B = bone_transforms(body, rotations, root)  # (F, B, 4, 4)
+    A = torch.einsum("nk,fkij->fnij", W, B)
+    mu = (A[..., :3, :3] @ X[None, :, :, None])[..., 0] + A[..., :3, 3]
+    return mu.numpy(), A[..., :3, :3].numpy()
+
+
+def central_velocities(x: np.ndarray, dt: float) -> np.ndarray:
+    """v_n = (x_{n+1} - x_{n-1}) / (2 dt) (seed Eq. 4), one-sided at the ends; x (F, N, 3)."""
+    v = np.zeros_like(x)
+    if len(x) > 2:
+        v[1:-1] = (x[2:] - x[:-2]) / (2 * dt)
+    v[0] = (x[1] - x[0]) / dt
+    v[-1] = (x[-1] - x[-2]) / dt
+    return v
+
+
+def lattice_box(lo, hi, h: float) -> tuple[np.ndarray, float]:
+    """Cell-centred lattice filling the box [lo, hi] with spacing ~h; returns points and the cell volume."""
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    k = np.maximum(1, np.round((hi - lo) / h)).astype(int)
+    step = (hi - lo) / k
+    axes = [lo[i] + (np.arange(k[i]) + 0.5) * step[i] for i in range(3)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3), float(np.prod(step))
+
+
+def capsule_points(body: CapsuleBody, bones: list[str], h: float, exclude: list[str] = ()) -> np.ndarray:
+    """Rest-pose lattice points (spacing h) inside the capsules of ``bones`` and outside those of ``exclude``."""
+    idx = [body.skeleton.index(b) for b in bones]
+    heads, tails, radii = body.heads[idx], body.tails[idx], body.radii[idx]
+    lo = torch.minimum(heads, tails).min(0).values - radii.max()
+    hi = torch.maximum(heads, tails).max(0).values + radii.max()
+    axes = [torch.arange(float(lo[i]) + h / 2, float(hi[i]), h, dtype=torch.float64) for i in range(3)]
+    P = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    keep = (segment_distance(P, heads, tails) < radii).any(1)
+    if exclude:
+        ex = [body.skeleton.index(b) for b in exclude]
+        keep &= ~(segment_distance(P, body.heads[ex], body.tails[ex]) < body.radii[ex]).any(1)
+    return P[keep].numpy()
+
+
+def object_box(meta: dict) -> tuple[np.ndarray, np.ndarray]:
+    o = meta["object"]
+    return np.asarray(o["min"], dtype=np.float64), np.asarray(o["max"], dtype=np.float64)
+
+
+def layout(height: float, pillow_size, gap: float, domain_size: float) -> dict:
+    """World placement: the pillow under the middle of the right forearm, ``gap`` (m) below it, and the MPM
+    domain origin (its z = 0 face is the pillow's support)."""
+    body = humanoid(height)
+    i = body.skeleton.index("forearm.R")
+    a, b, r = body.heads[i].numpy(), body.tails[i].numpy(), float(body.radii[i])
+    mid = 0.5 * (a + b)
+    ps = np.asarray(pillow_size, dtype=np.float64)
+    top = mid[2] - r - gap
+    lo = np.array([mid[0] - ps[0] / 2, mid[1] - ps[1] / 2, top - ps[2]])
+    hi = lo + ps
+    origin = np.array([mid[0] - domain_size / 2, mid[1] - domain_size / 2, lo[2]])
+    span = np.abs(b - a)[0] + 2 * r
+    if span > domain_size - 0.1 * domain_size or ps.max() > 0.8 * domain_size:
+        raise ConfigError(f"sim.domain_size = {domain_size} m is too small for the forearm ({span:.2f} m) "
+                          f"and pillow {tuple(ps)}")
+    return {"object_min": lo, "object_max": hi, "origin": origin, "forearm_mid": mid}
+
+
+def camera_matrices(meta: dict):
+    """(K (3, 3), R (3, 3), t (3,)) of the scene camera (numpy, OpenCV convention)."""
+    c = meta["camera"]
+    K = np.array([[c["fx"], 0, c["cx"]], [0, c["fy"], c["cy"]], [0, 0, 1.0]])
+    return K, np.asarray(c["R"], dtype=np.float64), np.asarray(c["t"], dtype=np.float64)
+
+
+def look_at(eye, target, fov_y_deg: float, width: int, height: int) -> dict:
+    """Camera dict (z-up world, image y pointing down) for scene.json."""
+    eye, target = np.asarray(eye, float), np.asarray(target, float)
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, np.array([0.0, 0.0, 1.0]))
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])
+    f = 0.5 * height / math.tan(math.radians(fov_y_deg) / 2)
+    return {"fx": f, "fy": f, "cx": width / 2, "cy": height / 2, "width": width, "height": height,
+            "R": R.tolist(), "t": (-R @ eye).tolist()}
