@@ -92,7 +92,7 @@ def test_missing_config(tmp_path):
 
 
 def test_demo_writes_outputs(tmp_path):
-    r = run("demo", "--out", tmp_path, "--json")
+    r = run("demo", "--scene", "cantilever", "--out", tmp_path, "--json")
     assert r.exit_code == 0, r.output
     rep = json.loads(r.stdout)
     assert rep["relative_error"] < 0.02
