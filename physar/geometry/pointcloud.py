@@ -1,10 +1,17 @@
 """Point-cloud denoising: PCA normals on the k-NN graph and the AL / MSAL update (seed 001 §3.2.1).
 
 Normals: for each point, the eigenvector of the smallest eigenvalue of the covariance of its k nearest
-neighbours (seed 001 §3.2.1 footnote 1). Orientation: each normal is flipped to point away from the
-cloud centroid (or towards a given `viewpoint`), which is consistent for star-shaped closed scans and
-single-view scans; it is not an MST propagation. The AL/MSAL update of :mod:`physar.geometry.denoise`
-then runs over the symmetric k-NN graph.
+neighbours (seed 001 §3.2.1 footnote 1). Consistent orientation (``orient="mst"``, the default) follows
+Hoppe, DeRose, Duchamp, McDonald & Stuetzle, "Surface reconstruction from unorganized points"
+(SIGGRAPH 1992): a minimum spanning tree of the k-NN graph with edge cost 1 - |n_i·n_j|
+(scipy.sparse.csgraph) propagates the sign from a root, n_j <- sign(n_j·n_parent) n_j, so neighbouring
+normals agree even where a centroid rule fails (the inner side of a torus, concave parts). The root of each
+connected component is its point farthest from the cloud centroid, oriented away from the centroid (or the
+point nearest a given `viewpoint`, oriented towards it). The propagation is vectorised by pointer jumping
+(the sign of a point is the product of the relative signs along its tree path; log2(depth) passes over
+all points). ``orient="centroid"`` flips each normal away from the centroid (star-shaped shapes only).
+The AL/MSAL update of :mod:`physar.geometry.denoise` then runs over the symmetric k-NN graph; it uses
+h_ij n_i, which does not depend on the sign of n_i, so the loop uses unoriented normals.
 """
 
 from __future__ import annotations
@@ -13,6 +20,8 @@ import os
 from pathlib import Path
 
 import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from physar.errors import MeshError, PhysarError
@@ -57,18 +66,85 @@ def knn_graph(points: np.ndarray, k: int = 10) -> tuple[np.ndarray, np.ndarray]:
     return directed_edges(knn_edges(points, k))
 
 
-def pca_normals(points: np.ndarray, k: int = 10, viewpoint: np.ndarray | None = None) -> np.ndarray:
-    """Unit PCA normals from k nearest neighbours, oriented away from the centroid (or toward viewpoint)."""
-    p = _check_cloud(points, k)
+def _unoriented_normals(p: np.ndarray, k: int) -> np.ndarray:
+    """Smallest-eigenvalue eigenvectors of the k-NN covariances (batched eigh, no orientation)."""
     _, idx = cKDTree(p).query(p, k + 1)
     nb = p[idx] - p[idx].mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", nb, nb)
     _, vec = np.linalg.eigh(cov)  # ascending eigenvalues, batched
-    n = vec[:, :, 0]
-    ref = (p - p.mean(axis=0)) if viewpoint is None else (np.asarray(viewpoint, float)[None, :] - p)
-    flip = np.einsum("ij,ij->i", n, ref) < 0
-    n[flip] *= -1
-    return n
+    return np.ascontiguousarray(vec[:, :, 0])
+
+
+def orient_normals_mst(
+    points: np.ndarray, normals: np.ndarray, k: int = 10, viewpoint: np.ndarray | None = None
+) -> np.ndarray:
+    """Consistently oriented copy of `normals` by MST sign propagation on the k-NN graph (Hoppe 1992).
+
+    Tree edge cost 1 - |n_i·n_j| (+1e-9, so that no edge weighs zero); per connected component, the
+    root is the point farthest from the centroid, oriented away from it (or the point nearest
+    `viewpoint`, oriented towards it). See the module doc.
+    """
+    p = _check_cloud(points, k)
+    n = np.asarray(normals, dtype=float)
+    if n.shape != p.shape:
+        raise MeshError(f"normals must have the shape of the points {p.shape}, got {n.shape}")
+    npts = len(p)
+    e = knn_edges(p, k)
+    cost = 1.0 - np.abs(np.einsum("ij,ij->i", n[e[:, 0]], n[e[:, 1]])) + 1e-9
+    forest = csgraph.minimum_spanning_tree(sparse.csr_matrix((cost, (e[:, 0], e[:, 1])), shape=(npts, npts)))
+    ncomp, label = csgraph.connected_components(forest, directed=False)
+    if viewpoint is None:
+        key = -np.einsum("ij,ij->i", p - p.mean(axis=0), p - p.mean(axis=0))  # farthest from the centroid
+        ref = p - p.mean(axis=0)
+    else:
+        vp = np.asarray(viewpoint, dtype=float).reshape(3)
+        key = np.einsum("ij,ij->i", p - vp, p - vp)  # nearest to the viewpoint
+        ref = vp[None, :] - p
+    order = np.lexsort((key, label))
+    roots = order[np.searchsorted(label[order], np.arange(ncomp))]  # min key per component
+    # one BFS from a virtual node joined to every root gives each point its tree parent
+    fo = forest.tocoo()
+    virt = npts
+    rows = np.r_[fo.row, np.full(ncomp, virt)]
+    cols = np.r_[fo.col, roots]
+    tree = sparse.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(npts + 1, npts + 1))
+    _, pred = csgraph.breadth_first_order(tree, virt, directed=False, return_predecessors=True)
+    parent = pred[:npts].copy()
+    parent[roots] = roots
+    sign = np.sign(np.einsum("ij,ij->i", n, n[parent]))
+    sign[sign == 0] = 1.0
+    root_dot = np.einsum("ij,ij->i", n[roots], ref[roots])
+    sign[roots] = 1.0
+    while True:  # pointer jumping: log2(tree depth) passes, each over all points
+        done = parent[parent] == parent
+        sign = sign * np.where(parent != np.arange(npts), sign[parent], 1.0)
+        parent = parent[parent]
+        if done.all():
+            break
+    root_sign = np.where(root_dot < 0, -1.0, 1.0)
+    sign *= root_sign[label]  # roots[c] is the root of component c
+    return n * sign[:, None]
+
+
+def pca_normals(
+    points: np.ndarray, k: int = 10, viewpoint: np.ndarray | None = None, orient: str = "mst"
+) -> np.ndarray:
+    """Unit PCA normals from k nearest neighbours (seed 001 §3.2.1 footnote 1), oriented.
+
+    ``orient="mst"`` (default): consistent orientation by MST propagation (:func:`orient_normals_mst`);
+    ``"centroid"``: each normal away from the centroid, or towards `viewpoint` if given; ``"none"``.
+    """
+    p = _check_cloud(points, k)
+    n = _unoriented_normals(p, k)
+    if orient == "mst":
+        return orient_normals_mst(p, n, k, viewpoint)
+    if orient == "centroid":
+        ref = (p - p.mean(axis=0)) if viewpoint is None else (np.asarray(viewpoint, float)[None, :] - p)
+        n[np.einsum("ij,ij->i", n, ref) < 0] *= -1
+        return n
+    if orient == "none":
+        return n
+    raise PhysarError(f"unknown normal orientation {orient!r}; choose 'mst', 'centroid' or 'none'")
 
 
 def denoise_points(
@@ -85,7 +161,8 @@ def denoise_points(
     """
     p = _check_cloud(points, k)
     edges = knn_edges(p, k)
-    geometry = lambda q32: (pca_normals(q32.astype(np.float64), k), None, None)  # centred positions
+    # unoriented normals in the loop: h_ij n_i does not depend on the sign of n_i (module doc)
+    geometry = lambda q32: (_unoriented_normals(q32.astype(np.float64), k), None, None)  # centred positions
     if method not in ("al", "msal"):
         raise PhysarError(f"point clouds support methods 'al' and 'msal', got {method!r}")
     it = (10 if method == "al" else 8) if iterations is None else int(iterations)
@@ -96,7 +173,7 @@ def denoise_points(
                           shrink_correction=shrink_correction)
     if not (0 < xi < 1) or not (0 <= fidelity <= 1):
         raise PhysarError(f"MSAL needs 0 < xi < 1 and 0 <= fidelity <= 1, got xi={xi}, fidelity={fidelity}")
-    sig_e, sig_i = scales_of(p, pca_normals(p, k), edges)
+    sig_e, sig_i = scales_of(p, _unoriented_normals(p, k), edges)
     lam = fidelity * msal_lambda(sig_i)
     return al_iterate(p, geometry, edges, xi ** np.arange(it, dtype=float), lam, kappa, g, False, progress,
                       sigma_e=sig_e, shrink_correction=shrink_correction)
@@ -139,4 +216,5 @@ def write_ply(path: str | os.PathLike, points: np.ndarray) -> Path:
     return path
 
 
-__all__ = ["MAD", "denoise_points", "knn_edges", "knn_graph", "pca_normals", "read_ply", "write_ply"]
+__all__ = ["MAD", "denoise_points", "knn_edges", "knn_graph", "orient_normals_mst", "pca_normals", "read_ply",
+           "write_ply"]

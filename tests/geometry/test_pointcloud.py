@@ -30,6 +30,31 @@ def test_pca_normals_sphere_outward():
     assert (cosang > 0).all()
 
 
+def torus(n=4000, seed=0, R=1.0, r=0.35):
+    """Random points on a torus and their exact outward normals (closed form)."""
+    u, v = np.random.default_rng(seed).uniform(0, 2 * np.pi, (2, n))
+    pts = np.c_[(R + r * np.cos(v)) * np.cos(u), (R + r * np.cos(v)) * np.sin(u), r * np.sin(v)]
+    return pts, np.c_[np.cos(v) * np.cos(u), np.cos(v) * np.sin(u), np.sin(v)]
+
+
+def test_mst_orientation_consistent_on_torus_where_centroid_rule_fails():
+    pts, exact = torus()
+    n = P.pca_normals(pts, 12)  # default: MST propagation (Hoppe 1992)
+    cosang = np.einsum("ij,ij->i", n, exact)
+    assert (cosang > 0).all()  # every normal outward, inner side of the ring included
+    assert np.degrees(np.arccos(cosang)).mean() < 4.0
+    # the centroid rule flips the inner side (its normals point toward the centroid)
+    c = np.einsum("ij,ij->i", P.pca_normals(pts, 12, orient="centroid"), exact)
+    assert 0.2 < (c < 0).mean() < 0.6
+    # two separate components, each with its own root; and a viewpoint outside the ring
+    two = np.r_[pts, pts + [5.0, 0, 0]]
+    assert (np.einsum("ij,ij->i", P.pca_normals(two, 12), np.r_[exact, exact]) > 0).all()
+    vp = P.pca_normals(pts, 12, viewpoint=[0, 0, 5.0])  # nearest point is on top: outward there
+    assert (np.einsum("ij,ij->i", vp, exact) > 0).all()
+    with pytest.raises(PhysarError, match="orientation"):
+        P.pca_normals(pts, 12, orient="random")
+
+
 def test_plane_cloud_normals_restored_below_one_degree():
     rng = np.random.default_rng(0)
     clean = grid()
