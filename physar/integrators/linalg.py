@@ -1,13 +1,22 @@
-"""Sparse solves for the implicit steppers: Cholesky (CHOLMOD) with the symbolic analysis reused
-across steps when the sparsity pattern is unchanged, LU fallback, and a factor cache for constant
-matrices (linear models)."""
+"""Sparse solves for the implicit steppers (seed 001 §2: every implicit step is a sparse SPD solve).
+
+* :class:`FreePattern`: the restriction A[free][:, free] of matrices that share one CSR pattern, done
+  as index arithmetic on their data (no sparse indexing per step, and the same pattern every step).
+* :class:`SparseSolver`: Cholesky (CHOLMOD) with the symbolic analysis reused across steps when the
+  pattern is unchanged, LU fallback, a factor cache for constant matrices (linear models), and an
+  optional preconditioned-CG mode ('pcg') that keeps one Cholesky factor A_ref and solves later
+  matrices A by CG preconditioned with  P⁻¹ = Q A_ref⁻¹ Qᵀ,  Q = blockdiag(R_i R_ref,iᵀ)  the per-node
+  rotation since the factorisation (co-rotated elasticity: A ≈ Q A_ref Qᵀ, the "rotated
+  preconditioner"); it refactors when CG needs more than `refactor_iters` iterations.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
-from physar.errors import SolverError
+from physar.errors import ConfigError, SolverError
 from physar.fem.solvers import factorize, has_cholmod
 
 try:  # pragma: no cover - platform dependent
@@ -16,20 +25,117 @@ except Exception:  # noqa: BLE001
     _cholmod = None
 
 
+class FreePattern:
+    """Free-dof restriction of matrices with the CSR pattern of `A` (n x n): data -> data[sel].
+
+    `indptr`, `indices` (sorted) the pattern on the free dofs, `diag` the position of each diagonal
+    entry in it (a structurally missing diagonal is an error: FE matrices always have one).
+    """
+
+    def __init__(self, A: sp.csr_matrix, free: np.ndarray):
+        A = sp.csr_matrix(A)
+        if not A.has_sorted_indices:
+            A = A.sorted_indices()
+        self.full_indptr, self.full_indices = A.indptr.copy(), A.indices.copy()
+        ids = sp.csr_matrix((np.arange(1, A.nnz + 1, dtype=np.float64), A.indices, A.indptr), shape=A.shape)
+        if len(free) != A.shape[0]:
+            ids = ids[free][:, free]
+        ids = sp.csr_matrix(ids)
+        ids.sort_indices()
+        self.sel = ids.data.astype(np.int64) - 1
+        self.indptr, self.indices = ids.indptr, ids.indices
+        self.n = len(free)
+        rows = np.repeat(np.arange(self.n), np.diff(self.indptr))
+        d = np.flatnonzero(self.indices == rows)
+        if len(d) != self.n:
+            raise SolverError("the stiffness pattern lacks diagonal entries on some free dofs")
+        self.diag = d
+        self._keys = rows.astype(np.int64) * self.n + self.indices
+
+    def matches(self, A: sp.csr_matrix) -> bool:
+        return A.indptr is self.full_indptr or (
+            A.indptr.shape == self.full_indptr.shape and A.indices.shape == self.full_indices.shape
+            and np.array_equal(A.indptr, self.full_indptr) and np.array_equal(A.indices, self.full_indices))
+
+    def restrict_data(self, A: sp.csr_matrix) -> np.ndarray:
+        """A[free][:, free].data on this pattern (A must have the pattern this was built from)."""
+        return A.data[self.sel]
+
+    def align(self, B: sp.spmatrix) -> np.ndarray:
+        """Data of a free-dof matrix B (its pattern a subset of this one) laid out on this pattern."""
+        B = sp.coo_matrix(B)
+        keys = B.row.astype(np.int64) * self.n + B.col
+        pos = np.searchsorted(self._keys, keys)
+        ok = (pos < len(self._keys)) & (self._keys[np.minimum(pos, len(self._keys) - 1)] == keys)
+        if not np.all(ok | (B.data == 0)):
+            raise SolverError("a matrix has entries outside the stiffness pattern")
+        out = np.zeros(len(self.indices))
+        np.add.at(out, pos[ok], B.data[ok])
+        return out
+
+    def csr(self, data: np.ndarray) -> sp.csr_matrix:
+        return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+
+
+class BlockRotation:
+    """Q = blockdiag(R_1, ..., R_N) (one 3 x 3 rotation per node) restricted to the free dofs; nodes
+    with a pinned component keep the identity (so Q stays orthogonal on the free dofs)."""
+
+    def __init__(self, R: np.ndarray, free: np.ndarray, n: int):
+        R = np.array(R, dtype=float, copy=True)
+        mask = np.zeros(n, dtype=bool)
+        mask[free] = True
+        partial = ~mask.reshape(-1, 3).all(axis=1)
+        R[partial] = np.eye(3)
+        self.R, self.free, self.n = R, free, n
+
+    def _apply(self, R, x):
+        full = np.zeros(self.n)
+        full[self.free] = x
+        return np.matmul(R, full.reshape(-1, 3, 1)).ravel()[self.free]
+
+    def mul(self, x):
+        return self._apply(self.R, x)
+
+    def mul_t(self, x):
+        return self._apply(np.swapaxes(self.R, 1, 2), x)
+
+    def relative_to(self, ref: "BlockRotation") -> "BlockRotation":
+        """Q Q_refᵀ (per node R_i R_ref,iᵀ)."""
+        out = BlockRotation.__new__(BlockRotation)
+        out.R, out.free, out.n = np.matmul(self.R, np.swapaxes(ref.R, 1, 2)), self.free, self.n
+        return out
+
+
 class SparseSolver:
     """Solve A x = b for a sequence of SPD(-ish) sparse matrices sharing one sparsity pattern.
 
-    `solve(A, b, key)`: when `key` is not None and a factor was cached under it, that factor is reused (for constant matrices). Otherwise A is refactored, reusing CHOLMOD's symbolic
-    analysis if the pattern (indptr, indices) is the same as before. Non-positive-definite matrices
-    fall back to LU (physar.fem.factorize). Counts factorisations in `n_factorizations`.
+    `solve(A, b, key, frame)`: when `key` is not None and a factor was cached under it, that factor is
+    reused (constant matrices; always a direct solve). Otherwise, method 'direct' refactors A (reusing
+    CHOLMOD's symbolic analysis when the pattern (indptr, indices) is unchanged); method 'pcg' solves by
+    CG to relative residual `rtol` with the rotated preconditioner built from the last factor and
+    `frame()` (a callable returning a :class:`BlockRotation` or None), refactoring when CG took more
+    than `refactor_iters` iterations or failed. Non-positive-definite matrices fall back to LU.
+    Counts `n_factorizations` and `n_cg_iterations`.
     """
 
-    def __init__(self):
+    def __init__(self, method: str = "direct", rtol: float = 1e-8, refactor_iters: int = 30):
+        if method not in ("direct", "pcg"):
+            raise ConfigError(f"linear solver must be 'direct' or 'pcg', got {method!r}")
+        if not (0 < rtol < 1):
+            raise ConfigError(f"linear solver rtol must be in (0, 1), got {rtol}")
+        self.method = method
+        self.rtol = float(rtol)
+        self.refactor_iters = int(refactor_iters)
         self._cache = {}  # key -> factor, for constant matrices
         self._factor = None
         self._symbolic = None
         self._pattern = None
+        self._ref_frame = None
+        self._stale = True
         self.n_factorizations = 0
+        self.n_cg_iterations = 0
+        self.n_cg_solves = 0
 
     def _diag(self, A):
         return A.nnz <= A.shape[0] and np.array_equal(A.indices, np.arange(A.shape[0])) and np.array_equal(
@@ -46,6 +152,7 @@ class SparseSolver:
             self._cache[key] = f
             if f[0] == "cholmod":
                 self._symbolic, self._pattern = None, None
+            self._stale = True  # the PCG reference factor is no longer self._factor
         return f
 
     def _factorize(self, A):
@@ -75,15 +182,58 @@ class SparseSolver:
         self._factor = ("lu", factorize(A, method="lu"))
         return self._factor
 
-    def solve(self, A: sp.spmatrix, b: np.ndarray, key=None) -> np.ndarray:
-        kind, f = self.factor(A, key)
+    @staticmethod
+    def _apply(factor, b):
+        kind, f = factor
         if kind == "diag":
-            x = b / f if b.ndim == 1 else b / f[:, None]
-        elif kind == "cholmod":
-            x = f(b)
-        else:
-            x = f.solve(b)
+            return b / f if b.ndim == 1 else b / f[:, None]
+        if kind == "cholmod":
+            return f(b)
+        return f.solve(b)
+
+    def _check(self, x):
         if not np.all(np.isfinite(x)):
             raise SolverError("the linear solve produced NaN or inf (singular system or a blow-up; "
                               "try a smaller time step)")
+        return x
+
+    def _direct(self, A, b, frame):
+        factor = self._factorize(A)
+        self._ref_frame = frame() if (frame is not None and self.method == "pcg") else None
+        self._stale = factor[0] != "cholmod"  # PCG only on an SPD (Cholesky) reference
+        return self._check(self._apply(factor, b))
+
+    def solve(self, A: sp.spmatrix, b: np.ndarray, key=None, frame=None) -> np.ndarray:
+        if key is not None or self.method == "direct":
+            if key is None:
+                return self._direct(A, b, None)
+            return self._check(self._apply(self.factor(A, key), b))
+        if self._stale or self._factor is None:
+            return self._direct(A, b, frame)
+        factor = self._factor
+        Q = None
+        if self._ref_frame is not None and frame is not None:
+            cur = frame()
+            Q = None if cur is None else cur.relative_to(self._ref_frame)
+        if Q is None:
+            def prec(x):
+                return self._apply(factor, x)
+        else:
+            def prec(x):
+                return Q.mul(self._apply(factor, Q.mul_t(x)))
+        n = A.shape[0]
+        it = [0]
+
+        def count(_):
+            it[0] += 1
+
+        maxiter = max(3 * self.refactor_iters, 50)
+        x, info = spla.cg(A, b, rtol=self.rtol, atol=0.0, maxiter=maxiter,
+                          M=spla.LinearOperator((n, n), matvec=prec, dtype=float), callback=count)
+        self.n_cg_iterations += it[0]
+        self.n_cg_solves += 1
+        if info != 0 or not np.all(np.isfinite(x)):
+            return self._direct(A, b, frame)  # not SPD or preconditioner too stale: factor this A
+        if it[0] > self.refactor_iters:
+            self._stale = True
         return x

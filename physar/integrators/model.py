@@ -23,6 +23,7 @@ import scipy.sparse as sp
 from physar.errors import ConfigError
 from physar.fem.assembly import CSRPattern, ElasticModel
 from physar.fem.materials import Corotated, lame, polar
+from physar.integrators.linalg import BlockRotation, FreePattern
 
 
 @dataclass
@@ -73,6 +74,10 @@ class DynamicsModel:
         if getattr(self, "_mass_ff", None) is None:
             self._mass_ff = restrict(self.mass, self.free)
         return self._mass_ff
+
+    def frame(self, q: np.ndarray):
+        """Per-node rotations at q for the rotated PCG preconditioner (None: no frame)."""
+        return None
 
     def kinetic(self, v: np.ndarray) -> float:
         return 0.5 * float(v @ (self.mass @ v))
@@ -164,33 +169,49 @@ class FemKernel:
         return self.elastic.energy(u)
 
 
+def _cofactor(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cofactor matrices C (m, 3, 3) and determinants (m,) of a batch a (m, 3, 3): a⁻ᵀ = C / det."""
+    a00, a01, a02 = a[:, 0, 0], a[:, 0, 1], a[:, 0, 2]
+    a10, a11, a12 = a[:, 1, 0], a[:, 1, 1], a[:, 1, 2]
+    a20, a21, a22 = a[:, 2, 0], a[:, 2, 1], a[:, 2, 2]
+    C = np.empty_like(a)
+    C[:, 0, 0] = a11 * a22 - a12 * a21
+    C[:, 0, 1] = a12 * a20 - a10 * a22
+    C[:, 0, 2] = a10 * a21 - a11 * a20
+    C[:, 1, 0] = a02 * a21 - a01 * a22
+    C[:, 1, 1] = a00 * a22 - a02 * a20
+    C[:, 1, 2] = a01 * a20 - a00 * a21
+    C[:, 2, 0] = a01 * a12 - a02 * a11
+    C[:, 2, 1] = a02 * a10 - a00 * a12
+    C[:, 2, 2] = a00 * a11 - a01 * a10
+    return C, a00 * C[:, 0, 0] + a01 * C[:, 0, 1] + a02 * C[:, 0, 2]
+
+
 def fast_polar(F: np.ndarray, tol: float = 1e-13, max_iter: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """Rotation R and stretch S = Rᵀ F of F = R S, batched (m, 3, 3).
 
     Scaled Newton iteration R <- ½ (g R + R⁻ᵀ / g), g = |det R|^(-1/3) (Higham), vectorised with explicit
-    cofactors; elements with det F <= 0 (inverted) or not converged fall back to physar.fem's SVD polar
-    (which keeps det R = +1).
+    cofactors and only the unconverged matrices iterated; elements with det F <= 0 (inverted) or not
+    converged fall back to physar.fem's SVD polar (which keeps det R = +1).
     """
-    R = F.copy()
-    det0 = np.einsum("mi,mi->m", R[:, :, 0], np.cross(R[:, :, 1], R[:, :, 2]))
-    bad = ~(det0 > 1e-12 * np.einsum("mij,mij->m", F, F) ** 1.5)
-    done = bad.copy()
+    R = np.array(F, dtype=float, copy=True)
+    C, det = _cofactor(R)
+    bad = ~(det > 1e-12 * np.einsum("mij,mij->m", F, F) ** 1.5)
+    act = np.flatnonzero(~bad)
+    a, C, det = R[act], C[act], det[act]
     for _ in range(max_iter):
-        act = np.flatnonzero(~done)
         if len(act) == 0:
             break
-        a = R[act]
-        c0 = np.cross(a[:, :, 1], a[:, :, 2])
-        c1 = np.cross(a[:, :, 2], a[:, :, 0])
-        c2 = np.cross(a[:, :, 0], a[:, :, 1])
-        det = np.einsum("mi,mi->m", a[:, :, 0], c0)
         g = np.abs(det) ** (-1.0 / 3.0)
-        inv_t = np.stack([c0, c1, c2], axis=2) / det[:, None, None]
-        new = 0.5 * (g[:, None, None] * a + inv_t / g[:, None, None])
+        new = 0.5 * (g[:, None, None] * a + C / (det * g)[:, None, None])
         conv = np.abs(new - a).max(axis=(1, 2)) <= tol
         R[act] = new
-        done[act[conv]] = True
-    fallback = np.flatnonzero(~done | bad)
+        act, a = act[~conv], new[~conv]
+        if len(act):
+            C, det = _cofactor(a)
+    fallback = np.flatnonzero(bad)
+    if len(act):
+        fallback = np.concatenate([fallback, act])
     if len(fallback):
         R[fallback] = polar(F[fallback])[0]
     S = np.swapaxes(R, 1, 2) @ F
@@ -230,16 +251,25 @@ class CorotatedP1Kernel:
             + mu * np.einsum("mak,mbi->maibk", self.G, self.G)
             + mu * np.einsum("mab,ik->maibk", GG, np.eye(3))
         ) * self.vol[:, None, None, None, None]
-        # blocks K0[m, a, b] (3 x 3) for the warping R K0ab Rᵀ
+        # K0 as (m, a, i, b, k) = (m, 12, 12), and its 3 x 3 blocks K0[m, a, b] for the matrix-free product
+        self.K0 = np.ascontiguousarray(K0.reshape(len(self.vol), 12, 12))
         self.K0ab = np.ascontiguousarray(K0.transpose(0, 1, 3, 2, 4))  # (m, a, b, i, k)
+        self.GT = np.ascontiguousarray(np.swapaxes(self.G, 1, 2))  # (m, 3, 4)
         self._pattern = None
+        self._last_R = None  # (u, R) of the last stress evaluation (reused by node_rotations)
 
     def _F(self, u):
         ue = u.reshape(-1, 3)[self.cells]  # (m, 4, 3)
-        return np.eye(3) + np.einsum("mai,maj->mij", ue, self.G)
+        F = np.matmul(np.swapaxes(ue, 1, 2), self.G)  # Σ_a u_a ⊗ G_a
+        F[:, 0, 0] += 1.0
+        F[:, 1, 1] += 1.0
+        F[:, 2, 2] += 1.0
+        return F
 
-    def _stress(self, F):
+    def _stress(self, F, u=None):
         R, S = fast_polar(F)
+        if u is not None:
+            self._last_R = (np.array(u, copy=True), R)
         trD = np.trace(S, axis1=1, axis2=2) - 3.0
         P = 2 * self.mu * (F - R) + self.lam * trD[:, None, None] * R
         return R, S, P
@@ -247,17 +277,43 @@ class CorotatedP1Kernel:
     def _scatter(self, fe):
         return np.bincount(self.dofs.ravel(), weights=fe.ravel(), minlength=self.n)
 
+    def _nodal(self, P):
+        # f_a = V P G_a for every element: (m, 4, 3)
+        return np.matmul(self.G, np.swapaxes(P, 1, 2)) * self.vol[:, None, None]
+
     def force(self, u):
-        _, _, P = self._stress(self._F(u))
-        return self._scatter(np.einsum("m,mij,maj->mai", self.vol, P, self.G))
+        _, _, P = self._stress(self._F(u), u)
+        return self._scatter(self._nodal(P))
+
+    def rotations(self, u) -> np.ndarray:
+        """Element rotations R (m, 3, 3) of the polar decomposition F(u) = R S (cached for the last u)."""
+        last = self._last_R
+        if last is not None and np.array_equal(last[0], u):
+            return last[1]
+        R, _ = fast_polar(self._F(u))
+        self._last_R = (np.array(u, copy=True), R)
+        return R
+
+    def node_rotations(self, u) -> np.ndarray:
+        """Per-node rotations (n_nodes, 3, 3): polar factor of the volume-weighted sum of the element
+        rotations around each node (the frame of the rotated preconditioner, see linalg.BlockRotation)."""
+        R = self.rotations(u) * self.vol[:, None, None]
+        nn = self.n // 3
+        acc = np.zeros((nn, 9))
+        for a in range(self.cells.shape[1]):
+            for c in range(9):
+                acc[:, c] += np.bincount(self.cells[:, a], weights=R[:, c // 3, c % 3], minlength=nn)
+        acc = acc.reshape(nn, 3, 3)
+        used = np.zeros(nn, dtype=bool)
+        used[self.cells.ravel()] = True
+        acc[~used] = np.eye(3)
+        return fast_polar(acc)[0]
 
     def _warped(self, R):
-        # Ke[a, b] = R K0ab Rᵀ, returned as (m, 12, 12) with dof order (a, i)
+        """Ke = blockdiag(R) K0 blockdiag(R)ᵀ, i.e. Ke[a, b] = R K0ab Rᵀ, as (m, 12, 12), dof order (a, i)."""
         m = len(R)
-        T1 = np.matmul(self.K0ab.reshape(m, 48, 3), np.swapaxes(R, 1, 2))  # [m, (a, b, j), l]
-        T1 = T1.reshape(m, 4, 4, 3, 3).transpose(0, 3, 1, 2, 4).reshape(m, 3, 48)  # [m, j, (a, b, l)]
-        T2 = np.matmul(R, T1).reshape(m, 3, 4, 4, 3)  # [m, i, a, b, l]
-        return T2.transpose(0, 2, 1, 3, 4).reshape(m, 12, 12)
+        X = np.matmul(self.K0.reshape(m, 48, 3), np.swapaxes(R, 1, 2))  # [m, (a, j, b), l]
+        return np.matmul(R[:, None], X.reshape(m, 4, 3, 12)).reshape(m, 12, 12)
 
     def _exact(self, R, S):
         """Exact element tangent (m, 12, 12): the warped part plus the dR terms of the co-rotated P.
@@ -283,19 +339,20 @@ class CorotatedP1Kernel:
         return (Klin + Krot).reshape(m, 12, 12)
 
     def force_tangent(self, u):
-        R, S, P = self._stress(self._F(u))
-        f = self._scatter(np.einsum("m,mij,maj->mai", self.vol, P, self.G))
+        R, S, P = self._stress(self._F(u), u)
+        f = self._scatter(self._nodal(P))
         if self._pattern is None:
             self._pattern = CSRPattern(self.dofs, self.n)
         Ke = self._warped(R) if self.tangent == "warped" else self._exact(R, S)
         return f, self._pattern.assemble(Ke)
 
     def tangent_matvec(self, u, v):
-        R, _, _ = self._stress(self._F(u))
+        """Warped tangent times v, matrix-free: Σ_e blockdiag(R) K0_e blockdiag(R)ᵀ v_e."""
+        R = self.rotations(u)
         ve = v.reshape(-1, 3)[self.cells]  # (m, 4, 3)
-        w = np.einsum("mji,mbj->mbi", R, ve)  # Rᵀ v_b
-        y = np.einsum("mabik,mbk->mai", self.K0ab, w)
-        return self._scatter(np.einsum("mij,maj->mai", R, y))
+        w = np.matmul(ve, R).reshape(-1, 12, 1)  # Rᵀ v_b, as rows
+        y = np.matmul(self.K0, w).reshape(-1, 4, 3)
+        return self._scatter(np.matmul(y, np.swapaxes(R, 1, 2)))
 
     def energy(self, u):
         _, S = fast_polar(self._F(u))
@@ -372,6 +429,8 @@ class SolidModel(DynamicsModel):
         self.ground = ground
         self._K_lin = None
         self._floor = None
+        self._fp = None
+        self._mass_data = None
 
     # -- pieces ------------------------------------------------------------------------------------
     def _ground(self, q):
@@ -394,24 +453,34 @@ class SolidModel(DynamicsModel):
             f += self._ground(q)[0]
         return f
 
+    def _pattern_for(self, K) -> FreePattern:
+        """The free-dof restriction map of the kernel's (fixed) tangent pattern, built on first use."""
+        fp = self._fp
+        if fp is None or not fp.matches(K):
+            fp = FreePattern(K, self.free)
+            self._mass_data = fp.align(self.mass_ff)
+            self._fp = fp
+        return fp
+
     def _tangent(self, q):
-        if self.linear:
-            if self._K_lin is None:
-                f_int, K = self.kernel.force_tangent(q)
-                self._K_lin = restrict(K, self.free), K
-                return f_int, self._K_lin
+        """f_int(q) and the elastic tangent's data on the free-dof pattern (cached for linear models)."""
+        if self.linear and self._K_lin is not None:
             return self.kernel.force(q), self._K_lin
         f_int, K = self.kernel.force_tangent(q)
-        return f_int, (restrict(K, self.free), K)
+        fp = self._pattern_for(sp.csr_matrix(K))
+        out = (fp, fp.restrict_data(K))
+        if self.linear:
+            self._K_lin = out
+        return f_int, out
 
     def linearize(self, q, v):
-        f_int, (K_ff, K) = self._tangent(q)
+        f_int, (fp, Kd) = self._tangent(q)
         f = self.f_ext - f_int
         if self.alpha:
             f -= self.alpha * (self.mass @ v)
         if self.beta:
             f -= self.beta * self.kernel.tangent_matvec(q, v)
-        Kt = K_ff
+        Kt = Kd
         scale = max(np.linalg.norm(f_int), np.linalg.norm(self.f_ext))
         if self.ground is not None:
             fg, dofs, _ = self._ground(q)
@@ -420,25 +489,35 @@ class SolidModel(DynamicsModel):
             if len(dofs):
                 pos = np.searchsorted(self.free, dofs)
                 ok = (pos < len(self.free)) & (self.free[np.minimum(pos, len(self.free) - 1)] == dofs)
-                diag = np.zeros(len(self.free))
-                diag[pos[ok]] = self.ground.stiffness
-                Kt = K_ff + sp.diags(diag)
+                Kt = Kd.copy()
+                Kt[fp.diag[pos[ok]]] += self.ground.stiffness
         if self._floor is None:
             # f_int(q) is computed from F = I + grad u: its round-off is ~ eps |K| x (body size)
             ext = float(np.ptp(self.space.nodes, axis=0).max())
-            self._floor = float(np.finfo(float).eps * np.linalg.norm(K_ff.diagonal()) * ext)
-        lin = Linearization(f, Kt, None, float(scale), self._floor)
-        lin.K_el = K_ff  # elastic part, for Rayleigh damping
+            self._floor = float(np.finfo(float).eps * np.linalg.norm(Kd[fp.diag]) * ext)
+        lin = Linearization(f, fp.csr(Kt), None, float(scale), self._floor)
+        lin.K_el = fp.csr(Kd) if self.beta else None  # elastic part, for Rayleigh damping
+        lin.data = (fp, Kt, Kd)
+        lin.q = q
         return lin
 
     def system_matrix(self, lin, cm, cd, ck):
-        """cm M + cd (alpha M + beta K_el) + ck K on the free dofs, one sparse sum."""
-        A = (cm + cd * self.alpha) * self.mass_ff
+        """cm M + cd (alpha M + beta K_el) + ck K on the free dofs, summed on the fixed pattern's data
+        (every call returns the same indptr/indices, so CHOLMOD's symbolic analysis is reused)."""
+        fp, Kt, Kd = lin.data
+        data = (cm + cd * self.alpha) * self._mass_data
         if ck:
-            A = A + ck * lin.K
+            data = data + ck * Kt
         if cd and self.beta:
-            A = A + (cd * self.beta) * lin.K_el
-        return sp.csr_matrix(A)
+            data = data + (cd * self.beta) * Kd
+        return fp.csr(data)
+
+    def frame(self, q):
+        """Per-node rotations of the co-rotated kernel at q as a BlockRotation on the free dofs (the
+        frame of the rotated PCG preconditioner), or None for other kernels."""
+        if not isinstance(self.kernel, CorotatedP1Kernel):
+            return None
+        return BlockRotation(self.kernel.node_rotations(q), self.free, self.n_dofs)
 
     def energy(self, q, v):
         """Kinetic ½vᵀMv, elastic W(q), potential -f_extᵀq (gravity, loads) + ½ k pen² (ground) [J]."""

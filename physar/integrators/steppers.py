@@ -63,13 +63,17 @@ class State:
 class StepStats:
     newton_iterations: list[int] = field(default_factory=list)
     factorizations: int = 0
+    cg_iterations: int = 0
 
 
 class Integrator:
     """Base class. `init(model, q0, v0)` -> State; `step(model, state, h)` -> new State.
 
-    Newton settings: `tol` (relative residual of (S), or relative Newton update of v), `max_iter`. `pack`/`unpack` map the method's
-    state to a flat vector (used by the amplification-matrix analysis).
+    Newton settings: `tol` (relative residual of (S), or relative Newton update of v), `max_iter`.
+    Linear solves: `linear_solver` 'direct' (CHOLMOD, symbolic analysis reused) or 'pcg' (CG to relative
+    residual `linear_rtol` with a reused Cholesky factor in the model's rotated frame, see
+    :class:`physar.integrators.linalg.SparseSolver`). `pack`/`unpack` map the method's state to a flat
+    vector (used by the amplification-matrix analysis).
     """
 
     name = "integrator"
@@ -77,14 +81,15 @@ class Integrator:
     implicit = True
     state_components = ("q", "v")
 
-    def __init__(self, tol: float = 1e-9, max_iter: int = 25):
+    def __init__(self, tol: float = 1e-9, max_iter: int = 25, linear_solver: str = "direct",
+                 linear_rtol: float = 1e-8):
         if not (tol > 0):
             raise ConfigError(f"Newton tol must be > 0, got {tol}")
         if max_iter < 1:
             raise ConfigError(f"Newton max_iter must be >= 1, got {max_iter}")
         self.tol = tol
         self.max_iter = max_iter
-        self.solver = SparseSolver()
+        self.solver = SparseSolver(linear_solver, linear_rtol)
         self.stats = StepStats()
 
     def __repr__(self):
@@ -126,7 +131,7 @@ class Integrator:
             if np.any(e):
                 rhs_n = rhs_n - hf * (lin.K @ e)
             J = model.system_matrix(lin, 1.0, hf, hf * hq)
-            dv = self.solver.solve(J, rhs_n, key)
+            dv = self.solver.solve(J, rhs_n, key, frame=lambda q=q: model.frame(q))
             v = v.copy()
             v[fr] += dv
             q = q.copy()
@@ -159,6 +164,7 @@ class Integrator:
         state.newton_iterations = it
         self.stats.newton_iterations.append(it)
         self.stats.factorizations = self.solver.n_factorizations
+        self.stats.cg_iterations = self.solver.n_cg_iterations
         return state
 
 
