@@ -2,9 +2,12 @@
 artificial damping measured on a 3-D co-rotated cantilever vs the 1-DOF amplification-matrix prediction.
 
     .venv/bin/python benchmarks/bench_integrators.py [--cells 40 8 5] [--steps 10] [--quick]
+        [--only damping energy cost profile]
 
-Prints markdown tables. Table 1: co-rotated P1 beam (box mesh, 6 tets per cell), clamped, released
-from rest under gravity, h = 1/30 s. Table 2: P2 co-rotated beam bent by a tip load and released,
+Prints markdown tables. Cost: co-rotated P1 beam (box mesh, 6 tets per cell; 40 x 8 x 5 cells = 9600
+tets), clamped, released from rest under gravity, h = 1/30 s, direct (CHOLMOD refactorisation each
+Newton iteration, symbolic analysis reused) vs rotated PCG (one reused factor); profile: the stages of
+one SI step. Table 2: P2 co-rotated beam bent by a tip load and released,
 total energy after 1 s relative to the initial energy. Table 3: the beam started in its first bending
 mode (small amplitude), hω1 = 1 and 3: d/ω1 measured from the decay of the modal energy vs
 -(2/(hω)) ln ρ(T) from `physar damping`.
@@ -13,6 +16,7 @@ mode (small amplitude), hω1 = 1 and 3: d/ω1 measured from the decay of the mod
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import time
 
@@ -41,30 +45,84 @@ def beam_p1(cells, tangent="exact"):
     return SolidModel(el, fixed, gravity=(0, 0, -9.81), tangent=tangent)
 
 
-def table_cost(cells, steps):
-    h = 1 / 30
-    print(f"\n### Cost per step: co-rotated P1 beam 1 x 0.1 x 0.1 m, cells {tuple(cells)}, E = 10 MPa, "
-          f"h = 1/30 s, {steps} steps from rest under gravity\n")
-    rows = []
-    for (m, kw), tangent in [((m, kw), "exact") for m, kw in METHODS if m != "symplectic_euler"] + [
-            (("si", {}), "warped")]:
-        model = beam_p1(cells, tangent)
-        integ = make_integrator(m, **kw, tol=1e-6)
-        s = integ.init(model)
-        s = integ.step(model, s, h)  # warm-up: patterns, symbolic analysis
+def _run_cost(cells, m, kw, tangent, linear_solver, steps, h):
+    model = beam_p1(cells, tangent)
+    integ = make_integrator(m, **kw, tol=1e-6, linear_solver=linear_solver)
+    s = integ.init(model)
+    s = integ.step(model, s, h)  # warm-up: patterns, symbolic analysis, first factor
+    f0, c0 = integ.solver.n_factorizations, integ.solver.n_cg_iterations
+    times = []
+    for _ in range(steps):
         t0 = time.perf_counter()
-        for _ in range(steps):
-            s = integ.step(model, s, h)
-        dt = (time.perf_counter() - t0) / steps
-        it = integ.stats.newton_iterations[1:]
-        rows.append((label(m, kw) + ("" if tangent == "exact" else " (warped K)"), dt, np.mean(it), max(it),
-                     -s.q[2::3].min()))
+        s = integ.step(model, s, h)
+        times.append(time.perf_counter() - t0)
+    dt = float(np.median(times))  # median: the machine is shared, outliers are other people's work
+    it = integ.stats.newton_iterations[1:]
+    return dict(dt=dt, it_mean=np.mean(it), it_max=max(it), sag=-s.q[2::3].min(),
+                fact=(integ.solver.n_factorizations - f0) / steps, cg=(integ.solver.n_cg_iterations - c0) / steps)
+
+
+def table_cost(cells, steps, quick=False):
+    h = 1 / 30
     n_tets = 6 * int(np.prod(cells))
-    print(f"{n_tets} tets, {beam_p1(cells).n_dofs} dofs\n")
-    print("| method | ms/step | steps/s | Newton it. (mean/max) | tip sag after run [m] |")
-    print("|---|---|---|---|---|")
-    for name, dt, mi, mx, sag in rows:
-        print(f"| {name} | {1e3 * dt:.0f} | {1 / dt:.1f} | {mi:.1f} / {mx} | {sag:.4f} |")
+    print(f"\n### Cost per step: co-rotated P1 beam 1 x 0.1 x 0.1 m, cells {tuple(cells)} ({n_tets} tets, "
+          f"{beam_p1(cells).n_dofs} dofs), E = 10 MPa, h = 1/30 s, {steps} steps from rest under gravity\n")
+    runs = [("si", {}, "warped", "direct"), ("si", {}, "warped", "pcg"), ("si", {}, "exact", "direct"),
+            ("si", {}, "exact", "pcg")]
+    if not quick:
+        runs += [(m, kw, "exact", ls) for m, kw in METHODS if m not in ("symplectic_euler", "si")
+                 for ls in ("direct", "pcg")]
+    print("| method | tangent | linear solver | ms/step | steps/s | factorisations/step | CG it./step "
+          "| Newton it. (mean/max) | tip sag [m] |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for m, kw, tangent, ls in runs:
+        r = _run_cost(cells, m, kw, tangent, ls, steps, h)
+        print(f"| {label(m, kw)} | {tangent} | {ls} | {1e3 * r['dt']:.0f} | {1 / r['dt']:.1f} | {r['fact']:.2f} "
+              f"| {r['cg']:.1f} | {r['it_mean']:.1f} / {r['it_max']} | {r['sag']:.4f} |")
+
+
+def table_profile(cells):
+    """Where an SI step's time goes (warped tangent, rotated PCG), one stage at a time."""
+    from physar.integrators.model import fast_polar
+
+    model = beam_p1(cells, "warped")
+    k = model.kernel
+    integ = make_integrator("si", linear_solver="pcg")
+    s = integ.init(model)
+    for _ in range(5):
+        s = integ.step(model, s, 1 / 30)
+    q = s.q
+
+    def tm(f, n=10):
+        f()
+        best = np.inf
+        for _ in range(n):
+            t0 = time.perf_counter()
+            f()
+            best = min(best, time.perf_counter() - t0)
+        return 1e3 * best  # best of n: the least disturbed by the shared machine's other load
+
+    F = k._F(q)
+    R, _ = fast_polar(F)
+    lin = model.linearize(q, s.v)
+    J = model.system_matrix(lin, 1.0, 1 / 30, 1 / 900)
+    fac = integ.solver._factor[1]
+    b = np.ones(J.shape[0])
+    rows = [("F = I + grad u (all tets)", tm(lambda: k._F(q))),
+            ("polar decomposition (vectorised Newton)", tm(lambda: fast_polar(F))),
+            ("forces f_int", tm(lambda: k._scatter(k._nodal(R)))),
+            ("warped element matrices R K0 Rᵀ", tm(lambda: k._warped(R))),
+            ("assembly (fixed CSR pattern)", tm(lambda: k._pattern.assemble(k._warped(R))) - tm(lambda: k._warped(R))),
+            ("Newton matrix M + h D + h² K (pattern data)", tm(lambda: model.system_matrix(lin, 1.0, 1 / 30, 1 / 900))),
+            ("node rotations (PCG frame)", tm(lambda: k.node_rotations(q + 0.0))),
+            ("CHOLMOD numeric refactorisation", tm(lambda: integ.solver._factorize(J), 5)),
+            ("CHOLMOD solve (one PCG preconditioner apply)", tm(lambda: fac(b))),
+            ("sparse J x (one CG matvec)", tm(lambda: J @ b))]
+    print(f"\n### Profile of one SI step, {6 * int(np.prod(cells))} tets (ms, best of 10)\n")
+    print("| stage | ms |")
+    print("|---|---|")
+    for name, t in rows:
+        print(f"| {name} | {t:.1f} |")
 
 
 def beam_p2(cells=(10, 1, 1), rayleigh=(0.0, 0.0)):
@@ -142,11 +200,20 @@ def main():
     ap.add_argument("--cells", type=int, nargs=3, default=[40, 8, 5])
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--only", choices=["damping", "energy", "cost", "profile"], nargs="*")
     a = ap.parse_args()
-    print(f"# bench_integrators ({time.strftime('%Y-%m-%d')}, {platform.processor() or platform.machine()})")
-    table_damping()
-    table_energy(a.quick)
-    table_cost(a.cells, a.steps)
+    only = set(a.only or ["damping", "energy", "cost", "profile"])
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"# bench_integrators ({time.strftime('%Y-%m-%d %H:%M')}, {platform.processor() or platform.machine()}, "
+          f"{os.cpu_count()} cpus, load average {load:.1f})")
+    if "damping" in only:
+        table_damping()
+    if "energy" in only:
+        table_energy(a.quick)
+    if "cost" in only:
+        table_cost(a.cells, a.steps, a.quick)
+    if "profile" in only:
+        table_profile(a.cells)
 
 
 if __name__ == "__main__":

@@ -21,6 +21,9 @@ stiffness = 1e5           # [N/m] per node
 [dynamics.newton]
 tol = 1e-9
 max_iter = 25
+linear_solver = "direct"  # or "pcg": CG with a reused Cholesky factor in the rotated frame (large meshes)
+linear_rtol = 1e-8        # CG relative residual (pcg only)
+tangent = "exact"         # co-rotated P1 only: "exact" or "warped" (R K0 Rᵀ, SPD, SOFA-style)
 ```
 [[fix]] boxes pin nodes (at their `value`, default 0); [[load]]s act during the run (constant), unless
 `initial = "static"`.
@@ -62,6 +65,9 @@ class GroundSection(_Strict):
 class NewtonSection(_Strict):
     tol: float = Field(1e-9, gt=0)
     max_iter: int = Field(25, ge=1)
+    linear_solver: Literal["direct", "pcg"] = "direct"
+    linear_rtol: float = Field(1e-8, gt=0, lt=1)
+    tangent: Literal["exact", "warped"] = "exact"
 
 
 class DynamicsSection(_Strict):
@@ -128,8 +134,9 @@ def build_simulation(cfg: DynamicsConfig, base_dir: Path | None = None) -> Simul
         f_ext = np.zeros_like(f_ext)
     model = SolidModel(problem.model, problem.fixed, q_fixed=q_fixed, mass=d.mass,
                        rayleigh=(d.damping.alpha, d.damping.beta), gravity=d.gravity, f_ext=f_ext,
-                       ground=ground, kernel=d.kernel)
-    integ = make_integrator(d.method, r=d.r, theta=d.theta, tol=d.newton.tol, max_iter=d.newton.max_iter)
+                       ground=ground, kernel=d.kernel, tangent=d.newton.tangent)
+    integ = make_integrator(d.method, r=d.r, theta=d.theta, tol=d.newton.tol, max_iter=d.newton.max_iter,
+                            linear_solver=d.newton.linear_solver, linear_rtol=d.newton.linear_rtol)
     v0 = np.tile(np.asarray(d.initial_velocity, dtype=float), problem.space.n_nodes)
     q0, v0 = model.initial_state(q0, v0)
     return Simulation(problem, model, integ, q0, v0, cfg)

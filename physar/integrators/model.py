@@ -187,6 +187,13 @@ def _cofactor(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return C, a00 * C[:, 0, 0] + a01 * C[:, 0, 1] + a02 * C[:, 0, 2]
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b over the last axis (length 3), broadcasting the others (cheaper than np.cross)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def fast_polar(F: np.ndarray, tol: float = 1e-13, max_iter: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """Rotation R and stretch S = Rᵀ F of F = R S, batched (m, 3, 3).
 
@@ -255,6 +262,8 @@ class CorotatedP1Kernel:
         self.K0 = np.ascontiguousarray(K0.reshape(len(self.vol), 12, 12))
         self.K0ab = np.ascontiguousarray(K0.transpose(0, 1, 3, 2, 4))  # (m, a, b, i, k)
         self.GT = np.ascontiguousarray(np.swapaxes(self.G, 1, 2))  # (m, 3, 4)
+        self._K2mu = np.ascontiguousarray((2 * mu * np.einsum("mab,ik->maibk", GG, np.eye(3))
+                                           * self.vol[:, None, None, None, None]).reshape(-1, 12, 12))
         self._pattern = None
         self._last_R = None  # (u, R) of the last stress evaluation (reused by node_rotations)
 
@@ -319,24 +328,29 @@ class CorotatedP1Kernel:
         """Exact element tangent (m, 12, 12): the warped part plus the dR terms of the co-rotated P.
 
         dP = 2 mu (dF - dR) + lambda tr(Rᵀ dF) R + lambda tr(S - I) dR, dR = R [w]x,
-        w = (tr S I - S)⁻¹ axial(Rᵀ dF - dFᵀ R); for dF = e_k ⊗ G_b: axial(...) = G_b x (Rᵀ e_k).
+        w = (tr S I - S)⁻¹ axial(Rᵀ dF - dFᵀ R); for dF = e_k ⊗ G_b: axial(...) = G_b x (Rᵀ e_k), so
+        K[ai, bk] = V (2 mu δ_ik G_a·G_b + lambda g_ai g_bk + (lambda tr(S - I) - 2 mu) (R (w_bk x G_a))_i),
+        g_a = R G_a.
         """
         m = len(R)
         G, V = self.G, self.vol
-        trS = np.trace(S, axis1=1, axis2=2)
-        Minv = np.linalg.inv(trS[:, None, None] * np.eye(3) - S)
-        rk = np.swapaxes(R, 1, 2)  # rk[m, :, k] = Rᵀ e_k ; as rows: R[m, k, :]
-        cr = np.cross(G[:, :, None, :], R[:, None, :, :])  # (m, b, k, 3) = G_b x R[k, :]
-        w = np.einsum("mij,mbkj->mbki", Minv, cr)
-        wxg = np.cross(w[:, None], G[:, :, None, None, :])  # (m, a, b, k, 3) = w_bk x G_a
-        c = self.lam * (trS - 3.0) - 2 * self.mu
-        Krot = np.einsum("m,mij,mabkj->maibk", c * V, R, wxg)
-        RG = np.einsum("mij,maj->mai", R, G)
-        GG = np.einsum("maj,mbj->mab", G, G)
-        Klin = (2 * self.mu) * np.einsum("mab,ik->maibk", GG * V[:, None, None], np.eye(3)) + self.lam * np.einsum(
-            "m,mai,mbk->maibk", V, RG, RG)
-        del rk
-        return (Klin + Krot).reshape(m, 12, 12)
+        trS = S[:, 0, 0] + S[:, 1, 1] + S[:, 2, 2]
+        A = -S
+        A[:, 0, 0] += trS
+        A[:, 1, 1] += trS
+        A[:, 2, 2] += trS
+        C, det = _cofactor(A)  # A symmetric: A⁻¹ = C / det
+        Minv = C / det[:, None, None]
+        cr = _cross(G[:, :, None, :], R[:, None, :, :]).reshape(m, 12, 3)  # (b, k): G_b x R[k, :]
+        w = np.matmul(cr, Minv)  # rows w_bk (Minv symmetric)
+        wxg = _cross(w[:, None, :, :], G[:, :, None, :])  # (m, a, (b, k), 3) = w_bk x G_a
+        c = (self.lam * (trS - 3.0) - 2 * self.mu) * V
+        Rw = np.matmul(wxg.reshape(m, 48, 3), np.swapaxes(R, 1, 2)) * c[:, None, None]  # [a, (b, k), i]
+        K = np.ascontiguousarray(Rw.reshape(m, 4, 12, 3).transpose(0, 1, 3, 2)).reshape(m, 12, 12)
+        g = np.matmul(G, np.swapaxes(R, 1, 2)).reshape(m, 12)
+        K += (self.lam * V)[:, None, None] * (g[:, :, None] * g[:, None, :])
+        K += self._K2mu
+        return K
 
     def force_tangent(self, u):
         R, S, P = self._stress(self._F(u), u)

@@ -130,3 +130,21 @@ def test_examples_validate_and_build(name):
     path = Path(__file__).resolve().parents[2] / "examples" / name
     sim = build_simulation(load_dynamics_config(path))
     assert sim.model.kernel.name == "corotated-p1"
+
+
+def test_newton_table_linear_solver_pcg_matches_direct(tmp_path):
+    from physar.integrators.config import build_simulation, load_dynamics_config, run_simulation
+
+    finals = {}
+    for ls in ("direct", "pcg"):
+        cfg = tmp_path / f"{ls}.toml"
+        cfg.write_text(CFG.format(method="si") + f'\n[dynamics.newton]\nlinear_solver = "{ls}"\n'
+                       'linear_rtol = 1e-12\ntangent = "warped"\n')
+        sim = build_simulation(load_dynamics_config(cfg))
+        assert sim.integrator.solver.method == ls and sim.model.kernel.tangent == "warped"
+        finals[ls] = np.array([r["total"] for r in run_simulation(sim).energy])
+    np.testing.assert_allclose(finals["pcg"], finals["direct"], rtol=1e-8)
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text(CFG.format(method="si") + '\n[dynamics.newton]\nlinear_solver = "gmres"\n')
+    with pytest.raises(Exception, match="linear_solver"):
+        load_dynamics_config(cfg)
