@@ -54,6 +54,7 @@ def register(app: typer.Typer) -> None:
         json_out: bool = typer.Option(False, "--json", help="print a JSON summary on stdout"),
     ) -> None:
         """Denoise a surface mesh or point cloud with AL/MSAL (seed 001 §3.2.1) or a baseline."""
+        import inspect
         import sys
 
         import numpy as np
@@ -67,7 +68,15 @@ def register(app: typer.Typer) -> None:
         if iterations is not None and iterations < 1:
             raise PhysarError(f"--iterations must be >= 1, got {iterations}")
         mesh, pts = _load(inp)
-        bar = tqdm(total=iterations, desc=f"{method} iterations", file=sys.stderr, disable=json_out)
+        if mesh is None and method not in ("al", "msal"):
+            raise PhysarError(f"{inp}: point clouds support --method al or msal, got {method!r}")
+        total = iterations
+        if total is None:  # the method's own default, for the progress bar
+            if mesh is None:
+                total = 10 if method == "al" else 8  # denoise_points defaults
+            else:
+                total = inspect.signature(METHODS[method]).parameters["iterations"].default
+        bar = tqdm(total=total, desc=f"{method} iterations", file=sys.stderr, disable=json_out)
         prog = lambda i, q: bar.update(1)
         try:
             if mesh is not None:

@@ -205,3 +205,15 @@ def test_cli_noise_then_denoise(tmp_path):
     r = run.invoke(app, ["denoise", str(src), str(tmp_path / "x.stl"), "--method", "nope"])
     assert r.exit_code == 2 and "unknown denoising method" in r.output
     assert not (tmp_path / "x.stl").exists()
+    # a non-manifold mesh: one-line error, exit code 2, no output file
+    bad = tmp_path / "nm.off"
+    bad.write_text("OFF\n5 3 0\n0 0 0\n1 0 0\n0 1 0\n0 -1 0\n0 0 1\n3 0 1 2\n3 1 0 3\n3 0 1 4\n")
+    r = run.invoke(app, ["denoise", str(bad), str(tmp_path / "nm_out.obj")])
+    assert r.exit_code == 2 and "non-manifold edge (0, 1)" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "nm_out.obj").exists()
+    # STL round trip (meshio merges the STL's repeated vertices, so the one-ring graph is intact)
+    r = run.invoke(app, ["denoise", str(noisy), str(tmp_path / "o.stl"), "--method", "msal", "--json"])
+    assert r.exit_code == 0, r.output
+    stl = read_mesh(tmp_path / "o.stl", kind="tri")
+    assert stl.n_points == clean.n_points
+    assert Q.normal_angle_error(stl, clean) < Q.normal_angle_error(noisy_mesh, clean) / 2

@@ -108,3 +108,6 @@ def test_cli_point_cloud(tmp_path):
     out, _ = P.read_ply(tmp_path / "out.ply")
     err = lambda q: np.abs(np.linalg.norm(q, axis=1) - 1).mean()
     assert err(out) < err(noisy)
+    r = CliRunner().invoke(app, ["denoise", str(tmp_path / "in.ply"), str(tmp_path / "t.ply"), "--method", "taubin"])
+    assert r.exit_code == 2 and "point clouds support --method al or msal" in r.output
+    assert not (tmp_path / "t.ply").exists()
