@@ -66,9 +66,12 @@ def knn_graph(points: np.ndarray, k: int = 10) -> tuple[np.ndarray, np.ndarray]:
     return directed_edges(knn_edges(points, k))
 
 
-def _unoriented_normals(p: np.ndarray, k: int) -> np.ndarray:
-    """Smallest-eigenvalue eigenvectors of the k-NN covariances (batched eigh, no orientation)."""
-    _, idx = cKDTree(p).query(p, k + 1)
+def _unoriented_normals(p: np.ndarray, k: int, idx: np.ndarray | None = None) -> np.ndarray:
+    """Smallest-eigenvalue eigenvectors of the k-NN covariances (batched eigh, no orientation).
+
+    `idx` (n, k + 1): neighbour indices (self first) to reuse; found with a cKDTree if None."""
+    if idx is None:
+        _, idx = cKDTree(p).query(p, k + 1)
     nb = p[idx] - p[idx].mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", nb, nb)
     _, vec = np.linalg.eigh(cov)  # ascending eigenvalues, batched
@@ -161,8 +164,10 @@ def denoise_points(
     """
     p = _check_cloud(points, k)
     edges = knn_edges(p, k)
-    # unoriented normals in the loop: h_ij n_i does not depend on the sign of n_i (module doc)
-    geometry = lambda q32: (_unoriented_normals(q32.astype(np.float64), k), None, None)  # centred positions
+    # unoriented normals in the loop: h_ij n_i does not depend on the sign of n_i (module doc); the
+    # neighbourhoods are those of the noisy data, fixed like the graph
+    _, idx = cKDTree(p).query(p, k + 1)
+    geometry = lambda q32: (_unoriented_normals(q32.astype(np.float64), k, idx), None, None)  # centred
     if method not in ("al", "msal"):
         raise PhysarError(f"point clouds support methods 'al' and 'msal', got {method!r}")
     it = (10 if method == "al" else 8) if iterations is None else int(iterations)
@@ -173,7 +178,7 @@ def denoise_points(
                           shrink_correction=shrink_correction)
     if not (0 < xi < 1) or not (0 <= fidelity <= 1):
         raise PhysarError(f"MSAL needs 0 < xi < 1 and 0 <= fidelity <= 1, got xi={xi}, fidelity={fidelity}")
-    sig_e, sig_i = scales_of(p, _unoriented_normals(p, k), edges)
+    sig_e, sig_i = scales_of(p, _unoriented_normals(p, k, idx), edges)
     lam = fidelity * msal_lambda(sig_i)
     return al_iterate(p, geometry, edges, xi ** np.arange(it, dtype=float), lam, kappa, g, False, progress,
                       sigma_e=sig_e, shrink_correction=shrink_correction)
