@@ -10,7 +10,8 @@ substep of Alg. 1:
    + dt f_ex,p]                                 (MLS-MPM, Hu et al. 2018, Eq. 29; f_ex of seed Eq. 7)
 3. grid: v_i = (m v)_i / m_i + dt g, then wall/ground boundary conditions
 4. G2P: v_p = sum_i w_ip v_i,  C_p = 4/dx^2 sum_i w_ip v_i (x_i - x_p)^T,  F_trial = (I + dt C_p) F_p,
-   x_p += dt v_p                               (APIC, Jiang et al. 2015)
+   x_p += dt v_p                               (APIC, Jiang et al. 2015); a particle that would end inside a
+   kinematic collider is projected onto its surface, x_p -= phi n (:mod:`physar.mpm.colliders`)
 5. F = P(F_trial)                               (:mod:`physar.mpm.constitutive`)
 
 Units: SI (m, s, kg, Pa).  All arrays are float64.  The grid covers the cube [0, size]^3 with ``pad``
@@ -28,6 +29,7 @@ import warp as wp
 
 from physar.errors import ConfigError, SolverError
 from physar.mpm.actuation import pd_force
+from physar.mpm.colliders import MAX_COLLIDERS, Collider, ColliderArrays, collider_sdf
 from physar.mpm.constitutive import (
     hardening_factor,
     hencky_project,
@@ -99,6 +101,42 @@ def singular_values_kernel(F: wp.array(dtype=wp.mat33d), s: wp.array(dtype=wp.ve
     s[p] = singular_values(F[p])
 
 
+@wp.func
+def p2g_particle(
+    xp: wp.vec3d,
+    vp: wp.vec3d,
+    Cp: wp.mat33d,
+    tau: wp.mat33d,
+    m: wp.float64,
+    V: wp.float64,
+    f: wp.vec3d,
+    origin: wp.float64,
+    dx: wp.float64,
+    dt: wp.float64,
+    nmax: wp.int32,
+    off: wp.vec3i,
+    grid_mv: wp.array3d(dtype=wp.vec3d),
+    grid_m: wp.array3d(dtype=wp.float64),
+):
+    """Scatter one particle (step 2 of the module docstring); array index = global node index - off."""
+    inv_dx = _f(1.0) / dx
+    b = _base(xp, origin, inv_dx, nmax)
+    fx = _frac(xp, origin, inv_dx, b)
+    W = _weights(fx)
+    affine = (-dt * V * _f(4.0) * inv_dx * inv_dx) * tau + m * Cp
+    mom = m * vp + dt * f
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                ii = b[0] + wp.int32(i) - off[0]
+                jj = b[1] + wp.int32(j) - off[1]
+                kk = b[2] + wp.int32(k) - off[2]
+                dpos = (wp.vec3d(wp.float64(i), wp.float64(j), wp.float64(k)) - fx) * dx
+                wgt = W[i, 0] * W[j, 1] * W[k, 2]
+                wp.atomic_add(grid_mv, ii, jj, kk, wgt * (mom + affine * dpos))
+                wp.atomic_add(grid_m, ii, jj, kk, wgt * m)
+
+
 @wp.kernel
 def p2g_kernel(
     x: wp.array(dtype=wp.vec3d),
@@ -121,24 +159,8 @@ def p2g_kernel(
     grid_m: wp.array3d(dtype=wp.float64),
 ):
     p = wp.tid()
-    inv_dx = _f(1.0) / dx
-    b = _base(x[p], origin, inv_dx, nmax)
-    fx = _frac(x[p], origin, inv_dx, b)
-    W = _weights(fx)
-    m = mass[p]
-    affine = (-dt * vol[p] * _f(4.0) * inv_dx * inv_dx) * tau[p] + m * C[p]
-    f = pd_force(m, omega[p], x[p], v[p], x_ref[p], v_ref[p], kp, kd)
-    mom = m * v[p] + dt * f
-    for i in range(3):
-        for j in range(3):
-            for k in range(3):
-                ii = b[0] + wp.int32(i) - off[0]
-                jj = b[1] + wp.int32(j) - off[1]
-                kk = b[2] + wp.int32(k) - off[2]
-                dpos = (wp.vec3d(wp.float64(i), wp.float64(j), wp.float64(k)) - fx) * dx
-                wgt = W[i, 0] * W[j, 1] * W[k, 2]
-                wp.atomic_add(grid_mv, ii, jj, kk, wgt * (mom + affine * dpos))
-                wp.atomic_add(grid_m, ii, jj, kk, wgt * m)
+    f = pd_force(mass[p], omega[p], x[p], v[p], x_ref[p], v_ref[p], kp, kd)
+    p2g_particle(x[p], v[p], C[p], tau[p], mass[p], vol[p], f, origin, dx, dt, nmax, off, grid_mv, grid_m)
 
 
 @wp.func
@@ -172,9 +194,22 @@ def grid_update_kernel(
     friction: wp.array(dtype=wp.float64),
     start: wp.vec3i,
     off: wp.vec3i,
+    origin: wp.float64,
+    dx: wp.float64,
+    nc: wp.int32,
+    ckind: wp.array(dtype=wp.int32),
+    cbc: wp.array(dtype=wp.int32),
+    cfric: wp.array(dtype=wp.float64),
+    ccenter: wp.array(dtype=wp.vec3d),
+    cvel: wp.array(dtype=wp.vec3d),
+    csize: wp.array(dtype=wp.vec3d),
+    caxis: wp.array(dtype=wp.vec3d),
     grid_v: wp.array3d(dtype=wp.vec3d),
 ):
-    """Grid velocities on the box of array indices start + tid; global node index = array index + off."""
+    """Grid velocities on the box of array indices start + tid; global node index = array index + off.
+
+    Walls first, then the ``nc`` kinematic colliders (:mod:`physar.mpm.colliders`) in the collider frame.
+    """
     a0, a1, a2 = wp.tid()
     ai = a0 + start[0]
     aj = a1 + start[1]
@@ -198,6 +233,15 @@ def grid_update_kernel(
             v = _apply_bc(v, wp.vec3d(_f(0.0), _f(0.0), _f(1.0)), bc[4], friction[4])
         if k >= hi:
             v = _apply_bc(v, wp.vec3d(_f(0.0), _f(0.0), _f(-1.0)), bc[5], friction[5])
+        if nc > 0:
+            xi = wp.vec3d(origin + dx * wp.float64(i), origin + dx * wp.float64(j), origin + dx * wp.float64(k))
+            for c in range(MAX_COLLIDERS):  # unrolled (constant bound): exact adjoint, unlike a dynamic loop
+                sd = wp.vec4d(_f(1.0), _f(0.0), _f(0.0), _f(1.0))
+                if c < nc:
+                    sd = collider_sdf(xi, ckind[c], ccenter[c], csize[c], caxis[c])
+                if sd[0] < _f(0.0):
+                    vc = cvel[c]
+                    v = _apply_bc(v - vc, wp.vec3d(sd[1], sd[2], sd[3]), cbc[c], cfric[c]) + vc
     grid_v[ai, aj, ak] = v
 
 
@@ -208,11 +252,10 @@ def clear_grid_kernel(start: wp.vec3i, grid_mv: wp.array3d(dtype=wp.vec3d), grid
     grid_m[a0 + start[0], a1 + start[1], a2 + start[2]] = _f(0.0)
 
 
-@wp.kernel
-def g2p_kernel(
+@wp.func
+def g2p_particle(
     grid_v: wp.array3d(dtype=wp.vec3d),
-    x: wp.array(dtype=wp.vec3d),
-    F: wp.array(dtype=wp.mat33d),
+    xp: wp.vec3d,
     origin: wp.float64,
     dx: wp.float64,
     dt: wp.float64,
@@ -220,15 +263,17 @@ def g2p_kernel(
     x_lo: wp.float64,
     x_hi: wp.float64,
     off: wp.vec3i,
-    x_out: wp.array(dtype=wp.vec3d),
-    v_out: wp.array(dtype=wp.vec3d),
-    C_out: wp.array(dtype=wp.mat33d),
-    F_trial: wp.array(dtype=wp.mat33d),
+    nc: wp.int32,
+    ckind: wp.array(dtype=wp.int32),
+    ccenter: wp.array(dtype=wp.vec3d),
+    cvel: wp.array(dtype=wp.vec3d),
+    csize: wp.array(dtype=wp.vec3d),
+    caxis: wp.array(dtype=wp.vec3d),
 ):
-    p = wp.tid()
+    """Gather one particle (step 4): new v, C and position (collider projection, clamp to the padded grid)."""
     inv_dx = _f(1.0) / dx
-    b = _base(x[p], origin, inv_dx, nmax)
-    fx = _frac(x[p], origin, inv_dx, b)
+    b = _base(xp, origin, inv_dx, nmax)
+    fx = _frac(xp, origin, inv_dx, b)
     W = _weights(fx)
     nv = wp.vec3d()
     nC = wp.mat33d()
@@ -243,11 +288,63 @@ def g2p_kernel(
                 gv = grid_v[ii, jj, kk]
                 nv = nv + wgt * gv
                 nC = nC + (_f(4.0) * inv_dx * inv_dx * wgt) * wp.outer(gv, dpos)
+    xn = xp + dt * nv
+    if nc > 0:  # a particle that ends inside a collider (at its end-of-substep position) is put back on its surface
+        for c in range(MAX_COLLIDERS):
+            sd = wp.vec4d(_f(1.0), _f(0.0), _f(0.0), _f(1.0))
+            if c < nc:
+                sd = collider_sdf(xn, ckind[c], ccenter[c] + dt * cvel[c], csize[c], caxis[c])
+            if sd[0] < _f(0.0):
+                xn = xn - sd[0] * wp.vec3d(sd[1], sd[2], sd[3])
+    xc = wp.vec3d(wp.clamp(xn[0], x_lo, x_hi), wp.clamp(xn[1], x_lo, x_hi), wp.clamp(xn[2], x_lo, x_hi))
+    return nv, nC, xc
+
+
+@wp.kernel
+def g2p_kernel(
+    grid_v: wp.array3d(dtype=wp.vec3d),
+    x: wp.array(dtype=wp.vec3d),
+    F: wp.array(dtype=wp.mat33d),
+    origin: wp.float64,
+    dx: wp.float64,
+    dt: wp.float64,
+    nmax: wp.int32,
+    x_lo: wp.float64,
+    x_hi: wp.float64,
+    off: wp.vec3i,
+    nc: wp.int32,
+    ckind: wp.array(dtype=wp.int32),
+    cbc: wp.array(dtype=wp.int32),
+    cfric: wp.array(dtype=wp.float64),
+    ccenter: wp.array(dtype=wp.vec3d),
+    cvel: wp.array(dtype=wp.vec3d),
+    csize: wp.array(dtype=wp.vec3d),
+    caxis: wp.array(dtype=wp.vec3d),
+    x_out: wp.array(dtype=wp.vec3d),
+    v_out: wp.array(dtype=wp.vec3d),
+    C_out: wp.array(dtype=wp.mat33d),
+    F_trial: wp.array(dtype=wp.mat33d),
+):
+    p = wp.tid()
+    nv, nC, xn = g2p_particle(grid_v, x[p], origin, dx, dt, nmax, x_lo, x_hi, off, nc, ckind, ccenter, cvel, csize,
+                              caxis)
     v_out[p] = nv
     C_out[p] = nC
     F_trial[p] = (wp.identity(n=3, dtype=wp.float64) + dt * nC) * F[p]
-    xn = x[p] + dt * nv
-    x_out[p] = wp.vec3d(wp.clamp(xn[0], x_lo, x_hi), wp.clamp(xn[1], x_lo, x_hi), wp.clamp(xn[2], x_lo, x_hi))
+    x_out[p] = xn
+
+
+@wp.func
+def plastic_update(Ft: wp.mat33d, Jp: wp.float64, E: wp.float64, nu: wp.float64, code: wp.int32, pp: wp.vec4d):
+    """F = P(F_trial) (step 5) and the updated plastic Jacobian of the snow law."""
+    Fn = Ft
+    J = Jp
+    if code == 1 or code == 2:
+        Fn = hencky_project(Ft, E, nu, code, pp)
+    elif code == 3:
+        Fn = snow_project(Ft, pp)
+        J = J * wp.determinant(Ft) / wp.determinant(Fn)
+    return Fn, J
 
 
 @wp.kernel
@@ -262,15 +359,7 @@ def plastic_kernel(
     Jp_out: wp.array(dtype=wp.float64),
 ):
     p = wp.tid()
-    Ft = F_trial[p]
-    code = plastic[p]
-    Fn = Ft
-    J = Jp[p]
-    if code == 1 or code == 2:
-        Fn = hencky_project(Ft, E[p], nu[p], code, pp[p])
-    elif code == 3:
-        Fn = snow_project(Ft, pp[p])
-        J = J * wp.determinant(Ft) / wp.determinant(Fn)
+    Fn, J = plastic_update(F_trial[p], Jp[p], E[p], nu[p], plastic[p], pp[p])
     F_out[p] = Fn
     Jp_out[p] = J
 
@@ -304,6 +393,7 @@ class MPMModel:
     walls: dict = field(default_factory=lambda: {w: "slip" for w in WALLS})
     friction: dict = field(default_factory=lambda: {w: 0.0 for w in WALLS})
     pad: int = 3
+    colliders: list = field(default_factory=list)
 
     def __post_init__(self):
         n = len(self.mass)
@@ -328,6 +418,10 @@ class MPMModel:
         self.plastic = np.asarray(self.plastic, dtype=np.int32)
         self.plastic_params = np.asarray(self.plastic_params, dtype=np.float64).reshape(n, 4)
         self.body = np.asarray(self.body, dtype=np.int32)
+        self.colliders = list(self.colliders)
+        for i, c in enumerate(self.colliders):
+            if not isinstance(c, Collider):
+                raise ConfigError(f"MPM model: colliders[{i}] is a {type(c).__name__}, not a Collider")
         self._wp = None
 
     # grid geometry
@@ -360,8 +454,12 @@ class MPMModel:
         (the grid phase costs O(box) instead of O(resolution^3)).
         """
         g = np.floor((np.asarray(x) - self.origin) / self.dx - 0.5)
-        lo = np.clip(g.min(axis=0) - 1, 0, self.n_grid - 3).astype(int)
-        hi = np.clip(g.max(axis=0) + 1, 0, self.n_grid - 3).astype(int) + 3  # exclusive
+        gmin, gmax = g.min(axis=0), g.max(axis=0)
+        if not (np.all(np.isfinite(gmin)) and np.all(np.isfinite(gmax))):
+            raise SolverError("MPM simulation diverged (non-finite particle positions): reduce the substep "
+                              "(more time.substeps) or the stiffness")
+        lo = np.clip(gmin - 1, 0, self.n_grid - 3).astype(int)
+        hi = np.clip(gmax + 1, 0, self.n_grid - 3).astype(int) + 3  # exclusive
         return tuple(int(v) for v in lo), tuple(int(v) for v in hi - lo)
 
     @property
@@ -383,6 +481,7 @@ class MPMModel:
                 "friction": wp.array([float(self.friction.get(w, 0.0)) for w in WALLS], dtype=wp.float64),
                 "zero_omega": wp.zeros(self.n_particles, dtype=wp.float64),
                 "zero_vec": wp.zeros(self.n_particles, dtype=wp.vec3d),
+                "colliders": ColliderArrays(self.colliders),
             }
         return self._wp
 
@@ -454,12 +553,20 @@ class MPMSolver:
         self.grid_m = wp.zeros((g, g, g), dtype=wp.float64)
         self.grid_v = wp.zeros((g, g, g), dtype=wp.vec3d)
         self._ctrl_cache = None
+        self.time = 0.0  # s, start of the next substep (moves the kinematic colliders)
 
-    def step(self, state_in: MPMState, state_out: MPMState, control: Control | None = None, dt: float | None = None):
-        """One substep of Alg. 1 from ``state_in`` into ``state_out`` (the two must not alias)."""
+    def step(self, state_in: MPMState, state_out: MPMState, control: Control | None = None, dt: float | None = None,
+             t: float | None = None):
+        """One substep of Alg. 1 from ``state_in`` into ``state_out`` (the two must not alias).
+
+        ``t`` (s) is the time at the start of the substep (default: ``self.time``, which every step advances).
+        """
         m = self.model
         a = m.warp_arrays()
         dt = float(m.dt if dt is None else dt)
+        t = self.time if t is None else float(t)
+        self.time = t + dt
+        col = a["colliders"].at(t, dt)
         n, g = m.n_particles, m.n_grid
         if control is None:
             omega, x_ref, v_ref, kp, kd = a["zero_omega"], a["zero_vec"], a["zero_vec"], 0.0, 0.0
@@ -479,9 +586,10 @@ class MPMSolver:
                   outputs=[self.grid_mv, self.grid_m])
         wp.launch(grid_update_kernel, shape,
                   inputs=[self.grid_mv, self.grid_m, wp.vec3d(*m.gravity), dt, m.pad, m.pad + m.resolution,
-                          a["bc"], a["friction"], start, zero], outputs=[self.grid_v])
+                          a["bc"], a["friction"], start, zero, m.origin, m.dx, *col.inputs()], outputs=[self.grid_v])
         lo, hi = m.clamp_range
-        wp.launch(g2p_kernel, n, inputs=[self.grid_v, state_in.x, state_in.F, m.origin, m.dx, dt, nmax, lo, hi, zero],
+        wp.launch(g2p_kernel, n, inputs=[self.grid_v, state_in.x, state_in.F, m.origin, m.dx, dt, nmax, lo, hi, zero,
+                                         *col.inputs()],
                   outputs=[state_out.x, state_out.v, state_out.C, self.F_trial])
         wp.launch(plastic_kernel, n, inputs=[self.F_trial, state_in.Jp, a["E"], a["nu"], a["plastic"], a["pp"]],
                   outputs=[state_out.F, state_out.Jp])
@@ -494,10 +602,23 @@ class MPMSolver:
         for _ in range(self.model.substeps):
             self.step(a, b, control)
             a, b = b, a
-        if check and not np.all(np.isfinite(a.x.numpy())):
-            raise SolverError("MPM simulation diverged (non-finite particle positions): reduce time.substeps' "
-                              "dt (increase substeps) or stiffness")
+        if check:
+            check_state(self.model, a.x.numpy(), a.v.numpy(), a.F.numpy())
         return a, b
+
+
+F_MAX = 1.0e3  # |F_ij| above this is taken as a blow-up (no material law here is meaningful there)
+
+
+def check_state(model: MPMModel, x, v, F, where: str = "") -> None:
+    """Raise :class:`SolverError` if the state has blown up: non-finite x, v or F, |F_ij| > F_MAX, or a particle
+    faster than one cell per substep (|v| dt > dx, the CFL bound of the explicit update).  Particles that leave
+    the grid are not an error: G2P clamps them to the padded grid (``model.clamp_range``)."""
+    vmax = float(np.abs(v).max()) if np.all(np.isfinite(v)) else np.inf
+    fmax = float(np.abs(F).max()) if np.all(np.isfinite(F)) else np.inf
+    if not np.all(np.isfinite(x)) or not np.isfinite(vmax) or fmax > F_MAX or vmax * model.dt > model.dx:
+        raise SolverError(f"MPM simulation diverged{where} (max |v| = {vmax:.3g} m/s, max |F_ij| = {fmax:.3g}): "
+                          f"increase time.substeps (dt = {model.dt:.3g} s) or lower the stiffness")
 
 
 # ----------------------------------------------------------------------------------------------- diagnostics

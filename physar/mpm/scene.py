@@ -26,6 +26,13 @@ Example (all lengths in m, times in s, stresses in Pa, densities in kg/m^3)::
     density = 1000
     velocity = [0, 0, 0]
     velocity_gradient = [[0, 0, 0], [0, 0, 0], [0, 0, 0]]   # optional, 1/s
+    [[collider]]           # optional, up to 8 kinematic colliders (physar.mpm.colliders)
+    shape = "box"          # box (size = full side lengths) | capsule (radius, length, axis)
+    center = [0.5, 0.5, 0.05]
+    size = [0.6, 0.6, 0.1]
+    velocity = [0.2, 0, 0] # m/s, straight motion; or path = [[t, x, y, z], ...] (piecewise-linear keyframes)
+    boundary = "slip"      # sticky | slip | separate
+    friction = 0.3
 """
 
 from __future__ import annotations
@@ -38,6 +45,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from physar.errors import ConfigError
+from physar.mpm.colliders import MAX_COLLIDERS, Collider
 from physar.mpm.constitutive import ELASTIC_CODES, PLASTIC_CODES, drucker_prager_alpha
 from physar.mpm.model import MPMModel
 
@@ -131,12 +139,55 @@ class Body(_Strict):
         return self
 
 
+class ColliderSpec(_Strict):
+    """A kinematic box or capsule (see :mod:`physar.mpm.colliders`)."""
+
+    shape: Literal["box", "capsule"] = "box"
+    center: Vec3 | None = Field(None, description="centre at t = 0, m (not with 'path')")
+    size: Vec3 | None = Field(None, description="box: full side lengths, m")
+    radius: float | None = Field(None, gt=0, description="capsule radius, m")
+    length: float = Field(0.0, ge=0, description="capsule: length of the axis segment (0 = sphere), m")
+    axis: Vec3 = (1.0, 0.0, 0.0)
+    velocity: Vec3 = Field((0.0, 0.0, 0.0), description="constant velocity, m/s (not with 'path')")
+    path: list[tuple[float, float, float, float]] | None = Field(
+        None, min_length=1, description="keyframes [t, x, y, z] of the centre (s, m), piecewise linear")
+    boundary: Literal["sticky", "slip", "separate"] = "separate"
+    friction: float = Field(0.0, ge=0, description="Coulomb coefficient (slip / separate)")
+
+    @model_validator(mode="after")
+    def _fields(self):
+        if self.shape == "box" and self.size is None:
+            raise ValueError("a box collider needs 'size' (full side lengths)")
+        if self.shape == "box" and any(a <= 0 for a in self.size):
+            raise ValueError(f"box collider size {self.size} must be positive")
+        if self.shape == "capsule" and self.radius is None:
+            raise ValueError("a capsule collider needs 'radius'")
+        if self.path is None and self.center is None:
+            raise ValueError("a collider needs 'center' (with an optional 'velocity') or a keyframed 'path'")
+        if self.path is not None and (self.center is not None or any(self.velocity)):
+            raise ValueError("give either 'path' or 'center'/'velocity', not both")
+        if self.path is not None and any(b[0] <= a[0] for a, b in zip(self.path, self.path[1:])):
+            raise ValueError(f"path times {[k[0] for k in self.path]} must increase strictly")
+        if all(a == 0 for a in self.axis):
+            raise ValueError("axis must be non-zero")
+        return self
+
+    def build(self) -> Collider:
+        return Collider(
+            shape=self.shape, center=self.center or (0.0, 0.0, 0.0),
+            half_extents=tuple(0.5 * s for s in self.size) if self.size else (0.1, 0.1, 0.1),
+            radius=self.radius or 0.05, half_length=0.5 * self.length, axis=self.axis, velocity=self.velocity,
+            path=None if self.path is None else np.asarray(self.path, dtype=np.float64),
+            boundary=self.boundary, friction=self.friction)
+
+
 class Scene(_Strict):
     grid: Grid = Grid()
     time: Time = Time()
     gravity: Gravity = Gravity()
     boundary: Boundary = Boundary()
     body: list[Body] = Field(min_length=1)
+    collider: list[ColliderSpec] = Field(default_factory=list, max_length=int(MAX_COLLIDERS))
 
 
 def _lattice(lo, hi, h):
@@ -246,6 +297,11 @@ def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: 
         cols["pl"].append(np.full(n, PLASTIC_CODES[pl]))
         cols["pp"].append(np.tile(pp, (n, 1)))
         cols["body"].append(np.full(n, b_id))
+    colliders = [spec.build() for spec in scene.collider]
+    for b_id in range(len(scene.body)):
+        for c_id, col in enumerate(colliders):
+            if np.any(col.signed_distance(cols["x"][b_id], 0.0) < 0):
+                raise ConfigError(f"body[{b_id}] overlaps collider[{c_id}] at t = 0; move one of them")
     c = {k: np.concatenate(v) for k, v in cols.items()}
     T = substeps or scene.time.substeps
     walls = {w: scene.boundary.walls for w in ("x_min", "x_max", "y_min", "y_max", "z_max")}
@@ -256,5 +312,6 @@ def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: 
         size=scene.grid.size, resolution=scene.grid.resolution, dt=scene.time.frame_dt / T, substeps=T,
         mass=c["mass"], volume=c["vol"], E=c["E"], nu=c["nu"], elastic=c["el"], plastic=c["pl"],
         plastic_params=c["pp"], body=c["body"], gravity=tuple(scene.gravity.g), walls=walls, friction=friction,
+        colliders=colliders,
     )
     return model, c["x"], c["v"]

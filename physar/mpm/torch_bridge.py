@@ -19,9 +19,9 @@ import torch
 import torch.utils.checkpoint
 import warp as wp
 
-from physar.errors import SolverError
 from physar.mpm.model import (
     MPMModel,
+    check_state,
     g2p_kernel,
     grid_update_kernel,
     p2g_kernel,
@@ -78,9 +78,10 @@ def _sv_op(model: MPMModel, F, grad=False):
     return (s,)
 
 
-def _transfer_op(model: MPMModel, x, v, C, F, tau, omega, x_ref, v_ref, gains, grad=False):
-    """P2G, grid update and G2P of one substep; ``gains`` = [kp, kd] (1/s^2, 1/s)."""
+def _transfer_op(model: MPMModel, x, v, C, F, tau, omega, x_ref, v_ref, gains, grad=False, t=0.0):
+    """P2G, grid update and G2P of the substep starting at time t (s); ``gains`` = [kp, kd] (1/s^2, 1/s)."""
     a = model.warp_arrays()
+    col = a["colliders"].at(t, model.dt)
     n, g = model.n_particles, model.n_grid
     kp, kd = (float(z) for z in gains.numpy())
     # grid arrays only on the box of nodes the particles touch (a function of x alone, so the tape replay in
@@ -99,9 +100,10 @@ def _transfer_op(model: MPMModel, x, v, C, F, tau, omega, x_ref, v_ref, gains, g
                                      model.origin, model.dx, dt, nmax, off], outputs=[grid_mv, grid_m])
     wp.launch(grid_update_kernel, shape, inputs=[grid_mv, grid_m, wp.vec3d(*model.gravity), dt, model.pad,
                                                  model.pad + model.resolution, a["bc"], a["friction"],
-                                                 wp.vec3i(0, 0, 0), off], outputs=[grid_v])
+                                                 wp.vec3i(0, 0, 0), off, model.origin, model.dx, *col.inputs()],
+              outputs=[grid_v])
     lo, hi = model.clamp_range
-    wp.launch(g2p_kernel, n, inputs=[grid_v, x, F, model.origin, model.dx, dt, nmax, lo, hi, off],
+    wp.launch(g2p_kernel, n, inputs=[grid_v, x, F, model.origin, model.dx, dt, nmax, lo, hi, off, *col.inputs()],
               outputs=[xo, vo, Co, Ft])
     return xo, vo, Co, Ft
 
@@ -115,11 +117,11 @@ def _plastic_op(model: MPMModel, Ft, Jp, E, nu, grad=False):
     return F, Jo
 
 
-def _transfer_wrapped(model, x, v, C, F, tau, omega, x_ref, v_ref, kp, kd):
+def _transfer_wrapped(model, x, v, C, F, tau, omega, x_ref, v_ref, kp, kd, t=0.0):
     gains = torch.tensor([kp, kd], dtype=torch.float64)
 
     def op(m, x, v, C, F, tau, omega, x_ref, v_ref, grad=False):
-        return _transfer_op(m, x, v, C, F, tau, omega, x_ref, v_ref, gains, grad=grad)
+        return _transfer_op(m, x, v, C, F, tau, omega, x_ref, v_ref, gains, grad=grad, t=t)
 
     return _WarpOp.apply(op, model, x, v, C, F, tau, omega, x_ref, v_ref)
 
@@ -144,8 +146,11 @@ class Params:
 
 
 def substep(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref=None, v_ref=None,
-            nets: NeuralResidual | None = None):
-    """One differentiable substep of Alg. 1 with the residuals of Eq. (8) and the actuation of Eq. (6)-(7)."""
+            nets: NeuralResidual | None = None, t: float = 0.0):
+    """One differentiable substep of Alg. 1 with the residuals of Eq. (8) and the actuation of Eq. (6)-(7).
+
+    ``t`` (s): time at the start of the substep (positions of the kinematic colliders).
+    """
     n = model.n_particles
     (tau,) = _WarpOp.apply(_stress_op, model, F, Jp, p.E, p.nu)
     if nets is not None and nets.elastic is not None:
@@ -160,7 +165,7 @@ def substep(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref=None, v_ref=None,
     else:
         omega, kp, kd = p.omega, p.kp, p.kd
         v_ref = torch.zeros(n, 3, dtype=torch.float64) if v_ref is None else v_ref
-    x, v, C, Ft = _transfer_wrapped(model, x, v, C, F, tau, omega, x_ref, v_ref, kp, kd)
+    x, v, C, Ft = _transfer_wrapped(model, x, v, C, F, tau, omega, x_ref, v_ref, kp, kd, t=t)
     F, Jp = _WarpOp.apply(_plastic_op, model, Ft, Jp, p.E, p.nu)
     if nets is not None and nets.plastic is not None:
         (svt,) = _WarpOp.apply(_sv_op, model, Ft)
@@ -169,8 +174,8 @@ def substep(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref=None, v_ref=None,
 
 
 def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralResidual | None = None,
-             checkpoint: bool = True, C0=None, F0=None, Jp0=None):
-    """Differentiable simulation of ``frames`` frames of ``model.substeps`` substeps.
+             checkpoint: bool = True, C0=None, F0=None, Jp0=None, t0: float = 0.0):
+    """Differentiable simulation of ``frames`` frames of ``model.substeps`` substeps, starting at time t0 (s).
 
     Returns the list of positions (N, 3) at frames 0..frames and the final state (x, v, C, F, Jp).  The PD
     references may be given per frame by a callable ``params.x_ref(frame) -> (x_ref, v_ref)``.
@@ -188,9 +193,11 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
         else:
             x_ref, v_ref = params.x_ref, params.v_ref
 
-        def frame_fn(x, v, C, F, Jp, *_params):
-            for _ in range(model.substeps):
-                x, v, C, F, Jp = substep(model, x, v, C, F, Jp, params, x_ref, v_ref, nets)
+        tf = t0 + f * model.frame_dt
+
+        def frame_fn(x, v, C, F, Jp, *_params, tf=tf):
+            for s in range(model.substeps):
+                x, v, C, F, Jp = substep(model, x, v, C, F, Jp, params, x_ref, v_ref, nets, t=tf + s * model.dt)
             return x, v, C, F, Jp
 
         leaves = [z for z in (params.E, params.nu, params.omega, params.l_e, params.l_p)
@@ -200,8 +207,7 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
                                                                use_reentrant=False)
         else:
             x, v, C, F, Jp = frame_fn(x, v, C, F, Jp)
-        if not torch.isfinite(x).all():
-            raise SolverError(f"MPM simulation diverged at frame {f + 1}: reduce the substep or the stiffness")
+        check_state(model, x.detach().numpy(), v.detach().numpy(), F.detach().numpy(), where=f" at frame {f + 1}")
         xs.append(x)
     return xs, (x, v, C, F, Jp)
 
