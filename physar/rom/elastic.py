@@ -5,6 +5,7 @@ import numpy as np
 
 from physar.errors import ConfigError
 from physar.fem import factorize, point_load
+from physar.rom._threads import blas_single_threaded
 from physar.rom.pgd import pgd_linear
 
 
@@ -25,6 +26,7 @@ def load_path_matrix(space, path, points, load, radius):
     return s, B
 
 
+@blas_single_threaded
 def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radius=0.04,
                           max_modes=20, tol=1e-4, svd_tol=1e-10, magnitude_range=None, n_check=0,
                           progress=None, seed=0):

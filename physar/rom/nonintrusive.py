@@ -44,6 +44,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from physar.errors import ConfigError, SolverError
+from physar.rom._threads import single_blas_thread
 from physar.rom.separated import SeparatedModel
 
 BLAS_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -103,10 +104,11 @@ class SnapshotRunner:
             return []
         if not self.parallel or len(points) < self.min_parallel:
             out = []
-            for p in points:
-                out.append(_run_blackbox(self.blackbox, p))
-                if progress:
-                    progress(1)
+            with single_blas_thread():
+                for p in points:
+                    out.append(_run_blackbox(self.blackbox, p))
+                    if progress:
+                        progress(1)
             return out
         self._start()
         from distributed import as_completed

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse.linalg as spla
 
+from physar.rom._threads import single_blas_thread
 from physar.rom.separated import SeparatedModel
 
 
@@ -28,7 +29,13 @@ def pgd_linear(K, f, g, grid, max_modes=20, tol=1e-4, max_fp=50, fp_tol=1e-6, so
 
     Stops when the relative mode amplitude ||F_n|| ||G_n|| / (||F_1|| ||G_1||) < tol.
     Returns (model, info) with info["amplitudes"]. ``progress(n, max_modes)`` after each mode.
+    Runs with one BLAS thread (see :mod:`physar.rom._threads`).
     """
+    with single_blas_thread():
+        return _pgd_linear(K, f, g, grid, max_modes, tol, max_fp, fp_tol, solve, name, unit, progress)
+
+
+def _pgd_linear(K, f, g, grid, max_modes, tol, max_fp, fp_tol, solve, name, unit, progress):
     f = np.atleast_2d(np.asarray(f, float))
     g = np.atleast_2d(np.asarray(g, float))
     grid = np.asarray(grid, float)
