@@ -81,8 +81,8 @@ class BeamOverlay:
         return np.sqrt(1.5 * np.einsum("...ij,...ij->...", dev, dev)) * 1e-6
 
     def _colour_bar(self, h: int) -> np.ndarray:
-        if self._bar is None or self._bar.shape[0] != h:
-            bh = int(0.45 * h)
+        bh = int(0.45 * h)
+        if self._bar is None or self._bar.shape[0] != bh:
             ramp = np.linspace(255, 0, bh).astype(np.uint8).reshape(-1, 1)
             bar = cv2.applyColorMap(np.repeat(ramp, 18, 1), cv2.COLORMAP_TURBO)
             self._bar = bar

@@ -101,6 +101,17 @@ def object_from_model(rom) -> BeamObject:
     return BeamObject.from_json(text)
 
 
+class _Projected:
+    """W C as an operator: (W C) @ B = W (C B), so that W (dense, small) never multiplies the sparse C
+    (observations x all dofs) densely; set_observation only needs (W C) @ F^T."""
+
+    def __init__(self, W, C):
+        self.W, self.C = W, C
+
+    def __matmul__(self, B):
+        return self.W @ np.asarray(self.C @ B)
+
+
 @dataclass
 class FrameResult:
     frame: int
@@ -118,16 +129,25 @@ class ARPipeline:
     """The frame loop on one reduced model (load position s, optionally magnitude P).
 
     ``min_dots``: fraction of dots that must be seen to assimilate a frame (else the estimate is held).
-    ``rigid_offset``: treat a uniform in-plane offset b of all observed dots (pose bias, fixture drift) as a
-    nuisance: mu* = argmin_mu min_b ||u* - C u(mu) - A b||², solved by projecting out A (variable
-    projection: observations and C are centred per component).
-    ``smoothing``: gain of the temporal filter on the estimate (1 = none); a change larger than
-    ``jump_sigma`` standard deviations passes unfiltered, so a moving load is followed without lag.
+    ``nuisance``: displacements of the observed dots that the camera pose cannot tell from deformation
+    and that are estimated away: "offset" (uniform in-plane offset b: pose bias, fixture drift), "rigid"
+    (offset and a small in-plane rotation w about y, u_z += -w (x - x_c), u_x += w (z - z_c)) or "none".
+    mu* = argmin_mu min_b ||u* - C u(mu) - A b||²/sigma_d² + w²/sigma_w², solved by variable projection:
+    the offsets are projected out (P = I - Q Q^T) and the rotation column a (orthogonalised, unit â) is
+    down-weighted by generalised least squares with the noise covariance sigma_d² I + sigma_w² a a^T,
+    W = P - (1 - sigma_d / sqrt(sigma_d² + sigma_w² |a|²)) â â^T, applied to the observations and to C.
+    sigma_w is the camera pose's in-plane angle error (a rotation error of the pose shows up as a rigid
+    rotation of all dots): the larger of ``rotation_sigma_deg`` and the PnP estimate of the frame
+    (:func:`physar.vision.markers.rotation_std`; ~0.01° with four markers at 720p, ~0.08° with two);
+    ``dot_sigma_px`` is the dot centroid noise, sigma_d = dot_sigma_px · depth / f at the object's depth.
+    ``smoothing``: gain a of the alpha-beta filter on the estimate (1 = none, see :meth:`_filter`); a change
+    larger than ``jump_sigma`` standard deviations passes unfiltered.
     """
 
     def __init__(self, rom, camera: Camera, obj: BeamObject | None = None, field: str = "von_mises",
-                 exaggeration: float = 1.0, min_dots: float = 0.5, overlay: bool = True, rigid_offset: bool = True,
-                 smoothing: float = 0.4, jump_sigma: float = 4.0):
+                 exaggeration: float = 1.0, min_dots: float = 0.5, overlay: bool = True, nuisance: str = "rigid",
+                 rotation_sigma_deg: float = 0.005, dot_sigma_px: float = 0.07,
+                 smoothing: float = 0.6, jump_sigma: float = 4.0):
         from physar.ar.overlay import BeamOverlay
 
         self.rom, self.camera = rom, camera
@@ -141,7 +161,13 @@ class ARPipeline:
                                radius_px=self._dot_radius_px(dots))
         self.C = surface_observation_matrix(self.space, dots, components=(0, 2)).tocsr()
         self.CF = np.asarray((self.C @ rom.F.T))  # (2n, n_modes): observation of every mode
-        self.min_dots, self.rigid_offset = min_dots, rigid_offset
+        if nuisance not in ("none", "offset", "rigid"):
+            raise ConfigError(f"nuisance must be none, offset or rigid, got {nuisance!r}")
+        self.min_dots, self.nuisance = min_dots, nuisance
+        self._dots_ref = dots
+        self.rotation_sigma, self.dot_sigma_px = np.radians(rotation_sigma_deg), dot_sigma_px
+        self._depth = None
+        self._sigma_w = self.rotation_sigma
         self.smoothing, self.jump_sigma = smoothing, jump_sigma
         self._fresh = True  # next measurement (re)initialises the temporal filter
         self.overlay = BeamOverlay(self.space, rom, self.obj, field=field, exaggeration=exaggeration) if overlay \
@@ -150,6 +176,7 @@ class ARPipeline:
         self.mu = (lo + hi) / 2
         self.std = np.full(lo.size, np.nan)
         self._mask = None
+        self._proj = None
         self._initialised = False
         self._res_hist = []
 
@@ -160,21 +187,41 @@ class ARPipeline:
         return 0.5 * min(d, 0.6 * spacing) * self.camera.fx / dist
 
     # -- estimation ---------------------------------------------------------------------------------------
-    def _assimilate(self, disp: np.ndarray, valid: np.ndarray):
+    def _assimilate(self, disp: np.ndarray, valid: np.ndarray, sigma_w: float | None = None):
         from physar.assimilation import assimilate
 
         rows = np.flatnonzero(np.repeat(valid, 2))
-        key = valid.tobytes()
+        sigma_w = max(self.rotation_sigma, sigma_w or 0.0)
+        key = (valid.tobytes(), round(2 * np.log2(sigma_w)))  # re-weight when sigma_w changes by > 41 %
+        if key != self._mask:
+            self._sigma_w = sigma_w
         y = disp[valid][:, [0, 2]].ravel()
         if key != self._mask:
             Cv = self.C[rows]
-            if self.rigid_offset:
-                Cv = Cv.toarray().reshape(-1, 2, Cv.shape[1])
-                Cv = (Cv - Cv.mean(0, keepdims=True)).reshape(-1, Cv.shape[2])
+            self._proj = None
+            if self.nuisance != "none":
+                m = int(valid.sum())
+                A = np.zeros((2 * m, 2))
+                A[0::2, 0] = 1.0  # u_x offset
+                A[1::2, 1] = 1.0  # u_z offset
+                Q = np.linalg.qr(A)[0]
+                W = np.eye(2 * m) - Q @ Q.T
+                if self.nuisance == "rigid":  # small in-plane rotation w about y
+                    ref = self._dots_ref[valid]
+                    a = np.zeros(2 * m)
+                    a[0::2], a[1::2] = ref[:, 2] - ref[:, 2].mean(), -(ref[:, 0] - ref[:, 0].mean())
+                    a = W @ a
+                    na = float(np.linalg.norm(a))
+                    if na > 0:
+                        sd = self.dot_sigma_px * (self._depth or 1.0) / self.camera.fx
+                        f = 1 - sd / np.hypot(sd, self._sigma_w * na)
+                        W = W - f * np.outer(a / na, a / na)
+                self._proj = W
+                Cv = _Projected(W, Cv)
             self.rom.set_observation(matrix=Cv)
             self._mask = key
-        if self.rigid_offset:
-            y = (y.reshape(-1, 2) - y.reshape(-1, 2).mean(0)).ravel()
+        if self._proj is not None:
+            y = self._proj @ y
         if not self._initialised:
             res = assimilate(self.rom, y, restart_residual=0.0, n_starts=9, max_iter=30)
             self._initialised = True
@@ -189,19 +236,28 @@ class ARPipeline:
         return res
 
     def _filter(self, mu, std):
-        """Exponential smoothing with a jump detector: mu <- mu + a (z - mu), a = smoothing unless
-        |z - mu| > jump_sigma * max(std, 0.2 % of the range) (then a = 1)."""
+        """Alpha-beta (constant-velocity) filter on the estimate, with a jump detector: prediction
+        m = mu + v; innovation e = z - m; mu <- m + a e, v <- v + b e with a = smoothing and b = a²/(2 - a)
+        (critically damped), so a load moving at constant speed is followed without lag; when
+        |e| > jump_sigma * max(std, 0.2 % of the range) the measurement passes unfiltered (a = 1, v = 0)."""
         lo, hi = (np.array(b, float) for b in zip(*self.rom.ranges))
         if self._fresh or self.smoothing >= 1:
             self.mu, self.std = mu.copy(), std.copy()
+            self._vel = np.zeros_like(mu)
             self._fresh = False
             return
         scale = np.maximum(np.nan_to_num(std, nan=0.0), 2e-3 * (hi - lo))
-        jump = np.abs(mu - self.mu) > self.jump_sigma * scale
+        pred = np.clip(self.mu + self._vel, lo, hi)
+        e = mu - pred
+        jump = np.abs(e) > self.jump_sigma * scale
         a = np.where(jump, 1.0, self.smoothing)
-        self.mu = self.mu + a * (mu - self.mu)
-        # variance of the smoothed estimate for white measurement noise: a / (2 - a) of the measurement's
-        self.std = np.sqrt(np.where(jump, 1.0, a / (2 - a))) * std
+        b = np.where(jump, 0.0, a * a / (2 - a))
+        self.mu = pred + a * e
+        self._vel = np.where(jump, 0.0, self._vel + b * e)
+        # variance of the alpha-beta estimate for white measurement noise (steady state):
+        # (2a² + 2b - 3ab) / (a (4 - 2a - b)) of the measurement's (Kalata 1984)
+        g = np.where(jump, 1.0, (2 * a * a + 2 * b - 3 * a * b) / (a * (4 - 2 * a - b)))
+        self.std = np.sqrt(np.clip(g, 0, 1)) * std
 
     def process(self, frame: np.ndarray, index: int, draw: bool = True) -> tuple[np.ndarray, FrameResult]:
         t0 = time.perf_counter()
@@ -217,7 +273,11 @@ class ARPipeline:
             t2 = time.perf_counter()
             st["dots"] = (t2 - t1) * 1e3
             if n_dots >= max(2, self.min_dots * len(obs.valid)):
-                res = self._assimilate(obs.displacement, obs.valid)
+                depth = float(pe.pose.apply(self._dots_ref.mean(0, keepdims=True))[0, 2])
+                if self._depth is None or abs(depth / self._depth - 1) > 0.05:  # re-weight on 5 % depth change
+                    self._depth, self._mask = depth, None
+                sw = None if pe.rotation_std is None else float(pe.rotation_std[1])  # about the face normal y
+                res = self._assimilate(obs.displacement, obs.valid, sw)
                 self._filter(res.params, res.std)
                 resid = res.residual * 1e3
                 status = "tracking"

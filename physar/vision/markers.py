@@ -68,6 +68,30 @@ class PoseEstimate:
     ids: list = field(default_factory=list)
     image_corners: np.ndarray | None = None
     full_search: bool = False
+    rotation_std: np.ndarray | None = None  # (3,) std of the pose's rotation about the world axes [rad]
+
+
+def rotation_std(camera: Camera, pose: Pose, points, sigma_px: float, centre=None) -> np.ndarray:
+    """Standard deviations [rad] of the camera pose's rotation about the world axes through ``centre`` that
+    PnP on ``points`` (m, 3) with pixel noise ``sigma_px`` leaves: Gauss-Newton covariance
+    sigma² (J^T J)^-1 of the 6 pose parameters (3 small world rotations δθ, 3 translations δt),
+    X -> c + exp(δθ)(X - c) + δt, J by central differences of the projection."""
+    X = np.asarray(points, float).reshape(-1, 3)
+    c = X.mean(0) if centre is None else np.asarray(centre, float)
+    h = 1e-6
+    Xs = []
+    for j in range(6):
+        for sgn in (1.0, -1.0):
+            d = np.zeros(6)
+            d[j] = sgn * h
+            Xs.append(c + (X - c) @ _exp_rot(d[:3]).T + d[3:])
+    p = camera.project(np.concatenate(Xs), pose).reshape(6, 2, -1)
+    J = ((p[:, 0] - p[:, 1]) / (2 * h)).T  # (2m, 6)
+    try:
+        cov = np.linalg.inv(J.T @ J) * sigma_px ** 2
+    except np.linalg.LinAlgError:
+        return np.full(3, np.inf)
+    return np.sqrt(np.abs(np.diag(cov)[:3]))
 
 
 def _log_rot(R):
@@ -86,7 +110,7 @@ class MarkerTracker:
     ``hold_frames``: how long the pose is predicted (velocity decaying) when no marker is visible.
     """
 
-    def __init__(self, camera: Camera, board: MarkerBoard, roi_margin: float = 0.6, min_markers: int = 1,
+    def __init__(self, camera: Camera, board: MarkerBoard, roi_margin: float = 0.3, min_markers: int = 1,
                  alpha: float = 0.6, noise_px: float = 0.15, hold_frames: int = 150, max_reproj_px: float = 3.0,
                  gate_px: float = 40.0):
         self.camera, self.board = camera, board
@@ -97,6 +121,7 @@ class MarkerTracker:
         params.cornerRefinementMinAccuracy = 0.005
         self._params = params
         self.detector = cv2.aruco.ArucoDetector(aruco_dictionary(board.dictionary), params)
+        self._roi_detectors = {}
         self.roi_margin, self.min_markers, self.alpha, self.noise_px = roi_margin, min_markers, alpha, noise_px
         self.hold_frames, self.max_reproj_px, self.gate_px = hold_frames, max_reproj_px, gate_px
         self.K, self.dist = camera.to_opencv()
@@ -116,8 +141,23 @@ class MarkerTracker:
         return Pose(_exp_rot(self._w + self._vw), self._t + self._vt)
 
     # --- detection ---------------------------------------------------------------------------------
-    def _detect(self, gray, x0=0, y0=0):
-        corners, ids, _ = self.detector.detectMarkers(gray)
+    def _roi_detector(self, size_px: float):
+        """Detector for a region of interest around a marker of predicted side ``size_px``: one adaptive
+        threshold window of about a seventh of the marker (a module and a half), instead of the three-window
+        sweep of the full-frame search (half the time, same corners)."""
+        win = max(3, int(size_px / 7) | 1)
+        det = self._roi_detectors.get(win)
+        if det is None:
+            p = cv2.aruco.DetectorParameters()
+            for name in ("cornerRefinementMethod", "cornerRefinementWinSize", "cornerRefinementMaxIterations",
+                         "cornerRefinementMinAccuracy"):
+                setattr(p, name, getattr(self._params, name))
+            p.adaptiveThreshWinSizeMin = p.adaptiveThreshWinSizeMax = win
+            det = self._roi_detectors[win] = cv2.aruco.ArucoDetector(aruco_dictionary(self.board.dictionary), p)
+        return det
+
+    def _detect(self, gray, x0=0, y0=0, detector=None):
+        corners, ids, _ = (detector or self.detector).detectMarkers(gray)
         out = {}
         if ids is None:
             return out
@@ -142,7 +182,7 @@ class MarkerTracker:
                 x1, y1 = int(min(hi[0] + m, w)), int(min(hi[1] + m, h))
                 if x1 - x0 < 16 or y1 - y0 < 16:
                     continue
-                det = self._detect(gray[y0:y1, x0:x1], x0, y0)
+                det = self._detect(gray[y0:y1, x0:x1], x0, y0, self._roi_detector((hi - lo).max()))
                 if k in det:
                     found[k] = det[k]
             if len(found) >= self.min_markers:
@@ -205,8 +245,11 @@ class MarkerTracker:
                 vt = 0.7 * self._vt + 0.3 * (t_new - self._t)
             self._w, self._t, self._vw, self._vt = w_new, t_new, vw, vt
             self._missed = 0
+            ks = sorted(found)
+            rstd = rotation_std(self.camera, pose, self.board.corners[ks].reshape(-1, 3),
+                                max(err, self.noise_px), self.board.corners.reshape(-1, 3).mean(0))
             return PoseEstimate(Pose(_exp_rot(w_new), t_new), "measured", len(found), err,
-                                [int(self.board.ids[k]) for k in sorted(found)], img, full)
+                                [int(self.board.ids[k]) for k in ks], img, full, rstd)
         # no usable measurement: hold (decaying velocity)
         if self._w is None:
             return PoseEstimate(None, "lost", len(found), full_search=full)
