@@ -76,7 +76,7 @@ def plot_damping_figures(path, hw=None, rs=(0.0, 0.25, 0.5, 0.75, 1.0), thetas=(
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    hw = np.logspace(-2, 3, 161) if hw is None else np.asarray(hw, dtype=float)
+    hw = np.logspace(-2, 3, 101) if hw is None else np.asarray(hw, dtype=float)
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
     ax = axes[0]
     for r in rs:
