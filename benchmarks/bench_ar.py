@@ -76,7 +76,8 @@ def main():
           "reader/writer threads. latency = markers_pose + dots + assimilate + overlay.")
     compute = [np.sum([s["stages_ms_median"][k] for k in ("markers_pose", "dots", "assimilate", "overlay")])
                for _, s in rows]
-    print(f"compute-bound rate (1000 / median compute ms): " + ", ".join(f"{1000 / c:.0f} fps" for c in compute))
+    print("compute on the main thread (sum of stage medians), ms/frame: "
+          + ", ".join(f"{name.split(':')[0].split(' (')[0]} {c:.2f} ms ({1000 / c:.0f} fps)" for (name, _), c in zip(rows, compute)))
 
 
 if __name__ == "__main__":

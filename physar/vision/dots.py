@@ -78,9 +78,8 @@ class DotTracker:
             sup = self._dilate(sup) & self._dilate(wgt > 0)  # around the blob, not isolated coloured noise
             border = np.concatenate([g[:, 0, :], g[:, -1, :], g[:, :, 0], g[:, :, -1]], 1)
             d = g - np.median(border, 1)[:, None, None]
-            with np.errstate(invalid="ignore"):
-                sign = np.sign(np.nanmean(np.where(wgt > 0, d, np.nan), (1, 2)))  # dots darker (or brighter)
-            d = np.nan_to_num(sign)[:, None, None] * d * sup
+            sign = np.sign(np.where(wgt > 0, d, 0.0).sum((1, 2)))  # dots darker (or brighter) than around
+            d = sign[:, None, None] * d * sup
             peak = d.max((1, 2))[:, None, None]
             lw = np.maximum(d - 0.5 * peak, 0.0)
             ok = (lw.sum((1, 2)) > 0) & (peak.ravel() > 0)

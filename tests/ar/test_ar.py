@@ -43,12 +43,13 @@ def test_truth_tip_deflection_matches_beam_theory():
 
 @pytest.fixture(scope="module")
 def small_scene(tmp_path_factory):
-    """1280x720, 51 frames: load at 380 mm, then 220 mm; a full occlusion of 30 frames (12..41)."""
+    """1280x720, 60 frames: load at 400 mm (frames 0-18), moves to 300 mm (18-24) and on to 220 mm (42-48);
+    a full occlusion of 30 frames (6..35) hides the first move."""
     out = tmp_path_factory.mktemp("scene")
-    spec = SceneSpec(video=VideoSection(duration=1.7, crf=20),
+    spec = SceneSpec(video=VideoSection(duration=2.0, crf=20),
                      beam={"truth_cells": (60, 3, 3), "model_cells": (30, 2, 2)},
-                     load={"positions": [0.38, 0.22], "dwell": 0.8, "move": 0.1},
-                     occlusion=[Occlusion(start=0.4, frames=30, kind="full")])
+                     load={"positions": [0.40, 0.30, 0.22], "dwell": 0.6, "move": 0.2},
+                     occlusion=[Occlusion(start=0.2, frames=30, kind="full")])
     info = render_scene(spec, out)
     rom, obj, space, _ = build_scene_model(spec)
     rom.save(out / "model.npz")
@@ -59,16 +60,17 @@ def test_scene_outputs(small_scene):
     spec, out, info, rom, obj = small_scene
     r = VideoReader(out / "scene.mp4")
     assert (r.width, r.height) == (1280, 720)
-    assert sum(1 for _ in r) == spec.n_frames == 51
+    assert sum(1 for _ in r) == spec.n_frames == 60
     t = read_truth(out / "truth.csv")
-    assert len(t["frame"]) == 51 and t["s_true_m"][0] == 0.38 and t["s_true_m"][-1] == 0.22
-    assert t["occluded"][12] == "full" and t["occluded"][11] == ""
+    assert len(t["frame"]) == 60 and t["s_true_m"][0] == 0.40 and t["s_true_m"][-1] == 0.22
+    assert t["occluded"][6] == "full" and t["occluded"][5] == "" and t["occluded"][36] == ""
     assert Camera.load(out / "camera.toml").size == (1280, 720)
 
 
 def test_pipeline_accuracy_and_occlusion_recovery(small_scene, tmp_path):
-    """|s_est - s_true| <= 1 % of the span (load beyond 20 % of the span); held during the full occlusion,
-    back within the bound within 5 frames after it."""
+    """Issue 4 goal on a short scene (truth from a finer mesh, H.264): |s_est - s_true| <= 1 % of the span in
+    every tracked frame (load beyond 20 % of the span), also while the load moves (frames 42-48); the
+    estimate is held during the 30-frame full occlusion and back within the bound within 5 frames."""
     spec, out, info, rom, obj = small_scene
     cam = Camera.load(out / "camera.toml")
     pipe = ARPipeline(rom, cam, obj)
@@ -77,15 +79,15 @@ def test_pipeline_accuracy_and_occlusion_recovery(small_scene, tmp_path):
     truth = read_truth(out / "truth.csv")
     err = np.abs(est["s_est"] - truth["s_true_m"])
     st = est["status"]
-    assert np.all(st[:12] == "tracking") and np.all(st[12:42] != "tracking")
-    assert np.all(err[:12] <= 0.01 * L), err[:12] * 1e3
+    assert np.all(st[:6] == "tracking") and np.all(st[6:36] != "tracking") and np.all(st[36:] == "tracking")
+    assert np.all(err[:6] <= 0.01 * L), err[:6] * 1e3
     # held estimate during the occlusion (the load moved meanwhile: the hold is the last estimate)
-    assert np.allclose(est["s_est"][12:42], est["s_est"][11])
-    ok = np.flatnonzero(err[42:] <= 0.01 * L)
-    assert ok.size and ok[0] < 5, err[42:] * 1e3
-    assert np.all(err[42 + ok[0]:] <= 0.01 * L), err[42:] * 1e3
-    assert summ["frames"] == 51 and (tmp_path / "aug.mp4").stat().st_size > 0
-    assert sum(1 for _ in VideoReader(tmp_path / "aug.mp4")) == 51
+    assert np.allclose(est["s_est"][6:36], est["s_est"][5])
+    ok = np.flatnonzero(err[36:] <= 0.01 * L)
+    assert ok.size and ok[0] < 5, err[36:] * 1e3
+    assert np.all(err[36 + ok[0]:] <= 0.01 * L), err[36:] * 1e3  # includes the move 300 -> 220 mm
+    assert summ["frames"] == 60 and (tmp_path / "aug.mp4").stat().st_size > 0
+    assert sum(1 for _ in VideoReader(tmp_path / "aug.mp4")) == 60
 
 
 def test_cli_ar_run(small_scene, tmp_path):
@@ -122,6 +124,9 @@ def test_bad_inputs_give_clear_errors_and_no_output(tmp_path):
     with VideoWriter(tmp_path / "ok.mp4", 64, 48, 10) as w:
         for k in range(3):
             w.write(np.full((48, 64, 3), 40 * k, np.uint8))
+    data = (tmp_path / "ok.mp4").read_bytes()  # a valid video cut in half (copy interrupted)
+    (tmp_path / "cut.mp4").write_bytes(data[:len(data) // 2])
+    assert "cut.mp4" in _run_bad(tmp_path, tmp_path / "cut.mp4", tmp_path / "cam.toml")
     (tmp_path / "bad.toml").write_text("[camera]\nwidth = 64\nheight = 48\nmatrix = [[50.0, 0, 32], [0, 50.0, 24]]\n")
     assert "3x3" in _run_bad(tmp_path, tmp_path / "ok.mp4", tmp_path / "bad.toml")
     Camera.from_fov(640, 480, 60).save(tmp_path / "big.toml")
