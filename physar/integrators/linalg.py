@@ -12,12 +12,16 @@
 
 from __future__ import annotations
 
+import inspect
+
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from physar.errors import ConfigError, SolverError
 from physar.fem.solvers import factorize, has_cholmod
+
+_CG_RTOL = "rtol" in inspect.signature(spla.cg).parameters
 
 try:  # pragma: no cover - platform dependent
     from sksparse import cholmod as _cholmod
@@ -228,8 +232,9 @@ class SparseSolver:
             it[0] += 1
 
         maxiter = max(3 * self.refactor_iters, 50)
-        x, info = spla.cg(A, b, rtol=self.rtol, atol=0.0, maxiter=maxiter,
-                          M=spla.LinearOperator((n, n), matvec=prec, dtype=float), callback=count)
+        tol = {"rtol" if _CG_RTOL else "tol": self.rtol}  # scipy < 1.12 calls it tol
+        x, info = spla.cg(A, b, atol=0.0, maxiter=maxiter, callback=count,
+                          M=spla.LinearOperator((n, n), matvec=prec, dtype=float), **tol)
         self.n_cg_iterations += it[0]
         self.n_cg_solves += 1
         if info != 0 or not np.all(np.isfinite(x)):
