@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -14,7 +13,7 @@ from physar.errors import ConfigError
 _METHODS = ["symplectic_euler", "be", "si", "midpoint", "genalpha", "theta", "trbdf2"]
 
 
-def _parse_hw(hw: List[str] | None, extra: List[str]) -> list[float]:
+def _parse_hw(hw: list[str] | None, extra: list[str]) -> list[float]:
     vals = []
     for tok in list(hw or []) + list(extra):
         for part in str(tok).split(","):
@@ -33,12 +32,12 @@ def _parse_hw(hw: List[str] | None, extra: List[str]) -> list[float]:
 @user_errors
 def damping(
     ctx: typer.Context,
-    method: Optional[str] = typer.Option(None, "--method", "-m", help="be | si | midpoint | genalpha | theta | trbdf2 | symplectic_euler"),
-    r: Optional[float] = typer.Option(None, "--r", help="generalized-alpha knob r = rho_inf in [0, 1] (default 0.5)"),
-    theta: Optional[float] = typer.Option(None, "--theta", help="theta method knob in [0, 1] (default 0.5)"),
-    hw: Optional[List[str]] = typer.Option(None, "--hw", help="h*omega values: --hw 0.1 1 10 (or 0.1,1,10)"),
+    method: str | None = typer.Option(None, "--method", "-m", help="be | si | midpoint | genalpha | theta | trbdf2 | symplectic_euler"),
+    r: float | None = typer.Option(None, "--r", help="generalized-alpha knob r = rho_inf in [0, 1] (default 0.5)"),
+    theta: float | None = typer.Option(None, "--theta", help="theta method knob in [0, 1] (default 0.5)"),
+    hw: list[str] | None = typer.Option(None, "--hw", help="h*omega values: --hw 0.1 1 10 (or 0.1,1,10)"),
     json_out: bool = typer.Option(False, "--json", help="print {hw, rho, d_over_omega} as JSON"),
-    plot: Optional[Path] = typer.Option(None, "--plot", help="PNG with the seed's Fig. 2.1 (gen-alpha) and Fig. 2.2 (theta)"),
+    plot: Path | None = typer.Option(None, "--plot", help="PNG with the seed's Fig. 2.1 (gen-alpha) and Fig. 2.2 (theta)"),
 ) -> None:
     """Spectral radius rho and artificial damping d/omega = -(2/(h omega)) ln rho of a stepper on q'' + w^2 q = 0."""
     import numpy as np
@@ -77,8 +76,8 @@ def damping(
 def simulate(
     config: Path = typer.Argument(..., help="problem file (TOML): the fem tables plus [dynamics]"),
     out: Path = typer.Option(..., "--out", "-o", help="trajectory (.xdmf + .h5) with displacement, velocity"),
-    video: Optional[Path] = typer.Option(None, "--video", help="MP4 of the deformed surface (H.264)"),
-    energy_csv: Optional[Path] = typer.Option(None, "--energy", help="energy per step CSV (default: OUT with .csv)"),
+    video: Path | None = typer.Option(None, "--video", help="MP4 of the deformed surface (H.264)"),
+    energy_csv: Path | None = typer.Option(None, "--energy", help="energy per step CSV (default: OUT with .csv)"),
     fps: float = typer.Option(30.0, "--fps", help="video frame rate"),
     json_out: bool = typer.Option(False, "--json", help="print a run summary as JSON"),
 ) -> None:

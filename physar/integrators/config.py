@@ -36,9 +36,10 @@ import csv
 import os
 import shutil
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Literal, Optional
+from typing import Literal
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -74,16 +75,16 @@ class DynamicsSection(_Strict):
     method: Literal["symplectic_euler", "be", "si", "midpoint", "genalpha", "theta", "trbdf2"]
     h: float = Field(..., gt=0, description="time step [s]")
     steps: int = Field(..., ge=1)
-    r: Optional[float] = Field(None, ge=0, le=1)
-    theta: Optional[float] = Field(None, ge=0, le=1)
+    r: float | None = Field(None, ge=0, le=1)
+    theta: float | None = Field(None, ge=0, le=1)
     mass: Literal["lumped", "consistent"] = "lumped"
-    gravity: Optional[Vec3] = None
+    gravity: Vec3 | None = None
     initial: Literal["rest", "static"] = "rest"
     initial_velocity: Vec3 = (0.0, 0.0, 0.0)
     kernel: Literal["auto", "fem", "corotated-p1"] = "auto"
     output_every: int = Field(1, ge=1)
     damping: DampingSection = DampingSection()
-    ground: Optional[GroundSection] = None
+    ground: GroundSection | None = None
     newton: NewtonSection = NewtonSection()
 
     @model_validator(mode="after")

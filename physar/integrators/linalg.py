@@ -104,7 +104,7 @@ class BlockRotation:
     def mul_t(self, x):
         return self._apply(np.swapaxes(self.R, 1, 2), x)
 
-    def relative_to(self, ref: "BlockRotation") -> "BlockRotation":
+    def relative_to(self, ref: BlockRotation) -> BlockRotation:
         """Q Q_refᵀ (per node R_i R_ref,iᵀ)."""
         out = BlockRotation.__new__(BlockRotation)
         out.R, out.free, out.n = np.matmul(self.R, np.swapaxes(ref.R, 1, 2)), self.free, self.n

@@ -77,7 +77,7 @@ class DynamicsModel:
 
     def frame(self, q: np.ndarray):
         """Per-node rotations at q for the rotated PCG preconditioner (None: no frame)."""
-        return None
+        return
 
     def kinetic(self, v: np.ndarray) -> float:
         return 0.5 * float(v @ (self.mass @ v))

@@ -31,8 +31,8 @@ Methods (h the step; f_n = f(q_n, v_n)):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -392,7 +392,17 @@ def simulate(model: DynamicsModel, integrator: Integrator, h: float, steps: int,
 
 
 __all__ = [
-    "State", "Integrator", "SymplecticEuler", "BackwardEuler", "SemiImplicit", "ImplicitMidpoint",
-    "GeneralizedAlpha", "ThetaMethod", "TRBDF2", "METHODS", "make_integrator", "genalpha_coefficients",
+    "METHODS",
+    "TRBDF2",
+    "BackwardEuler",
+    "GeneralizedAlpha",
+    "ImplicitMidpoint",
+    "Integrator",
+    "SemiImplicit",
+    "State",
+    "SymplecticEuler",
+    "ThetaMethod",
+    "genalpha_coefficients",
+    "make_integrator",
     "simulate",
 ]
