@@ -40,7 +40,7 @@ def ssim(a: np.ndarray, b: np.ndarray, max_val: float = 1.0, sigma: float = 1.5)
     vals = []
     for c in range(a.shape[2]):
         x, y = a[..., c], b[..., c]
-        f = lambda z: gaussian_filter(z, sigma, truncate=trunc, mode="reflect")  # noqa: E731
+        f = lambda z: gaussian_filter(z, sigma, truncate=trunc, mode="reflect")
         mx, my = f(x), f(y)
         sxx = f(x * x) - mx * mx
         syy = f(y * y) - my * my
@@ -64,7 +64,7 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
 def lpips(a: np.ndarray, b: np.ndarray) -> float:
     """LPIPS distance, only when the ``lpips`` package and its backbone weights are installed."""
     try:
-        import lpips as _lp  # noqa: F401
+        import lpips as _lp
     except ImportError:
         raise PhysarError("LPIPS unavailable: the 'lpips' package is not installed, and its AlexNet/VGG "
                           "backbone weights (not shipped in the wheel) cannot be downloaded offline; "
@@ -75,7 +75,7 @@ def lpips(a: np.ndarray, b: np.ndarray) -> float:
         net = _lp.LPIPS(net="alex", verbose=False)
     except Exception as exc:  # noqa: BLE001 - missing torchvision weights: report, do not crash
         raise PhysarError(f"LPIPS unavailable: backbone weights could not be loaded ({exc})") from None
-    t = lambda z: torch.as_tensor(np.asarray(z, np.float32)).permute(2, 0, 1)[None] * 2 - 1  # noqa: E731
+    t = lambda z: torch.as_tensor(np.asarray(z, np.float32)).permute(2, 0, 1)[None] * 2 - 1
     with torch.no_grad():
         return float(net(t(a), t(b)))
 

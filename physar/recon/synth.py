@@ -11,18 +11,24 @@ The procedural humanoid presses a soft box ("pillow") with its right forearm.  G
 * images: the z-buffered sphere renderer of :mod:`physar.recon.pointrender` (not the Gaussian rasteriser),
   one static camera, ``fps`` frames per second, foreground masks.
 
-Two clips: ``dynamic`` (a flat press to ``press_obs`` during the observation part, then deeper to
+A ``spin`` clip comes first (seed §5.1, Fig. 4): the humanoid turns about the vertical axis through its root
+(yaw sweeping -spin_deg .. +spin_deg) next to the object at rest; pure LBS, no simulation.  It is the clip
+from which the canonical Gaussians are learned with fixed skinning (§4.1).
+
+Two clips follow: ``dynamic`` (a flat press to ``press_obs`` during the observation part, then deeper to
 ``press_pred`` in the prediction part) and ``novel`` (a tilted, wedge-shaped press with another timing:
 a novel action for prediction).
 
 DATA_DIR layout (written atomically: to a temporary folder renamed at the end)::
 
     scene.json                 camera, fps, n_obs, body, object box, MPM settings, PD gains (no truth)
-    poses.npz, novel_poses.npz rotations (F, B, 3, 3), root_translation (F, 3)
+    poses.npz, novel_poses.npz, spin_poses.npz   rotations (F, B, 3, 3), root_translation (F, 3)
+    spin/rgb/0000.png, spin/mask/0000.png          spin clip (when spin_frames > 0)
     rgb/0000.png, mask/0000.png         dynamic clip (observation + prediction parts)
     novel/rgb/0000.png, novel/mask/0000.png
     truth.npz                  ground truth for evaluation only (never read by ``fit``): fine rest
-                               positions and E, per-frame max object displacement (m) of both clips
+                               positions and E, per-frame max object displacement (m) of both clips,
+                               fine object positions of the dynamic clip (F, N_fine, 3)
     video.mp4                  preview of the dynamic clip (when an encoder is available)
 """
 
@@ -32,8 +38,8 @@ import json
 import os
 import shutil
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import cv2
 import numpy as np
@@ -60,6 +66,8 @@ class SynthConfig(BaseModel):
     frames: int = Field(20, ge=3, le=2000, description="frames of the dynamic clip")
     n_obs: int = Field(12, ge=2, description="observation frames (the rest is the prediction part)")
     novel_frames: int = Field(16, ge=2, le=2000)
+    spin_frames: int = Field(10, ge=0, le=2000, description="frames of the spin clip (0: none)")
+    spin_deg: float = Field(20.0, ge=0, le=180, description="yaw amplitude of the spin clip, degrees")
     height: float = Field(1.7, gt=0.5, lt=2.5, description="humanoid height, m")
     pillow_size: Vec3 = (0.24, 0.20, 0.12)
     gap: float = Field(0.005, ge=0, description="initial gap forearm-pillow, m")
@@ -130,6 +138,18 @@ def dynamic_depths(cfg: SynthConfig) -> np.ndarray:
 def novel_depths(cfg: SynthConfig) -> np.ndarray:
     f = np.arange(cfg.novel_frames, dtype=np.float64)
     return cfg.press_novel * S.smoothstep(f / (0.7 * (cfg.novel_frames - 1)))
+
+
+def spin_poses(body, cfg: SynthConfig) -> dict:
+    """Spin clip: root yaw (about +z through the root joint) going smoothly from -spin_deg to +spin_deg."""
+    f = np.arange(cfg.spin_frames, dtype=np.float64)
+    a = np.radians(cfg.spin_deg) * (2 * S.smoothstep(f / max(cfg.spin_frames - 1, 1)) - 1)
+    rots = np.tile(np.eye(3), (cfg.spin_frames, body.skeleton.n_bones, 1, 1))
+    c, s = np.cos(a), np.sin(a)
+    rz = np.zeros((len(a), 3, 3))
+    rz[:, 0, 0], rz[:, 0, 1], rz[:, 1, 0], rz[:, 1, 1], rz[:, 2, 2] = c, -s, s, c, 1.0
+    rots[:, body.skeleton.index("root")] = rz
+    return {"rotations": rots, "root_translation": np.zeros((cfg.spin_frames, 3))}
 
 
 def _simulate_clip(cfg, meta, body, poses, progress, offset, total):
@@ -240,6 +260,16 @@ def generate(out_dir: str | Path, cfg: SynthConfig | None = None,
                  "novel": S.press_poses(body, novel_depths(cfg), "tilt")}
         total = cfg.frames + cfg.novel_frames - 2
         truth, offset, preview = {}, 0, None
+        if cfg.spin_frames >= 2:  # spin clip: LBS only, the object at rest (seed §4.1, §5.1)
+            sp = spin_poses(body, cfg)
+            np.savez(tmp / "spin_poses.npz", **sp)
+            sim = meta["sim"]
+            h = sim["size"] / sim["resolution"] / round(cfg.gt_particles_per_cell ** (1 / 3))
+            Xo, _ = S.lattice_box(*S.object_box(meta), h)
+            Xh = S.capsule_points(body, meta["body"]["simulated_bones"], h)
+            xh, _ = S.skin_sequence(body, Xh, sp["rotations"], sp["root_translation"])
+            _render_clip(cfg, meta, body, sp, np.broadcast_to(Xo, (cfg.spin_frames, *Xo.shape)), xh, Xo, h,
+                         tmp / "spin")
         for name, poses in clips.items():
             np.savez(tmp / (f"{name}_poses.npz" if name else "poses.npz"), **poses)
             xo, xh, Xo, Xh, E, h = _simulate_clip(cfg, meta, body, poses, progress, offset, total)
@@ -250,6 +280,7 @@ def generate(out_dir: str | Path, cfg: SynthConfig | None = None,
             truth[f"{key}_mean_displacement"] = np.linalg.norm(xo - xo[:1], axis=2).mean(1)
             if not name:
                 truth["rest_positions"], truth["E"] = Xo, E
+                truth["dynamic_object_positions"] = xo.astype(np.float32)
                 preview = frames
         np.savez(tmp / "truth.npz", **truth)
         write_mp4(tmp / "video.mp4", preview, cfg.fps)

@@ -3,23 +3,26 @@
 Stages (``fit``):
 
 1. **appearance** (§4.1, Eq. 5): Gaussians = MPM particles of the object and of the simulated body part,
-   plus LBS-driven Gaussians of the rest of the body; their colours (SH degree 0), opacities and scales are
-   fitted to frame 0 with L_RGB = |I - I*|_1 (+ a mask term).  The canonical geometry (object box, body
-   model, poses) is read from ``scene.json``/``poses.npz``; the spin-clip canonical reconstruction of §4.1
-   is not reproduced (the synthetic scenes give the geometry).
-2. **flow** (§4.4, Eq. 9): per-frame object particle positions x'_n optimised with RGB + mask losses and a
-   rigidity term (squared change of rest edge lengths to lattice neighbours, the as-rigid-as-possible
-   prior in its edge form); F of each particle from a least-squares fit to its neighbours' positions
-   enters the covariance (Eq. 3).  No optical-flow term (DIS/RAFT) in this reduced pipeline.  These
-   positions are also the **4DGS-like baseline** (per-frame optimised Gaussian deformation; it cannot
-   predict: it holds the last observed frame).
+   plus LBS-driven Gaussians of the rest of the body.  Canonical Gaussians: their colours (SH degree 0),
+   opacities and scales are fitted on the **spin clip** (``spin/``) with fixed skinning (F = the LBS
+   rotation blend, object at rest), L_RGB = |I - I*|_1 (+ a mask term); then the **physics-aware fine-tuning**
+   renders the spin clip with the deformation gradients of Alg. 1 run with sigma = 0 on the central-difference
+   velocities (Eq. 4, :mod:`physar.recon.canonical`) and refits the same parameters (Eq. 5).  Without a spin
+   clip, frame 0 of the dynamic clip is used.  The canonical geometry (object box, body model, poses) is read
+   from ``scene.json``/``poses.npz`` (the synthetic scenes give it).
+2. **flow**: (a) the **4DGS-like baseline**: per-frame object positions optimised with RGB + mask losses and
+   an edge-length rigidity term (F from a least-squares fit to lattice neighbours enters Eq. 3); it cannot
+   predict (it holds the last observed frame).  (b) the **structure-preserving 3-D flow** of §4.4, Eq. 9
+   (:mod:`physar.recon.flow`): per-frame positions x'_n optimised with RGB + mask, OpenCV-DIS optical flow
+   between consecutive observed frames, and ARAP w.r.t. the rest lattice; x'_n supervises stage 3.
 3. **physics** (§4.2-4.4, Eq. 6-11): per-particle Young's modulus E of the object (log-parameterised) and
    the LBS-impact factor omega of the simulated body particles (omega = g_i 2 sigmoid(l_i), g_i = 1 strictly
    inside the body, 0 elsewhere: object particles are never actuated) are learned through the
    differentiable MPM (:mod:`physar.mpm.torch_bridge`) and the rasteriser with
    L_E2E = lambda_rgb |I - I*|_1 + lambda_mask |A - M|_1 + lambda_3Dflow |x_{n+1} - x'_{n+1}|_1   (Eq. 10)
-   + R = lambda_omega ||omega||_2 [+ lambda_law (||E_theta|| + ||P_theta||) with the residual laws]  (Eq. 11),
-   progressive (the frame window grows every ``window_grow_every`` iterations) and loss-balanced
+   + R = lambda_omega ||omega||_2 [+ lambda_law ||E_theta|| + lambda_feat ||l_e|| with the residual laws]
+   (Eq. 11, App. A); log E lives on a coarse voxel grid interpolated trilinearly to the particles (the
+   "material space" of seed App. C.3) unless ``material_grid`` is 0; progressive (the frame window grows every ``window_grow_every`` iterations) and loss-balanced
    (each frame's loss is weighted by its previous loss relative to the mean).
 
 Baselines in the same harness: ``lbs`` (kinematic: the body follows LBS, the object never moves) and
@@ -37,9 +40,9 @@ import math
 import os
 import time
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
@@ -53,7 +56,7 @@ from physar.mpm.model import MPMModel
 from physar.recon import scene as S
 from physar.recon.io import read_pngs, save_json_atomic, save_npz_atomic, write_mp4
 
-MODEL_FORMAT = 1
+MODEL_FORMAT = 2
 Progress = Callable[[str, int, int, float], None]
 
 
@@ -65,25 +68,35 @@ class TrainConfig(BaseModel):
     body_spacing: float = Field(0.03, gt=0, description="spacing of the kinematic body Gaussians, m")
     appearance_iters: int = Field(150, ge=0)
     appearance_lr: float = Field(0.05, gt=0)
+    finetune_iters: int = Field(60, ge=0, description="physics-aware fine-tuning on the spin clip (Eq. 4-5)")
+    spin_stride: int = Field(1, ge=1, description="use every k-th spin frame")
     flow_iters: int = Field(30, ge=0, description="per frame (Eq. 9; also the 4DGS-like baseline)")
     flow_lr: float = Field(2e-3, gt=0, description="Adam step on positions, m")
-    rigidity: float = Field(1.0e3, ge=0, description="weight of the edge-length (ARAP) term, 1/m^2")
+    rigidity: float = Field(1.0e3, ge=0, description="4DGS-like baseline: weight of the edge-length term, 1/m^2")
+    spflow_iters: int = Field(30, ge=0, description="per frame, structure-preserving 3-D flow (Eq. 9)")
+    lambda_of: float = Field(0.02, ge=0, description="Eq. 9 optical-flow (DIS) term, per px")
+    lambda_arap: float = Field(3.0e4, ge=0, description="Eq. 9 ARAP term, 1/m^2")
     physics_iters: int = Field(40, ge=0)
     physics_lr: float = Field(0.15, gt=0, description="Adam step on log E and omega logits")
     E_init: float = Field(6.0e3, gt=0, description="initial Young's modulus of the object, Pa")
     E_min: float = Field(5.0e2, gt=0)
     E_max: float = Field(3.0e4, gt=0, description="upper bound (keep the explicit MPM step stable)")
+    material_grid: tuple[int, int, int] = Field((4, 3, 2), description="voxel nodes of the log E field per "
+                                                "axis over the object box; (0, 0, 0): one value per particle")
     omega_init: float = Field(1.0, gt=0, lt=2)
     window_start: int = Field(3, ge=2, description="frames in the first training window (progressive)")
     window_grow_every: int = Field(4, ge=1, description="iterations between window extensions")
     loss_balanced: bool = True
     lambda_rgb: float = Field(1.0, ge=0)
     lambda_mask: float = Field(1.0, ge=0)
-    lambda_flow: float = Field(20.0, ge=0, description="3-D flow term of Eq. 10, 1/m")
+    lambda_flow: float = Field(20.0, ge=0, description="3-D flow term of Eq. 10 (vs the Eq. 9 flow), 1/m")
     lambda_omega: float = Field(1.0e-5, ge=0, description="Eq. 11 (per-pixel mean losses: keep it small)")
     residual: bool = Field(False, description="neural residual laws E_theta with latents l_e (Eq. 8)")
+    latents: bool = Field(True, description="per-particle latents l_e of the residual law (ablation: False)")
     latent_dim: int = Field(16, ge=1)
+    net_lr: float = Field(1.0e-3, gt=0, description="Adam step of the residual network and the latents")
     lambda_law: float = Field(1.0e-4, ge=0, description="Eq. 11, residual magnitude")
+    lambda_feat: float = Field(1.0e-4, ge=0, description="App. A, latent magnitude")
     checkpoint_every: int = Field(5, ge=1, description="physics iterations between checkpoints")
     seed: int = 0
 
@@ -121,6 +134,7 @@ class Dataset:
     root_t: np.ndarray
     novel: dict | None = None
     truth: dict | None = None
+    spin: dict | None = None
 
     @property
     def n_obs(self) -> int:
@@ -154,7 +168,12 @@ def load_dataset(path: str | Path, with_truth: bool = True) -> Dataset:
         novel = {"rotations": r2, "root_t": t2, "rgb": read_pngs(root / "novel" / "rgb", len(r2)),
                  "mask": read_pngs(root / "novel" / "mask", len(r2), gray=True)}
     truth = _npz(root / "truth.npz") if with_truth and (root / "truth.npz").exists() else None
-    return Dataset(root, meta, rgb, mask, rot, rt, novel, truth)
+    spin = None
+    if (root / "spin_poses.npz").exists():
+        r3, t3 = S.check_poses(_npz(root / "spin_poses.npz"), nb, str(root / "spin_poses.npz"))
+        spin = {"rotations": r3, "root_t": t3, "rgb": read_pngs(root / "spin" / "rgb", len(r3)),
+                "mask": read_pngs(root / "spin" / "mask", len(r3), gray=True)}
+    return Dataset(root, meta, rgb, mask, rot, rt, novel, truth, spin)
 
 
 def _npz(path: Path) -> dict:
@@ -223,6 +242,7 @@ class Rig:
         B.index_add_(0, self.pairs[:, 0], dd)
         B.index_add_(0, self.pairs[:, 1], dd)
         self.B_inv = torch.linalg.inv(B + 1e-12 * torch.eye(3, dtype=torch.float64))
+        self.material_W = _trilinear_matrix(self.Xo, lo, hi, cfg.material_grid)
 
     def _in_view(self, X: np.ndarray, margin: float = 0.3) -> np.ndarray:
         K, R, t = S.camera_matrices(self.meta)
@@ -237,7 +257,7 @@ class Rig:
         ref, Ah = S.skin_sequence(self.body, self.Xh, rotations, root)
         xb, Ab = S.skin_sequence(self.body, self.Xb, rotations, root)
         vref = S.central_velocities(ref, 1.0 / self.meta["fps"])
-        t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
+        t = lambda a: torch.as_tensor(a, dtype=torch.float64)
         return {"ref": t(ref), "vref": t(vref), "A_h": t(Ah), "xb": t(xb), "A_b": t(Ab), "frames": len(ref)}
 
     def deformation_from_neighbours(self, x: torch.Tensor) -> torch.Tensor:
@@ -254,6 +274,31 @@ class Rig:
         return ((torch.linalg.vector_norm(d, dim=1) - self.rest_len) ** 2).mean()
 
 
+def _trilinear_matrix(X: np.ndarray, lo, hi, nodes) -> torch.Tensor | None:
+    """(N, G) trilinear interpolation weights of points X from a node grid spanning the box [lo, hi]
+    (``nodes`` per axis, >= 2; an axis with 1 node is constant); None for a per-particle field."""
+    nodes = tuple(int(k) for k in nodes)
+    if all(k == 0 for k in nodes):
+        return None
+    if any(k < 1 for k in nodes):
+        raise ConfigError(f"train.material_grid = {nodes}: use >= 1 node per axis, or (0, 0, 0)")
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    per_axis = []
+    for a, k in enumerate(nodes):
+        if k == 1:
+            per_axis.append(np.ones((len(X), 1)))
+            continue
+        s = np.clip((X[:, a] - lo[a]) / (hi[a] - lo[a]), 0, 1) * (k - 1)
+        i0 = np.minimum(np.floor(s).astype(int), k - 2)
+        t = s - i0
+        w = np.zeros((len(X), k))
+        w[np.arange(len(X)), i0] = 1 - t
+        w[np.arange(len(X)), i0 + 1] += t
+        per_axis.append(w)
+    W = np.einsum("ni,nj,nk->nijk", *per_axis).reshape(len(X), -1)
+    return torch.as_tensor(W, dtype=torch.float64)
+
+
 @dataclass
 class Appearance:
     """Per-Gaussian appearance over [object | simulated body | kinematic body] (float32 tensors)."""
@@ -263,7 +308,7 @@ class Appearance:
     log_scales: torch.Tensor
 
     @classmethod
-    def init(cls, rig: Rig) -> "Appearance":
+    def init(cls, rig: Rig) -> Appearance:
         n = rig.no + rig.nh + rig.nb
         s = np.r_[np.full(rig.no + rig.nh, 0.5 * rig.h), np.full(rig.nb, 0.5 * rig.cfg.body_spacing)]
         return cls(rgb_to_sh0(torch.full((n, 1, 3), 0.5)), torch.full((n,), 1.5),
@@ -300,9 +345,10 @@ class Physics:
     l_e: torch.Tensor | None = None
 
     @classmethod
-    def init(cls, rig: Rig) -> "Physics":
+    def init(cls, rig: Rig) -> Physics:
         cfg = rig.cfg
-        le = torch.full((rig.no,), math.log(cfg.E_init), dtype=torch.float64)
+        n_e = rig.no if rig.material_W is None else rig.material_W.shape[1]
+        le = torch.full((n_e,), math.log(cfg.E_init), dtype=torch.float64)
         w = cfg.omega_init / 2
         ol = torch.full((rig.nh,), math.log(w / (1 - w)), dtype=torch.float64)
         nets = l_e = None
@@ -311,21 +357,27 @@ class Physics:
 
             torch.manual_seed(cfg.seed)
             nets = NeuralResidual(elastic=True, plastic=False, latent_dim=cfg.latent_dim)
-            l_e = torch.zeros(rig.no + rig.nh, cfg.latent_dim, dtype=torch.float64)
+            if cfg.latents:  # small random latents break the symmetry between particles
+                g = torch.Generator().manual_seed(cfg.seed)
+                l_e = 0.1 * torch.randn(rig.no + rig.nh, cfg.latent_dim, dtype=torch.float64, generator=g)
         return cls(le, ol, nets, l_e)
 
     def leaves(self):
         out = [self.log_E, self.omega_logit]
         if self.nets is not None:
-            out += [self.l_e, *self.nets.parameters()]
+            out += ([self.l_e] if self.l_e is not None else []) + [*self.nets.parameters()]
         return out
+
+    def E_object(self, rig: Rig) -> torch.Tensor:
+        """Young's modulus of the object particles (No,), Pa: exp of the (interpolated) log E field."""
+        return torch.exp(self.log_E if rig.material_W is None else rig.material_W @ self.log_E)
 
     def omega(self, rig: Rig) -> torch.Tensor:
         """Full omega (No + Nh,): 0 on the object, gate * 2 sigmoid(l) on the body (Eq. 7)."""
         return torch.cat([torch.zeros(rig.no, dtype=torch.float64), rig.gate * 2 * torch.sigmoid(self.omega_logit)])
 
     def params(self, rig: Rig) -> tb.Params:
-        E = torch.cat([torch.exp(self.log_E), rig.E_human])
+        E = torch.cat([self.E_object(rig), rig.E_human])
         return tb.Params(E=E, nu=rig.nu, omega=self.omega(rig), l_e=self.l_e, kp=rig.kp, kd=rig.kd)
 
 
@@ -350,29 +402,56 @@ def simulate_clip(rig: Rig, phys: Physics, kin: dict, frames: int, grad: bool = 
 
 
 # ----------------------------------------------------------------------------------------------- fit
+# configuration fields that stages 1-2 depend on (a physics-only variant may reuse those stages)
+_PRE_PHYSICS = ("particles_per_cell", "body_spacing", "appearance_iters", "appearance_lr", "finetune_iters",
+                "spin_stride", "flow_iters", "flow_lr", "rigidity", "spflow_iters", "lambda_of", "lambda_arap",
+                "lambda_rgb", "lambda_mask", "seed")
+
+
 @dataclass
 class FitState:
     stage: str = "appearance"
     iteration: int = 0
     app: Appearance | None = None
-    flow: list = field(default_factory=list)  # per observed frame: object positions (No, 3) float64
+    flow: list = field(default_factory=list)  # 4DGS-like baseline: per observed frame object positions
+    spflow: list = field(default_factory=list)  # Eq. 9 structure-preserving 3-D flow x'_n
     phys: Physics | None = None
     opt_state: dict | None = None
-    history: dict = field(default_factory=lambda: {"appearance": [], "flow": [], "physics": []})
+    history: dict = field(default_factory=lambda: {"appearance": [], "finetune": [], "flow": [], "spflow": [],
+                                                   "physics": []})
     frame_loss: list | None = None
     seconds: float = 0.0
+    info: dict = field(default_factory=dict)
 
 
-def _save_checkpoint(run_dir: Path, st: FitState, cfg: TrainConfig, opt=None) -> None:
-    d = {"config": cfg.model_dump(), "stage": st.stage, "iteration": st.iteration,
-         "app": [t.detach() for t in st.app.params()] if st.app else None,
-         "flow": [t.detach() for t in st.flow],
-         "phys": [t.detach() for t in st.phys.leaves()] if st.phys else None,
-         "opt": opt.state_dict() if opt is not None else None, "history": st.history,
-         "frame_loss": st.frame_loss, "seconds": st.seconds}
-    tmp = run_dir / "tmp_checkpoint.pt"
-    torch.save(d, tmp)
-    os.replace(tmp, run_dir / "checkpoint.pt")
+def _state_dict(st: FitState, cfg: TrainConfig, opt=None) -> dict:
+    return {"config": cfg.model_dump(), "stage": st.stage, "iteration": st.iteration,
+            "app": [t.detach() for t in st.app.params()] if st.app else None,
+            "flow": [t.detach() for t in st.flow], "spflow": [t.detach() for t in st.spflow],
+            "phys": [t.detach() for t in st.phys.leaves()] if st.phys else None,
+            "opt": opt.state_dict() if opt is not None else None, "history": st.history,
+            "frame_loss": st.frame_loss, "seconds": st.seconds, "info": st.info}
+
+
+def _save_checkpoint(run_dir: Path, st: FitState, cfg: TrainConfig, opt=None, name: str = "checkpoint.pt") -> None:
+    tmp = run_dir / ("tmp_" + name)
+    torch.save(_state_dict(st, cfg, opt), tmp)
+    os.replace(tmp, run_dir / name)
+
+
+def _state_from(d: dict, rig: Rig) -> FitState:
+    st = FitState(stage=d["stage"], iteration=d["iteration"], history=d["history"], frame_loss=d["frame_loss"],
+                  seconds=d["seconds"], info=d.get("info", {}))
+    if d["app"] is not None:
+        st.app = Appearance(*d["app"])
+    st.flow, st.spflow = list(d["flow"]), list(d.get("spflow", []))
+    if d["phys"] is not None:
+        st.phys = Physics.init(rig)
+        with torch.no_grad():
+            for a, b in zip(st.phys.leaves(), d["phys"]):
+                a.copy_(b)
+    st.opt_state = d["opt"]
+    return st
 
 
 def _load_checkpoint(run_dir: Path, rig: Rig, cfg: TrainConfig) -> FitState | None:
@@ -383,24 +462,60 @@ def _load_checkpoint(run_dir: Path, rig: Rig, cfg: TrainConfig) -> FitState | No
     if d["config"] != cfg.model_dump():
         raise ConfigError(f"{p}: checkpoint was made with another configuration; use a new --out folder "
                           "or --restart")
-    st = FitState(stage=d["stage"], iteration=d["iteration"], history=d["history"], frame_loss=d["frame_loss"],
-                  seconds=d["seconds"])
-    if d["app"] is not None:
-        st.app = Appearance(*d["app"])
-    st.flow = list(d["flow"])
-    if d["phys"] is not None:
-        st.phys = Physics.init(rig)
-        with torch.no_grad():
-            for a, b in zip(st.phys.leaves(), d["phys"]):
-                a.copy_(b)
-    st.opt_state = d["opt"]
+    return _state_from(d, rig)
+
+
+def _load_stages(reuse: Path, rig: Rig, cfg: TrainConfig) -> FitState:
+    """Stages 1-2 of another run (RUN_DIR/stages.pt), for physics-only variants (ablations)."""
+    p = Path(reuse) / "stages.pt"
+    if not p.exists():
+        raise ConfigError(f"--reuse {reuse}: missing {p} (that run has not finished its flow stages)")
+    d = torch.load(p, weights_only=True)
+    mine = cfg.model_dump()
+    bad = [k for k in _PRE_PHYSICS if d["config"].get(k) != mine[k]]
+    if bad:
+        raise ConfigError(f"--reuse {reuse}: its stages were fitted with other settings ({', '.join(bad)})")
+    st = _state_from(d, rig)
+    st.phys, st.opt_state, st.frame_loss, st.iteration, st.stage = None, None, None, 0, "physics"
+    st.history["physics"] = []
     return st
 
 
+def _spin_kinematics(rig: Rig, spin: dict, stride: int) -> dict:
+    """Spin-clip LBS of the simulated and kinematic body Gaussians, their LBS rotations (fixed skinning) and
+    the Alg. 1 (sigma = 0) deformation gradients of Eq. 4-5 (:mod:`physar.recon.canonical`)."""
+    from physar.recon.canonical import zero_stress_deformation
+
+    kin = rig.kinematics(spin["rotations"], spin["root_t"])
+    sim = rig.meta["sim"]
+    x = torch.cat([kin["ref"], kin["xb"]], 1)
+    F = zero_stress_deformation(x, 1.0 / rig.meta["fps"], sim["substeps"], max(rig.h, rig.cfg.body_spacing))
+    sel = list(range(0, kin["frames"], stride))
+    return {"frames": sel, "ref": kin["ref"], "A_h": kin["A_h"], "xb": kin["xb"], "A_b": kin["A_b"],
+            "F_h": F[:, :rig.nh], "F_b": F[:, rig.nh:], "rgb": torch.as_tensor(spin["rgb"]),
+            "mask": torch.as_tensor(spin["mask"])}
+
+
+def _spin_psnr(rig: Rig, app: Appearance, sk: dict, physics_F: bool) -> float:
+    from physar.recon.metrics import psnr
+
+    Xo = torch.as_tensor(rig.Xo)
+    I_o = torch.eye(3, dtype=torch.float64).expand(rig.no, 3, 3)
+    vals = []
+    with torch.no_grad():
+        for f in sk["frames"]:
+            Fh, Fb = (sk["F_h"][f], sk["F_b"][f]) if physics_F else (sk["A_h"][f], sk["A_b"][f])
+            r = render_scene(rig, app, Xo, I_o, sk["ref"][f], Fh, sk["xb"][f], Fb)
+            vals.append(psnr(r.rgb.numpy(), sk["rgb"][f].numpy()))
+    return float(np.mean(vals))
+
+
 def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = None,
-        progress: Progress | None = None, restart: bool = False) -> dict:
-    """Run the three stages on DATA_DIR and write RUN_DIR (model.npz, gaussians.ply, report.json,
-    preview.mp4).  Resumes from RUN_DIR/checkpoint.pt unless ``restart``.  Returns the report dict."""
+        progress: Progress | None = None, restart: bool = False, reuse: str | Path | None = None) -> dict:
+    """Run the stages on DATA_DIR and write RUN_DIR (model.npz, gaussians.ply, report.json, preview.mp4).
+    Resumes from RUN_DIR/checkpoint.pt unless ``restart``; ``reuse`` = another RUN_DIR whose stages 1-2
+    (appearance, flows) are taken as they are (physics-only variants such as the ablations).  Returns the
+    report dict."""
     cfg = cfg or TrainConfig()
     ds = load_dataset(data_dir)
     run = Path(run_dir)
@@ -410,7 +525,9 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
     torch.manual_seed(cfg.seed)
     rig = Rig(ds.meta, cfg)
     kin = rig.kinematics(ds.rotations, ds.root_t)
-    st = _load_checkpoint(run, rig, cfg) or FitState()
+    st = _load_checkpoint(run, rig, cfg)
+    if st is None:
+        st = _load_stages(reuse, rig, cfg) if reuse is not None else FitState()
     rgb = torch.as_tensor(ds.rgb)
     mask = torch.as_tensor(ds.mask)
     prog = progress or (lambda *a: None)
@@ -418,26 +535,45 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
     Xo = torch.as_tensor(rig.Xo)
     I_o = torch.eye(3, dtype=torch.float64).expand(rig.no, 3, 3)
 
-    # ---- stage 1: appearance on frame 0 (Eq. 5)
+    # ---- stage 1: canonical Gaussians (spin clip, fixed skinning) and physics-aware fine-tuning (§4.1)
     if st.stage == "appearance":
         st.app = st.app or Appearance.init(rig)
         for t in st.app.params():
             t.requires_grad_(True)
-        opt = torch.optim.Adam(st.app.params(), lr=cfg.appearance_lr)
-        for it in range(cfg.appearance_iters):
-            res = render_scene(rig, st.app, Xo, I_o, kin["ref"][0], kin["A_h"][0], kin["xb"][0], kin["A_b"][0])
-            loss = image_loss(res, rgb[0], mask[0], cfg)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            st.history["appearance"].append(float(loss.detach()))
-            prog("appearance", it + 1, cfg.appearance_iters, float(loss.detach()))
+        sk = _spin_kinematics(rig, ds.spin, cfg.spin_stride) if ds.spin is not None else None
+        gen = torch.Generator().manual_seed(cfg.seed)
+
+        def frame_loss(physics_F: bool):
+            if sk is None:
+                res = render_scene(rig, st.app, Xo, I_o, kin["ref"][0], kin["A_h"][0], kin["xb"][0], kin["A_b"][0])
+                return image_loss(res, rgb[0], mask[0], cfg)
+            f = sk["frames"][int(torch.randint(len(sk["frames"]), (1,), generator=gen))]
+            Fh, Fb = (sk["F_h"][f], sk["F_b"][f]) if physics_F else (sk["A_h"][f], sk["A_b"][f])
+            res = render_scene(rig, st.app, Xo, I_o, sk["ref"][f], Fh, sk["xb"][f], Fb)
+            return image_loss(res, sk["rgb"][f], sk["mask"][f], cfg)
+
+        for name, iters, physics_F in (("appearance", cfg.appearance_iters, False),
+                                       ("finetune", cfg.finetune_iters if sk is not None else 0, True)):
+            opt = torch.optim.Adam(st.app.params(), lr=cfg.appearance_lr if name == "appearance"
+                                   else 0.3 * cfg.appearance_lr)
+            if name == "finetune":
+                st.info["spin_psnr_lbs_F"] = _spin_psnr(rig, st.app, sk, False)
+                st.info["spin_psnr_physics_F_before_finetune"] = _spin_psnr(rig, st.app, sk, True)
+            for it in range(iters):
+                loss = frame_loss(physics_F)
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+                st.history[name].append(float(loss.detach()))
+                prog(name, it + 1, iters, float(loss.detach()))
+            if name == "finetune" and sk is not None:
+                st.info["spin_psnr_physics_F_after_finetune"] = _spin_psnr(rig, st.app, sk, True)
         st.stage, st.iteration, st.flow = "flow", 0, [Xo.clone()]
         st.seconds = time.perf_counter() - t0
         _save_checkpoint(run, st, cfg)
     app = Appearance(*[t.detach() for t in st.app.params()])
 
-    # ---- stage 2: structure-preserving per-frame positions (Eq. 9) = 4DGS-like baseline
+    # ---- stage 2a: per-frame positions with RGB + mask + edge rigidity = the 4DGS-like baseline
     if st.stage == "flow":
         for f in range(len(st.flow), ds.n_obs):
             x = st.flow[-1].clone().requires_grad_(True)
@@ -454,8 +590,40 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
             prog("flow", f, ds.n_obs - 1, float(loss.detach()))
             st.seconds = time.perf_counter() - t0
             _save_checkpoint(run, st, cfg)
+        st.stage, st.iteration, st.spflow = "spflow", 0, [Xo.clone()]
+        _save_checkpoint(run, st, cfg)
+
+    # ---- stage 2b: structure-preserving 3-D flow, RGB + DIS optical flow + ARAP (Eq. 9)
+    if st.stage == "spflow":
+        from physar.recon.flow import arap_energy, dis_flow, flow_loss, project, visible
+
+        K, Rc, tc = (torch.as_tensor(a) for a in S.camera_matrices(rig.meta))
+        for f in range(len(st.spflow), ds.n_obs):
+            xp = st.spflow[-1]
+            with torch.no_grad():
+                r0 = render_scene(rig, app, xp, rig.deformation_from_neighbours(xp), kin["ref"][f - 1],
+                                  kin["A_h"][f - 1], kin["xb"][f - 1], kin["A_b"][f - 1])
+            uv, z = project(xp, K, Rc, tc)
+            vis = visible(uv, z, r0.depth.double(), r0.alpha.double(), tol=rig.h)
+            of = torch.as_tensor(dis_flow(ds.rgb[f - 1], ds.rgb[f]), dtype=torch.float64)
+            x = xp.clone().requires_grad_(True)
+            opt = torch.optim.Adam([x], lr=cfg.flow_lr)
+            for it in range(cfg.spflow_iters):
+                res = render_scene(rig, app, x, rig.deformation_from_neighbours(x), kin["ref"][f], kin["A_h"][f],
+                                   kin["xb"][f], kin["A_b"][f])
+                loss = (image_loss(res, rgb[f], mask[f], cfg) + cfg.lambda_of * flow_loss(xp, x, of, vis, K, Rc, tc)
+                        + cfg.lambda_arap * arap_energy(x, Xo, rig.pairs))
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+            st.history["spflow"].append(float(loss.detach()))
+            st.spflow.append(x.detach())
+            prog("spflow", f, ds.n_obs - 1, float(loss.detach()))
+            st.seconds = time.perf_counter() - t0
+            _save_checkpoint(run, st, cfg)
         st.stage, st.iteration = "physics", 0
         _save_checkpoint(run, st, cfg)
+        _save_checkpoint(run, st, cfg, name="stages.pt")
 
     # ---- stage 3: end-to-end physics (Eq. 10-11), progressive and loss-balanced
     if st.stage == "physics":
@@ -463,7 +631,10 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
         leaves = st.phys.leaves()
         for t in leaves:
             t.requires_grad_(True)
-        opt = torch.optim.Adam(leaves, lr=cfg.physics_lr)
+        groups = [{"params": leaves[:2], "lr": cfg.physics_lr}]
+        if len(leaves) > 2:
+            groups.append({"params": leaves[2:], "lr": cfg.net_lr})
+        opt = torch.optim.Adam(groups)
         if st.opt_state is not None:
             opt.load_state_dict(st.opt_state)
         lo_E, hi_E = math.log(cfg.E_min), math.log(cfg.E_max)
@@ -478,13 +649,15 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
             for f, xo, Fo, xh, Fh in simulate_clip(rig, st.phys, kin, W):
                 res = render_scene(rig, app, xo, Fo, xh, Fh, kin["xb"][f], kin["A_b"][f])
                 lf = image_loss(res, rgb[f], mask[f], cfg)
-                if cfg.lambda_flow > 0 and f < len(st.flow):
-                    lf = lf + cfg.lambda_flow * (xo - st.flow[f]).abs().mean()
+                if cfg.lambda_flow > 0 and f < len(st.spflow):
+                    lf = lf + cfg.lambda_flow * (xo - st.spflow[f]).abs().mean()
                 per.append(float(lf.detach()))
                 total = total + wts[f] * lf / (W - 1)
             reg = cfg.lambda_omega * torch.linalg.vector_norm(st.phys.omega(rig))
             if st.phys.nets is not None:
                 reg = reg + cfg.lambda_law * _residual_norm(st.phys, Fo)
+                if st.phys.l_e is not None:
+                    reg = reg + cfg.lambda_feat * torch.linalg.vector_norm(st.phys.l_e)
             loss = total + reg
             opt.zero_grad()
             loss.backward()
@@ -495,7 +668,7 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
             st.frame_loss = per + fl_prev[len(per):]
             st.history["physics"].append(float(loss.detach()))
             st.iteration += 1
-            prog("physics", st.iteration, cfg.physics_iters, float(loss))
+            prog("physics", st.iteration, cfg.physics_iters, float(loss.detach()))
             if st.iteration % cfg.checkpoint_every == 0 or st.iteration == cfg.physics_iters:
                 st.seconds = time.perf_counter() - t0
                 _save_checkpoint(run, st, cfg, opt)
@@ -503,12 +676,13 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
         st.seconds = time.perf_counter() - t0
         _save_checkpoint(run, st, cfg, opt)
 
-    recon = Reconstruction(rig, app, st.flow, st.phys, ds.root)
+    recon = Reconstruction(rig, app, st.flow, st.phys, ds.root, st.spflow)
     recon.save(run / "model.npz", cfg, st)
     canon = render_gaussians_canonical(rig, app, kin)
     save_ply(run / "gaussians.ply", canon)
     report = evaluate(recon, ds, progress=progress)
     report["train_seconds"] = st.seconds
+    report["canonical"] = st.info
     report["history_final"] = {k: (v[-1] if v else None) for k, v in st.history.items()}
     report["history_first"] = {k: (v[0] if v else None) for k, v in st.history.items()}
     save_json_atomic(run / "report.json", report)
@@ -522,7 +696,7 @@ def _residual_norm(phys: Physics, F_obj: torch.Tensor) -> torch.Tensor:
 
     sv = torch.linalg.svdvals(F_obj.detach())  # features only; the residual's weights get the gradient
     feat = invariant_features(F_obj, sv)
-    out = phys.nets.elastic(feat, phys.l_e[:F_obj.shape[0]])
+    out = phys.nets.elastic(feat, None if phys.l_e is None else phys.l_e[:F_obj.shape[0]])
     return torch.linalg.vector_norm(out)
 
 
@@ -538,13 +712,14 @@ def render_gaussians_canonical(rig: Rig, app: Appearance, kin: dict) -> Gaussian
 # ----------------------------------------------------------------------------------------------- predict
 @dataclass
 class Reconstruction:
-    """A fitted scene: rig, appearance, per-frame flow (4DGS baseline) and learned physics."""
+    """A fitted scene: rig, appearance, per-frame flows (4DGS-like baseline, Eq. 9) and learned physics."""
 
     rig: Rig
     app: Appearance
     flow: list
     phys: Physics
     data_dir: Path | None = None
+    spflow: list = field(default_factory=list)
 
     def save(self, path: Path, cfg: TrainConfig, st: FitState) -> None:
         arrays = {
@@ -554,19 +729,22 @@ class Reconstruction:
             "sh": self.app.sh.numpy(), "opacity_logits": self.app.opacity_logits.numpy(),
             "log_scales": self.app.log_scales.numpy(),
             "flow": torch.stack(self.flow).numpy(),
-            "E": torch.exp(self.phys.log_E).detach().numpy(), "omega": self.phys.omega(self.rig).detach().numpy(),
+            "spflow": torch.stack(self.spflow or self.flow).numpy(),
+            "log_E_param": self.phys.log_E.detach().numpy(),
+            "E": self.phys.E_object(self.rig).detach().numpy(), "omega": self.phys.omega(self.rig).detach().numpy(),
             "omega_logit": self.phys.omega_logit.detach().numpy(),
             "object_rest": self.rig.Xo, "body_rest": self.rig.Xh,
             "loss_physics": np.asarray(st.history["physics"], dtype=np.float64),
         }
         if self.phys.nets is not None:
-            arrays["l_e"] = self.phys.l_e.detach().numpy()
+            if self.phys.l_e is not None:
+                arrays["l_e"] = self.phys.l_e.detach().numpy()
             for k, v in self.phys.nets.state_dict().items():
                 arrays[f"net.{k}"] = v.numpy()
         save_npz_atomic(path, **arrays)
 
     @classmethod
-    def load(cls, path: str | Path) -> "Reconstruction":
+    def load(cls, path: str | Path) -> Reconstruction:
         path = Path(path)
         if path.is_dir():
             path = path / "model.npz"
@@ -579,16 +757,19 @@ class Reconstruction:
                          torch.as_tensor(d["log_scales"]))
         phys = Physics.init(rig)
         with torch.no_grad():
-            phys.log_E.copy_(torch.log(torch.as_tensor(d["E"])))
+            phys.log_E.copy_(torch.as_tensor(d["log_E_param"]))
             phys.omega_logit.copy_(torch.as_tensor(d["omega_logit"]))
-            if phys.nets is not None:
+            if phys.l_e is not None:
                 phys.l_e.copy_(torch.as_tensor(d["l_e"]))
+            if phys.nets is not None:
                 phys.nets.load_state_dict({k[4:]: torch.as_tensor(v) for k, v in d.items() if k.startswith("net.")})
-        return cls(rig, app, list(torch.as_tensor(d["flow"])), phys, Path(str(d["data_dir"])) or None)
+        return cls(rig, app, list(torch.as_tensor(d["flow"])), phys, Path(str(d["data_dir"])) or None,
+                   list(torch.as_tensor(d["spflow"])))
 
     def predict(self, rotations: np.ndarray, root: np.ndarray, method: str = "physics",
                 progress: Progress | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Render a pose sequence (F frames) with ``method`` in physics | lbs | 4dgs.
+        """Render a pose sequence (F frames) with ``method`` in physics | lbs | 4dgs | spflow (the per-frame
+        methods hold their last observed frame).
 
         Returns rgb (F, H, W, 3) and alpha (F, H, W) as float32 numpy arrays; frame 0 is the canonical scene."""
         rig = self.rig
@@ -612,20 +793,21 @@ class Reconstruction:
         if method == "physics":
             for f, xo, Fo, xh, Fh in simulate_clip(rig, self.phys, kin, n, grad=False):
                 emit(f, xo, Fo, xh, Fh)
-        elif method in ("lbs", "4dgs"):
+        elif method in ("lbs", "4dgs", "spflow"):
+            per_frame = self.flow if method == "4dgs" else (self.spflow or self.flow)
             for f in range(1, n):
                 if method == "lbs":
                     xo, Fo = Xo, I_o
                 else:
-                    xo = self.flow[min(f, len(self.flow) - 1)]
+                    xo = per_frame[min(f, len(per_frame) - 1)]
                     Fo = rig.deformation_from_neighbours(xo)
                 emit(f, xo, Fo, kin["ref"][f], kin["A_h"][f])
         else:
-            raise PhysarError(f"unknown method '{method}': use physics, lbs or 4dgs")
+            raise PhysarError(f"unknown method '{method}': use physics, lbs, 4dgs or spflow")
         return np.stack(out_rgb), np.stack(out_a)
 
 
-METHODS = ("physics", "lbs", "4dgs")
+METHODS = ("physics", "lbs", "4dgs", "spflow")
 
 
 def evaluate(recon: Reconstruction, ds: Dataset, methods=METHODS, progress: Progress | None = None) -> dict:
@@ -645,7 +827,7 @@ def evaluate(recon: Reconstruction, ds: Dataset, methods=METHODS, progress: Prog
             if disp is not None:
                 res[name + "_large"] = sequence_metrics(rgb, a, ds.rgb, ds.mask, large_deformation_frames(disp, fr))
         if ds.novel is not None:
-            m2 = "lbs" if m == "4dgs" else m  # a per-frame deformation cannot follow new poses
+            m2 = "lbs" if m in ("4dgs", "spflow") else m  # a per-frame deformation cannot follow new poses
             rgb2, a2 = recon.predict(ds.novel["rotations"], ds.novel["root_t"], m2, progress)
             fr = list(range(1, len(rgb2)))
             res["novel"] = sequence_metrics(rgb2, a2, ds.novel["rgb"], ds.novel["mask"], fr)
@@ -655,9 +837,41 @@ def evaluate(recon: Reconstruction, ds: Dataset, methods=METHODS, progress: Prog
         out["methods"][m] = res
     if ds.truth is not None:
         out["material"] = material_error(recon, ds.truth)
+        if "dynamic_object_positions" in ds.truth:
+            out["object_3d_error_mm"] = object_3d_errors(recon, ds)
     om = recon.phys.omega(recon.rig).detach().numpy()
     out["omega"] = {"object_max_abs": float(np.abs(om[:recon.rig.no]).max()),
                     "body_mean": float(om[recon.rig.no:].mean())}
+    return out
+
+
+def cell_average_truth(rig: Rig, truth: dict) -> np.ndarray:
+    """Ground-truth object trajectories (F, No, 3) at the reconstruction's particles: mean of the fine
+    particles whose nearest reconstruction particle (at rest) it is."""
+    idx = cKDTree(rig.Xo).query(truth["rest_positions"])[1]
+    cnt = np.bincount(idx, minlength=rig.no).astype(np.float64)
+    xt = np.asarray(truth["dynamic_object_positions"], dtype=np.float64)
+    out = np.zeros((len(xt), rig.no, 3))
+    for f in range(len(xt)):
+        for a in range(3):
+            out[f, :, a] = np.bincount(idx, weights=xt[f, :, a], minlength=rig.no)
+    return out / np.maximum(cnt, 1)[None, :, None]
+
+
+def object_3d_errors(recon: Reconstruction, ds: Dataset) -> dict:
+    """Mean 3-D distance (mm) of the object particles to the cell-averaged truth over the observed frames
+    1..n_obs-1, per method (lbs = the object at rest), and the floor of the discretisation (frame 0)."""
+    rig = recon.rig
+    gt = cell_average_truth(rig, ds.truth)
+    frames = range(1, ds.n_obs)
+    err = lambda x, f: float(np.linalg.norm(np.asarray(x) - gt[f], axis=1).mean() * 1e3)
+    out = {"floor_frame0": err(rig.Xo, 0), "lbs": float(np.mean([err(rig.Xo, f) for f in frames])),
+           "4dgs": float(np.mean([err(recon.flow[f], f) for f in frames]))}
+    if recon.spflow:
+        out["spflow"] = float(np.mean([err(recon.spflow[f], f) for f in frames]))
+    kin = rig.kinematics(ds.rotations, ds.root_t)
+    sim = {f: xo.numpy() for f, xo, *_ in simulate_clip(rig, recon.phys, kin, ds.n_obs, grad=False)}
+    out["physics"] = float(np.mean([err(sim[f], f) for f in frames]))
     return out
 
 
@@ -667,13 +881,15 @@ def material_error(recon: Reconstruction, truth: dict) -> dict:
     rig = recon.rig
     idx = cKDTree(truth["rest_positions"]).query(rig.Xo)[1]
     Et = truth["E"][idx]
-    E = torch.exp(recon.phys.log_E).detach().numpy()
+    E = recon.phys.E_object(rig).detach().numpy()
     soft = Et <= np.median(Et) if Et.min() == Et.max() else Et == Et.min()
     return {"mean_abs_log10_error": float(np.mean(np.abs(np.log10(E / Et)))),
             "initial_mean_abs_log10_error": float(np.mean(np.abs(np.log10(rig.cfg.E_init / Et)))),
             "E_soft_true": float(Et[soft].mean()), "E_stiff_true": float(Et[~soft].mean()),
             "E_soft_learned_geomean": float(np.exp(np.log(E[soft]).mean())),
-            "E_stiff_learned_geomean": float(np.exp(np.log(E[~soft]).mean()))}
+            "E_stiff_learned_geomean": float(np.exp(np.log(E[~soft]).mean())),
+            "stiff_soft_ratio_true": float(np.exp(np.log(Et[~soft]).mean() - np.log(Et[soft]).mean())),
+            "stiff_soft_ratio_learned": float(np.exp(np.log(E[~soft]).mean() - np.log(E[soft]).mean()))}
 
 
 def _preview(recon: Reconstruction, ds: Dataset, path: Path) -> bool:

@@ -1,0 +1,115 @@
+"""Structure-preserving 3-D flow of seed 002 §4.4 (Eq. 9): the losses of the per-frame position optimisation.
+
+    L_SP-Flow = lambda_rgb L_rgb + lambda_flow L_flow + lambda_arap L_arap                     (Eq. 9)
+
+* L_rgb: the image loss of the rendered frame (in :mod:`physar.recon.train`).
+* L_flow (:func:`flow_loss`): 2-D optical flow between consecutive observed frames, computed by OpenCV's DIS
+  (Kroeger et al. 2016; RAFT weights are not reachable offline), compared with the image motion of the
+  particles visible in frame n-1:  mean_i |pi(x'_n,i) - pi(x'_{n-1},i) - u(pi(x'_{n-1},i))|_1  (px), u sampled
+  bilinearly; visibility = the particle is no deeper than the rendered (alpha-normalised) depth + a tolerance
+  and the pixel is covered.
+* L_arap (:func:`arap_energy`): as-rigid-as-possible energy (Sorkine & Alexa 2007) with respect to the rest
+  (canonical) lattice, E = mean over edges (i, j) of |(x_i - x_j) - R_i (X_i - X_j)|^2 (m^2), R_i the rotation
+  of the polar decomposition of S_i = sum_j (x_i - x_j)(X_i - X_j)^T (the optimal local rotation).  R_i is
+  held fixed when differentiating, which gives the exact gradient at the optimal rotations (envelope theorem).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import torch
+
+from physar.errors import PhysarError
+
+
+def dis_flow(img0: np.ndarray, img1: np.ndarray, preset: str = "medium") -> np.ndarray:
+    """Dense optical flow (H, W, 2) (px, (dx, dy)) from img0 to img1 (RGB float in [0, 1] or uint8) by DIS.
+
+    Flow is sampled at pixel centres: img1(p + u(p)) ~ img0(p)."""
+    presets = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+               "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
+    if preset not in presets:
+        raise PhysarError(f"dis_flow: unknown preset {preset!r}; use {', '.join(presets)}")
+    a, b = np.asarray(img0), np.asarray(img1)
+    if a.shape != b.shape:
+        raise PhysarError(f"dis_flow: image shapes differ {a.shape} vs {b.shape}")
+
+    def gray(z):
+        z = np.asarray(z)
+        if z.dtype != np.uint8:
+            z = (np.clip(z, 0, 1) * 255 + 0.5).astype(np.uint8)
+        return cv2.cvtColor(z, cv2.COLOR_RGB2GRAY) if z.ndim == 3 else z
+
+    dis = cv2.DISOpticalFlow_create(presets[preset])
+    if min(a.shape[:2]) < 256:  # small frames: denser patches, down to the finest scale (sub-pixel motion)
+        dis.setPatchStride(2)
+        dis.setFinestScale(0)
+        dis.setVariationalRefinementIterations(5)
+    return dis.calc(gray(a), gray(b), None).astype(np.float32)
+
+
+def project(x: torch.Tensor, K: torch.Tensor, R: torch.Tensor, t: torch.Tensor):
+    """Pixel coordinates (N, 2) (pixel centres at i + 0.5) and camera depths (N,) of world points x (N, 3)."""
+    p = x @ R.T + t
+    z = p[:, 2]
+    uv = torch.stack([K[0, 0] * p[:, 0] / z + K[0, 2], K[1, 1] * p[:, 1] / z + K[1, 2]], 1)
+    return uv, z
+
+
+def sample_bilinear(img: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """Values (N, C) of an (H, W, C) image at continuous pixel coordinates uv (N, 2) (centres at i + 0.5),
+    clamped at the border."""
+    H, W = img.shape[:2]
+    u = (uv[:, 0] - 0.5).clamp(0, W - 1)
+    v = (uv[:, 1] - 0.5).clamp(0, H - 1)
+    u0, v0 = u.floor().long().clamp(max=W - 2), v.floor().long().clamp(max=H - 2)
+    a, b = (u - u0)[:, None], (v - v0)[:, None]
+    return ((1 - a) * (1 - b) * img[v0, u0] + a * (1 - b) * img[v0, u0 + 1]
+            + (1 - a) * b * img[v0 + 1, u0] + a * b * img[v0 + 1, u0 + 1])
+
+
+def visible(uv: torch.Tensor, z: torch.Tensor, depth: torch.Tensor, alpha: torch.Tensor, tol: float,
+            min_alpha: float = 0.5) -> torch.Tensor:
+    """Particles inside the image, on a covered pixel, and at most ``tol`` (m) behind the rendered surface
+    (depth normalised by alpha)."""
+    H, W = alpha.shape
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H) & (z > 0)
+    i = uv[:, 0].long().clamp(0, W - 1)
+    j = uv[:, 1].long().clamp(0, H - 1)
+    a = alpha[j, i]
+    surf = depth[j, i] / a.clamp_min(1e-6)
+    return inside & (a >= min_alpha) & (z <= surf + tol)
+
+
+def flow_loss(x_prev: torch.Tensor, x_new: torch.Tensor, flow: torch.Tensor, vis: torch.Tensor, K, R, t):
+    """L_flow of Eq. 9 (px): mean |pi(x_new) - pi(x_prev) - u(pi(x_prev))|_1 over the visible particles."""
+    if not bool(vis.any()):
+        return torch.zeros((), dtype=x_new.dtype)
+    uv0, _ = project(x_prev[vis], K, R, t)
+    uv1, _ = project(x_new[vis], K, R, t)
+    u = sample_bilinear(flow, uv0.detach()).to(uv1.dtype)
+    return (uv1 - uv0.detach() - u).abs().sum(1).mean()
+
+
+def polar_rotation(S: torch.Tensor) -> torch.Tensor:
+    """Rotation part (det +1) of the polar decomposition of S (..., 3, 3)."""
+    U, _, Vh = torch.linalg.svd(S)
+    d = torch.sign(torch.linalg.det(U @ Vh))
+    D = torch.ones(*S.shape[:-2], 3, dtype=S.dtype)
+    D[..., 2] = d
+    return (U * D[..., None, :]) @ Vh
+
+
+def arap_energy(x: torch.Tensor, X: torch.Tensor, pairs: torch.Tensor) -> torch.Tensor:
+    """ARAP energy (m^2) of positions x (N, 3) w.r.t. rest positions X over undirected edges ``pairs`` (E, 2)
+    (both directions summed, mean over edges); see the module docstring."""
+    i, j = pairs[:, 0], pairs[:, 1]
+    dX = X[i] - X[j]
+    dx = x[i] - x[j]
+    P = (dx[:, :, None] * dX[:, None, :]).detach()
+    S = torch.zeros(len(X), 3, 3, dtype=x.dtype).index_add(0, i, P).index_add(0, j, P)
+    Rm = polar_rotation(S)
+    r_i = dx - (Rm[i] @ dX[:, :, None])[..., 0]
+    r_j = dx - (Rm[j] @ dX[:, :, None])[..., 0]
+    return 0.5 * ((r_i**2).sum(1) + (r_j**2).sum(1)).mean()
