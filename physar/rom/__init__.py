@@ -1,6 +1,6 @@
 """Reduced parametric models (seed 000 §2.2–§5): separated representation, intrusive and
 non-intrusive PGD, POD baseline."""
-from physar.rom.pgd import pgd_linear
+from physar.rom.pgd import pgd_linear, pgd_linear_tensor
 from physar.rom.separated import FORMAT_VERSION, ReducedModelError, SeparatedModel
 
-__all__ = ["SeparatedModel", "pgd_linear", "FORMAT_VERSION", "ReducedModelError"]
+__all__ = ["SeparatedModel", "pgd_linear", "pgd_linear_tensor", "FORMAT_VERSION", "ReducedModelError"]

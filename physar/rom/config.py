@@ -10,6 +10,12 @@ Example (see README, "Reduced models")::
     points = 60                               # grid of s values (PGD/POD); initial samples (non-intrusive)
     load = [0, 0, -1.0]                       # N, spread like a fem `point` load of this radius
     radius = 0.04
+    [[parameter]]                             # optional: a lateral offset t (m) of the load point,
+    name = "t"                                # path(s) + t direction (a position on a surface patch)
+    kind = "load_offset"
+    range = [-0.1, 0.1]
+    direction = [0, 1, 0]
+    points = 11
     [[parameter]]                             # optional: the load magnitude |load| in N
     name = "P"
     kind = "load_magnitude"
@@ -123,14 +129,17 @@ def build_rom(cfg: RomConfig, progress: Callable[[int, int], None] | None = None
         if not model.linear:
             raise ConfigError(f"{source}: [rom] method = {method!r} needs [material] model = \"linear\"; "
                               "use method = \"pgd_nonintrusive\" for a nonlinear material")
-        if off is not None:
-            raise ConfigError(f"{source}: a load_offset parameter needs [rom] method = \"pgd_nonintrusive\"")
+        if off is not None and method == "pod":
+            raise ConfigError(f"{source}: a load_offset parameter needs [rom] method = \"pgd\" or "
+                              "\"pgd_nonintrusive\"")
         if method == "pgd":
             from physar.rom.elastic import build_moving_load_pgd
 
+            extra = {} if off is None else {"offset_range": off.range, "offset_dir": off.direction,
+                                            "offset_points": off.points}
             rom, info = build_moving_load_pgd(model, fixed, pos.path, points=pos.points, load=pos.load,
                                               radius=pos.radius, max_modes=r.max_modes, tol=r.tol,
-                                              n_check=r.check_points, progress=progress)
+                                              n_check=r.check_points, progress=progress, **extra)
         else:
             from physar.rom.pod import build_moving_load_pod
 
@@ -139,6 +148,12 @@ def build_rom(cfg: RomConfig, progress: Callable[[int, int], None] | None = None
                                               progress=progress)
         if mag is not None:  # linear elasticity: u(s, P) = u(s) P / |load| exactly
             rom = _with_magnitude(rom, mag.range, float(np.linalg.norm(pos.load)))
+            if off is not None:  # built as (s, t, P); the [[parameter]] order is (s, P, t)
+                from physar.rom.separated import SeparatedModel
+
+                rom = SeparatedModel(rom.F, [rom.grids[i] for i in (0, 2, 1)], [rom.G[i] for i in (0, 2, 1)],
+                                     [rom.names[i] for i in (0, 2, 1)], [rom.units[i] for i in (0, 2, 1)],
+                                     rom.metadata)
     else:
         from physar.rom.nonintrusive import build_moving_load_nonintrusive
 

@@ -29,7 +29,7 @@ def load_path_matrix(space, path, points, load, radius):
 @blas_single_threaded
 def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radius=0.04,
                           max_modes=20, tol=1e-4, svd_tol=1e-10, magnitude_range=None, n_check=0,
-                          progress=None, seed=0):
+                          progress=None, seed=0, offset_range=None, offset_dir=None, offset_points=13):
     """PGD model u(x, s) of K u = f(x; s) with u = 0 on `fixed` (linear elastic `model`).
 
     The load is written as a separated sum f(x; s) = sum_k f_k(x) g_k(s) by a truncated SVD
@@ -39,7 +39,16 @@ def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radi
     Stopping: relative mode amplitude < `tol` (info["amplitudes"]); with ``n_check > 0`` also an error
     estimate against full solves at `n_check` random positions s (info["check_error"]: max over them
     of ||u_PGD - u_FE|| / max ||u_FE||, L2 over the dofs). ``progress(mode, max_modes)``.
+
+    With ``offset_range=(t_lo, t_hi)`` (m) and ``offset_dir`` the load point is path(s) + t d (position on
+    a surface patch, two parameters s and t): the load is sampled on the (points x offset_points) tensor
+    grid and the two-parameter PGD :func:`physar.rom.pgd.pgd_linear_tensor` is run (the check points
+    are then random (s, t)).
     """
+    if offset_range is not None:
+        return _build_patch_load_pgd(model, fixed, path, points, load, radius, max_modes, tol,
+                                     magnitude_range, n_check, progress, seed, offset_range, offset_dir,
+                                     offset_points)
     if not model.linear:
         raise ConfigError("intrusive PGD needs a linear material; use method='pgd_nonintrusive'")
     space = model.space
@@ -79,4 +88,63 @@ def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radi
                           "load": list(map(float, load)), "radius": float(radius),
                           "material": type(model.material).__name__, "svd_rank": r})
     info["svd_rank"] = r
+    return out, info
+
+
+def _build_patch_load_pgd(model, fixed, path, points, load, radius, max_modes, tol, magnitude_range, n_check,
+                          progress, seed, offset_range, offset_dir, offset_points):
+    import scipy.sparse as sp
+
+    from physar.rom.pgd import pgd_linear_tensor
+    from physar.rom.separated import SeparatedModel
+
+    if not model.linear:
+        raise ConfigError("intrusive PGD needs a linear material; use method='pgd_nonintrusive'")
+    if offset_dir is None or np.linalg.norm(offset_dir) <= 0:
+        raise ConfigError("offset_range needs a non-zero offset_dir (direction of the offset t)")
+    lo, hi = map(float, offset_range)
+    if not hi > lo:
+        raise ConfigError(f"offset range must be increasing, got {list(offset_range)}")
+    space = model.space
+    path = np.asarray(path, float)
+    if path.shape != (2, 3):
+        raise ConfigError(f"load path must be two points [[x0,y0,z0],[x1,y1,z1]], got shape {path.shape}")
+    length = float(np.linalg.norm(path[1] - path[0]))
+    if length <= 0:
+        raise ConfigError("load path has zero length")
+    d = (path[1] - path[0]) / length
+    e = np.asarray(offset_dir, float) / np.linalg.norm(offset_dir)
+    s = np.linspace(0.0, length, int(points))
+    t = np.linspace(lo, hi, int(offset_points))
+    free = np.setdiff1d(np.arange(space.n_dofs), fixed)
+    cols = [sp.csc_matrix(point_load(space, path[0] + si * d + ti * e, load, radius)[free][:, None])
+            for si in s for ti in t]
+    B = sp.hstack(cols).tocsr()
+    K = model.tangent_stiffness()[free][:, free].tocsr()
+    fac = factorize(K)
+    red, info = pgd_linear_tensor(K, B, [s, t], max_modes=max_modes, tol=tol, solve=fac.solve,
+                                  names=["s", "t"], units=["m", "m"], progress=progress)
+    if n_check:
+        checks = np.random.default_rng(seed).uniform([0.0, lo], [length, hi], (int(n_check), 2))
+        Fc = np.stack([point_load(space, path[0] + c[0] * d + c[1] * e, load, radius)[free] for c in checks], 1)
+        Uc = fac.solve(Fc).reshape(len(free), -1)
+        Ur = np.stack([red.evaluate(c) for c in checks], 1)
+        info["check_error"] = float(np.linalg.norm(Ur - Uc, axis=0).max() / np.linalg.norm(Uc, axis=0).max())
+        info["check_points"] = checks
+    F = np.zeros((red.n_modes, space.n_dofs))
+    F[:, free] = red.F
+    grids, G, names, units = list(red.grids), list(red.G), ["s", "t"], ["m", "m"]
+    if magnitude_range is not None:
+        plo, phi = map(float, magnitude_range)
+        if not phi > plo:
+            raise ConfigError(f"magnitude_range must be increasing, got {magnitude_range}")
+        gp = np.linspace(plo, phi, 3)
+        grids.append(gp)
+        G.append(np.tile(gp / np.linalg.norm(load), (red.n_modes, 1)))
+        names.append("P")
+        units.append("N")
+    out = SeparatedModel(F, grids, G, names, units,
+                         {"kind": "load_position", "path": path.tolist(), "offset_dir": e.tolist(),
+                          "load": list(map(float, load)), "radius": float(radius),
+                          "material": type(model.material).__name__})
     return out, info

@@ -50,3 +50,28 @@ def test_sensitivity_fd(rom):
         fd = (m.evaluate([s + h]) - m.evaluate([s - h])) / (2 * h)
         d = m.sensitivities([s])[0]
         assert np.linalg.norm(d - fd) / np.linalg.norm(d) < 1e-5
+
+
+@pytest.mark.slow
+def test_two_parameter_patch_load_matches_full_solves():
+    """Load point on a 1 x 0.2 m patch of the top face (s along the beam, lateral offset t: bending and
+    torsion), intrusive two-parameter PGD vs full solves at 30 random (s, t). Measured 7e-4 with 30
+    modes and 4e-4 with 40 (20 POD modes of the grid snapshots would reach 2e-4: the greedy sum in two
+    parameters is slower than the optimal basis)."""
+    Wp = 0.3
+    space = FESpace(box_mesh((L, Wp, H), (16, 5, 2)), "P2")
+    model = ElasticModel(space, LinearElastic(E=1e7, nu=0.3))
+    fixed = fixed_dofs(space, box=[[-1e-9, -1, -1], [1e-9, 1, 1]])
+    m, info = build_moving_load_pgd(model, fixed, [[0, Wp / 2, H], [L, Wp / 2, H]], points=41,
+                                    load=(0, 0, -1.0), radius=0.08, max_modes=40, tol=1e-6,
+                                    offset_range=(-0.1, 0.1), offset_dir=(0, 1, 0), offset_points=11, n_check=5)
+    assert m.names == ["s", "t"] and m.n_modes <= 40 and info["check_error"] < 1e-3
+    mus = np.random.default_rng(1).uniform([0, -0.1], [L, 0.1], (30, 2))
+    U = LinearSolver(model, fixed).solve(
+        np.stack([point_load(space, [a, Wp / 2 + b, H], (0, 0, -1.0), 0.08) for a, b in mus], 1))
+    ref = np.linalg.norm(U, axis=0).max()
+    errs = [np.linalg.norm(m.evaluate(mu) - U[:, k]) / ref for k, mu in enumerate(mus)]
+    assert max(errs) < 1e-3, max(errs)
+    # the offset matters: the responses at t = +0.1 and t = -0.1 differ by more than 5 % (7 % measured)
+    u_plus, u_minus = m.evaluate([0.8, 0.1]), m.evaluate([0.8, -0.1])
+    assert np.linalg.norm(u_plus - u_minus) > 0.05 * np.linalg.norm(u_plus)

@@ -4,7 +4,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from physar.errors import PhysarError
-from physar.rom import SeparatedModel, pgd_linear
+from physar.rom import SeparatedModel, pgd_linear, pgd_linear_tensor
 
 
 def _problem(n=200):
@@ -58,3 +58,33 @@ def test_save_load_roundtrip_and_errors(tmp_path):
     np.savez(tmp_path / "bad.npz", format_version=np.array(99))
     with pytest.raises(PhysarError, match="version 99"):
         SeparatedModel.load(tmp_path / "bad.npz")
+
+
+def test_pgd_tensor_two_parameters_matches_direct_solves():
+    """Two-parameter intrusive PGD (position s and width t of the load, not separable in s, t)."""
+    n = 200
+    K = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]).tocsr() * n
+    x = np.linspace(0, 1, n)
+    s, t = np.linspace(0.1, 0.9, 41), np.linspace(0.04, 0.08, 9)
+
+    def load(a, b):
+        return np.exp(-((x - a) / b) ** 2)
+
+    B = np.stack([load(a, b) for a in s for b in t], 1)
+    model, info = pgd_linear_tensor(K, B, [s, t], max_modes=40, tol=1e-6, names=["s", "t"])
+    lu = spla.splu(K.tocsc())
+    mus = np.random.default_rng(0).uniform([0.1, 0.04], [0.9, 0.08], (30, 2))
+    U = [lu.solve(load(*m)) for m in mus]
+    ref = max(np.linalg.norm(u) for u in U)
+    errs = [np.linalg.norm(model.evaluate(m) - u) / ref for m, u in zip(mus, U)]
+    assert max(errs) < 1e-3, max(errs)
+    assert model.names == ["s", "t"] and model.n_modes <= 40
+    a = info["amplitudes"]
+    assert a[-1] < 1e-3 * a[0]
+    # sensitivities of the two-parameter model equal finite differences
+    m, h = np.array([0.37, 0.061]), 1e-6
+    d = model.sensitivities(m)
+    for j in range(2):
+        e = np.eye(2)[j] * h
+        fd = (model.evaluate(m + e) - model.evaluate(m - e)) / (2 * h)
+        assert np.linalg.norm(d[j] - fd) / np.linalg.norm(d[j]) < 1e-5

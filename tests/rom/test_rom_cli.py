@@ -146,3 +146,63 @@ def test_nonintrusive_cli_matches_fem_solve(tmp_path):
     u_rom = np.array(json.loads(res.stdout)["probes"][0]["u"])
     u_fem = _fem_probe(tmp_path, 0.71, [probe], material="stvk", P=-60.0, steps=4, cells="[10, 1, 1]")[0]
     assert np.linalg.norm(u_rom - u_fem) <= 1e-2 * np.linalg.norm(u_fem)
+
+
+def test_patch_load_pgd_cli_matches_fem_solve(tmp_path):
+    """Intrusive PGD in three parameters (s along the path, lateral offset t, magnitude P) from
+    `rom build`; `rom eval` at (s, t, P) against `fem solve` with the point load at path(s) + t e_y."""
+    cfg = tmp_path / "patch.toml"
+    base = BASE.format(material="linear").replace("[1.0, 0.1, 0.1]", "[1.0, 0.2, 0.1]").replace(
+        "[12, 2, 2]", "[10, 4, 1]").replace("[0, 0.1, 0.1]]", "[0, 0.2, 0.1]]")
+    cfg.write_text(base + """
+[[parameter]]
+name = "s"
+kind = "load_position"
+path = [[0.0, 0.1, 0.1], [1.0, 0.1, 0.1]]
+points = 41
+load = [0, 0, -1.0]
+radius = 0.1
+
+[[parameter]]
+name = "t"
+kind = "load_offset"
+range = [-0.06, 0.06]
+direction = [0, 1, 0]
+points = 9
+
+[[parameter]]
+name = "P"
+kind = "load_magnitude"
+range = [0.5, 2.0]
+
+[rom]
+method = "pgd"
+max_modes = 40
+tol = 1e-6
+""")
+    res = _run("rom", "build", cfg, "--out", tmp_path / "p.npz", "--json")
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout)
+    assert [p["name"] for p in summary["parameters"]] == ["s", "P", "t"]
+    probe = [1.0, 0.0, 0.05]  # a tip corner: sees torsion as well as bending
+    for s, t, P in ((0.43, 0.037, 1.7), (0.86, -0.052, 0.8)):
+        res = _run("rom", "eval", tmp_path / "p.npz", "--param", f"s={s}", "--param", f"t={t}",
+                   "--param", f"P={P}", "--probe", *probe, "--json")
+        assert res.exit_code == 0, res.output
+        u_rom = np.array(json.loads(res.stdout)["probes"][0]["u"])
+        toml = base + f"""
+[[load]]
+type = "point"
+point = [{s}, {0.1 + t}, 0.1]
+total = [0, 0, {-P}]
+radius = 0.1
+
+[[probe]]
+point = [{probe[0]}, {probe[1]}, {probe[2]}]
+"""
+        f = tmp_path / "fem_patch.toml"
+        f.write_text(toml)
+        r = _run("fem", "solve", f, "--out", tmp_path / "fem.vtu", "--json")
+        assert r.exit_code == 0, r.output
+        u_fem = np.array(json.loads(r.stdout)["probes"][0]["u"])
+        assert np.linalg.norm(u_rom - u_fem) <= 1e-3 * np.linalg.norm(u_fem), (s, t, u_rom, u_fem)
