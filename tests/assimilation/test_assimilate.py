@@ -62,18 +62,40 @@ def test_exact_observations_position_and_magnitude(setting, s):
     assert abs(res.params[1] - 1.0) < 0.05
 
 
-def test_noisy_observations_one_parameter(setting):
-    """Noise 1 % of the max displacement, loads beyond 20 % of the span: s within 1 % of the span
-    (over 200 draws per position the largest miss measured was 0.6 %)."""
+@pytest.mark.parametrize("s", [0.2, 0.35, 0.5, 0.65, 0.8, 0.95])
+def test_noisy_observations_one_parameter(setting, s):
+    """Seed §5.1 / Table 1: Gaussian noise of 1 % of the max displacement, loads beyond 20 % of the
+    span from the clamp: s within 1 % of the span in every draw. Over 200 draws per position the
+    largest miss measured was 0.15 % (s=0.2) to 0.82 % (s=0.95) of the span, rms 0.05-0.28 %."""
     roms, observe = setting
-    rng = np.random.default_rng(3)
-    for s in (0.25, 0.5, 0.8):
+    rng = np.random.default_rng(int(s * 100))
+    y = observe(s)
+    for _ in range(25):
+        yn = y + rng.normal(0, 0.01 * np.abs(y).max(), y.shape)
+        res = assimilate(roms["s"], yn, restart_residual=0.05)
+        assert abs(res.params[0] - s) < 1e-2 * L, (s, res.params)
+        assert res.std[0] < 1e-2 * L
+
+
+def test_noisy_observations_one_parameter_at_the_tip(setting):
+    """At the free end (s = 1, the end of the path) the bump of radius 0.08 m overhangs the end face, its
+    centroid moves less than s and du/ds drops: single draws miss by up to 1.7 % of the span (200
+    draws), above the per-draw 1 % bound; the rms error stays below 1 % (0.42 % measured) and the
+    reported std grows accordingly (0.8 % vs 0.3 % at s = 0.9)."""
+    roms, observe = setting
+    rng = np.random.default_rng(100)
+    errs, stds = [], []
+    for s in (1.0, 0.9):
         y = observe(s)
-        for _ in range(10):
-            yn = y + rng.normal(0, 0.01 * np.abs(y).max(), y.shape)
-            res = assimilate(roms["s"], yn, restart_residual=0.05)
-            assert abs(res.params[0] - s) < 1e-2 * L, (s, res.params)
-            assert res.std[0] < 1e-2 * L
+        e, d = [], []
+        for _ in range(40):
+            res = assimilate(roms["s"], y + rng.normal(0, 0.01 * np.abs(y).max(), y.shape), restart_residual=0.05)
+            e.append(res.params[0] - s)
+            d.append(res.std[0])
+        errs.append(np.sqrt(np.mean(np.square(e))))
+        stds.append(np.mean(d))
+    assert errs[0] < 1e-2 * L, errs
+    assert stds[0] > 1.5 * stds[1], stds
 
 
 def test_noisy_observations_position_and_magnitude_uncertainty(setting):
@@ -93,9 +115,10 @@ def test_noisy_observations_position_and_magnitude_uncertainty(setting):
     assert z.max() < 4 and 0.3 < np.sqrt(np.mean(z**2)) < 2.0, z
 
 
-@pytest.mark.xfail(strict=True, reason="s and P both unknown: the noise-limited error is 1-2 % of span on "
-                   "average (Gauss-Newton std 1.2-2.8 %), above the 1 % goal; the one-parameter problem of "
-                   "seed §5.1 meets it (test_noisy_observations_one_parameter)")
+@pytest.mark.xfail(strict=True, reason="s and P both unknown: with 20 points and 1 % noise the rms error of s "
+                   "is 1.0 % (s=0.2) to 3.7 % (s=0.9) of the span over 200 draws, the Gauss-Newton std "
+                   "1.0-3.9 %: noise-limited, above the 1 % goal; the one-parameter problem of seed §5.1 "
+                   "meets it (test_noisy_observations_one_parameter)")
 def test_noisy_observations(setting):
     roms, observe = setting
     rng = np.random.default_rng(3)
