@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from physar.assimilation import Assimilator, assimilate, observation_matrix
-from physar.fem import ElasticModel, FESpace, LinearElastic, LinearSolver, fixed_dofs, point_load, probe
+from physar.fem import ElasticModel, FESpace, LinearElastic, LinearSolver, fixed_dofs, point_load
 from physar.geometry import box_mesh
 from physar.rom.elastic import build_moving_load_pgd
 

@@ -314,4 +314,4 @@ def read_observations(path) -> tuple[np.ndarray, np.ndarray]:
 
 
 
-__all__ = ["assimilate", "AssimilationResult", "Assimilator", "observation_matrix", "read_observations"]
+__all__ = ["AssimilationResult", "Assimilator", "assimilate", "observation_matrix", "read_observations"]

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import List, Optional, Tuple
 
 import numpy as np
 import typer
@@ -42,9 +41,9 @@ def _parse_params(model, items: list[str]) -> np.ndarray:
 def build(
     config: Path = typer.Argument(..., help="FEM problem file (TOML) with [[parameter]] tables and [rom]"),
     out: Path = typer.Option(..., "--out", "-o", help="reduced model file (.npz)"),
-    workers: Optional[int] = typer.Option(None, "--workers", min=1,
+    workers: int | None = typer.Option(None, "--workers", min=1,
                                           help="non-intrusive: start a Dask LocalCluster with N workers"),
-    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="non-intrusive: Dask scheduler address"),
+    scheduler: str | None = typer.Option(None, "--scheduler", help="non-intrusive: Dask scheduler address"),
     json_out: bool = typer.Option(False, "--json", help="print a summary as JSON on stdout"),
 ) -> None:
     """Build a reduced model offline (PGD, non-intrusive PGD or POD) and save it."""
@@ -97,7 +96,7 @@ def _info(rom) -> dict:
         if k in meta:
             d[k] = meta[k]
     if rom._mesh_arrays is not None:
-        d["mesh"] = {"points": int(len(rom._mesh_arrays[0])), "cells": int(len(rom._mesh_arrays[1]))}
+        d["mesh"] = {"points": len(rom._mesh_arrays[0]), "cells": len(rom._mesh_arrays[1])}
     return d
 
 
@@ -124,9 +123,9 @@ def info(
 @user_errors
 def evaluate(
     model_file: Path = typer.Argument(..., help="reduced model (.npz)"),
-    param: List[str] = typer.Option([], "--param", help="NAME=VALUE, one per parameter, e.g. s=0.3"),
-    probe: Optional[Tuple[float, float, float]] = typer.Option(None, "--probe", help="probe point x y z (m)"),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="write the displacement field (.vtu/.xdmf)"),
+    param: list[str] = typer.Option([], "--param", help="NAME=VALUE, one per parameter, e.g. s=0.3"),
+    probe: tuple[float, float, float] | None = typer.Option(None, "--probe", help="probe point x y z (m)"),
+    out: Path | None = typer.Option(None, "--out", "-o", help="write the displacement field (.vtu/.xdmf)"),
     json_out: bool = typer.Option(False, "--json", help="print results as JSON on stdout"),
 ) -> None:
     """Evaluate u(mu) of a reduced model, at probe points and/or on the whole mesh."""
@@ -160,7 +159,7 @@ def evaluate(
 def assimilate_cmd(
     model_file: Path = typer.Argument(..., help="reduced model (.npz) with its mesh (from `physar rom build`)"),
     observations: Path = typer.Argument(..., help="CSV with header x,y,z,ux,uy,uz (m)"),
-    mu0: List[str] = typer.Option([], "--mu0", help="start NAME=VALUE (default: centre of the ranges)"),
+    mu0: list[str] = typer.Option([], "--mu0", help="start NAME=VALUE (default: centre of the ranges)"),
     alpha: float = typer.Option(0.0, "--alpha", min=0.0, help="Tikhonov weight towards --mu0"),
     restart: float = typer.Option(0.05, "--restart-residual",
                                   help="multi-start when ||r||/||u_obs|| stays above this"),
@@ -183,7 +182,7 @@ def assimilate_cmd(
     out = {"params": dict(zip(rom.names, res.params.tolist())), "std": dict(zip(rom.names, res.std.tolist())),
            "residual": res.residual, "iterations": res.iterations, "time_us": res.time_us,
            "relative_residual": res.residual / max(float(np.linalg.norm(disp)), 1e-300),
-           "observations": int(len(pts)), "units": dict(zip(rom.names, rom.units))}
+           "observations": len(pts), "units": dict(zip(rom.names, rom.units))}
     if json_out:
         print_json(out)
     else:

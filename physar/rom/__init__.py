@@ -3,4 +3,4 @@ non-intrusive PGD, POD baseline."""
 from physar.rom.pgd import pgd_linear, pgd_linear_tensor
 from physar.rom.separated import FORMAT_VERSION, ReducedModelError, SeparatedModel
 
-__all__ = ["SeparatedModel", "pgd_linear", "pgd_linear_tensor", "FORMAT_VERSION", "ReducedModelError"]
+__all__ = ["FORMAT_VERSION", "ReducedModelError", "SeparatedModel", "pgd_linear", "pgd_linear_tensor"]

@@ -31,26 +31,26 @@ same total and radius, so the two commands solve the same problem.
 from __future__ import annotations
 
 import time
-from pathlib import Path
-from typing import Callable, Literal, Optional
+from collections.abc import Callable
+from typing import Literal
 
 import numpy as np
 from pydantic import Field, model_validator
 
-from physar.errors import ConfigError, PhysarError
+from physar.errors import ConfigError
 from physar.fem.config import FemConfig, Vec3, _Strict, build_problem, load_config
 
 
 class ParameterSection(_Strict):
     name: str = Field(..., min_length=1)
     kind: Literal["load_position", "load_magnitude", "load_offset"]
-    path: Optional[tuple[Vec3, Vec3]] = Field(None, description="[[x0,y0,z0],[x1,y1,z1]] (m)")
+    path: tuple[Vec3, Vec3] | None = Field(None, description="[[x0,y0,z0],[x1,y1,z1]] (m)")
     points: int = Field(60, ge=3, description="grid points of the parameter")
-    load: Optional[Vec3] = Field(None, description="total force (N)")
-    radius: Optional[float] = Field(None, gt=0, description="m")
-    range: Optional[tuple[float, float]] = None
-    direction: Optional[Vec3] = Field(None, description="offset direction (load_offset)")
-    unit: Optional[str] = None
+    load: Vec3 | None = Field(None, description="total force (N)")
+    radius: float | None = Field(None, gt=0, description="m")
+    range: tuple[float, float] | None = None
+    direction: Vec3 | None = Field(None, description="offset direction (load_offset)")
+    unit: str | None = None
 
     @model_validator(mode="after")
     def _needed(self):
@@ -77,8 +77,8 @@ class RomSection(_Strict):
                                                 "non-intrusive: relative error at new samples")
     check_points: int = Field(5, ge=0, description="random full solves for the error estimate (pgd)")
     max_points: int = Field(65, ge=3, description="non-intrusive: max samples per parameter")
-    workers: Optional[int] = Field(None, ge=1, description="non-intrusive: Dask LocalCluster workers")
-    scheduler: Optional[str] = Field(None, description="non-intrusive: address of a Dask scheduler")
+    workers: int | None = Field(None, ge=1, description="non-intrusive: Dask LocalCluster workers")
+    scheduler: str | None = Field(None, description="non-intrusive: address of a Dask scheduler")
 
 
 class RomConfig(FemConfig):
@@ -170,7 +170,7 @@ def build_rom(cfg: RomConfig, progress: Callable[[int, int], None] | None = None
     rom.metadata.update({"method": method, "material": cfg.material.model,
                          "material_params": cfg.material.model_dump(exclude_none=True),
                          "parameters": [p.model_dump(exclude_none=True) for p in cfg.parameter],
-                         "fixed_dofs": int(len(fixed)), "build_time_s": time.perf_counter() - t0})
+                         "fixed_dofs": len(fixed), "build_time_s": time.perf_counter() - t0})
     for k in ("check_error", "error_estimate", "n_solves", "svd_rank"):
         if k in info:
             v = info[k]
@@ -188,4 +188,4 @@ def _with_magnitude(rom, magnitude_range, load_norm):
                           list(rom.names) + ["P"], list(rom.units) + ["N"], rom.metadata)
 
 
-__all__ = ["RomConfig", "ParameterSection", "RomSection", "load_rom_config", "build_rom"]
+__all__ = ["ParameterSection", "RomConfig", "RomSection", "build_rom", "load_rom_config"]

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -416,5 +416,11 @@ def build_moving_load_nonintrusive(model, fixed, path, load=(0, 0, -1.0), radius
     return nonintrusive_pgd(bb, ranges, names, units, **kwargs)
 
 
-__all__ = ["nonintrusive_pgd", "separated_fit", "SnapshotRunner", "MovingLoadProblem",
-           "build_moving_load_nonintrusive", "BLAS_ENV"]
+__all__ = [
+    "BLAS_ENV",
+    "MovingLoadProblem",
+    "SnapshotRunner",
+    "build_moving_load_nonintrusive",
+    "nonintrusive_pgd",
+    "separated_fit",
+]

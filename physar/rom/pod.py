@@ -76,4 +76,4 @@ def build_moving_load_pod(model, fixed, path, points=60, load=(0, 0, -1.0), radi
     return pod_from_snapshots(U, [s], ["s"], ["m"], max_modes=max_modes, tol=tol, metadata=meta)
 
 
-__all__ = ["pod_from_snapshots", "build_moving_load_pod"]
+__all__ = ["build_moving_load_pod", "pod_from_snapshots"]

@@ -83,7 +83,7 @@ class SeparatedModel:
         """(2, n_modes): G^j(m) and dG^j/dmu_j(m) from the precomputed cubic coefficients."""
         x = self._knots[j]
         k = bisect_right(x, m) - 1
-        k = 0 if k < 0 else (len(x) - 2 if k > len(x) - 2 else k)
+        k = 0 if k < 0 else (min(k, len(x) - 2))
         t = m - x[k]
         t2 = t * t
         return np.dot(((t2 * t, t2, t, 1.0), (3.0 * t2, 2.0 * t, 1.0, 0.0)), self._coef[j][k])

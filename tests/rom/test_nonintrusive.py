@@ -1,12 +1,19 @@
 """Non-intrusive PGD (seed 000 §5.3) vs full nonlinear solves; separated fit vs closed forms; Dask."""
+import os
+
 import numpy as np
 import pytest
 
 from physar.errors import ConfigError
 from physar.fem import ElasticModel, FESpace, LinearElastic, NeoHookean, StVK, fixed_dofs
 from physar.geometry import box_mesh
-from physar.rom.nonintrusive import (MovingLoadProblem, SnapshotRunner, build_moving_load_nonintrusive,
-                                     nonintrusive_pgd, separated_fit)
+from physar.rom.nonintrusive import (
+    MovingLoadProblem,
+    SnapshotRunner,
+    build_moving_load_nonintrusive,
+    nonintrusive_pgd,
+    separated_fit,
+)
 
 L, W, H = 1.0, 0.1, 0.1
 PATH = [[0.0, W / 2, H], [L, W / 2, H]]
@@ -73,9 +80,10 @@ def test_nonlinear_beam_moving_load_matches_full_solves(material):
 
 @pytest.mark.slow
 def test_stvk_two_parameters_position_and_magnitude():
-    space, model, fixed = _beam(StVK(E=1e7, nu=0.3))
+    _, model, fixed = _beam(StVK(E=1e7, nu=0.3))
     rom, info = build_moving_load_nonintrusive(model, fixed, PATH, load=(0, 0, -1.0), radius=R,
                                                magnitude_range=(10.0, 60.0), tol=2e-3)
+    assert info["error_estimate"] <= 2e-3
     full = MovingLoadProblem(model, fixed, PATH, (0, 0, -1.0), R, magnitude=True)
     mus = np.random.default_rng(3).uniform([0, 10], [L, 60], (10, 2))
     U = [full(m) for m in mus]
@@ -83,21 +91,33 @@ def test_stvk_two_parameters_position_and_magnitude():
     assert max(np.linalg.norm(rom.evaluate(m) - u) for m, u in zip(mus, U)) / scale <= 1e-2
 
 
+def _max_blas_threads():
+    import numpy  # noqa: F401  (load numpy's BLAS in the worker)
+    from threadpoolctl import threadpool_info
+
+    return max(i["num_threads"] for i in threadpool_info())
+
+
 @pytest.mark.slow
 def test_dask_local_cluster_and_scheduler_match_serial():
     from distributed import LocalCluster
 
-    space, model, fixed = _beam(StVK(E=1e7, nu=0.3))
+    _, model, fixed = _beam(StVK(E=1e7, nu=0.3))
     bb = MovingLoadProblem(model, fixed, PATH, (0, 0, -60.0), R)
     pts = [(s,) for s in np.linspace(0, L, 6)]
     serial = SnapshotRunner(bb).run(pts)
     with SnapshotRunner(bb, workers=2) as runner:
         par = runner.run(pts)
+        # one BLAS/OpenMP thread per worker process, set before the libraries load
+        envs = runner.client.run(lambda: (os.environ.get("OPENBLAS_NUM_THREADS"), os.environ.get("OMP_NUM_THREADS")))
+        assert len(envs) == 2 and all(e == ("1", "1") for e in envs.values()), envs
+        threads = runner.client.run(_max_blas_threads)
+        assert all(n == 1 for n in threads.values()), threads
     for a, b in zip(serial, par):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
-    with LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as cluster:
-        with SnapshotRunner(bb, scheduler=cluster.scheduler_address) as runner:
-            par = runner.run(pts)
+    with (LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as cluster,
+          SnapshotRunner(bb, scheduler=cluster.scheduler_address) as runner):
+        par = runner.run(pts)
     for a, b in zip(serial, par):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
 

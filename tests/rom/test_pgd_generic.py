@@ -35,7 +35,7 @@ def test_pgd_matches_direct_solves():
 
 
 def test_sensitivities_equal_finite_differences():
-    K, f, g, grid, x = _problem()
+    K, f, g, grid, _ = _problem()
     model, _ = pgd_linear(K, f, g, grid, max_modes=10)
     for s in (0.23, 0.5, 0.71):
         h = 1e-6
@@ -47,7 +47,7 @@ def test_sensitivities_equal_finite_differences():
 
 
 def test_save_load_roundtrip_and_errors(tmp_path):
-    K, f, g, grid, x = _problem(50)
+    K, f, g, grid, _ = _problem(50)
     model, _ = pgd_linear(K, f, g, grid, max_modes=5)
     p = tmp_path / "m.npz"
     model.metadata["material"] = "linear"

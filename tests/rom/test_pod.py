@@ -25,9 +25,9 @@ def test_pod_cantilever_matches_full_solves():
 def test_pod_two_parameters_separated():
     x = np.linspace(0, 1, 200)
     g1, g2 = np.linspace(0, 1, 41), np.linspace(1, 2, 31)
-    field = lambda a, b: np.exp(-((x - a) / 0.3) ** 2) * b + np.sin(3 * x) * a * b**2  # noqa: E731
+    field = lambda a, b: np.exp(-((x - a) / 0.3) ** 2) * b + np.sin(3 * x) * a * b**2
     S = np.array([[field(a, b) for b in g2] for a in g1]).transpose(2, 0, 1)
-    rom, info = pod_from_snapshots(S, [g1, g2], ["a", "b"], max_modes=30, tol=1e-10)
+    rom, _ = pod_from_snapshots(S, [g1, g2], ["a", "b"], max_modes=30, tol=1e-10)
     rng = np.random.default_rng(1)
     for a, b in rng.uniform([0, 1], [1, 2], (20, 2)):
         ref = field(a, b)

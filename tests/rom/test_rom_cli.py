@@ -139,7 +139,7 @@ def test_nonintrusive_cli_matches_fem_solve(tmp_path):
     cfg = tmp_path / "nl.toml"
     cfg.write_text(BASE.format(material="stvk").replace("[12, 2, 2]", "[10, 1, 1]") + PARAM.format(points=5, P=-60.0)
                    + '\n[solver]\nsteps = 4\n\n[rom]\nmethod = "pgd_nonintrusive"\ntol = 2e-3\n')
-    res = _run("rom", "build", cfg, "--out", tmp_path / "nl.npz", "--json")
+    res = _run("rom", "build", cfg, "--out", tmp_path / "nl.npz", "--json", "--workers", 2)
     assert res.exit_code == 0, res.output
     probe = [1.0, 0.05, 0.05]
     res = _run("rom", "eval", tmp_path / "nl.npz", "--param", "s=0.71", "--probe", *probe, "--json")
