@@ -9,7 +9,8 @@ Rows:
 * physar forward: ``MPMSolver.step`` with the grid phase on the particles' node box (default) and on the whole
   dense grid (``active_box=False``, the previous implementation);
 * physar forward+backward: ``torch_bridge.simulate`` (one checkpointed frame of S substeps) + ``backward()`` of
-  a loss on the final positions w.r.t. per-particle E and the initial velocities;
+  a loss on the final positions w.r.t. per-particle E and the initial velocities: the fused frame adjoint
+  (:mod:`physar.mpm.adjoint`, 2 threads and 1 thread) and the generic per-launch tape path (``fused=False``);
 * Taichi 1.7 (written here, dense 64^3 grid, ``cpu_max_num_threads`` = all cores): forward, and forward +
   backward by the usual diffmpm scheme (all substep states stored, grid recomputed per substep in reverse,
   ``kernel.grad``), gradients w.r.t. E and the initial velocities;
@@ -69,19 +70,22 @@ def bench_physar_forward(x, v, vol, S, active_box=True):
     return S / el, a.x.numpy().copy()
 
 
-def bench_physar_backward(x, v, vol, S):
+def bench_physar_backward(x, v, vol, S, fused=True, threads=None):
     import torch
 
+    from physar.mpm.adjoint import FusedFrame
     from physar.mpm.torch_bridge import Params, simulate
 
     m = physar_model(x, vol, S)
     w = torch.tensor(np.random.default_rng(0).standard_normal(x.shape))
 
     def run(model, frames=1, checkpoint=True):
+        if threads is not None:
+            model._fused = FusedFrame(model, threads=threads)
         Et = torch.full((len(x),), E, dtype=torch.float64, requires_grad=True)
         vt = torch.tensor(v, requires_grad=True)
         xs, _ = simulate(model, x, vt, Params(E=Et, nu=torch.full((len(x),), NU, dtype=torch.float64)), frames,
-                         checkpoint=checkpoint)
+                         checkpoint=checkpoint, fused=fused)
         (w * xs[-1]).sum().backward()
         return Et.grad, vt.grad
 
@@ -322,8 +326,15 @@ def main():
         S = args.substeps
         dense, _ = bench_physar_forward(x, v, vol, S, active_box=False)
         fwd, xp = bench_physar_forward(x, v, vol, S)
-        fb, gE, gv = bench_physar_backward(x, v, vol, S)
-        rows.append((len(x), "physar (Warp CPU, 1 thread), node box", fwd, fb, ""))
+        fb, gE, gv = bench_physar_backward(x, v, vol, S, threads=2)
+        fb1, gE1, gv1 = bench_physar_backward(x, v, vol, S, threads=1)
+        fbg, gEg, gvg = bench_physar_backward(x, v, vol, S, fused=False)
+        d_fg = np.abs(gv - gvg).max() / np.abs(gvg).max()  # dL/dE is ~roundoff here (F stays ~I in free fall)
+        rows.append((len(x), "physar (Warp CPU, 1 thread), node box", fwd, fb1,
+                     "fwd+bwd: fused frame adjoint, 1 thread"))
+        rows.append((len(x), "physar fwd+bwd fused, 2 threads (default)", float("nan"), fb,
+                     f"dL/dv0 rel. diff vs generic path {d_fg:.1e}"))
+        rows.append((len(x), "physar fwd+bwd generic per-launch tape (previous)", float("nan"), fbg, ""))
         rows.append((len(x), "physar, dense-grid update (previous)", dense, float("nan"), ""))
         if not args.no_taichi:
             try:

@@ -6,6 +6,10 @@ between.  :func:`simulate` runs frames of T substeps; with ``checkpoint=True`` e
 ``torch.utils.checkpoint`` segment: only the frame-boundary states are kept and a frame's substeps are
 recomputed (and taped) during its backward pass, so memory is O(frames * particles + one frame's tapes).
 
+Without neural residuals, :func:`simulate` runs each frame as one fused autograd function
+(:mod:`physar.mpm.adjoint`: two fused kernels per substep, segment checkpointing inside the frame, adjoint
+kernels launched directly, both CPU cores); ``fused=False`` selects the generic per-launch path.
+
 Differentiable inputs: initial state (x, v, C, F), per-particle E (Pa), nu, omega (actuation gate),
 PD references, latents l_e/l_p and the network weights.
 """
@@ -174,7 +178,7 @@ def substep(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref=None, v_ref=None,
 
 
 def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralResidual | None = None,
-             checkpoint: bool = True, C0=None, F0=None, Jp0=None, t0: float = 0.0):
+             checkpoint: bool = True, C0=None, F0=None, Jp0=None, t0: float = 0.0, fused: bool = True):
     """Differentiable simulation of ``frames`` frames of ``model.substeps`` substeps, starting at time t0 (s).
 
     Returns the list of positions (N, 3) at frames 0..frames and the final state (x, v, C, F, Jp).  The PD
@@ -187,11 +191,17 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
     F = torch.eye(3, dtype=torch.float64).repeat(n, 1, 1) if F0 is None else t(F0)
     Jp = torch.ones(n, dtype=torch.float64) if Jp0 is None else t(Jp0)
     xs = [x]
+    use_fused = fused and (nets is None or (nets.elastic is None and nets.plastic is None))
     for f in range(frames):
         if callable(params.x_ref):
             x_ref, v_ref = params.x_ref(f)
         else:
             x_ref, v_ref = params.x_ref, params.v_ref
+        if use_fused:
+            x, v, C, F, Jp = _fused_frame(model, x, v, C, F, Jp, params, x_ref, v_ref, t0 + f * model.frame_dt)
+            check_state(model, x.detach().numpy(), v.detach().numpy(), F.detach().numpy(), where=f" at frame {f + 1}")
+            xs.append(x)
+            continue
 
         tf = t0 + f * model.frame_dt
 
@@ -210,6 +220,25 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
         check_state(model, x.detach().numpy(), v.detach().numpy(), F.detach().numpy(), where=f" at frame {f + 1}")
         xs.append(x)
     return xs, (x, v, C, F, Jp)
+
+
+def _fused_frame(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref, v_ref, t0: float):
+    """One frame through :class:`physar.mpm.adjoint.FusedFrameFunction` (expert laws, no neural residuals)."""
+    from physar.mpm.adjoint import FusedFrame, FusedFrameFunction
+
+    runner = getattr(model, "_fused", None)
+    if runner is None:
+        runner = model._fused = FusedFrame(model)
+    n = model.n_particles
+    z = lambda *sh: torch.zeros(*sh, dtype=torch.float64)  # noqa: E731
+    if p.omega is None or x_ref is None:
+        omega, x_ref, v_ref, kp, kd = z(n), z(n, 3), z(n, 3), 0.0, 0.0
+    else:
+        omega, kp, kd = p.omega, p.kp, p.kd
+        v_ref = z(n, 3) if v_ref is None else v_ref
+    t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
+    return FusedFrameFunction.apply(runner, float(t0), float(kp), float(kd), x, v, C, F, Jp, t(p.E), t(p.nu),
+                                    t(omega), t(x_ref), t(v_ref))
 
 
 def per_body_moments(x: torch.Tensor, body: np.ndarray, n_bodies: int):
