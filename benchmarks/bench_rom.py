@@ -5,7 +5,7 @@ Linear P2 cantilever 1 x 0.1 x 0.1 m (40x4x4 cells, 19,683 dofs, E = 1e7 Pa, nu 
 load of 1 N (radius 0.08 m) moving along the top centre line (seed 000 §5.1); 30 observed points on
 the side face y = 0, exact observations from full FE solves.
 
-Run: .venv/bin/python benchmarks/bench_rom.py [--sections online,full,pod,dask]
+Run: .venv/bin/python benchmarks/bench_rom.py [--sections online,full,pod,patch,dask] [--cells 40,4,4]
 """
 import argparse
 import datetime
@@ -38,7 +38,7 @@ def row(name, value):
 
 def online(space, model, fixed, pts):
     t0 = time.perf_counter()
-    rom, info = build_moving_load_pgd(model, fixed, PATH, points=101, load=LOAD, radius=RADIUS,
+    rom, _ = build_moving_load_pgd(model, fixed, PATH, points=101, load=LOAD, radius=RADIUS,
                                       max_modes=19, tol=1e-12)
     row(f"PGD build ({rom.n_modes} modes, {space.n_dofs} dofs, 101 load positions)",
         f"{time.perf_counter() - t0:.2f} s")
@@ -124,7 +124,7 @@ def full_in_loop(space, model, fixed, pts, rom, C):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--sections", default="online,full,pod,dask")
+    ap.add_argument("--sections", default="online,full,pod,patch,dask")
     ap.add_argument("--cells", default="40,4,4", help="ROM/FOM mesh cells nx,ny,nz")
     args = ap.parse_args()
     sections = args.sections.split(",")
@@ -132,11 +132,13 @@ def main():
           f"on {os.cpu_count()} CPUs\n")
     print("| quantity | value |\n|---|---|")
     space, model, fixed, pts = setup(tuple(int(c) for c in args.cells.split(",")))
-    rom, solver, C = online(space, model, fixed, pts)
+    rom, _, C = online(space, model, fixed, pts)
     if "full" in sections:
         full_in_loop(space, model, fixed, pts, rom, C)
     if "pod" in sections:
         pod_vs_pgd(space, model, fixed, rom)
+    if "patch" in sections:
+        patch_pgd_vs_pod()
     if "dask" in sections:
         dask_speedup()
 
@@ -166,6 +168,44 @@ def pod_vs_pgd(space, model, fixed, rom):
         print(f"| {n} | {errs[0]} | {errs[1]} |", flush=True)
 
 
+def patch_pgd_vs_pod():
+    """Two parameters: the load point on a 1 x 0.2 m patch of the top face (s along the beam, lateral
+    offset t), plate 1 x 0.3 x 0.1 m, P2 16x5x2; intrusive PGD and POD on the same 41 x 11 grid, error
+    max over 30 random (s, t) of ||u_rom - u_FE|| / max ||u_FE||."""
+    from physar.rom.pod import pod_from_snapshots
+
+    Wp = 0.3
+    space = FESpace(box_mesh((L, Wp, H), (16, 5, 2)), "P2")
+    model = ElasticModel(space, LinearElastic(E=1e7, nu=0.3))
+    fixed = fixed_dofs(space, box=[[-1e-9, -1, -1], [1e-9, 1, 1]])
+    path = [[0, Wp / 2, H], [L, Wp / 2, H]]
+    t0 = time.perf_counter()
+    rom, _ = build_moving_load_pgd(model, fixed, path, points=41, load=LOAD, radius=RADIUS, max_modes=40,
+                                      tol=1e-7, offset_range=(-0.1, 0.1), offset_dir=(0, 1, 0), offset_points=11)
+    row(f"two-parameter PGD build (patch load, {rom.n_modes} modes, {space.n_dofs} dofs, 41 x 11 grid)",
+        f"{time.perf_counter() - t0:.2f} s")
+    s, t = rom.grids
+    solver = LinearSolver(model, fixed)
+    t0 = time.perf_counter()
+    Ug = solver.solve(np.stack([point_load(space, [a, Wp / 2 + b, H], LOAD, RADIUS) for a in s for b in t], 1))
+    row("POD snapshots for the same grid (451 solves)", f"{time.perf_counter() - t0:.2f} s")
+    mus = np.random.default_rng(7).uniform([0, -0.1], [L, 0.1], (30, 2))
+    U = solver.solve(np.stack([point_load(space, [a, Wp / 2 + b, H], LOAD, RADIUS) for a, b in mus], 1))
+    ref = np.linalg.norm(U, axis=0).max()
+    print("\n| modes (patch, 2 parameters) | PGD error | POD error |\n|---|---|---|")
+    for n in (2, 5, 10, 20, 30, 40):
+        errs = []
+        if n <= rom.n_modes:
+            mt = rom.truncated(n)
+            errs.append(f"{max(np.linalg.norm(mt.evaluate(m) - U[:, k]) for k, m in enumerate(mus)) / ref:.2e}")
+        else:
+            errs.append("-")
+        pod, _ = pod_from_snapshots(Ug.reshape(-1, s.size, t.size), [s, t], ["s", "t"], max_modes=n, tol=0.0)
+        errs.append(f"{max(np.linalg.norm(pod.evaluate(m) - U[:, k]) for k, m in enumerate(mus)) / ref:.2e}")
+        print(f"| {n} | {errs[0]} | {errs[1]} |", flush=True)
+    print()
+
+
 def dask_speedup():
     """Non-intrusive PGD snapshots (St.VK beam, P2 16x2x2, Newton with 4 load steps): serial
     in-process vs a LocalCluster of 2 single-threaded workers (BLAS threads = 1)."""
@@ -178,22 +218,38 @@ def dask_speedup():
     bb = MovingLoadProblem(model, fixed, PATH, (0, 0, -60.0), 0.1)
     pts = [(s,) for s in np.linspace(0, L, 12)]
     load0 = os.getloadavg()[0]
-    t = time.perf_counter()
-    serial = SnapshotRunner(bb).run(pts)
-    t_serial = time.perf_counter() - t
-    t = time.perf_counter()
-    with SnapshotRunner(bb, workers=2) as runner:
-        runner.run(pts[:4])  # start the cluster, import physar on the workers, ship the black box
-        t_start = time.perf_counter() - t
+    serial = SnapshotRunner(bb).run(pts[:1])  # warm the caches of the black box
+    runners = {"serial": SnapshotRunner(bb)}
+    starts = {}
+    for n in (1, 2):
         t = time.perf_counter()
-        par = runner.run(pts)
-        t_par = time.perf_counter() - t
-    assert max(np.abs(a - b).max() for a, b in zip(serial, par)) < 1e-12
+        runners[n] = SnapshotRunner(bb, workers=n, min_parallel=1)
+        runners[n].run(pts[: 2 * n])  # start the cluster, import physar on the workers, ship the black box
+        starts[n] = time.perf_counter() - t
+    # the machine is shared: alternate the three modes twice and keep each one's best time
+    best = {k: np.inf for k in runners}
+    try:
+        for _ in range(2):
+            for k, runner in runners.items():
+                t = time.perf_counter()
+                out = runner.run(pts)
+                best[k] = min(best[k], time.perf_counter() - t)
+                if k == "serial":
+                    serial = out
+                else:
+                    assert max(np.abs(a - b).max() for a, b in zip(serial, out)) < 1e-12
+    finally:
+        for runner in runners.values():
+            runner.close()
     load1 = os.getloadavg()[0]
-    row(f"non-intrusive snapshots, St.VK beam {space.n_dofs} dofs, 12 Newton solves, serial", f"{t_serial:.2f} s")
-    row("same on a LocalCluster, 2 workers x 1 thread (startup excluded)",
-        f"{t_par:.2f} s, speed-up {t_serial / t_par:.2f}x (cluster start {t_start:.1f} s; "
-        f"load average {load0:.1f} -> {load1:.1f} on {os.cpu_count()} CPUs)")
+    row(f"non-intrusive snapshots, St.VK beam {space.n_dofs} dofs, 12 Newton solves, serial in-process "
+        "(best of 2)", f"{best['serial']:.2f} s")
+    for n in (1, 2):
+        row(f"same on a LocalCluster, {n} worker(s) x 1 BLAS thread (best of 2, startup excluded)",
+            f"{best[n]:.2f} s (cluster start {starts[n]:.1f} s)")
+    row("Dask speed-up, 2 workers vs 1 worker / vs serial",
+        f"{best[1] / best[2]:.2f}x / {best['serial'] / best[2]:.2f}x (load average {load0:.1f} -> "
+        f"{load1:.1f} on {os.cpu_count()} CPUs)")
     t = time.perf_counter()
     rom, info = build_moving_load_nonintrusive(model, fixed, PATH, load=(0, 0, -60.0), radius=0.1, tol=2e-3)
     row(f"non-intrusive PGD build, St.VK beam, serial ({info['n_solves']} solves, {rom.n_modes} modes)",

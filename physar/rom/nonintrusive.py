@@ -74,7 +74,8 @@ class SnapshotRunner:
 
     @property
     def parallel(self):
-        return self.scheduler is not None or (self.workers or 1) > 1
+        """True when snapshots go to Dask: a scheduler address, or ``workers`` given (even 1)."""
+        return self.scheduler is not None or self.workers is not None
 
     def _start(self):
         if self.client is not None:
