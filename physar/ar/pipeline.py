@@ -142,12 +142,17 @@ class ARPipeline:
     ``dot_sigma_px`` is the dot centroid noise, sigma_d = dot_sigma_px · depth / f at the object's depth.
     ``smoothing``: gain a of the alpha-beta filter on the estimate (1 = none, see :meth:`_filter`); a change
     larger than ``jump_sigma`` standard deviations passes unfiltered.
+    ``track_markers``: follow the marker corners by sub-pixel refinement of their predictions (bit-checked,
+    ArUco detection as fallback, see :class:`MarkerTracker`) instead of detecting them in every frame.
+    ``dot_flow``: KLT for the dots always (True), never (False) or "auto" (when the pose projection of the
+    last displacements missed the dots, see :class:`DotTracker`).
     """
 
     def __init__(self, rom, camera: Camera, obj: BeamObject | None = None, field: str = "von_mises",
                  exaggeration: float = 1.0, min_dots: float = 0.5, overlay: bool = True, nuisance: str = "rigid",
                  rotation_sigma_deg: float = 0.005, dot_sigma_px: float = 0.07,
-                 smoothing: float = 0.6, jump_sigma: float = 4.0):
+                 smoothing: float = 0.6, jump_sigma: float = 4.0, track_markers: bool = True,
+                 dot_flow: bool | str = "auto"):
         from physar.ar.overlay import BeamOverlay
 
         self.rom, self.camera = rom, camera
@@ -156,9 +161,9 @@ class ARPipeline:
         if rom.F.shape[1] != self.space.n_dofs:
             raise ConfigError(f"reduced model has {rom.F.shape[1]} dofs, its mesh {self.space.n_dofs}")
         dots = np.asarray(self.obj.dots, float)
-        self.markers = MarkerTracker(camera, self.obj.board())
+        self.markers = MarkerTracker(camera, self.obj.board(), track=track_markers)
         self.dots = DotTracker(camera, dots, [0, 0, 0], [0, 1.0, 0],
-                               radius_px=self._dot_radius_px(dots))
+                               radius_px=self._dot_radius_px(dots), flow=dot_flow)
         self.C = surface_observation_matrix(self.space, dots, components=(0, 2)).tocsr()
         self.CF = np.asarray((self.C @ rom.F.T))  # (2n, n_modes): observation of every mode
         if nuisance not in ("none", "offset", "rigid"):
@@ -259,10 +264,14 @@ class ARPipeline:
         g = np.where(jump, 1.0, (2 * a * a + 2 * b - 3 * a * b) / (a * (4 - 2 * a - b)))
         self.std = np.sqrt(np.clip(g, 0, 1)) * std
 
-    def process(self, frame: np.ndarray, index: int, draw: bool = True) -> tuple[np.ndarray, FrameResult]:
+    def process(self, frame: np.ndarray, index: int, draw: bool = True,
+                gray: np.ndarray | None = None) -> tuple[np.ndarray, FrameResult]:
+        """One BGR frame; ``gray``: its grey image when the caller has one (the decoder's luma plane), else
+        it is converted here."""
         t0 = time.perf_counter()
         st = {}
-        gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        if gray is None:
+            gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
         pe = self.markers.update(gray)
         t1 = time.perf_counter()
         st["markers_pose"] = (t1 - t0) * 1e3
@@ -339,11 +348,13 @@ class ARPipeline:
                             [f"{n}_std" for n in names] + ["residual_mm", "markers", "dots", "latency_ms"])
             t_start = time.perf_counter()
             t_prev = t_start
-            for k, frame in enumerate(reader):
+            frames = reader.frames_with_luma() if hasattr(reader, "frames_with_luma") else \
+                ((f, None) for f in reader)
+            for k, (frame, luma) in enumerate(frames):
                 if max_frames is not None and k >= max_frames:
                     break
                 t_in = time.perf_counter()
-                out, r = self.process(frame, k, draw=writer is not None)
+                out, r = self.process(frame, k, draw=writer is not None, gray=luma)
                 r.stages_ms["decode"] = (t_in - t_prev) * 1e3  # waiting for the decoder thread
                 t_e = time.perf_counter()
                 if snapshots and k in snapshots:

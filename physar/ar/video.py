@@ -108,8 +108,21 @@ class VideoWriter:
         self.close()
 
 
+def _luma(frame) -> np.ndarray | None:
+    """The decoded frame's luma plane Y (h, w) uint8 when it is stored planar 8-bit YUV (a copy of the plane,
+    no colour conversion), else None."""
+    if frame.format.name not in ("yuv420p", "yuvj420p", "yuv422p", "yuvj422p", "yuv444p", "yuvj444p", "nv12"):
+        return None
+    p = frame.planes[0]
+    return np.frombuffer(p, np.uint8).reshape(p.height, p.line_size)[:, :frame.width].copy()
+
+
 class VideoReader:
     """Frames (BGR uint8) of a video file; ``threaded=True`` decodes ahead in a background thread.
+
+    Iterating yields BGR frames; :meth:`frames_with_luma` yields (BGR, Y) pairs, Y being the decoder's own
+    luma plane (h, w) (limited range, 16-235; None for non-YUV streams), so that grey-level work needs no
+    colour conversion.
 
     Raises PhysarError for a missing, empty or undecodable file (checked on open: the first frame is decoded).
     """
@@ -143,7 +156,7 @@ class VideoReader:
         rate = self._s.average_rate or self._s.guessed_rate
         self.fps = float(rate) if rate else 30.0
         self.frames_hint = int(self._s.frames or 0)
-        self._first = first.to_ndarray(format="bgr24")
+        self._first = (first.to_ndarray(format="bgr24"), _luma(first))
         self._q = queue.Queue(maxsize=prefetch) if threaded else None
         self._err = None
         if threaded:
@@ -152,9 +165,10 @@ class VideoReader:
 
     def _next(self):
         try:
-            return next(self._it).to_ndarray(format="bgr24")
+            f = next(self._it)
         except StopIteration:
             return None
+        return f.to_ndarray(format="bgr24"), _luma(f)
 
     def _run(self):
         try:
@@ -168,6 +182,11 @@ class VideoReader:
             self._q.put(None)
 
     def __iter__(self):
+        for bgr, _ in self.frames_with_luma():
+            yield bgr
+
+    def frames_with_luma(self):
+        """(BGR uint8 (h, w, 3), luma uint8 (h, w) or None) for every frame."""
         yield self._first
         while True:
             img = self._q.get() if self._q is not None else self._next()

@@ -1,8 +1,10 @@
 """Tracking of small coloured dots on the object and their displacements (seed 000 §2.1, §5.1: "small blue
 dots adhered to the beam for the determination of the beam deflection").
 
-Per frame: the dots are predicted by pyramidal Lucas-Kanade (KLT) optical flow from the previous frame
-(or, without a previous frame, by projecting their last 3-D positions with the current pose); each
+Per frame: the dots are predicted by projecting their last 3-D positions with the current pose, or by pyramidal
+Lucas-Kanade (KLT) optical flow from the previous frame (``flow``: always, never, or "auto": only when the
+projection missed the measured dots by more than ``flow_px`` in the previous frame, i.e. when the object
+deforms fast; blob detection (connected components of the colour mask) finds dots without a track); each
 prediction is refined by the colour-weighted centroid of the blob in a small window,
 p = Σ w_i x_i / Σ w_i with w_i = max(0, c_i - τ) and c = B - max(R, G) the "blueness" of pixel i.
 The refined pixels are back-projected onto the object's plane (ray-plane intersection, :class:`Camera`),
@@ -31,7 +33,8 @@ class DotTracker:
     """Track dots with reference positions ``reference`` (n, 3) [m] lying on the plane (point, normal)."""
 
     def __init__(self, camera: Camera, reference, plane_point, plane_normal, radius_px: float = 6.0,
-                 threshold: float = 30.0, min_mass: float = 4.0, gate_px: float = 6.0, colour: str = "blue", luma: bool = True):
+                 threshold: float = 30.0, min_mass: float = 4.0, gate_px: float = 6.0, colour: str = "blue", luma: bool = True,
+                 flow: bool | str = True, flow_px: float = 1.5):
         ref = np.asarray(reference, float)
         if ref.ndim != 2 or ref.shape[1] != 3 or len(ref) == 0:
             raise ConfigError(f"dot reference positions must have shape (n, 3), got {ref.shape}")
@@ -42,6 +45,11 @@ class DotTracker:
         self.r = max(2, int(round(radius_px * 1.6)))
         self.threshold, self.min_mass, self.gate_px, self.luma = threshold, min_mass, gate_px, luma
         self.channel = {"blue": 0, "green": 1, "red": 2}[colour]
+        if flow not in (True, False, "auto"):
+            raise ConfigError(f"dot flow must be true, false or 'auto', got {flow!r}")
+        self.flow, self.flow_px = flow, flow_px
+        self._need_flow = True
+        self.n_flow = 0  # frames that ran KLT (statistics)
         self._prev_gray = None
         self._prev_px = None
         self._prev_valid = None
@@ -132,8 +140,13 @@ class DotTracker:
             self._prev_gray = None
             return DotObservation(np.full((n, 2), np.nan), np.zeros(n, bool), nan, nan.copy())
         proj = self.camera.project(self.reference + self.displacement, pose)
-        pred = proj.copy()
+        proj0, pred = proj.copy(), proj.copy()
+        if self.flow == "auto":
+            use_flow = use_flow and self._need_flow
+        elif not self.flow:
+            use_flow = False
         if use_flow and self._prev_gray is not None and self._prev_valid.any():
+            self.n_flow += 1
             idx = np.flatnonzero(self._prev_valid)
             p0 = self._prev_px[idx].astype(np.float32).reshape(-1, 1, 2)
             # pyramids of the region around the dots only (not the whole frame)
@@ -169,6 +182,9 @@ class DotTracker:
         if valid.any():
             world[valid] = self.camera.backproject_to_plane(px[valid], pose, *self.plane)
         disp = world - self.reference
+        # KLT for the next frame ("auto") if the projection of the last displacements missed a measured dot
+        miss = np.linalg.norm(px[valid] - proj0[valid], axis=1)
+        self._need_flow = bool(miss.size == 0 or miss.max() > self.flow_px)
         self.displacement[valid] = disp[valid]
         self._prev_gray, self._prev_px, self._prev_valid = gray, px, valid
         px = px.copy()

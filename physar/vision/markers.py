@@ -79,13 +79,15 @@ def rotation_std(camera: Camera, pose: Pose, points, sigma_px: float, centre=Non
     X = np.asarray(points, float).reshape(-1, 3)
     c = X.mean(0) if centre is None else np.asarray(centre, float)
     h = 1e-6
-    Xs = []
-    for j in range(6):
-        for sgn in (1.0, -1.0):
-            d = np.zeros(6)
-            d[j] = sgn * h
-            Xs.append(c + (X - c) @ _exp_rot(d[:3]).T + d[3:])
-    p = camera.project(np.concatenate(Xs), pose).reshape(6, 2, -1)
+    D = X - c
+    zero = np.zeros(len(X))
+    # directions of the 6 parameters: δθ_j e_j x (X - c) (exp(δθ) = I + [δθ]x + O(h²), the O(h²) term is even
+    # in h and cancels in the central difference) and δt_j e_j
+    dirs = np.stack([np.stack(v, 1) for v in ((zero, -D[:, 2], D[:, 1]), (D[:, 2], zero, -D[:, 0]),
+                                              (-D[:, 1], D[:, 0], zero))] + [np.tile(np.eye(3)[j], (len(X), 1))
+                                                                            for j in range(3)])
+    Xs = X[None, None] + h * np.array([1.0, -1.0])[None, :, None, None] * dirs[:, None]  # (6, 2, m, 3)
+    p = camera.project(Xs.reshape(-1, 3), pose).reshape(6, 2, -1)
     J = ((p[:, 0] - p[:, 1]) / (2 * h)).T  # (2m, 6)
     try:
         cov = np.linalg.inv(J.T @ J) * sigma_px ** 2
@@ -108,11 +110,20 @@ class MarkerTracker:
     ``alpha`` (0..1]: weight of a measurement whose change from the prediction is within the noise
     (``noise_px`` of reprojection); larger changes pass through (alpha -> 1), so camera motion does not lag.
     ``hold_frames``: how long the pose is predicted (velocity decaying) when no marker is visible.
+
+    ``track``: follow the markers between detections instead of detecting them in every frame: the corners
+    predicted by the pose filter are refined by ``cv2.cornerSubPix`` (the same refinement, window and
+    stopping rule the detector applies to its corners, so the same corners to ~0.002 px on scene (a)), and a
+    marker is accepted only if every corner moved less than ``track_px`` from its prediction and the
+    marker's (n+2)² cells sampled through the homography of the refined corners reproduce its dictionary
+    bits (every white cell brighter than every black cell, see :meth:`_verify`). A marker that fails (occluded,
+    the prediction off after a hold) falls back to ArUco detection in its region of interest, and every
+    ``redetect_every`` frames (0: never) all markers are detected again.
     """
 
     def __init__(self, camera: Camera, board: MarkerBoard, roi_margin: float = 0.3, min_markers: int = 1,
                  alpha: float = 0.6, noise_px: float = 0.15, hold_frames: int = 150, max_reproj_px: float = 3.0,
-                 gate_px: float = 40.0):
+                 gate_px: float = 40.0, track: bool = True, track_px: float = 2.5, redetect_every: int = 30):
         self.camera, self.board = camera, board
         params = cv2.aruco.DetectorParameters()
         params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
@@ -125,6 +136,17 @@ class MarkerTracker:
         self.roi_margin, self.min_markers, self.alpha, self.noise_px = roi_margin, min_markers, alpha, noise_px
         self.hold_frames, self.max_reproj_px, self.gate_px = hold_frames, max_reproj_px, gate_px
         self.K, self.dist = camera.to_opencv()
+        self.track, self.track_px, self.redetect_every = track, track_px, redetect_every
+        self._subpix = ((params.cornerRefinementWinSize,) * 2,
+                        (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, params.cornerRefinementMaxIterations,
+                         params.cornerRefinementMinAccuracy))
+        dic = aruco_dictionary(board.dictionary)
+        n = dic.markerSize + 2  # bits and a one-cell black border
+        self._bits = np.array([cv2.aruco.generateImageMarker(dic, int(i), n) > 127 for i in board.ids])  # (m, n, n)
+        g = (np.arange(3) + 1) / 4  # 3x3 samples inside each cell, away from the cell edges
+        cy, cx, sy, sx = np.meshgrid(np.arange(n), np.arange(n), g, g, indexing="ij")
+        self._cells = np.stack([(cx + sx) / n, (cy + sy) / n], -1).reshape(-1, 2)  # unit-square coordinates
+        self.n_tracked = self.n_detected = 0  # markers found by tracking / by detection (statistics)
         self.reset()
 
     def reset(self):
@@ -133,6 +155,7 @@ class MarkerTracker:
         self._vw = np.zeros(3)
         self._vt = np.zeros(3)
         self._missed = 0
+        self._frame = 0
 
     # --- prediction --------------------------------------------------------------------------------
     def predicted(self) -> Pose | None:
@@ -167,14 +190,63 @@ class MarkerTracker:
                 out[k] = c.reshape(4, 2) + (x0, y0)
         return out
 
+    def _verify(self, gray, corners: dict) -> dict:
+        """The markers of ``corners`` {k: (4, 2)} whose image shows their dictionary bits: the (n+2)² cells
+        (n² bits and the black border) are sampled (3x3 bilinear samples per cell) through the homography
+        that maps the unit square to the corners (TL, TR, BR, BL), and every cell that is white in the
+        marker must be brighter than every black cell, by at least a quarter of the white-black mean
+        difference and 10 grey levels."""
+        ks = list(corners)
+        if not ks:
+            return {}
+        sq = np.float32([[0, 0], [1, 0], [1, 1], [0, 1]])
+        pts = [cv2.perspectiveTransform(self._cells[None].astype(np.float32),
+                                        cv2.getPerspectiveTransform(sq, corners[k].astype(np.float32)))[0] for k in ks]
+        pts = np.stack(pts)  # (len(ks), cells * 9, 2)
+        v = cv2.remap(gray, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR).astype(np.float32)
+        n = self._bits.shape[1]
+        cell = v.reshape(len(ks), n * n, 9).mean(-1)
+        out = {}
+        for j, k in enumerate(ks):
+            white = self._bits[k].ravel()
+            if white.all() or not white.any():
+                continue
+            lo, hi = cell[j][~white], cell[j][white]
+            gap = hi.min() - lo.max()
+            if gap > max(10.0, 0.25 * (hi.mean() - lo.mean())):
+                out[k] = corners[k]
+        return out
+
+    def _track(self, gray, proj) -> dict:
+        """{board index: (4, 2) corners} of the markers followed from their predicted corners ``proj``
+        (m, 4, 2): sub-pixel refinement, motion gate ``track_px`` and bit check (:meth:`_verify`)."""
+        h, w = gray.shape[:2]
+        win = self._subpix[0][0] + 2
+        ok = np.all(np.isfinite(proj), (1, 2))
+        ok &= np.all((proj[..., 0] > win) & (proj[..., 0] < w - 1 - win) & (proj[..., 1] > win)
+                     & (proj[..., 1] < h - 1 - win), 1)
+        ok &= np.linalg.norm(proj[:, 0] - proj[:, 2], axis=1) > 24  # too small to refine and verify
+        ks = np.flatnonzero(ok)
+        if ks.size == 0:
+            return {}
+        p0 = proj[ks].reshape(-1, 1, 2).astype(np.float32)
+        p1 = cv2.cornerSubPix(gray, p0.copy(), self._subpix[0], (-1, -1), self._subpix[1]).reshape(-1, 4, 2)
+        moved = np.abs(p1 - p0.reshape(-1, 4, 2)).max((1, 2))
+        cand = {int(k): p1[j].astype(float) for j, k in enumerate(ks) if moved[j] < self.track_px}
+        return self._verify(gray, cand)
+
     def detect(self, gray, prediction: Pose | None):
         """{board index: (4, 2) corners}; ROI search around the predicted markers, else the full frame."""
         h, w = gray.shape[:2]
         found = {}
         if prediction is not None:
             proj = self.camera.project(self.board.corners.reshape(-1, 3), prediction).reshape(-1, 4, 2)
+            periodic = self.redetect_every > 0 and self._frame % self.redetect_every == 0
+            if self.track and not periodic:
+                found = self._track(gray, proj)
+                self.n_tracked += len(found)
             for k, p in enumerate(proj):
-                if not np.all(np.isfinite(p)):
+                if k in found or not np.all(np.isfinite(p)):
                     continue
                 lo, hi = p.min(0), p.max(0)
                 m = self.roi_margin * (hi - lo).max() + 8
@@ -185,6 +257,7 @@ class MarkerTracker:
                 det = self._detect(gray[y0:y1, x0:x1], x0, y0, self._roi_detector((hi - lo).max()))
                 if k in det:
                     found[k] = det[k]
+                    self.n_detected += 1
             if len(found) >= self.min_markers:
                 return found, False
         return self._detect(gray), True
@@ -204,22 +277,34 @@ class MarkerTracker:
             ok, r, t = cv2.solvePnP(obj, img, self.K, self.dist, flags=cv2.SOLVEPNP_SQPNP)
             if ok:
                 cands.append((r.ravel(), t.ravel()))
+        # Levenberg-Marquardt from the candidate with the smallest reprojection error (the others only if
+        # that one does not converge to an acceptable pose)
+        def rms(pose):
+            if np.any(pose.apply(obj)[:, 2] <= 0):
+                return np.inf
+            return float(np.sqrt(np.mean(np.sum((self.camera.project(obj, pose) - img) ** 2, 1))))
+
+        start = sorted((rms(Pose.from_rvec(r, t)), j) for j, (r, t) in enumerate(cands))
         best = None
-        for r, t in cands:
+        for e0, j in start:
+            if not np.isfinite(e0):
+                continue
+            r, t = cands[j]
             r, t = cv2.solvePnPRefineLM(obj, img, self.K, self.dist, r.reshape(3, 1).copy(), t.reshape(3, 1).copy(),
                                         (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 1e-12))
             pose = Pose.from_rvec(r, t)
-            if np.any(pose.apply(obj)[:, 2] <= 0):
-                continue
-            err = float(np.sqrt(np.mean(np.sum((self.camera.project(obj, pose) - img) ** 2, 1))))
+            err = rms(pose)
             if best is None or err < best[1] - 1e-6:
                 best = (pose, err)
+            if best[1] <= self.max_reproj_px:
+                break
         return best, img
 
     def update(self, gray) -> PoseEstimate:
         """Process one grey frame (uint8 (h, w)); returns the filtered pose and its status."""
         pred = self.predicted()
         found, full = self.detect(gray, pred)
+        self._frame += 1
         best = None
         if len(found) >= self.min_markers:
             best, img = self._solve(found, pred)
