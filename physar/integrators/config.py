@@ -12,6 +12,7 @@ gravity = [0, 0, -9.81]   # optional, applied as M g
 initial = "rest"          # or "static": start from the static solution under the [[load]]s, released at t = 0
 initial_velocity = [0, 0, 0]
 output_every = 1          # write every k-th step to the XDMF/MP4
+backend = "numpy"         # co-rotated P1: "numpy" or "warp" (NVIDIA Warp CPU kernels, ~4x faster steps)
 [dynamics.damping]        # Rayleigh D = alpha M + beta K(q)
 alpha = 0.0               # [1/s]
 beta = 0.0                # [s]
@@ -82,6 +83,7 @@ class DynamicsSection(_Strict):
     initial: Literal["rest", "static"] = "rest"
     initial_velocity: Vec3 = (0.0, 0.0, 0.0)
     kernel: Literal["auto", "fem", "corotated-p1"] = "auto"
+    backend: Literal["numpy", "warp"] = "numpy"
     output_every: int = Field(1, ge=1)
     damping: DampingSection = DampingSection()
     ground: GroundSection | None = None
@@ -135,7 +137,8 @@ def build_simulation(cfg: DynamicsConfig, base_dir: Path | None = None) -> Simul
         f_ext = np.zeros_like(f_ext)
     model = SolidModel(problem.model, problem.fixed, q_fixed=q_fixed, mass=d.mass,
                        rayleigh=(d.damping.alpha, d.damping.beta), gravity=d.gravity, f_ext=f_ext,
-                       ground=ground, kernel=d.kernel, tangent=d.newton.tangent)
+                       ground=ground, kernel=d.kernel, tangent=d.newton.tangent,
+                       backend=d.backend)
     integ = make_integrator(d.method, r=d.r, theta=d.theta, tol=d.newton.tol, max_iter=d.newton.max_iter,
                             linear_solver=d.newton.linear_solver, linear_rtol=d.newton.linear_rtol)
     v0 = np.tile(np.asarray(d.initial_velocity, dtype=float), problem.space.n_nodes)

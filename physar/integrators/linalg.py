@@ -7,11 +7,15 @@
   optional preconditioned-CG mode ('pcg') that keeps one Cholesky factor A_ref and solves later
   matrices A by CG preconditioned with  P⁻¹ = Q A_ref⁻¹ Qᵀ,  Q = blockdiag(R_i R_ref,iᵀ)  the per-node
   rotation since the factorisation (co-rotated elasticity: A ≈ Q A_ref Qᵀ, the "rotated
-  preconditioner"); it refactors when CG needs more than `refactor_iters` iterations.
+  preconditioner"); it refactors when CG needs more than `refactor_iters` iterations. CG may start from
+  a guess x0 (the caller's previous solution), and runs its preconditioner solves on `threads` BLAS /
+  OpenMP threads (default 1: a 10⁴-dof triangular solve gains nothing from a second thread and loses
+  several times on a loaded machine; see benchmarks/bench_integrators.py).
 """
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 
 import numpy as np
@@ -27,6 +31,22 @@ try:  # pragma: no cover - platform dependent
     from sksparse import cholmod as _cholmod
 except Exception:  # noqa: BLE001
     _cholmod = None
+
+try:  # pragma: no cover - optional
+    from threadpoolctl import ThreadpoolController as _ThreadpoolController
+except Exception:  # noqa: BLE001
+    _ThreadpoolController = None
+
+_CONTROLLER = []
+
+
+def thread_limit(threads: int | None):
+    """Context manager limiting BLAS/OpenMP threads to `threads` (no-op for None or without threadpoolctl)."""
+    if threads is None or _ThreadpoolController is None:
+        return contextlib.nullcontext()
+    if not _CONTROLLER:
+        _CONTROLLER.append(_ThreadpoolController())
+    return _CONTROLLER[0].limit(limits=int(threads))
 
 
 class FreePattern:
@@ -119,11 +139,13 @@ class SparseSolver:
     CHOLMOD's symbolic analysis when the pattern (indptr, indices) is unchanged); method 'pcg' solves by
     CG to relative residual `rtol` with the rotated preconditioner built from the last factor and
     `frame()` (a callable returning a :class:`BlockRotation` or None), refactoring when CG took more
-    than `refactor_iters` iterations or failed. Non-positive-definite matrices fall back to LU.
-    Counts `n_factorizations` and `n_cg_iterations`.
+    than `refactor_iters` iterations or failed; `x0` (optional) is CG's starting guess, used when its
+    residual |b - A x0| is below |b|. `threads`: BLAS/OpenMP threads during CG (None: unchanged).
+    Non-positive-definite matrices fall back to LU. Counts `n_factorizations` and `n_cg_iterations`.
     """
 
-    def __init__(self, method: str = "direct", rtol: float = 1e-8, refactor_iters: int = 30):
+    def __init__(self, method: str = "direct", rtol: float = 1e-8, refactor_iters: int = 30,
+                 threads: int | None = 1):
         if method not in ("direct", "pcg"):
             raise ConfigError(f"linear solver must be 'direct' or 'pcg', got {method!r}")
         if not (0 < rtol < 1):
@@ -131,6 +153,9 @@ class SparseSolver:
         self.method = method
         self.rtol = float(rtol)
         self.refactor_iters = int(refactor_iters)
+        if threads is not None and int(threads) < 1:
+            raise ConfigError(f"linear solver threads must be >= 1 or None, got {threads}")
+        self.threads = None if threads is None else int(threads)
         self._cache = {}  # key -> factor, for constant matrices
         self._factor = None
         self._symbolic = None
@@ -207,7 +232,7 @@ class SparseSolver:
         self._stale = factor[0] != "cholmod"  # PCG only on an SPD (Cholesky) reference
         return self._check(self._apply(factor, b))
 
-    def solve(self, A: sp.spmatrix, b: np.ndarray, key=None, frame=None) -> np.ndarray:
+    def solve(self, A: sp.spmatrix, b: np.ndarray, key=None, frame=None, x0=None) -> np.ndarray:
         if key is not None or self.method == "direct":
             if key is None:
                 return self._direct(A, b, None)
@@ -232,9 +257,21 @@ class SparseSolver:
             it[0] += 1
 
         maxiter = max(3 * self.refactor_iters, 50)
+        if x0 is not None:
+            x0 = np.asarray(x0, dtype=float)
+            if x0.shape != b.shape or not np.all(np.isfinite(x0)):
+                x0 = None
+        if x0 is not None:
+            # CG from x0 solves A e = b - A x0 to rtol |b| (scipy's criterion is relative to b, not to
+            # the initial residual): a guess with a residual above |b| would only cost iterations.
+            bn = np.linalg.norm(b)
+            r0 = b - A @ x0
+            if not np.linalg.norm(r0) < bn:
+                x0 = None
         tol = {"rtol" if _CG_RTOL else "tol": self.rtol}  # scipy < 1.12 calls it tol
-        x, info = spla.cg(A, b, atol=0.0, maxiter=maxiter, callback=count,
-                          M=spla.LinearOperator((n, n), matvec=prec, dtype=float), **tol)
+        with thread_limit(self.threads):
+            x, info = spla.cg(A, b, x0=x0, atol=0.0, maxiter=maxiter, callback=count,
+                              M=spla.LinearOperator((n, n), matvec=prec, dtype=float), **tol)
         self.n_cg_iterations += it[0]
         self.n_cg_solves += 1
         if info != 0 or not np.all(np.isfinite(x)):

@@ -231,14 +231,22 @@ class CorotatedP1Kernel:
     F = I + Σ_a u_a ⊗ G_a = R S;  f_a = V P G_a with P = 2 mu (F - R) + lambda tr(S - I) R (this is
     exactly physar.fem's Corotated stress on P1). Tangent: 'exact' (with the dR terms, quadratic Newton)
     or 'warped' K_e = R K0_e Rᵀ (stiffness warping, dR dropped, always SPD), K0_e = V Bᵀ C B. Energy W = mu |S - I|² + lambda/2 tr(S - I)².
+
+    `backend` 'numpy' (vectorised numpy) or 'warp' (NVIDIA Warp CPU kernels for F, the polar
+    decomposition, the forces, the warped element matrices summed straight into the CSR data, the
+    matrix-free warped product and the node frames, see :mod:`physar.integrators.warp_kernels`; same
+    equations, equal to round-off; the exact tangent's element matrices stay in numpy).
     """
 
     name = "corotated-p1"
 
-    def __init__(self, elastic: ElasticModel, tangent: str = "exact"):
+    def __init__(self, elastic: ElasticModel, tangent: str = "exact", backend: str = "numpy"):
         if tangent not in ("exact", "warped"):
             raise ConfigError(f"tangent must be 'exact' or 'warped', got {tangent!r}")
+        if backend not in ("numpy", "warp"):
+            raise ConfigError(f"backend must be 'numpy' or 'warp', got {backend!r}")
         self.tangent = tangent
+        self.backend = backend
         space = elastic.space
         if space.element != "P1" or not isinstance(elastic.material, Corotated):
             raise ConfigError("the fast co-rotated kernel needs P1 elements and the 'corotated' material")
@@ -266,6 +274,14 @@ class CorotatedP1Kernel:
                                            * self.vol[:, None, None, None, None]).reshape(-1, 12, 12))
         self._pattern = None
         self._last_R = None  # (u, R) of the last stress evaluation (reused by node_rotations)
+        self._wk = None
+        self._wk_R = None
+        if backend == "warp":
+            try:
+                from physar.integrators.warp_kernels import WarpCorotatedP1
+            except ImportError as exc:  # pragma: no cover - warp is in the ml extra
+                raise ConfigError(f"backend 'warp' needs warp-lang (pip install 'physar[ml]'): {exc}") from None
+            self._wk = WarpCorotatedP1(self.cells, self.G, self.vol, lam, mu, self.n // 3)
 
     def _F(self, u):
         ue = u.reshape(-1, 3)[self.cells]  # (m, 4, 3)
@@ -283,6 +299,20 @@ class CorotatedP1Kernel:
         P = 2 * self.mu * (F - R) + self.lam * trD[:, None, None] * R
         return R, S, P
 
+    def _warp_eval(self, u):
+        """F, R (cached for u) and element forces fe (m, 4, 3) by the warp kernel; elements where the
+        Newton polar does not apply (inverted, near singular) are redone here as in :func:`fast_polar`."""
+        F, R, fe, bad = self._wk.stress_forces(u)
+        if len(bad):
+            Rb, Sb = fast_polar(F[bad])  # falls back to the SVD polar for these
+            R[bad] = Rb  # R is the warp buffer: the node frames and matvecs see the fix
+            trD = np.trace(Sb, axis1=1, axis2=2) - 3.0
+            P = 2 * self.mu * (F[bad] - Rb) + self.lam * trD[:, None, None] * Rb
+            fe[bad] = np.matmul(self.G[bad], np.swapaxes(P, 1, 2)) * self.vol[bad, None, None]
+        self._last_R = (np.array(u, copy=True), R.copy())
+        self._wk_R = self._last_R  # the rotations the warp buffer holds
+        return F, R, fe
+
     def _scatter(self, fe):
         return np.bincount(self.dofs.ravel(), weights=fe.ravel(), minlength=self.n)
 
@@ -291,6 +321,8 @@ class CorotatedP1Kernel:
         return np.matmul(self.G, np.swapaxes(P, 1, 2)) * self.vol[:, None, None]
 
     def force(self, u):
+        if self._wk is not None:
+            return self._scatter(self._warp_eval(u)[2])
         _, _, P = self._stress(self._F(u), u)
         return self._scatter(self._nodal(P))
 
@@ -299,6 +331,9 @@ class CorotatedP1Kernel:
         last = self._last_R
         if last is not None and np.array_equal(last[0], u):
             return last[1]
+        if self._wk is not None:
+            self._warp_eval(u)
+            return self._last_R[1]
         R, _ = fast_polar(self._F(u))
         self._last_R = (np.array(u, copy=True), R)
         return R
@@ -306,6 +341,13 @@ class CorotatedP1Kernel:
     def node_rotations(self, u) -> np.ndarray:
         """Per-node rotations (n_nodes, 3, 3): polar factor of the volume-weighted sum of the element
         rotations around each node (the frame of the rotated preconditioner, see linalg.BlockRotation)."""
+        if self._wk is not None:
+            self._sync_warp(u)
+            Rn, acc, bad = self._wk.node_frames()
+            Rn = Rn.copy()
+            if len(bad):
+                Rn[bad] = fast_polar(acc[bad])[0]
+            return Rn
         R = self.rotations(u) * self.vol[:, None, None]
         nn = self.n // 3
         acc = np.zeros((nn, 9))
@@ -352,16 +394,40 @@ class CorotatedP1Kernel:
         K += self._K2mu
         return K
 
+    def _sync_warp(self, u):
+        """Make the warp buffer hold the rotations at u (the cached ones when u is the last point)."""
+        last = self._last_R
+        if last is not None and np.array_equal(last[0], u):
+            if self._wk_R is not last:
+                self._wk.set_rotations(last[1])
+                self._wk_R = last
+        else:
+            self._warp_eval(u)
+
     def force_tangent(self, u):
-        R, S, P = self._stress(self._F(u), u)
-        f = self._scatter(self._nodal(P))
         if self._pattern is None:
             self._pattern = CSRPattern(self.dofs, self.n)
+        if self._wk is not None:
+            F, R, fe = self._warp_eval(u)
+            f = self._scatter(fe)
+            pat = self._pattern
+            if self.tangent == "warped":
+                if self._wk._slots is None:
+                    self._wk.set_slots(pat.slot, pat.nnz)
+                data = self._wk.warped_assemble().copy()
+                return f, sp.csr_matrix((data, pat.indices, pat.indptr), shape=(self.n, self.n))
+            S = np.matmul(np.swapaxes(R, 1, 2), F)
+            return f, pat.assemble(self._exact(R, 0.5 * (S + np.swapaxes(S, 1, 2))))
+        R, S, P = self._stress(self._F(u), u)
+        f = self._scatter(self._nodal(P))
         Ke = self._warped(R) if self.tangent == "warped" else self._exact(R, S)
         return f, self._pattern.assemble(Ke)
 
     def tangent_matvec(self, u, v):
         """Warped tangent times v, matrix-free: Σ_e blockdiag(R) K0_e blockdiag(R)ᵀ v_e."""
+        if self._wk is not None:
+            self._sync_warp(u)
+            return self._wk.warped_matvec(v)
         R = self.rotations(u)
         ve = v.reshape(-1, 3)[self.cells]  # (m, 4, 3)
         w = np.matmul(ve, R).reshape(-1, 12, 1)  # Rᵀ v_b, as rows
@@ -369,25 +435,32 @@ class CorotatedP1Kernel:
         return self._scatter(np.matmul(y, np.swapaxes(R, 1, 2)))
 
     def energy(self, u):
-        _, S = fast_polar(self._F(u))
+        if self._wk is not None:
+            F, R, _ = self._warp_eval(u)
+            S = np.matmul(np.swapaxes(R, 1, 2), F)
+            S = 0.5 * (S + np.swapaxes(S, 1, 2))
+        else:
+            _, S = fast_polar(self._F(u))
         D = S - np.eye(3)
         W = self.mu * np.einsum("mij,mij->m", D, D) + 0.5 * self.lam * np.trace(D, axis1=1, axis2=2) ** 2
         return float(self.vol @ W)
 
 
-def make_kernel(elastic: ElasticModel, kernel: str = "auto", tangent: str = "exact"):
+def make_kernel(elastic: ElasticModel, kernel: str = "auto", tangent: str = "exact", backend: str = "numpy"):
     """'auto': the fast co-rotated P1 kernel when it applies, else physar.fem assembly; 'fem'; 'corotated-p1'.
 
-    `tangent` ('exact' | 'warped') applies to the co-rotated P1 kernel only.
+    `tangent` ('exact' | 'warped') and `backend` ('numpy' | 'warp') apply to the co-rotated P1 kernel only.
     """
+    if backend not in ("numpy", "warp"):
+        raise ConfigError(f"backend must be 'numpy' or 'warp', got {backend!r}")
     if kernel == "fem":
         return FemKernel(elastic)
     if kernel == "corotated-p1":
-        return CorotatedP1Kernel(elastic, tangent)
+        return CorotatedP1Kernel(elastic, tangent, backend)
     if kernel != "auto":
         raise ConfigError(f"unknown kernel {kernel!r}; use auto, fem or corotated-p1")
     if elastic.space.element == "P1" and isinstance(elastic.material, Corotated):
-        return CorotatedP1Kernel(elastic, tangent)
+        return CorotatedP1Kernel(elastic, tangent, backend)
     return FemKernel(elastic)
 
 
@@ -411,12 +484,12 @@ class SolidModel(DynamicsModel):
     Newton matrix uses the stiffness tangent in place of K_D and neglects dK_D/dq v.
     Parameters: `fixed` pinned dofs held at `q_fixed` (default 0), `mass` 'lumped' | 'consistent',
     `rayleigh` = (alpha [1/s], beta [s]), `gravity` (3,) [m/s²], `f_ext` (n,) [N] constant,
-    `ground` a :class:`Ground` or None, `kernel` and `tangent` see :func:`make_kernel`.
+    `ground` a :class:`Ground` or None, `kernel`, `tangent` and `backend` see :func:`make_kernel`.
     """
 
     def __init__(self, elastic: ElasticModel, fixed=(), q_fixed=None, mass: str = "lumped",
                  rayleigh=(0.0, 0.0), gravity=None, f_ext=None, ground: Ground | None = None,
-                 kernel: str = "auto", tangent: str = "exact"):
+                 kernel: str = "auto", tangent: str = "exact", backend: str = "numpy"):
         if mass not in ("lumped", "consistent"):
             raise ConfigError(f"mass must be 'lumped' or 'consistent', got {mass!r}")
         alpha, beta = (float(x) for x in rayleigh)
@@ -425,7 +498,7 @@ class SolidModel(DynamicsModel):
         self.elastic = elastic
         self.space = elastic.space
         self.n_dofs = n = elastic.n_dofs
-        self.kernel = make_kernel(elastic, kernel, tangent)
+        self.kernel = make_kernel(elastic, kernel, tangent, backend)
         self.linear = bool(elastic.linear) and ground is None
         self.mass = elastic.mass_matrix(lumped=(mass == "lumped"))
         self.mass_kind = mass

@@ -72,8 +72,10 @@ class Integrator:
     Newton settings: `tol` (relative residual of (S), or relative Newton update of v), `max_iter`.
     Linear solves: `linear_solver` 'direct' (CHOLMOD, symbolic analysis reused) or 'pcg' (CG to relative
     residual `linear_rtol` with a reused Cholesky factor in the model's rotated frame, see
-    :class:`physar.integrators.linalg.SparseSolver`). `pack`/`unpack` map the method's state to a flat
-    vector (used by the amplification-matrix analysis).
+    :class:`physar.integrators.linalg.SparseSolver`; `warm_start`: CG of a stage's first Newton iteration
+    starts from that stage's previous update Δv (velocity changes little between steps), `linear_threads`
+    BLAS/OpenMP threads during CG). `pack`/`unpack` map the method's state to a flat vector (used by the
+    amplification-matrix analysis).
     """
 
     name = "integrator"
@@ -82,14 +84,16 @@ class Integrator:
     state_components = ("q", "v")
 
     def __init__(self, tol: float = 1e-9, max_iter: int = 25, linear_solver: str = "direct",
-                 linear_rtol: float = 1e-8):
+                 linear_rtol: float = 1e-8, warm_start: bool = True, linear_threads: int | None = 1):
         if not (tol > 0):
             raise ConfigError(f"Newton tol must be > 0, got {tol}")
         if max_iter < 1:
             raise ConfigError(f"Newton max_iter must be >= 1, got {max_iter}")
         self.tol = tol
         self.max_iter = max_iter
-        self.solver = SparseSolver(linear_solver, linear_rtol)
+        self.solver = SparseSolver(linear_solver, linear_rtol, threads=linear_threads)
+        self.warm_start = bool(warm_start)
+        self._guess = {}  # (hf, hq) -> the stage's last first-iteration Δv (CG warm start)
         self.stats = StepStats()
 
     def __repr__(self):
@@ -131,7 +135,11 @@ class Integrator:
             if np.any(e):
                 rhs_n = rhs_n - hf * (lin.K @ e)
             J = model.system_matrix(lin, 1.0, hf, hf * hq)
-            dv = self.solver.solve(J, rhs_n, key, frame=lambda q=q: model.frame(q))
+            warm = it == 1 and self.warm_start and key is None and self.solver.method == "pcg"
+            x0 = self._guess.get((hf, hq)) if warm else None
+            dv = self.solver.solve(J, rhs_n, key, frame=lambda q=q: model.frame(q), x0=x0)
+            if warm:
+                self._guess[(hf, hq)] = dv
             v = v.copy()
             v[fr] += dv
             q = q.copy()

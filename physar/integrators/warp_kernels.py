@@ -1,0 +1,225 @@
+"""NVIDIA Warp CPU kernels for co-rotated linear P1 tetrahedra (seed 001 §2, Eq. 2.1; the fast path of
+:class:`physar.integrators.model.CorotatedP1Kernel`, backend 'warp').
+
+Per element e with shape-function gradients G_a (a = 0..3) and volume V (all float64):
+
+* F = I + Σ_a u_a ⊗ G_a = R S (polar decomposition by the scaled Newton iteration
+  R <- ½ (g R + R⁻ᵀ / g), g = |det R|^(-1/3), the same iteration and tolerance as
+  :func:`physar.integrators.model.fast_polar`; an element with det F <= 1e-12 |F|³ or not converged in
+  12 iterations is flagged and redone in numpy by the SVD polar decomposition);
+* P = 2 mu (F - R) + lambda tr(S - I) R, nodal forces f_a = V P G_a;
+* warped stiffness K_e = R K0_e Rᵀ, entry by entry with g_a = R G_a:
+  K_e[a i, b k] = V (lambda g_ai g_bk + mu g_ak g_bi + mu δ_ik G_a·G_b), summed into CSR data slots;
+* matrix-free product K_e x_e: H = Σ_a (Rᵀ x_a) ⊗ G_a, σ = lambda tr H I + mu (H + Hᵀ), y_a += V R σ G_a;
+* per-node frame: the polar factor of Σ_e∋node V_e R_e.
+
+Warp runs these kernels as compiled native loops; numpy needs several passes over (m, 12, 12) arrays
+for the same work (see benchmarks/bench_integrators.py, table "SI step variants").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+wp.config.quiet = True  # warp < 1.10
+wp.config.log_level = 30  # warp >= 1.10: no banner on stdout
+wp.init()
+
+_f = wp.float64
+DEVICE = "cpu"
+
+
+@wp.func
+def _polar_newton(F: wp.mat33d, tol: wp.float64):
+    """(R, flag): R the polar factor of F by scaled Newton; flag 1 when F is (near) singular or inverted,
+    or the iteration did not converge in 12 steps (the caller then uses the SVD polar)."""
+    fro = wp.ddot(F, F)
+    det = wp.determinant(F)
+    R = F
+    ok = int(0)  # noqa: UP018, RUF046 - warp: a dynamic (loop-mutable) int
+    if det > _f(1e-12) * fro * wp.sqrt(fro):
+        for _it in range(12):
+            g = wp.pow(wp.abs(det), _f(-1.0) / _f(3.0))
+            new = _f(0.5) * (g * R + wp.transpose(wp.inverse(R)) / g)
+            d = new - R
+            mx = _f(0.0)
+            for i in range(3):
+                for j in range(3):
+                    mx = wp.max(mx, wp.abs(d[i, j]))
+            R = new
+            if mx <= tol:
+                ok = 1
+                break
+            det = wp.determinant(R)
+    return R, 1 - ok
+
+
+@wp.kernel
+def _deformation(u: wp.array(dtype=wp.vec3d), cells: wp.array2d(dtype=wp.int32),
+                 G: wp.array2d(dtype=wp.vec3d), F_out: wp.array(dtype=wp.mat33d)):
+    e = wp.tid()
+    F = wp.identity(n=3, dtype=wp.float64)
+    for a in range(4):
+        F += wp.outer(u[cells[e, a]], G[e, a])
+    F_out[e] = F
+
+
+@wp.kernel
+def _stress_forces(u: wp.array(dtype=wp.vec3d), cells: wp.array2d(dtype=wp.int32),
+                   G: wp.array2d(dtype=wp.vec3d), vol: wp.array(dtype=wp.float64), lam: wp.float64,
+                   mu: wp.float64, tol: wp.float64, F_out: wp.array(dtype=wp.mat33d),
+                   R_out: wp.array(dtype=wp.mat33d), fe: wp.array2d(dtype=wp.vec3d),
+                   flag: wp.array(dtype=wp.int32)):
+    e = wp.tid()
+    F = wp.identity(n=3, dtype=wp.float64)
+    for a in range(4):
+        F += wp.outer(u[cells[e, a]], G[e, a])
+    R, bad = _polar_newton(F, tol)
+    F_out[e] = F
+    R_out[e] = R
+    flag[e] = bad
+    S = wp.transpose(R) * F
+    trD = S[0, 0] + S[1, 1] + S[2, 2] - _f(3.0)
+    P = _f(2.0) * mu * (F - R) + lam * trD * R
+    V = vol[e]
+    for a in range(4):
+        fe[e, a] = V * (P * G[e, a])
+
+
+@wp.kernel
+def _warped_assemble(R_in: wp.array(dtype=wp.mat33d), G: wp.array2d(dtype=wp.vec3d),
+                     vol: wp.array(dtype=wp.float64), lam: wp.float64, mu: wp.float64,
+                     slots: wp.array2d(dtype=wp.int32), data: wp.array(dtype=wp.float64)):
+    e = wp.tid()
+    R = R_in[e]
+    V = vol[e]
+    for a in range(4):
+        ga = R * G[e, a]
+        for b in range(4):
+            gb = R * G[e, b]
+            gg = mu * wp.dot(G[e, a], G[e, b])
+            for i in range(3):
+                for k in range(3):
+                    val = lam * ga[i] * gb[k] + mu * ga[k] * gb[i]
+                    if i == k:
+                        val += gg
+                    s = slots[e, (a * 3 + i) * 12 + b * 3 + k]
+                    if s >= 0:
+                        data[s] += V * val  # CPU kernels run serially: a plain add is safe
+
+
+@wp.kernel
+def _warped_matvec(x: wp.array(dtype=wp.vec3d), cells: wp.array2d(dtype=wp.int32),
+                   R_in: wp.array(dtype=wp.mat33d), G: wp.array2d(dtype=wp.vec3d),
+                   vol: wp.array(dtype=wp.float64), lam: wp.float64, mu: wp.float64,
+                   y: wp.array(dtype=wp.vec3d)):
+    e = wp.tid()
+    R = R_in[e]
+    RT = wp.transpose(R)
+    H = wp.mat33d()
+    for a in range(4):
+        H += wp.outer(RT * x[cells[e, a]], G[e, a])
+    tr = H[0, 0] + H[1, 1] + H[2, 2]
+    sig = mu * (H + wp.transpose(H)) + lam * tr * wp.identity(n=3, dtype=wp.float64)
+    M = vol[e] * (R * sig)
+    for a in range(4):
+        wp.atomic_add(y, cells[e, a], M * G[e, a])
+
+
+@wp.kernel
+def _node_accumulate(R_in: wp.array(dtype=wp.mat33d), cells: wp.array2d(dtype=wp.int32),
+                     vol: wp.array(dtype=wp.float64), acc: wp.array(dtype=wp.mat33d)):
+    e = wp.tid()
+    M = vol[e] * R_in[e]
+    for a in range(4):
+        wp.atomic_add(acc, cells[e, a], M)
+
+
+@wp.kernel
+def _node_polar(acc: wp.array(dtype=wp.mat33d), tol: wp.float64, R_out: wp.array(dtype=wp.mat33d),
+                flag: wp.array(dtype=wp.int32)):
+    i = wp.tid()
+    A = acc[i]
+    if wp.ddot(A, A) == _f(0.0):  # a node of no element: identity frame
+        R_out[i] = wp.identity(n=3, dtype=wp.float64)
+        flag[i] = 0
+        return
+    R, bad = _polar_newton(A, tol)
+    R_out[i] = R
+    flag[i] = bad
+
+
+def _wp(a: np.ndarray, dtype):
+    """A warp CPU array sharing memory with the C-contiguous numpy array `a` (no copy)."""
+    return wp.array(np.ascontiguousarray(a), dtype=dtype, device=DEVICE, copy=False)
+
+
+class WarpCorotatedP1:
+    """Warp buffers and launches for one mesh: `cells` (m, 4) node ids, `G` (m, 4, 3) gradients [1/m],
+    `vol` (m,) [m³], Lamé `lam`, `mu` [Pa], `n_nodes`. All results are numpy views of warp CPU memory,
+    overwritten by the next call of the same method (copy to keep)."""
+
+    def __init__(self, cells, G, vol, lam: float, mu: float, n_nodes: int, tol: float = 1e-13):
+        self.m = m = len(cells)
+        self.n_nodes = n_nodes
+        self.lam, self.mu, self.tol = float(lam), float(mu), float(tol)
+        self.cells = _wp(np.asarray(cells, dtype=np.int32), wp.int32)
+        self.G = _wp(np.asarray(G, dtype=np.float64), wp.vec3d)
+        self.vol = _wp(np.asarray(vol, dtype=np.float64), wp.float64)
+        self.F = wp.zeros(m, dtype=wp.mat33d, device=DEVICE)
+        self.R = wp.zeros(m, dtype=wp.mat33d, device=DEVICE)
+        self.fe = wp.zeros((m, 4), dtype=wp.vec3d, device=DEVICE)
+        self.flag = wp.zeros(m, dtype=wp.int32, device=DEVICE)
+        self.y = wp.zeros(n_nodes, dtype=wp.vec3d, device=DEVICE)
+        self.acc = wp.zeros(n_nodes, dtype=wp.mat33d, device=DEVICE)
+        self.Rn = wp.zeros(n_nodes, dtype=wp.mat33d, device=DEVICE)
+        self.nflag = wp.zeros(n_nodes, dtype=wp.int32, device=DEVICE)
+        self._slots = None
+        self._data = None
+
+    def deformation(self, u: np.ndarray) -> np.ndarray:
+        """F (m, 3, 3) at displacement u (n_nodes * 3,)."""
+        wp.launch(_deformation, dim=self.m, inputs=[_wp(u.reshape(-1, 3), wp.vec3d), self.cells, self.G, self.F],
+                  device=DEVICE)
+        return self.F.numpy()
+
+    def stress_forces(self, u: np.ndarray):
+        """(F, R, fe, flagged): F and its polar factor R (m, 3, 3), element nodal forces fe (m, 4, 3)
+        f_a = V P G_a, and the ids of the elements left to the caller (Newton polar not applicable)."""
+        wp.launch(_stress_forces, dim=self.m,
+                  inputs=[_wp(u.reshape(-1, 3), wp.vec3d), self.cells, self.G, self.vol, self.lam, self.mu,
+                          self.tol, self.F, self.R, self.fe, self.flag], device=DEVICE)
+        return self.F.numpy(), self.R.numpy(), self.fe.numpy(), np.flatnonzero(self.flag.numpy())
+
+    def set_rotations(self, R: np.ndarray) -> None:
+        """Overwrite the stored element rotations (after the caller fixed flagged elements)."""
+        self.R.numpy()[...] = R
+
+    def set_slots(self, slots: np.ndarray, nnz: int) -> None:
+        """Data slot of every element-matrix entry, (m, 144) in (a i, b k) order; -1 = dropped."""
+        self._slots = _wp(np.asarray(slots, dtype=np.int32).reshape(self.m, 144), wp.int32)
+        self._data = wp.zeros(int(nnz), dtype=wp.float64, device=DEVICE)
+
+    def warped_assemble(self) -> np.ndarray:
+        """CSR data (nnz,) of Σ_e R_e K0_e R_eᵀ at the stored rotations, on the slots of set_slots."""
+        self._data.zero_()
+        wp.launch(_warped_assemble, dim=self.m,
+                  inputs=[self.R, self.G, self.vol, self.lam, self.mu, self._slots, self._data], device=DEVICE)
+        return self._data.numpy()
+
+    def warped_matvec(self, x: np.ndarray) -> np.ndarray:
+        """Σ_e R_e K0_e R_eᵀ x (n_nodes * 3,) at the stored rotations (a fresh array)."""
+        self.y.zero_()
+        wp.launch(_warped_matvec, dim=self.m,
+                  inputs=[_wp(x.reshape(-1, 3), wp.vec3d), self.cells, self.R, self.G, self.vol, self.lam,
+                          self.mu, self.y], device=DEVICE)
+        return self.y.numpy().reshape(-1).copy()
+
+    def node_frames(self):
+        """(Rn, acc, flagged): per-node polar factors of Σ V_e R_e (n_nodes, 3, 3) at the stored
+        rotations, the sums themselves, and the nodes left to the caller."""
+        self.acc.zero_()
+        wp.launch(_node_accumulate, dim=self.m, inputs=[self.R, self.cells, self.vol, self.acc], device=DEVICE)
+        wp.launch(_node_polar, dim=self.n_nodes, inputs=[self.acc, self.tol, self.Rn, self.nflag], device=DEVICE)
+        return self.Rn.numpy(), self.acc.numpy(), np.flatnonzero(self.nflag.numpy())
