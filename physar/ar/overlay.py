@@ -88,20 +88,33 @@ class BeamOverlay:
             self._bar = bar
         return self._bar
 
+    def _strips(self, lev: np.ndarray) -> list:
+        """Runs of equal colour level along each row of cells: [(level, row, first cell, end cell)]. A run
+        is drawn as one polygon (the union of its quads), so the painter fills a few dozen polygons instead
+        of one per cell and no anti-aliased seams appear between cells of the same colour."""
+        out = []
+        for r, row in enumerate(lev):
+            cut = np.flatnonzero(np.diff(row)) + 1
+            starts, ends = np.r_[0, cut], np.r_[cut, row.size]
+            out += [(int(row[a]), r, int(a), int(b)) for a, b in zip(starts, ends)]
+        return out
+
     def draw(self, img: np.ndarray, camera: Camera, pose: Pose, c: np.ndarray, mu: np.ndarray, std: np.ndarray,
-             status: str, info: dict) -> np.ndarray:
-        """Draw onto `img` (BGR uint8, modified in place) and return it."""
+             status: str, info: dict, values: np.ndarray | None = None) -> np.ndarray:
+        """Draw onto `img` (BGR uint8, modified in place) and return it. ``values``: :meth:`values` of c when
+        the caller has computed them already."""
         h, w = img.shape[:2]
         o = self.obj
         if pose is not None and status != "lost":
             u = np.tensordot(c, self.Fg, 1) * self.exag  # (nz, nxf, 3)
-            X = np.stack(np.meshgrid(self.xf, self.zs), -1)  # (nz, nxf, 2) (x, z)
-            P3 = np.stack([X[..., 0], np.zeros_like(X[..., 0]), X[..., 1]], -1) + u
+            if getattr(self, "_P0", None) is None:  # undeformed front-face grid (nz, nxf, 3)
+                X = np.stack(np.meshgrid(self.xf, self.zs), -1)  # (nz, nxf, 2) (x, z)
+                self._P0 = np.stack([X[..., 0], np.zeros_like(X[..., 0]), X[..., 1]], -1)
+            P3 = self._P0 + u
             p = camera.project(P3.reshape(-1, 3), pose).reshape(*P3.shape[:2], 2)
-            vals = self.values(c)
+            vals = self.values(c) if values is None else values
             q = 0.25 * (vals[:-1, :-1] + vals[1:, :-1] + vals[:-1, 1:] + vals[1:, 1:])
             lev = np.clip((q / self.vmax * (self.levels - 1)).round().astype(int), 0, self.levels - 1)
-            quads = np.stack([p[:-1, :-1], p[:-1, 1:], p[1:, 1:], p[1:, :-1]], 2)  # (nz-1, nxf-1, 4, 2)
             lo = np.floor(p.reshape(-1, 2).min(0)).astype(int) - 3
             hi = np.ceil(p.reshape(-1, 2).max(0)).astype(int) + 3
             x0, y0 = max(lo[0], 0), max(lo[1], 0)
@@ -109,14 +122,15 @@ class BeamOverlay:
             if x1 > x0 and y1 > y0:
                 roi = img[y0:y1, x0:x1]
                 layer = roi.copy()
-                qi = np.round((quads - (x0, y0)) * 16).astype(np.int32)
-                for L in np.unique(lev):
-                    sel = qi[lev == L]
-                    cv2.fillPoly(layer, list(sel), tuple(int(v) for v in self.lut[L]), cv2.LINE_AA, shift=4)
+                pi = np.round((p - (x0, y0)) * 16).astype(np.int32)  # 4 fractional bits
+                polys = {}
+                for L, r, a, b in self._strips(lev):  # top edge left to right, bottom edge back
+                    polys.setdefault(L, []).append(np.concatenate([pi[r, a:b + 1], pi[r + 1, b:a - 1 if a else None:-1]]))
+                for L, pl in polys.items():
+                    cv2.fillPoly(layer, pl, tuple(int(v) for v in self.lut[L]), cv2.LINE_AA, shift=4)
                 # element edges of the reduced model's mesh (vertex grid)
                 step = (self.xf.size - 1) // (self.xs.size - 1)
-                edges = [np.round((p[k] - (x0, y0)) * 16).astype(np.int32) for k in range(p.shape[0])]
-                edges += [np.round((p[:, j] - (x0, y0)) * 16).astype(np.int32) for j in range(0, p.shape[1], step)]
+                edges = list(pi) + list(pi[:, ::step].transpose(1, 0, 2).copy())
                 cv2.polylines(layer, edges, False, (40, 40, 40), 1, cv2.LINE_AA, shift=4)
                 cv2.addWeighted(layer, 0.7, roi, 0.3, 0, dst=roi)
             # arrow at the estimated load position

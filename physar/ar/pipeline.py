@@ -123,6 +123,7 @@ class FrameResult:
     n_dots: int
     latency_ms: float
     stages_ms: dict = field(default_factory=dict)
+    cpu_ms: float = float("nan")  # CPU time of this thread for the frame's compute (less load-sensitive)
 
 
 class ARPipeline:
@@ -268,7 +269,7 @@ class ARPipeline:
                 gray: np.ndarray | None = None) -> tuple[np.ndarray, FrameResult]:
         """One BGR frame; ``gray``: its grey image when the caller has one (the decoder's luma plane), else
         it is converted here."""
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         st = {}
         if gray is None:
             gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
@@ -300,32 +301,52 @@ class ARPipeline:
             status = "hold" if pe.status == "predicted" else "lost"
             t3 = time.perf_counter()
             st["dots"] = st["assimilate"] = 0.0
-        out = frame
-        if draw and self.overlay is not None:
-            c = self.rom.coefficients(self.mu)[0]
-            vals = self.overlay.values(c)
-            u_tip = float(np.tensordot(c, self.overlay.Fg, 1)[len(self.overlay.zs) // 2, -1, 2]) * -1e3
-            info = {"markers": pe.n_markers, "dots": n_dots, "dots_total": len(self.obj.dots), "frame": index,
-                    "latency_ms": (t3 - t0) * 1e3, "field_max": float(vals.max()), "tip_mm": u_tip}
-            out = self.overlay.draw(frame, self.camera, pe.pose, c, self.mu, self.std,
-                                    status if pe.pose is not None else "lost", info)
+        t3 = time.perf_counter()
+        state = None
+        if self.overlay is not None:
+            state = dict(pose=pe.pose, c=self.rom.coefficients(self.mu)[0], mu=self.mu.copy(), std=self.std.copy(),
+                         status=status if pe.pose is not None else "lost",
+                         info={"markers": pe.n_markers, "dots": n_dots, "dots_total": len(self.obj.dots),
+                               "frame": index, "latency_ms": (t3 - t0) * 1e3})
+        out = self.render(frame, state) if draw and state is not None else frame
         t4 = time.perf_counter()
         st["overlay"] = (t4 - t3) * 1e3
-        return out, FrameResult(index, status, self.mu.copy(), self.std.copy(), resid, pe.n_markers, n_dots,
-                                (t4 - t0) * 1e3, st)
+        r = FrameResult(index, status, self.mu.copy(), self.std.copy(), resid, pe.n_markers, n_dots,
+                        (t4 - t0) * 1e3, st, (time.thread_time() - c0) * 1e3)
+        r._draw = state
+        return out, r
+
+    def render(self, frame: np.ndarray, state: dict) -> np.ndarray:
+        """Draw the overlay of one frame's estimate ``state`` (made by :meth:`process`) onto ``frame`` (in
+        place). Thread-safe with respect to the estimation: it reads only the overlay's own data and the
+        state's copies, so it can run in the encoder thread while the next frame is being estimated."""
+        c = state["c"]
+        vals = self.overlay.values(c)
+        u_tip = float(np.tensordot(c, self.overlay.Fg, 1)[len(self.overlay.zs) // 2, -1, 2]) * -1e3
+        info = dict(state["info"], field_max=float(vals.max()), tip_mm=u_tip)
+        return self.overlay.draw(frame, self.camera, state["pose"], c, state["mu"], state["std"], state["status"],
+                                 info, values=vals)
 
     # -- whole videos -------------------------------------------------------------------------------------
     def run(self, source, out_video=None, out_csv=None, fps: float | None = None, crf: int = 20,
             preset: str = "veryfast", progress: Callable[[int, int], None] | None = None,
-            max_frames: int | None = None, snapshots: dict | None = None) -> dict:
+            max_frames: int | None = None, snapshots: dict | None = None, overlay_thread: bool = True,
+            use_luma: bool = True, encoder_threads: int = 0) -> dict:
         """Process a video file path or a frame source (VideoReader / CameraSource / iterable of frames).
 
+        Three threads overlap: the decoder (PyAV, reading ahead), the estimation (this thread) and the
+        encoder; with ``overlay_thread`` the overlay is drawn in the encoder thread too (:meth:`render`), so
+        that this thread only estimates. ``use_luma``: take the grey image from the decoder's luma plane
+        (else convert BGR to grey here). ``encoder_threads``: libx264 threads (0: its default).
+
         Outputs are written atomically (temporary file renamed at the end). ``snapshots``: {frame index:
-        PNG path} of augmented frames to save. Returns a summary with fps and per-stage latency statistics.
+        PNG path} of augmented frames to save. Returns a summary with fps and per-stage latency statistics
+        ("overlay" is measured in the thread that draws it; "cpu_ms_median": CPU time of the estimation
+        thread per frame, overlay included when it is drawn there).
         """
         from physar.ar.video import VideoReader, VideoWriter, atomic_path
 
-        reader = VideoReader(source) if isinstance(source, (str, Path)) else source
+        reader = VideoReader(source, convert="opencv") if isinstance(source, (str, Path)) else source
         w, h = getattr(reader, "width", None), getattr(reader, "height", None)
         if (w, h) != (None, None) and (w, h) != self.camera.size:
             raise ConfigError(f"video is {w}x{h} but the camera file is for {self.camera.width}x"
@@ -339,7 +360,8 @@ class ARPipeline:
             vtmp = stack.enter_context(atomic_path(out_video)) if out_video else None
             ctmp = stack.enter_context(atomic_path(out_csv)) if out_csv else None
             writer = stack.enter_context(VideoWriter(vtmp, self.camera.width, self.camera.height, fps, crf=crf,
-                                                     preset=preset, threaded=True)) if vtmp else None
+                                                     preset=preset, threaded=True, threads=encoder_threads,
+                                                     convert="opencv")) if vtmp else None
             fh = stack.enter_context(open(ctmp, "w", newline="")) if ctmp else None
             wr = csv.writer(fh) if fh else None
             if wr:
@@ -348,19 +370,23 @@ class ARPipeline:
                             [f"{n}_std" for n in names] + ["residual_mm", "markers", "dots", "latency_ms"])
             t_start = time.perf_counter()
             t_prev = t_start
-            frames = reader.frames_with_luma() if hasattr(reader, "frames_with_luma") else \
+            frames = reader.frames_with_luma() if use_luma and hasattr(reader, "frames_with_luma") else \
                 ((f, None) for f in reader)
+            deferred = writer is not None and overlay_thread and self.overlay is not None
             for k, (frame, luma) in enumerate(frames):
                 if max_frames is not None and k >= max_frames:
                     break
                 t_in = time.perf_counter()
-                out, r = self.process(frame, k, draw=writer is not None, gray=luma)
+                out, r = self.process(frame, k, draw=writer is not None and not deferred, gray=luma)
                 r.stages_ms["decode"] = (t_in - t_prev) * 1e3  # waiting for the decoder thread
                 t_e = time.perf_counter()
-                if snapshots and k in snapshots:
-                    cv2.imwrite(str(snapshots[k]), out)
-                if writer is not None:
-                    writer.write(out)
+                if deferred:
+                    writer.write(self._render_job(frame, r, snapshots.get(k) if snapshots else None))
+                else:
+                    if snapshots and k in snapshots:
+                        cv2.imwrite(str(snapshots[k]), out)
+                    if writer is not None:
+                        writer.write(out)
                 t_prev = time.perf_counter()
                 r.stages_ms["encode"] = (t_prev - t_e) * 1e3  # waiting for the encoder queue
                 results.append(r)
@@ -375,13 +401,30 @@ class ARPipeline:
             if writer is not None:
                 writer.close()
             wall = time.perf_counter() - t_start
+        for r in results:
+            r.__dict__.pop("_draw", None)
         lat = np.array([r.latency_ms for r in results])
         stages = {s: [r.stages_ms.get(s, 0.0) for r in results] for s in STAGES}
         return {"frames": len(results), "wall_s": wall, "fps": len(results) / wall,
                 "latency_ms_median": float(np.median(lat)), "latency_ms_p95": float(np.percentile(lat, 95)),
                 "stages_ms_median": {s: float(np.median(v)) for s, v in stages.items()},
                 "stages_ms_mean": {s: float(np.mean(v)) for s, v in stages.items()},
+                "cpu_ms_median": float(np.median([r.cpu_ms for r in results])),
                 "results": results}
+
+    def _render_job(self, frame, r: FrameResult, snapshot=None):
+        """A callable for the encoder thread: draws frame r's overlay (timed into r.stages_ms["overlay"]),
+        saves the snapshot PNG if asked, returns the image to encode."""
+        state = r._draw
+
+        def job():
+            t = time.perf_counter()
+            out = self.render(frame, state) if state is not None else frame
+            r.stages_ms["overlay"] = (time.perf_counter() - t) * 1e3
+            if snapshot is not None:
+                cv2.imwrite(str(snapshot), out)
+            return out
+        return job
 
 
 def read_estimates(path) -> dict:

@@ -100,6 +100,8 @@ def ar_run(
     camera: Optional[int] = typer.Option(None, "--camera", help="live camera index instead of a video file"),
     field: str = typer.Option("von_mises", help="overlay field: von_mises or u"),
     max_frames: Optional[int] = typer.Option(None, help="stop after this many frames"),
+    preset: str = typer.Option("superfast", help="libx264 preset of the augmented video (ultrafast ... veryslow)"),
+    crf: int = typer.Option(20, help="libx264 constant rate factor (quality; lower = better, 0-51)"),
     json_out: bool = typer.Option(False, "--json"),
 ) -> None:
     """Run the AR pipeline: markers -> pose -> dots -> assimilation -> overlay."""
@@ -113,13 +115,18 @@ def ar_run(
         raise ConfigError("give either a VIDEO file or --camera INDEX")
     if field not in ("von_mises", "u"):
         raise ConfigError(f"--field must be von_mises or u, got {field!r}")
+    presets = ("ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow")
+    if preset not in presets:
+        raise ConfigError(f"--preset must be one of {', '.join(presets)}, got {preset!r}")
+    if not 0 <= crf <= 51:
+        raise ConfigError(f"--crf must be within 0..51, got {crf}")
     cam = Camera.load(camera_file)
     if not Path(model).is_file():
         raise ConfigError(f"{model}: reduced model file not found")
     if video is not None:  # open (and decode the first frame of) the input before the expensive setup
         from physar.ar.video import VideoReader
 
-        source = VideoReader(video)
+        source = VideoReader(video, convert="opencv")
     else:
         source = CameraSource(camera, cam.width, cam.height)
     if (source.width, source.height) != cam.size:
@@ -127,7 +134,7 @@ def ar_run(
                           f"for {cam.width}x{cam.height}")
     rom = SeparatedModel.load(model)
     pipe = ARPipeline(rom, cam, field=field)
-    summary = pipe.run(source, out, csv_out, progress=_bar("AR"), max_frames=max_frames)
+    summary = pipe.run(source, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf)
     summary.pop("results")
     if json_out:
         print_json(summary)

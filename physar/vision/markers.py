@@ -109,7 +109,8 @@ class MarkerTracker:
 
     ``alpha`` (0..1]: weight of a measurement whose change from the prediction is within the noise
     (``noise_px`` of reprojection); larger changes pass through (alpha -> 1), so camera motion does not lag.
-    ``hold_frames``: how long the pose is predicted (velocity decaying) when no marker is visible.
+    ``hold_frames``: how long the pose is predicted (velocity decaying) when no marker is visible; while it
+    is held the predicted regions are searched in every frame, the full frame every ``full_search_every``.
 
     ``track``: follow the markers between detections instead of detecting them in every frame: the corners
     predicted by the pose filter are refined by ``cv2.cornerSubPix`` (the same refinement, window and
@@ -123,7 +124,8 @@ class MarkerTracker:
 
     def __init__(self, camera: Camera, board: MarkerBoard, roi_margin: float = 0.3, min_markers: int = 1,
                  alpha: float = 0.6, noise_px: float = 0.15, hold_frames: int = 150, max_reproj_px: float = 3.0,
-                 gate_px: float = 40.0, track: bool = True, track_px: float = 2.5, redetect_every: int = 30):
+                 gate_px: float = 40.0, track: bool = True, track_px: float = 2.5, redetect_every: int = 30,
+                 full_search_every: int = 4):
         self.camera, self.board = camera, board
         params = cv2.aruco.DetectorParameters()
         params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
@@ -137,6 +139,7 @@ class MarkerTracker:
         self.hold_frames, self.max_reproj_px, self.gate_px = hold_frames, max_reproj_px, gate_px
         self.K, self.dist = camera.to_opencv()
         self.track, self.track_px, self.redetect_every = track, track_px, redetect_every
+        self.full_search_every = max(1, int(full_search_every))
         self._subpix = ((params.cornerRefinementWinSize,) * 2,
                         (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, params.cornerRefinementMaxIterations,
                          params.cornerRefinementMinAccuracy))
@@ -259,6 +262,8 @@ class MarkerTracker:
                     found[k] = det[k]
                     self.n_detected += 1
             if len(found) >= self.min_markers:
+                return found, False
+            if self._missed % self.full_search_every:  # held pose: full-frame search every few frames
                 return found, False
         return self._detect(gray), True
 
