@@ -412,9 +412,9 @@ class CorotatedP1Kernel:
             f = self._scatter(fe)
             pat = self._pattern
             if self.tangent == "warped":
-                if self._wk._slots is None:
-                    self._wk.set_slots(pat.slot, pat.nnz)
-                data = self._wk.warped_assemble().copy()
+                if not self._wk.has_slots("full"):
+                    self._wk.set_slots("full", pat.slot, pat.nnz)
+                data = self._wk.warped_assemble("full").copy()
                 return f, sp.csr_matrix((data, pat.indices, pat.indptr), shape=(self.n, self.n))
             S = np.matmul(np.swapaxes(R, 1, 2), F)
             return f, pat.assemble(self._exact(R, 0.5 * (S + np.swapaxes(S, 1, 2))))
@@ -422,6 +422,22 @@ class CorotatedP1Kernel:
         f = self._scatter(self._nodal(P))
         Ke = self._warped(R) if self.tangent == "warped" else self._exact(R, S)
         return f, self._pattern.assemble(Ke)
+
+    def force_tangent_free(self, u, fp):
+        """(f_int, data of the warped tangent on the free-dof pattern `fp`), assembled by the warp kernel
+        straight into the restricted pattern (no full matrix); None when this kernel cannot (numpy
+        backend, exact tangent, or fp not built from this kernel's pattern)."""
+        if self._wk is None or self.tangent != "warped" or self._pattern is None:
+            return None
+        if not fp.matches_pattern(self._pattern.indptr, self._pattern.indices):
+            return None
+        name = ("free", id(fp))
+        if not self._wk.has_slots(name):
+            inv = np.full(self._pattern.nnz, -1, dtype=np.int64)
+            inv[fp.sel] = np.arange(len(fp.sel))
+            self._wk.set_slots(name, inv[self._pattern.slot], len(fp.sel))
+        _, _, fe = self._warp_eval(u)
+        return self._scatter(fe), self._wk.warped_assemble(name).copy()
 
     def tangent_matvec(self, u, v):
         """Warped tangent times v, matrix-free: Σ_e blockdiag(R) K0_e blockdiag(R)ᵀ v_e."""
@@ -553,6 +569,11 @@ class SolidModel(DynamicsModel):
         """f_int(q) and the elastic tangent's data on the free-dof pattern (cached for linear models)."""
         if self.linear and self._K_lin is not None:
             return self.kernel.force(q), self._K_lin
+        direct = getattr(self.kernel, "force_tangent_free", None)
+        if direct is not None and self._fp is not None:
+            out = direct(q, self._fp)
+            if out is not None:
+                return out[0], (self._fp, out[1])
         f_int, K = self.kernel.force_tangent(q)
         fp = self._pattern_for(sp.csr_matrix(K))
         out = (fp, fp.restrict_data(K))

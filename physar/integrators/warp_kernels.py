@@ -175,8 +175,7 @@ class WarpCorotatedP1:
         self.acc = wp.zeros(n_nodes, dtype=wp.mat33d, device=DEVICE)
         self.Rn = wp.zeros(n_nodes, dtype=wp.mat33d, device=DEVICE)
         self.nflag = wp.zeros(n_nodes, dtype=wp.int32, device=DEVICE)
-        self._slots = None
-        self._data = None
+        self._slots = {}  # name -> (slots (m, 144), data buffer)
 
     def deformation(self, u: np.ndarray) -> np.ndarray:
         """F (m, 3, 3) at displacement u (n_nodes * 3,)."""
@@ -196,17 +195,22 @@ class WarpCorotatedP1:
         """Overwrite the stored element rotations (after the caller fixed flagged elements)."""
         self.R.numpy()[...] = R
 
-    def set_slots(self, slots: np.ndarray, nnz: int) -> None:
-        """Data slot of every element-matrix entry, (m, 144) in (a i, b k) order; -1 = dropped."""
-        self._slots = _wp(np.asarray(slots, dtype=np.int32).reshape(self.m, 144), wp.int32)
-        self._data = wp.zeros(int(nnz), dtype=wp.float64, device=DEVICE)
+    def has_slots(self, name: str) -> bool:
+        return name in self._slots
 
-    def warped_assemble(self) -> np.ndarray:
-        """CSR data (nnz,) of Σ_e R_e K0_e R_eᵀ at the stored rotations, on the slots of set_slots."""
-        self._data.zero_()
+    def set_slots(self, name: str, slots: np.ndarray, nnz: int) -> None:
+        """Data slot of every element-matrix entry, (m, 144) in (a i, b k) order (-1 = dropped), for a
+        CSR pattern with nnz entries, stored under `name`."""
+        self._slots[name] = (_wp(np.asarray(slots, dtype=np.int32).reshape(self.m, 144), wp.int32),
+                             wp.zeros(int(nnz), dtype=wp.float64, device=DEVICE))
+
+    def warped_assemble(self, name: str) -> np.ndarray:
+        """CSR data (nnz,) of Σ_e R_e K0_e R_eᵀ at the stored rotations, on the slots `name`."""
+        slots, data = self._slots[name]
+        data.zero_()
         wp.launch(_warped_assemble, dim=self.m,
-                  inputs=[self.R, self.G, self.vol, self.lam, self.mu, self._slots, self._data], device=DEVICE)
-        return self._data.numpy()
+                  inputs=[self.R, self.G, self.vol, self.lam, self.mu, slots, data], device=DEVICE)
+        return data.numpy()
 
     def warped_matvec(self, x: np.ndarray) -> np.ndarray:
         """Σ_e R_e K0_e R_eᵀ x (n_nodes * 3,) at the stored rotations (a fresh array)."""

@@ -81,7 +81,7 @@ def test_fast_path_swing_matches_numpy_direct(method, tangent):
     ref_model = _hinged_beam("numpy", tangent=tangent)
     ref = simulate(ref_model, make_integrator(method, linear_solver="direct", tol=1e-10), 1 / 30, 15)
     model = _hinged_beam("warp", tangent=tangent)
-    integ = make_integrator(method, linear_solver="pcg", linear_rtol=1e-10, tol=1e-10)
+    integ = make_integrator(method, linear_solver="pcg", linear_rtol=1e-10, tol=1e-10, warm_start=True)
     s = simulate(model, integ, 1 / 30, 15)
     tip = np.flatnonzero(np.isclose(model.space.nodes[:, 0], 1.0))
     drop = -ref.q[3 * tip + 2].mean()
@@ -89,6 +89,7 @@ def test_fast_path_swing_matches_numpy_direct(method, tangent):
     assert np.abs(s.q - ref.q).max() < 1e-7 * np.abs(ref.q).max()
     assert np.abs(s.v - ref.v).max() < 1e-6 * np.abs(ref.v).max()
     assert integ.solver.n_factorizations < 15 / 3 and integ.solver.n_cg_iterations > 0
+    assert integ._guess  # the warm start was in use
 
 
 def test_cg_warm_start_guess_and_bad_guess():
@@ -117,3 +118,49 @@ def test_backend_errors():
         CorotatedP1Kernel(el, backend="cuda")
     with pytest.raises(ConfigError, match="backend"):
         SolidModel(el, backend="torch")
+
+
+def test_pcg_matches_scipy_cg_and_flags_indefinite():
+    """The written-out PCG against scipy.sparse.linalg.cg (peer): same solution, same iteration count
+    to within one; an indefinite matrix is reported as not converged."""
+    import scipy.sparse.linalg as spla
+
+    from physar.integrators.linalg import pcg
+
+    rng = np.random.default_rng(5)
+    n = 120
+    B = sp.random(n, n, density=0.05, random_state=6)
+    A = (B @ B.T + sp.diags(rng.uniform(0.1, 10, n))).tocsr()
+    b = rng.normal(size=n)
+    d = A.diagonal()
+
+    def prec(r):
+        return r / d
+
+    x, its, ok = pcg(A, b, prec, 1e-10, 500)
+    count = []
+    x_ref, info = spla.cg(A, b, rtol=1e-10, atol=0.0, maxiter=500, callback=count.append,
+                          M=spla.LinearOperator((n, n), matvec=prec, dtype=float))
+    assert ok and info == 0
+    np.testing.assert_allclose(x, x_ref, rtol=1e-8, atol=1e-10 * np.abs(x_ref).max())
+    assert abs(its - len(count)) <= 1
+    assert np.linalg.norm(b - A @ x) <= 1e-10 * np.linalg.norm(b)
+    _, _, ok = pcg(sp.diags(np.r_[np.ones(n - 1), -1.0]).tocsr(), np.ones(n), lambda r: r, 1e-10, 50)
+    assert not ok
+
+
+def test_solid_model_linearization_warp_free_pattern_matches_numpy():
+    """SolidModel with the warp backend assembles the warped tangent straight into the free-dof pattern
+    from its second linearisation on: the Newton matrix equals the numpy kernel's (restricted full K)."""
+    sp_, el = _elastic(cells=(5, 2, 3))
+    fixed = fixed_dofs(sp_, box=[[0, 0, 0], [0, 0.3, 0.2]])
+    rng = np.random.default_rng(7)
+    mods = {b: SolidModel(el, fixed, tangent="warped", backend=b, rayleigh=(0.2, 0.01)) for b in ("numpy", "warp")}
+    for _ in range(2):
+        u = 0.03 * rng.normal(size=sp_.n_dofs)
+        v = rng.normal(size=sp_.n_dofs)
+        lins = {b: m.linearize(u, v) for b, m in mods.items()}
+        A = {b: mods[b].system_matrix(lins[b], 1.0, 0.05, 0.0025) for b in mods}
+        assert abs(A["warp"] - A["numpy"]).max() < 1e-12 * abs(A["numpy"]).max()
+        np.testing.assert_allclose(lins["warp"].f, lins["numpy"].f, atol=1e-12 * np.abs(lins["numpy"].f).max())
+    assert mods["warp"].kernel._wk.has_slots(("free", id(mods["warp"]._fp)))
