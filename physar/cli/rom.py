@@ -91,7 +91,7 @@ def _info(rom) -> dict:
          "parameters": [{"name": n, "unit": u, "range": list(r), "grid_points": int(g.size)}
                         for n, u, r, g in zip(rom.names, rom.units, rom.ranges, rom.grids)],
          "mode_amplitudes": rom.mode_amplitudes().tolist()}
-    for k in ("check_error", "error_estimate", "n_solves", "build_time_s", "material", "element",
+    for k in ("check_error", "check_errors", "error_estimate", "n_solves", "build_time_s", "material", "element",
               "mesh_checksum", "path", "load", "radius"):
         if k in meta:
             d[k] = meta[k]

@@ -76,9 +76,17 @@ class RomSection(_Strict):
     tol: float = Field(1e-4, gt=0, description="PGD: relative mode amplitude; POD: energy; "
                                                 "non-intrusive: relative error at new samples")
     check_points: int = Field(5, ge=0, description="random full solves for the error estimate (pgd)")
+    check_tol: float | None = Field(None, gt=0, description="pgd: also stop once the error estimate at the "
+                                                             "check points is <= check_tol")
     max_points: int = Field(65, ge=3, description="non-intrusive: max samples per parameter")
     workers: int | None = Field(None, ge=1, description="non-intrusive: Dask LocalCluster workers")
     scheduler: str | None = Field(None, description="non-intrusive: address of a Dask scheduler")
+
+    @model_validator(mode="after")
+    def _check_tol_needs_points(self):
+        if self.check_tol is not None and self.check_points == 0:
+            raise ValueError("check_tol needs check_points > 0 (the error estimate it applies to)")
+        return self
 
 
 class RomConfig(FemConfig):
@@ -139,7 +147,8 @@ def build_rom(cfg: RomConfig, progress: Callable[[int, int], None] | None = None
                                             "offset_points": off.points}
             rom, info = build_moving_load_pgd(model, fixed, pos.path, points=pos.points, load=pos.load,
                                               radius=pos.radius, max_modes=r.max_modes, tol=r.tol,
-                                              n_check=r.check_points, progress=progress, **extra)
+                                              n_check=r.check_points, check_tol=r.check_tol,
+                                              progress=progress, **extra)
         else:
             from physar.rom.pod import build_moving_load_pod
 
@@ -171,6 +180,8 @@ def build_rom(cfg: RomConfig, progress: Callable[[int, int], None] | None = None
                          "material_params": cfg.material.model_dump(exclude_none=True),
                          "parameters": [p.model_dump(exclude_none=True) for p in cfg.parameter],
                          "fixed_dofs": len(fixed), "build_time_s": time.perf_counter() - t0})
+    if "check_errors" in info:
+        rom.metadata["check_errors"] = [float(v) for v in info["check_errors"]]
     for k in ("check_error", "error_estimate", "n_solves", "svd_rank"):
         if k in info:
             v = info[k]

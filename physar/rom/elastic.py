@@ -29,16 +29,19 @@ def load_path_matrix(space, path, points, load, radius):
 @blas_single_threaded
 def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radius=0.04,
                           max_modes=20, tol=1e-4, svd_tol=1e-10, magnitude_range=None, n_check=0,
-                          progress=None, seed=0, offset_range=None, offset_dir=None, offset_points=13):
+                          progress=None, seed=0, offset_range=None, offset_dir=None, offset_points=13,
+                          check_tol=None):
     """PGD model u(x, s) of K u = f(x; s) with u = 0 on `fixed` (linear elastic `model`).
 
     The load is written as a separated sum f(x; s) = sum_k f_k(x) g_k(s) by a truncated SVD
     of the sampled load matrix (relative singular value tolerance `svd_tol`).
     With ``magnitude_range=(P_lo, P_hi)`` (N) a second parameter "P", the load magnitude, is added:
     u(x; s, P) = sum_i F_i(x) G_i(s) P / |load| (exact, linear elasticity).
-    Stopping: relative mode amplitude < `tol` (info["amplitudes"]); with ``n_check > 0`` also an error
-    estimate against full solves at `n_check` random positions s (info["check_error"]: max over them
-    of ||u_PGD - u_FE|| / max ||u_FE||, L2 over the dofs). ``progress(mode, max_modes)``.
+    Stopping (seed §3): relative mode amplitude < `tol` (info["amplitudes"]); with ``n_check > 0`` an
+    error estimate against full solves at `n_check` random positions s, computed after every mode
+    (info["check_errors"]; info["check_error"] the final one: max over the check points of
+    ||u_PGD - u_FE|| / max ||u_FE||, L2 over the dofs), and with ``check_tol`` the enrichment also stops
+    once that estimate is <= check_tol. ``progress(mode, max_modes)``.
 
     With ``offset_range=(t_lo, t_hi)`` (m) and ``offset_dir`` the load point is path(s) + t d (position on
     a surface patch, two parameters s and t): the load is sampled on the (points x offset_points) tensor
@@ -48,7 +51,7 @@ def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radi
     if offset_range is not None:
         return _build_patch_load_pgd(model, fixed, path, points, load, radius, max_modes, tol,
                                      magnitude_range, n_check, progress, seed, offset_range, offset_dir,
-                                     offset_points)
+                                     offset_points, check_tol)
     if not model.linear:
         raise ConfigError("intrusive PGD needs a linear material; use method='pgd_nonintrusive'")
     space = model.space
@@ -59,16 +62,17 @@ def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radi
     K = model.tangent_stiffness()[free][:, free].tocsr()
     fac = factorize(K)
     f = (U[free, :r] * S[:r]).T
-    red, info = pgd_linear(K, f, Vt[:r], s, max_modes=max_modes, tol=tol, solve=fac.solve,
-                           name="s", unit="m", progress=progress)
+    check = None
     if n_check:
         length = float(s[-1])
         d = (np.asarray(path[1], float) - np.asarray(path[0], float)) / length
         checks = np.random.default_rng(seed).uniform(0, length, int(n_check))
         Fc = np.stack([point_load(space, np.asarray(path[0], float) + c * d, load, radius)[free] for c in checks], 1)
-        Uc = fac.solve(Fc).reshape(len(free), -1)
-        Ur = np.stack([red.evaluate([c]) for c in checks], 1)
-        info["check_error"] = float(np.linalg.norm(Ur - Uc, axis=0).max() / np.linalg.norm(Uc, axis=0).max())
+        check = _checker(fac.solve(Fc).reshape(len(free), -1), checks[:, None])
+    red, info = pgd_linear(K, f, Vt[:r], s, max_modes=max_modes, tol=tol, solve=fac.solve,
+                           name="s", unit="m", progress=progress, check=check, check_tol=check_tol)
+    if n_check:
+        info["check_error"] = info["check_errors"][-1]
         info["check_points"] = checks
     F = np.zeros((red.n_modes, space.n_dofs))
     F[:, free] = red.F
@@ -91,8 +95,18 @@ def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radi
     return out, info
 
 
+def _checker(Uc, mus):
+    """check(model) = max_k ||model(mu_k) - Uc[:, k]|| / max_k ||Uc[:, k]|| (full solves Uc at mus)."""
+    scale = np.linalg.norm(Uc, axis=0).max()
+
+    def check(red):
+        return max(np.linalg.norm(red.evaluate(m) - Uc[:, k]) for k, m in enumerate(mus)) / scale
+
+    return check
+
+
 def _build_patch_load_pgd(model, fixed, path, points, load, radius, max_modes, tol, magnitude_range, n_check,
-                          progress, seed, offset_range, offset_dir, offset_points):
+                          progress, seed, offset_range, offset_dir, offset_points, check_tol=None):
     import scipy.sparse as sp
 
     from physar.rom.pgd import pgd_linear_tensor
@@ -122,14 +136,16 @@ def _build_patch_load_pgd(model, fixed, path, points, load, radius, max_modes, t
     B = sp.hstack(cols).tocsr()
     K = model.tangent_stiffness()[free][:, free].tocsr()
     fac = factorize(K)
-    red, info = pgd_linear_tensor(K, B, [s, t], max_modes=max_modes, tol=tol, solve=fac.solve,
-                                  names=["s", "t"], units=["m", "m"], progress=progress)
+    check = None
     if n_check:
         checks = np.random.default_rng(seed).uniform([0.0, lo], [length, hi], (int(n_check), 2))
         Fc = np.stack([point_load(space, path[0] + c[0] * d + c[1] * e, load, radius)[free] for c in checks], 1)
-        Uc = fac.solve(Fc).reshape(len(free), -1)
-        Ur = np.stack([red.evaluate(c) for c in checks], 1)
-        info["check_error"] = float(np.linalg.norm(Ur - Uc, axis=0).max() / np.linalg.norm(Uc, axis=0).max())
+        check = _checker(fac.solve(Fc).reshape(len(free), -1), checks)
+    red, info = pgd_linear_tensor(K, B, [s, t], max_modes=max_modes, tol=tol, solve=fac.solve,
+                                  names=["s", "t"], units=["m", "m"], progress=progress, check=check,
+                                  check_tol=check_tol)
+    if n_check:
+        info["check_error"] = info["check_errors"][-1]
         info["check_points"] = checks
     F = np.zeros((red.n_modes, space.n_dofs))
     F[:, free] = red.F

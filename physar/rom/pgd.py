@@ -24,18 +24,23 @@ def _trapz_weights(x):
 
 
 def pgd_linear(K, f, g, grid, max_modes=20, tol=1e-4, max_fp=50, fp_tol=1e-6, solve=None,
-               name="mu", unit="", progress=None):
+               name="mu", unit="", progress=None, check=None, check_tol=None):
     """Build a SeparatedModel for K u = sum_k f[k] g[k](mu) (f: (r, n), g: (r, n_grid) on grid).
 
     Stops when the relative mode amplitude ||F_n|| ||G_n|| / (||F_1|| ||G_1||) < tol.
     Returns (model, info) with info["amplitudes"]. ``progress(n, max_modes)`` after each mode.
+    ``check(model) -> error`` (e.g. against full solves at random parameters) is called after each
+    mode, its values are info["check_errors"], and with ``check_tol`` the enrichment also stops
+    once the error is <= check_tol (the second stopping criterion of seed §3).
     Runs with one BLAS thread (see :mod:`physar.rom._threads`).
     """
     with single_blas_thread():
-        return _pgd_linear(K, f, g, grid, max_modes, tol, max_fp, fp_tol, solve, name, unit, progress)
+        return _pgd_linear(K, f, g, grid, max_modes, tol, max_fp, fp_tol, solve, name, unit, progress,
+                           check, check_tol)
 
 
-def _pgd_linear(K, f, g, grid, max_modes, tol, max_fp, fp_tol, solve, name, unit, progress):
+def _pgd_linear(K, f, g, grid, max_modes, tol, max_fp, fp_tol, solve, name, unit, progress, check=None,
+                check_tol=None):
     f = np.atleast_2d(np.asarray(f, float))
     g = np.atleast_2d(np.asarray(g, float))
     grid = np.asarray(grid, float)
@@ -43,7 +48,7 @@ def _pgd_linear(K, f, g, grid, max_modes, tol, max_fp, fp_tol, solve, name, unit
     if solve is None:
         lu = spla.splu(K.tocsc())
         solve = lu.solve
-    Fs, Gs, KFs, amps = [], [], [], []
+    Fs, Gs, KFs, amps, checks = [], [], [], [], []
     for _ in range(max_modes):
         G = np.ones_like(grid)
         F = None
@@ -72,14 +77,21 @@ def _pgd_linear(K, f, g, grid, max_modes, tol, max_fp, fp_tol, solve, name, unit
         amps.append(np.linalg.norm(G * np.sqrt(w)))
         if progress:
             progress(len(Fs), max_modes)
+        if check is not None:
+            checks.append(float(check(SeparatedModel(np.array(Fs), [grid], [np.array(Gs)], [name], [unit]))))
+            if check_tol is not None and checks[-1] <= check_tol:
+                break
         if amps[-1] < tol * amps[0]:
             break
     model = SeparatedModel(np.array(Fs), [grid], [np.array(Gs)], [name], [unit])
-    return model, {"amplitudes": np.array(amps)}
+    info = {"amplitudes": np.array(amps)}
+    if check is not None:
+        info["check_errors"] = checks
+    return model, info
 
 
 def pgd_linear_tensor(K, B, grids, max_modes=40, tol=1e-4, max_fp=50, fp_tol=1e-6, solve=None,
-                      names=None, units=None, progress=None):
+                      names=None, units=None, progress=None, check=None, check_tol=None):
     """Intrusive PGD for K u = f(x; mu_1, .., mu_p) with p >= 1 parameters on tensor grids (seed 000 §3).
 
     The load is given by its samples on the tensor grid: ``B`` (n, N) (dense or sparse), column q the
@@ -97,10 +109,12 @@ def pgd_linear_tensor(K, B, grids, max_modes=40, tol=1e-4, max_fp=50, fp_tol=1e-
     seeded random G^j (a constant start keeps a symmetric problem in its even subspace).
     With p > 1 the greedy sum converges more slowly than the optimal (POD) basis: for the cantilever
     with a load on a 1 x 0.2 m patch, 20 modes reach 1.4e-3 where 20 POD modes reach 1.6e-4. Returns (model, info) with
-    info["amplitudes"] and info["fixed_point_iterations"]. Runs with one BLAS thread.
+    info["amplitudes"] and info["fixed_point_iterations"]; ``check``/``check_tol`` as in
+    :func:`pgd_linear`. Runs with one BLAS thread.
     """
     with single_blas_thread():
-        return _pgd_linear_tensor(K, B, grids, max_modes, tol, max_fp, fp_tol, solve, names, units, progress)
+        return _pgd_linear_tensor(K, B, grids, max_modes, tol, max_fp, fp_tol, solve, names, units, progress,
+                                  check, check_tol)
 
 
 def _outer(vectors):
@@ -118,7 +132,8 @@ def _contract_except(T, vectors, j):
     return T
 
 
-def _pgd_linear_tensor(K, B, grids, max_modes, tol, max_fp, fp_tol, solve, names, units, progress):
+def _pgd_linear_tensor(K, B, grids, max_modes, tol, max_fp, fp_tol, solve, names, units, progress, check=None,
+                       check_tol=None):
     grids = [np.asarray(x, float) for x in grids]
     p = len(grids)
     shape = tuple(x.size for x in grids)
@@ -129,7 +144,7 @@ def _pgd_linear_tensor(K, B, grids, max_modes, tol, max_fp, fp_tol, solve, names
     W = [_trapz_weights(x) for x in grids]
     if solve is None:
         solve = spla.splu(K.tocsc()).solve
-    Fs, KFs, Gs, amps, fp_its = [], [], [[] for _ in range(p)], [], []
+    Fs, KFs, Gs, amps, fp_its, checks = [], [], [[] for _ in range(p)], [], [], []
     rng = np.random.default_rng(0)
     for _ in range(max_modes):
         # a start with no symmetry: a constant start keeps the fixed point in the subspace of functions
@@ -178,7 +193,14 @@ def _pgd_linear_tensor(K, B, grids, max_modes, tol, max_fp, fp_tol, solve, names
         amps.append(float(np.sqrt(Gs[0][-1] @ (W[0] * Gs[0][-1]))))
         if progress:
             progress(len(Fs), max_modes)
+        if check is not None:
+            checks.append(float(check(SeparatedModel(np.array(Fs), grids, [np.array(g) for g in Gs], names, units))))
+            if check_tol is not None and checks[-1] <= check_tol:
+                break
         if amps[-1] < tol * amps[0]:
             break
     model = SeparatedModel(np.array(Fs), grids, [np.array(g) for g in Gs], names, units)
-    return model, {"amplitudes": np.array(amps), "fixed_point_iterations": fp_its}
+    info = {"amplitudes": np.array(amps), "fixed_point_iterations": fp_its}
+    if check is not None:
+        info["check_errors"] = checks
+    return model, info

@@ -129,6 +129,10 @@ def test_user_errors(built, tmp_path):
     cfg.write_text(BASE.format(material="linear") + PARAM.format(points=11, P=-1.0).replace("radius = 0.1\n", ""))
     res = _run("rom", "build", cfg, "--out", tmp_path / "x.npz")
     assert res.exit_code == 2 and "needs radius" in res.stderr
+    cfg.write_text(BASE.format(material="linear") + PARAM.format(points=11, P=-1.0)
+                   + "\n[rom]\ncheck_points = 0\ncheck_tol = 1e-3\n")
+    res = _run("rom", "build", cfg, "--out", tmp_path / "x.npz")
+    assert res.exit_code == 2 and "check_tol needs check_points > 0" in res.stderr
     np.savez(tmp_path / "v9.npz", format_version=np.array(9))
     res = _run("rom", "info", tmp_path / "v9.npz")
     assert res.exit_code == 2 and "format version 9" in res.stderr
