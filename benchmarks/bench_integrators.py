@@ -104,6 +104,8 @@ SI_VARIANTS = [
     ("+ CG warm start from the previous Δv", "warp", "pcg", {"warm_start": True}),
     ("Warp kernels, rotated PCG, threads as set", "warp", "pcg", {"linear_threads": None}),
     ("Warp kernels, direct CHOLMOD refactorisation", "warp", "direct", {}),
+    ("Warp kernels, rotated PCG to linear_rtol = 1e-6 (looser than the default 1e-8)", "warp", "pcg",
+     {"linear_rtol": 1e-6}),
 ]
 
 

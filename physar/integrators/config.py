@@ -12,7 +12,7 @@ gravity = [0, 0, -9.81]   # optional, applied as M g
 initial = "rest"          # or "static": start from the static solution under the [[load]]s, released at t = 0
 initial_velocity = [0, 0, 0]
 output_every = 1          # write every k-th step to the XDMF/MP4
-backend = "numpy"         # co-rotated P1: "numpy" or "warp" (NVIDIA Warp CPU kernels, ~4x faster steps)
+backend = "numpy"         # co-rotated P1: "numpy" or "warp" (NVIDIA Warp CPU kernels; SI steps ~2x faster)
 [dynamics.damping]        # Rayleigh D = alpha M + beta K(q)
 alpha = 0.0               # [1/s]
 beta = 0.0                # [s]
