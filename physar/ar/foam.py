@@ -1047,7 +1047,7 @@ def mode_study(rom, beam, s_values, counts=(5, 11, 19)) -> list[dict]:
 
 
 def run_foam_demo(out, quick: bool = False, progress: Callable[[str, int, int], None] | None = None,
-                  spec: FoamSceneSpec | None = None, mode_counts=(11, 19)) -> dict:
+                  spec: FoamSceneSpec | None = None, mode_counts=(5, 8, 11, 14)) -> dict:
     """Render scene (b), build its reduced model (non-intrusive PGD of the St.VK problem), run the markerless
     pipeline with the full model and with truncations to `mode_counts` modes; write the outputs into `out`."""
     out = Path(out)
