@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -329,15 +330,23 @@ class ARPipeline:
 
     # -- whole videos -------------------------------------------------------------------------------------
     def run(self, source, out_video=None, out_csv=None, fps: float | None = None, crf: int = 20,
-            preset: str = "veryfast", progress: Callable[[int, int], None] | None = None,
+            preset: str = "ultrafast", progress: Callable[[int, int], None] | None = None,
             max_frames: int | None = None, snapshots: dict | None = None, overlay_thread: bool = True,
-            use_luma: bool = True, encoder_threads: int = 0) -> dict:
+            use_luma: bool = True, encoder_threads: int | None = None, convert: str = "opencv",
+            cv_threads: int | None = 1) -> dict:
         """Process a video file path or a frame source (VideoReader / CameraSource / iterable of frames).
 
         Three threads overlap: the decoder (PyAV, reading ahead), the estimation (this thread) and the
         encoder; with ``overlay_thread`` the overlay is drawn in the encoder thread too (:meth:`render`), so
         that this thread only estimates. ``use_luma``: take the grey image from the decoder's luma plane
-        (else convert BGR to grey here). ``encoder_threads``: libx264 threads (0: its default).
+        (else convert BGR to grey here). ``encoder_threads``: libx264 threads (0: its default, 1.5 per core;
+        None: the cores left by the decoder and the estimation, at least 1). ``cv_threads``: OpenCV's thread
+        pool size while the video runs (restored afterwards; None: unchanged): the stages already run in
+        parallel threads, and OpenCV's own workers only contend with them on few cores. ``preset``: libx264
+        preset; "ultrafast" encodes a 720p frame in about a third of "veryfast"'s CPU time at equal PSNR
+        (CRF) and about 2.5x its bit rate (benchmarks/bench_ar.py). ``convert``:
+        yuv420p <-> BGR conversion of the reader (for a path source) and the writer, "opencv" or "ffmpeg"
+        (see :class:`physar.ar.video.VideoWriter`).
 
         Outputs are written atomically (temporary file renamed at the end). ``snapshots``: {frame index:
         PNG path} of augmented frames to save. Returns a summary with fps and per-stage latency statistics
@@ -346,7 +355,23 @@ class ARPipeline:
         """
         from physar.ar.video import VideoReader, VideoWriter, atomic_path
 
-        reader = VideoReader(source, convert="opencv") if isinstance(source, (str, Path)) else source
+        if encoder_threads is None:
+            encoder_threads = max(1, (os.cpu_count() or 1) - 2)
+        if cv_threads is not None:
+            cv_prev = cv2.getNumThreads()
+            cv2.setNumThreads(int(cv_threads))
+        try:
+            return self._run(source, out_video, out_csv, fps, crf, preset, progress, max_frames, snapshots,
+                             overlay_thread, use_luma, encoder_threads, convert)
+        finally:
+            if cv_threads is not None:
+                cv2.setNumThreads(cv_prev)
+
+    def _run(self, source, out_video, out_csv, fps, crf, preset, progress, max_frames, snapshots, overlay_thread,
+             use_luma, encoder_threads, convert) -> dict:
+        from physar.ar.video import VideoReader, VideoWriter, atomic_path
+
+        reader = VideoReader(source, convert=convert) if isinstance(source, (str, Path)) else source
         w, h = getattr(reader, "width", None), getattr(reader, "height", None)
         if (w, h) != (None, None) and (w, h) != self.camera.size:
             raise ConfigError(f"video is {w}x{h} but the camera file is for {self.camera.width}x"
@@ -361,14 +386,14 @@ class ARPipeline:
             ctmp = stack.enter_context(atomic_path(out_csv)) if out_csv else None
             writer = stack.enter_context(VideoWriter(vtmp, self.camera.width, self.camera.height, fps, crf=crf,
                                                      preset=preset, threaded=True, threads=encoder_threads,
-                                                     convert="opencv")) if vtmp else None
+                                                     convert=convert)) if vtmp else None
             fh = stack.enter_context(open(ctmp, "w", newline="")) if ctmp else None
             wr = csv.writer(fh) if fh else None
             if wr:
                 names = self.rom.names
                 wr.writerow(["frame", "time_s", "status"] + [f"{n}_est" for n in names] +
                             [f"{n}_std" for n in names] + ["residual_mm", "markers", "dots", "latency_ms"])
-            t_start = time.perf_counter()
+            t_start, cpu_start = time.perf_counter(), time.process_time()
             t_prev = t_start
             frames = reader.frames_with_luma() if use_luma and hasattr(reader, "frames_with_luma") else \
                 ((f, None) for f in reader)
@@ -400,7 +425,7 @@ class ARPipeline:
                 raise PhysarError(f"{source}: no frames")
             if writer is not None:
                 writer.close()
-            wall = time.perf_counter() - t_start
+            wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
         for r in results:
             r.__dict__.pop("_draw", None)
         lat = np.array([r.latency_ms for r in results])
@@ -410,6 +435,7 @@ class ARPipeline:
                 "stages_ms_median": {s: float(np.median(v)) for s, v in stages.items()},
                 "stages_ms_mean": {s: float(np.mean(v)) for s, v in stages.items()},
                 "cpu_ms_median": float(np.median([r.cpu_ms for r in results])),
+                "process_cpu_ms_per_frame": cpu / len(results) * 1e3,  # all threads: decode, estimate, draw, encode
                 "results": results}
 
     def _render_job(self, frame, r: FrameResult, snapshot=None):

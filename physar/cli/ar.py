@@ -100,7 +100,7 @@ def ar_run(
     camera: Optional[int] = typer.Option(None, "--camera", help="live camera index instead of a video file"),
     field: str = typer.Option("von_mises", help="overlay field: von_mises or u"),
     max_frames: Optional[int] = typer.Option(None, help="stop after this many frames"),
-    preset: str = typer.Option("superfast", help="libx264 preset of the augmented video (ultrafast ... veryslow)"),
+    preset: str = typer.Option("ultrafast", help="libx264 preset of the augmented video (ultrafast ... veryslow)"),
     crf: int = typer.Option(20, help="libx264 constant rate factor (quality; lower = better, 0-51)"),
     json_out: bool = typer.Option(False, "--json"),
 ) -> None:
