@@ -1,5 +1,6 @@
-"""`physar demo`: the project's main example (the AR pipeline on scene (a); `--scene cantilever`: the static
-FEM cantilever)."""
+"""`physar demo`: the project's main example (the AR pipeline on scene (a); `--scene foam`: scene (b), the foam
+beam without fiducials; `--scene seal`: scene (c), the virtual boot seal; `--scene cantilever`: the static FEM
+cantilever)."""
 
 from __future__ import annotations
 
@@ -12,9 +13,10 @@ from physar.cli._common import log, print_json, user_errors
 
 def demo(
     out: Path = typer.Option(Path("demo_out"), "--out", "-o", help="output folder"),
-    scene: str = typer.Option("ar", "--scene", help="ar (augmented-reality cantilever, default) or cantilever "
-                                                    "(static FEM example)"),
-    quick: bool = typer.Option(False, "--quick", help="AR demo at 640x360, 6.5 s (for a fast check)"),
+    scene: str = typer.Option("ar", "--scene", help="ar (augmented-reality cantilever, default), foam (seed §5.2: "
+                                                    "foam beam, no fiducials), seal (seed §5.3: virtual boot seal) "
+                                                    "or cantilever (static FEM example)"),
+    quick: bool = typer.Option(False, "--quick", help="AR demos at 640x360 with coarser meshes (a fast check)"),
     json_out: bool = typer.Option(False, "--json", help="print the report as JSON on stdout"),
 ) -> None:
     """Run the demo: video of a loaded beam in, augmented video + estimates + report out."""
@@ -31,8 +33,8 @@ def demo(
                 f"{report['timoshenko_m'] * 1e3:.4f} mm (relative difference {report['relative_error']:.2%})")
             log(f"wrote {', '.join(str(out / f) for f in report['files'])}")
         return
-    if scene != "ar":
-        raise ConfigError(f"--scene must be ar or cantilever, got {scene!r}")
+    if scene not in ("ar", "foam", "seal"):
+        raise ConfigError(f"--scene must be ar, foam, seal or cantilever, got {scene!r}")
     from tqdm import tqdm
 
     from physar.ar.demo import run_ar_demo
@@ -44,11 +46,36 @@ def demo(
             bars[stage] = tqdm(total=n or None, desc=stage, leave=True, file=__import__("sys").stderr)
         bars[stage].update(k - bars[stage].n)
 
-    report = run_ar_demo(out, quick=quick, progress=progress)
+    if scene == "foam":
+        from physar.ar.foam import run_foam_demo
+
+        report = run_foam_demo(out, quick=quick, progress=progress)
+    elif scene == "seal":
+        from physar.ar.seal import run_seal_demo
+
+        report = run_seal_demo(out, quick=quick, progress=progress)
+    else:
+        report = run_ar_demo(out, quick=quick, progress=progress)
     for b in bars.values():
         b.close()
     if json_out:
         print_json(report)
+        return
+    if scene == "foam":
+        log(f"{report['frames']} frames at {report['fps']:.1f} fps (median latency {report['latency_ms_median']:.1f} "
+            f"ms); disk position error {report['mean_abs_error_mm']:.2f} mm mean, {report['max_abs_error_mm']:.2f} mm "
+            f"max; markers in {report['scene']['frames_with_markers']} frame(s)")
+        log("modes  mean |error| [mm]  max |error| [mm]")
+        for row in report["accuracy_vs_modes"]:
+            log(f"{row['modes']:5d}  {row['mean_abs_error_mm']:17.2f}  {row['max_abs_error_mm']:16.2f}")
+        log(f"wrote {', '.join(str(out / f) for f in report['files'])}")
+        return
+    if scene == "seal":
+        log(f"{report['frames']} frames at {report['fps']:.1f} fps (median latency {report['latency_ms_median']:.1f} "
+            f"ms); lever angle error {report['median_abs_error_deg']:.2f} deg median, "
+            f"{report['mean_abs_error_deg']:.2f} deg mean; recovery after looking away: "
+            f"{report['recovery_frames_after_look_away']} frame(s)")
+        log(f"wrote {', '.join(str(out / f) for f in report['files'])}")
         return
     log(f"{report['frames']} frames at {report['fps']:.1f} fps (median latency {report['latency_ms_median']:.1f} ms); "
         f"load position error {report['mean_abs_error_mm']:.2f} mm mean, {report['max_abs_error_mm']:.2f} mm max "

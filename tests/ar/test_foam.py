@@ -146,3 +146,9 @@ def test_foam_scene_file_errors(tmp_path):
         load_foam_scene(p)
     with pytest.raises(ConfigError, match="not found"):
         load_foam_scene(tmp_path / "none.toml")
+
+
+def test_example_scene_file_is_the_default_scene():
+    from pathlib import Path
+
+    assert load_foam_scene(Path(__file__).parents[2] / "examples" / "scene_foam.toml") == FoamSceneSpec()

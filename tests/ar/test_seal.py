@@ -94,3 +94,9 @@ def test_seal_scene_errors(tmp_path):
         load_seal_scene(p)
     with pytest.raises(ConfigError, match="plate file not found"):
         PlateObject.load(tmp_path / "plate.json")
+
+
+def test_example_scene_file_is_the_default_scene():
+    from pathlib import Path
+
+    assert load_seal_scene(Path(__file__).parents[2] / "examples" / "scene_seal.toml") == SealSceneSpec()
