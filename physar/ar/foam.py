@@ -846,7 +846,7 @@ class FoamPipeline:
         if draw and self.overlay is not None:
             c = self.rom.coefficients(self.mu)[0] if status in ("tracking", "hold") else np.zeros(self.rom.n_modes)
             info = {"env": n_env, "surface": n_surf, "surface_total": 0 if self.points is None else len(self.points),
-                    "frame": index, "latency_ms": (t3 - t0) * 1e3}
+                    "frame": index, "latency_ms": (t3 - t0) * 1e3, "field_max": float(self.overlay.values(c).max())}
             out = self.overlay.draw(frame, self.camera, pose, c, self.mu, self.std,
                                     status if pose is not None else "lost", info)
         t4 = time.perf_counter()
