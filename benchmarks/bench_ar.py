@@ -13,8 +13,9 @@ output of `physar demo`), builds its reduced model, then runs in one process:
      E4 + OpenCV yuv420p -> BGR; E5 + cv2.setNumThreads(1) while the video runs (the default);
   3. the full pipeline (overlay + H.264 encoding): F0 overlay on the estimation thread, swscale conversions, x264
      with its own thread count, veryfast (the configuration before these speed-ups), then the default (overlay
-     drawn in the encoder thread, OpenCV conversions, one x264 thread on 2 cores, cv2.setNumThreads(1)) with the
-     ultrafast / superfast / veryfast presets, and ultrafast with x264's own threads / the overlay moved back.
+     on the estimation thread, OpenCV conversions, one x264 thread on 2 cores, cv2.setNumThreads(1)) with the
+     ultrafast / superfast / veryfast presets, and ultrafast with x264's own threads / the overlay drawn in the
+     encoder thread.
 Each variant runs --repeats times, interleaved, and the faster run is reported (the machine may be shared).
 Per-stage columns are wall-clock medians on the thread that runs the stage; "est. CPU" is the estimation
 thread's CPU time per frame (less sensitive to other load); "all CPU" is the process's CPU time per frame over
@@ -101,7 +102,7 @@ def main():
         ("F2 default, superfast", dict(), dict(preset="superfast", out=True)),
         ("F3 default, veryfast", dict(), dict(preset="veryfast", out=True)),
         ("F4 F1 with x264 auto threads", dict(), dict(encoder_threads=0, out=True)),
-        ("F5 F1 with the overlay on the estimation thread", dict(), dict(overlay_thread=False, out=True)),
+        ("F5 F1 with the overlay drawn in the encoder thread", dict(), dict(overlay_thread=True, out=True)),
     ]
     variants = est_variants + full_variants
     best = {}
@@ -144,9 +145,10 @@ def main():
               + " | ".join(f"{st[k]:.2f}" for k in cols)
               + f" | {s['cpu_ms_median']:.2f} | {s['process_cpu_ms_per_frame']:.2f} | "
               f"{2000 / s['process_cpu_ms_per_frame']:.0f} | {q} |")
-    print("\nstage columns: median wall ms per frame on the thread that runs the stage (overlay: encoder thread "
-          "except F0); decode/encode = time the estimation thread waited for the reader / the encoder queue. "
-          "latency = the estimation thread's work per frame (markers_pose + dots + assimilate, + overlay in F0).")
+    print("\nstage columns: median wall ms per frame on the thread that runs the stage (overlay: estimation "
+          "thread except F5); decode/encode = time the estimation thread waited for the reader / the encoder "
+          "queue. latency = the estimation thread's work per frame (markers_pose + dots + assimilate + overlay, "
+          "except F5).")
     assert set(STAGES) == set(cols)
 
 

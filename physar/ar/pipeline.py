@@ -1,8 +1,11 @@
 """The AR frame loop (seed 000 §2.1, §4, §5.1): decode -> markers/pose -> dots -> observations u* ->
 assimilation mu* = argmin ||u* - C u(mu)||² on the reduced model -> overlay -> encode.
 
-Decoding and encoding run in background threads (PyAV releases the GIL while it codes), so they overlap
-the computing on the main thread. Per-stage latencies are recorded for every frame.
+Three threads overlap (PyAV and OpenCV release the GIL while they work): the decoder (which also hands over
+its luma plane as the grey image), the estimation and overlay on the calling thread (markers followed by
+sub-pixel corner refinement with a bit check, ArUco detection only as fallback; dots re-centred around their
+pose projection, KLT only when that misses), and the encoder thread (the overlay can be drawn there too, see
+:meth:`ARPipeline.run`). Per-stage latencies are recorded for every frame.
 """
 from __future__ import annotations
 
@@ -331,14 +334,15 @@ class ARPipeline:
     # -- whole videos -------------------------------------------------------------------------------------
     def run(self, source, out_video=None, out_csv=None, fps: float | None = None, crf: int = 20,
             preset: str = "ultrafast", progress: Callable[[int, int], None] | None = None,
-            max_frames: int | None = None, snapshots: dict | None = None, overlay_thread: bool = True,
+            max_frames: int | None = None, snapshots: dict | None = None, overlay_thread: bool = False,
             use_luma: bool = True, encoder_threads: int | None = None, convert: str = "opencv",
             cv_threads: int | None = 1) -> dict:
         """Process a video file path or a frame source (VideoReader / CameraSource / iterable of frames).
 
-        Three threads overlap: the decoder (PyAV, reading ahead), the estimation (this thread) and the
-        encoder; with ``overlay_thread`` the overlay is drawn in the encoder thread too (:meth:`render`), so
-        that this thread only estimates. ``use_luma``: take the grey image from the decoder's luma plane
+        Three threads overlap: the decoder (PyAV, reading ahead), the estimation and overlay (this thread)
+        and the encoder. ``overlay_thread``: draw the overlay in the encoder thread instead (:meth:`render`);
+        measured slower on 2 cores (the overlay's Python/numpy steps and the estimation's then contend for
+        the GIL: 109 vs 161 fps end to end, 12.7 vs 11.0 ms CPU per frame, benchmarks/bench_ar.py). ``use_luma``: take the grey image from the decoder's luma plane
         (else convert BGR to grey here). ``encoder_threads``: libx264 threads (0: its default, 1.5 per core;
         None: the cores left by the decoder and the estimation, at least 1). ``cv_threads``: OpenCV's thread
         pool size while the video runs (restored afterwards; None: unchanged): the stages already run in

@@ -176,3 +176,22 @@ def test_video_luma_and_opencv_conversions(small_scene, tmp_path):
         assert 10 * np.log10(255 ** 2 / mse) > 38
     with pytest.raises(PhysarError, match="conversion"):
         VideoReader(out / "scene.mp4", convert="sws")
+
+
+def test_overlay_in_encoder_thread_gives_the_same_video(small_scene, tmp_path):
+    """The overlay drawn in the encoder thread (run(overlay_thread=True)) gives the same augmented frames (the
+    lossless snapshots handed to the encoder) as drawn on the estimation thread, apart from the measured latency
+    in the text panel."""
+    import cv2
+
+    spec, out, info, rom, obj = small_scene
+    cam = Camera.load(out / "camera.toml")
+    for flag in (False, True):
+        ARPipeline(rom, cam, obj).run(out / "scene.mp4", tmp_path / f"a{flag}.mp4", max_frames=8,
+                                      overlay_thread=flag, snapshots={k: tmp_path / f"{flag}{k}.png" for k in (2, 6)})
+        assert sum(1 for _ in VideoReader(tmp_path / f"a{flag}.mp4")) == 8
+    first = next(iter(VideoReader(out / "scene.mp4")))
+    for k in (2, 6):
+        a, b = (cv2.imread(str(tmp_path / f"{flag}{k}.png")) for flag in (False, True))
+        assert np.array_equal(a[150:], b[150:])  # below the text panel (its last line shows the latency)
+        assert np.abs(a[150:].astype(int) - first[150:]).max() > 100  # the overlay is there
