@@ -66,14 +66,14 @@ def main():
         render_scene(spec, out)
         t_render = time.perf_counter() - t
         t = time.perf_counter()
-        rom, obj, space, _ = build_scene_model(spec)
+        rom = build_scene_model(spec)[0]
         rom.save(out / "model.npz")
         print(f"scene: {spec.n_frames} frames rendered in {t_render:.1f} s; reduced model ({rom.n_modes} modes) "
               f"in {time.perf_counter() - t:.1f} s")
     rom = SeparatedModel.load(out / "model.npz")
     cam = Camera.load(out / "camera.toml")
     video = out / "scene.mp4"
-    load0 = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    load0 = subprocess.run(["uptime"], capture_output=True, text=True, check=False).stdout.strip()
 
     dec = {}
     for convert in ("ffmpeg", "opencv") * a.repeats:
@@ -86,23 +86,25 @@ def main():
     tmp = Path(tempfile.mkdtemp(prefix="bench_ar_"))
     est_variants = [
         ("E0 ArUco every frame, BGR->grey, KLT every frame, swscale",
-         dict(track_markers=False, dot_flow=True), dict(use_luma=False, convert="ffmpeg", cv_threads=None)),
-        ("E1 + marker corners tracked", dict(track_markers=True, dot_flow=True), dict(use_luma=False, convert="ffmpeg", cv_threads=None)),
-        ("E2 + decoder luma plane", dict(track_markers=True, dot_flow=True), dict(use_luma=True, convert="ffmpeg", cv_threads=None)),
-        ("E3 + KLT only when needed", dict(), dict(use_luma=True, convert="ffmpeg", cv_threads=None)),
-        ("E4 + OpenCV yuv->BGR", dict(), dict(cv_threads=None)),
-        ("E5 + cv2.setNumThreads(1) while running (default)", dict(), dict()),
+         {"track_markers": False, "dot_flow": True}, {"use_luma": False, "convert": "ffmpeg", "cv_threads": None}),
+        ("E1 + marker corners tracked", {"track_markers": True, "dot_flow": True},
+         {"use_luma": False, "convert": "ffmpeg", "cv_threads": None}),
+        ("E2 + decoder luma plane", {"track_markers": True, "dot_flow": True},
+         {"use_luma": True, "convert": "ffmpeg", "cv_threads": None}),
+        ("E3 + KLT only when needed", {}, {"use_luma": True, "convert": "ffmpeg", "cv_threads": None}),
+        ("E4 + OpenCV yuv->BGR", {}, {"cv_threads": None}),
+        ("E5 + cv2.setNumThreads(1) while running (default)", {}, {}),
     ]
     snaps = list(range(10, 10 + 8 * 15, 15))
     full_variants = [
-        ("F0 as before: overlay on estimation thread, swscale, x264 auto threads, veryfast", dict(),
-         dict(overlay_thread=False, convert="ffmpeg", preset="veryfast", encoder_threads=0, cv_threads=None,
-              out=True)),
-        ("F1 default: ultrafast", dict(), dict(out=True)),
-        ("F2 default, superfast", dict(), dict(preset="superfast", out=True)),
-        ("F3 default, veryfast", dict(), dict(preset="veryfast", out=True)),
-        ("F4 F1 with x264 auto threads", dict(), dict(encoder_threads=0, out=True)),
-        ("F5 F1 with the overlay drawn in the encoder thread", dict(), dict(overlay_thread=True, out=True)),
+        ("F0 as before: overlay on estimation thread, swscale, x264 auto threads, veryfast", {},
+         {"overlay_thread": False, "convert": "ffmpeg", "preset": "veryfast", "encoder_threads": 0, "cv_threads": None,
+          "out": True}),
+        ("F1 default: ultrafast", {}, {"out": True}),
+        ("F2 default, superfast", {}, {"preset": "superfast", "out": True}),
+        ("F3 default, veryfast", {}, {"preset": "veryfast", "out": True}),
+        ("F4 F1 with x264 auto threads", {}, {"encoder_threads": 0, "out": True}),
+        ("F5 F1 with the overlay drawn in the encoder thread", {}, {"overlay_thread": True, "out": True}),
     ]
     variants = est_variants + full_variants
     best = {}
@@ -113,7 +115,7 @@ def main():
             pipe = ARPipeline(rom, cam, **pkw)
             kw = {}
             if rkw.pop("out", False):
-                kw = dict(out_video=tmp / "aug.mp4", snapshots={k: tmp / f"snap{k}.png" for k in snaps})
+                kw = {"out_video": tmp / "aug.mp4", "snapshots": {k: tmp / f"snap{k}.png" for k in snaps}}
             s = pipe.run(video, **kw, **rkw)
             s.pop("results")
             if kw:
@@ -125,7 +127,7 @@ def main():
                 s["psnr_db"] = float(np.mean(list(got.values())))
             if name not in best or s["fps"] > best[name]["fps"]:
                 best[name] = s
-    load1 = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    load1 = subprocess.run(["uptime"], capture_output=True, text=True, check=False).stdout.strip()
 
     n = best[variants[0][0]]["frames"]
     print(f"\n## AR pipeline, 1280x720, {n} frames ({time.strftime('%Y-%m-%d')}, {os.cpu_count()} CPUs, "

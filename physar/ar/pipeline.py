@@ -308,10 +308,10 @@ class ARPipeline:
         t3 = time.perf_counter()
         state = None
         if self.overlay is not None:
-            state = dict(pose=pe.pose, c=self.rom.coefficients(self.mu)[0], mu=self.mu.copy(), std=self.std.copy(),
-                         status=status if pe.pose is not None else "lost",
-                         info={"markers": pe.n_markers, "dots": n_dots, "dots_total": len(self.obj.dots),
-                               "frame": index, "latency_ms": (t3 - t0) * 1e3})
+            state = {"pose": pe.pose, "c": self.rom.coefficients(self.mu)[0], "mu": self.mu.copy(),
+                     "std": self.std.copy(), "status": status if pe.pose is not None else "lost",
+                     "info": {"markers": pe.n_markers, "dots": n_dots, "dots_total": len(self.obj.dots),
+                              "frame": index, "latency_ms": (t3 - t0) * 1e3}}
         out = self.render(frame, state) if draw and state is not None else frame
         t4 = time.perf_counter()
         st["overlay"] = (t4 - t3) * 1e3
@@ -357,8 +357,6 @@ class ARPipeline:
         ("overlay" is measured in the thread that draws it; "cpu_ms_median": CPU time of the estimation
         thread per frame, overlay included when it is drawn there).
         """
-        from physar.ar.video import VideoReader, VideoWriter, atomic_path
-
         if encoder_threads is None:
             encoder_threads = max(1, (os.cpu_count() or 1) - 2)
         if cv_threads is not None:

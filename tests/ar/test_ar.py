@@ -154,7 +154,7 @@ def test_video_luma_and_opencv_conversions(small_scene, tmp_path):
     within 3 grey levels; a writer with OpenCV conversion and deferred (callable) frames round-trips at > 38 dB."""
     import cv2
 
-    spec, out, info, rom, obj = small_scene
+    out = small_scene[1]
     a = list(zip(range(3), VideoReader(out / "scene.mp4", convert="ffmpeg").frames_with_luma()))
     b = list(zip(range(3), VideoReader(out / "scene.mp4", convert="opencv").frames_with_luma()))
     for (_, (bgr_f, y_f)), (_, (bgr_o, y_o)) in zip(a, b):
@@ -184,7 +184,7 @@ def test_overlay_in_encoder_thread_gives_the_same_video(small_scene, tmp_path):
     in the text panel."""
     import cv2
 
-    spec, out, info, rom, obj = small_scene
+    _, out, _, rom, obj = small_scene
     cam = Camera.load(out / "camera.toml")
     for flag in (False, True):
         ARPipeline(rom, cam, obj).run(out / "scene.mp4", tmp_path / f"a{flag}.mp4", max_frames=8,

@@ -207,8 +207,8 @@ def test_marker_corner_tracking_matches_detector_and_checks_bits():
     d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
     for k, mid in ((1, 7), (2, None)):
         c = board.corners[k]
-        u0, v0 = int(round((c[0, 0] + 0.3) * s)), int(round((c[0, 1] + 0.2) * s))
-        n = int(round(0.05 * s))
+        u0, v0 = round((c[0, 0] + 0.3) * s), round((c[0, 1] + 0.2) * s)
+        n = round(0.05 * s)
         fake[v0:v0 + n, u0:u0 + n] = (cv2.resize(cv2.aruco.generateImageMarker(d, mid, 240), (n, n),
                                                  interpolation=cv2.INTER_AREA) if mid is not None else 150)
     est = tr.update(frame(8, fake))
