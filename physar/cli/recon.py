@@ -62,14 +62,17 @@ def fit_cmd(
     out: Path = typer.Option(..., "--out", "-o", help="RUN_DIR: model.npz, gaussians.ply, report.json, preview.mp4"),
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="TOML with a [train] table"),
     restart: bool = typer.Option(False, "--restart", help="ignore RUN_DIR/checkpoint.pt"),
+    reuse: Optional[Path] = typer.Option(None, "--reuse", help="take stages 1-2 (canonical Gaussians, flows) "
+                                         "from this RUN_DIR: physics-only variants such as ablations"),
     json_out: bool = typer.Option(False, "--json", help="print the evaluation report as JSON"),
 ) -> None:
-    """Fit appearance, per-frame flow and the physical parameters (resumes from RUN_DIR/checkpoint.pt)."""
+    """Fit canonical Gaussians (spin clip), per-frame flows and the physical parameters (resumes from
+    RUN_DIR/checkpoint.pt)."""
     from physar.recon.train import fit, load_train_config
 
     cfg = load_train_config(config)
     progress, bars = _bars(json_out and not sys.stderr.isatty())
-    report = fit(data_dir, out, cfg, progress, restart=restart)
+    report = fit(data_dir, out, cfg, progress, restart=restart, reuse=reuse)
     _close(bars)
     if json_out:
         print_json(report)
@@ -84,7 +87,7 @@ def predict_cmd(
     run_dir: Path = typer.Argument(..., help="RUN_DIR written by `physar recon fit`"),
     poses: Path = typer.Option(..., "--poses", "-p", help="npz with rotations (F, B, 3, 3) [and root_translation]"),
     out: Path = typer.Option(..., "--out", "-o", help="output MP4"),
-    method: str = typer.Option("physics", "--method", help="physics | lbs | 4dgs"),
+    method: str = typer.Option("physics", "--method", help="physics | lbs | 4dgs | spflow"),
     frames_npz: Optional[Path] = typer.Option(None, "--frames", help="also save rgb/alpha arrays (npz)"),
 ) -> None:
     """Render the learned scene under a (new) pose sequence: future frames or a novel action."""
@@ -115,7 +118,8 @@ def eval_cmd(
     data_dir: Optional[Path] = typer.Option(None, "--data", help="DATA_DIR (default: the one used by fit)"),
     json_out: bool = typer.Option(False, "--json", help="print the report as JSON"),
 ) -> None:
-    """PSNR/SSIM/IoU of physics vs the LBS-only and 4DGS-like baselines (full and large-deformation frames)."""
+    """PSNR/SSIM/IoU of physics vs the LBS-only and 4DGS-like baselines and the Eq. 9 flow (full and
+    large-deformation frames), object 3-D error and E error against the truth when present."""
     from physar.errors import ConfigError
     from physar.recon.train import Reconstruction, evaluate, load_dataset
 
@@ -137,6 +141,9 @@ def _print_table(report: dict) -> None:
         log(f"E: mean |log10 error| {mat['initial_mean_abs_log10_error']:.3f} (initial) -> "
             f"{mat['mean_abs_log10_error']:.3f}; soft {mat['E_soft_learned_geomean']:.0f} (true "
             f"{mat['E_soft_true']:.0f}), stiff {mat['E_stiff_learned_geomean']:.0f} (true {mat['E_stiff_true']:.0f}) Pa")
+    if "object_3d_error_mm" in report:
+        log("object 3-D error (mm, observed frames): " + ", ".join(
+            f"{k} {v:.2f}" for k, v in report["object_3d_error_mm"].items()))
     log(f"omega: max |omega| on the object {report['omega']['object_max_abs']:.2g}, "
         f"body mean {report['omega']['body_mean']:.3f}; {report['lpips']}")
 
