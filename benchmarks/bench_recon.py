@@ -66,9 +66,10 @@ def identifiability(data_dir: Path, tcfg) -> list[tuple[str, float, float]]:
     return rows
 
 
-def oracle_E(data_dir: Path, tcfg, grid, iters: int = 15, lr: float = 0.1) -> list[tuple[int, float, dict]]:
-    """Learn log E from the true 3-D object trajectories (see the module docstring); per-iteration
-    (iteration, L1 loss mm, material_error)."""
+def oracle_E(data_dir: Path, tcfg, grid, iters: int = 15, lr: float = 0.1,
+             targets: np.ndarray | None = None) -> list[tuple[int, float, dict]]:
+    """Learn log E from the true 3-D object trajectories (see the module docstring), or from ``targets``
+    (F, No, 3) such as a run's Eq. 9 flow; per-iteration (iteration, L1 loss mm, material_error)."""
     import math
 
     from physar.recon.train import Reconstruction, material_error
@@ -76,7 +77,7 @@ def oracle_E(data_dir: Path, tcfg, grid, iters: int = 15, lr: float = 0.1) -> li
     ds = load_dataset(data_dir)
     rig = Rig(ds.meta, tcfg.model_copy(update={"material_grid": grid, "residual": False}))
     kin = rig.kinematics(ds.rotations, ds.root_t)
-    gt = torch.as_tensor(cell_average_truth(rig, ds.truth))
+    gt = torch.as_tensor(cell_average_truth(rig, ds.truth) if targets is None else targets)
     ph = Physics.init(rig)
     ph.log_E.requires_grad_(True)
     opt = torch.optim.Adam([ph.log_E], lr=lr)
@@ -101,6 +102,8 @@ def main() -> None:
     ap.add_argument("--no-ablations", action="store_true")
     ap.add_argument("--identifiability-only", action="store_true")
     ap.add_argument("--oracle", action="store_true")
+    ap.add_argument("--flow-run", default=None, help="with --oracle: also learn E (grid) from the Eq. 9 flow "
+                    "and the 4DGS-like positions of this RUN_DIR (same scene)")
     a = ap.parse_args()
     out = Path(a.out)
     scfg, tcfg = load_synth_config(a.config), load_train_config(a.config)
@@ -120,13 +123,22 @@ def main() -> None:
         print("| E parameterisation | iteration | L1 (mm) | mean abs log10 E error | soft / stiff geomean (Pa) | "
               "stiff/soft |")
         print("|---|---|---|---|---|---|")
-        for grid in (tuple(tcfg.material_grid), (0, 0, 0)):
+        for grid in () if a.flow_run else (tuple(tcfg.material_grid), (0, 0, 0)):
             label = "per particle" if grid == (0, 0, 0) else f"voxel grid {grid}"
             for it, l1, m in oracle_E(out / "data", tcfg, grid):
                 if it in (1, 5, 10, 15):
                     print(f"| {label} | {it} | {l1:.3f} | {m['mean_abs_log10_error']:.3f} | "
                           f"{m['E_soft_learned_geomean']:.0f} / {m['E_stiff_learned_geomean']:.0f} | "
                           f"{m['stiff_soft_ratio_learned']:.2f} |")
+        if a.flow_run:
+            with np.load(Path(a.flow_run) / "model.npz") as m:
+                flows = {"Eq. 9 flow (spflow)": m["spflow"], "4DGS-like positions": m["flow"]}
+            for label, tg in flows.items():
+                for it, l1, m in oracle_E(out / "data", tcfg, tuple(tcfg.material_grid), targets=tg):
+                    if it in (1, 5, 10, 15):
+                        print(f"| grid, targets = {label} | {it} | {l1:.3f} | {m['mean_abs_log10_error']:.3f} | "
+                              f"{m['E_soft_learned_geomean']:.0f} / {m['E_stiff_learned_geomean']:.0f} | "
+                              f"{m['stiff_soft_ratio_learned']:.2f} |")
     if a.identifiability_only:
         return
     variants = [("full", {})]
