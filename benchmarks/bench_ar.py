@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import subprocess
 import tempfile
 import time
@@ -127,6 +128,7 @@ def main():
                 s["psnr_db"] = float(np.mean(list(got.values())))
             if name not in best or s["fps"] > best[name]["fps"]:
                 best[name] = s
+    shutil.rmtree(tmp, ignore_errors=True)
     load1 = subprocess.run(["uptime"], capture_output=True, text=True, check=False).stdout.strip()
 
     n = best[variants[0][0]]["frames"]
