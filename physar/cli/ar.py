@@ -56,16 +56,41 @@ def calibrate(
             f"{res['images_used']}/{res['images_total']} images; wrote {output}")
 
 
+def _scene_kind(path: Path) -> str:
+    """The scene's `name` (cantilever | foam | seal) from its TOML, with a one-line error if unreadable."""
+    import tomllib
+
+    from physar.errors import ConfigError
+
+    if not Path(path).is_file():
+        raise ConfigError(f"scene file not found: {path}")
+    try:
+        with open(path, "rb") as fh:
+            name = tomllib.load(fh).get("name", "cantilever")
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{path}: not valid TOML ({e})") from None
+    return str(name)
+
+
 def scene_render(
-    scene: Path = typer.Argument(..., help="scene TOML (see examples/scene_cantilever.toml)"),
+    scene: Path = typer.Argument(..., help="scene TOML (examples/scene_cantilever.toml, scene_foam.toml, scene_seal.toml)"),
     out: Path = typer.Option(Path("scene_out"), "--out", "-o", help="output folder"),
     json_out: bool = typer.Option(False, "--json"),
 ) -> None:
     """Render a synthetic AR scene: scene.mp4 (H.264), truth.csv, camera.toml."""
-    from physar.ar.scene import load_scene, render_scene
+    kind = _scene_kind(scene)
+    if kind == "foam":
+        from physar.ar.foam import load_foam_scene, render_foam_scene
 
-    spec = load_scene(scene)
-    res = render_scene(spec, out, progress=_bar("render"))
+        res = render_foam_scene(load_foam_scene(scene), out, progress=_bar("render"))
+    elif kind == "seal":
+        from physar.ar.seal import load_seal_scene, render_seal_scene
+
+        res = render_seal_scene(load_seal_scene(scene), out, progress=_bar("render"))
+    else:
+        from physar.ar.scene import load_scene, render_scene
+
+        res = render_scene(load_scene(scene), out, progress=_bar("render"))
     if json_out:
         print_json(res)
     else:
@@ -78,12 +103,27 @@ def scene_model(
     json_out: bool = typer.Option(False, "--json"),
 ) -> None:
     """Build the reduced (PGD) model of a scene's object, with the AR object description, as .npz."""
-    from physar.ar.pipeline import build_scene_model
-    from physar.ar.scene import load_scene
+    kind = _scene_kind(scene)
+    if kind == "foam":
+        from physar.ar.foam import build_foam_model, load_foam_scene
 
-    spec = load_scene(scene)
-    rom, obj, space, info = build_scene_model(spec)
-    rom.save(output, mesh=space.mesh)
+        rom, obj, space, info = build_foam_model(load_foam_scene(scene), progress=_bar("snapshots"))
+        rom.save(output, mesh=space.mesh)
+    elif kind == "seal":
+        from physar.ar.seal import build_seal_model, load_seal_scene
+
+        rom, vm, seal, info = build_seal_model(load_seal_scene(scene), progress=_bar("snapshots"))
+        space = seal.space
+        rom.save(output, mesh=space.mesh)
+        vm_path = output.with_name(output.stem + "_von_mises.npz")
+        vm.save(vm_path, mesh=space.mesh)
+        log(f"von Mises model -> {vm_path}")
+    else:
+        from physar.ar.pipeline import build_scene_model
+        from physar.ar.scene import load_scene
+
+        rom, obj, space, info = build_scene_model(load_scene(scene))
+        rom.save(output, mesh=space.mesh)
     res = {"model": str(output), "modes": rom.n_modes, "dofs": space.n_dofs, "parameters": rom.names}
     if json_out:
         print_json(res)
