@@ -48,7 +48,7 @@ def register(app: typer.Typer) -> None:
     def denoise_cmd(
         inp: Annotated[Path, typer.Argument(help="input mesh (PLY/OBJ/STL/OFF) or PLY point cloud")],
         out: Annotated[Path, typer.Argument(help="output file (same kinds)")],
-        method: str = typer.Option("msal", "--method", help="al | msal | laplacian | taubin | bnf (meshes)"),
+        method: str = typer.Option("msal", "--method", help="al | msal | msal-sharp (CAD: edge-preserving) | laplacian | taubin | bnf"),
         iterations: int = typer.Option(None, "--iterations", help="iterations (default per method)"),
         k: int = typer.Option(10, "--k", help="neighbours for point clouds"),
         json_out: bool = typer.Option(False, "--json", help="print a JSON summary on stdout"),

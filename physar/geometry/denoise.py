@@ -228,6 +228,7 @@ def al_iterate(
     progress: Progress = None,
     sigma_e: float | None = None,
     shrink_correction: float = 1.0,
+    rescale: float | None = None,
 ) -> np.ndarray:
     """Run q <- q + τ_k Δq + λ (q̂ - q) for each τ_k in `taus` (seed 001 §3.2.1).
 
@@ -235,7 +236,9 @@ def al_iterate(
     `edges` are the undirected graph edges (e, 2). The edge-stopping scale is fixed from the noisy data, s = κ σ_e (:func:`noise_scales`,
     or the given `sigma_e`). With `shrink_correction`, Δq_i is replaced by Δq_i - mean_{j∈N(i)} Δq_j
     (module doc). With `preserve_volume` and a closed surface, each step is followed by the global
-    normal offset δ = (V(q̂) - V(q)) / A(q).
+    normal offset δ = (V(q̂) - V(q)) / A(q). With `rescale` = ρ (feature mode, our addition), the
+    edge-stopping scale is re-estimated from the current positions before every step,
+    s_k = κ max(σ_e(q_k), ρ σ_e(q̂)): as the noise goes, s shrinks and sharp edges stop the flow.
     """
     if kappa <= 0:
         raise PhysarError(f"kappa must be > 0, got {kappa}")
@@ -248,13 +251,16 @@ def al_iterate(
     origin = qhat.mean(axis=0) if npts else np.zeros(3)
     f32 = lambda x: (x - origin).astype(np.float32)  # centred float32 copy for the edge kernel
     n, v0, _ = geometry(f32(qhat))
+    if rescale is not None and not 0 <= rescale <= 1:
+        raise PhysarError(f"rescale must be in [0, 1], got {rescale}")
     src = dst = None
-    if sigma_e is None or beta > 0:
+    if sigma_e is None or beta > 0 or rescale is not None:
         src, dst = directed_edges(edges)
     if sigma_e is None:
         sigma_e, _ = noise_scales(heights(qhat, n, src, dst), src, npts)
     ext = float(np.ptp(qhat, axis=0).max()) if npts else 1.0
-    scale = kappa * max(sigma_e, 1e-12 * max(ext, 1e-300))
+    sig0 = max(sigma_e, 1e-12 * max(ext, 1e-300))
+    scale = kappa * sig0
     keep_vol = preserve_volume and v0 is not None
     ring = ring_mean_matrix(src, dst, npts) if beta > 0 else None
     lam = np.asarray(lam, dtype=float)
@@ -269,6 +275,9 @@ def al_iterate(
                 dv = np.float32((v0 - vol) / area) * n
                 q += dv
                 q32 += dv
+            if rescale is not None:  # feature mode: scale from the current positions (docstring)
+                sk = noise_scales(heights(q32, n, src, dst), src, npts)[0]
+                scale = kappa * max(sk, rescale * sig0)
         hab, hba = _edge_heights(q32, n, a, b)
         wab, wba = edge_stopping(hab, scale, g), edge_stopping(hba, scale, g)
         c = np.bincount(a, weights=wab, minlength=npts) + np.bincount(b, weights=wba, minlength=npts)
@@ -336,14 +345,16 @@ MSAL_FIDELITY = 0.05
 def msal(
     mesh: TriMesh, iterations: int = 8, xi: float = MSAL_XI, kappa: float = KAPPA,
     fidelity: float = MSAL_FIDELITY, g: str = G_DEFAULT, preserve_volume: bool = True,
-    shrink_correction: float = 1.0, progress: Progress = None,
+    shrink_correction: float = 1.0, rescale: float | None = None, progress: Progress = None,
 ) -> TriMesh:
     """MSAL (seed 001 §3.2.1): step k uses τ = ξ^k and λ_i = fidelity · σ_i / max σ.
 
     The seed sets fidelity = 1 and "typically up to 4 iterations"; as k -> ∞ the iteration returns to
     the data q̂. Defaults here: ξ = 0.9, fidelity = 0.05, 8 iterations, with the shrinkage and volume
     corrections of the module doc (set ``xi=0.5, fidelity=1, shrink_correction=False,
-    preserve_volume=False`` for the seed's plain form).
+    preserve_volume=False`` for the seed's plain form). ``rescale=0.5`` is the feature mode for meshes
+    with sharp edges (CAD): the edge-stopping scale follows the remaining noise (:func:`al_iterate`);
+    it rounds fine organic detail more, so it is off by default (benchmarks/bench_denoise.py).
     """
     _check_iter(iterations)
     if not (0 < xi < 1):
@@ -356,8 +367,13 @@ def msal(
     lam = fidelity * msal_lambda(sig_i)
     taus = xi ** np.arange(int(iterations), dtype=float)
     q = al_iterate(mesh.points, ops.geometry, ops.edges, taus, lam, kappa, g, preserve_volume, progress,
-                   sigma_e=sig_e, shrink_correction=shrink_correction)
+                   sigma_e=sig_e, shrink_correction=shrink_correction, rescale=rescale)
     return mesh.with_points(q)
+
+
+def msal_sharp(mesh: TriMesh, iterations: int = 16, progress: Progress = None) -> TriMesh:
+    """MSAL in feature mode for meshes with sharp edges: ``msal(mesh, 16, rescale=0.5)``."""
+    return msal(mesh, iterations, rescale=0.5, progress=progress)
 
 
 def _umbrella(q: np.ndarray, lap: sparse.csr_matrix) -> np.ndarray:
@@ -453,7 +469,7 @@ def bilateral_normal_filter(
 
 
 METHODS = {
-    "al": anisotropic_laplacian, "msal": msal, "laplacian": laplacian_smooth, "taubin": taubin_smooth,
+    "al": anisotropic_laplacian, "msal": msal, "msal-sharp": msal_sharp, "laplacian": laplacian_smooth, "taubin": taubin_smooth,
     "bnf": bilateral_normal_filter,
 }
 
