@@ -622,6 +622,8 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
             st.seconds = time.perf_counter() - t0
             _save_checkpoint(run, st, cfg)
         st.stage, st.iteration = "physics", 0
+        st.seconds = time.perf_counter() - t0
+        st.info["stages_seconds"] = st.seconds
         _save_checkpoint(run, st, cfg)
         _save_checkpoint(run, st, cfg, name="stages.pt")
 
