@@ -130,7 +130,7 @@ def run_ar_demo(out, quick: bool = False, progress: Callable[[str, int, int], No
     spec = spec or demo_scene(quick)
     cb = (lambda stage: (lambda k, n: progress(stage, k, n))) if progress else (lambda stage: None)
     t0 = time.perf_counter()
-    scene = render_scene(spec, out, progress=cb("render scene"))
+    render_scene(spec, out, progress=cb("render scene"))
     t1 = time.perf_counter()
     rom, obj, space, info = build_scene_model(spec, progress=cb("reduced model (PGD)"))
     rom.save(out / "model.npz", mesh=space.mesh)

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
