@@ -179,10 +179,12 @@ class FusedFrame:
         return m, a, lo, hi, m.n_grid - 3
 
     # -- one substep forward; returns what the reverse sweep needs
-    def substep(self, s_in: list, s_out: list, P: dict, t: float, keep: bool = False):
+    def substep(self, s_in: list, s_out: list, P: dict, t: float, keep: bool = False, box=None):
+        """One substep s_in -> s_out.  ``box`` (corner, shape) is the active node box of s_in when already known
+        (the backward recompute reuses the boxes of the forward sweep: same states, no host round trip)."""
         m, a, lo, hi, nmax = self._consts()
         x, v, C, F, Jp = s_in
-        corner, shape = m.active_box(x.numpy())
+        corner, shape = box if box is not None else m.active_box(x.numpy())
         off = wp.vec3i(*corner)
         grids = [(wp.zeros(shape, dtype=wp.vec3d), wp.zeros(shape, dtype=wp.float64)) for _ in self.parts]
         col = a["colliders"].at(t, m.dt)
@@ -216,7 +218,7 @@ class FusedFrame:
         self._par([g2p(k) for k in range(len(self.parts))])
         if keep:
             return {"shape": shape, "off": off, "grids": grids, "gv": gv, "g_in": g_in, "t": t}
-        return None
+        return corner, shape
 
     def adjoint_substep(self, s_in: list, s_out: list, adj_in: list, adj_out: list, P: dict, adjP: dict, rec: dict):
         """Accumulate into adj_in (state s) and adjP the adjoints given adj_out (state s + 1)."""
@@ -289,12 +291,13 @@ class FusedFrameFunction(torch.autograd.Function):
         cur = [wp.array(t.detach().contiguous().numpy(), dtype=d) for t, (_, d) in zip((x, v, C, F, Jp), _STATE)]
         nxt = _alloc_state(n)
         bounds = {0: [a.numpy().copy() for a in cur]}
+        boxes = []
         for s in range(T):
-            runner.substep(cur, nxt, P, t0 + s * m.dt)
+            boxes.append(runner.substep(cur, nxt, P, t0 + s * m.dt))
             cur, nxt = nxt, cur
             if (s + 1) % runner.seg == 0 and s + 1 < T:
                 bounds[s + 1] = [a.numpy().copy() for a in cur]
-        ctx.runner, ctx.t0, ctx.bounds, ctx.kp, ctx.kd = runner, t0, bounds, kp, kd
+        ctx.runner, ctx.t0, ctx.bounds, ctx.boxes, ctx.kp, ctx.kd = runner, t0, bounds, boxes, kp, kd
         ctx.save_for_backward(E, nu, omega, x_ref, v_ref)
         return tuple(torch.from_numpy(a.numpy().copy()) for a in cur)
 
@@ -320,7 +323,7 @@ class FusedFrameFunction(torch.autograd.Function):
             recs = []
             for s in range(s0, s1):
                 out = _alloc_state(n)
-                recs.append(runner.substep(states[-1], out, P, ctx.t0 + s * m.dt, keep=True))
+                recs.append(runner.substep(states[-1], out, P, ctx.t0 + s * m.dt, keep=True, box=ctx.boxes[s]))
                 states.append(out)
             for j in reversed(range(s1 - s0)):
                 for a in adj_cur:
