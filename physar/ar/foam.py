@@ -28,7 +28,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, model_validator
 
 from physar.ar.scene import (
     CameraSection,
@@ -130,20 +130,10 @@ class FoamSceneSpec(_Strict):
 
 
 def load_foam_scene(path) -> FoamSceneSpec:
-    import tomllib
+    """Read and validate a scene (foam) TOML; errors name the file and the key."""
+    from physar.ar.scene import validate_scene
 
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: scene file not found") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{path}: not valid TOML ({e})") from None
-    try:
-        return FoamSceneSpec.model_validate(data)
-    except ValidationError as e:
-        err = e.errors()[0]
-        raise ConfigError(f"{path}: {'.'.join(str(x) for x in err['loc'])}: {err['msg']}") from None
+    return validate_scene(path, FoamSceneSpec)
 
 
 # ------------------------------------------------------------------------------------------------------

@@ -203,21 +203,32 @@ class SceneSpec(_Strict):
         return [o.kind for o in self.occlusion if 0 <= frame - int(round(o.start * fps)) < o.frames]
 
 
-def load_scene(path) -> SceneSpec:
-    """Read and validate a scene TOML; errors name the file and the key."""
+def read_scene_toml(path) -> dict:
+    """The raw table of a scene TOML; a missing or malformed file is a one-line ConfigError."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
+        return tomllib.loads(path.read_text())
+    except (FileNotFoundError, IsADirectoryError):
         raise ConfigError(f"{path}: scene file not found") from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{path}: not valid TOML ({e})") from None
+
+
+def validate_scene(path, model):
+    """Read a scene TOML and validate it with the pydantic ``model``; errors name the file and the key."""
+    data = read_scene_toml(path)
     try:
-        spec = SceneSpec.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as e:
         err = e.errors()[0]
         loc = ".".join(str(x) for x in err["loc"])
         raise ConfigError(f"{path}: {loc}: {err['msg']}") from None
+
+
+def load_scene(path) -> SceneSpec:
+    """Read and validate a scene TOML; errors name the file and the key."""
+    path = Path(path)
+    spec = validate_scene(path, SceneSpec)
     spec.__dict__["_base"] = path.parent
     return spec
 

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, model_validator
 
 from physar.ar.foam import _noise_texture, read_csv_columns, sensor_effects, shade, vignette, write_report
 from physar.ar.scene import CameraSection, LightingSection, SensorSection, VideoSection, _Strict
@@ -140,20 +140,10 @@ class SealSceneSpec(_Strict):
 
 
 def load_seal_scene(path) -> SealSceneSpec:
-    import tomllib
+    """Read and validate a scene (seal) TOML; errors name the file and the key."""
+    from physar.ar.scene import validate_scene
 
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: scene file not found") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{path}: not valid TOML ({e})") from None
-    try:
-        return SealSceneSpec.model_validate(data)
-    except ValidationError as e:
-        err = e.errors()[0]
-        raise ConfigError(f"{path}: {'.'.join(str(x) for x in err['loc'])}: {err['msg']}") from None
+    return validate_scene(path, SealSceneSpec)
 
 
 # ------------------------------------------------------------------------------------------------------

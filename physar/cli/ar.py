@@ -58,18 +58,9 @@ def calibrate(
 
 def _scene_kind(path: Path) -> str:
     """The scene's `name` (cantilever | foam | seal) from its TOML, with a one-line error if unreadable."""
-    import tomllib
+    from physar.ar.scene import read_scene_toml
 
-    from physar.errors import ConfigError
-
-    if not Path(path).is_file():
-        raise ConfigError(f"scene file not found: {path}")
-    try:
-        with open(path, "rb") as fh:
-            name = tomllib.load(fh).get("name", "cantilever")
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{path}: not valid TOML ({e})") from None
-    return str(name)
+    return str(read_scene_toml(path).get("name", "cantilever"))
 
 
 def scene_render(
