@@ -298,7 +298,7 @@ def box_mesh(
     size = np.asarray(size, dtype=float)
     n = np.asarray(cells, dtype=int)
     if size.shape != (3,) or np.any(size <= 0) or not np.all(np.isfinite(size)):
-        raise MeshError(f"box size must be three positive lengths, got {list(np.atleast_1d(size))}")
+        raise MeshError(f"box size must be three positive lengths, got {[float(v) for v in np.atleast_1d(size)]}")
     if n.shape != (3,) or np.any(n < 1):
         raise MeshError(f"box cells must be three positive integers, got {list(np.atleast_1d(n))}")
     nx, ny, nz = n

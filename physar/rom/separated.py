@@ -197,8 +197,11 @@ class SeparatedModel:
         """
         try:
             z = np.load(path, allow_pickle=False)
+        except FileNotFoundError:
+            raise ReducedModelError(f"{path}: cannot read reduced model (file not found)") from None
         except Exception as e:  # OSError, ValueError (pickled / not npz), zipfile.BadZipFile
-            raise ReducedModelError(f"{path}: cannot read reduced model ({e})") from None
+            why = "not an .npz file" if "pickle" in str(e) else str(e)
+            raise ReducedModelError(f"{path}: cannot read reduced model ({why})") from None
         if not hasattr(z, "files"):
             raise ReducedModelError(f"{path}: not a physar reduced model (a single array, not an .npz)")
         with z:
