@@ -100,25 +100,31 @@ class SynthConfig(BaseModel):
         return self
 
 
-def load_synth_config(path: str | Path | None, overrides: dict | None = None) -> SynthConfig:
-    """Config from a TOML file (table [synth] or top level) and overrides; one-line errors."""
+def load_section_config(path: str | Path | None, section: str, model, overrides: dict | None = None):
+    """Validate table [section] of a recon TOML (or its top level when it has neither [synth] nor [train]),
+    updated by ``overrides``, with ``model``; one-line errors naming the file and the field."""
     data = {}
     if path is not None:
         p = Path(path)
         if not p.exists():
             raise ConfigError(f"config file '{p}' does not exist")
         try:
-            data = tomllib.loads(p.read_text())
+            raw = tomllib.loads(p.read_text())
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"{p}: invalid TOML: {exc}") from None
-        data = dict(data.get("synth", {})) if "synth" in data or "train" in data else data
+        data = dict(raw.get(section, {})) if ("synth" in raw or "train" in raw) else raw
     data.update(overrides or {})
     try:
-        return SynthConfig.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as exc:
         e = exc.errors()[0]
-        raise ConfigError(f"{path or 'synth config'}: field '{'.'.join(map(str, e['loc']))}': {e['msg']} "
+        raise ConfigError(f"{path or section + ' config'}: field '{'.'.join(map(str, e['loc']))}': {e['msg']} "
                           f"(got {e.get('input')!r})") from None
+
+
+def load_synth_config(path: str | Path | None, overrides: dict | None = None) -> SynthConfig:
+    """Config from a TOML file (table [synth] or top level) and overrides; one-line errors."""
+    return load_section_config(path, "synth", SynthConfig, overrides)
 
 
 def _checker(X: np.ndarray, cell: float, c0, c1) -> np.ndarray:

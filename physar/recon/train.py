@@ -39,14 +39,13 @@ import json
 import math
 import os
 import time
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
 from physar.errors import ConfigError, PhysarError
@@ -102,23 +101,10 @@ class TrainConfig(BaseModel):
 
 
 def load_train_config(path: str | Path | None, overrides: dict | None = None) -> TrainConfig:
-    data = {}
-    if path is not None:
-        p = Path(path)
-        if not p.exists():
-            raise ConfigError(f"config file '{p}' does not exist")
-        try:
-            raw = tomllib.loads(p.read_text())
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"{p}: invalid TOML: {exc}") from None
-        data = dict(raw.get("train", {})) if ("train" in raw or "synth" in raw) else raw
-    data.update(overrides or {})
-    try:
-        return TrainConfig.model_validate(data)
-    except ValidationError as exc:
-        e = exc.errors()[0]
-        raise ConfigError(f"{path or 'train config'}: field '{'.'.join(map(str, e['loc']))}': {e['msg']} "
-                          f"(got {e.get('input')!r})") from None
+    """Config from a TOML file (table [train] or top level) and overrides; one-line errors."""
+    from physar.recon.synth import load_section_config
+
+    return load_section_config(path, "train", TrainConfig, overrides)
 
 
 # ----------------------------------------------------------------------------------------------- data
