@@ -5,7 +5,8 @@ replays it on a ``wp.Tape``; with per-frame checkpointing a substep is then run 
 in reverse, with fresh allocations per launch.  Without neural residuals the whole frame is one
 :class:`torch.autograd.Function` here:
 
-* two fused kernels per substep: stress + P2G (tau = tau(F, E, nu) inside the scatter) and G2P + return map
+* two fused kernels per substep: stress + P2G (tau = tau(F, E, nu) + fibre term tau_f(F, a0, E_f) of
+  :func:`physar.mpm.constitutive.fiber_stress` inside the scatter) and G2P + return map
   (F = P((I + dt C) F) inside the gather); the grid update is the shared ``grid_update_kernel``;
 * forward: substeps run without storing anything but the states at segment boundaries (every k ~ sqrt(T)
   substeps);
@@ -30,7 +31,7 @@ import torch
 import warp as wp
 
 from physar.mpm.actuation import pd_force
-from physar.mpm.constitutive import hardening_factor, kirchhoff_stress
+from physar.mpm.constitutive import hardening_factor, kirchhoff_stress_fiber
 from physar.mpm.model import MPMModel, g2p_particle, grid_update_kernel, p2g_particle, plastic_update
 
 _POOL: ThreadPoolExecutor | None = None
@@ -56,6 +57,8 @@ def p2g_fused_kernel(
     elastic: wp.array(dtype=wp.int32),
     plastic: wp.array(dtype=wp.int32),
     pp: wp.array(dtype=wp.vec4d),
+    fiber: wp.array(dtype=wp.vec3d),
+    fiber_E: wp.array(dtype=wp.float64),
     mass: wp.array(dtype=wp.float64),
     vol: wp.array(dtype=wp.float64),
     omega: wp.array(dtype=wp.float64),
@@ -72,10 +75,10 @@ def p2g_fused_kernel(
     grid_mv: wp.array3d(dtype=wp.vec3d),
     grid_m: wp.array3d(dtype=wp.float64),
 ):
-    """Steps 1-2 of Alg. 1 for particle p0 + tid: Kirchhoff stress, then the MLS-MPM scatter."""
+    """Steps 1-2 of Alg. 1 for particle p0 + tid: Kirchhoff stress (expert law + fibre term), then the scatter."""
     p = wp.tid() + p0
     h = hardening_factor(Jp[p], plastic[p], pp[p])
-    tau = kirchhoff_stress(F[p], E[p], nu[p], elastic[p], h)
+    tau = kirchhoff_stress_fiber(F[p], E[p], nu[p], elastic[p], h, fiber[p], fiber_E[p])
     f = pd_force(mass[p], omega[p], x[p], v[p], x_ref[p], v_ref[p], kp, kd)
     p2g_particle(x[p], v[p], C[p], tau, mass[p], vol[p], f, origin, dx, dt, nmax, off, grid_mv, grid_m)
 
@@ -194,8 +197,8 @@ class FusedFrame:
             p0, cnt = self.parts[k]
             return lambda: wp.launch(
                 p2g_fused_kernel, cnt,
-                inputs=[x, v, C, F, Jp, P["E"], P["nu"], a["elastic"], a["plastic"], a["pp"], a["mass"], a["volume"],
-                        P["omega"], P["x_ref"], P["v_ref"], P["kp"], P["kd"], m.origin, m.dx, m.dt, nmax, off, p0],
+                inputs=[x, v, C, F, Jp, P["E"], P["nu"], a["elastic"], a["plastic"], a["pp"], a["fiber"],
+                        P["fiber_E"], a["mass"], a["volume"], P["omega"], P["x_ref"], P["v_ref"], P["kp"], P["kd"], m.origin, m.dx, m.dt, nmax, off, p0],
                 outputs=list(grids[k]))
 
         self._par([p2g(k) for k in range(len(self.parts))])
@@ -250,10 +253,12 @@ class FusedFrame:
 
         def p2g_adj(k):
             p0, cnt = self.parts[k]
-            ins = [x, v, C, F, Jp, P["E"], P["nu"], a["elastic"], a["plastic"], a["pp"], a["mass"], a["volume"],
-                   P["omega"], P["x_ref"], P["v_ref"], P["kp"], P["kd"], m.origin, m.dx, m.dt, nmax, off, p0]
+            ins = [x, v, C, F, Jp, P["E"], P["nu"], a["elastic"], a["plastic"], a["pp"], a["fiber"], P["fiber_E"],
+                   a["mass"], a["volume"], P["omega"], P["x_ref"], P["v_ref"], P["kp"], P["kd"], m.origin, m.dx, m.dt,
+                   nmax, off, p0]
             adj_ins = _adj(ins, {0: adj_in[0], 1: adj_in[1], 2: adj_in[2], 3: adj_in[3], 4: adj_in[4], 5: adjP["E"],
-                                 6: adjP["nu"], 12: adjP["omega"], 13: adjP["x_ref"], 14: adjP["v_ref"]})
+                                 6: adjP["nu"], 11: adjP["fiber_E"], 14: adjP["omega"], 15: adjP["x_ref"],
+                                 16: adjP["v_ref"]})
             # the forward summed the halves' grids: every half sees the adjoint of the sum
             return lambda: wp.launch(p2g_fused_kernel, cnt, inputs=ins, outputs=list(rec["grids"][k]),
                                      adj_inputs=adj_ins, adj_outputs=[adj_mv, adj_m], adjoint=True)
@@ -280,14 +285,18 @@ def _wp(t: torch.Tensor, dtype):
 
 
 class FusedFrameFunction(torch.autograd.Function):
-    """(x, v, C, F, Jp, E, nu, omega, x_ref, v_ref) at the start of a frame -> state at its end."""
+    """(x, v, C, F, Jp, E, nu, omega, x_ref, v_ref, fiber_E) at the start of a frame -> state at its end.
+
+    The fibre directions are the model's (``model.fiber``, constant); fiber_E (N,) Pa is differentiable."""
 
     @staticmethod
-    def forward(ctx, runner: FusedFrame, t0: float, kp: float, kd: float, x, v, C, F, Jp, E, nu, omega, x_ref, v_ref):
+    def forward(ctx, runner: FusedFrame, t0: float, kp: float, kd: float, x, v, C, F, Jp, E, nu, omega, x_ref, v_ref,
+                fiber_E):
         m = runner.model
         n, T = m.n_particles, m.substeps
         P = {"E": _wp(E, wp.float64), "nu": _wp(nu, wp.float64), "omega": _wp(omega, wp.float64),
-             "x_ref": _wp(x_ref, wp.vec3d), "v_ref": _wp(v_ref, wp.vec3d), "kp": float(kp), "kd": float(kd)}
+             "x_ref": _wp(x_ref, wp.vec3d), "v_ref": _wp(v_ref, wp.vec3d), "fiber_E": _wp(fiber_E, wp.float64),
+             "kp": float(kp), "kd": float(kd)}
         cur = [wp.array(t.detach().contiguous().numpy(), dtype=d) for t, (_, d) in zip((x, v, C, F, Jp), _STATE)]
         nxt = _alloc_state(n)
         bounds = {0: [a.numpy().copy() for a in cur]}
@@ -298,7 +307,7 @@ class FusedFrameFunction(torch.autograd.Function):
             if (s + 1) % runner.seg == 0 and s + 1 < T:
                 bounds[s + 1] = [a.numpy().copy() for a in cur]
         ctx.runner, ctx.t0, ctx.bounds, ctx.boxes, ctx.kp, ctx.kd = runner, t0, bounds, boxes, kp, kd
-        ctx.save_for_backward(E, nu, omega, x_ref, v_ref)
+        ctx.save_for_backward(E, nu, omega, x_ref, v_ref, fiber_E)
         return tuple(torch.from_numpy(a.numpy().copy()) for a in cur)
 
     @staticmethod
@@ -306,12 +315,13 @@ class FusedFrameFunction(torch.autograd.Function):
         runner = ctx.runner
         m = runner.model
         n, T = m.n_particles, m.substeps
-        E, nu, omega, x_ref, v_ref = ctx.saved_tensors
+        E, nu, omega, x_ref, v_ref, fiber_E = ctx.saved_tensors
         P = {"E": _wp(E, wp.float64), "nu": _wp(nu, wp.float64), "omega": _wp(omega, wp.float64),
-             "x_ref": _wp(x_ref, wp.vec3d), "v_ref": _wp(v_ref, wp.vec3d), "kp": float(ctx.kp), "kd": float(ctx.kd)}
+             "x_ref": _wp(x_ref, wp.vec3d), "v_ref": _wp(v_ref, wp.vec3d), "fiber_E": _wp(fiber_E, wp.float64),
+             "kp": float(ctx.kp), "kd": float(ctx.kd)}
         adjP = {"E": wp.zeros(n, dtype=wp.float64), "nu": wp.zeros(n, dtype=wp.float64),
                 "omega": wp.zeros(n, dtype=wp.float64), "x_ref": wp.zeros(n, dtype=wp.vec3d),
-                "v_ref": wp.zeros(n, dtype=wp.vec3d)}
+                "v_ref": wp.zeros(n, dtype=wp.vec3d), "fiber_E": wp.zeros(n, dtype=wp.float64)}
         adj_next = [wp.array(np.ascontiguousarray(g.detach().numpy() if g is not None else np.zeros(sh)), dtype=d)
                     for g, (_, d), sh in zip(grads, _STATE, [(n, 3), (n, 3), (n, 3, 3), (n, 3, 3), (n,)])]
         adj_cur = _alloc_state(n)
@@ -332,5 +342,5 @@ class FusedFrameFunction(torch.autograd.Function):
                 adj_cur, adj_next = adj_next, adj_cur
         to_t = lambda a: torch.from_numpy(a.numpy().copy())
         g_state = [to_t(a) for a in adj_next]
-        g_par = [to_t(adjP[k]) for k in ("E", "nu", "omega", "x_ref", "v_ref")]
+        g_par = [to_t(adjP[k]) for k in ("E", "nu", "omega", "x_ref", "v_ref", "fiber_E")]
         return (None, None, None, None, *g_state, *g_par)

@@ -26,6 +26,18 @@ S of F_trial = U S V^T:
 * snow (Stomakhin et al. 2013): S clamped to [1 - theta_c, 1 + theta_s], the removed volume goes into the
   plastic Jacobian J_p, and the Lamé parameters harden as exp(xi (1 - J_p)).
 
+Anisotropic fibre term (physar's choice of an anisotropic ground-truth law, not part of seed 002): every
+elastic law above may be augmented per particle by a standard fibre-reinforced I4 term (Holzapfel-style
+fibre family, here with a quadratic instead of an exponential fibre energy), with a0 the unit fibre direction
+in the rest configuration and E_f >= 0 (Pa) the fibre modulus:
+
+  Psi_f = (E_f / 8) (I4 - 1)^2,  I4 = |F a0|^2,
+  tau_f = (dPsi_f/dF) F^T = (E_f / 2) (I4 - 1) (F a0)(F a0)^T   (:func:`fiber_stress`).
+
+Its small-strain uniaxial stiffness along a0 is E_f (on top of the isotropic law); it acts in tension and in
+compression, is smooth in F and objective.  It is not scaled by the snow hardening and, for the plastic
+materials, acts on the elastic part F of Alg. 1 (after the return map), like the isotropic law.
+
 Per-particle plastic parameters are packed into a vec4d ``pp``: von Mises (sigma_Y [Pa], -, -, -),
 Drucker–Prager (alpha [-], -, -, -), snow (theta_c, theta_s, xi, -).
 """
@@ -121,6 +133,24 @@ def kirchhoff_stress(
         d = _f(2.0) * mu * e + la * tr * wp.vec3d(_f(1.0), _f(1.0), _f(1.0))
         tau = U * wp.diag(d) * wp.transpose(U)
     return tau
+
+
+@wp.func
+def fiber_stress(F: wp.mat33d, a0: wp.vec3d, Ef: wp.float64) -> wp.mat33d:
+    """Kirchhoff stress of the fibre energy Psi_f = (E_f/8)(I4 - 1)^2, I4 = |F a0|^2 (a0 unit, rest frame):
+    tau_f = (E_f/2)(I4 - 1) (F a0)(F a0)^T (Pa).  Zero for E_f = 0 or a0 = 0."""
+    fa = F * a0
+    I4 = wp.dot(fa, fa)
+    return (_f(0.5) * Ef * (I4 - _f(1.0))) * wp.outer(fa, fa)
+
+
+@wp.func
+def kirchhoff_stress_fiber(
+    F: wp.mat33d, E: wp.float64, nu: wp.float64, elastic: wp.int32, hardening: wp.float64, a0: wp.vec3d,
+    Ef: wp.float64,
+) -> wp.mat33d:
+    """Expert law of seed 002 §3.2 (:func:`kirchhoff_stress`) plus the fibre term (:func:`fiber_stress`)."""
+    return kirchhoff_stress(F, E, nu, elastic, hardening) + fiber_stress(F, a0, Ef)
 
 
 @wp.func

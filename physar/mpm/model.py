@@ -5,7 +5,9 @@ boundaries, gravity, time step), :class:`MPMState` the per-particle state s = {x
 Jacobian J_p of the snow law), and :class:`MPMSolver` advances ``step(state_in, state_out, control, dt)`` by one
 substep of Alg. 1:
 
-1. sigma = E(F, E, nu)                         (:func:`stress_kernel`, Kirchhoff stress tau = J sigma)
+1. sigma = E(F, E, nu) + fibre term            (:func:`stress_fiber_kernel`, Kirchhoff stress tau = J sigma;
+                                                the optional anisotropic fibre term is
+                                                :func:`physar.mpm.constitutive.fiber_stress`)
 2. P2G: m_i = sum_p w_ip m_p,  (m v)_i = sum_p w_ip [m_p v_p + (m_p C_p - dt V_p 4/dx^2 tau_p)(x_i - x_p)
    + dt f_ex,p]                                 (MLS-MPM, Hu et al. 2018, Eq. 29; f_ex of seed Eq. 7)
 3. grid: v_i = (m v)_i / m_i + dt g, then wall/ground boundary conditions
@@ -34,6 +36,7 @@ from physar.mpm.constitutive import (
     hardening_factor,
     hencky_project,
     kirchhoff_stress,
+    kirchhoff_stress_fiber,
     singular_values,
     snow_project,
 )
@@ -90,9 +93,30 @@ def stress_kernel(
     pp: wp.array(dtype=wp.vec4d),
     tau: wp.array(dtype=wp.mat33d),
 ):
+    """Isotropic expert law only (the signature from before issue 8, kept for direct launches); the solver and
+    the torch bridge use :func:`stress_fiber_kernel`, which equals this kernel when fiber_E = 0."""
     p = wp.tid()
     h = hardening_factor(Jp[p], plastic[p], pp[p])
     tau[p] = kirchhoff_stress(F[p], E[p], nu[p], elastic[p], h)
+
+
+@wp.kernel
+def stress_fiber_kernel(
+    F: wp.array(dtype=wp.mat33d),
+    Jp: wp.array(dtype=wp.float64),
+    E: wp.array(dtype=wp.float64),
+    nu: wp.array(dtype=wp.float64),
+    elastic: wp.array(dtype=wp.int32),
+    plastic: wp.array(dtype=wp.int32),
+    pp: wp.array(dtype=wp.vec4d),
+    fiber: wp.array(dtype=wp.vec3d),
+    fiber_E: wp.array(dtype=wp.float64),
+    tau: wp.array(dtype=wp.mat33d),
+):
+    """Step 1: tau_p = tau_expert(F_p; E_p, nu_p) + (E_f/2)(I4 - 1)(F a0)(F a0)^T (seed 002 §3.2 + fibre term)."""
+    p = wp.tid()
+    h = hardening_factor(Jp[p], plastic[p], pp[p])
+    tau[p] = kirchhoff_stress_fiber(F[p], E[p], nu[p], elastic[p], h, fiber[p], fiber_E[p])
 
 
 @wp.kernel
@@ -375,6 +399,14 @@ class MPMModel:
     :mod:`physar.mpm.constitutive`, ``plastic_params`` (N, 4), ``body`` (index of the body it came from).
     ``walls`` maps each of x_min … z_max to none | sticky | slip | separate and ``friction`` to a Coulomb
     coefficient (used for slip/separate walls).
+
+    Optional anisotropy (physar's choice of an anisotropic ground-truth law on top of the expert laws of seed
+    002 §3.2; a standard fibre-reinforced I4 model, Holzapfel-style): ``fiber`` (N, 3) is the fibre direction
+    a0 of each particle in the rest configuration (normalised here; a zero row = no fibre) and ``fiber_E``
+    (N,) >= 0 the fibre modulus E_f (Pa).  The strain energy per unit rest volume gains
+    Psi_f = (E_f / 8)(I4 - 1)^2 with I4 = |F a0|^2, i.e. the Kirchhoff stress gains
+    tau_f = (E_f / 2)(I4 - 1)(F a0)(F a0)^T, and the small-strain uniaxial stiffness along a0 grows by E_f.
+    ``None`` (default) = zeros = isotropic.
     """
 
     size: float
@@ -394,6 +426,8 @@ class MPMModel:
     friction: dict = field(default_factory=lambda: {w: 0.0 for w in WALLS})
     pad: int = 3
     colliders: list = field(default_factory=list)
+    fiber: np.ndarray | None = None
+    fiber_E: np.ndarray | None = None
 
     def __post_init__(self):
         n = len(self.mass)
@@ -422,7 +456,40 @@ class MPMModel:
         for i, c in enumerate(self.colliders):
             if not isinstance(c, Collider):
                 raise ConfigError(f"MPM model: colliders[{i}] is a {type(c).__name__}, not a Collider")
+        self._set_fibers()
         self._wp = None
+
+    def _set_fibers(self):
+        """Validate and normalise ``fiber`` / ``fiber_E`` (None -> zeros)."""
+        n = len(self.mass)
+        if self.fiber is None:
+            a = np.zeros((n, 3))
+        else:
+            a = np.asarray(self.fiber, dtype=np.float64)
+            if a.shape != (n, 3) or not np.all(np.isfinite(a)):
+                raise ConfigError(f"MPM model: 'fiber' must be an ({n}, 3) array of finite numbers "
+                                  f"(got shape {a.shape})")
+        if self.fiber_E is None:
+            ef = np.zeros(n)
+        else:
+            ef = np.asarray(self.fiber_E, dtype=np.float64)
+            if ef.shape != (n,) or not np.all(np.isfinite(ef)):
+                raise ConfigError(f"MPM model: 'fiber_E' must be {n} finite numbers (got shape {ef.shape})")
+            if np.any(ef < 0):
+                i = int(np.argmin(ef))
+                raise ConfigError(f"MPM model: 'fiber_E' must be >= 0 Pa (particle {i}: {ef[i]:g})")
+        norm = np.linalg.norm(a, axis=1)
+        bad = (ef > 0) & (norm == 0)
+        if np.any(bad):
+            i = int(np.argmax(bad))
+            raise ConfigError(f"MPM model: particle {i} has fiber_E = {ef[i]:g} Pa but a zero 'fiber' direction")
+        self.fiber = a / np.where(norm > 0, norm, 1.0)[:, None]
+        self.fiber_E = ef
+
+    @property
+    def anisotropic(self) -> bool:
+        """True if any particle has a fibre term (fiber_E > 0)."""
+        return bool(np.any(self.fiber_E > 0))
 
     # grid geometry
     @property
@@ -477,6 +544,8 @@ class MPMModel:
                 "elastic": wp.array(self.elastic, dtype=wp.int32),
                 "plastic": wp.array(self.plastic, dtype=wp.int32),
                 "pp": wp.array(self.plastic_params, dtype=wp.vec4d),
+                "fiber": wp.array(self.fiber, dtype=wp.vec3d),
+                "fiber_E": wp.array(self.fiber_E, dtype=wp.float64),
                 "bc": wp.array([BC_CODES[self.walls.get(w, "slip")] for w in WALLS], dtype=wp.int32),
                 "friction": wp.array([float(self.friction.get(w, 0.0)) for w in WALLS], dtype=wp.float64),
                 "zero_omega": wp.zeros(self.n_particles, dtype=wp.float64),
@@ -579,8 +648,9 @@ class MPMSolver:
         zero = wp.vec3i(0, 0, 0)
         lo_box, shape = m.active_box(state_in.x.numpy()) if self.active_box else ((0, 0, 0), (g, g, g))
         start = wp.vec3i(*lo_box)
-        wp.launch(stress_kernel, n, inputs=[state_in.F, state_in.Jp, a["E"], a["nu"], a["elastic"], a["plastic"],
-                                            a["pp"]], outputs=[self.tau])
+        wp.launch(stress_fiber_kernel, n, inputs=[state_in.F, state_in.Jp, a["E"], a["nu"], a["elastic"],
+                                                  a["plastic"], a["pp"], a["fiber"], a["fiber_E"]],
+                  outputs=[self.tau])
         wp.launch(p2g_kernel, n, inputs=[state_in.x, state_in.v, state_in.C, self.tau, a["mass"], a["volume"],
                                          omega, x_ref, v_ref, kp, kd, m.origin, m.dx, dt, nmax, zero],
                   outputs=[self.grid_mv, self.grid_m])
@@ -626,8 +696,13 @@ def _lame_np(E, nu):
     return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
 
 
-def elastic_energy_density(F: np.ndarray, E: np.ndarray, nu: np.ndarray, elastic: np.ndarray) -> np.ndarray:
-    """Strain energy density psi(F) (J/m^3) matching the stresses of :mod:`physar.mpm.constitutive`."""
+def elastic_energy_density(F: np.ndarray, E: np.ndarray, nu: np.ndarray, elastic: np.ndarray,
+                           fiber: np.ndarray | None = None, fiber_E: np.ndarray | None = None) -> np.ndarray:
+    """Strain energy density psi(F) (J/m^3, per unit rest volume) matching the stresses of
+    :mod:`physar.mpm.constitutive` (without snow hardening).
+
+    With ``fiber`` (N, 3, unit rest directions a0, zero rows allowed) and ``fiber_E`` (N,) the fibre energy
+    Psi_f = (E_f / 8)(|F a0|^2 - 1)^2 is added (:class:`MPMModel`)."""
     mu, la = _lame_np(np.asarray(E), np.asarray(nu))
     s = np.linalg.svd(F, compute_uv=False)
     J = np.prod(s, axis=1)
@@ -643,6 +718,10 @@ def elastic_energy_density(F: np.ndarray, E: np.ndarray, nu: np.ndarray, elastic
     hk = elastic == 3
     e = np.log(np.maximum(s[hk], 1e-6))
     psi[hk] = mu[hk] * np.sum(e**2, axis=1) + 0.5 * la[hk] * np.sum(e, axis=1) ** 2
+    if fiber is not None and fiber_E is not None:
+        fa = np.einsum("nij,nj->ni", F, np.asarray(fiber, dtype=np.float64))
+        I4 = np.sum(fa * fa, axis=1)
+        psi = psi + np.asarray(fiber_E, dtype=np.float64) / 8.0 * (I4 - 1.0) ** 2
     return psi
 
 
@@ -661,7 +740,8 @@ def diagnostics(model: MPMModel, st: dict) -> dict:
     g = np.asarray(model.gravity)
     ke = 0.5 * np.sum(m * np.sum(v * v, axis=1))
     pe = -np.sum(m * (x @ g))
-    ee = np.sum(model.volume * elastic_energy_density(F, model.E, model.nu, model.elastic))
+    ee = np.sum(model.volume * elastic_energy_density(F, model.E, model.nu, model.elastic,
+                                                          model.fiber, model.fiber_E))
     return {
         "com": (m[:, None] * x).sum(0) / M,
         "momentum": (m[:, None] * v).sum(0),

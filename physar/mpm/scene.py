@@ -26,6 +26,8 @@ Example (all lengths in m, times in s, stresses in Pa, densities in kg/m^3)::
     density = 1000
     velocity = [0, 0, 0]
     velocity_gradient = [[0, 0, 0], [0, 0, 0], [0, 0, 0]]   # optional, 1/s
+    fiber = [1, 0, 0]      # optional fibre direction a0 (rest frame, normalised); anisotropic fibre term
+    fiber_E = 5e4          # fibre modulus E_f, Pa: Psi += (E_f / 8)(|F a0|^2 - 1)^2 (physar.mpm.model.MPMModel)
     [[collider]]           # optional, up to 8 kinematic colliders (physar.mpm.colliders)
     shape = "box"          # box (size = full side lengths) | capsule (radius, length, axis)
     center = [0.5, 0.5, 0.05]
@@ -110,6 +112,8 @@ class Body(_Strict):
     theta_c: float = Field(2.5e-2, ge=0, lt=1)
     theta_s: float = Field(7.5e-3, ge=0)
     hardening: float = Field(10.0, ge=0)
+    fiber: Vec3 | None = Field(None, description="fibre direction a0 in the rest configuration (normalised)")
+    fiber_E: float = Field(0.0, ge=0, description="fibre modulus E_f, Pa (anisotropic I4 term)")
 
     @field_validator("material")
     @classmethod
@@ -136,6 +140,10 @@ class Body(_Strict):
             raise ValueError("a sphere body needs 'center' and 'radius'")
         if self.shape == "mesh" and not self.file:
             raise ValueError("a mesh body needs 'file'")
+        if self.fiber_E > 0 and (self.fiber is None or all(a == 0 for a in self.fiber)):
+            raise ValueError(f"fiber_E = {self.fiber_E:g} Pa needs a non-zero 'fiber' direction")
+        if self.fiber is not None and not all(np.isfinite(self.fiber)):
+            raise ValueError(f"fiber {self.fiber} must be finite")
         return self
 
 
@@ -264,7 +272,7 @@ def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: 
     sampling than the model that is fitted to them).
     """
     dx = scene.grid.size / scene.grid.resolution
-    cols = {k: [] for k in ("x", "v", "mass", "vol", "E", "nu", "el", "pl", "pp", "body")}
+    cols = {k: [] for k in ("x", "v", "mass", "vol", "E", "nu", "el", "pl", "pp", "body", "fiber", "fiber_E")}
     for b_id, body in enumerate(scene.body):
         if particles_per_cell is not None:
             body = body.model_copy(update={"particles_per_cell": particles_per_cell})
@@ -297,6 +305,8 @@ def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: 
         cols["pl"].append(np.full(n, PLASTIC_CODES[pl]))
         cols["pp"].append(np.tile(pp, (n, 1)))
         cols["body"].append(np.full(n, b_id))
+        cols["fiber"].append(np.tile(np.asarray(body.fiber or (0.0, 0.0, 0.0), dtype=np.float64), (n, 1)))
+        cols["fiber_E"].append(np.full(n, body.fiber_E))
     colliders = [spec.build() for spec in scene.collider]
     for b_id in range(len(scene.body)):
         for c_id, col in enumerate(colliders):
@@ -312,6 +322,6 @@ def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: 
         size=scene.grid.size, resolution=scene.grid.resolution, dt=scene.time.frame_dt / T, substeps=T,
         mass=c["mass"], volume=c["vol"], E=c["E"], nu=c["nu"], elastic=c["el"], plastic=c["pl"],
         plastic_params=c["pp"], body=c["body"], gravity=tuple(scene.gravity.g), walls=walls, friction=friction,
-        colliders=colliders,
+        colliders=colliders, fiber=c["fiber"], fiber_E=c["fiber_E"],
     )
     return model, c["x"], c["v"]

@@ -11,7 +11,8 @@ Without neural residuals, :func:`simulate` runs each frame as one fused autograd
 kernels launched directly, both CPU cores); ``fused=False`` selects the generic per-launch path.
 
 Differentiable inputs: initial state (x, v, C, F), per-particle E (Pa), nu, omega (actuation gate),
-PD references, latents l_e/l_p and the network weights.
+PD references, latents l_e/l_p, the network weights and the fibre moduli fiber_E (Pa) of the anisotropic
+fibre term (:class:`physar.mpm.model.MPMModel`; directions ``model.fiber`` are constants).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from physar.mpm.model import (
     p2g_kernel,
     plastic_kernel,
     singular_values_kernel,
-    stress_kernel,
+    stress_fiber_kernel,
 )
 from physar.mpm.neural import NeuralResidual
 
@@ -68,11 +69,11 @@ class _WarpOp(torch.autograd.Function):
         return (None, None, *res)
 
 
-def _stress_op(model: MPMModel, F, Jp, E, nu, grad=False):
+def _stress_op(model: MPMModel, F, Jp, E, nu, fiber_E, grad=False):
     a = model.warp_arrays()
     tau = wp.zeros(model.n_particles, dtype=wp.mat33d, requires_grad=grad)
-    wp.launch(stress_kernel, model.n_particles, inputs=[F, Jp, E, nu, a["elastic"], a["plastic"], a["pp"]],
-              outputs=[tau])
+    wp.launch(stress_fiber_kernel, model.n_particles,
+              inputs=[F, Jp, E, nu, a["elastic"], a["plastic"], a["pp"], a["fiber"], fiber_E], outputs=[tau])
     return (tau,)
 
 
@@ -135,7 +136,8 @@ class Params:
     """Differentiable per-particle parameters (torch float64 tensors; ``None`` = not used).
 
     E (N,) Pa, nu (N,), omega (N,) actuation gate, x_ref/v_ref (N, 3) PD references (constant over a frame, or
-    a callable frame -> (x_ref, v_ref)), l_e/l_p (N, latent) latents, kp (1/s^2), kd (1/s).
+    a callable frame -> (x_ref, v_ref)), l_e/l_p (N, latent) latents, kp (1/s^2), kd (1/s), fiber_E (N,) Pa
+    fibre moduli of the anisotropic term (``None``: the model's ``fiber_E``, not differentiated).
     """
 
     E: torch.Tensor
@@ -147,6 +149,11 @@ class Params:
     l_p: torch.Tensor | None = None
     kp: float = 2.0e2
     kd: float = 2.0e1
+    fiber_E: torch.Tensor | None = None
+
+
+def _fiber_E(model: MPMModel, p: Params) -> torch.Tensor:
+    return torch.as_tensor(model.fiber_E if p.fiber_E is None else p.fiber_E, dtype=torch.float64)
 
 
 def substep(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref=None, v_ref=None,
@@ -156,7 +163,7 @@ def substep(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref=None, v_ref=None,
     ``t`` (s): time at the start of the substep (positions of the kinematic colliders).
     """
     n = model.n_particles
-    (tau,) = _WarpOp.apply(_stress_op, model, F, Jp, p.E, p.nu)
+    (tau,) = _WarpOp.apply(_stress_op, model, F, Jp, p.E, p.nu, _fiber_E(model, p))
     if nets is not None and nets.elastic is not None:
         (sv,) = _WarpOp.apply(_sv_op, model, F)
         J = torch.linalg.det(F)
@@ -210,7 +217,7 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
                 x, v, C, F, Jp = substep(model, x, v, C, F, Jp, params, x_ref, v_ref, nets, t=tf + s * model.dt)
             return x, v, C, F, Jp
 
-        leaves = [z for z in (params.E, params.nu, params.omega, params.l_e, params.l_p)
+        leaves = [z for z in (params.E, params.nu, params.omega, params.l_e, params.l_p, params.fiber_E)
                   if isinstance(z, torch.Tensor)]
         if checkpoint and torch.is_grad_enabled():
             x, v, C, F, Jp = torch.utils.checkpoint.checkpoint(frame_fn, x, v, C, F, Jp, *leaves,
@@ -238,7 +245,7 @@ def _fused_frame(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref, v_ref, t0: f
         v_ref = z(n, 3) if v_ref is None else v_ref
     t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
     return FusedFrameFunction.apply(runner, float(t0), float(kp), float(kd), x, v, C, F, Jp, t(p.E), t(p.nu),
-                                    t(omega), t(x_ref), t(v_ref))
+                                    t(omega), t(x_ref), t(v_ref), _fiber_E(model, p))
 
 
 def per_body_moments(x: torch.Tensor, body: np.ndarray, n_bodies: int):
