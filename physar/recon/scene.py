@@ -1,11 +1,15 @@
 """Scene geometry shared by the synthetic generator and the reconstruction (seed 002, §4.1-4.2, §5.1).
 
 A scene is a procedural capsule humanoid (:func:`physar.skinning.procedural_humanoid`) whose right forearm
-presses a soft box ("pillow") lying on a support.  World frame: z up, metres.  The MPM domain is the cube
-[0, size]^3 of simulation coordinates x_sim = x_world - origin; its face z = 0 is the support (sticky).
-The bones listed in ``simulated_bones`` are MPM particles actuated by the gated PD controller of Eq. (6)-(7)
-towards their LBS trajectory (Eq. 1); the other bones are rendered kinematically by LBS only.  Pose
-sequences are stored as local joint rotations (F, B, 3, 3) and a root translation (F, 3) (``poses.npz``).
+presses, squeezes or lifts a soft object lying on a support.  World frame: z up, metres.  The MPM domain is the
+cube [0, size]^3 of simulation coordinates x_sim = x_world - origin; its face z = 0 is the support.  The
+object's canonical (rest) shape is a union of axis-aligned boxes (``scene.json`` field
+``object.boxes = [[min, max], ...]``; ``object.min``/``object.max`` are their bounding box, the only fields of a
+single-box scene written before the union existed); :func:`object_points` samples it for both the generator
+(fine ground truth) and the reconstruction.  The bones listed in ``simulated_bones`` are MPM particles actuated
+by the gated PD controller of Eq. (6)-(7) towards their LBS trajectory (Eq. 1); the other bones are rendered
+kinematically by LBS only.  Pose sequences are stored as local joint rotations (F, B, 3, 3) and a root
+translation (F, 3) (``poses.npz``).
 """
 
 from __future__ import annotations
@@ -130,27 +134,70 @@ def capsule_points(body: CapsuleBody, bones: list[str], h: float, exclude: list[
 
 
 def object_box(meta: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding box (min, max) of the object at rest."""
     o = meta["object"]
     return np.asarray(o["min"], dtype=np.float64), np.asarray(o["max"], dtype=np.float64)
 
 
-def layout(height: float, pillow_size, gap: float, domain_size: float) -> dict:
-    """World placement: the pillow under the middle of the right forearm, ``gap`` (m) below it, and the MPM
-    domain origin (its z = 0 face is the pillow's support)."""
+def object_boxes(meta: dict) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The boxes [(min, max), ...] whose union is the object at rest (one box for old single-box scenes)."""
+    o = meta["object"]
+    raw = o.get("boxes") or [[o["min"], o["max"]]]
+    out = []
+    for i, b in enumerate(raw):
+        lo, hi = (np.asarray(v, dtype=np.float64) for v in b)
+        if lo.shape != (3,) or hi.shape != (3,) or not np.all(hi > lo):
+            raise ConfigError(f"scene.json: object.boxes[{i}] = {b} must be [[x, y, z], [x, y, z]] with max > min")
+        out.append((lo, hi))
+    return out
+
+
+def union_lattice(boxes, h: float) -> tuple[np.ndarray, float]:
+    """Cell-centred lattice points (spacing ~h) inside the union of ``boxes`` [(min, max), ...] and the cell
+    volume.  The lattice spans the union's bounding box with per-axis step extent / round(extent / h), so the
+    points of one box are exactly :func:`lattice_box`'s, and a union whose faces lie on lattice planes (box
+    sizes and offsets multiples of the step) is sampled with count * cell volume = its volume exactly."""
+    lo = np.min([b[0] for b in boxes], axis=0)
+    hi = np.max([b[1] for b in boxes], axis=0)
+    P, vol = lattice_box(lo, hi, h)
+    keep = np.zeros(len(P), dtype=bool)
+    for a, b in boxes:
+        keep |= np.all((P >= np.asarray(a)) & (P <= np.asarray(b)), axis=1)
+    return P[keep], vol
+
+
+def object_points(meta: dict, h: float) -> tuple[np.ndarray, float]:
+    """Rest-shape particles of the object at spacing ~h (see :func:`union_lattice`) and their cell volume."""
+    return union_lattice(object_boxes(meta), h)
+
+
+def layout(height: float, boxes_local, domain_size: float, rise: float = 0.0, drop: float = 0.0) -> dict:
+    """World placement of an object given as boxes [(min, max), ...] in coordinates relative to the midpoint of
+    the right forearm's axis at rest (axis along x), and of the MPM domain (x, y centred on the forearm, its
+    z = 0 face the object's support).  ``rise``/``drop`` (m): how far the forearm (and, for a lift, the object)
+    travels up/down, checked against the domain.  One-line :class:`ConfigError` when something does not fit."""
     body = humanoid(height)
     i = body.skeleton.index("forearm.R")
     a, b, r = body.heads[i].numpy(), body.tails[i].numpy(), float(body.radii[i])
     mid = 0.5 * (a + b)
-    ps = np.asarray(pillow_size, dtype=np.float64)
-    top = mid[2] - r - gap
-    lo = np.array([mid[0] - ps[0] / 2, mid[1] - ps[1] / 2, top - ps[2]])
-    hi = lo + ps
+    boxes = [(mid + np.asarray(lo, float), mid + np.asarray(hi, float)) for lo, hi in boxes_local]
+    lo = np.min([x[0] for x in boxes], axis=0)
+    hi = np.max([x[1] for x in boxes], axis=0)
     origin = np.array([mid[0] - domain_size / 2, mid[1] - domain_size / 2, lo[2]])
     span = np.abs(b - a)[0] + 2 * r
-    if span > domain_size - 0.1 * domain_size or ps.max() > 0.8 * domain_size:
+    size = hi - lo
+    if span > domain_size - 0.1 * domain_size or size[:2].max() > 0.8 * domain_size:
         raise ConfigError(f"sim.domain_size = {domain_size} m is too small for the forearm ({span:.2f} m) "
-                          f"and pillow {tuple(ps)}")
-    return {"object_min": lo, "object_max": hi, "origin": origin, "forearm_mid": mid}
+                          f"and the object {tuple(np.round(size, 3))} m")
+    top = max(hi[2], mid[2] + r) + rise - origin[2]
+    if top > 0.95 * domain_size:
+        raise ConfigError(f"sim.domain_size = {domain_size} m is too small: the object/forearm reach "
+                          f"{top:.3f} m above the support (object height {size[2]:.3f} m, forearm rise {rise} m)")
+    if mid[2] - r - drop - origin[2] < 0:
+        raise ConfigError(f"forearm travel down ({drop} m) reaches below the support "
+                          f"({mid[2] - r - origin[2]:.3f} m available)")
+    return {"object_min": lo, "object_max": hi, "boxes": boxes, "origin": origin, "forearm_mid": mid,
+            "forearm_radius": r}
 
 
 def camera_matrices(meta: dict):

@@ -1,12 +1,34 @@
 """Synthetic benchmark scenes for the reconstruction pipeline (issue 8 part 4, seed 002 §5.1).
 
-The procedural humanoid presses a soft box ("pillow") with its right forearm.  Ground truth:
+The procedural humanoid acts on a soft object with its right forearm.  Scenes (``object`` + ``action``):
 
-* material: fixed-corotated elasticity with a heterogeneous Young's modulus (``E_soft`` on the half
-  x < centre of the pillow, ``E_stiff`` on the other half), Poisson ratio ``nu``, density ``density``;
+==========  =================  ============================================================================
+object      action             what happens
+==========  =================  ============================================================================
+pillow      press (default)    a box pillow; the forearm presses its top flat (novel: a tilted press)
+c_pillow    squeeze, press     a C lying on its back (spine at +y, prongs pointing at the camera, -y); the
+                               forearm lies over the free upper prong and pushes it down so the C closes
+                               (novel: a tilted squeeze with another timing); ``press`` = the same, shallower
+bag         lift               a sack (stiff shell, soft filling) with a handle: an arch over its top forming
+                               a tunnel along x; the forearm starts inside the tunnel, rises, catches the
+                               handle bar and carries the bag off the support (novel: a tilted lift, another
+                               timing); the support is then a ``separate`` wall (not sticky)
+==========  =================  ============================================================================
+
+Ground truth:
+
+* geometry: a union of boxes (``scene.json`` ``object.boxes``), sampled by :func:`physar.recon.scene.
+  object_points` both here (fine) and by the reconstruction (coarse);
+* material: fixed-corotated elasticity with a heterogeneous Young's modulus (``E_soft``/``E_stiff``: pillow =
+  soft half x < centre, stiff half; C = stiff spine, soft prongs; bag = stiff shell (``bag_wall`` thick) and
+  handle, soft filling), Poisson ratio ``nu``, density ``density``, plus an anisotropic fibre term
+  Psi_f = (E_f/8)(|F a0|^2 - 1)^2 (:class:`physar.mpm.MPMModel` ``fiber``/``fiber_E``; small-strain stiffness
+  along a0 grows by E_f = ``fiber_E``) with directions a0: pillow along x; C tangent to its centreline (y in the
+  prongs, z in the spine); bag vertical in the shell and the handle's posts, along y in its bar, none in the
+  filling.  The reconstruction learns an isotropic E field only (the fibres are what it must absorb);
 * dynamics: MLS-MPM (:class:`physar.mpm.MPMSolver`) on a FINER particle set (``gt_particles_per_cell``,
   default 8 per cell) than the reconstruction uses, with gravity; the forearm is a set of MPM particles
-  actuated by the gated PD controller (Eq. 6-7, omega = 1 inside the forearm, 0 on the pillow) towards its
+  actuated by the gated PD controller (Eq. 6-7, omega = 1 inside the forearm, 0 on the object) towards its
   LBS trajectory; the rest of the body follows LBS kinematically;
 * images: the z-buffered sphere renderer of :mod:`physar.recon.pointrender` (not the Gaussian rasteriser),
   one static camera, ``fps`` frames per second, foreground masks.
@@ -15,20 +37,22 @@ A ``spin`` clip comes first (seed §5.1, Fig. 4): the humanoid turns about the v
 (yaw sweeping -spin_deg .. +spin_deg) next to the object at rest; pure LBS, no simulation.  It is the clip
 from which the canonical Gaussians are learned with fixed skinning (§4.1).
 
-Two clips follow: ``dynamic`` (a flat press to ``press_obs`` during the observation part, then deeper to
-``press_pred`` in the prediction part) and ``novel`` (a tilted, wedge-shaped press with another timing:
-a novel action for prediction).
+Two clips follow: ``dynamic`` (the forearm, kept horizontal, travels ``press_obs`` during the observation part,
+then on to ``press_pred`` in the prediction part; down for press/squeeze, up for lift) and ``novel`` (the
+forearm tilted, shoulder rotation only, its midpoint travelling ``press_novel`` with another timing: a novel
+action for prediction).
 
 DATA_DIR layout (written atomically: to a temporary folder renamed at the end)::
 
-    scene.json                 camera, fps, n_obs, body, object box, MPM settings, PD gains (no truth)
+    scene.json                 camera, fps, n_obs, body, object boxes, MPM settings, PD gains (no truth)
     poses.npz, novel_poses.npz, spin_poses.npz   rotations (F, B, 3, 3), root_translation (F, 3)
     spin/rgb/0000.png, spin/mask/0000.png          spin clip (when spin_frames > 0)
     rgb/0000.png, mask/0000.png         dynamic clip (observation + prediction parts)
     novel/rgb/0000.png, novel/mask/0000.png
     truth.npz                  ground truth for evaluation only (never read by ``fit``): fine rest
-                               positions and E, per-frame max object displacement (m) of both clips,
-                               fine object positions of the dynamic clip (F, N_fine, 3)
+                               positions, E, fiber (N, 3), fiber_E (N,), part (N,) (index into
+                               scene.json object.parts), per-frame max/mean object displacement (m) of both
+                               clips, fine object positions of both clips (F, N_fine, 3)
     video.mp4                  preview of the dynamic clip (when an encoder is available)
 """
 
@@ -40,6 +64,7 @@ import shutil
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -52,6 +77,14 @@ from physar.recon.pointrender import render_spheres
 
 Vec3 = tuple[float, float, float]
 
+# supported object -> action -> default forearm travel (m): end of the observation part, end of the dynamic clip,
+# novel (tilted) action
+ACTIONS = {
+    "pillow": {"press": (0.03, 0.055, 0.05)},
+    "c_pillow": {"squeeze": (0.05, 0.085, 0.075), "press": (0.025, 0.04, 0.04)},
+    "bag": {"lift": (0.06, 0.13, 0.11)},
+}
+
 
 class SynthConfig(BaseModel):
     """Parameters of a synthetic scene (SI units)."""
@@ -59,7 +92,10 @@ class SynthConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     image_size: int = Field(64, ge=16, le=1024, description="square image side, px")
     fov_deg: float = Field(35.0, gt=5, lt=120)
-    camera_distance: float = Field(0.75, gt=0.1, description="m, from the pillow centre")
+    object: Literal["pillow", "c_pillow", "bag"] = Field("pillow", description="pillow | c_pillow | bag")
+    action: Literal["press", "squeeze", "lift"] = Field(
+        "press", description="press (pillow, c_pillow) | squeeze (c_pillow) | lift (bag)")
+    camera_distance: float = Field(0.75, gt=0.1, description="m, from the object centre")
     camera_elevation_deg: float = Field(25.0, ge=-80, le=80)
     camera_azimuth_deg: float = Field(10.0, ge=-180, le=180)
     fps: float = Field(30.0, gt=0)
@@ -69,19 +105,31 @@ class SynthConfig(BaseModel):
     spin_frames: int = Field(10, ge=0, le=2000, description="frames of the spin clip (0: none)")
     spin_deg: float = Field(20.0, ge=0, le=180, description="yaw amplitude of the spin clip, degrees")
     height: float = Field(1.7, gt=0.5, lt=2.5, description="humanoid height, m")
-    pillow_size: Vec3 = (0.24, 0.20, 0.12)
-    gap: float = Field(0.005, ge=0, description="initial gap forearm-pillow, m")
+    pillow_size: Vec3 = Field((0.24, 0.20, 0.12), description="pillow box (x along the forearm, y, z), m")
+    c_pillow_size: Vec3 = Field((0.24, 0.15, 0.18), description="C pillow: length along the forearm (x), depth "
+                                "(y, spine at the back) and height (z), m")
+    c_thickness: float = Field(0.06, gt=0, description="C pillow: thickness of the prongs and the spine, m "
+                               "(the gap between the prongs is height - 2 thickness)")
+    bag_size: Vec3 = Field((0.21, 0.18, 0.12), description="bag body (x, y, z) below the handle, m")
+    bag_wall: float = Field(0.03, gt=0, description="bag: shell and handle thickness, m")
+    handle_length: float = Field(0.09, gt=0, description="bag: extent of the handle along the forearm (x), m")
+    handle_hole: float = Field(0.12, gt=0, description="bag: clear height of the tunnel under the handle bar, m")
+    gap: float = Field(0.005, ge=0, description="initial gap forearm-object top (press, squeeze), m; for a "
+                       "lift the forearm starts centred in the handle's tunnel")
     E_soft: float = Field(3.0e3, gt=0, description="Pa")
     E_stiff: float = Field(1.2e4, gt=0, description="Pa")
+    fiber_E: float = Field(2.4e4, ge=0, description="fibre modulus E_f of the anisotropic term, Pa (0: isotropic)")
     nu: float = Field(0.3, gt=-1, lt=0.5)
     density: float = Field(200.0, gt=0, description="kg/m^3")
     human_E: float = Field(1.0e4, gt=0, description="Pa")
     human_density: float = Field(1000.0, gt=0)
     kp: float = Field(3.0e3, ge=0, description="PD gain, 1/s^2 (mass-scaled)")
     kd: float = Field(110.0, ge=0, description="PD gain, 1/s")
-    press_obs: float = Field(0.03, description="forearm drop at the end of the observation part, m")
-    press_pred: float = Field(0.055, description="forearm drop at the end of the dynamic clip, m")
-    press_novel: float = Field(0.05, description="tilted press: drop of the forearm's midpoint, m")
+    press_obs: float | None = Field(None, ge=0, description="forearm travel at the end of the observation part, "
+                                    "m (down for press/squeeze, up for lift); default per scene (ACTIONS)")
+    press_pred: float | None = Field(None, ge=0, description="forearm travel at the end of the dynamic clip, m")
+    press_novel: float | None = Field(None, ge=0, description="novel (tilted) action: travel of the forearm's "
+                                      "midpoint, m")
     domain_size: float = Field(0.48, gt=0)
     grid_resolution: int = Field(16, ge=4, le=256)
     substeps: int = Field(32, ge=1)
@@ -92,6 +140,22 @@ class SynthConfig(BaseModel):
 
     @model_validator(mode="after")
     def _check(self):
+        if self.action not in ACTIONS[self.object]:
+            raise ValueError(f"action '{self.action}' is not supported for object '{self.object}' (supported: "
+                             + ", ".join(f"{o} + {'|'.join(a)}" for o, a in ACTIONS.items()) + ")")
+        for k, v in zip(("press_obs", "press_pred", "press_novel"), ACTIONS[self.object][self.action]):
+            if getattr(self, k) is None:
+                setattr(self, k, v)
+        if self.object == "c_pillow":
+            L, D, H = self.c_pillow_size
+            if not (2 * self.c_thickness < H and self.c_thickness < D):
+                raise ValueError(f"c_thickness = {self.c_thickness} m needs 2 x thickness < height ({H}) and "
+                                 f"thickness < depth ({D}) of c_pillow_size")
+        if self.object == "bag":
+            L, W, H = self.bag_size
+            if not (2 * self.bag_wall < min(W, H) and self.handle_length <= L):
+                raise ValueError(f"bag_wall = {self.bag_wall} m needs 2 x wall < bag_size y and z ({W}, {H}), "
+                                 f"handle_length = {self.handle_length} m <= bag_size x ({L})")
         if self.n_obs >= self.frames:
             raise ValueError(f"n_obs ({self.n_obs}) must be < frames ({self.frames})")
         k = round(self.gt_particles_per_cell ** (1 / 3))
@@ -132,18 +196,136 @@ def _checker(X: np.ndarray, cell: float, c0, c1) -> np.ndarray:
     return np.where(k[:, None] == 0, np.asarray(c0), np.asarray(c1)).astype(np.float64)
 
 
+def travel_sign(cfg: SynthConfig) -> float:
+    """+1: the forearm travels down (press, squeeze); -1: up (lift)."""
+    return -1.0 if cfg.action == "lift" else 1.0
+
+
 def dynamic_depths(cfg: SynthConfig) -> np.ndarray:
+    """Forearm drop (m, negative = rise) per frame of the dynamic clip."""
     f = np.arange(cfg.frames, dtype=np.float64)
     d = cfg.press_obs * S.smoothstep(f / (cfg.n_obs - 1))
     m = f >= cfg.n_obs
     d[m] = cfg.press_obs + (cfg.press_pred - cfg.press_obs) * S.smoothstep(
         (f[m] - cfg.n_obs + 1) / (cfg.frames - cfg.n_obs))
-    return d
+    return travel_sign(cfg) * d
 
 
 def novel_depths(cfg: SynthConfig) -> np.ndarray:
+    """Drop (m, negative = rise) of the forearm's midpoint per frame of the novel (tilted) clip."""
     f = np.arange(cfg.novel_frames, dtype=np.float64)
-    return cfg.press_novel * S.smoothstep(f / (0.7 * (cfg.novel_frames - 1)))
+    return travel_sign(cfg) * cfg.press_novel * S.smoothstep(f / (0.7 * (cfg.novel_frames - 1)))
+
+
+def clip_poses(cfg: SynthConfig, body) -> dict:
+    """Pose sequences of the dynamic clip (key "") and of the novel action (key "novel")."""
+    return {"": S.press_poses(body, dynamic_depths(cfg), "flat"),
+            "novel": S.press_poses(body, novel_depths(cfg), "tilt")}
+
+
+# ----------------------------------------------------------------------------------------------- objects
+PARTS = {"pillow": ["soft half", "stiff half"], "c_pillow": ["lower prong", "spine", "upper prong"],
+         "bag": ["filling", "shell", "handle"]}
+
+
+def object_boxes_local(cfg: SynthConfig, r: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The object's boxes relative to the midpoint of the forearm's axis at rest (radius r)."""
+    V = lambda *v: np.array(v, dtype=np.float64)
+    if cfg.object == "pillow":
+        L, W, H = cfg.pillow_size
+        top = -r - cfg.gap
+        return [(V(-L / 2, -W / 2, top - H), V(L / 2, W / 2, top))]
+    if cfg.object == "c_pillow":
+        L, D, H = cfg.c_pillow_size
+        t = cfg.c_thickness
+        top = -r - cfg.gap
+        bot = top - H
+        y0 = -(D - t) / 2  # the forearm lies over the middle of the free upper prong
+        y1 = y0 + D
+        return [(V(-L / 2, y0, bot), V(L / 2, y1, bot + t)),  # lower prong
+                (V(-L / 2, y1 - t, bot + t), V(L / 2, y1, top - t)),  # spine
+                (V(-L / 2, y0, top - t), V(L / 2, y1, top))]  # upper prong
+    L, W, H = cfg.bag_size
+    w, hl, ho = cfg.bag_wall, cfg.handle_length, cfg.handle_hole
+    if W - 2 * w < 2 * r + 0.01 or ho < 2 * r + 0.01:
+        raise ConfigError(f"bag: the handle's tunnel ({W - 2 * w:.3f} x {ho:.3f} m, from bag_size y - 2 bag_wall "
+                          f"and handle_hole) must clear the forearm (diameter {2 * r:.3f} m) by 1 cm")
+    return [(V(-L / 2, -W / 2, -ho / 2 - H), V(L / 2, W / 2, -ho / 2)),  # body
+            (V(-hl / 2, -W / 2, -ho / 2), V(hl / 2, -W / 2 + w, ho / 2)),  # front post
+            (V(-hl / 2, W / 2 - w, -ho / 2), V(hl / 2, W / 2, ho / 2)),  # back post
+            (V(-hl / 2, -W / 2, ho / 2), V(hl / 2, W / 2, ho / 2 + w))]  # bar
+
+
+def object_material(cfg: SynthConfig, meta: dict, X: np.ndarray):
+    """Ground-truth fields at world points X (N, 3) of the object: E (N,), fibre directions (N, 3) (zero row =
+    none), fibre moduli (N,) and part index (N,) into PARTS[object] (see the module docstring)."""
+    boxes = [(np.asarray(lo), np.asarray(hi)) for lo, hi in meta["object"]["boxes"]]
+    n = len(X)
+    fib = np.zeros((n, 3))
+    if cfg.object == "pillow":
+        lo, hi = boxes[0]
+        part = (X[:, 0] >= 0.5 * (lo[0] + hi[0])).astype(np.int64)
+        fib[:, 0] = 1.0
+        stiff = part == 1
+        has = np.ones(n, dtype=bool)
+    elif cfg.object == "c_pillow":
+        spine_y = boxes[1][0][1]
+        zmid = 0.5 * (boxes[0][0][2] + boxes[2][1][2])
+        stiff = X[:, 1] >= spine_y
+        part = np.where(stiff, 1, np.where(X[:, 2] < zmid, 0, 2))
+        fib[:] = np.where(stiff[:, None], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0])
+        has = np.ones(n, dtype=bool)
+    else:
+        (blo, bhi), w = boxes[0], cfg.bag_wall
+        in_body = np.all((X >= blo) & (X <= bhi), axis=1)
+        inner = np.all((X > blo + w) & (X < bhi - w), axis=1)
+        part = np.where(~in_body, 2, np.where(inner, 0, 1))
+        stiff = part > 0
+        bar = X[:, 2] > boxes[3][0][2]
+        fib[:] = np.where(bar[:, None], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0])
+        has = stiff
+    fib[~has] = 0.0
+    E = np.where(stiff, cfg.E_stiff, cfg.E_soft)
+    return E, fib, np.where(has, cfg.fiber_E, 0.0), part
+
+
+def scene_meta(cfg: SynthConfig) -> dict:
+    """scene.json of a config (layout checked against the MPM domain: one-line ConfigError)."""
+    body = S.humanoid(cfg.height)
+    r = float(body.radii[body.skeleton.index("forearm.R")])
+    up = max(cfg.press_pred, cfg.press_novel) if cfg.action == "lift" else 0.0
+    down = 0.0 if cfg.action == "lift" else max(cfg.press_pred, cfg.press_novel)
+    lay = S.layout(cfg.height, object_boxes_local(cfg, r), cfg.domain_size, rise=up, drop=down)
+    centre = 0.5 * (lay["object_min"] + lay["object_max"]) + np.array([0.0, 0.0, 0.5 * up])
+    el, az = np.radians(cfg.camera_elevation_deg), np.radians(cfg.camera_azimuth_deg)
+    eye = centre + cfg.camera_distance * np.array([np.sin(az) * np.cos(el), -np.cos(az) * np.cos(el), np.sin(el)])
+    return {
+        "format_version": S.FORMAT_VERSION,
+        "kind": "physar.recon synthetic scene",
+        "fps": cfg.fps, "frames": cfg.frames, "n_obs": cfg.n_obs, "novel_frames": cfg.novel_frames,
+        "camera": S.look_at(eye, centre, cfg.fov_deg, cfg.image_size, cfg.image_size),
+        "background": [0.3, 0.3, 0.35],
+        "body": {"kind": "procedural_humanoid", "height": cfg.height, "simulated_bones": ["forearm.R"],
+                 "E": cfg.human_E, "density": cfg.human_density},
+        "object": {"shape": "box" if len(lay["boxes"]) == 1 else "box_union", "kind": cfg.object,
+                   "action": cfg.action, "min": lay["object_min"].tolist(), "max": lay["object_max"].tolist(),
+                   "boxes": [[lo.tolist(), hi.tolist()] for lo, hi in lay["boxes"]], "parts": PARTS[cfg.object],
+                   "density": cfg.density, "nu": cfg.nu, "material": "fixed_corotated"},
+        "sim": {"size": cfg.domain_size, "resolution": cfg.grid_resolution, "substeps": cfg.substeps,
+                "origin": lay["origin"].tolist(), "gravity": [0.0, 0.0, cfg.gravity],
+                "walls": sim_walls("separate" if cfg.action == "lift" else "sticky"), "kp": cfg.kp, "kd": cfg.kd},
+        "synth_config": cfg.model_dump(),
+    }
+
+
+def _check_in_domain(meta: dict, name: str, x_world: np.ndarray) -> None:
+    sim = meta["sim"]
+    x = x_world - np.asarray(sim["origin"])
+    dx = sim["size"] / sim["resolution"]
+    lo, hi = x.reshape(-1, 3).min(0), x.reshape(-1, 3).max(0)
+    if np.any(lo < -0.5 * dx) or np.any(hi > sim["size"] + 0.5 * dx):
+        raise ConfigError(f"{name} leaves the MPM domain [0, {sim['size']}]^3 (reaches {np.round(lo, 3).tolist()} .. "
+                          f"{np.round(hi, 3).tolist()} m): raise domain_size or reduce the forearm travel")
 
 
 def spin_poses(body, cfg: SynthConfig) -> dict:
@@ -158,29 +340,35 @@ def spin_poses(body, cfg: SynthConfig) -> dict:
     return {"rotations": rots, "root_translation": np.zeros((cfg.spin_frames, 3))}
 
 
-def _simulate_clip(cfg, meta, body, poses, progress, offset, total):
-    """Fine MPM run of one clip: returns object positions (F, No, 3) and human positions (F, Nh, 3) (world)."""
+def simulate_clip(cfg: SynthConfig, meta: dict, body, poses: dict, progress=None, offset: int = 0,
+                  total: int = 0) -> dict:
+    """Fine ground-truth MPM run of one clip.  Returns world positions of the object ("xo", (F, No, 3)) and of the
+    simulated forearm ("xh", (F, Nh, 3)), the object's rest points "Xo", fields "E", "fiber", "fiber_E", "part"
+    and the particle spacing "h"."""
     sim = meta["sim"]
     origin = np.asarray(sim["origin"])
     dx = sim["size"] / sim["resolution"]
     h = dx / round(cfg.gt_particles_per_cell ** (1 / 3))
-    lo, hi = S.object_box(meta)
-    Xo, vol_o = S.lattice_box(lo, hi, h)
+    Xo, vol_o = S.object_points(meta, h)
+    E, fib, fib_E, part = object_material(cfg, meta, Xo)
     Xh = S.capsule_points(body, meta["body"]["simulated_bones"], h)
     rot, root = S.check_poses(poses, body.skeleton.n_bones)
     ref, _ = S.skin_sequence(body, Xh, rot, root)
+    _check_in_domain(meta, "the forearm", ref)
     dt_f = 1.0 / meta["fps"]
     vref = S.central_velocities(ref, dt_f)
     no, nh = len(Xo), len(Xh)
     n = no + nh
-    E = np.where(Xo[:, 0] < 0.5 * (lo[0] + hi[0]), cfg.E_soft, cfg.E_stiff)
+    aniso = {}
+    if np.any(fib_E > 0):  # isotropic scenes build exactly the model they always did
+        aniso = {"fiber": np.r_[fib, np.zeros((nh, 3))], "fiber_E": np.r_[fib_E, np.zeros(nh)]}
     model = MPMModel(size=sim["size"], resolution=sim["resolution"], dt=dt_f / sim["substeps"],
                      substeps=sim["substeps"], mass=np.r_[np.full(no, vol_o * cfg.density),
                                                           np.full(nh, h**3 * cfg.human_density)],
                      volume=np.r_[np.full(no, vol_o), np.full(nh, h**3)], E=np.r_[E, np.full(nh, cfg.human_E)],
                      nu=np.full(n, cfg.nu), elastic=np.zeros(n), plastic=np.zeros(n),
                      plastic_params=np.zeros((n, 4)), body=np.r_[np.zeros(no), np.ones(nh)],
-                     gravity=(0.0, 0.0, cfg.gravity), walls=sim_walls())
+                     gravity=(0.0, 0.0, cfg.gravity), walls=sim["walls"], **aniso)
     x0 = np.r_[Xo, ref[0]] - origin
     v0 = np.r_[np.zeros((no, 3)), vref[0]]
     solver = MPMSolver(model)
@@ -195,12 +383,15 @@ def _simulate_clip(cfg, meta, body, poses, progress, offset, total):
         if progress:
             progress(offset + f + 1, total)
     xs = np.stack(xs) + origin
-    return xs[:, :no], xs[:, no:], Xo, Xh, E, h
+    _check_in_domain(meta, f"the {cfg.object}", xs[:, :no])
+    return {"xo": xs[:, :no], "xh": xs[:, no:], "Xo": Xo, "E": E, "fiber": fib, "fiber_E": fib_E, "part": part,
+            "h": h, "mass": vol_o * cfg.density * no}
 
 
-def sim_walls() -> dict:
+def sim_walls(floor: str = "sticky") -> dict:
+    """Domain walls: slip on the sides and the top, ``floor`` (sticky for press/squeeze, separate for a lift)."""
     w = {k: "slip" for k in ("x_min", "x_max", "y_min", "y_max", "z_max")}
-    w["z_min"] = "sticky"
+    w["z_min"] = floor
     return w
 
 
@@ -238,32 +429,13 @@ def generate(out_dir: str | Path, cfg: SynthConfig | None = None,
     cfg = cfg or SynthConfig()
     out = Path(out_dir)
     body = S.humanoid(cfg.height)
-    lay = S.layout(cfg.height, cfg.pillow_size, cfg.gap, cfg.domain_size)
-    centre = 0.5 * (lay["object_min"] + lay["object_max"])
-    el, az = np.radians(cfg.camera_elevation_deg), np.radians(cfg.camera_azimuth_deg)
-    eye = centre + cfg.camera_distance * np.array([np.sin(az) * np.cos(el), -np.cos(az) * np.cos(el), np.sin(el)])
-    meta = {
-        "format_version": S.FORMAT_VERSION,
-        "kind": "physar.recon synthetic scene",
-        "fps": cfg.fps, "frames": cfg.frames, "n_obs": cfg.n_obs, "novel_frames": cfg.novel_frames,
-        "camera": S.look_at(eye, centre, cfg.fov_deg, cfg.image_size, cfg.image_size),
-        "background": [0.3, 0.3, 0.35],
-        "body": {"kind": "procedural_humanoid", "height": cfg.height, "simulated_bones": ["forearm.R"],
-                 "E": cfg.human_E, "density": cfg.human_density},
-        "object": {"shape": "box", "min": lay["object_min"].tolist(), "max": lay["object_max"].tolist(),
-                   "density": cfg.density, "nu": cfg.nu, "material": "fixed_corotated"},
-        "sim": {"size": cfg.domain_size, "resolution": cfg.grid_resolution, "substeps": cfg.substeps,
-                "origin": lay["origin"].tolist(), "gravity": [0.0, 0.0, cfg.gravity], "walls": sim_walls(),
-                "kp": cfg.kp, "kd": cfg.kd},
-        "synth_config": cfg.model_dump(),
-    }
+    meta = scene_meta(cfg)
+    clips = clip_poses(cfg, body)
     tmp = out.with_name(out.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     try:
         (tmp / "scene.json").write_text(json.dumps(meta, indent=1))
-        clips = {"": S.press_poses(body, dynamic_depths(cfg), "flat"),
-                 "novel": S.press_poses(body, novel_depths(cfg), "tilt")}
         total = cfg.frames + cfg.novel_frames - 2
         truth, offset, preview = {}, 0, None
         if cfg.spin_frames >= 2:  # spin clip: LBS only, the object at rest (seed §4.1, §5.1)
@@ -271,22 +443,25 @@ def generate(out_dir: str | Path, cfg: SynthConfig | None = None,
             np.savez(tmp / "spin_poses.npz", **sp)
             sim = meta["sim"]
             h = sim["size"] / sim["resolution"] / round(cfg.gt_particles_per_cell ** (1 / 3))
-            Xo, _ = S.lattice_box(*S.object_box(meta), h)
+            Xo, _ = S.object_points(meta, h)
             Xh = S.capsule_points(body, meta["body"]["simulated_bones"], h)
             xh, _ = S.skin_sequence(body, Xh, sp["rotations"], sp["root_translation"])
             _render_clip(cfg, meta, body, sp, np.broadcast_to(Xo, (cfg.spin_frames, *Xo.shape)), xh, Xo, h,
                          tmp / "spin")
         for name, poses in clips.items():
             np.savez(tmp / (f"{name}_poses.npz" if name else "poses.npz"), **poses)
-            xo, xh, Xo, Xh, E, h = _simulate_clip(cfg, meta, body, poses, progress, offset, total)
+            r = simulate_clip(cfg, meta, body, poses, progress, offset, total)
+            xo = r["xo"]
             offset += len(xo) - 1
-            frames = _render_clip(cfg, meta, body, poses, xo, xh, Xo, h, tmp / name if name else tmp)
+            frames = _render_clip(cfg, meta, body, poses, xo, r["xh"], r["Xo"], r["h"], tmp / name if name else tmp)
             key = name or "dynamic"
             truth[f"{key}_max_displacement"] = np.linalg.norm(xo - xo[:1], axis=2).max(1)
             truth[f"{key}_mean_displacement"] = np.linalg.norm(xo - xo[:1], axis=2).mean(1)
+            truth[f"{key}_object_positions"] = xo.astype(np.float32)
             if not name:
-                truth["rest_positions"], truth["E"] = Xo, E
-                truth["dynamic_object_positions"] = xo.astype(np.float32)
+                for k in ("E", "fiber", "fiber_E", "part"):
+                    truth[k] = r[k]
+                truth["rest_positions"] = r["Xo"]
                 preview = frames
         np.savez(tmp / "truth.npz", **truth)
         write_mp4(tmp / "video.mp4", preview, cfg.fps)

@@ -8,7 +8,7 @@ Stages (``fit``):
    rotation blend, object at rest), L_RGB = |I - I*|_1 (+ a mask term); then the **physics-aware fine-tuning**
    renders the spin clip with the deformation gradients of Alg. 1 run with sigma = 0 on the central-difference
    velocities (Eq. 4, :mod:`physar.recon.canonical`) and refits the same parameters (Eq. 5).  Without a spin
-   clip, frame 0 of the dynamic clip is used.  The canonical geometry (object box, body model, poses) is read
+   clip, frame 0 of the dynamic clip is used.  The canonical geometry (object boxes, body model, poses) is read
    from ``scene.json``/``poses.npz`` (the synthetic scenes give it).
 2. **flow**: (a) the **4DGS-like baseline**: per-frame object positions optimised with RGB + mask losses and
    an edge-length rigidity term (F from a least-squares fit to lattice neighbours enters Eq. 3); it cannot
@@ -187,7 +187,7 @@ class Rig:
         dx = sim["size"] / sim["resolution"]
         self.h = h = dx / k
         lo, hi = S.object_box(meta)
-        self.Xo, vol_o = S.lattice_box(lo, hi, h)
+        self.Xo, vol_o = S.object_points(meta, h)  # the canonical shape: the same sampler as the generator
         bones = meta["body"]["simulated_bones"]
         self.Xh = S.capsule_points(self.body, bones, h)
         if len(self.Xh) == 0:
@@ -800,7 +800,9 @@ METHODS = ("physics", "lbs", "4dgs", "spflow")
 
 def evaluate(recon: Reconstruction, ds: Dataset, methods=METHODS, progress: Progress | None = None) -> dict:
     """Metrics of each method on reconstruction (observed frames 1..n_obs-1), prediction (future frames) and
-    the novel action, on all frames and on the large-deformation subsets; E error against the truth."""
+    the novel action, on all frames and on the large-deformation subsets (frames whose true maximum object
+    displacement is >= half the maximum over that subset's own frames,
+    :func:`physar.recon.metrics.large_deformation_frames`); E error against the truth."""
     from physar.recon.metrics import large_deformation_frames, sequence_metrics
 
     out = {"methods": {}, "lpips": "unavailable (no backbone weights offline)"}
@@ -865,7 +867,9 @@ def object_3d_errors(recon: Reconstruction, ds: Dataset) -> dict:
 
 def material_error(recon: Reconstruction, truth: dict) -> dict:
     """Learned vs true E at the reconstruction's particles (nearest fine particle): mean |log10 ratio|
-    for the learned field and the initial guess, and the means over the soft/stiff halves."""
+    for the learned field and the initial guess, and the means over the soft/stiff parts (the two values of
+    a two-valued truth: pillow halves, C prongs/spine, bag filling/shell).  The reconstruction's law is
+    isotropic: the truth's fibre modulus (``fiber_E``, when stored) is reported, not compared."""
     rig = recon.rig
     idx = cKDTree(truth["rest_positions"]).query(rig.Xo)[1]
     Et = truth["E"][idx]
@@ -877,7 +881,8 @@ def material_error(recon: Reconstruction, truth: dict) -> dict:
             "E_soft_learned_geomean": float(np.exp(np.log(E[soft]).mean())),
             "E_stiff_learned_geomean": float(np.exp(np.log(E[~soft]).mean())),
             "stiff_soft_ratio_true": float(np.exp(np.log(Et[~soft]).mean() - np.log(Et[soft]).mean())),
-            "stiff_soft_ratio_learned": float(np.exp(np.log(E[~soft]).mean() - np.log(E[soft]).mean()))}
+            "stiff_soft_ratio_learned": float(np.exp(np.log(E[~soft]).mean() - np.log(E[soft]).mean())),
+            "fiber_E_true_max": float(np.max(truth["fiber_E"])) if "fiber_E" in truth else 0.0}
 
 
 def _preview(recon: Reconstruction, ds: Dataset, path: Path) -> bool:

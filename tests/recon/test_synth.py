@@ -1,0 +1,199 @@
+"""Synthetic benchmark scenes (issue 8 part 4): the three objects (box pillow, C pillow, bag) under their
+actions (press, squeeze, lift) with a heterogeneous, anisotropic fine-MPM ground truth.
+
+References are independent of the generator: closed-form volumes of the box unions, the geometry of each
+action (a dent, the gap between the C's prongs, the bag's height above the support), particle conservation,
+and the isotropic truth (fiber_E = 0) of the same scene for the anisotropy."""
+
+import json
+
+import numpy as np
+import pytest
+
+from physar.errors import ConfigError
+from physar.recon import scene as S
+from physar.recon import synth as Y
+from physar.recon.synth import SynthConfig, generate, load_synth_config
+
+SCENES = {"pillow": {"object": "pillow", "action": "press"},
+          "cpillow": {"object": "c_pillow", "action": "squeeze"},
+          "bag": {"object": "bag", "action": "lift"}}
+TINY = {"image_size": 32, "frames": 7, "n_obs": 4, "novel_frames": 3, "spin_frames": 2}
+
+
+def tiny(name: str, **kw) -> SynthConfig:
+    return SynthConfig(**TINY, **SCENES[name], **kw)
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    root = tmp_path_factory.mktemp("synth")
+    return {name: generate(root / name, tiny(name)) for name in SCENES}
+
+
+def load(d):
+    meta = json.loads((d / "scene.json").read_text())
+    with np.load(d / "truth.npz") as t:
+        return meta, {k: t[k] for k in t.files}
+
+
+def union_volume(cfg: SynthConfig) -> float:
+    """Closed-form volume of each object (its boxes do not overlap)."""
+    if cfg.object == "pillow":
+        return float(np.prod(cfg.pillow_size))
+    if cfg.object == "c_pillow":
+        L, D, H = cfg.c_pillow_size
+        t = cfg.c_thickness
+        return L * (D * H - (D - t) * (H - 2 * t))  # bounding box minus the mouth
+    L, W, H = cfg.bag_size
+    w, hl, ho = cfg.bag_wall, cfg.handle_length, cfg.handle_hole
+    return L * W * H + 2 * hl * w * ho + hl * W * w  # body + two posts + bar
+
+
+# ------------------------------------------------------------------------------------------- config, geometry
+def test_supported_combinations_and_one_line_errors(tmp_path):
+    assert SynthConfig().object == "pillow" and SynthConfig().action == "press"
+    assert SynthConfig().press_obs == 0.03 and SynthConfig().press_pred == 0.055  # the old defaults
+    p = tmp_path / "s.toml"
+    p.write_text('[synth]\nobject = "pillow"\naction = "lift"\n')
+    with pytest.raises(ConfigError, match=r"s.toml.*not supported for object 'pillow'.*bag \+ lift") as e:
+        load_synth_config(p)
+    assert "\n" not in str(e.value)
+    with pytest.raises(ConfigError, match="object"):
+        load_synth_config(None, {"object": "sofa"})
+    with pytest.raises(ConfigError, match="c_thickness"):
+        load_synth_config(None, {"object": "c_pillow", "action": "squeeze", "c_thickness": 0.1})
+    with pytest.raises(ConfigError, match="tunnel"):
+        Y.scene_meta(SynthConfig(object="bag", action="lift", handle_hole=0.06))
+    with pytest.raises(ConfigError, match="domain_size"):  # the lift would carry the bag out of the domain
+        Y.scene_meta(SynthConfig(object="bag", action="lift", press_pred=0.3))
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_object_points_match_box_union_volume(name):
+    cfg = tiny(name)
+    meta = Y.scene_meta(cfg)
+    dx = cfg.domain_size / cfg.grid_resolution
+    V = union_volume(cfg)
+    for k in (1, 2, 3):  # reconstruction (1 / cell) and fine ground-truth samplings
+        X, vol = S.object_points(meta, dx / k)
+        assert len(X) * vol == pytest.approx(V, rel=1e-9)
+        assert len(np.unique(np.round(X / (dx / k) * 2).astype(int), axis=0)) == len(X)  # no duplicates
+    # every particle lies inside one of the boxes, none inside the C's mouth / the handle's tunnel
+    boxes = S.object_boxes(meta)
+    X, _ = S.object_points(meta, dx)
+    inside = np.zeros(len(X), int)
+    for lo, hi in boxes:
+        inside += np.all((X > lo) & (X < hi), axis=1)
+    assert np.all(inside == 1)
+    # the reconstruction samples the same canonical shape
+    from physar.recon.train import Rig, TrainConfig
+
+    assert np.array_equal(Rig(meta, TrainConfig()).Xo, X)
+
+
+def test_single_box_scenes_keep_the_old_sampling():
+    meta = Y.scene_meta(SynthConfig())
+    old = {k: v for k, v in meta["object"].items() if k != "boxes"}  # a scene.json written before the unions
+    lo, hi = S.object_box({"object": old})
+    for h in (0.03, 0.015):
+        X, vol = S.object_points({"object": old}, h)
+        X2, vol2 = S.lattice_box(lo, hi, h)
+        assert np.array_equal(X, X2) and vol == vol2
+
+
+# ------------------------------------------------------------------------------------------- generated scenes
+@pytest.mark.parametrize("name", list(SCENES))
+def test_generator_outputs_and_mass(scenes, name):
+    d = scenes[name]
+    meta, t = load(d)
+    cfg = tiny(name)
+    n = len(t["rest_positions"])
+    for f in ("rgb/0000.png", "mask/0006.png", "novel/rgb/0002.png", "spin/mask/0001.png", "poses.npz"):
+        assert (d / f).exists()
+    assert t["fiber"].shape == (n, 3) and t["fiber_E"].shape == (n,) and t["E"].shape == (n,)
+    assert set(np.unique(t["E"])) == {cfg.E_soft, cfg.E_stiff}
+    has = t["fiber_E"] > 0
+    assert np.allclose(np.linalg.norm(t["fiber"][has], axis=1), 1) and np.all(t["fiber"][~has] == 0)
+    assert has.mean() > 0.3
+    assert meta["sim"]["walls"]["z_min"] == ("separate" if name == "bag" else "sticky")
+    # mass: every fine particle is still there, finite and inside the MPM domain, and particle count x cell
+    # volume x density is the closed-form mass of the object
+    h = meta["sim"]["size"] / meta["sim"]["resolution"] / 2
+    _, vol = S.object_points(meta, h)
+    assert n * vol * cfg.density == pytest.approx(cfg.density * union_volume(cfg), rel=1e-9)
+    lo = np.asarray(meta["sim"]["origin"])
+    for key in ("dynamic_object_positions", "novel_object_positions"):
+        x = t[key].astype(np.float64) - lo
+        assert x.shape[1] == n and np.all(np.isfinite(x))
+        assert x.min() > -1e-3 and x.max() < meta["sim"]["size"] + 1e-3
+
+
+def test_press_dents_the_pillow_top(scenes):
+    _, t = load(scenes["pillow"])
+    X, x = t["rest_positions"], t["dynamic_object_positions"].astype(np.float64)
+    top = (X[:, 2] > X[:, 2].max() - 0.01) & (np.abs(X[:, 1]) < 0.03)  # top layer under the forearm
+    bottom = X[:, 2] < X[:, 2].min() + 0.01
+    dent = x[0, top, 2].mean() - x[-1, top, 2].mean()
+    assert dent > 0.01  # measured ~2 cm (forearm drop 5.5 cm, part of it lag and the forearm's own compliance)
+    # sticky support: the bottom layer (h/2 above it, interpolated from nodes above too) moves little
+    assert np.abs(x[-1, bottom] - x[0, bottom]).max() < 0.3 * dent
+
+
+def test_squeeze_closes_the_c(scenes):
+    meta, t = load(scenes["cpillow"])
+    X, x = t["rest_positions"], t["dynamic_object_positions"].astype(np.float64)
+    lower, spine, upper = (np.asarray(b) for b in meta["object"]["boxes"])
+    gap0 = upper[0][2] - lower[1][2]
+    assert gap0 == pytest.approx(0.06)
+    front = X[:, 1] < lower[0][1] + 0.045  # the mouth: the free third of the prongs next to their tips
+    up = front & (X[:, 2] > upper[0][2])
+    lo = front & (X[:, 2] < lower[1][2])
+    d = x[:, up, 2].mean(1) - x[:, lo, 2].mean(1)  # prong-to-prong distance at the mouth
+    closure = (d[0] - d) / gap0
+    assert closure[-1] > 0.7  # measured ~1.0 (the prongs meet); the spine side barely moves:
+    back = spine[1][1] - 0.03 < X[:, 1]
+    assert np.abs(x[-1, back & (X[:, 2] < lower[1][2]), 2] - X[back & (X[:, 2] < lower[1][2]), 2]).max() < 0.01
+    assert np.all(np.diff(closure[:4]) > 0)  # closing monotonically during the observed part
+
+
+def test_lift_carries_the_bag_off_the_support(scenes):
+    meta, t = load(scenes["bag"])
+    x = t["dynamic_object_positions"].astype(np.float64)
+    floor = meta["sim"]["origin"][2]
+    h = meta["sim"]["size"] / meta["sim"]["resolution"] / 2
+    rise = x[-1, :, 2].mean() - x[0, :, 2].mean()
+    assert rise > 0.04  # measured ~7 cm (forearm rise 13 cm minus the tunnel clearance and the handle's stretch)
+    assert x[0, :, 2].min() - floor == pytest.approx(h / 2, abs=1e-5)  # rests on the support at first (float32)
+    assert x[-1, :, 2].min() - floor > 0.03  # then hangs clear of it (~6 cm)
+    nv = t["novel_object_positions"].astype(np.float64)
+    assert nv[-1, :, 2].min() - floor > 0.01  # the tilted lift also lifts it
+
+
+@pytest.mark.parametrize("name, min_mm", [("pillow", 0.5), ("cpillow", 1.5), ("bag", 3.0)])
+def test_anisotropic_truth_differs_from_isotropic(scenes, name, min_mm):
+    cfg = tiny(name)
+    meta, t = load(scenes[name])
+    body = S.humanoid(cfg.height)
+    poses = Y.clip_poses(cfg, body)[""]
+    iso = Y.simulate_clip(cfg.model_copy(update={"fiber_E": 0.0}), meta, body, poses)
+    assert np.all(iso["fiber_E"] == 0)
+    aniso = t["dynamic_object_positions"].astype(np.float64)
+    dist = np.linalg.norm(aniso[-1] - iso["xo"][-1], axis=1).mean() * 1e3
+    assert dist > min_mm  # measured ~1.3 / ~6 / ~25 mm
+
+
+def test_pillow_fibres_stiffen_along_x_only():
+    """Fibres along x: under the press the pillow bulges less along x than the isotropic one, not along y."""
+    cfg = tiny("pillow")
+    body = S.humanoid(cfg.height)
+    meta = Y.scene_meta(cfg)
+    poses = Y.clip_poses(cfg, body)[""]
+    growth = {}
+    for fe in (cfg.fiber_E, 0.0):
+        x = Y.simulate_clip(cfg.model_copy(update={"fiber_E": fe}), meta, body, poses)["xo"]
+        ext = np.percentile(x[[0, -1]], 99, axis=1) - np.percentile(x[[0, -1]], 1, axis=1)  # (2, 3)
+        growth[fe] = tuple(ext[1, :2] - ext[0, :2])
+    (ax, ay), (ix, iy) = growth[cfg.fiber_E], growth[0.0]
+    assert ix > 0.005 and ax < 0.6 * ix  # measured 3.6 vs 10.6 mm
+    assert 0.8 < ay / iy < 1.25  # measured 15.8 vs 15.1 mm
