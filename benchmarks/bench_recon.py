@@ -8,6 +8,11 @@ fine ground truth, no learning involved).
 
     .venv/bin/python benchmarks/bench_recon.py [--config examples/recon_bench.toml] [--out /tmp/bench_recon]
         [--no-ablations] [--identifiability-only] [--oracle]
+    .venv/bin/python benchmarks/bench_recon.py --scenes pillow,cpillow,bag      # examples/recon_<name>.toml
+    .venv/bin/python benchmarks/bench_recon.py --config a.toml --config b.toml  # one block of tables per scene
+
+With several scenes each one gets its own folder OUT/<config stem>/ and its own tables, printed one after the
+other (the scenes run sequentially; the times are per scene).
 
 ``--oracle`` also learns E from the cell-averaged true 3-D trajectories (no images; L1 over the observed
 frames, Adam on log E) with the voxel-grid field and with one value per particle: it separates the question
@@ -58,7 +63,7 @@ def identifiability(data_dir: Path, tcfg) -> list[tuple[str, float, float]]:
     fr = range(1, ds.n_obs)
     rows = []
     fields = [("true field", Et)] + [(f"{s} x true", s * Et) for s in (0.25, 0.5, 0.7, 1.4, 2.0, 4.0)] + [
-        ("halves swapped", Et.min() + Et.max() - Et), ("uniform E_init", np.full(rig.no, tcfg.E_init))]
+        ("soft/stiff swapped", Et.min() + Et.max() - Et), ("uniform E_init", np.full(rig.no, tcfg.E_init))]
     for name, E in fields:
         x = run(E)
         rows.append((name, float(np.mean([np.linalg.norm(x[f] - gt[f], axis=1).mean() for f in fr]) * 1e3),
@@ -95,9 +100,15 @@ def oracle_E(data_dir: Path, tcfg, grid, iters: int = 15, lr: float = 0.1,
     return rows
 
 
+EXAMPLES = Path(__file__).parents[1] / "examples"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--config", default=str(Path(__file__).parents[1] / "examples" / "recon_bench.toml"))
+    ap.add_argument("--config", action="append", default=None,
+                    help="scene + training TOML (repeatable; default examples/recon_bench.toml)")
+    ap.add_argument("--scenes", default=None, help="comma-separated names: examples/recon_<name>.toml each "
+                    "(e.g. pillow,cpillow,bag)")
     ap.add_argument("--out", default="/tmp/bench_recon")
     ap.add_argument("--no-ablations", action="store_true")
     ap.add_argument("--identifiability-only", action="store_true")
@@ -105,8 +116,25 @@ def main() -> None:
     ap.add_argument("--flow-run", default=None, help="with --oracle: also learn E (grid) from the Eq. 9 flow "
                     "and the 4DGS-like positions of this RUN_DIR (same scene)")
     a = ap.parse_args()
-    out = Path(a.out)
-    scfg, tcfg = load_synth_config(a.config), load_train_config(a.config)
+    configs = list(a.config or [])
+    for name in (a.scenes.split(",") if a.scenes else []):
+        p = EXAMPLES / f"recon_{name.strip()}.toml"
+        if not p.exists():
+            known = sorted(q.stem[6:] for q in EXAMPLES.glob("recon_*.toml"))
+            raise SystemExit(f"--scenes: no {p} (known: {', '.join(known)})")
+        configs.append(str(p))
+    configs = configs or [str(EXAMPLES / "recon_bench.toml")]
+    if a.flow_run and len(configs) > 1:
+        raise SystemExit("--flow-run needs exactly one scene")
+    for cfg_path in configs:
+        out = Path(a.out) if len(configs) == 1 else Path(a.out) / Path(cfg_path).stem
+        if len(configs) > 1:
+            print(f"\n## scene {Path(cfg_path).stem} ({cfg_path})")
+        run_scene(cfg_path, out, a)
+
+
+def run_scene(config: str, out: Path, a) -> None:
+    scfg, tcfg = load_synth_config(config), load_train_config(config)
     print(f"load average at start: {os.getloadavg()[0]:.2f} (2 shared cores)")
     t0 = time.perf_counter()
     generate(out / "data", scfg)
@@ -152,8 +180,8 @@ def main() -> None:
                   reuse=None if name == "full" else out / "run")
         reports[name] = (rep, time.perf_counter() - t1)
     rep, t_fit = reports["full"]
-    print(f"\nscene: {scfg.image_size}px, spin clip {scfg.spin_frames} frames, {scfg.frames} dynamic frames "
-          f"({scfg.n_obs} observed), {scfg.novel_frames} novel-action frames; ground truth "
+    print(f"\nscene: {scfg.object} + {scfg.action}, {scfg.image_size}px, spin clip {scfg.spin_frames} frames, "
+          f"{scfg.frames} dynamic frames ({scfg.n_obs} observed), {scfg.novel_frames} novel-action frames; ground truth "
           f"{scfg.gt_particles_per_cell} particles/cell, reconstruction {tcfg.particles_per_cell}")
     print(f"generation {t_gen:.1f} s; full model: train {rep['train_seconds']:.1f} s (fit + evaluation "
           f"{t_fit:.1f} s); load average now {os.getloadavg()[0]:.2f}\n")
@@ -167,7 +195,8 @@ def main() -> None:
     print("omega:", json.dumps(rep["omega"]))
     print("LPIPS:", rep["lpips"])
     print("\n| variant | recon PSNR | recon IoU | recon_large PSNR | recon_large IoU | pred PSNR | pred IoU | "
-          "novel PSNR | novel IoU | 3-D err (mm) | E mean abs log10 err | stiff/soft (true 4) | physics stage s |")
+          "novel PSNR | novel IoU | 3-D err (mm) | E mean abs log10 err | stiff/soft (true "
+          f"{rep['material']['stiff_soft_ratio_true']:.0f}) | physics stage s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name, (r, _) in reports.items():
         p = r["methods"]["physics"]
