@@ -61,8 +61,10 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
     return 1.0 if u == 0 else float(np.logical_and(a, b).sum() / u)
 
 
-def lpips(a: np.ndarray, b: np.ndarray) -> float:
-    """LPIPS distance, only when the ``lpips`` package and its backbone weights are installed."""
+def lpips_model():
+    """A callable LPIPS distance d(a, b) on (H, W, 3) images in [0, 1] (AlexNet backbone), when the ``lpips``
+    package and its backbone weights are installed; otherwise a PhysarError that says why (the ``lpips``
+    wheel ships only the linear heads, the AlexNet/VGG weights come from torchvision's download cache)."""
     try:
         import lpips as _lp
     except ImportError:
@@ -76,19 +78,33 @@ def lpips(a: np.ndarray, b: np.ndarray) -> float:
     except Exception as exc:  # noqa: BLE001 - missing torchvision weights: report, do not crash
         raise PhysarError(f"LPIPS unavailable: backbone weights could not be loaded ({exc})") from None
     t = lambda z: torch.as_tensor(np.asarray(z, np.float32)).permute(2, 0, 1)[None] * 2 - 1
-    with torch.no_grad():
-        return float(net(t(a), t(b)))
+
+    def dist(a: np.ndarray, b: np.ndarray) -> float:
+        with torch.no_grad():
+            return float(net(t(a), t(b)))
+
+    return dist
 
 
-def sequence_metrics(pred_rgb, pred_alpha, gt_rgb, gt_mask, frames) -> dict:
-    """Mean PSNR, SSIM and IoU over the listed frame indices (NaN for an empty list)."""
+def lpips(a: np.ndarray, b: np.ndarray) -> float:
+    """LPIPS distance, only when the ``lpips`` package and its backbone weights are installed."""
+    return lpips_model()(a, b)
+
+
+def sequence_metrics(pred_rgb, pred_alpha, gt_rgb, gt_mask, frames, lpips_fn=None) -> dict:
+    """Mean PSNR, SSIM and IoU (and LPIPS when ``lpips_fn`` from :func:`lpips_model` is given) over the listed
+    frame indices (NaN for an empty list)."""
     frames = list(frames)
     if not frames:
-        return {"psnr": float("nan"), "ssim": float("nan"), "iou": float("nan"), "frames": 0}
+        out = {"psnr": float("nan"), "ssim": float("nan"), "iou": float("nan"), "frames": 0}
+        return out | ({"lpips": float("nan")} if lpips_fn else {})
     p = [psnr(pred_rgb[f], gt_rgb[f]) for f in frames]
     s = [ssim(pred_rgb[f], gt_rgb[f]) for f in frames]
     i = [iou(pred_alpha[f] >= 0.5, gt_mask[f] >= 0.5) for f in frames]
-    return {"psnr": float(np.mean(p)), "ssim": float(np.mean(s)), "iou": float(np.mean(i)), "frames": len(frames)}
+    out = {"psnr": float(np.mean(p)), "ssim": float(np.mean(s)), "iou": float(np.mean(i)), "frames": len(frames)}
+    if lpips_fn is not None:
+        out["lpips"] = float(np.mean([lpips_fn(pred_rgb[f], gt_rgb[f]) for f in frames]))
+    return out
 
 
 def large_deformation_frames(displacement: np.ndarray, frames, fraction: float = 0.5) -> list[int]:

@@ -15,13 +15,14 @@ Stages (``fit``):
    predict (it holds the last observed frame).  (b) the **structure-preserving 3-D flow** of §4.4, Eq. 9
    (:mod:`physar.recon.flow`): per-frame positions x'_n optimised with RGB + mask, OpenCV-DIS optical flow
    between consecutive observed frames, and ARAP w.r.t. the rest lattice; x'_n supervises stage 3.
-3. **physics** (§4.2-4.4, Eq. 6-11): per-particle Young's modulus E of the object (log-parameterised) and
+3. **physics** (§4.2-4.4, Eq. 6-11): per-particle Young's modulus E of the object (log-parameterised), its
+   Poisson ratio nu (nu_min + (nu_max - nu_min) sigmoid(z), bounds 0.2-0.4 of seed App. B) and
    the LBS-impact factor omega of the simulated body particles (omega = g_i 2 sigmoid(l_i), g_i = 1 strictly
    inside the body, 0 elsewhere: object particles are never actuated) are learned through the
    differentiable MPM (:mod:`physar.mpm.torch_bridge`) and the rasteriser with
    L_E2E = lambda_rgb |I - I*|_1 + lambda_mask |A - M|_1 + lambda_3Dflow |x_{n+1} - x'_{n+1}|_1   (Eq. 10)
    + R = lambda_omega ||omega||_2 [+ lambda_law ||E_theta|| + lambda_feat ||l_e|| with the residual laws]
-   (Eq. 11, App. A); log E lives on a coarse voxel grid interpolated trilinearly to the particles (the
+   (Eq. 11, App. A); log E and the nu logits live on a coarse voxel grid interpolated trilinearly to the particles (the
    "material space" of seed App. C.3) unless ``material_grid`` is 0; progressive (the frame window grows every ``window_grow_every`` iterations) and loss-balanced
    (each frame's loss is weighted by its previous loss relative to the mean).
 
@@ -45,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.spatial import cKDTree
 
 from physar.errors import ConfigError, PhysarError
@@ -62,6 +63,12 @@ Progress = Callable[[str, int, int, float], None]
 class TrainConfig(BaseModel):
     """Training settings (TOML table [train]); lengths in m."""
 
+    @model_validator(mode="after")
+    def _check_nu(self):
+        if not self.nu_min < self.nu_max:
+            raise ValueError(f"nu_min ({self.nu_min}) must be < nu_max ({self.nu_max})")
+        return self
+
     model_config = ConfigDict(extra="forbid")
     particles_per_cell: int = Field(1, description="object/body MPM particles per grid cell: 1, 8 or 27")
     body_spacing: float = Field(0.03, gt=0, description="spacing of the kinematic body Gaussians, m")
@@ -76,10 +83,15 @@ class TrainConfig(BaseModel):
     lambda_of: float = Field(0.02, ge=0, description="Eq. 9 optical-flow (DIS) term, per px")
     lambda_arap: float = Field(3.0e4, ge=0, description="Eq. 9 ARAP term, 1/m^2")
     physics_iters: int = Field(40, ge=0)
-    physics_lr: float = Field(0.15, gt=0, description="Adam step on log E and omega logits")
+    physics_lr: float = Field(0.15, gt=0, description="Adam step on log E, the nu logits and omega logits")
     E_init: float = Field(6.0e3, gt=0, description="initial Young's modulus of the object, Pa")
     E_min: float = Field(5.0e2, gt=0)
     E_max: float = Field(3.0e4, gt=0, description="upper bound (keep the explicit MPM step stable)")
+    learn_nu: bool = Field(True, description="learn a spatially varying Poisson ratio (seed 002 §4.3, App. B)")
+    nu_min: float = Field(0.2, gt=-1, lt=0.5, description="lower bound of the learned Poisson ratio (seed App. B)")
+    nu_max: float = Field(0.4, gt=-1, lt=0.5, description="upper bound of the learned Poisson ratio (seed App. B)")
+    nu_init: float | None = Field(None, gt=-1, lt=0.5, description="initial Poisson ratio of the object "
+                                  "(default: the scene's object.nu, clipped to [nu_min, nu_max])")
     material_grid: tuple[int, int, int] = Field((4, 3, 2), description="voxel nodes of the log E field per "
                                                 "axis over the object box; (0, 0, 0): one value per particle")
     omega_init: float = Field(1.0, gt=0, lt=2)
@@ -329,6 +341,7 @@ class Physics:
     omega_logit: torch.Tensor
     nets: object = None
     l_e: torch.Tensor | None = None
+    nu_logit: torch.Tensor | None = None
 
     @classmethod
     def init(cls, rig: Rig) -> Physics:
@@ -346,10 +359,16 @@ class Physics:
             if cfg.latents:  # small random latents break the symmetry between particles
                 g = torch.Generator().manual_seed(cfg.seed)
                 l_e = 0.1 * torch.randn(rig.no + rig.nh, cfg.latent_dim, dtype=torch.float64, generator=g)
-        return cls(le, ol, nets, l_e)
+        nl = None
+        if cfg.learn_nu:  # nu = nu_min + (nu_max - nu_min) sigmoid(z) on the same material grid as log E
+            nu0 = rig.meta["object"]["nu"] if cfg.nu_init is None else cfg.nu_init
+            s = (min(max(nu0, cfg.nu_min), cfg.nu_max) - cfg.nu_min) / (cfg.nu_max - cfg.nu_min)
+            s = min(max(s, 1e-3), 1 - 1e-3)
+            nl = torch.full((n_e,), math.log(s / (1 - s)), dtype=torch.float64)
+        return cls(le, ol, nets, l_e, nl)
 
     def leaves(self):
-        out = [self.log_E, self.omega_logit]
+        out = [self.log_E, self.omega_logit] + ([self.nu_logit] if self.nu_logit is not None else [])
         if self.nets is not None:
             out += ([self.l_e] if self.l_e is not None else []) + [*self.nets.parameters()]
         return out
@@ -358,13 +377,22 @@ class Physics:
         """Young's modulus of the object particles (No,), Pa: exp of the (interpolated) log E field."""
         return torch.exp(self.log_E if rig.material_W is None else rig.material_W @ self.log_E)
 
+    def nu_object(self, rig: Rig) -> torch.Tensor:
+        """Poisson ratio of the object particles (No,): nu_min + (nu_max - nu_min) sigmoid of the (interpolated)
+        logit field, or the scene's value when nu is not learned."""
+        if self.nu_logit is None:
+            return rig.nu[:rig.no]
+        z = self.nu_logit if rig.material_W is None else rig.material_W @ self.nu_logit
+        return rig.cfg.nu_min + (rig.cfg.nu_max - rig.cfg.nu_min) * torch.sigmoid(z)
+
     def omega(self, rig: Rig) -> torch.Tensor:
         """Full omega (No + Nh,): 0 on the object, gate * 2 sigmoid(l) on the body (Eq. 7)."""
         return torch.cat([torch.zeros(rig.no, dtype=torch.float64), rig.gate * 2 * torch.sigmoid(self.omega_logit)])
 
     def params(self, rig: Rig) -> tb.Params:
         E = torch.cat([self.E_object(rig), rig.E_human])
-        return tb.Params(E=E, nu=rig.nu, omega=self.omega(rig), l_e=self.l_e, kp=rig.kp, kd=rig.kd)
+        nu = torch.cat([self.nu_object(rig), rig.nu[rig.no:]])
+        return tb.Params(E=E, nu=nu, omega=self.omega(rig), l_e=self.l_e, kp=rig.kp, kd=rig.kd)
 
 
 def simulate_clip(rig: Rig, phys: Physics, kin: dict, frames: int, grad: bool = True):
@@ -619,9 +647,10 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
         leaves = st.phys.leaves()
         for t in leaves:
             t.requires_grad_(True)
-        groups = [{"params": leaves[:2], "lr": cfg.physics_lr}]
-        if len(leaves) > 2:
-            groups.append({"params": leaves[2:], "lr": cfg.net_lr})
+        k = 3 if st.phys.nu_logit is not None else 2
+        groups = [{"params": leaves[:k], "lr": cfg.physics_lr}]
+        if len(leaves) > k:
+            groups.append({"params": leaves[k:], "lr": cfg.net_lr})
         opt = torch.optim.Adam(groups)
         if st.opt_state is not None:
             opt.load_state_dict(st.opt_state)
@@ -719,8 +748,10 @@ class Reconstruction:
             "flow": torch.stack(self.flow).numpy(),
             "spflow": torch.stack(self.spflow or self.flow).numpy(),
             "log_E_param": self.phys.log_E.detach().numpy(),
+            **({"nu_logit_param": self.phys.nu_logit.detach().numpy()} if self.phys.nu_logit is not None else {}),
             "E": self.phys.E_object(self.rig).detach().numpy(), "omega": self.phys.omega(self.rig).detach().numpy(),
             "omega_logit": self.phys.omega_logit.detach().numpy(),
+            "nu": self.phys.nu_object(self.rig).detach().numpy(),
             "object_rest": self.rig.Xo, "body_rest": self.rig.Xh,
             "loss_physics": np.asarray(st.history["physics"], dtype=np.float64),
         }
@@ -747,6 +778,8 @@ class Reconstruction:
         with torch.no_grad():
             phys.log_E.copy_(torch.as_tensor(d["log_E_param"]))
             phys.omega_logit.copy_(torch.as_tensor(d["omega_logit"]))
+            if phys.nu_logit is not None:
+                phys.nu_logit.copy_(torch.as_tensor(d["nu_logit_param"]))
             if phys.l_e is not None:
                 phys.l_e.copy_(torch.as_tensor(d["l_e"]))
             if phys.nets is not None:
@@ -803,9 +836,14 @@ def evaluate(recon: Reconstruction, ds: Dataset, methods=METHODS, progress: Prog
     the novel action, on all frames and on the large-deformation subsets (frames whose true maximum object
     displacement is >= half the maximum over that subset's own frames,
     :func:`physar.recon.metrics.large_deformation_frames`); E error against the truth."""
-    from physar.recon.metrics import large_deformation_frames, sequence_metrics
+    from physar.recon.metrics import large_deformation_frames, lpips_model, sequence_metrics
 
-    out = {"methods": {}, "lpips": "unavailable (no backbone weights offline)"}
+    try:
+        lp = lpips_model()
+        out = {"methods": {}, "lpips": "computed (AlexNet backbone)"}
+    except PhysarError as exc:
+        lp, out = None, {"methods": {}, "lpips": str(exc)}
+    metrics = lambda *a: sequence_metrics(*a, lpips_fn=lp)
     n, no = len(ds.rgb), ds.n_obs
     disp = ds.truth["dynamic_max_displacement"] if ds.truth else None
     sets = {"recon": list(range(1, no)), "pred": list(range(no, n))}
@@ -813,16 +851,16 @@ def evaluate(recon: Reconstruction, ds: Dataset, methods=METHODS, progress: Prog
         rgb, a = recon.predict(ds.rotations, ds.root_t, m, progress)
         res = {}
         for name, fr in sets.items():
-            res[name] = sequence_metrics(rgb, a, ds.rgb, ds.mask, fr)
+            res[name] = metrics(rgb, a, ds.rgb, ds.mask, fr)
             if disp is not None:
-                res[name + "_large"] = sequence_metrics(rgb, a, ds.rgb, ds.mask, large_deformation_frames(disp, fr))
+                res[name + "_large"] = metrics(rgb, a, ds.rgb, ds.mask, large_deformation_frames(disp, fr))
         if ds.novel is not None:
             m2 = "lbs" if m in ("4dgs", "spflow") else m  # a per-frame deformation cannot follow new poses
             rgb2, a2 = recon.predict(ds.novel["rotations"], ds.novel["root_t"], m2, progress)
             fr = list(range(1, len(rgb2)))
-            res["novel"] = sequence_metrics(rgb2, a2, ds.novel["rgb"], ds.novel["mask"], fr)
+            res["novel"] = metrics(rgb2, a2, ds.novel["rgb"], ds.novel["mask"], fr)
             if ds.truth is not None:
-                res["novel_large"] = sequence_metrics(rgb2, a2, ds.novel["rgb"], ds.novel["mask"],
+                res["novel_large"] = metrics(rgb2, a2, ds.novel["rgb"], ds.novel["mask"],
                                                       large_deformation_frames(ds.truth["novel_max_displacement"], fr))
         out["methods"][m] = res
     if ds.truth is not None:
@@ -882,7 +920,11 @@ def material_error(recon: Reconstruction, truth: dict) -> dict:
             "E_stiff_learned_geomean": float(np.exp(np.log(E[~soft]).mean())),
             "stiff_soft_ratio_true": float(np.exp(np.log(Et[~soft]).mean() - np.log(Et[soft]).mean())),
             "stiff_soft_ratio_learned": float(np.exp(np.log(E[~soft]).mean() - np.log(E[soft]).mean())),
-            "fiber_E_true_max": float(np.max(truth["fiber_E"])) if "fiber_E" in truth else 0.0}
+            "fiber_E_true_max": float(np.max(truth["fiber_E"])) if "fiber_E" in truth else 0.0,
+            "nu_true": float(rig.meta["object"]["nu"]),
+            "nu_learned_mean": float(recon.phys.nu_object(rig).detach().mean()),
+            "nu_learned_range": [float(recon.phys.nu_object(rig).detach().min()),
+                                 float(recon.phys.nu_object(rig).detach().max())]}
 
 
 def _preview(recon: Reconstruction, ds: Dataset, path: Path) -> bool:

@@ -59,6 +59,9 @@ def test_outputs_and_resume(fitted, tiny_scene):
         assert d["spflow"].shape == d["flow"].shape == (3, len(d["object_rest"]), 3)
     rec = Reconstruction.load(run)
     assert np.allclose(np.exp(rec.phys.log_E.numpy()), np.load(run / "model.npz")["E"])
+    nu = np.load(run / "model.npz")["nu"]  # learned Poisson ratio (seed App. B bounds)
+    assert np.allclose(rec.phys.nu_object(rec.rig).numpy(), nu) and nu.min() >= 0.2 and nu.max() <= 0.4
+    assert report["material"]["nu_learned_range"][1] > report["material"]["nu_learned_range"][0]
     # a finished run resumes without retraining
     again = fit(tiny_scene, run, cfg)
     assert again["material"] == report["material"]
