@@ -42,16 +42,17 @@ def synth(
     config: Optional[Path] = typer.Option(None, "--config", "-c", help="TOML with a [synth] table"),
     json_out: bool = typer.Option(False, "--json", help="print a summary as JSON"),
 ) -> None:
-    """Generate a synthetic scene: the humanoid presses a heterogeneous soft box (fine MPM ground truth)."""
+    """Generate a synthetic scene (fine MPM ground truth, heterogeneous and anisotropic): the humanoid presses a
+    pillow, squeezes a C-shaped pillow or lifts a bag (see examples/recon_pillow|cpillow|bag.toml)."""
     from physar.recon.synth import generate, load_synth_config
 
     cfg = load_synth_config(config)
     progress, bars = _bars(json_out and not sys.stderr.isatty())
     generate(out, cfg, lambda i, n: progress("simulate", i, n, 0.0))
     _close(bars)
-    summary = {"data_dir": str(out), "frames": cfg.frames, "n_obs": cfg.n_obs, "novel_frames": cfg.novel_frames,
+    summary = {"data_dir": str(out), "object": cfg.object, "action": cfg.action, "frames": cfg.frames, "n_obs": cfg.n_obs, "novel_frames": cfg.novel_frames,
                "image_size": cfg.image_size}
-    print_json(summary) if json_out else log(f"scene -> {out} ({cfg.frames} frames, {cfg.n_obs} observed, "
+    print_json(summary) if json_out else log(f"scene -> {out} ({cfg.object} + {cfg.action}, {cfg.frames} frames, {cfg.n_obs} observed, "
                                              f"{cfg.novel_frames} novel-action frames)")
 
 
