@@ -135,6 +135,9 @@ def main() -> None:
 
 def run_scene(config: str, out: Path, a) -> None:
     scfg, tcfg = load_synth_config(config), load_train_config(config)
+    if scfg.gt_particles_per_cell <= tcfg.particles_per_cell:
+        raise SystemExit(f"{config}: gt_particles_per_cell ({scfg.gt_particles_per_cell}) must exceed the "
+                         f"reconstruction's particles_per_cell ({tcfg.particles_per_cell}): no inverse crime")
     print(f"load average at start: {os.getloadavg()[0]:.2f} (2 shared cores)")
     t0 = time.perf_counter()
     generate(out / "data", scfg)
