@@ -80,9 +80,11 @@ class Pose:
         return mat3(np.asarray(X, float).reshape(-1, 3), self.R) + self.t
 
     def angle_to(self, other: "Pose") -> float:
-        """Rotation angle of R_self^T R_other in degrees."""
-        c = (np.trace(self.R.T @ other.R) - 1.0) / 2.0
-        return math.degrees(math.acos(float(np.clip(c, -1.0, 1.0))))
+        """Rotation angle of Q = R_self^T R_other in degrees: atan2(sin, cos) with sin = |vee(Q - Q^T)| / 2 and
+        cos = (tr Q - 1) / 2 (accurate near 0 and near 180 degrees, unlike acos of the trace alone)."""
+        Q = self.R.T @ other.R
+        s = 0.5 * math.sqrt((Q[2, 1] - Q[1, 2]) ** 2 + (Q[0, 2] - Q[2, 0]) ** 2 + (Q[1, 0] - Q[0, 1]) ** 2)
+        return math.degrees(math.atan2(s, (np.trace(Q) - 1.0) / 2.0))
 
     def matrix(self) -> np.ndarray:
         M = np.eye(4)
