@@ -277,7 +277,8 @@ def _noise_texture(rng, h, w, scales, weights) -> np.ndarray:
     return out
 
 
-def sensor_effects(img: np.ndarray, sensor, lighting, vignette3, t: float, blur_px: np.ndarray) -> np.ndarray:
+def sensor_effects(img: np.ndarray, sensor, lighting, vignette3, t: float, blur_px: np.ndarray,
+                   noise_seed: int | None = None) -> np.ndarray:
     """Flicker, vignetting, motion blur along `blur_px`, lens PSF, shot + read noise, uint8 rounding."""
     gain = 1 + lighting.flicker * math.sin(2 * math.pi * 2.3 * t) * math.sin(2 * math.pi * 0.37 * t + 1)
     img = cv2.multiply(img, vignette3, scale=gain)
@@ -295,6 +296,8 @@ def sensor_effects(img: np.ndarray, sensor, lighting, vignette3, t: float, blur_
         img = cv2.GaussianBlur(img, (0, 0), sensor.psf)
     if sensor.read_noise > 0 or sensor.shot_noise > 0:
         noise = np.empty(img.shape, np.float32)
+        if noise_seed is not None:  # OpenCV's RNG is global per thread: seed it so a frame is reproducible
+            cv2.setRNGSeed(int(noise_seed) % (2**31 - 1))
         cv2.randn(noise, 0.0, 1.0)
         std = cv2.sqrt(cv2.max(img, 0.0) * np.float32(sensor.shot_noise ** 2) + np.float32(sensor.read_noise ** 2))
         img = cv2.add(img, cv2.multiply(noise, std))
@@ -469,7 +472,8 @@ class FoamRenderer:
         self._draw_beam(img, pose, grid, s)
         tgt = [spec.camera.target]
         blur = (self.camera.project(tgt, pose)[0] - self.camera.project(tgt, spec.camera_pose(t - 1 / fps))[0])
-        out = sensor_effects(img, spec.sensor, spec.lighting, self.vig, t, blur * spec.sensor.motion_blur)
+        out = sensor_effects(img, spec.sensor, spec.lighting, self.vig, t, blur * spec.sensor.motion_blur,
+                             noise_seed=spec.seed * 1_000_003 + frame)
         row = {"frame": frame, "time_s": t, "s_true_m": s, "markers_visible": int(frame == 0),
                "midspan_deflection_m": self.truth.midspan_deflection(u), "cam_rvec": pose.rvec, "cam_t": pose.t}
         return out, row

@@ -514,6 +514,7 @@ class SceneRenderer:
             img = cv2.GaussianBlur(img, (0, 0), sen.psf)
         if sen.read_noise > 0 or sen.shot_noise > 0:
             noise = np.empty(img.shape, np.float32)
+            cv2.setRNGSeed((self.spec.seed * 1_000_003 + frame) % (2**31 - 1))  # per-thread global RNG: reproducible
             cv2.randn(noise, 0.0, 1.0)
             std = cv2.sqrt(cv2.max(img, 0.0) * np.float32(sen.shot_noise ** 2) + np.float32(sen.read_noise ** 2))
             img = cv2.add(img, cv2.multiply(noise, std))

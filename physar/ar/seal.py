@@ -239,7 +239,8 @@ class SealRenderer:
                                          0.006 * np.sin(a)]), (90, 90, 95), pose)
         tgt = [spec.camera.target]
         blur = self.camera.project(tgt, pose)[0] - self.camera.project(tgt, spec.camera_pose(t - 1 / fps))[0]
-        out = sensor_effects(img, spec.sensor, L, self.vig, t, blur * spec.sensor.motion_blur)
+        out = sensor_effects(img, spec.sensor, L, self.vig, t, blur * spec.sensor.motion_blur,
+                             noise_seed=spec.seed * 1_000_003 + frame)
         w, h = self.camera.size
         q = self.camera.project(np.vstack([piv, tip]), pose)
         zc = pose.apply(np.vstack([piv, tip]))[:, 2]
