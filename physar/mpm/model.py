@@ -5,7 +5,7 @@ boundaries, gravity, time step), :class:`MPMState` the per-particle state s = {x
 Jacobian J_p of the snow law), and :class:`MPMSolver` advances ``step(state_in, state_out, control, dt)`` by one
 substep of Alg. 1:
 
-1. sigma = E(F, E, nu) + fibre term            (:func:`stress_fiber_kernel`, Kirchhoff stress tau = J sigma;
+1. sigma = E(F, E, nu) + fibre term            (:func:`stress_kernel`, Kirchhoff stress tau = J sigma;
                                                 the optional anisotropic fibre term is
                                                 :func:`physar.mpm.constitutive.fiber_stress`)
 2. P2G: m_i = sum_p w_ip m_p,  (m v)_i = sum_p w_ip [m_p v_p + (m_p C_p - dt V_p 4/dx^2 tau_p)(x_i - x_p)
@@ -84,24 +84,6 @@ def _weights(fx: wp.vec3d) -> wp.mat33d:
 
 @wp.kernel
 def stress_kernel(
-    F: wp.array(dtype=wp.mat33d),
-    Jp: wp.array(dtype=wp.float64),
-    E: wp.array(dtype=wp.float64),
-    nu: wp.array(dtype=wp.float64),
-    elastic: wp.array(dtype=wp.int32),
-    plastic: wp.array(dtype=wp.int32),
-    pp: wp.array(dtype=wp.vec4d),
-    tau: wp.array(dtype=wp.mat33d),
-):
-    """Isotropic expert law only (the signature from before issue 8, kept for direct launches); the solver and
-    the torch bridge use :func:`stress_fiber_kernel`, which equals this kernel when fiber_E = 0."""
-    p = wp.tid()
-    h = hardening_factor(Jp[p], plastic[p], pp[p])
-    tau[p] = kirchhoff_stress(F[p], E[p], nu[p], elastic[p], h)
-
-
-@wp.kernel
-def stress_fiber_kernel(
     F: wp.array(dtype=wp.mat33d),
     Jp: wp.array(dtype=wp.float64),
     E: wp.array(dtype=wp.float64),
@@ -648,7 +630,7 @@ class MPMSolver:
         zero = wp.vec3i(0, 0, 0)
         lo_box, shape = m.active_box(state_in.x.numpy()) if self.active_box else ((0, 0, 0), (g, g, g))
         start = wp.vec3i(*lo_box)
-        wp.launch(stress_fiber_kernel, n, inputs=[state_in.F, state_in.Jp, a["E"], a["nu"], a["elastic"],
+        wp.launch(stress_kernel, n, inputs=[state_in.F, state_in.Jp, a["E"], a["nu"], a["elastic"],
                                                   a["plastic"], a["pp"], a["fiber"], a["fiber_E"]],
                   outputs=[self.tau])
         wp.launch(p2g_kernel, n, inputs=[state_in.x, state_in.v, state_in.C, self.tau, a["mass"], a["volume"],

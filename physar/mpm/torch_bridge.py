@@ -32,7 +32,7 @@ from physar.mpm.model import (
     p2g_kernel,
     plastic_kernel,
     singular_values_kernel,
-    stress_fiber_kernel,
+    stress_kernel,
 )
 from physar.mpm.neural import NeuralResidual
 
@@ -72,7 +72,7 @@ class _WarpOp(torch.autograd.Function):
 def _stress_op(model: MPMModel, F, Jp, E, nu, fiber_E, grad=False):
     a = model.warp_arrays()
     tau = wp.zeros(model.n_particles, dtype=wp.mat33d, requires_grad=grad)
-    wp.launch(stress_fiber_kernel, model.n_particles,
+    wp.launch(stress_kernel, model.n_particles,
               inputs=[F, Jp, E, nu, a["elastic"], a["plastic"], a["pp"], a["fiber"], fiber_E], outputs=[tau])
     return (tau,)
 

@@ -15,7 +15,7 @@ import warp as wp
 from physar.errors import ConfigError
 from physar.mpm import MPMSolver, build_model, diagnostics, parse_scene
 from physar.mpm.adjoint import FusedFrame
-from physar.mpm.model import elastic_energy_density, stress_fiber_kernel
+from physar.mpm.model import elastic_energy_density, stress_kernel
 from physar.mpm.torch_bridge import Params, simulate
 
 
@@ -24,7 +24,7 @@ def _tau(F, E, nu, elastic, fiber, fiber_E):
     n = len(F)
     tau = wp.zeros(n, dtype=wp.mat33d)
     a = lambda v, dt: wp.array(np.ascontiguousarray(v, dtype=np.float64), dtype=dt)
-    wp.launch(stress_fiber_kernel, n,
+    wp.launch(stress_kernel, n,
               inputs=[a(F, wp.mat33d), a(np.ones(n), wp.float64), a(np.broadcast_to(E, (n,)), wp.float64),
                       a(np.broadcast_to(nu, (n,)), wp.float64),
                       wp.array(np.broadcast_to(elastic, (n,)).astype(np.int32), dtype=wp.int32),

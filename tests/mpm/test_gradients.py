@@ -107,7 +107,8 @@ def test_stress_gradient_finite_and_correct_at_identity(elastic):
         F = wp.array(Fnp[None], dtype=wp.mat33d, requires_grad=grad)
         args = [wp.array([1.0], dtype=wp.float64), wp.array([1e4], dtype=wp.float64),
                 wp.array([0.3], dtype=wp.float64), wp.array([elastic], dtype=wp.int32),
-                wp.array([0], dtype=wp.int32), wp.zeros(1, dtype=wp.vec4d)]
+                wp.array([0], dtype=wp.int32), wp.zeros(1, dtype=wp.vec4d), wp.zeros(1, dtype=wp.vec3d),
+                wp.zeros(1, dtype=wp.float64)]  # no fibre: the isotropic expert law
         tau = wp.zeros(1, dtype=wp.mat33d, requires_grad=grad)
         tape = wp.Tape()
         with tape:
