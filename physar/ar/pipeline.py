@@ -145,8 +145,20 @@ class ARPipeline:
     rotation of all dots): the larger of ``rotation_sigma_deg`` and the PnP estimate of the frame
     (:func:`physar.vision.markers.rotation_std`; ~0.01° with four markers at 720p, ~0.08° with two);
     ``dot_sigma_px`` is the dot centroid noise, sigma_d = dot_sigma_px · depth / f at the object's depth.
-    ``smoothing``: gain a of the alpha-beta filter on the estimate (1 = none, see :meth:`_filter`); a change
-    larger than ``jump_sigma`` standard deviations passes unfiltered.
+    "pose" (default): offsets projected out as above, and the whole camera pose error modelled as noise of
+    the observations: sigma_d² I + G Σ G^T + sigma_w0² a a^T, where Σ (6x6) is the PnP covariance of the
+    frame's pose from the seen marker corners and G the first-order change of the back-projected dots per
+    pose error (:meth:`_pose_weighting`). With two markers the pose is weak in a yaw + depth direction
+    (measured on scene (a): up to 0.7° and 3 mm), which moves the back-projected dots non-rigidly (a
+    quadratic-like pattern in x, not a rotation); "rigid" leaves that in the residual (1-2.4 mm instead of
+    0.17 mm, so the assimilation's std becomes 25-45 mm), "pose" explains it and reports the honest std
+    (~3.5 mm with two markers, ~1 mm with four).
+    ``filter``: temporal filter of the estimate, "imm" (default; two-model interacting multiple model
+    filter using each frame's std, see :meth:`_filter_imm`, with ``dwell_sigma``, ``motion_accel``,
+    ``switch``) or "alpha-beta" (fixed gain a = ``smoothing``, 1 = none, see :meth:`_filter_ab`). A change
+    larger than ``jump_sigma`` standard deviations re-initialises the filter at the measurement.
+    Dots not seen in a frame are searched for next at the reduced model's displacement for the current
+    estimate (:meth:`_predict_unseen`).
     ``track_markers``: follow the marker corners by sub-pixel refinement of their predictions (bit-checked,
     ArUco detection as fallback, see :class:`MarkerTracker`) instead of detecting them in every frame.
     ``dot_flow``: KLT for the dots always (True), never (False) or "auto" (when the pose projection of the
@@ -154,10 +166,11 @@ class ARPipeline:
     """
 
     def __init__(self, rom, camera: Camera, obj: BeamObject | None = None, field: str = "von_mises",
-                 exaggeration: float = 1.0, min_dots: float = 0.5, overlay: bool = True, nuisance: str = "rigid",
+                 exaggeration: float = 1.0, min_dots: float = 0.5, overlay: bool = True, nuisance: str = "pose",
                  rotation_sigma_deg: float = 0.005, dot_sigma_px: float = 0.07,
                  smoothing: float = 0.6, jump_sigma: float = 4.0, track_markers: bool = True,
-                 dot_flow: bool | str = "auto"):
+                 dot_flow: bool | str = "auto", filter: str = "imm", dwell_sigma: float = 1e-4,
+                 motion_accel: float = 5e-3, switch: tuple = (0.05, 0.1)):
         from physar.ar.overlay import BeamOverlay
 
         self.rom, self.camera = rom, camera
@@ -171,14 +184,25 @@ class ARPipeline:
                                radius_px=self._dot_radius_px(dots), flow=dot_flow)
         self.C = surface_observation_matrix(self.space, dots, components=(0, 2)).tocsr()
         self.CF = np.asarray((self.C @ rom.F.T))  # (2n, n_modes): observation of every mode
-        if nuisance not in ("none", "offset", "rigid"):
-            raise ConfigError(f"nuisance must be none, offset or rigid, got {nuisance!r}")
+        if nuisance not in ("none", "offset", "rigid", "pose"):
+            raise ConfigError(f"nuisance must be none, offset, rigid or pose, got {nuisance!r}")
+        self._board = self.obj.board()
+        self._pose_centre = self._board.corners.reshape(-1, 3).mean(0)
         self.min_dots, self.nuisance = min_dots, nuisance
         self._dots_ref = dots
         self.rotation_sigma, self.dot_sigma_px = np.radians(rotation_sigma_deg), dot_sigma_px
         self._depth = None
         self._sigma_w = self.rotation_sigma
         self.smoothing, self.jump_sigma = smoothing, jump_sigma
+        if filter not in ("alpha-beta", "imm"):
+            raise ConfigError(f"filter must be alpha-beta or imm, got {filter!r}")
+        if not dwell_sigma >= 0:
+            raise ConfigError(f"dwell_sigma must be >= 0, got {dwell_sigma!r}")
+        if not motion_accel > 0:
+            raise ConfigError(f"motion_accel must be > 0, got {motion_accel!r}")
+        if len(switch) != 2 or not all(0 < p < 1 for p in switch):
+            raise ConfigError(f"switch must be two probabilities in (0, 1), got {switch!r}")
+        self.filter, self.dwell_sigma, self.motion_accel, self.switch = filter, dwell_sigma, motion_accel, switch
         self._fresh = True  # next measurement (re)initialises the temporal filter
         self.overlay = BeamOverlay(self.space, rom, self.obj, field=field, exaggeration=exaggeration) if overlay \
             else None
@@ -197,10 +221,76 @@ class ARPipeline:
         return 0.5 * min(d, 0.6 * spacing) * self.camera.fx / dist
 
     # -- estimation ---------------------------------------------------------------------------------------
-    def _assimilate(self, disp: np.ndarray, valid: np.ndarray, sigma_w: float | None = None):
-        from physar.assimilation import assimilate
+    def _pose_weighting(self, world, valid, pe):
+        """Whitening W (2m, 2m) of the m seen dots' displacements (x, z) for nuisance "pose": the noise
+        covariance sigma_d² I + G Σ_pose G^T + sigma_w0² a a^T (dot centroid noise, the camera pose's error
+        seen through the back-projection, the in-plane rotation floor ``rotation_sigma_deg``) is whitened by
+        its Cholesky factor and the (whitened) uniform offsets are projected out (generalised least squares
+        with the offsets as free nuisance parameters), scaled so that W = P for Σ = sigma_d² I."""
+        m = int(valid.sum())
+        sd = self.dot_sigma_px * (self._depth or 1.0) / self.camera.fx
+        S = np.eye(2 * m)
+        cov = self._pose_cov(pe)
+        if cov is not None:
+            G = self._pose_sensitivity(world[valid], pe.pose)
+            S += G @ cov @ G.T / sd ** 2
+        ref = self._dots_ref[valid]
+        a = np.zeros(2 * m)
+        a[0::2], a[1::2] = ref[:, 2] - ref[:, 2].mean(), -(ref[:, 0] - ref[:, 0].mean())
+        S += np.outer(a, a) * (self.rotation_sigma / sd) ** 2
+        Linv = np.linalg.inv(np.linalg.cholesky(S))
+        A = np.zeros((2 * m, 2))
+        A[0::2, 0] = 1.0  # u_x offset
+        A[1::2, 1] = 1.0  # u_z offset
+        Q = np.linalg.qr(Linv @ A)[0]
+        return Linv - Q @ (Q.T @ Linv)
 
+    def _pose_cov(self, pe):
+        """Covariance (6, 6) of the pose error that PnP on the seen marker corners leaves, sigma² (J^T J)^-1
+        with sigma = max(reprojection rms, the tracker's corner noise). The error is parametrised as a small
+        world motion applied before the pose, X -> c + exp(δθ)(X - c) + δt (c: the board's centre), as in
+        :func:`physar.vision.markers.rotation_std`; J by central differences of the projection. None without
+        marker corners."""
+        idx = [k for k in (self._board.index(i) for i in pe.ids) if k is not None]
+        if not idx or pe.pose is None:
+            return None
+        X = self._board.corners[idx].reshape(-1, 3)
+        h = 1e-6
+        dirs = self._motion_basis(X)                              # (6, n, 3)
+        Xs = X[None, None] + h * np.array([1.0, -1.0])[None, :, None, None] * dirs[:, None]
+        p = self.camera.project(Xs.reshape(-1, 3), pe.pose).reshape(6, 2, -1)
+        J = ((p[:, 0] - p[:, 1]) / (2 * h)).T                    # (2n, 6)
+        sigma = max(float(np.nan_to_num(pe.reprojection_px, nan=0.0)), self.markers.noise_px)
+        try:
+            return np.linalg.inv(J.T @ J) * sigma ** 2
+        except np.linalg.LinAlgError:
+            return None
+
+    def _motion_basis(self, X):
+        """(6, n, 3): displacement of the points X per unit small world rotation about the board centre
+        (δθ_j e_j x (X - c)) and per unit translation (e_j)."""
+        D = X - self._pose_centre
+        z = np.zeros(len(X))
+        rot = [np.stack(v, 1) for v in ((z, -D[:, 2], D[:, 1]), (D[:, 2], z, -D[:, 0]), (-D[:, 1], D[:, 0], z))]
+        return np.stack(rot + [np.tile(np.eye(3)[j], (len(X), 1)) for j in range(3)])
+
+    def _pose_sensitivity(self, world, pose):
+        """G (2m, 6): change of the back-projected dots' (x, z) per unit pose error parameter. A pose error
+        (world motion g = δθ x (w - c) + δt before the pose) moves the point seen along the ray of a dot
+        (direction d from the camera centre) to w' with T(w') on the ray and w'_y = 0, to first order
+        δw = d g_y / d_y - g."""
+        d = world - pose.center
+        B = self._motion_basis(world)                             # (6, m, 3): g per parameter
+        dw = d[None] * (B[:, :, 1] / d[None, :, 1])[:, :, None] - B
+        return dw[:, :, [0, 2]].reshape(6, -1).T
+
+    def _assimilate(self, disp: np.ndarray, valid: np.ndarray, sigma_w: float | None = None, world=None, pe=None):
         rows = np.flatnonzero(np.repeat(valid, 2))
+        if self.nuisance == "pose":
+            W = self._pose_weighting(world, valid, pe)
+            self._proj, self._mask = W, None
+            self.rom.set_observation(matrix=_Projected(W, self.C[rows]))
+            return self._solve(W @ disp[valid][:, [0, 2]].ravel())
         sigma_w = max(self.rotation_sigma, sigma_w or 0.0)
         key = (valid.tobytes(), round(2 * np.log2(sigma_w)))  # re-weight when sigma_w changes by > 41 %
         if key != self._mask:
@@ -232,6 +322,11 @@ class ARPipeline:
             self._mask = key
         if self._proj is not None:
             y = self._proj @ y
+        return self._solve(y)
+
+    def _solve(self, y):
+        from physar.assimilation import assimilate
+
         if not self._initialised:
             res = assimilate(self.rom, y, restart_residual=0.0, n_starts=9, max_iter=30)
             self._initialised = True
@@ -245,7 +340,89 @@ class ARPipeline:
         self._res_hist.append(res.residual)
         return res
 
+    def _predict_unseen(self, valid):
+        """Give the dot tracker the reduced model's displacement at the estimate for the dots it did not see,
+        so that it searches for them where the deformed beam puts them (a dot displaced by more than the
+        tracker's search radius from its last known position, e.g. near the tip of a heavily loaded beam,
+        is otherwise never found again)."""
+        if valid.all():
+            return
+        u = (self.CF @ self.rom.coefficients(self.mu)[0]).reshape(-1, 2)
+        lost = ~valid
+        self.dots.displacement[lost, 0] = u[lost, 0]
+        self.dots.displacement[lost, 1] = 0.0
+        self.dots.displacement[lost, 2] = u[lost, 1]
+
     def _filter(self, mu, std):
+        if self.filter == "imm":
+            return self._filter_imm(mu, std)
+        return self._filter_ab(mu, std)
+
+    def _filter_imm(self, z, std):
+        """Interacting multiple model filter (Blom & Bar-Shalom 1988) on each parameter, state (value, rate
+        per frame), two models: "dwell" (the parameter stays: x <- x, rate 0, drift ``dwell_sigma``) and
+        "moving" (constant rate, white acceleration of std ``motion_accel``; both as fractions of the
+        parameter range, per frame), Markov switching with probabilities ``switch``. The measurement
+        variance is the assimilation's own (std² of the frame: larger when fewer markers fix the pose or the
+        residual is larger), so an uncertain frame moves the estimate less; an innovation beyond
+        ``jump_sigma`` standard deviations of the moving model re-initialises the filter at the measurement."""
+        lo, hi = (np.array(b, float) for b in zip(*self.rom.ranges))
+        rng = hi - lo
+        R = np.maximum(np.nan_to_num(std, nan=0.0), 2e-4 * rng) ** 2
+        n = z.size
+        if self._fresh:
+            self._imm_x = np.zeros((2, n, 2))          # (model, parameter, [value, rate])
+            self._imm_x[:, :, 0] = z
+            self._imm_P = np.zeros((2, n, 2, 2))
+            self._imm_P[:, :, 0, 0] = R
+            self._imm_P[:, :, 1, 1] = (self.motion_accel * rng) ** 2 * 4  # unknown rate at the start
+            self._imm_P[0, :, 1, 1] = 0.0
+            self._imm_w = np.tile(np.array([0.5, 0.5])[:, None], (1, n))  # model probabilities
+            self._fresh = False
+            self.mu, self.std = z.copy(), np.sqrt(R)
+            return
+        p01, p10 = self.switch
+        Pi = np.array([[1 - p01, p01], [p10, 1 - p10]])   # Pi[i, j]: from model i to model j
+        qd = (self.dwell_sigma * rng) ** 2
+        qa = (self.motion_accel * rng) ** 2
+        F = [np.array([[1.0, 0.0], [0.0, 0.0]]), np.array([[1.0, 1.0], [0.0, 1.0]])]
+        out_x, out_P = np.empty((n, 2)), np.empty((n, 2, 2))
+        for k in range(n):
+            x, P, w = self._imm_x[:, k], self._imm_P[:, k], self._imm_w[:, k]
+            c = Pi.T @ w                                   # predicted model probabilities
+            mix = Pi * w[:, None] / np.maximum(c[None, :], 1e-300)   # mix[i, j] = P(i | j)
+            xs, Ps, lik = np.empty((2, 2)), np.empty((2, 2, 2)), np.empty(2)
+            for j in range(2):
+                x0 = mix[:, j] @ x
+                d = x - x0
+                P0 = np.einsum("i,iab->ab", mix[:, j], P + d[:, :, None] * d[:, None, :])
+                xp = F[j] @ x0
+                Q = np.array([[qd[k], 0.0], [0.0, 0.0]]) if j == 0 else qa[k] * np.array([[0.25, 0.5], [0.5, 1.0]])
+                Pp = F[j] @ P0 @ F[j].T + Q
+                S = Pp[0, 0] + R[k]
+                e = z[k] - xp[0]
+                K = Pp[:, 0] / S
+                xs[j] = xp + K * e
+                Ps[j] = Pp - np.outer(K, Pp[0])
+                lik[j] = np.exp(-0.5 * e * e / S) / np.sqrt(2 * np.pi * S)
+                if j == 1:
+                    jump = abs(e) > self.jump_sigma * np.sqrt(S)
+            w = c * lik
+            if jump or not np.isfinite(w.sum()) or w.sum() <= 0:   # a jump no model explains: restart here
+                xs[:] = [z[k], 0.0]
+                Ps[:] = np.diag([R[k], qa[k] * 4])
+                Ps[0, 1, 1] = 0.0
+                w = np.array([0.5, 0.5])
+            w = w / w.sum()
+            self._imm_x[:, k], self._imm_P[:, k], self._imm_w[:, k] = xs, Ps, w
+            xm = w @ xs
+            d = xs - xm
+            out_x[k] = xm
+            out_P[k] = np.einsum("i,iab->ab", w, Ps + d[:, :, None] * d[:, None, :])
+        self.mu = np.clip(out_x[:, 0], lo, hi)
+        self.std = np.sqrt(out_P[:, 0, 0])
+
+    def _filter_ab(self, mu, std):
         """Alpha-beta (constant-velocity) filter on the estimate, with a jump detector: prediction
         m = mu + v; innovation e = z - m; mu <- m + a e, v <- v + b e with a = smoothing and b = a²/(2 - a)
         (critically damped), so a load moving at constant speed is followed without lag; when
@@ -291,8 +468,9 @@ class ARPipeline:
                 if self._depth is None or abs(depth / self._depth - 1) > 0.05:  # re-weight on 5 % depth change
                     self._depth, self._mask = depth, None
                 sw = None if pe.rotation_std is None else float(pe.rotation_std[1])  # about the face normal y
-                res = self._assimilate(obs.displacement, obs.valid, sw)
+                res = self._assimilate(obs.displacement, obs.valid, sw, obs.world, pe)
                 self._filter(res.params, res.std)
+                self._predict_unseen(obs.valid)
                 resid = res.residual * 1e3
                 status = "tracking"
             else:
