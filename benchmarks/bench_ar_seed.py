@@ -37,7 +37,14 @@ def _time(pipe_factory, frames, draw):
 
 
 def bench_foam(out: Path, w: int, h: int, quick: bool):
-    from physar.ar.foam import FoamLoad, FoamPipeline, FoamSceneSpec, FoamSection, build_foam_model, render_foam_scene
+    from physar.ar.foam import (
+        FoamLoad,
+        FoamPipeline,
+        FoamSceneSpec,
+        FoamSection,
+        build_foam_model,
+        render_foam_scene,
+    )
     from physar.ar.scene import VideoSection
     from physar.ar.video import VideoReader
     from physar.vision import Camera
@@ -49,7 +56,7 @@ def bench_foam(out: Path, w: int, h: int, quick: bool):
     rom, obj, _, _ = build_foam_model(spec)
     cam = Camera.load(out / "camera.toml")
     frames = list(VideoReader(out / "scene.mp4", threaded=False))
-    make = lambda: FoamPipeline(rom, cam, obj)  # noqa: E731
+    make = lambda: FoamPipeline(rom, cam, obj)
     full = make().run(out / "scene.mp4", out / "augmented.mp4", out / "est.csv", fps=spec.video.fps)
     return {"scene": "foam (b)", "modes": rom.n_modes, "frames": len(frames),
             "est": _time(make, frames, False), "draw": _time(make, frames, True), "full": full["fps"],
@@ -58,8 +65,14 @@ def bench_foam(out: Path, w: int, h: int, quick: bool):
 
 def bench_seal(out: Path, w: int, h: int, quick: bool):
     from physar.ar.scene import VideoSection
-    from physar.ar.seal import (PlateObject, SealPipeline, SealSceneSpec, SealSection, build_seal_model,
-                                render_seal_scene)
+    from physar.ar.seal import (
+        PlateObject,
+        SealPipeline,
+        SealSceneSpec,
+        SealSection,
+        build_seal_model,
+        render_seal_scene,
+    )
     from physar.ar.video import VideoReader
     from physar.vision import Camera
 
@@ -71,7 +84,7 @@ def bench_seal(out: Path, w: int, h: int, quick: bool):
     cam = Camera.load(out / "camera.toml")
     frames = list(VideoReader(out / "scene.mp4", threaded=False))
     plate = PlateObject.load(out / "plate.json")
-    make = lambda: SealPipeline(rom, vm, cam, plate, out, seal=model)  # noqa: E731
+    make = lambda: SealPipeline(rom, vm, cam, plate, out, seal=model)
     full = make().run(out / "scene.mp4", out / "augmented.mp4", out / "est.csv", fps=spec.video.fps)
     return {"scene": "seal (c)", "modes": rom.n_modes, "frames": len(frames),
             "est": _time(make, frames, False), "draw": _time(make, frames, True), "full": full["fps"],

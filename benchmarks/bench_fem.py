@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from skfem_peer import skfem_cantilever  # noqa: E402
+from skfem_peer import skfem_cantilever
 
-from physar.fem import (  # noqa: E402
+from physar.fem import (
     ElasticModel,
     FESpace,
     LinearElastic,
@@ -30,7 +30,7 @@ from physar.fem import (  # noqa: E402
     probe,
     traction_load,
 )
-from physar.geometry import box_mesh  # noqa: E402
+from physar.geometry import box_mesh
 
 L, B, H, E, NU, P = 1.0, 0.1, 0.1, 69e9, 0.334, 1000.0
 
@@ -49,7 +49,7 @@ def physar_run(mesh, element):
     u2 = solver.solve(0.5 * f)  # re-solve with the same factorisation (reduced-model builders)
     t3 = time.perf_counter()
     assert np.allclose(u2, 0.5 * u)
-    return probe(space, u, [L, B / 2, H / 2]), dict(assemble=t1 - t0, solve=t2 - t1, resolve=t3 - t2), space.n_dofs
+    return probe(space, u, [L, B / 2, H / 2]), {"assemble": t1 - t0, "solve": t2 - t1, "resolve": t3 - t2}, space.n_dofs
 
 
 def main():

@@ -302,7 +302,7 @@ def table_damping():
             q0[model.free] = amp * p
             E = []
 
-            def cb(k, s):
+            def cb(k, s, E=E):
                 a = p @ (model.mass_ff @ s.q[model.free])
                 b = p @ (model.mass_ff @ s.v[model.free])
                 E.append(0.5 * (b * b + w * w * a * a))

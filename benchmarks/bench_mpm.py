@@ -36,7 +36,7 @@ RES, SIZE, DT, E, NU, RHO = 64, 1.0, 1.0e-4, 1.0e5, 0.3, 1000.0
 def scene_arrays(n_target: int):
     """Box of k^3 cells at 8 particles per cell (k = round((n / 8)^(1/3))), positions and initial velocity."""
     dx = SIZE / RES
-    k = int(round((n_target / 8) ** (1 / 3)))
+    k = round((n_target / 8) ** (1 / 3))
     h = dx / 2
     lo = np.array([0.5, 0.5, 0.5]) - k * dx / 2 + 0.25 * dx  # off the node lattice
     ax = [lo[i] + (np.arange(2 * k) + 0.5) * h for i in range(3)]
@@ -327,8 +327,8 @@ def main():
         dense, _ = bench_physar_forward(x, v, vol, S, active_box=False)
         fwd, xp = bench_physar_forward(x, v, vol, S)
         fb, gE, gv = bench_physar_backward(x, v, vol, S, threads=2)
-        fb1, gE1, gv1 = bench_physar_backward(x, v, vol, S, threads=1)
-        fbg, gEg, gvg = bench_physar_backward(x, v, vol, S, fused=False)
+        fb1, _gE1, _gv1 = bench_physar_backward(x, v, vol, S, threads=1)
+        fbg, _gEg, gvg = bench_physar_backward(x, v, vol, S, fused=False)
         d_fg = np.abs(gv - gvg).max() / np.abs(gvg).max()  # dL/dE is ~roundoff here (F stays ~I in free fall)
         rows.append((len(x), "physar (Warp CPU, 1 thread), node box", fwd, fb1,
                      "fwd+bwd: fused frame adjoint, 1 thread"))
@@ -342,8 +342,8 @@ def main():
                 dx_err = np.abs(xt - xp).max()
                 gerr = max(np.abs(tgE - gE).max() / np.abs(gE).max(), np.abs(tgv - gv).max() / np.abs(gv).max())
                 rows.append((len(x), f"Taichi 1.7 CPU ({threads} threads), dense grid", tf, tfb,
-                             f"max |x_ti - x_physar| = {dx_err:.1e} m, grad rel. diff {gerr:.1e}, "
-                             f"first fwd+bwd incl. compile {comp:.0f} s"))
+                             (f"max |x_ti - x_physar| = {dx_err:.1e} m, grad rel. diff {gerr:.1e}, "
+                              f"first fwd+bwd incl. compile {comp:.0f} s")))
             except ImportError:
                 rows.append((len(x), "Taichi: not installed (`pip install taichi`)", float("nan"), float("nan"), ""))
     print(f"\nScene: neo-Hookean cube falling, {RES}^3 grid, dt = {DT:g} s, float64, {args.substeps} substeps "

@@ -13,8 +13,18 @@ import numpy as np
 def skfem_cantilever(mesh, element, E, nu, L, b, h, load, solver="default", timings=None):
     """Clamp x = 0, uniform traction (total -`load` in z) on x = L; returns the displacement at the
     tip centre (a mesh vertex) and fills `timings` with assembly/solve seconds."""
-    from skfem import Basis, ElementTetP1, ElementTetP2, ElementVector, FacetBasis, LinearForm, MeshTet, asm
-    from skfem import condense, solve
+    from skfem import (
+        Basis,
+        ElementTetP1,
+        ElementTetP2,
+        ElementVector,
+        FacetBasis,
+        LinearForm,
+        MeshTet,
+        asm,
+        condense,
+        solve,
+    )
     from skfem.models.elasticity import lame_parameters, linear_elasticity
 
     timings = {} if timings is None else timings
@@ -36,7 +46,7 @@ def skfem_cantilever(mesh, element, E, nu, L, b, h, load, solver="default", timi
     if solver == "cholmod":
         from sksparse.cholmod import cholesky
 
-        A, bb, x, I = condense(K, f, D=D)
+        A, bb, _x, I = condense(K, f, D=D)
         u = np.zeros(K.shape[0])
         u[I] = cholesky(A.tocsc())(bb)
     else:

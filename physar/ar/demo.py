@@ -10,8 +10,8 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -132,7 +132,7 @@ def run_ar_demo(out, quick: bool = False, progress: Callable[[str, int, int], No
     t0 = time.perf_counter()
     render_scene(spec, out, progress=cb("render scene"))
     t1 = time.perf_counter()
-    rom, obj, space, info = build_scene_model(spec, progress=cb("reduced model (PGD)"))
+    rom, obj, space, _info = build_scene_model(spec, progress=cb("reduced model (PGD)"))
     rom.save(out / "model.npz", mesh=space.mesh)
     t2 = time.perf_counter()
     from physar.vision.camera import Camera

@@ -100,7 +100,7 @@ class FoamSceneSpec(_Strict):
 
     @property
     def n_frames(self) -> int:
-        return max(1, int(round(self.video.duration * self.video.fps)))
+        return max(1, round(self.video.duration * self.video.fps))
 
     @property
     def s_range(self) -> tuple[float, float]:
@@ -284,12 +284,12 @@ def sensor_effects(img: np.ndarray, sensor, lighting, vignette3, t: float, blur_
     img = cv2.multiply(img, vignette3, scale=gain)
     n = float(np.linalg.norm(blur_px))
     if n > 0.5:
-        k = int(math.ceil(n)) | 1
+        k = math.ceil(n) | 1
         ker = np.zeros((k + 2, k + 2), np.float32)
         c = (k + 1) / 2
         d = blur_px / n
-        cv2.line(ker, (int(round((c - d[0] * n / 2) * 16)), int(round((c - d[1] * n / 2) * 16))),
-                 (int(round((c + d[0] * n / 2) * 16)), int(round((c + d[1] * n / 2) * 16))), 1.0, 1, cv2.LINE_AA,
+        cv2.line(ker, (int(round((c - d[0] * n / 2) * 16)), int(round((c - d[1] * n / 2) * 16))),  # noqa: RUF046 - numpy 1.x round
+                 (int(round((c + d[0] * n / 2) * 16)), int(round((c + d[1] * n / 2) * 16))), 1.0, 1, cv2.LINE_AA,  # noqa: RUF046 - numpy 1.x round
                  shift=4)
         img = cv2.filter2D(img, -1, ker / ker.sum())
     if sensor.psf > 0:
@@ -493,19 +493,22 @@ def render_foam_scene(spec: FoamSceneSpec, out_dir, progress: Callable[[int, int
     cam = spec.camera_model()
     rend = FoamRenderer(spec, camera=cam)
     n = spec.n_frames
-    with atomic_path(out / video_name) as vtmp, atomic_path(out / "truth.csv") as ctmp:
-        with VideoWriter(vtmp, cam.width, cam.height, spec.video.fps, crf=spec.video.crf) as vw, \
-                open(ctmp, "w", newline="") as fh:
-            wr = csv.writer(fh)
-            wr.writerow(FOAM_TRUTH_HEADER)
-            for k in range(n):
-                img, row = rend.render(k)
-                vw.write(img)
-                wr.writerow([k, f"{row['time_s']:.6f}", f"{row['s_true_m']:.6f}", row["markers_visible"],
-                             f"{row['midspan_deflection_m']:.9e}"] + [f"{v:.9f}" for v in row["cam_rvec"]] +
-                            [f"{v:.9f}" for v in row["cam_t"]])
-                if progress:
-                    progress(k + 1, n)
+    with (
+        atomic_path(out / video_name) as vtmp,
+        atomic_path(out / "truth.csv") as ctmp,
+        VideoWriter(vtmp, cam.width, cam.height, spec.video.fps, crf=spec.video.crf) as vw,
+        open(ctmp, "w", newline="") as fh,
+    ):
+        wr = csv.writer(fh)
+        wr.writerow(FOAM_TRUTH_HEADER)
+        for k in range(n):
+            img, row = rend.render(k)
+            vw.write(img)
+            wr.writerow([k, f"{row['time_s']:.6f}", f"{row['s_true_m']:.6f}", row["markers_visible"],
+                         f"{row['midspan_deflection_m']:.9e}"] + [f"{v:.9f}" for v in row["cam_rvec"]] +
+                        [f"{v:.9f}" for v in row["cam_t"]])
+            if progress:
+                progress(k + 1, n)
     cam.save(out / "camera.toml")
     return {"video": str(out / video_name), "truth": str(out / "truth.csv"), "camera": str(out / "camera.toml"),
             "frames": n, "width": cam.width, "height": cam.height, "fps": spec.video.fps,
@@ -919,9 +922,9 @@ class FoamOverlay(BeamOverlay):
             lines.append((f"disk position s = {mu[0] * 1e3:6.1f} +/- {2 * std[0] * 1e3:.1f} mm (2 sd)",
                           (255, 255, 255) if status == "tracking" else (150, 200, 255)))
             lines.append((f"max |u| {info.get('field_max', float('nan')):.1f} mm", (230, 230, 230)))
-        lines.append((f"{status}: {info.get('env', 0)} wall features, {info.get('surface', 0)}/"
-                      f"{info.get('surface_total', 0)} foam features | frame {info.get('frame', 0)} "
-                      f"{info.get('latency_ms', 0):.1f} ms | no markers", (200, 200, 200)))
+        lines.append(((f"{status}: {info.get('env', 0)} wall features, {info.get('surface', 0)}/"
+                       f"{info.get('surface_total', 0)} foam features | frame {info.get('frame', 0)} "
+                       f"{info.get('latency_ms', 0):.1f} ms | no markers"), (200, 200, 200)))
         fs, lh = 0.62 * sc, int(28 * sc)
         pw, ph = int(700 * sc), lh * len(lines) + int(14 * sc)
         x0, y0 = int(14 * sc), int(14 * sc)

@@ -139,7 +139,7 @@ class BeamOverlay:
             tip = camera.project([[s, 0.0, o.height + uz]], pose)[0]
             tail = camera.project([[s, 0.0, o.height + uz + 0.07]], pose)[0]
             cv2.arrowedLine(img, tuple(np.round(tail * 16).astype(int)), tuple(np.round(tip * 16).astype(int)),
-                            (30, 30, 230), max(2, int(round(3 * h / 720))), cv2.LINE_AA, 4, 0.25)
+                            (30, 30, 230), max(2, round(3 * h / 720)), cv2.LINE_AA, 4, 0.25)
             if np.isfinite(std[0]) and std[0] > 0:
                 a = camera.project([[max(s - 2 * std[0], 0), 0, o.height + uz], [min(s + 2 * std[0], o.length), 0,
                                                                                     o.height + uz]], pose)
@@ -161,10 +161,10 @@ class BeamOverlay:
                           (255, 255, 255) if not held else (150, 200, 255)))
             if len(mu) > 1:
                 lines.append((f"load P = {mu[1]:.1f} +/- {2 * std[1]:.1f} N", (255, 255, 255)))
-            lines.append((f"max {self.label} {info.get('field_max', float('nan')):.1f} {self.unit}, "
-                          f"tip deflection {info.get('tip_mm', float('nan')):.2f} mm", (230, 230, 230)))
-        lines.append((f"{status}: {info.get('markers', 0)} markers, {info.get('dots', 0)}/{info.get('dots_total', 0)} "
-                      f"dots  |  frame {info.get('frame', 0)}  {info.get('latency_ms', 0):.1f} ms", (200, 200, 200)))
+            lines.append(((f"max {self.label} {info.get('field_max', float('nan')):.1f} {self.unit}, "
+                           f"tip deflection {info.get('tip_mm', float('nan')):.2f} mm"), (230, 230, 230)))
+        lines.append(((f"{status}: {info.get('markers', 0)} markers, {info.get('dots', 0)}/{info.get('dots_total', 0)} "
+                       f"dots  |  frame {info.get('frame', 0)}  {info.get('latency_ms', 0):.1f} ms"), (200, 200, 200)))
         fs = 0.62 * sc
         lh = int(28 * sc)
         pw = int(640 * sc)

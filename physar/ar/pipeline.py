@@ -13,9 +13,9 @@ import csv
 import json
 import os
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import cv2
 import numpy as np
@@ -61,7 +61,7 @@ class BeamObject:
         return json.dumps(asdict(self))
 
     @classmethod
-    def from_json(cls, text: str) -> "BeamObject":
+    def from_json(cls, text: str) -> BeamObject:
         try:
             d = json.loads(text)
             return cls(**d)
@@ -69,7 +69,7 @@ class BeamObject:
             raise ConfigError(f"reduced model: invalid ar_object metadata ({e})") from None
 
     @classmethod
-    def from_scene(cls, spec) -> "BeamObject":
+    def from_scene(cls, spec) -> BeamObject:
         b, board = spec.beam, spec.board()
         return cls(b.length, b.width, b.height, tuple(b.model_cells), "P2", b.E, b.nu,
                    spec.dot_positions().tolist(), board.ids.tolist(), board.corners.tolist(),
@@ -183,7 +183,7 @@ class ARPipeline:
         self.dots = DotTracker(camera, dots, [0, 0, 0], [0, 1.0, 0],
                                radius_px=self._dot_radius_px(dots), flow=dot_flow)
         self.C = surface_observation_matrix(self.space, dots, components=(0, 2)).tocsr()
-        self.CF = np.asarray((self.C @ rom.F.T))  # (2n, n_modes): observation of every mode
+        self.CF = np.asarray(self.C @ rom.F.T)  # (2n, n_modes): observation of every mode
         if nuisance not in ("none", "offset", "rigid", "pose"):
             raise ConfigError(f"nuisance must be none, offset, rigid or pose, got {nuisance!r}")
         self._board = self.obj.board()

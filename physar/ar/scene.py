@@ -14,9 +14,10 @@ from __future__ import annotations
 import csv
 import math
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Literal, Optional
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -78,7 +79,7 @@ class CameraSection(_Strict):
     orbit_period: float = Field(14.0, gt=0, description="s")
     shake_mm: float = Field(1.5, ge=0)
     shake_deg: float = Field(0.25, ge=0)
-    file: Optional[str] = Field(None, description="camera TOML (intrinsics); default: pinhole with hfov")
+    file: str | None = Field(None, description="camera TOML (intrinsics); default: pinhole with hfov")
 
 
 class LightingSection(_Strict):
@@ -132,7 +133,7 @@ class SceneSpec(_Strict):
     # -- derived --------------------------------------------------------------------------------------
     @property
     def n_frames(self) -> int:
-        return max(1, int(round(self.video.duration * self.video.fps)))
+        return max(1, round(self.video.duration * self.video.fps))
 
     def dot_positions(self) -> np.ndarray:
         """Reference dot centres (n, 3) on the front face y = 0, at mid-height [m]."""
@@ -200,7 +201,7 @@ class SceneSpec(_Strict):
 
     def occluded(self, frame: int) -> list[str]:
         fps = self.video.fps
-        return [o.kind for o in self.occlusion if 0 <= frame - int(round(o.start * fps)) < o.frames]
+        return [o.kind for o in self.occlusion if 0 <= frame - round(o.start * fps) < o.frames]
 
 
 def read_scene_toml(path) -> dict:
@@ -358,8 +359,8 @@ class SceneRenderer:
         front += 18 * streak[..., None] / max(streak.std(), 1e-6)
         dot = np.zeros((Hf * 4, Wf * 4), np.uint8)
         for p in spec.dot_positions():
-            c = (int(round((4 * p[0] * sf - 0.5) * 16)), int(round((4 * (b.height - p[2]) * sf - 0.5) * 16)))
-            cv2.circle(dot, c, int(round(b.dot_diameter / 2 * sf * 4 * 16)), 255, -1, cv2.LINE_AA, shift=4)
+            c = (int(round((4 * p[0] * sf - 0.5) * 16)), int(round((4 * (b.height - p[2]) * sf - 0.5) * 16)))  # noqa: RUF046 - numpy 1.x round
+            cv2.circle(dot, c, int(round(b.dot_diameter / 2 * sf * 4 * 16)), 255, -1, cv2.LINE_AA, shift=4)  # noqa: RUF046 - numpy 1.x round
         a = cv2.resize(dot, (Wf, Hf), interpolation=cv2.INTER_AREA).astype(np.float32)[..., None] / 255
         front = front * (1 - a) + np.array((170, 70, 25), np.float32) * a
         return _Textures(np.clip(board, 0, 255), s, (x0, z1), np.clip(front, 0, 255), sf)
@@ -388,7 +389,7 @@ class SceneRenderer:
         cv2.fillPoly(img, [np.round(p * 16).astype(np.int32)], colour, cv2.LINE_AA, shift=4)
 
     def _draw_beam(self, img, pose: Pose, grid: np.ndarray, s_load: float):
-        spec, b, t = self.spec, self.spec.beam, self.tex
+        b, t = self.spec.beam, self.tex
         gx, gz = self.truth.grid_x, self.truth.grid_z
         cam_c = pose.center
         # clamp block (dark steel) and its front face
@@ -502,12 +503,12 @@ class SceneRenderer:
         blur = (c_now - c_prev) * sen.motion_blur
         n = float(np.linalg.norm(blur))
         if n > 0.5:
-            k = int(math.ceil(n)) | 1
+            k = math.ceil(n) | 1
             ker = np.zeros((k + 2, k + 2), np.float32)
             ctr = (k + 1) / 2
             d = blur / n
-            cv2.line(ker, (int(round((ctr - d[0] * n / 2) * 16)), int(round((ctr - d[1] * n / 2) * 16))),
-                     (int(round((ctr + d[0] * n / 2) * 16)), int(round((ctr + d[1] * n / 2) * 16))), 1.0, 1,
+            cv2.line(ker, (int(round((ctr - d[0] * n / 2) * 16)), int(round((ctr - d[1] * n / 2) * 16))),  # noqa: RUF046 - numpy 1.x round
+                     (int(round((ctr + d[0] * n / 2) * 16)), int(round((ctr + d[1] * n / 2) * 16))), 1.0, 1,  # noqa: RUF046 - numpy 1.x round
                      cv2.LINE_AA, shift=4)
             img = cv2.filter2D(img, -1, ker / ker.sum())
         if sen.psf > 0:
@@ -555,17 +556,21 @@ def render_scene(spec: SceneSpec, out_dir, progress: Callable[[int, int], None] 
     cam = spec.camera_model(spec.__dict__.get("_base"))
     rend = SceneRenderer(spec, camera=cam)
     n = spec.n_frames
-    with atomic_path(out / video_name) as vtmp, atomic_path(out / "truth.csv") as ctmp:
-        with VideoWriter(vtmp, cam.width, cam.height, spec.video.fps, crf=spec.video.crf, preset="veryfast",
-                         threads=threads) as vw, open(ctmp, "w", newline="") as fh:
-            wr = csv.writer(fh)
-            wr.writerow(truth_header(spec.beam.dots))
-            for k in range(n):
-                img, row = rend.render(k)
-                vw.write(img)
-                wr.writerow(truth_values(row))
-                if progress:
-                    progress(k + 1, n)
+    with (
+        atomic_path(out / video_name) as vtmp,
+        atomic_path(out / "truth.csv") as ctmp,
+        VideoWriter(vtmp, cam.width, cam.height, spec.video.fps, crf=spec.video.crf, preset="veryfast",
+                    threads=threads) as vw,
+        open(ctmp, "w", newline="") as fh,
+    ):
+        wr = csv.writer(fh)
+        wr.writerow(truth_header(spec.beam.dots))
+        for k in range(n):
+            img, row = rend.render(k)
+            vw.write(img)
+            wr.writerow(truth_values(row))
+            if progress:
+                progress(k + 1, n)
     cam.save(out / "camera.toml")
     return {"video": str(out / video_name), "truth": str(out / "truth.csv"), "camera": str(out / "camera.toml"),
             "frames": n, "width": cam.width, "height": cam.height, "fps": spec.video.fps}

@@ -18,6 +18,7 @@ looked away (§5.3.3).
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import math
 import os
@@ -97,14 +98,14 @@ class SealSceneSpec(_Strict):
 
     @property
     def n_frames(self) -> int:
-        return max(1, int(round(self.video.duration * self.video.fps)))
+        return max(1, round(self.video.duration * self.video.fps))
 
     def theta(self, t: float) -> float:
         """Lever angle [deg] at time t: cosine interpolation between keyframes."""
         k = self.keyframes
         if t <= k[0][0]:
             return float(k[0][1])
-        for (t0, a0), (t1, a1) in zip(k, k[1:]):
+        for (t0, a0), (t1, a1) in itertools.pairwise(k):
             if t <= t1:
                 a = (t - t0) / (t1 - t0)
                 return float(a0 + (a1 - a0) * 0.5 * (1 - math.cos(math.pi * a)))
@@ -292,19 +293,22 @@ def render_seal_scene(spec: SealSceneSpec, out_dir, progress: Callable[[int, int
     cam = spec.camera_model()
     rend = SealRenderer(spec, cam)
     n = spec.n_frames
-    with atomic_path(out / video_name) as vtmp, atomic_path(out / "truth.csv") as ctmp:
-        with VideoWriter(vtmp, cam.width, cam.height, spec.video.fps, crf=spec.video.crf) as vw, \
-                open(ctmp, "w", newline="") as fh:
-            wr = csv.writer(fh)
-            wr.writerow(SEAL_TRUTH_HEADER)
-            for k in range(n):
-                img, row = rend.render(k)
-                vw.write(img)
-                wr.writerow([k, f"{row['time_s']:.6f}", f"{row['theta_true_deg']:.6f}", row["lever_visible"],
-                             f"{row['yaw_deg']:.4f}"] + [f"{v:.9f}" for v in row["cam_rvec"]] +
-                            [f"{v:.9f}" for v in row["cam_t"]])
-                if progress:
-                    progress(k + 1, n)
+    with (
+        atomic_path(out / video_name) as vtmp,
+        atomic_path(out / "truth.csv") as ctmp,
+        VideoWriter(vtmp, cam.width, cam.height, spec.video.fps, crf=spec.video.crf) as vw,
+        open(ctmp, "w", newline="") as fh,
+    ):
+        wr = csv.writer(fh)
+        wr.writerow(SEAL_TRUTH_HEADER)
+        for k in range(n):
+            img, row = rend.render(k)
+            vw.write(img)
+            wr.writerow([k, f"{row['time_s']:.6f}", f"{row['theta_true_deg']:.6f}", row["lever_visible"],
+                         f"{row['yaw_deg']:.4f}"] + [f"{v:.9f}" for v in row["cam_rvec"]] +
+                        [f"{v:.9f}" for v in row["cam_t"]])
+            if progress:
+                progress(k + 1, n)
     cam.save(out / "camera.toml")
     with atomic_path(out / "plate.png") as ptmp:
         cv2.imwrite(str(ptmp.with_suffix(".png")), rend.plate.astype(np.uint8))
@@ -436,10 +440,10 @@ class SealOverlay:
         else:
             lines = [(f"lever angle theta = {theta:5.1f} deg", (255, 255, 255) if status == "tracking"
                       else (150, 200, 255)),
-                     (f"virtual boot seal: max von Mises {info.get('vm_max', float('nan')) / 1e6:.0f} MPa "
-                      f"(C1 = {self.seal.model.material.C1 / 1e6:.0f} MPa)", (230, 230, 230))]
-        lines.append((f"{status}: {info.get('plate', 0)} plate features, {info.get('lever_px', 0)} lever px | "
-                      f"frame {info.get('frame', 0)} {info.get('latency_ms', 0):.1f} ms", (200, 200, 200)))
+                     ((f"virtual boot seal: max von Mises {info.get('vm_max', float('nan')) / 1e6:.0f} MPa "
+                       f"(C1 = {self.seal.model.material.C1 / 1e6:.0f} MPa)"), (230, 230, 230))]
+        lines.append(((f"{status}: {info.get('plate', 0)} plate features, {info.get('lever_px', 0)} lever px | "
+                       f"frame {info.get('frame', 0)} {info.get('latency_ms', 0):.1f} ms"), (200, 200, 200)))
         fs, lh = 0.62 * sc, int(28 * sc)
         x0, y0 = int(14 * sc), int(14 * sc)
         roi = img[y0:y0 + lh * len(lines) + int(14 * sc), x0:x0 + int(720 * sc)]

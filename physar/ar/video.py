@@ -39,8 +39,9 @@ class VideoWriter:
 
     def __init__(self, path, width: int, height: int, fps: float, crf: int = 20, preset: str = "veryfast",
                  threaded: bool = False, threads: int = 0, convert: str = "ffmpeg"):
-        import av
         from fractions import Fraction
+
+        import av
 
         if convert not in ("ffmpeg", "opencv"):
             raise PhysarError(f"colour conversion must be 'ffmpeg' or 'opencv', got {convert!r}")
@@ -86,7 +87,7 @@ class VideoWriter:
                     if callable(img):  # deferred frame (e.g. an overlay to draw in this thread)
                         img = self._check(img())
                     self._encode(img)
-                except Exception as e:  # reported on the next write/close
+                except Exception as e:  # noqa: BLE001 - re-raised in the caller's thread
                     self._err = e
 
     def _check(self, img):
@@ -193,7 +194,7 @@ class VideoReader:
             raise
         except StopIteration:
             raise PhysarError(f"{path}: the video has no decodable frame") from None
-        except Exception as e:  # av.error.InvalidDataError and friends
+        except (av.FFmpegError, OSError, ValueError) as e:  # av.error.InvalidDataError and friends
             raise PhysarError(f"{path}: cannot decode video ({type(e).__name__}: {e})") from None
         self.width, self.height = first.width, first.height
         rate = self._s.average_rate or self._s.guessed_rate
@@ -220,7 +221,7 @@ class VideoReader:
                 self._q.put(img)
                 if img is None:
                     return
-        except Exception as e:
+        except Exception as e:  # noqa: BLE001 - re-raised in the consumer's thread
             self._err = PhysarError(f"{self.path}: decoding failed ({type(e).__name__}: {e})")
             self._q.put(None)
 
@@ -241,10 +242,10 @@ class VideoReader:
         self._c.close()
 
     def close(self):
-        try:
+        import av
+
+        with contextlib.suppress(av.FFmpegError):  # best effort, like closing a file twice
             self._c.close()
-        except Exception:
-            pass
 
 
 class CameraSource:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -26,8 +25,8 @@ def _bar(desc: str):
 
 
 def calibrate(
-    images: List[Path] = typer.Argument(..., help="ChArUco board images (PNG/JPG)"),
-    output: Path = typer.Option(Path("camera.toml"), "--output", "-o", help="camera file to write"),
+    images: list[Path] = typer.Argument(..., help="ChArUco board images (PNG/JPG)"),  # noqa: B008 - typer idiom
+    output: Path = typer.Option(Path("camera.toml"), "--output", "-o", help="camera file to write"),  # noqa: B008 - typer idiom
     squares: str = typer.Option("7x5", help="board squares, COLSxROWS"),
     square: float = typer.Option(0.04, help="square side [m]"),
     marker: float = typer.Option(0.03, help="marker side [m]"),
@@ -64,8 +63,8 @@ def _scene_kind(path: Path) -> str:
 
 
 def scene_render(
-    scene: Path = typer.Argument(..., help="scene TOML (examples/scene_cantilever.toml, scene_foam.toml, scene_seal.toml)"),
-    out: Path = typer.Option(Path("scene_out"), "--out", "-o", help="output folder"),
+    scene: Path = typer.Argument(..., help="scene TOML (examples/scene_cantilever.toml, scene_foam.toml, scene_seal.toml)"),  # noqa: B008 - typer idiom
+    out: Path = typer.Option(Path("scene_out"), "--out", "-o", help="output folder"),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json"),
 ) -> None:
     """Render a synthetic AR scene: scene.mp4 (H.264), truth.csv, camera.toml."""
@@ -89,8 +88,8 @@ def scene_render(
 
 
 def scene_model(
-    scene: Path = typer.Argument(..., help="scene TOML"),
-    output: Path = typer.Option(Path("model.npz"), "--output", "-o", help="reduced model file to write"),
+    scene: Path = typer.Argument(..., help="scene TOML"),  # noqa: B008 - typer idiom
+    output: Path = typer.Option(Path("model.npz"), "--output", "-o", help="reduced model file to write"),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json"),
 ) -> None:
     """Build the reduced (PGD) model of a scene's object, with the AR object description, as .npz."""
@@ -98,12 +97,12 @@ def scene_model(
     if kind == "foam":
         from physar.ar.foam import build_foam_model, load_foam_scene
 
-        rom, obj, space, info = build_foam_model(load_foam_scene(scene), progress=_bar("snapshots"))
+        rom, _, space, _ = build_foam_model(load_foam_scene(scene), progress=_bar("snapshots"))
         rom.save(output, mesh=space.mesh)
     elif kind == "seal":
         from physar.ar.seal import build_seal_model, load_seal_scene
 
-        rom, vm, seal, info = build_seal_model(load_seal_scene(scene), progress=_bar("snapshots"))
+        rom, vm, seal, _ = build_seal_model(load_seal_scene(scene), progress=_bar("snapshots"))
         space = seal.space
         rom.save(output, mesh=space.mesh)
         vm_path = output.with_name(output.stem + "_von_mises.npz")
@@ -113,7 +112,7 @@ def scene_model(
         from physar.ar.pipeline import build_scene_model
         from physar.ar.scene import load_scene
 
-        rom, obj, space, info = build_scene_model(load_scene(scene))
+        rom, _obj, space, _info = build_scene_model(load_scene(scene))
         rom.save(output, mesh=space.mesh)
     res = {"model": str(output), "modes": rom.n_modes, "dofs": space.n_dofs, "parameters": rom.names}
     if json_out:
@@ -123,14 +122,14 @@ def scene_model(
 
 
 def ar_run(
-    model: Path = typer.Argument(..., help="reduced model .npz (physar scene model)"),
-    video: Optional[Path] = typer.Argument(None, help="input video (omit with --camera)"),
-    camera_file: Path = typer.Option(..., "--camera-file", help="camera TOML (physar calibrate)"),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="augmented video (.mp4) to write"),
-    csv_out: Optional[Path] = typer.Option(None, "--csv", help="per-frame estimates CSV"),
-    camera: Optional[int] = typer.Option(None, "--camera", help="live camera index instead of a video file"),
+    model: Path = typer.Argument(..., help="reduced model .npz (physar scene model)"),  # noqa: B008 - typer idiom
+    video: Path | None = typer.Argument(None, help="input video (omit with --camera)"),  # noqa: B008 - typer idiom
+    camera_file: Path = typer.Option(..., "--camera-file", help="camera TOML (physar calibrate)"),  # noqa: B008 - typer idiom
+    out: Path | None = typer.Option(None, "--out", "-o", help="augmented video (.mp4) to write"),  # noqa: B008 - typer idiom
+    csv_out: Path | None = typer.Option(None, "--csv", help="per-frame estimates CSV"),  # noqa: B008 - typer idiom
+    camera: int | None = typer.Option(None, "--camera", help="live camera index instead of a video file"),
     field: str = typer.Option("von_mises", help="overlay field: von_mises or u"),
-    max_frames: Optional[int] = typer.Option(None, help="stop after this many frames"),
+    max_frames: int | None = typer.Option(None, help="stop after this many frames"),
     preset: str = typer.Option("ultrafast", help="libx264 preset of the augmented video (ultrafast ... veryslow)"),
     crf: int = typer.Option(20, help="libx264 constant rate factor (quality; lower = better, 0-51)"),
     json_out: bool = typer.Option(False, "--json"),

@@ -12,7 +12,7 @@ from physar.cli._common import log, print_json, user_errors
 
 
 def demo(
-    out: Path = typer.Option(Path("demo_out"), "--out", "-o", help="output folder"),
+    out: Path = typer.Option(Path("demo_out"), "--out", "-o", help="output folder"),  # noqa: B008 - typer idiom
     scene: str = typer.Option("ar", "--scene", help="ar (augmented-reality cantilever, default), foam (seed §5.2: "
                                                     "foam beam, no fiducials), seal (seed §5.3: virtual boot seal) "
                                                     "or cantilever (static FEM example)"),

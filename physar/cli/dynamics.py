@@ -35,9 +35,9 @@ def damping(
     method: str | None = typer.Option(None, "--method", "-m", help="be | si | midpoint | genalpha | theta | trbdf2 | symplectic_euler"),
     r: float | None = typer.Option(None, "--r", help="generalized-alpha knob r = rho_inf in [0, 1] (default 0.5)"),
     theta: float | None = typer.Option(None, "--theta", help="theta method knob in [0, 1] (default 0.5)"),
-    hw: list[str] | None = typer.Option(None, "--hw", help="h*omega values: --hw 0.1 1 10 (or 0.1,1,10)"),
+    hw: list[str] | None = typer.Option(None, "--hw", help="h*omega values: --hw 0.1 1 10 (or 0.1,1,10)"),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json", help="print {hw, rho, d_over_omega} as JSON"),
-    plot: Path | None = typer.Option(None, "--plot", help="PNG with the seed's Fig. 2.1 (gen-alpha) and Fig. 2.2 (theta)"),
+    plot: Path | None = typer.Option(None, "--plot", help="PNG with the seed's Fig. 2.1 (gen-alpha) and Fig. 2.2 (theta)"),  # noqa: B008 - typer idiom
 ) -> None:
     """Spectral radius rho and artificial damping d/omega = -(2/(h omega)) ln rho of a stepper on q'' + w^2 q = 0."""
     import numpy as np
@@ -74,10 +74,10 @@ def damping(
 
 @user_errors
 def simulate(
-    config: Path = typer.Argument(..., help="problem file (TOML): the fem tables plus [dynamics]"),
-    out: Path = typer.Option(..., "--out", "-o", help="trajectory (.xdmf + .h5) with displacement, velocity"),
-    video: Path | None = typer.Option(None, "--video", help="MP4 of the deformed surface (H.264)"),
-    energy_csv: Path | None = typer.Option(None, "--energy", help="energy per step CSV (default: OUT with .csv)"),
+    config: Path = typer.Argument(..., help="problem file (TOML): the fem tables plus [dynamics]"),  # noqa: B008 - typer idiom
+    out: Path = typer.Option(..., "--out", "-o", help="trajectory (.xdmf + .h5) with displacement, velocity"),  # noqa: B008 - typer idiom
+    video: Path | None = typer.Option(None, "--video", help="MP4 of the deformed surface (H.264)"),  # noqa: B008 - typer idiom
+    energy_csv: Path | None = typer.Option(None, "--energy", help="energy per step CSV (default: OUT with .csv)"),  # noqa: B008 - typer idiom
     fps: float = typer.Option(30.0, "--fps", help="video frame rate"),
     json_out: bool = typer.Option(False, "--json", help="print a run summary as JSON"),
 ) -> None:

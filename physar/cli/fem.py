@@ -14,8 +14,8 @@ fem_app = typer.Typer(help="Finite-element statics.", no_args_is_help=True)
 @fem_app.command("solve")
 @user_errors
 def solve(
-    config: Path = typer.Argument(..., help="problem file (TOML), see README"),
-    out: Path = typer.Option(..., "--out", "-o", help="result mesh (.vtu/.xdmf) with displacement, von Mises"),
+    config: Path = typer.Argument(..., help="problem file (TOML), see README"),  # noqa: B008 - typer idiom
+    out: Path = typer.Option(..., "--out", "-o", help="result mesh (.vtu/.xdmf) with displacement, von Mises"),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json", help="print results as JSON on stdout"),
 ) -> None:
     """Solve a static problem and write the deformed fields."""

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Tuple
 
 import typer
 
@@ -16,9 +15,9 @@ mesh_app = typer.Typer(help="Create and convert meshes.", no_args_is_help=True)
 @mesh_app.command("box")
 @user_errors
 def box(
-    size: Tuple[float, float, float] = typer.Option(..., "--size", help="L W H in metres"),
-    cells: Tuple[int, int, int] = typer.Option(..., "--cells", help="nx ny nz hexahedra (6 tets each)"),
-    out: Path = typer.Option(..., "-o", "--out", help="output mesh (.vtu, .xdmf, .msh, .mesh)"),
+    size: tuple[float, float, float] = typer.Option(..., "--size", help="L W H in metres"),
+    cells: tuple[int, int, int] = typer.Option(..., "--cells", help="nx ny nz hexahedra (6 tets each)"),
+    out: Path = typer.Option(..., "-o", "--out", help="output mesh (.vtu, .xdmf, .msh, .mesh)"),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json", help="print a JSON summary on stdout"),
 ) -> None:
     """Structured tetrahedral mesh of a box."""
@@ -34,8 +33,8 @@ def box(
 @mesh_app.command("convert")
 @user_errors
 def convert(
-    src: Path = typer.Argument(..., help="input mesh"),
-    dst: Path = typer.Argument(..., help="output mesh; format from the suffix"),
+    src: Path = typer.Argument(..., help="input mesh"),  # noqa: B008 - typer idiom
+    dst: Path = typer.Argument(..., help="output mesh; format from the suffix"),  # noqa: B008 - typer idiom
 ) -> None:
     """Convert a tetrahedral or triangle mesh between formats (validated on the way)."""
     m = read_mesh(src)

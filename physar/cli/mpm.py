@@ -15,8 +15,8 @@ mpm_app = typer.Typer(help="Material Point Method simulation and identification.
 @mpm_app.command("run")
 @user_errors
 def run(
-    scene: Path = typer.Argument(..., help="scene file (TOML): [grid] [time] [gravity] [boundary] [[body]]"),
-    out: Path = typer.Option(..., "--out", "-o", help="folder for frame_NNNN.ply, diagnostics.csv, preview.mp4"),
+    scene: Path = typer.Argument(..., help="scene file (TOML): [grid] [time] [gravity] [boundary] [[body]]"),  # noqa: B008 - typer idiom
+    out: Path = typer.Option(..., "--out", "-o", help="folder for frame_NNNN.ply, diagnostics.csv, preview.mp4"),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json", help="print per-frame time, COM, momentum, kinetic energy"),
     no_preview: bool = typer.Option(False, "--no-preview", help="skip the MP4 preview"),
 ) -> None:
@@ -48,8 +48,8 @@ def run(
 @mpm_app.command("identify")
 @user_errors
 def identify(
-    scene: Path = typer.Argument(..., help="scene file (TOML); its E values are the initial guesses"),
-    target: Path = typer.Option(..., "--target", "-t", help="folder of frame_NNNN.ply (from `physar mpm run`)"),
+    scene: Path = typer.Argument(..., help="scene file (TOML); its E values are the initial guesses"),  # noqa: B008 - typer idiom
+    target: Path = typer.Option(..., "--target", "-t", help="folder of frame_NNNN.ply (from `physar mpm run`)"),  # noqa: B008 - typer idiom
     iterations: int = typer.Option(20, "--iterations", min=1, help="L-BFGS iterations"),
     fit_nu: bool = typer.Option(False, "--fit-nu", help="also fit Poisson's ratio per body"),
     json_out: bool = typer.Option(False, "--json", help="print the identified parameters as JSON"),

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -38,8 +37,8 @@ def _close(bars) -> None:
 @recon_app.command("synth")
 @user_errors
 def synth(
-    out: Path = typer.Argument(..., help="DATA_DIR to write (replaced atomically)"),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="TOML with a [synth] table"),
+    out: Path = typer.Argument(..., help="DATA_DIR to write (replaced atomically)"),  # noqa: B008 - typer idiom
+    config: Path | None = typer.Option(None, "--config", "-c", help="TOML with a [synth] table"),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json", help="print a summary as JSON"),
 ) -> None:
     """Generate a synthetic scene (fine MPM ground truth, heterogeneous and anisotropic): the humanoid presses a
@@ -59,11 +58,11 @@ def synth(
 @recon_app.command("fit")
 @user_errors
 def fit_cmd(
-    data_dir: Path = typer.Argument(..., help="DATA_DIR (scene.json, rgb/, mask/, poses.npz)"),
-    out: Path = typer.Option(..., "--out", "-o", help="RUN_DIR: model.npz, gaussians.ply, report.json, preview.mp4"),
-    config: Optional[Path] = typer.Option(None, "--config", "-c", help="TOML with a [train] table"),
+    data_dir: Path = typer.Argument(..., help="DATA_DIR (scene.json, rgb/, mask/, poses.npz)"),  # noqa: B008 - typer idiom
+    out: Path = typer.Option(..., "--out", "-o", help="RUN_DIR: model.npz, gaussians.ply, report.json, preview.mp4"),  # noqa: B008 - typer idiom
+    config: Path | None = typer.Option(None, "--config", "-c", help="TOML with a [train] table"),  # noqa: B008 - typer idiom
     restart: bool = typer.Option(False, "--restart", help="ignore RUN_DIR/checkpoint.pt"),
-    reuse: Optional[Path] = typer.Option(None, "--reuse", help="take stages 1-2 (canonical Gaussians, flows) "
+    reuse: Path | None = typer.Option(None, "--reuse", help="take stages 1-2 (canonical Gaussians, flows) "  # noqa: B008 - typer idiom
                                          "from this RUN_DIR: physics-only variants such as ablations"),
     json_out: bool = typer.Option(False, "--json", help="print the evaluation report as JSON"),
 ) -> None:
@@ -85,11 +84,11 @@ def fit_cmd(
 @recon_app.command("predict")
 @user_errors
 def predict_cmd(
-    run_dir: Path = typer.Argument(..., help="RUN_DIR written by `physar recon fit`"),
-    poses: Path = typer.Option(..., "--poses", "-p", help="npz with rotations (F, B, 3, 3) [and root_translation]"),
-    out: Path = typer.Option(..., "--out", "-o", help="output MP4"),
+    run_dir: Path = typer.Argument(..., help="RUN_DIR written by `physar recon fit`"),  # noqa: B008 - typer idiom
+    poses: Path = typer.Option(..., "--poses", "-p", help="npz with rotations (F, B, 3, 3) [and root_translation]"),  # noqa: B008 - typer idiom
+    out: Path = typer.Option(..., "--out", "-o", help="output MP4"),  # noqa: B008 - typer idiom
     method: str = typer.Option("physics", "--method", help="physics | lbs | 4dgs | spflow"),
-    frames_npz: Optional[Path] = typer.Option(None, "--frames", help="also save rgb/alpha arrays (npz)"),
+    frames_npz: Path | None = typer.Option(None, "--frames", help="also save rgb/alpha arrays (npz)"),  # noqa: B008 - typer idiom
 ) -> None:
     """Render the learned scene under a (new) pose sequence: future frames or a novel action."""
     import numpy as np
@@ -115,8 +114,8 @@ def predict_cmd(
 @recon_app.command("eval")
 @user_errors
 def eval_cmd(
-    run_dir: Path = typer.Argument(..., help="RUN_DIR written by `physar recon fit`"),
-    data_dir: Optional[Path] = typer.Option(None, "--data", help="DATA_DIR (default: the one used by fit)"),
+    run_dir: Path = typer.Argument(..., help="RUN_DIR written by `physar recon fit`"),  # noqa: B008 - typer idiom
+    data_dir: Path | None = typer.Option(None, "--data", help="DATA_DIR (default: the one used by fit)"),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json", help="print the report as JSON"),
 ) -> None:
     """PSNR/SSIM/IoU of physics vs the LBS-only and 4DGS-like baselines and the Eq. 9 flow (full and

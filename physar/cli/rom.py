@@ -39,8 +39,8 @@ def _parse_params(model, items: list[str]) -> np.ndarray:
 @rom_app.command("build")
 @user_errors
 def build(
-    config: Path = typer.Argument(..., help="FEM problem file (TOML) with [[parameter]] tables and [rom]"),
-    out: Path = typer.Option(..., "--out", "-o", help="reduced model file (.npz)"),
+    config: Path = typer.Argument(..., help="FEM problem file (TOML) with [[parameter]] tables and [rom]"),  # noqa: B008 - typer idiom
+    out: Path = typer.Option(..., "--out", "-o", help="reduced model file (.npz)"),  # noqa: B008 - typer idiom
     workers: int | None = typer.Option(None, "--workers", min=1,
                                           help="non-intrusive: start a Dask LocalCluster with N workers"),
     scheduler: str | None = typer.Option(None, "--scheduler", help="non-intrusive: Dask scheduler address"),
@@ -62,7 +62,7 @@ def build(
         bar.refresh()
 
     try:
-        rom, space, info = build_rom(cfg, progress, str(config), workers=workers, scheduler=scheduler)
+        rom, space, _ = build_rom(cfg, progress, str(config), workers=workers, scheduler=scheduler)
     except PhysarError as exc:
         bar.close()
         if str(exc).startswith(str(config)):
@@ -103,7 +103,7 @@ def _info(rom) -> dict:
 @rom_app.command("info")
 @user_errors
 def info(
-    model_file: Path = typer.Argument(..., help="reduced model (.npz)"),
+    model_file: Path = typer.Argument(..., help="reduced model (.npz)"),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json", help="print as JSON on stdout"),
 ) -> None:
     """Describe a reduced model: method, modes, parameters and ranges, mesh, error estimates."""
@@ -122,10 +122,10 @@ def info(
 @rom_app.command("eval")
 @user_errors
 def evaluate(
-    model_file: Path = typer.Argument(..., help="reduced model (.npz)"),
-    param: list[str] = typer.Option([], "--param", help="NAME=VALUE, one per parameter, e.g. s=0.3"),
+    model_file: Path = typer.Argument(..., help="reduced model (.npz)"),  # noqa: B008 - typer idiom
+    param: list[str] = typer.Option([], "--param", help="NAME=VALUE, one per parameter, e.g. s=0.3"),  # noqa: B008 - typer idiom
     probe: tuple[float, float, float] | None = typer.Option(None, "--probe", help="probe point x y z (m)"),
-    out: Path | None = typer.Option(None, "--out", "-o", help="write the displacement field (.vtu/.xdmf)"),
+    out: Path | None = typer.Option(None, "--out", "-o", help="write the displacement field (.vtu/.xdmf)"),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json", help="print results as JSON on stdout"),
 ) -> None:
     """Evaluate u(mu) of a reduced model, at probe points and/or on the whole mesh."""
@@ -157,9 +157,9 @@ def evaluate(
 
 @user_errors
 def assimilate_cmd(
-    model_file: Path = typer.Argument(..., help="reduced model (.npz) with its mesh (from `physar rom build`)"),
-    observations: Path = typer.Argument(..., help="CSV with header x,y,z,ux,uy,uz (m)"),
-    mu0: list[str] = typer.Option([], "--mu0", help="start NAME=VALUE (default: centre of the ranges)"),
+    model_file: Path = typer.Argument(..., help="reduced model (.npz) with its mesh (from `physar rom build`)"),  # noqa: B008 - typer idiom
+    observations: Path = typer.Argument(..., help="CSV with header x,y,z,ux,uy,uz (m)"),  # noqa: B008 - typer idiom
+    mu0: list[str] = typer.Option([], "--mu0", help="start NAME=VALUE (default: centre of the ranges)"),  # noqa: B008 - typer idiom
     alpha: float = typer.Option(0.0, "--alpha", min=0.0, help="Tikhonov weight towards --mu0"),
     restart: float = typer.Option(0.05, "--restart-residual",
                                   help="multi-start when ||r||/||u_obs|| stays above this"),

@@ -31,7 +31,7 @@ class CSRPattern:
     """Sparsity pattern of element matrices and the map from element entries to CSR data slots."""
 
     def __init__(self, cell_dofs: np.ndarray, n: int):
-        m, nd = cell_dofs.shape
+        _m, nd = cell_dofs.shape
         if n < 2**31 - 1:  # scipy is several times faster with 32-bit indices
             cell_dofs = cell_dofs.astype(np.int32)
         rows = np.repeat(cell_dofs, nd, axis=1).ravel()

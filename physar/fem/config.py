@@ -7,9 +7,10 @@ key, in one line.
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Literal, Optional
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
@@ -32,9 +33,9 @@ class _Strict(BaseModel):
 
 
 class MeshSection(_Strict):
-    file: Optional[str] = None
-    box: Optional[Vec3] = None
-    cells: Optional[tuple[int, int, int]] = None
+    file: str | None = None
+    box: Vec3 | None = None
+    cells: tuple[int, int, int] | None = None
 
     @model_validator(mode="after")
     def _one_source(self):
@@ -47,25 +48,25 @@ class MeshSection(_Strict):
 
 class MaterialSection(_Strict):
     model: Literal["linear", "stvk", "neohookean", "neohookean_incompressible", "corotated"]
-    E: Optional[float] = Field(None, description="Young's modulus [Pa]")
-    nu: Optional[float] = Field(None, description="Poisson ratio")
-    C1: Optional[float] = Field(None, description="neo-Hookean C1 [Pa]")
-    kappa: Optional[float] = Field(None, description="bulk penalty [Pa]")
+    E: float | None = Field(None, description="Young's modulus [Pa]")
+    nu: float | None = Field(None, description="Poisson ratio")
+    C1: float | None = Field(None, description="neo-Hookean C1 [Pa]")
+    kappa: float | None = Field(None, description="bulk penalty [Pa]")
     density: float = Field(0.0, ge=0, description="kg/m^3")
 
 
 class FixSection(_Strict):
     box: Box
     components: list[Literal["x", "y", "z"]] = ["x", "y", "z"]
-    value: Optional[Vec3] = Field(None, description="prescribed displacement [m] (x, y, z); default 0")
+    value: Vec3 | None = Field(None, description="prescribed displacement [m] (x, y, z); default 0")
 
 
 class LoadSection(_Strict):
     type: Literal["point", "traction", "gravity"]
-    box: Optional[Box] = None
-    total: Optional[Vec3] = None
-    point: Optional[Vec3] = None
-    radius: Optional[float] = Field(None, gt=0)
+    box: Box | None = None
+    total: Vec3 | None = None
+    point: Vec3 | None = None
+    radius: float | None = Field(None, gt=0)
     g: Vec3 = (0.0, 0.0, -9.81)
 
     @model_validator(mode="after")
@@ -101,7 +102,7 @@ class FemConfig(_Strict):
     probe: list[ProbeSection] = []
     fem: FemSection = FemSection()
     solver: SolverSection = SolverSection()
-    _base_dir: Optional[Path] = PrivateAttr(default=None)  # folder of the file, for relative paths
+    _base_dir: Path | None = PrivateAttr(default=None)  # folder of the file, for relative paths
 
 
 def format_validation_error(exc: ValidationError, source: str, model: type[BaseModel]) -> str:
@@ -289,6 +290,16 @@ def run_config(path: str | Path, progress=None) -> FemResult:
 
 
 __all__ = [
-    "FemConfig", "FemResult", "Problem", "build_mesh", "build_problem", "format_validation_error",
-    "load_config", "parse_config", "read_toml", "run_config", "solve_problem", "MATERIALS",
+    "MATERIALS",
+    "FemConfig",
+    "FemResult",
+    "Problem",
+    "build_mesh",
+    "build_problem",
+    "format_validation_error",
+    "load_config",
+    "parse_config",
+    "read_toml",
+    "run_config",
+    "solve_problem",
 ]

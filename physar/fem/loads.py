@@ -6,7 +6,7 @@ on the face (the barycentric coordinate of the opposite vertex is 0), so P1 and 
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 

@@ -178,7 +178,7 @@ class NeoHookeanIncompressible(Material):
             raise ConfigError(f"kappa must be positive, got {self.kappa}")
 
     @classmethod
-    def from_E_nu(cls, E: float, nu: float) -> "NeoHookeanIncompressible":
+    def from_E_nu(cls, E: float, nu: float) -> NeoHookeanIncompressible:
         lam, mu = lame(E, nu)
         return cls(C1=mu / 2, kappa=lam + 2 * mu / 3)
 

@@ -145,7 +145,7 @@ FOAM_MARGIN = 0.100  # m, ends of the beam outside the load range (seed: 100 mm 
 def _graded_axis(length: float, n: int, support: float) -> np.ndarray:
     """n + 1 increasing coordinates on [0, length] with nodes at `support` and `length - support`."""
     h = length / n
-    ns = max(1, int(round(support / h)))
+    ns = max(1, int(round(support / h)))  # noqa: RUF046 - numpy 1.x round
     nm = n - 2 * ns
     if nm < 1:
         raise ConfigError(f"foam beam: {n} cells along x are too few (need more than {2 * ns})")
@@ -224,7 +224,7 @@ class FoamBeam:
 
     def deflection(self, u: np.ndarray, x: float) -> float:
         """Deflection -u_z [m] at (x, W/2, H/2) (mid-depth, mid-height)."""
-        L, W, H = self.size
+        _L, W, H = self.size
         return float(-probe(self.space, u, [x, W / 2, H / 2])[2])
 
 
@@ -240,7 +240,7 @@ def foam_beam(cells: Sequence[int] = (32, 8, 4), element: str = "P1", E: float =
     mesh = foam_mesh(cells, size, support)
     space = FESpace(mesh, element)
     model = ElasticModel(space, StVK(E, nu))
-    L, W, H = size
+    L, W, _H = size
     tol = 1e-9 * L
     pinned = fixed_dofs(space, box=[[0, 0, 0], [support, W, 0]], components="xyz")
     sliding = fixed_dofs(space, where=lambda X: (X[:, 2] <= tol) & (X[:, 0] >= L - support - tol), components="z")

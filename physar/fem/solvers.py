@@ -11,8 +11,8 @@
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -22,7 +22,7 @@ from physar.errors import SolverError
 
 try:  # pragma: no cover - depends on the platform
     from sksparse import cholmod as _cholmod
-except Exception:  # ImportError, or a broken shared library
+except (ImportError, OSError, ValueError):  # not installed, a broken shared library, or a numpy ABI mismatch
     _cholmod = None
 
 _warned = False

@@ -11,8 +11,8 @@ import io
 import os
 import shutil
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 
@@ -42,7 +42,7 @@ def read_mesh(path: str | os.PathLike, kind: str = "auto") -> TetMesh | TriMesh:
     try:  # meshio raises many types for corrupt files, and calls sys.exit for unreadable ones
         with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
             m = meshio.read(path)
-    except (Exception, SystemExit) as exc:
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - meshio raises arbitrary types
         detail = str(exc) if not isinstance(exc, SystemExit) else sink.getvalue().strip()
         detail = " ".join(detail.split()) or type(exc).__name__
         raise MeshError(f"cannot read mesh {path}: {detail}"[:300]) from None

@@ -6,8 +6,8 @@ raises :class:`physar.errors.MeshError` naming the first offending element.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
 
 import numpy as np
 
@@ -88,7 +88,7 @@ class TetMesh:
         cells.setflags(write=False)
 
     @classmethod
-    def reoriented(cls, points: np.ndarray, cells: np.ndarray, name: str = "mesh") -> "TetMesh":
+    def reoriented(cls, points: np.ndarray, cells: np.ndarray, name: str = "mesh") -> TetMesh:
         """Build a mesh after swapping two nodes of every negatively oriented tetrahedron."""
         points = _check_points(points, name)
         cells = _check_cells(cells, len(points), 4, name).copy()
@@ -121,7 +121,7 @@ class TetMesh:
         h.update(np.ascontiguousarray(self.cells).tobytes())
         return h.hexdigest()
 
-    def boundary(self) -> "BoundarySurface":
+    def boundary(self) -> BoundarySurface:
         return boundary_surface(self)
 
 
@@ -161,7 +161,7 @@ class TriMesh:
     def face_areas(self) -> np.ndarray:
         return 0.5 * np.linalg.norm(self.face_normals(normalize=False), axis=1)
 
-    def with_points(self, points: np.ndarray) -> "TriMesh":
+    def with_points(self, points: np.ndarray) -> TriMesh:
         return TriMesh(points, self.faces, name=self.name)
 
 

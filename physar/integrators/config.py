@@ -214,13 +214,16 @@ def write_xdmf(path: str | Path, sim: Simulation, traj: Trajectory) -> Path:
     if path.suffix.lower() != ".xdmf":
         raise ConfigError(f"trajectory output must end in .xdmf, got {path.name}")
     mesh = sim.problem.space.mesh
-    with _AtomicDir(path) as tmp, contextlib.chdir(tmp.parent):
-        # meshio's TimeSeriesWriter opens its .h5 relative to the working directory: write from inside
-        # the temporary folder (single-threaded CLI use)
-        with meshio.xdmf.TimeSeriesWriter(tmp.name) as w:
-            w.write_points_cells(mesh.points, [("tetra", mesh.cells)])
-            for t, u, v in zip(traj.times, traj.u, traj.v):
-                w.write_data(t, point_data={"displacement": u, "velocity": v.astype(np.float64)})
+    # meshio's TimeSeriesWriter opens its .h5 relative to the working directory: write from inside
+    # the temporary folder (single-threaded CLI use)
+    with (
+        _AtomicDir(path) as tmp,
+        contextlib.chdir(tmp.parent),
+        meshio.xdmf.TimeSeriesWriter(tmp.name) as w,
+    ):
+        w.write_points_cells(mesh.points, [("tetra", mesh.cells)])
+        for t, u, v in zip(traj.times, traj.u, traj.v):
+            w.write_data(t, point_data={"displacement": u, "velocity": v.astype(np.float64)})
     return path
 
 
@@ -229,12 +232,11 @@ ENERGY_COLUMNS = ["step", "t", "kinetic", "elastic", "potential", "total", "newt
 
 def write_energy_csv(path: str | Path, traj: Trajectory) -> Path:
     path = Path(path)
-    with _AtomicDir(path) as tmp:
-        with open(tmp, "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=ENERGY_COLUMNS)
-            w.writeheader()
-            for row in traj.energy:
-                w.writerow({k: (f"{row[k]:.17g}" if isinstance(row[k], float) else row[k]) for k in ENERGY_COLUMNS})
+    with _AtomicDir(path) as tmp, open(tmp, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=ENERGY_COLUMNS)
+        w.writeheader()
+        for row in traj.energy:
+            w.writerow({k: (f"{row[k]:.17g}" if isinstance(row[k], float) else row[k]) for k in ENERGY_COLUMNS})
     return path
 
 

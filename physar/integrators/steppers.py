@@ -231,7 +231,7 @@ class ImplicitMidpoint(Integrator):
 
     def step(self, model, state, h):
         rhs = model.mass @ state.v
-        qm, vm, _, it = self._stage(model, state.q, rhs, h / 2, h / 2, state.q, state.v)
+        _qm, vm, _, it = self._stage(model, state.q, rhs, h / 2, h / 2, state.q, state.v)
         q = state.q.copy()
         v = state.v.copy()
         fr = model.free

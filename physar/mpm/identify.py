@@ -19,8 +19,8 @@ for touching bodies it is a heuristic start.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import numpy as np
 import torch

@@ -35,7 +35,6 @@ from physar.mpm.colliders import MAX_COLLIDERS, Collider, ColliderArrays, collid
 from physar.mpm.constitutive import (
     hardening_factor,
     hencky_project,
-    kirchhoff_stress,
     kirchhoff_stress_fiber,
     singular_values,
     snow_project,
@@ -536,7 +535,7 @@ class MPMModel:
             }
         return self._wp
 
-    def state(self, x: np.ndarray, v: np.ndarray | None = None) -> "MPMState":
+    def state(self, x: np.ndarray, v: np.ndarray | None = None) -> MPMState:
         """A state at positions x (N, 3) with velocities v, C = 0, F = I, J_p = 1."""
         n = self.n_particles
         x = np.asarray(x, dtype=np.float64).reshape(n, 3)
@@ -555,7 +554,7 @@ class MPMState:
     Jp: wp.array
 
     @staticmethod
-    def from_numpy(x, v, C, F, Jp) -> "MPMState":
+    def from_numpy(x, v, C, F, Jp) -> MPMState:
         return MPMState(
             wp.array(np.ascontiguousarray(x, dtype=np.float64), dtype=wp.vec3d),
             wp.array(np.ascontiguousarray(v, dtype=np.float64), dtype=wp.vec3d),
@@ -567,7 +566,7 @@ class MPMState:
     def numpy(self) -> dict:
         return {k: getattr(self, k).numpy().copy() for k in ("x", "v", "C", "F", "Jp")}  # numpy() is a view on CPU
 
-    def copy(self) -> "MPMState":
+    def copy(self) -> MPMState:
         d = self.numpy()
         return MPMState.from_numpy(d["x"], d["v"], d["C"], d["F"], d["Jp"])
 

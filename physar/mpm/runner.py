@@ -14,9 +14,9 @@ folder with :func:`physar.mpm.identify.identify` (seed 002 §4.4).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -111,5 +111,5 @@ def identify_scene(scene: Scene | str | Path, target: str | Path, iterations: in
 
 
 def initial_state(scene: Scene) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - convenience
-    model, x0, v0 = build_model(scene)
+    _model, x0, v0 = build_model(scene)
     return x0, v0

@@ -192,7 +192,7 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
     references may be given per frame by a callable ``params.x_ref(frame) -> (x_ref, v_ref)``.
     """
     n = model.n_particles
-    t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
+    t = lambda a: torch.as_tensor(a, dtype=torch.float64)
     x, v = t(x0), t(v0)
     C = torch.zeros(n, 3, 3, dtype=torch.float64) if C0 is None else t(C0)
     F = torch.eye(3, dtype=torch.float64).repeat(n, 1, 1) if F0 is None else t(F0)
@@ -212,7 +212,7 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
 
         tf = t0 + f * model.frame_dt
 
-        def frame_fn(x, v, C, F, Jp, *_params, tf=tf):
+        def frame_fn(x, v, C, F, Jp, *_params, tf=tf, x_ref=x_ref, v_ref=v_ref):  # bound now: re-run in backward
             for s in range(model.substeps):
                 x, v, C, F, Jp = substep(model, x, v, C, F, Jp, params, x_ref, v_ref, nets, t=tf + s * model.dt)
             return x, v, C, F, Jp
@@ -237,13 +237,13 @@ def _fused_frame(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref, v_ref, t0: f
     if runner is None:
         runner = model._fused = FusedFrame(model)
     n = model.n_particles
-    z = lambda *sh: torch.zeros(*sh, dtype=torch.float64)  # noqa: E731
+    z = lambda *sh: torch.zeros(*sh, dtype=torch.float64)
     if p.omega is None or x_ref is None:
         omega, x_ref, v_ref, kp, kd = z(n), z(n, 3), z(n, 3), 0.0, 0.0
     else:
         omega, kp, kd = p.omega, p.kp, p.kd
         v_ref = z(n, 3) if v_ref is None else v_ref
-    t = lambda a: torch.as_tensor(a, dtype=torch.float64)  # noqa: E731
+    t = lambda a: torch.as_tensor(a, dtype=torch.float64)
     return FusedFrameFunction.apply(runner, float(t0), float(kp), float(kd), x, v, C, F, Jp, t(p.E), t(p.nu),
                                     t(omega), t(x_ref), t(v_ref), _fiber_E(model, p))
 

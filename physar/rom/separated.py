@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import zipfile
 from bisect import bisect_right
 
 import numpy as np
@@ -199,7 +200,7 @@ class SeparatedModel:
             z = np.load(path, allow_pickle=False)
         except FileNotFoundError:
             raise ReducedModelError(f"{path}: cannot read reduced model (file not found)") from None
-        except Exception as e:  # OSError, ValueError (pickled / not npz), zipfile.BadZipFile
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:  # EOFError: empty file
             why = "not an .npz file" if "pickle" in str(e) else str(e)
             raise ReducedModelError(f"{path}: cannot read reduced model ({why})") from None
         if not hasattr(z, "files"):

@@ -6,9 +6,9 @@ reprojection error sum_i sum_k ||p_ik - Π(K, d, R_i, t_i; X_k)||^2 over K, dist
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
 
 import cv2
 import numpy as np

@@ -42,12 +42,12 @@ class Pose:
         object.__setattr__(self, "t", t)
 
     @classmethod
-    def from_rvec(cls, rvec, tvec) -> "Pose":
+    def from_rvec(cls, rvec, tvec) -> Pose:
         R, _ = cv2.Rodrigues(np.asarray(rvec, float).reshape(3, 1))
         return cls(R, np.asarray(tvec, float).reshape(3))
 
     @classmethod
-    def look_at(cls, eye, target, up=(0.0, 0.0, 1.0)) -> "Pose":
+    def look_at(cls, eye, target, up=(0.0, 0.0, 1.0)) -> Pose:
         """Camera at `eye` looking at `target` with world `up` pointing up in the image."""
         eye, target, up = (np.asarray(v, float) for v in (eye, target, up))
         z = target - eye
@@ -69,17 +69,17 @@ class Pose:
         """Camera centre in world coordinates, c = -R^T t (m)."""
         return -self.R.T @ self.t
 
-    def inverse(self) -> "Pose":
+    def inverse(self) -> Pose:
         return Pose(self.R.T, -self.R.T @ self.t)
 
-    def compose(self, other: "Pose") -> "Pose":
+    def compose(self, other: Pose) -> Pose:
         """self ∘ other: first `other`, then `self`."""
         return Pose(self.R @ other.R, self.R @ other.t + self.t)
 
     def apply(self, X) -> np.ndarray:
         return mat3(np.asarray(X, float).reshape(-1, 3), self.R) + self.t
 
-    def angle_to(self, other: "Pose") -> float:
+    def angle_to(self, other: Pose) -> float:
         """Rotation angle of Q = R_self^T R_other in degrees: atan2(sin, cos) with sin = |vee(Q - Q^T)| / 2 and
         cos = (tr Q - 1) / 2 (accurate near 0 and near 180 degrees, unlike acos of the trace alone)."""
         Q = self.R.T @ other.R
@@ -122,7 +122,7 @@ class Camera:
 
     # --- construction / conversion ---------------------------------------------------------------
     @classmethod
-    def from_fov(cls, width: int, height: int, hfov_deg: float, dist=None) -> "Camera":
+    def from_fov(cls, width: int, height: int, hfov_deg: float, dist=None) -> Camera:
         f = 0.5 * width / math.tan(math.radians(hfov_deg) / 2)
         K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])
         return cls(K, np.zeros(5) if dist is None else dist, width, height)
@@ -132,11 +132,11 @@ class Camera:
         return self.K.copy(), self.dist.reshape(1, -1).copy()
 
     @classmethod
-    def from_opencv(cls, camera_matrix, dist_coeffs, image_size) -> "Camera":
+    def from_opencv(cls, camera_matrix, dist_coeffs, image_size) -> Camera:
         w, h = image_size
         return cls(np.asarray(camera_matrix, float), np.asarray(dist_coeffs, float).ravel(), int(w), int(h))
 
-    def scaled(self, factor: float) -> "Camera":
+    def scaled(self, factor: float) -> Camera:
         """The same camera with an image `factor` times larger (pixel-centre convention)."""
         K = self.K.copy()
         K[:2, :2] *= factor
@@ -200,7 +200,7 @@ class Camera:
         _atomic_write_text(path, "\n".join(lines) + "\n")
 
     @classmethod
-    def load(cls, path) -> "Camera":
+    def load(cls, path) -> Camera:
         """Read a camera TOML written by :meth:`save` (or by hand); errors name the file and field."""
         path = Path(path)
         try:

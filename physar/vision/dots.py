@@ -42,7 +42,7 @@ class DotTracker:
             raise ConfigError(f"dot colour must be blue, red or green, got {colour!r}")
         self.camera, self.reference = camera, ref
         self.plane = (np.asarray(plane_point, float), np.asarray(plane_normal, float))
-        self.r = max(2, int(round(radius_px * 1.6)))
+        self.r = max(2, int(round(radius_px * 1.6)))  # noqa: RUF046 - numpy 1.x round
         self.threshold, self.min_mass, self.gate_px, self.luma = threshold, min_mass, gate_px, luma
         self.channel = {"blue": 0, "green": 1, "red": 2}[colour]
         if flow not in (True, False, "auto"):
@@ -56,8 +56,8 @@ class DotTracker:
         self.displacement = np.zeros_like(ref)  # last known displacement, for predictions
         off = np.arange(-self.r, self.r + 1)
         self._oy, self._ox = np.meshgrid(off, off, indexing="ij")
-        self._lk = dict(winSize=(15, 15), maxLevel=2,
-                        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+        self._lk = {"winSize": (15, 15), "maxLevel": 2,
+                    "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03)}
 
     def reset(self):
         self._prev_gray = None
@@ -124,7 +124,7 @@ class DotTracker:
         others = [c for c in range(3) if c != self.channel]
         c = roi[..., self.channel] - np.maximum(roi[..., others[0]], roi[..., others[1]])
         mask = (c > self.threshold).astype(np.uint8)
-        n, _, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+        _n, _, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
         area = stats[1:, cv2.CC_STAT_AREA]
         cents = cents[1:][(area >= 3) & (area <= 4 * (2 * self.r + 1) ** 2)] + (x0, y0)
         if len(cents) == 0:

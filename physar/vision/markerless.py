@@ -307,7 +307,7 @@ def lever_angle(rect_bgr: np.ndarray, pivot_px, r_min_px: float, r_max_px: float
         return float("nan"), int(sel.sum())
     dx, dy = dx[sel], dy[sel]
     M = np.array([[dx @ dx, dx @ dy], [dx @ dy, dy @ dy]])
-    w, V = np.linalg.eigh(M)
+    _w, V = np.linalg.eigh(M)
     d = V[:, 1]
     if d @ np.array([dx.mean(), dy.mean()]) < 0:
         d = -d

@@ -8,7 +8,7 @@ component ``components[j]`` of point k.
 """
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -72,7 +72,7 @@ def surface_observation_matrix(space, points, components: Sequence[int] = (0, 1,
         k = int(np.argmax(dist))
         raise PhysarError(f"observed point {pts[k].tolist()} is {dist[k]:.3g} m from the mesh surface (tol {tol})")
     f = fidx[f]
-    cells, local = surf.face_cell[f], surf.face_local[f]
+    cells = surf.face_cell[f]
     # barycentrics of the face vertices -> barycentrics of the tet (opposite vertex 0)
     face_nodes_global = surf.node_map[surf.mesh.faces[f]]  # (p, 3) volume vertex ids, in face order
     L = np.zeros((len(pts), 4))

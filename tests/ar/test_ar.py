@@ -8,7 +8,15 @@ import typer
 from typer.testing import CliRunner
 
 from physar.ar.pipeline import ARPipeline, build_scene_model, read_estimates
-from physar.ar.scene import BeamTruth, Occlusion, SceneSpec, VideoSection, load_scene, read_truth, render_scene
+from physar.ar.scene import (
+    BeamTruth,
+    Occlusion,
+    SceneSpec,
+    VideoSection,
+    load_scene,
+    read_truth,
+    render_scene,
+)
 from physar.ar.video import VideoReader, VideoWriter
 from physar.cli import ar as ar_cli
 from physar.errors import ConfigError, PhysarError
@@ -51,13 +59,13 @@ def small_scene(tmp_path_factory):
                      load={"positions": [0.40, 0.30, 0.22], "dwell": 0.6, "move": 0.2},
                      occlusion=[Occlusion(start=0.2, frames=30, kind="full")])
     info = render_scene(spec, out)
-    rom, obj, space, _ = build_scene_model(spec)
+    rom, obj, _space, _ = build_scene_model(spec)
     rom.save(out / "model.npz")
     return spec, out, info, rom, obj
 
 
 def test_scene_outputs(small_scene):
-    spec, out, info, rom, obj = small_scene
+    spec, out, _info, _rom, _obj = small_scene
     r = VideoReader(out / "scene.mp4")
     assert (r.width, r.height) == (1280, 720)
     assert sum(1 for _ in r) == spec.n_frames == 60
@@ -71,7 +79,7 @@ def test_pipeline_accuracy_and_occlusion_recovery(small_scene, tmp_path):
     """Issue 4 goal on a short scene (truth from a finer mesh, H.264): |s_est - s_true| <= 1 % of the span in
     every tracked frame (load beyond 20 % of the span), also while the load moves (frames 42-48); the
     estimate is held during the 30-frame full occlusion and back within the bound within 5 frames."""
-    spec, out, info, rom, obj = small_scene
+    _spec, out, _info, rom, obj = small_scene
     cam = Camera.load(out / "camera.toml")
     pipe = ARPipeline(rom, cam, obj)
     summ = pipe.run(out / "scene.mp4", tmp_path / "aug.mp4", tmp_path / "est.csv")
@@ -91,7 +99,7 @@ def test_pipeline_accuracy_and_occlusion_recovery(small_scene, tmp_path):
 
 
 def test_cli_ar_run(small_scene, tmp_path):
-    spec, out, info, rom, obj = small_scene
+    _spec, out, _info, _rom, _obj = small_scene
     r = CliRunner().invoke(_app(), ["ar", "run", str(out / "model.npz"), str(out / "scene.mp4"), "--camera-file",
                                     str(out / "camera.toml"), "--csv", str(tmp_path / "e.csv"), "--json",
                                     "--max-frames", "10"])

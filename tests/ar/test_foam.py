@@ -91,7 +91,7 @@ def test_stvk_beam_small_load_limit_and_nonlinearity():
 def test_nonintrusive_pgd_of_the_nonlinear_beam_vs_direct_solves():
     """PGD model of the St.VK beam (tiny mesh) vs Newton solves at positions that are not PGD samples."""
     spec = FoamSceneSpec(foam=FoamSection(model_cells=(16, 2, 2), element="P1"))
-    rom, obj, space, info = build_foam_model(spec, tol=2e-3)
+    rom, obj, _space, info = build_foam_model(spec, tol=2e-3)
     assert info["error_estimate"] <= 2e-3
     s_test = [0.1234, 0.2861, 0.4417, 0.6093]
     assert not np.any(np.isin(np.round(s_test, 9), np.round(info["grids"][0], 9)))
@@ -109,7 +109,7 @@ def tiny_scene(tmp_path_factory):
                          foam=FoamSection(truth_cells=(16, 2, 2), model_cells=(12, 2, 2)),
                          load=FoamLoad(reference=0.4, positions=[0.25, 0.52], dwell=0.6))
     render_foam_scene(spec, out)
-    rom, obj, space, info = build_foam_model(spec)
+    rom, obj, _space, _info = build_foam_model(spec)
     return spec, out, rom, obj
 
 

@@ -29,7 +29,7 @@ def test_foam_demo_outputs(demo):
 def test_foam_demo_accuracy(demo):
     """Goal: mean |load-position error| <= 1.5 mm (seed §5.2: ~1.5 mm on its 797.5 mm beam). Measured
     2026-11-23: 0.76 mm mean, 2.9 mm max; 11 modes 0.76 mm, 5 modes 0.84 mm."""
-    out, rep = demo
+    _out, rep = demo
     assert rep["tracking_fraction_loaded"] == 1.0
     assert rep["mean_abs_error_mm"] <= 1.5
     assert rep["max_abs_error_mm"] < 6.0

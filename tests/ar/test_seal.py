@@ -7,8 +7,19 @@ import numpy as np
 import pytest
 
 from physar.ar.scene import VideoSection
-from physar.ar.seal import (PlateObject, SealContinuation, SealPipeline, SealSceneSpec, SealSection, build_seal_model,
-                            evaluate_seal, load_seal_scene, read_csv_columns, render_seal_scene, seal_model)
+from physar.ar.seal import (
+    PlateObject,
+    SealContinuation,
+    SealPipeline,
+    SealSceneSpec,
+    SealSection,
+    build_seal_model,
+    evaluate_seal,
+    load_seal_scene,
+    read_csv_columns,
+    render_seal_scene,
+    seal_model,
+)
 from physar.errors import ConfigError
 from physar.fem.seed_examples import boot_seal
 from physar.vision import Camera

@@ -23,7 +23,7 @@ def test_seal_demo_outputs(demo):
 
 def test_seal_demo_accuracy_and_recovery(demo):
     """Goals: median lever-angle error within 1 deg; back within 5 frames after the lever re-enters the image."""
-    out, rep = demo
+    _out, rep = demo
     assert rep["frames_lever_out_of_view"] > 15  # the camera really looked away
     assert rep["median_abs_error_deg"] <= 1.0
     assert rep["p95_abs_error_deg"] <= 1.0

@@ -29,7 +29,8 @@ def test_seal_scene_render_and_model(tmp_path):
     assert res["frames"] == 30 and (res["width"], res["height"]) == (320, 180)
     with av.open(str(tmp_path / "out" / "scene.mp4")) as c:
         assert sum(1 for _ in c.decode(video=0)) == 30
-    rows = list(csv.DictReader(open(tmp_path / "out" / "truth.csv")))
+    with open(tmp_path / "out" / "truth.csv") as fh:
+        rows = list(csv.DictReader(fh))
     assert len(rows) == 30
     for name in ("plate.json", "plate.png", "camera.toml"):
         assert (tmp_path / "out" / name).stat().st_size > 0

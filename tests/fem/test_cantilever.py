@@ -1,9 +1,20 @@
 """Cantilever under an end load converges to Timoshenko beam theory (independent closed form)."""
 
+import itertools
+
 import numpy as np
 import pytest
 
-from physar.fem import ElasticModel, FESpace, LinearElastic, NeoHookean, fixed_dofs, probe, solve_static, traction_load
+from physar.fem import (
+    ElasticModel,
+    FESpace,
+    LinearElastic,
+    NeoHookean,
+    fixed_dofs,
+    probe,
+    solve_static,
+    traction_load,
+)
 from physar.fem.examples import cantilever
 from physar.geometry import box_mesh
 
@@ -56,7 +67,7 @@ def test_newton_converges_quadratically_neohookean_cantilever():
     tip_lin = -probe(space, solve_static(lin, f, fixed).u, [L, b / 2, h / 2])[2]
     assert tip > 0.1 * L and abs(tip - tip_lin) > 0.01 * tip_lin  # genuinely nonlinear regime
     r = np.array(res.residuals[0]) / np.linalg.norm(f)
-    pairs = [(a, c) for a, c in zip(r[:-1], r[1:]) if a < 1e-2 and c > 1e-10]
+    pairs = [(a, c) for a, c in itertools.pairwise(r) if a < 1e-2 and c > 1e-10]
     print("\nrelative Newton residuals:", r)
     assert pairs, "no iterate in the asymptotic range"
     assert all(c <= a * a for a, c in pairs)

@@ -8,11 +8,11 @@ from physar.fem import ElasticModel, FESpace, make_material
 from physar.geometry import box_mesh
 
 MATERIALS = {
-    "linear": dict(E=1e6, nu=0.3),
-    "stvk": dict(E=1e6, nu=0.3),
-    "neohookean": dict(E=1e6, nu=0.3),
-    "neohookean_incompressible": dict(C1=2e5, kappa=5e6),
-    "corotated": dict(E=1e6, nu=0.3),
+    "linear": {"E": 1e6, "nu": 0.3},
+    "stvk": {"E": 1e6, "nu": 0.3},
+    "neohookean": {"E": 1e6, "nu": 0.3},
+    "neohookean_incompressible": {"C1": 2e5, "kappa": 5e6},
+    "corotated": {"E": 1e6, "nu": 0.3},
 }
 NONLINEAR = [m for m in MATERIALS if m != "linear"]
 

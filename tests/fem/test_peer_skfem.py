@@ -10,7 +10,7 @@ from physar.fem import ElasticModel, FESpace, LinearElastic, fixed_dofs, probe, 
 from physar.geometry import box_mesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-from skfem_peer import skfem_cantilever  # noqa: E402
+from skfem_peer import skfem_cantilever
 
 
 @pytest.mark.filterwarnings("ignore")

@@ -2,7 +2,15 @@ import numpy as np
 import pytest
 
 from physar.errors import MeshError, PhysarError
-from physar.geometry import TetMesh, TriMesh, box_mesh, read_mesh, select_boundary_faces, select_nodes, write_mesh
+from physar.geometry import (
+    TetMesh,
+    TriMesh,
+    box_mesh,
+    read_mesh,
+    select_boundary_faces,
+    select_nodes,
+    write_mesh,
+)
 
 
 def test_box_mesh_volume_and_boundary_area():

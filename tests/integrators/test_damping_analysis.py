@@ -1,5 +1,7 @@
 """Damping analysis (seed 001 §2.1) of the implemented steppers against closed forms."""
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -63,7 +65,7 @@ def test_genalpha_rho_infinity_is_r(r):
     # rho -> r as h w -> inf (the gap shrinks monotonically)
     gap = [abs(spectral_radius(amplification_matrix(make_integrator("genalpha", r=r), x)) - r)
            for x in (1e2, 1e3, 1e4, 1e5, 1e6)]
-    assert all(a >= b - 1e-15 for a, b in zip(gap[:-1], gap[1:])), gap
+    assert all(a >= b - 1e-15 for a, b in itertools.pairwise(gap)), gap
     assert gap[-1] < 2e-4, gap
 
 
@@ -88,8 +90,8 @@ def test_damping_monotone_in_knob():
     hw = np.logspace(-1, 2, 7)
     g = [damping_curve("genalpha", hw, r=r)["d_over_omega"] for r in (0.0, 0.25, 0.5, 0.75, 1.0)]
     t = [damping_curve("theta", hw, theta=th)["d_over_omega"] for th in (0.0, 0.25, 0.5, 0.75, 1.0)]
-    assert all(np.all(a > b) for a, b in zip(g[:-1], g[1:]))
-    assert all(np.all(a < b) for a, b in zip(t[:-1], t[1:]))
+    assert all(np.all(a > b) for a, b in itertools.pairwise(g))
+    assert all(np.all(a < b) for a, b in itertools.pairwise(t))
 
 
 def test_trbdf2_l_stable_and_second_order_damping():

@@ -72,7 +72,7 @@ def test_rayleigh_damping_gives_modal_decay():
     j = int(np.argmax(np.abs(phi.T @ Mq)))
     w, p = w_fe[j], phi[:, j]
     zeta = alpha / (2 * w) + beta * w / 2
-    h, z, qs = run(model, q0, tip, periods=6, per_period=40, w=w)
+    h, _z, qs = run(model, q0, tip, periods=6, per_period=40, w=w)
     a = qs @ (model.mass_ff @ p)  # modal coordinate
     t = h * np.arange(len(a))
     # peaks of |a|: envelope e^{-zeta w t}

@@ -95,9 +95,10 @@ def test_simulate_writes_xdmf_csv_video(app, tmp_path):
     with meshio.xdmf.TimeSeriesReader(out) as r:
         r.read_points_cells()
         assert r.num_steps == 4
-        t, pd, _ = r.read_data(3)
+        t, _pd, _ = r.read_data(3)
     assert t == pytest.approx(0.12)
-    rows = list(csv.DictReader(open(tmp_path / "traj.csv")))
+    with open(tmp_path / "traj.csv") as fh:
+        rows = list(csv.DictReader(fh))
     assert len(rows) == 13 and float(rows[0]["kinetic"]) == 0.0
     assert video.stat().st_size > 1000
     import av

@@ -23,7 +23,7 @@ def _run(scene, frames=None, hook=None):
     solver = MPMSolver(model)
     a, b = model.state(x, v), model.state(x, v)
     out = [diagnostics(model, a.numpy())]
-    for f in range((frames or scene.time.frames)):
+    for f in range(frames or scene.time.frames):
         a, b = solver.simulate_frame(a, b)
         st = a.numpy()
         out.append(diagnostics(model, st))
@@ -37,7 +37,7 @@ def test_free_fall_com_follows_parabola():
     # g dt t / 2, so dt = 1e-4 keeps the error at dt / t = 3e-4 of the drop height.
     sc = _scene([{"shape": "box", "min": [0.3, 0.4, 0.6], "max": [0.5, 0.6, 0.8], "velocity": [0.2, 0, 0],
                   "E": 1e4}], frame_dt=0.05, substeps=500, frames=6)
-    model, d = _run(sc)
+    _model, d = _run(sc)
     t = 0.3
     exact = d[0]["com"] + np.array([0.2 * t, 0, -0.5 * 9.81 * t * t])
     drop = 0.5 * 9.81 * t * t
@@ -71,7 +71,7 @@ def test_free_flight_momentum_conserved(material):
 def test_bouncing_block_does_not_gain_energy():
     sc = _scene([{"shape": "box", "min": [0.4, 0.4, 0.15], "max": [0.6, 0.6, 0.3], "E": 2e4, "nu": 0.3}],
                 frame_dt=0.02, substeps=40, frames=15, ground="separate")
-    model, d = _run(sc)
+    _model, d = _run(sc)
     e = np.array([x["total_energy"] for x in d])
     z = np.array([x["com"][2] for x in d])
     assert z.min() < 0.1  # it hit the ground

@@ -1,14 +1,21 @@
 """Vision layer: camera model vs OpenCV, TOML errors, ChArUco calibration and marker pose on rendered images
 (known ground truth), observation operator vs FE interpolation (physar.fem.probe)."""
-import math
 
 import cv2
 import numpy as np
 import pytest
 
 from physar.errors import ConfigError, PhysarError
-from physar.vision import (Camera, CharucoSpec, MarkerBoard, MarkerTracker, Pose, calibrate_charuco,
-                           render_plane, surface_observation_matrix)
+from physar.vision import (
+    Camera,
+    CharucoSpec,
+    MarkerBoard,
+    MarkerTracker,
+    Pose,
+    calibrate_charuco,
+    render_plane,
+    surface_observation_matrix,
+)
 from physar.vision.camera import rotation_x, rotation_y
 
 
