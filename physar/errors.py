@@ -20,3 +20,56 @@ class MeshError(PhysarError, ValueError):
 
 class SolverError(PhysarError, RuntimeError):
     """A solve failed for a reason the user can fix (singular system, divergence)."""
+
+
+def format_validation_error(exc, source: str, model=None, section: str | None = None) -> str:
+    """One line naming the file, the table/key and the problem of a pydantic ``ValidationError``.
+
+    ``source`` is the file (or a name for the input); ``model`` the validated pydantic model class (for
+    the keys allowed in a table); ``section`` the TOML table the validated data came from when only that
+    table was validated (e.g. ``"train"``), so that locations are named inside it. An error raised by a
+    model-level validator (``@model_validator``) names its table, e.g.
+    ``run.toml: [train] nu_min (0.45) must be < nu_max (0.4)``; one of the file's top level names
+    ``[top level]``. Shared by the config loaders of every layer (pydantic is duck-typed here).
+    """
+    e = exc.errors()[0]
+    inner = [str(p) for p in e["loc"]]
+    loc = ([section] if section else []) + inner
+    where = ".".join(loc) if loc else "top level"
+    table = ".".join(p for p in loc[:-1] if not p.isdigit()) or "top level"
+    kind = e["type"]
+    if kind == "extra_forbidden":
+        allowed = _allowed_keys(model, inner[:-1]) if model is not None else []
+        hint = f" (allowed: {', '.join(allowed)})" if allowed else ""
+        return f"{source}: unknown key {loc[-1]!r} in [{table}]{hint}"
+    if kind == "missing":
+        return f"{source}: missing key {loc[-1]!r} in [{table}]"
+    if kind == "literal_error":
+        return f"{source}: {where} = {e.get('input')!r} is not allowed; {e['msg'].lower()}"
+    msg = e["msg"].removeprefix("Value error, ").removeprefix("Assertion failed, ")
+    if kind in ("value_error", "assertion_error"):
+        return f"{source}: [{where}] {msg}"
+    return f"{source}: {where}: {msg} (got {e.get('input')!r})"
+
+
+def _allowed_keys(model, path: list[str]) -> list[str]:
+    """Field names of the (nested) pydantic model at table ``path`` of ``model``; [] if not a table."""
+    cur = model
+    for p in path:
+        if p.isdigit():
+            continue
+        field_ = cur.model_fields.get(p)
+        if field_ is None:
+            return []
+        ann = field_.annotation
+        cand = [a for a in (ann, *_type_args(ann)) if isinstance(a, type) and hasattr(a, "model_fields")]
+        if not cand:
+            return []
+        cur = cand[0]
+    return list(cur.model_fields)
+
+
+def _type_args(ann) -> tuple:
+    """Type arguments of ``ann``, one level of nesting included (``list[Model] | None`` -> Model)."""
+    args = getattr(ann, "__args__", ())
+    return (*args, *(b for a in args for b in getattr(a, "__args__", ())))

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from physar.errors import ConfigError, PhysarError
+from physar.errors import ConfigError, PhysarError, format_validation_error
 from physar.vision.camera import Camera, Pose
 from physar.vision.markers import MarkerBoard
 
@@ -221,9 +221,7 @@ def validate_scene(path, model):
     try:
         return model.model_validate(data)
     except ValidationError as e:
-        err = e.errors()[0]
-        loc = ".".join(str(x) for x in err["loc"])
-        raise ConfigError(f"{path}: {loc}: {err['msg']}") from None
+        raise ConfigError(format_validation_error(e, str(path), model)) from None
 
 
 def load_scene(path) -> SceneSpec:

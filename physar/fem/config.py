@@ -15,7 +15,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 
-from physar.errors import ConfigError, PhysarError
+from physar.errors import ConfigError, PhysarError, format_validation_error
 from physar.fem.assembly import ElasticModel
 from physar.fem.elements import FESpace
 from physar.fem.loads import fixed_dofs, gravity_load, point_load, traction_load
@@ -103,44 +103,6 @@ class FemConfig(_Strict):
     fem: FemSection = FemSection()
     solver: SolverSection = SolverSection()
     _base_dir: Path | None = PrivateAttr(default=None)  # folder of the file, for relative paths
-
-
-def format_validation_error(exc: ValidationError, source: str, model: type[BaseModel]) -> str:
-    """One line naming the file, the table/key and the problem."""
-    e = exc.errors()[0]
-    loc = [str(p) for p in e["loc"]]
-    where = ".".join(loc) if loc else "(top level)"
-    table = ".".join(p for p in loc[:-1] if not p.isdigit()) or "top level"
-    kind = e["type"]
-    if kind == "extra_forbidden":
-        allowed = _allowed_keys(model, loc[:-1])
-        hint = f" (allowed: {', '.join(allowed)})" if allowed else ""
-        return f"{source}: unknown key {loc[-1]!r} in [{table}]{hint}"
-    if kind == "missing":
-        return f"{source}: missing key {loc[-1]!r} in [{table}]"
-    if kind == "literal_error":
-        return f"{source}: {where} = {e.get('input')!r} is not allowed; {e['msg'].lower()}"
-    msg = e["msg"].removeprefix("Value error, ")
-    if kind == "value_error":
-        return f"{source}: [{where}] {msg}"
-    return f"{source}: {where}: {msg} (got {e.get('input')!r})"
-
-
-def _allowed_keys(model: type[BaseModel], path: list[str]) -> list[str]:
-    cur = model
-    for p in path:
-        if p.isdigit():
-            continue
-        field_ = cur.model_fields.get(p)
-        if field_ is None:
-            return []
-        ann = field_.annotation
-        args = getattr(ann, "__args__", ())
-        cand = [a for a in (ann, *args) if isinstance(a, type) and issubclass(a, BaseModel)]
-        if not cand:
-            return []
-        cur = cand[0]
-    return list(cur.model_fields)
 
 
 def read_toml(path: str | Path) -> dict:

@@ -46,7 +46,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from physar.errors import ConfigError
+from physar.errors import ConfigError, format_validation_error
 from physar.mpm.colliders import MAX_COLLIDERS, Collider
 from physar.mpm.constitutive import ELASTIC_CODES, PLASTIC_CODES, drucker_prager_alpha
 from physar.mpm.model import MPMModel
@@ -259,9 +259,7 @@ def parse_scene(data: dict, name: str = "scene") -> Scene:
     try:
         return Scene.model_validate(data)
     except ValidationError as exc:
-        e = exc.errors()[0]
-        loc = ".".join(str(p) for p in e["loc"])
-        raise ConfigError(f"{name}: field '{loc}': {e['msg']} (got {e.get('input')!r})") from None
+        raise ConfigError(format_validation_error(exc, name, Scene)) from None
 
 
 def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: int | None = None,

@@ -70,7 +70,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from physar.errors import ConfigError
+from physar.errors import ConfigError, format_validation_error
 from physar.mpm.model import Control, MPMModel, MPMSolver
 from physar.recon import scene as S
 from physar.recon.pointrender import render_spheres
@@ -181,9 +181,7 @@ def load_section_config(path: str | Path | None, section: str, model, overrides:
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        e = exc.errors()[0]
-        raise ConfigError(f"{path or section + ' config'}: field '{'.'.join(map(str, e['loc']))}': {e['msg']} "
-                          f"(got {e.get('input')!r})") from None
+        raise ConfigError(format_validation_error(exc, str(path or section + " config"), model, section)) from None
 
 
 def load_synth_config(path: str | Path | None, overrides: dict | None = None) -> SynthConfig:

@@ -152,7 +152,7 @@ def test_scene_toml_errors(tmp_path):
     with pytest.raises(ConfigError, match="outside the beam"):
         load_scene(f)
     f.write_text("[video]\nfsp = 30\n")
-    with pytest.raises(ConfigError, match="video.fsp"):
+    with pytest.raises(ConfigError, match=r"unknown key 'fsp' in \[video\]"):
         load_scene(f)
 
 

@@ -1,0 +1,39 @@
+"""One-line errors of the recon config tables: an error of a model-level validator names its table
+([synth] / [train]) instead of an empty field; key errors name the key inside the table."""
+
+import pytest
+
+from physar.errors import ConfigError
+from physar.recon.synth import load_synth_config
+from physar.recon.train import load_train_config
+
+
+def _error(load, *args) -> str:
+    with pytest.raises(ConfigError) as e:
+        load(*args)
+    msg = str(e.value)
+    assert "\n" not in msg and "field ''" not in msg
+    return msg
+
+
+def test_model_level_train_error_names_the_table(tmp_path):
+    p = tmp_path / "run.toml"
+    p.write_text("[train]\nnu_min = 0.45\nnu_max = 0.4\n")
+    assert _error(load_train_config, p) == f"{p}: [train] nu_min (0.45) must be < nu_max (0.4)"
+    # overrides only (no file): the table is still named
+    assert _error(load_train_config, None, {"nu_min": 0.45, "nu_max": 0.4}) == \
+        "train config: [train] nu_min (0.45) must be < nu_max (0.4)"
+
+
+def test_model_level_synth_error_names_the_table(tmp_path):
+    p = tmp_path / "scene.toml"
+    p.write_text("[synth]\nframes = 40\nn_obs = 40\n")
+    assert _error(load_synth_config, p) == f"{p}: [synth] n_obs (40) must be < frames (40)"
+
+
+def test_key_errors_name_the_key_in_the_table(tmp_path):
+    p = tmp_path / "run.toml"
+    p.write_text("[train]\nflow_iters = -1\n")
+    assert _error(load_train_config, p).startswith(f"{p}: train.flow_iters: Input should be greater than")
+    p.write_text("[synth]\nfrmaes = 4\n")
+    assert _error(load_synth_config, p).startswith(f"{p}: unknown key 'frmaes' in [synth] (allowed: ")
