@@ -37,6 +37,7 @@ from physar.ar.scene import (
     SensorSection,
     VideoSection,
     _Strict,
+    camera_values,
 )
 from physar.errors import ConfigError, PhysarError
 from physar.vision.camera import Camera, Pose
@@ -486,33 +487,20 @@ FOAM_TRUTH_HEADER = ["frame", "time_s", "s_true_m", "markers_visible", "midspan_
 def render_foam_scene(spec: FoamSceneSpec, out_dir, progress: Callable[[int, int], None] | None = None,
                       video_name: str = "scene.mp4") -> dict:
     """Render scene (b) into out_dir: `video_name` (H.264), truth.csv, camera.toml (atomic writes)."""
-    from physar.ar.video import VideoWriter, atomic_path
+    from physar.ar.video import write_clip
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     cam = spec.camera_model()
     rend = FoamRenderer(spec, camera=cam)
-    n = spec.n_frames
-    with (
-        atomic_path(out / video_name) as vtmp,
-        atomic_path(out / "truth.csv") as ctmp,
-        VideoWriter(vtmp, cam.width, cam.height, spec.video.fps, crf=spec.video.crf) as vw,
-        open(ctmp, "w", newline="") as fh,
-    ):
-        wr = csv.writer(fh)
-        wr.writerow(FOAM_TRUTH_HEADER)
-        for k in range(n):
-            img, row = rend.render(k)
-            vw.write(img)
-            wr.writerow([k, f"{row['time_s']:.6f}", f"{row['s_true_m']:.6f}", row["markers_visible"],
-                         f"{row['midspan_deflection_m']:.9e}"] + [f"{v:.9f}" for v in row["cam_rvec"]] +
-                        [f"{v:.9f}" for v in row["cam_t"]])
-            if progress:
-                progress(k + 1, n)
-    cam.save(out / "camera.toml")
-    return {"video": str(out / video_name), "truth": str(out / "truth.csv"), "camera": str(out / "camera.toml"),
-            "frames": n, "width": cam.width, "height": cam.height, "fps": spec.video.fps,
-            "truth_solves": rend.truth.solver.solves}
+
+    def frame(k):
+        img, row = rend.render(k)
+        values = [k, f"{row['time_s']:.6f}", f"{row['s_true_m']:.6f}", row["markers_visible"],
+                  f"{row['midspan_deflection_m']:.9e}"]
+        return img, values + camera_values(row)
+
+    out = write_clip(out_dir, video_name, cam, spec.video.fps, spec.video.crf, FOAM_TRUTH_HEADER, spec.n_frames,
+                     frame, progress)
+    return {**out, "truth_solves": rend.truth.solver.solves}
 
 
 def read_csv_columns(path) -> dict:

@@ -533,10 +533,15 @@ def truth_header(n_dots: int) -> list[str]:
     return h
 
 
+def camera_values(row: dict) -> list[str]:
+    """The camera pose columns (cam_rx .. cam_tz) of a truth.csv row."""
+    return [f"{x:.9f}" for x in row["cam_rvec"]] + [f"{x:.9f}" for x in row["cam_t"]]
+
+
 def truth_values(row: dict) -> list:
     v = [row["frame"], f"{row['time_s']:.6f}", f"{row['s_true_m']:.6f}", row["load_n"],
          f"{row['tip_deflection_m']:.9e}", row["occluded"]]
-    v += [f"{x:.9f}" for x in row["cam_rvec"]] + [f"{x:.9f}" for x in row["cam_t"]]
+    v += camera_values(row)
     v += [f"{x:.9e}" for x in np.asarray(row["dots"]).ravel()]
     return v
 
@@ -547,31 +552,17 @@ def render_scene(spec: SceneSpec, out_dir, progress: Callable[[int, int], None] 
 
     Files are written to temporaries and renamed at the end (no partial outputs on failure).
     """
-    from physar.ar.video import VideoWriter, atomic_path
+    from physar.ar.video import write_clip
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     cam = spec.camera_model(spec.__dict__.get("_base"))
     rend = SceneRenderer(spec, camera=cam)
-    n = spec.n_frames
-    with (
-        atomic_path(out / video_name) as vtmp,
-        atomic_path(out / "truth.csv") as ctmp,
-        VideoWriter(vtmp, cam.width, cam.height, spec.video.fps, crf=spec.video.crf, preset="veryfast",
-                    threads=threads) as vw,
-        open(ctmp, "w", newline="") as fh,
-    ):
-        wr = csv.writer(fh)
-        wr.writerow(truth_header(spec.beam.dots))
-        for k in range(n):
-            img, row = rend.render(k)
-            vw.write(img)
-            wr.writerow(truth_values(row))
-            if progress:
-                progress(k + 1, n)
-    cam.save(out / "camera.toml")
-    return {"video": str(out / video_name), "truth": str(out / "truth.csv"), "camera": str(out / "camera.toml"),
-            "frames": n, "width": cam.width, "height": cam.height, "fps": spec.video.fps}
+
+    def frame(k):
+        img, row = rend.render(k)
+        return img, truth_values(row)
+
+    return write_clip(out_dir, video_name, cam, spec.video.fps, spec.video.crf, truth_header(spec.beam.dots),
+                      spec.n_frames, frame, progress, threads=threads)
 
 
 def read_truth(path) -> dict:

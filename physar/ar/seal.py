@@ -32,7 +32,14 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from physar.ar.foam import _noise_texture, read_csv_columns, sensor_effects, shade, vignette, write_report
-from physar.ar.scene import CameraSection, LightingSection, SensorSection, VideoSection, _Strict
+from physar.ar.scene import (
+    CameraSection,
+    LightingSection,
+    SensorSection,
+    VideoSection,
+    _Strict,
+    camera_values,
+)
 from physar.errors import ConfigError, PhysarError
 from physar.vision.camera import Camera, Pose
 
@@ -286,39 +293,26 @@ class PlateObject:
 def render_seal_scene(spec: SealSceneSpec, out_dir, progress: Callable[[int, int], None] | None = None,
                       video_name: str = "scene.mp4") -> dict:
     """Render scene (c): `video_name`, truth.csv, camera.toml, plate.png + plate.json (the plate's reference)."""
-    from physar.ar.video import VideoWriter, atomic_path
+    from physar.ar.video import atomic_path, write_clip
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     cam = spec.camera_model()
     rend = SealRenderer(spec, cam)
-    n = spec.n_frames
-    with (
-        atomic_path(out / video_name) as vtmp,
-        atomic_path(out / "truth.csv") as ctmp,
-        VideoWriter(vtmp, cam.width, cam.height, spec.video.fps, crf=spec.video.crf) as vw,
-        open(ctmp, "w", newline="") as fh,
-    ):
-        wr = csv.writer(fh)
-        wr.writerow(SEAL_TRUTH_HEADER)
-        for k in range(n):
-            img, row = rend.render(k)
-            vw.write(img)
-            wr.writerow([k, f"{row['time_s']:.6f}", f"{row['theta_true_deg']:.6f}", row["lever_visible"],
-                         f"{row['yaw_deg']:.4f}"] + [f"{v:.9f}" for v in row["cam_rvec"]] +
-                        [f"{v:.9f}" for v in row["cam_t"]])
-            if progress:
-                progress(k + 1, n)
-    cam.save(out / "camera.toml")
+
+    def frame(k):
+        img, row = rend.render(k)
+        return img, [k, f"{row['time_s']:.6f}", f"{row['theta_true_deg']:.6f}", row["lever_visible"],
+                     f"{row['yaw_deg']:.4f}", *camera_values(row)]
+
+    clip = write_clip(out_dir, video_name, cam, spec.video.fps, spec.video.crf, SEAL_TRUTH_HEADER, spec.n_frames,
+                      frame, progress)
+    out = Path(out_dir)
     with atomic_path(out / "plate.png") as ptmp:
         cv2.imwrite(str(ptmp.with_suffix(".png")), rend.plate.astype(np.uint8))
     p = spec.plate
     PlateObject("plate.png", p.px_per_m, tuple(p.x), tuple(p.z), spec.lever.length, spec.lever.offset,
                 spec.lever.width).save(
         out / "plate.json")
-    return {"video": str(out / video_name), "truth": str(out / "truth.csv"), "camera": str(out / "camera.toml"),
-            "plate": str(out / "plate.json"), "frames": n, "width": cam.width, "height": cam.height,
-            "fps": spec.video.fps}
+    return {**clip, "plate": str(out / "plate.json")}
 
 
 # ------------------------------------------------------------------------------------------------------

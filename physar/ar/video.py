@@ -7,6 +7,7 @@ import os
 import queue
 import tempfile
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,36 @@ def atomic_path(path):
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
+
+
+def write_clip(out_dir, video_name: str, camera, fps: float, crf: int, header: list[str], n_frames: int,
+               frame: Callable[[int], tuple[np.ndarray, list]], progress: Callable[[int, int], None] | None = None,
+               preset: str = "veryfast", threads: int = 0) -> dict:
+    """Render a synthetic clip into ``out_dir``: ``video_name`` (H.264) and ``truth.csv`` (``header``, then one
+    row per frame), both written to temporaries and renamed only when every frame is done (no partial outputs),
+    then ``camera.toml``.  ``frame(k)`` returns the BGR image and the CSV row of frame k.  Returns the paths
+    and the clip's size."""
+    import csv
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    with (
+        atomic_path(out / video_name) as vtmp,
+        atomic_path(out / "truth.csv") as ctmp,
+        VideoWriter(vtmp, camera.width, camera.height, fps, crf=crf, preset=preset, threads=threads) as vw,
+        open(ctmp, "w", newline="") as fh,
+    ):
+        wr = csv.writer(fh)
+        wr.writerow(header)
+        for k in range(n_frames):
+            img, row = frame(k)
+            vw.write(img)
+            wr.writerow(row)
+            if progress:
+                progress(k + 1, n_frames)
+    camera.save(out / "camera.toml")
+    return {"video": str(out / video_name), "truth": str(out / "truth.csv"), "camera": str(out / "camera.toml"),
+            "frames": n_frames, "width": camera.width, "height": camera.height, "fps": fps}
 
 
 class VideoWriter:
