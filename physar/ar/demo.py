@@ -7,14 +7,13 @@ like the seed's Table 1: actual load position, mean estimate, absolute differenc
 """
 from __future__ import annotations
 
-import json
 import os
-import time
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
+from physar.ar.runner import pipeline_stats, run_scene_demo, write_report
 from physar.ar.scene import Occlusion, SceneSpec, VideoSection, read_truth, render_scene
 
 
@@ -125,24 +124,16 @@ def run_ar_demo(out, quick: bool = False, progress: Callable[[str, int, int], No
     """Render scene (a), build its reduced model, run the AR pipeline; write the outputs into `out`."""
     from physar.ar.pipeline import ARPipeline, build_scene_model, read_estimates
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    spec = spec or demo_scene(quick)
-    cb = (lambda stage: (lambda k, n: progress(stage, k, n))) if progress else (lambda stage: None)
-    t0 = time.perf_counter()
-    render_scene(spec, out, progress=cb("render scene"))
-    t1 = time.perf_counter()
-    rom, obj, space, _info = build_scene_model(spec, progress=cb("reduced model (PGD)"))
-    rom.save(out / "model.npz", mesh=space.mesh)
-    t2 = time.perf_counter()
-    from physar.vision.camera import Camera
+    out, spec = Path(out), spec or demo_scene(quick)
 
-    cam = Camera.load(out / "camera.toml")
-    pipe = ARPipeline(rom, cam, obj)
-    snap = {int(0.45 * spec.n_frames): out / "augmented_frame.png"}
-    summary = pipe.run(out / "scene.mp4", out / "augmented.mp4", out / "estimates.csv", fps=spec.video.fps,
-                       progress=cb("AR pipeline"), snapshots=snap)
-    t3 = time.perf_counter()
+    def build(p):
+        rom, obj, space, _info = build_scene_model(spec, progress=p)
+        rom.save(out / "model.npz", mesh=space.mesh)
+        return rom, obj
+
+    run = run_scene_demo(out, spec, progress, render_scene, "reduced model (PGD)", build,
+                         lambda model, cam: ARPipeline(model[0], cam, model[1]), 0.45)
+    rom = run.model[0]
     truth = read_truth(out / "truth.csv")
     est = read_estimates(out / "estimates.csv")
     ev = evaluate(spec, truth, est)
@@ -154,18 +145,12 @@ def run_ar_demo(out, quick: bool = False, progress: Callable[[str, int, int], No
                                                                  spec.beam.height * 1e3],
                   "E_pa": spec.beam.E, "nu": spec.beam.nu, "load_n": spec.beam.load, "dots": spec.beam.dots,
                   "truth_mesh": list(spec.beam.truth_cells), "model_mesh": list(spec.beam.model_cells)},
-        "frames": summary["frames"],
-        "fps": summary["fps"],
-        "latency_ms_median": summary["latency_ms_median"],
-        "latency_ms_p95": summary["latency_ms_p95"],
-        "stages_ms_median": summary["stages_ms_median"],
+        **pipeline_stats(run.summary),
         "modes": rom.n_modes,
         **ev,
-        "timings_s": {"render_scene": t1 - t0, "reduced_model": t2 - t1, "pipeline": t3 - t2},
+        "timings_s": run.timings_s,
         "files": ["scene.mp4", "truth.csv", "camera.toml", "model.npz", "augmented.mp4", "estimates.csv",
                   "estimate_vs_truth.png", "augmented_frame.png", "report.json"],
     }
-    tmp = out / ".report.json.tmp"
-    tmp.write_text(json.dumps(report, indent=2))
-    os.replace(tmp, out / "report.json")
+    write_report(out, report)
     return report

@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 from pydantic import Field, model_validator
 
+from physar.ar.runner import pipeline_stats, run_scene_demo, run_video, write_report
 from physar.ar.scene import (
     CameraSection,
     LightingSection,
@@ -543,6 +544,14 @@ class FoamFrame:
     stages_ms: dict
 
 
+# estimates.csv: frame, time_s, status, then these columns
+FOAM_ESTIMATES_HEADER = ["s_est", "s_std", "residual_mm", "env_features", "surface_features", "latency_ms"]
+
+
+def _foam_row(r: FoamFrame) -> list:
+    return [f"{r.mu[0]:.6f}", f"{r.std[0]:.6f}", f"{r.residual_mm:.5f}", r.n_env, r.n_surface, f"{r.latency_ms:.3f}"]
+
+
 class FoamPipeline:
     """Markerless frame loop of scene (b) (see the module docstring).
 
@@ -842,54 +851,10 @@ class FoamPipeline:
     def run(self, source, out_video=None, out_csv=None, fps: float | None = None, crf: int = 20,
             progress: Callable[[int, int], None] | None = None, snapshots: dict | None = None,
             max_frames: int | None = None) -> dict:
-        """Process a video (path or iterable of frames); atomic outputs; returns fps and latency statistics."""
-        import contextlib
-
-        from physar.ar.video import VideoReader, VideoWriter, atomic_path
-
-        reader = VideoReader(source) if isinstance(source, (str, Path)) else source
-        w, h = getattr(reader, "width", None), getattr(reader, "height", None)
-        if (w, h) != (None, None) and (w, h) != self.camera.size:
-            raise ConfigError(f"video is {w}x{h} but the camera is for {self.camera.width}x{self.camera.height}")
-        fps = fps or getattr(reader, "fps", 30.0)
-        total = getattr(reader, "frames_hint", 0)
-        results = []
-        with contextlib.ExitStack() as stack:
-            vtmp = stack.enter_context(atomic_path(out_video)) if out_video else None
-            ctmp = stack.enter_context(atomic_path(out_csv)) if out_csv else None
-            writer = stack.enter_context(VideoWriter(vtmp, self.camera.width, self.camera.height, fps, crf=crf,
-                                                     threaded=True)) if vtmp else None
-            fh = stack.enter_context(open(ctmp, "w", newline="")) if ctmp else None
-            wr = csv.writer(fh) if fh else None
-            if wr:
-                wr.writerow(["frame", "time_s", "status", "s_est", "s_std", "residual_mm", "env_features",
-                             "surface_features", "latency_ms"])
-            t_start = time.perf_counter()
-            for k, frame in enumerate(reader):
-                if max_frames is not None and k >= max_frames:
-                    break
-                out, r = self.process(frame, k, draw=writer is not None or bool(snapshots and k in snapshots))
-                if snapshots and k in snapshots:
-                    cv2.imwrite(str(snapshots[k]), out)
-                if writer is not None:
-                    writer.write(out)
-                results.append(r)
-                if wr:
-                    wr.writerow([k, f"{k / fps:.4f}", r.status, f"{r.mu[0]:.6f}", f"{r.std[0]:.6f}",
-                                 f"{r.residual_mm:.5f}", r.n_env, r.n_surface, f"{r.latency_ms:.3f}"])
-                if progress:
-                    progress(k + 1, total)
-            if not results:
-                raise PhysarError(f"{source}: no frames")
-            if writer is not None:
-                writer.close()
-            wall = time.perf_counter() - t_start
-        lat = np.array([r.latency_ms for r in results])
-        stages = sorted({s for r in results for s in r.stages_ms})
-        return {"frames": len(results), "wall_s": wall, "fps": len(results) / wall,
-                "latency_ms_median": float(np.median(lat)), "latency_ms_p95": float(np.percentile(lat, 95)),
-                "stages_ms_median": {s: float(np.median([r.stages_ms.get(s, 0.0) for r in results])) for s in stages},
-                "results": results}
+        """Process a video (path or iterable of frames); atomic outputs; returns fps and latency statistics
+        (:func:`physar.ar.runner.run_video`)."""
+        return run_video(lambda k, frame, draw: self.process(frame, k, draw=draw), self.camera, source, out_video,
+                         out_csv, fps, crf, FOAM_ESTIMATES_HEADER, _foam_row, progress, snapshots, max_frames)
 
 
 from physar.ar.overlay import BeamOverlay
@@ -1010,12 +975,6 @@ def plot_foam(truth: dict, est: dict, path, title: str) -> None:
     os.replace(tmp, path)
 
 
-def write_report(out: Path, report: dict) -> None:
-    tmp = out / ".report.json.tmp"
-    tmp.write_text(json.dumps(report, indent=2, default=float))
-    os.replace(tmp, out / "report.json")
-
-
 def mode_study(rom, beam, s_values, counts=(5, 11, 19)) -> list[dict]:
     """Relative error max_s ||u_n(s) - u_FE(s)|| / ||u_FE(s)|| of the first n PGD modes against direct
     Newton solves at `s_values` (not sampling points of the PGD), for each n in `counts`."""
@@ -1035,22 +994,16 @@ def run_foam_demo(out, quick: bool = False, progress: Callable[[str, int, int], 
                   spec: FoamSceneSpec | None = None, mode_counts=(5, 8, 11, 14)) -> dict:
     """Render scene (b), build its reduced model (non-intrusive PGD of the St.VK problem), run the markerless
     pipeline with the full model and with truncations to `mode_counts` modes; write the outputs into `out`."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    spec = spec or foam_demo_scene(quick)
-    cb = (lambda stage: (lambda k, n: progress(stage, k, n))) if progress else (lambda stage: None)
-    t0 = time.perf_counter()
-    render_foam_scene(spec, out, progress=cb("render scene"))
-    t1 = time.perf_counter()
-    rom, obj, space, info = build_foam_model(spec, progress=cb("reduced model (non-intrusive PGD)"))
-    rom.save(out / "model.npz", mesh=space.mesh)
-    t2 = time.perf_counter()
-    cam = Camera.load(out / "camera.toml")
-    pipe = FoamPipeline(rom, cam, obj)
-    snap = {int(0.55 * spec.n_frames): out / "augmented_frame.png"}
-    summary = pipe.run(out / "scene.mp4", out / "augmented.mp4", out / "estimates.csv", fps=spec.video.fps,
-                       progress=cb("AR pipeline"), snapshots=snap)
-    t3 = time.perf_counter()
+    out, spec = Path(out), spec or foam_demo_scene(quick)
+
+    def build(p):
+        rom, obj, space, info = build_foam_model(spec, progress=p)
+        rom.save(out / "model.npz", mesh=space.mesh)
+        return rom, obj, info
+
+    run = run_scene_demo(out, spec, progress, render_foam_scene, "reduced model (non-intrusive PGD)", build,
+                         lambda model, cam: FoamPipeline(model[0], cam, model[1]), 0.55)
+    (rom, obj, info), cam = run.model, run.camera
     truth, est = read_csv_columns(out / "truth.csv"), read_csv_columns(out / "estimates.csv")
     ev = evaluate_foam(truth, est)
     plot_foam(truth, est, out / "estimate_vs_truth.png",
@@ -1077,17 +1030,13 @@ def run_foam_demo(out, quick: bool = False, progress: Callable[[str, int, int], 
                   "material": "St.VK", "E_pa": f.E, "nu": f.nu, "load_n": f.load,
                   "disk_diameter_mm": f.disk_diameter * 1e3, "truth_mesh": [f.element, *f.truth_cells],
                   "model_mesh": [f.element, *f.model_cells], "frames_with_markers": 1 + markers_after_0},
-        "frames": summary["frames"],
-        "fps": summary["fps"],
-        "latency_ms_median": summary["latency_ms_median"],
-        "latency_ms_p95": summary["latency_ms_p95"],
-        "stages_ms_median": summary["stages_ms_median"],
+        **pipeline_stats(run.summary),
         "modes": rom.n_modes,
         "pgd": {"snapshots": info["n_solves"], "error_estimate": info["error_estimate"],
                 "s_range_mm": [v * 1e3 for v in spec.s_range]},
         "accuracy_vs_modes": modes,
         **ev,
-        "timings_s": {"render_scene": t1 - t0, "reduced_model": t2 - t1, "pipeline": t3 - t2},
+        "timings_s": run.timings_s,
         "files": ["scene.mp4", "truth.csv", "camera.toml", "model.npz", "augmented.mp4", "estimates.csv",
                   "estimate_vs_truth.png", "augmented_frame.png", "report.json"],
     }

@@ -15,12 +15,12 @@ import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 
 import cv2
 import numpy as np
 
-from physar.errors import ConfigError, PhysarError
+from physar.ar.runner import run_video
+from physar.errors import ConfigError
 from physar.vision.camera import Camera
 from physar.vision.dots import DotTracker
 from physar.vision.markers import MarkerBoard, MarkerTracker
@@ -549,88 +549,50 @@ class ARPipeline:
 
     def _run(self, source, out_video, out_csv, fps, crf, preset, progress, max_frames, snapshots, overlay_thread,
              use_luma, encoder_threads, convert) -> dict:
-        from physar.ar.video import VideoReader, VideoWriter, atomic_path
+        names = self.rom.names
+        header = [f"{n}_est" for n in names] + [f"{n}_std" for n in names] + ["residual_mm", "markers", "dots",
+                                                                              "latency_ms"]
+        deferred = bool(out_video) and overlay_thread and self.overlay is not None
+        draw = bool(out_video) and not deferred
 
-        reader = VideoReader(source, convert=convert) if isinstance(source, (str, Path)) else source
-        w, h = getattr(reader, "width", None), getattr(reader, "height", None)
-        if (w, h) != (None, None) and (w, h) != self.camera.size:
-            raise ConfigError(f"video is {w}x{h} but the camera file is for {self.camera.width}x"
-                              f"{self.camera.height}")
-        fps = fps or getattr(reader, "fps", 30.0)
-        total = getattr(reader, "frames_hint", 0)
-        results = []
-        import contextlib
+        def step(k, item, _used):
+            frame, luma = item
+            out, r = self.process(frame, k, draw=draw, gray=luma)
+            return (self._render_job(frame, r) if deferred else out), r
 
-        with contextlib.ExitStack() as stack:
-            vtmp = stack.enter_context(atomic_path(out_video)) if out_video else None
-            ctmp = stack.enter_context(atomic_path(out_csv)) if out_csv else None
-            writer = stack.enter_context(VideoWriter(vtmp, self.camera.width, self.camera.height, fps, crf=crf,
-                                                     preset=preset, threaded=True, threads=encoder_threads,
-                                                     convert=convert)) if vtmp else None
-            fh = stack.enter_context(open(ctmp, "w", newline="")) if ctmp else None
-            wr = csv.writer(fh) if fh else None
-            if wr:
-                names = self.rom.names
-                wr.writerow(["frame", "time_s", "status"] + [f"{n}_est" for n in names] +
-                            [f"{n}_std" for n in names] + ["residual_mm", "markers", "dots", "latency_ms"])
-            t_start, cpu_start = time.perf_counter(), time.process_time()
-            t_prev = t_start
-            frames = reader.frames_with_luma() if use_luma and hasattr(reader, "frames_with_luma") else \
-                ((f, None) for f in reader)
-            deferred = writer is not None and overlay_thread and self.overlay is not None
-            for k, (frame, luma) in enumerate(frames):
-                if max_frames is not None and k >= max_frames:
-                    break
-                t_in = time.perf_counter()
-                out, r = self.process(frame, k, draw=writer is not None and not deferred, gray=luma)
-                r.stages_ms["decode"] = (t_in - t_prev) * 1e3  # waiting for the decoder thread
-                t_e = time.perf_counter()
-                if deferred:
-                    writer.write(self._render_job(frame, r, snapshots.get(k) if snapshots else None))
-                else:
-                    if snapshots and k in snapshots:
-                        cv2.imwrite(str(snapshots[k]), out)
-                    if writer is not None:
-                        writer.write(out)
-                t_prev = time.perf_counter()
-                r.stages_ms["encode"] = (t_prev - t_e) * 1e3  # waiting for the encoder queue
-                results.append(r)
-                if wr:
-                    wr.writerow([k, f"{k / fps:.4f}", r.status] + [f"{v:.6f}" for v in r.mu] +
-                                [f"{v:.6f}" for v in r.std] + [f"{r.residual_mm:.5f}", r.n_markers, r.n_dots,
-                                                               f"{r.latency_ms:.3f}"])
-                if progress:
-                    progress(k + 1, total)
-            if not results:
-                raise PhysarError(f"{source}: no frames")
-            if writer is not None:
-                writer.close()
-            wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
+        def frames(reader):
+            if use_luma and hasattr(reader, "frames_with_luma"):
+                return reader.frames_with_luma()
+            return ((f, None) for f in reader)
+
+        s = run_video(step, self.camera, source, out_video, out_csv, fps, crf, header, _estimates_row, progress,
+                      snapshots, max_frames, STAGES, preset=preset, encoder_threads=encoder_threads, convert=convert,
+                      frames=frames, time_io=True, cpu=True)
+        results = s.pop("results")
         for r in results:
             r.__dict__.pop("_draw", None)
-        lat = np.array([r.latency_ms for r in results])
-        stages = {s: [r.stages_ms.get(s, 0.0) for r in results] for s in STAGES}
-        return {"frames": len(results), "wall_s": wall, "fps": len(results) / wall,
-                "latency_ms_median": float(np.median(lat)), "latency_ms_p95": float(np.percentile(lat, 95)),
-                "stages_ms_median": {s: float(np.median(v)) for s, v in stages.items()},
-                "stages_ms_mean": {s: float(np.mean(v)) for s, v in stages.items()},
-                "cpu_ms_median": float(np.median([r.cpu_ms for r in results])),
-                "process_cpu_ms_per_frame": cpu / len(results) * 1e3,  # all threads: decode, estimate, draw, encode
-                "results": results}
+        cpu = s.pop("process_cpu_ms_per_frame")  # all threads: decode, estimate, draw, encode
+        s["stages_ms_mean"] = {st: float(np.mean([r.stages_ms.get(st, 0.0) for r in results])) for st in STAGES}
+        s["cpu_ms_median"] = float(np.median([r.cpu_ms for r in results]))
+        return {**s, "process_cpu_ms_per_frame": cpu, "results": results}
 
-    def _render_job(self, frame, r: FrameResult, snapshot=None):
-        """A callable for the encoder thread: draws frame r's overlay (timed into r.stages_ms["overlay"]),
-        saves the snapshot PNG if asked, returns the image to encode."""
+    def _render_job(self, frame, r: FrameResult):
+        """A callable for the encoder thread: draws frame r's overlay (timed into r.stages_ms["overlay"]) and
+        returns the image to encode."""
         state = r._draw
 
         def job():
             t = time.perf_counter()
             out = self.render(frame, state) if state is not None else frame
             r.stages_ms["overlay"] = (time.perf_counter() - t) * 1e3
-            if snapshot is not None:
-                cv2.imwrite(str(snapshot), out)
             return out
         return job
+
+
+def _estimates_row(r: FrameResult) -> list:
+    """The columns of estimates.csv after frame, time_s, status."""
+    return ([f"{v:.6f}" for v in r.mu] + [f"{v:.6f}" for v in r.std] +
+            [f"{r.residual_mm:.5f}", r.n_markers, r.n_dots, f"{r.latency_ms:.3f}"])
 
 
 def read_estimates(path) -> dict:

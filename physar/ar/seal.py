@@ -17,7 +17,6 @@ looked away (§5.3.3).
 """
 from __future__ import annotations
 
-import csv
 import itertools
 import json
 import math
@@ -31,7 +30,8 @@ import cv2
 import numpy as np
 from pydantic import Field, model_validator
 
-from physar.ar.foam import _noise_texture, read_csv_columns, sensor_effects, shade, vignette, write_report
+from physar.ar.foam import _noise_texture, read_csv_columns, sensor_effects, shade, vignette
+from physar.ar.runner import pipeline_stats, run_scene_demo, run_video, write_report
 from physar.ar.scene import (
     CameraSection,
     LightingSection,
@@ -40,7 +40,7 @@ from physar.ar.scene import (
     _Strict,
     camera_values,
 )
-from physar.errors import ConfigError, PhysarError
+from physar.errors import ConfigError
 from physar.vision.camera import Camera, Pose
 
 
@@ -383,6 +383,14 @@ class SealFrame:
     stages_ms: dict
 
 
+# estimates.csv: frame, time_s, status, then these columns
+SEAL_ESTIMATES_HEADER = ["theta_est_deg", "theta_measured_deg", "plate_features", "lever_pixels", "latency_ms"]
+
+
+def _seal_row(r: SealFrame) -> list:
+    return [f"{r.theta:.5f}", f"{r.measured:.5f}", r.n_plate, r.n_lever_px, f"{r.latency_ms:.3f}"]
+
+
 class SealOverlay:
     """The virtual seal (outer surface, deformed by the reduced model) coloured by von Mises stress."""
 
@@ -549,51 +557,11 @@ class SealPipeline:
                               {"pose": (t1 - t0) * 1e3, "lever": (t2 - t1) * 1e3, "overlay": (t3 - t2) * 1e3})
 
     def run(self, source, out_video=None, out_csv=None, fps=None, crf=20, progress=None, snapshots=None) -> dict:
-        import contextlib
-
-        from physar.ar.video import VideoReader, VideoWriter, atomic_path
-
-        reader = VideoReader(source) if isinstance(source, (str, Path)) else source
-        w, h = getattr(reader, "width", None), getattr(reader, "height", None)
-        if (w, h) != (None, None) and (w, h) != self.camera.size:
-            raise ConfigError(f"video is {w}x{h} but the camera is for {self.camera.width}x{self.camera.height}")
-        fps = fps or getattr(reader, "fps", 30.0)
-        total = getattr(reader, "frames_hint", 0)
-        results = []
-        with contextlib.ExitStack() as stack:
-            vtmp = stack.enter_context(atomic_path(out_video)) if out_video else None
-            ctmp = stack.enter_context(atomic_path(out_csv)) if out_csv else None
-            writer = stack.enter_context(VideoWriter(vtmp, self.camera.width, self.camera.height, fps, crf=crf,
-                                                     threaded=True)) if vtmp else None
-            fh = stack.enter_context(open(ctmp, "w", newline="")) if ctmp else None
-            wr = csv.writer(fh) if fh else None
-            if wr:
-                wr.writerow(["frame", "time_s", "status", "theta_est_deg", "theta_measured_deg", "plate_features",
-                             "lever_pixels", "latency_ms"])
-            t_start = time.perf_counter()
-            for k, frame in enumerate(reader):
-                out, r = self.process(frame, k, draw=writer is not None or bool(snapshots and k in snapshots))
-                if snapshots and k in snapshots:
-                    cv2.imwrite(str(snapshots[k]), out)
-                if writer is not None:
-                    writer.write(out)
-                results.append(r)
-                if wr:
-                    wr.writerow([k, f"{k / fps:.4f}", r.status, f"{r.theta:.5f}", f"{r.measured:.5f}", r.n_plate,
-                                 r.n_lever_px, f"{r.latency_ms:.3f}"])
-                if progress:
-                    progress(k + 1, total)
-            if not results:
-                raise PhysarError(f"{source}: no frames")
-            if writer is not None:
-                writer.close()
-            wall = time.perf_counter() - t_start
-        lat = np.array([r.latency_ms for r in results])
-        return {"frames": len(results), "wall_s": wall, "fps": len(results) / wall,
-                "latency_ms_median": float(np.median(lat)), "latency_ms_p95": float(np.percentile(lat, 95)),
-                "stages_ms_median": {s: float(np.median([r.stages_ms[s] for r in results]))
-                                     for s in ("pose", "lever", "overlay")},
-                "results": results}
+        """Process a video (path or iterable of frames); atomic outputs; returns fps and latency statistics
+        (:func:`physar.ar.runner.run_video`)."""
+        return run_video(lambda k, frame, draw: self.process(frame, k, draw=draw), self.camera, source, out_video,
+                         out_csv, fps, crf, SEAL_ESTIMATES_HEADER, _seal_row, progress, snapshots,
+                         stage_names=("pose", "lever", "overlay"))
 
 
 def evaluate_seal(truth: dict, est: dict, recovery_tol_deg: float = 1.0) -> dict:
@@ -660,24 +628,23 @@ def seal_demo_scene(quick: bool = False) -> SealSceneSpec:
 
 
 def run_seal_demo(out, quick: bool = False, progress=None, spec: SealSceneSpec | None = None) -> dict:
+    """Render scene (c), build its reduced models (displacement and von Mises), run the markerless pipeline;
+    write the outputs into `out`."""
+    out, spec = Path(out), spec or seal_demo_scene(quick)
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    spec = spec or seal_demo_scene(quick)
-    cb = (lambda stage: (lambda k, n: progress(stage, k, n))) if progress else (lambda stage: None)
-    t0 = time.perf_counter()
-    render_seal_scene(spec, out, progress=cb("render scene"))
-    t1 = time.perf_counter()
-    rom, vm, seal, info = build_seal_model(spec, progress=cb("reduced model (non-intrusive PGD)"))
-    rom.save(out / "model.npz", mesh=seal.space.mesh)
-    vm.save(out / "model_von_mises.npz", mesh=seal.space.mesh)
-    t2 = time.perf_counter()
-    cam = Camera.load(out / "camera.toml")
-    pipe = SealPipeline(rom, vm, cam, PlateObject.load(out / "plate.json"), out, seal=seal)
-    snap = {int(0.3 * spec.n_frames): out / "augmented_frame.png"}
-    summary = pipe.run(out / "scene.mp4", out / "augmented.mp4", out / "estimates.csv", fps=spec.video.fps,
-                       progress=cb("AR pipeline"), snapshots=snap)
-    t3 = time.perf_counter()
+    def build(p):
+        rom, vm, seal, info = build_seal_model(spec, progress=p)
+        rom.save(out / "model.npz", mesh=seal.space.mesh)
+        vm.save(out / "model_von_mises.npz", mesh=seal.space.mesh)
+        return rom, vm, seal, info
+
+    def pipeline(model, cam):
+        rom, vm, seal, _ = model
+        return SealPipeline(rom, vm, cam, PlateObject.load(out / "plate.json"), out, seal=seal)
+
+    run = run_scene_demo(out, spec, progress, render_seal_scene, "reduced model (non-intrusive PGD)", build,
+                         pipeline, 0.3)
+    rom, vm, _, info = run.model
     truth, est = read_csv_columns(out / "truth.csv"), read_csv_columns(out / "estimates.csv")
     ev = evaluate_seal(truth, est)
     plot_seal(truth, est, out / "estimate_vs_truth.png")
@@ -688,17 +655,13 @@ def run_seal_demo(out, quick: bool = False, progress=None, spec: SealSceneSpec |
                   "duration_s": spec.video.duration, "theta_range_deg": [0.0, s.theta_max],
                   "material": "neo-Hookean, nearly incompressible", "C1_pa": s.C1, "kappa_pa": s.kappa_ratio * s.C1,
                   "mesh": [s.element, s.n_phi, s.n_profile], "look_away": [la.model_dump() for la in spec.look_away]},
-        "frames": summary["frames"],
-        "fps": summary["fps"],
-        "latency_ms_median": summary["latency_ms_median"],
-        "latency_ms_p95": summary["latency_ms_p95"],
-        "stages_ms_median": summary["stages_ms_median"],
+        **pipeline_stats(run.summary),
         "modes": rom.n_modes,
         "von_mises_modes": vm.n_modes,
         "pgd": {"parameter_points": int(rom.grids[0].size), "snapshots": info["snapshots"],
                 "error_estimate": info["error_estimate"]},
         **ev,
-        "timings_s": {"render_scene": t1 - t0, "reduced_model": t2 - t1, "pipeline": t3 - t2},
+        "timings_s": run.timings_s,
         "files": ["scene.mp4", "truth.csv", "camera.toml", "plate.png", "plate.json", "model.npz",
                   "model_von_mises.npz", "augmented.mp4", "estimates.csv", "estimate_vs_truth.png",
                   "augmented_frame.png", "report.json"],

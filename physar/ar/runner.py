@@ -1,0 +1,164 @@
+"""What every AR pipeline does around its per-frame step: :func:`run_video` (open the source, check its size,
+write the augmented video and the per-frame CSV atomically, time the frames) and :func:`run_scene_demo` (the
+render -> reduced model -> pipeline stages of the scene demos), with :func:`pipeline_stats` and
+:func:`write_report` for their report.json."""
+from __future__ import annotations
+
+import contextlib
+import csv
+import json
+import os
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from physar.errors import ConfigError, PhysarError
+
+
+def _saving(job: Callable[[], np.ndarray], path) -> Callable[[], np.ndarray]:
+    """The deferred frame ``job`` that also saves the image it returns as the PNG ``path``."""
+    def run():
+        img = job()
+        cv2.imwrite(str(path), img)
+        return img
+    return run
+
+
+def run_video(process: Callable, camera, source, out_video=None, out_csv=None, fps: float | None = None,
+              crf: int = 20, csv_header: Sequence[str] = (), csv_row: Callable | None = None,
+              progress: Callable[[int, int], None] | None = None, snapshots: dict | None = None,
+              max_frames: int | None = None, stage_names: Sequence[str] | None = None, *,
+              preset: str = "veryfast", encoder_threads: int = 0, convert: str = "ffmpeg",
+              frames: Callable[[object], Iterable] | None = None, time_io: bool = False,
+              cpu: bool = False) -> dict:
+    """Run ``process`` on every frame of ``source`` (a video path, or a VideoReader / CameraSource / iterable
+    of BGR frames) whose size must be ``camera``'s.
+
+    ``process(k, item, draw) -> (image, result)``: ``item`` is the k-th frame (or what ``frames(reader)``
+    yields), ``draw`` whether the image is used (a video is written, or frame k is in ``snapshots``: {frame
+    index: PNG path}). ``image`` may be a callable returning it, called in the encoder thread. ``result``
+    has ``status``, ``latency_ms`` and ``stages_ms`` (a dict of stage name -> ms).
+
+    Outputs, both optional and written atomically (temporaries renamed only when every frame is done):
+    ``out_video`` (H.264 at ``fps``, default the source's, libx264 ``crf``/``preset``/``encoder_threads``,
+    ``convert`` as in :class:`physar.ar.video.VideoWriter`, also used to open a path source) and ``out_csv``
+    (columns frame, time_s, status, then ``csv_header``; a row per frame: k, k / fps, status, then
+    ``csv_row(result)``). ``time_io``: record in each result's stages_ms the wait for the frame ("decode")
+    and for the writer ("encode"). Stops after ``max_frames`` frames; ``progress(done, total hint)``.
+
+    Returns frames, wall_s, fps, latency_ms_median, latency_ms_p95, stages_ms_median (over ``stage_names``,
+    default every stage met, sorted; a stage missing in a frame counts 0), process_cpu_ms_per_frame (with
+    ``cpu``: CPU time of all threads per frame) and results (the ``result`` of every frame).
+    """
+    from physar.ar.video import VideoReader, VideoWriter, atomic_path
+
+    reader = VideoReader(source, convert=convert) if isinstance(source, (str, Path)) else source
+    w, h = getattr(reader, "width", None), getattr(reader, "height", None)
+    if (w, h) != (None, None) and (w, h) != camera.size:
+        raise ConfigError(f"video is {w}x{h} but the camera is for {camera.width}x{camera.height}")
+    fps = fps or getattr(reader, "fps", 30.0)
+    total = getattr(reader, "frames_hint", 0)
+    results = []
+    with contextlib.ExitStack() as stack:
+        vtmp = stack.enter_context(atomic_path(out_video)) if out_video else None
+        ctmp = stack.enter_context(atomic_path(out_csv)) if out_csv else None
+        writer = stack.enter_context(VideoWriter(vtmp, camera.width, camera.height, fps, crf=crf, preset=preset,
+                                                 threaded=True, threads=encoder_threads,
+                                                 convert=convert)) if vtmp else None
+        fh = stack.enter_context(open(ctmp, "w", newline="")) if ctmp else None
+        rows = csv.writer(fh) if fh else None
+        if rows:
+            rows.writerow(["frame", "time_s", "status", *csv_header])
+        t_start, cpu_start = time.perf_counter(), time.process_time()
+        t_prev = t_start
+        for k, item in enumerate(frames(reader) if frames else reader):
+            if max_frames is not None and k >= max_frames:
+                break
+            snap = snapshots.get(k) if snapshots else None
+            t_in = time.perf_counter()
+            img, r = process(k, item, writer is not None or snap is not None)
+            if time_io:
+                r.stages_ms["decode"] = (t_in - t_prev) * 1e3  # waiting for the decoder
+            t_out = time.perf_counter()
+            if callable(img) and writer is None:
+                img = img()
+            if snap is not None:
+                if callable(img):
+                    img = _saving(img, snap)
+                else:
+                    cv2.imwrite(str(snap), img)
+            if writer is not None:
+                writer.write(img)
+            t_prev = time.perf_counter()
+            if time_io:
+                r.stages_ms["encode"] = (t_prev - t_out) * 1e3  # waiting for the encoder queue
+            results.append(r)
+            if rows:
+                rows.writerow([k, f"{k / fps:.4f}", r.status, *(csv_row(r) if csv_row else ())])
+            if progress:
+                progress(k + 1, total)
+        if not results:
+            raise PhysarError(f"{source}: no frames")
+        if writer is not None:
+            writer.close()
+        wall, cpu_s = time.perf_counter() - t_start, time.process_time() - cpu_start
+    lat = np.array([r.latency_ms for r in results])
+    names = stage_names if stage_names is not None else sorted({s for r in results for s in r.stages_ms})
+    summary = {"frames": len(results), "wall_s": wall, "fps": len(results) / wall,
+               "latency_ms_median": float(np.median(lat)), "latency_ms_p95": float(np.percentile(lat, 95)),
+               "stages_ms_median": {s: float(np.median([r.stages_ms.get(s, 0.0) for r in results])) for s in names}}
+    if cpu:
+        summary["process_cpu_ms_per_frame"] = cpu_s / len(results) * 1e3
+    summary["results"] = results
+    return summary
+
+
+@dataclass
+class SceneDemo:
+    """What :func:`run_scene_demo` made: ``build``'s return value, the camera, the pipeline's summary and the
+    wall time of each stage."""
+
+    model: object
+    camera: object
+    summary: dict
+    timings_s: dict
+
+
+def run_scene_demo(out: Path, spec, progress: Callable[[str, int, int], None] | None, render: Callable,
+                   model_stage: str, build: Callable, pipeline: Callable, snapshot_at: float) -> SceneDemo:
+    """The stages of a scene demo in ``out``: ``render(spec, out, progress=...)`` (scene.mp4, truth.csv,
+    camera.toml), ``build(progress) -> model`` (builds and saves the reduced model; its progress stage is
+    called ``model_stage``), ``pipeline(model, camera)`` run on scene.mp4 -> augmented.mp4 and estimates.csv,
+    with augmented_frame.png the frame at ``snapshot_at`` of the clip. ``progress(stage, done, total)``."""
+    out.mkdir(parents=True, exist_ok=True)
+    cb = (lambda stage: (lambda k, n: progress(stage, k, n))) if progress else (lambda stage: None)
+    t0 = time.perf_counter()
+    render(spec, out, progress=cb("render scene"))
+    t1 = time.perf_counter()
+    model = build(cb(model_stage))
+    t2 = time.perf_counter()
+    from physar.vision.camera import Camera
+
+    cam = Camera.load(out / "camera.toml")
+    snap = {int(snapshot_at * spec.n_frames): out / "augmented_frame.png"}
+    summary = pipeline(model, cam).run(out / "scene.mp4", out / "augmented.mp4", out / "estimates.csv",
+                                       fps=spec.video.fps, progress=cb("AR pipeline"), snapshots=snap)
+    t3 = time.perf_counter()
+    return SceneDemo(model, cam, summary,
+                     {"render_scene": t1 - t0, "reduced_model": t2 - t1, "pipeline": t3 - t2})
+
+
+def pipeline_stats(summary: dict) -> dict:
+    """The entries of a pipeline summary that a demo's report.json carries."""
+    return {k: summary[k] for k in ("frames", "fps", "latency_ms_median", "latency_ms_p95", "stages_ms_median")}
+
+
+def write_report(out: Path, report: dict) -> None:
+    """``out``/report.json, atomically (numpy scalars as floats)."""
+    tmp = out / ".report.json.tmp"
+    tmp.write_text(json.dumps(report, indent=2, default=float))
+    os.replace(tmp, out / "report.json")
