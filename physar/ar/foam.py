@@ -17,7 +17,6 @@ World frame: x along the beam, y into the scene (away from the camera), z up; m,
 """
 from __future__ import annotations
 
-import csv
 import json
 import math
 import os
@@ -39,6 +38,7 @@ from physar.ar.scene import (
     VideoSection,
     _Strict,
     camera_values,
+    read_csv_columns,
 )
 from physar.errors import ConfigError, PhysarError
 from physar.vision.camera import Camera, Pose
@@ -502,22 +502,6 @@ def render_foam_scene(spec: FoamSceneSpec, out_dir, progress: Callable[[int, int
     out = write_clip(out_dir, video_name, cam, spec.video.fps, spec.video.crf, FOAM_TRUTH_HEADER, spec.n_frames,
                      frame, progress)
     return {**out, "truth_solves": rend.truth.solver.solves}
-
-
-def read_csv_columns(path) -> dict:
-    with open(path, newline="") as fh:
-        rows = list(csv.reader(fh))
-    if not rows:
-        raise PhysarError(f"{path}: empty file")
-    head, body = rows[0], rows[1:]
-    out = {}
-    for j, h in enumerate(head):
-        vals = [r[j] for r in body]
-        try:
-            out[h] = np.array(vals, float)
-        except ValueError:
-            out[h] = np.array(vals)
-    return out
 
 
 # ------------------------------------------------------------------------------------------------------

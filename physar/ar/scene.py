@@ -565,15 +565,26 @@ def render_scene(spec: SceneSpec, out_dir, progress: Callable[[int, int], None] 
                       spec.n_frames, frame, progress, threads=threads)
 
 
-def read_truth(path) -> dict:
-    """Columns of a truth.csv as numpy arrays (frame, time_s, s_true_m, ..., occluded as str)."""
+def read_csv_columns(path, what: str = "file") -> dict:
+    """Columns of a CSV file with a header row as numpy arrays: float where every value parses, else str."""
     with open(path, newline="") as fh:
         rows = list(csv.reader(fh))
     if not rows:
-        raise PhysarError(f"{path}: empty truth file")
+        raise PhysarError(f"{path}: empty {what}")
     head, body = rows[0], rows[1:]
     cols = {}
     for j, h in enumerate(head):
         vals = [r[j] for r in body]
-        cols[h] = np.array(vals) if h == "occluded" else np.array(vals, float)
+        try:
+            cols[h] = np.array(vals, float)
+        except ValueError:
+            cols[h] = np.array(vals)
+    return cols
+
+
+def read_truth(path) -> dict:
+    """Columns of a truth.csv as numpy arrays (frame, time_s, s_true_m, ..., occluded as str)."""
+    cols = read_csv_columns(path, "truth file")
+    if "occluded" in cols:
+        cols["occluded"] = cols["occluded"].astype(str)
     return cols
