@@ -946,12 +946,24 @@ def plot_foam(truth: dict, est: dict, path, title: str) -> None:
     a1.set_ylabel("load position s [mm]")
     a1.set_title(title)
     a1.legend(loc="upper right", fontsize=8)
-    a2.plot(t, np.where(tracking, s_e - s_t, np.nan), color="tab:red", lw=1)
-    for v in (-1.5, 1.5):
-        a2.axhline(v, color="0.3", ls="--", lw=1)
-    a2.set_ylim(-8, 8)
-    a2.set_xlabel("time [s]")
-    a2.set_ylabel("error [mm]")
+    error_panel(a2, t, np.where(tracking, s_e - s_t, np.nan), 1.5, 8, "mm")
+    save_figure(fig, path)
+
+
+def error_panel(ax, t, err, band: float, ylim: float, unit: str) -> None:
+    """Lower panel of the estimate-vs-truth plots: the error over time with dashed +-``band`` lines."""
+    ax.plot(t, err, color="tab:red", lw=1)
+    for v in (-band, band):
+        ax.axhline(v, color="0.3", ls="--", lw=1)
+    ax.set_ylim(-ylim, ylim)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(f"error [{unit}]")
+
+
+def save_figure(fig, path) -> None:
+    """tight_layout, write the PNG to a temporary and rename it (no partial file), close the figure."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     tmp = Path(path).with_suffix(".tmp.png")
     fig.savefig(tmp, dpi=110)

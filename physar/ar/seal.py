@@ -30,7 +30,15 @@ import cv2
 import numpy as np
 from pydantic import Field, model_validator
 
-from physar.ar.foam import _noise_texture, read_csv_columns, sensor_effects, shade, vignette
+from physar.ar.foam import (
+    _noise_texture,
+    error_panel,
+    read_csv_columns,
+    save_figure,
+    sensor_effects,
+    shade,
+    vignette,
+)
 from physar.ar.runner import pipeline_stats, run_scene_demo, run_video, write_report
 from physar.ar.scene import (
     CameraSection,
@@ -606,17 +614,8 @@ def plot_seal(truth, est, path):
     a1.set_ylabel("theta [deg]")
     a1.set_title("Scene (c): virtual boot seal - lever angle, estimate vs truth")
     a1.legend(loc="upper right", fontsize=8)
-    a2.plot(t, np.where(tracking, te - th, np.nan), color="tab:red", lw=1)
-    for v in (-1, 1):
-        a2.axhline(v, color="0.3", ls="--", lw=1)
-    a2.set_ylim(-3, 3)
-    a2.set_xlabel("time [s]")
-    a2.set_ylabel("error [deg]")
-    fig.tight_layout()
-    tmp = Path(path).with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
+    error_panel(a2, t, np.where(tracking, te - th, np.nan), 1, 3, "deg")
+    save_figure(fig, path)
 
 
 def seal_demo_scene(quick: bool = False) -> SealSceneSpec:
