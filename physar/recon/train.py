@@ -524,6 +524,24 @@ def _spin_psnr(rig: Rig, app: Appearance, sk: dict, physics_F: bool) -> float:
     return float(np.mean(vals))
 
 
+def _fit_positions(rig: Rig, app: Appearance, kin: dict, f: int, rgb_f, mask_f, x0: torch.Tensor, iters: int,
+                   lr: float, prior: Callable[[torch.Tensor], torch.Tensor]) -> tuple[torch.Tensor, float]:
+    """Object positions of frame f by Adam from ``x0``: image loss (RGB + mask) of the frame rendered with F from
+    the lattice neighbours, plus ``prior(x)`` (the 4DGS-like rigidity, or the Eq. 9 flow + ARAP terms).
+    Returns the positions and the last loss."""
+    x = x0.clone().requires_grad_(True)
+    opt = torch.optim.Adam([x], lr=lr)
+    loss = torch.zeros(())
+    for _ in range(iters):
+        res = render_scene(rig, app, x, rig.deformation_from_neighbours(x), kin["ref"][f], kin["A_h"][f],
+                           kin["xb"][f], kin["A_b"][f])
+        loss = image_loss(res, rgb_f, mask_f, rig.cfg) + prior(x)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return x.detach(), float(loss.detach())
+
+
 def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = None,
         progress: Progress | None = None, restart: bool = False, reuse: str | Path | None = None) -> dict:
     """Run the stages on DATA_DIR and write RUN_DIR (model.npz, gaussians.ply, report.json, preview.mp4).
@@ -590,18 +608,11 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
     # ---- stage 2a: per-frame positions with RGB + mask + edge rigidity = the 4DGS-like baseline
     if st.stage == "flow":
         for f in range(len(st.flow), ds.n_obs):
-            x = st.flow[-1].clone().requires_grad_(True)
-            opt = torch.optim.Adam([x], lr=cfg.flow_lr)
-            for it in range(cfg.flow_iters):
-                res = render_scene(rig, app, x, rig.deformation_from_neighbours(x), kin["ref"][f], kin["A_h"][f],
-                                   kin["xb"][f], kin["A_b"][f])
-                loss = image_loss(res, rgb[f], mask[f], cfg) + cfg.rigidity * rig.rigidity(x)
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-            st.history["flow"].append(float(loss.detach()))
-            st.flow.append(x.detach())
-            prog("flow", f, ds.n_obs - 1, float(loss.detach()))
+            x, loss = _fit_positions(rig, app, kin, f, rgb[f], mask[f], st.flow[-1], cfg.flow_iters, cfg.flow_lr,
+                                     lambda x: cfg.rigidity * rig.rigidity(x))
+            st.history["flow"].append(loss)
+            st.flow.append(x)
+            prog("flow", f, ds.n_obs - 1, loss)
             st.seconds = time.perf_counter() - t0
             _save_checkpoint(run, st, cfg)
         st.stage, st.iteration, st.spflow = "spflow", 0, [Xo.clone()]
@@ -620,19 +631,13 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
             uv, z = project(xp, K, Rc, tc)
             vis = visible(uv, z, r0.depth.double(), r0.alpha.double(), tol=rig.h)
             of = torch.as_tensor(dis_flow(ds.rgb[f - 1], ds.rgb[f]), dtype=torch.float64)
-            x = xp.clone().requires_grad_(True)
-            opt = torch.optim.Adam([x], lr=cfg.flow_lr)
-            for it in range(cfg.spflow_iters):
-                res = render_scene(rig, app, x, rig.deformation_from_neighbours(x), kin["ref"][f], kin["A_h"][f],
-                                   kin["xb"][f], kin["A_b"][f])
-                loss = (image_loss(res, rgb[f], mask[f], cfg) + cfg.lambda_of * flow_loss(xp, x, of, vis, K, Rc, tc)
-                        + cfg.lambda_arap * arap_energy(x, Xo, rig.pairs))
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-            st.history["spflow"].append(float(loss.detach()))
-            st.spflow.append(x.detach())
-            prog("spflow", f, ds.n_obs - 1, float(loss.detach()))
+            x, loss = _fit_positions(
+                rig, app, kin, f, rgb[f], mask[f], xp, cfg.spflow_iters, cfg.flow_lr,
+                lambda x, xp=xp, of=of, vis=vis: (cfg.lambda_of * flow_loss(xp, x, of, vis, K, Rc, tc)
+                                                  + cfg.lambda_arap * arap_energy(x, Xo, rig.pairs)))
+            st.history["spflow"].append(loss)
+            st.spflow.append(x)
+            prog("spflow", f, ds.n_obs - 1, loss)
             st.seconds = time.perf_counter() - t0
             _save_checkpoint(run, st, cfg)
         st.stage, st.iteration = "physics", 0
