@@ -72,17 +72,15 @@ def test_filter_options_are_validated(pipe):
             ARPipeline(p.rom, p.camera, p.obj, overlay=False, **kw)
 
 
-def test_joint_refinement_recovers_pose_and_load_from_two_markers(pipe):
-    """Synthetic frame with a known camera pose and load position: two vertically stacked markers (their
-    corners projected with the true pose, then pulled 0.15 px towards each marker's centre, a corner-
-    refinement bias) and the dots at the reduced model's displacement for s_true (0.05 px noise). OpenCV's
-    PnP (the peer) on the biased corners alone is off in yaw; the joint pose + load refinement, started
-    from that pose and a wrong s, recovers the true yaw and s, and s lies within its reported std (measured:
-    yaw 0.51 deg -> 0.03 deg, camera centre 5.5 mm -> 0.4 mm, s within 1.1 mm, std 1.9 mm at 640x360)."""
+def _two_marker_frame(p, spec, s_true=0.37, seed=5):
+    """Synthetic two-marker frame with a known camera pose (``spec.camera_pose(0.2)``) and load position
+    s_true: the corners of the two vertically stacked markers near the clamp projected with the true pose,
+    then pulled 0.15 px towards each marker's centre (a corner-refinement bias) plus 0.02 px noise, and the
+    dots at the reduced model's displacement for s_true (0.05 px noise). Returns (true pose, OpenCV PnP pose
+    on the corners alone (the peer), PoseEstimate as the marker tracker would hand it over, dot pixels)."""
     from physar.vision.markers import PoseEstimate
 
-    p, spec = pipe
-    rng = np.random.default_rng(5)
+    rng = np.random.default_rng(seed)
     true = spec.camera_pose(0.2)
     board = p._board
     left = np.argsort(board.corners[:, :, 0].mean(1))[:2]          # the two markers near the clamp
@@ -95,22 +93,77 @@ def test_joint_refinement_recovers_pose_and_load_from_two_markers(pipe):
     _, rv, tv = cv2.solvePnP(X.reshape(-1, 3), img, K, dist, flags=cv2.SOLVEPNP_IPPE)
     rv, tv = cv2.solvePnPRefineLM(X.reshape(-1, 3), img, K, dist, rv, tv)
     pnp = Pose.from_rvec(rv.ravel(), tv.ravel())
-    s_true = 0.37
     u = (p.CF @ p.rom.coefficients([s_true])[0]).reshape(-1, 2)
     w = np.asarray(p.obj.dots, float).copy()
     w[:, 0] += u[:, 0]
     w[:, 2] += u[:, 1]
     px = p.camera.project(w, true) + rng.normal(0, 0.05, (len(w), 2))
-    valid = np.ones(len(w), bool)
     rms = float(np.sqrt(np.mean(np.sum((p.camera.project(X.reshape(-1, 3), pnp) - img) ** 2, 1))))
     pe = PoseEstimate(pnp, "measured", 2, rms, [int(board.ids[k]) for k in left], img)
+    return true, pnp, pe, px
 
-    def yaw_err(pose):  # rotation error about the world's vertical axis z [deg]
-        return abs(np.degrees(cv2.Rodrigues(true.R.T @ pose.R)[0].ravel() @ [0, 0, 1.0]))
+
+def _yaw_err(pose, true):  # rotation error about the world's vertical axis z [deg]
+    return abs(np.degrees(cv2.Rodrigues(true.R.T @ pose.R)[0].ravel() @ [0, 0, 1.0]))
+
+
+def test_joint_refinement_recovers_pose_and_load_from_two_markers(pipe):
+    """Synthetic frame with a known camera pose and load position (:func:`_two_marker_frame`). OpenCV's
+    PnP (the peer) on the biased corners alone is off in yaw; the joint pose + load refinement, started
+    from that pose and a wrong s, recovers the true yaw and s, and s lies within its reported std (measured:
+    yaw 0.51 deg -> 0.03 deg, camera centre 5.5 mm -> 0.4 mm, s within 1.1 mm, std 1.9 mm at 640x360)."""
+    p, spec = pipe
+    s_true = 0.37
+    true, pnp, pe, px = _two_marker_frame(p, spec, s_true)
+    valid = np.ones(len(px), bool)
 
     mu, std, pose = p._joint_refine(pe, px, valid, np.array([0.30]))
-    assert yaw_err(pnp) > 0.1                                        # the corners alone leave the yaw off
-    assert yaw_err(pose) < 0.25 * yaw_err(pnp)
+    assert _yaw_err(pnp, true) > 0.1                                 # the corners alone leave the yaw off
+    assert _yaw_err(pose, true) < 0.25 * _yaw_err(pnp, true)
     assert np.linalg.norm(pose.center - true.center) < 0.25 * np.linalg.norm(pnp.center - true.center)
     assert abs(mu[0] - s_true) < 2e-3                                 # from 70 mm off at the start
     assert abs(mu[0] - s_true) < 3 * std[0] and std[0] < 3e-3
+
+
+def test_overlay_draws_with_the_jointly_refined_pose(pipe, monkeypatch):
+    """process() on the synthetic two-marker frame (the marker tracker and the dot tracker replaced by their
+    outputs for it, dots back-projected with the PnP pose as the dot tracker does): the pose handed to the
+    overlay is the one the joint refinement returned, and it is closer to the true pose than OpenCV's PnP on
+    the corners alone, both in the beam's reprojected pixels (measured: 0.70 px -> 0.05 px mean over the
+    beam's 8 corners) and in the camera centre; the marker tracker's pose is left as it was. With
+    ``joint_pose=False`` the overlay gets the tracker's pose unchanged."""
+    from physar.vision.dots import DotObservation
+
+    p0, spec = pipe
+    true, pnp, pe, px = _two_marker_frame(p0, spec)
+    pnp_R, pnp_t = pnp.R.copy(), pnp.t.copy()
+    ref = np.asarray(p0.obj.dots, float)
+    world = p0.camera.backproject_to_plane(px, pnp, [0, 0, 0], [0, 1.0, 0])
+    obs = DotObservation(px, np.ones(len(px), bool), world, world - ref)
+    b = p0.obj
+    beam = np.array([[x, y, z] for x in (0, b.length) for y in (0, b.width) for z in (0, b.height)])
+
+    def beam_px_err(pose):  # mean pixel distance of the beam's 8 corners from their true projection
+        return float(np.mean(np.linalg.norm(p0.camera.project(beam, pose) - p0.camera.project(beam, true), axis=1)))
+
+    frame = np.zeros((spec.video.height, spec.video.width, 3), np.uint8)
+    poses = {}
+    for joint in (True, False):
+        p = ARPipeline(p0.rom, p0.camera, p0.obj, overlay=True, joint_pose=joint)
+        monkeypatch.setattr(p.markers, "update", lambda gray: pe)
+        monkeypatch.setattr(p.dots, "update", lambda frame, gray, pose: obs)
+        refined = []
+        jr = p._joint_refine
+        monkeypatch.setattr(p, "_joint_refine", lambda *a, _r=refined, _j=jr, **k: _r.append(_j(*a, **k)) or _r[-1])
+        _, r = p.process(frame, 0, draw=False, gray=frame[:, :, 0])
+        assert r.status == "tracking" and len(refined) == int(joint)
+        poses[joint] = r._draw["pose"]
+        if joint:
+            assert poses[joint] is refined[0][2]
+    assert np.array_equal(pnp.R, pnp_R) and np.array_equal(pnp.t, pnp_t)   # the tracker's pose untouched
+    assert poses[False] is pnp
+    drawn = poses[True]
+    assert beam_px_err(pnp) > 0.3                                   # PnP on the corners alone: visibly off
+    assert beam_px_err(drawn) < 0.25 * beam_px_err(pnp)
+    assert np.linalg.norm(drawn.center - true.center) < 0.25 * np.linalg.norm(pnp.center - true.center)
+    assert _yaw_err(drawn, true) < 0.25 * _yaw_err(pnp, true)
