@@ -159,13 +159,15 @@ class ARPipeline:
     larger than ``jump_sigma`` standard deviations re-initialises the filter at the measurement.
     ``joint_pose``: refine the camera pose and the parameters together from the marker corners and the
     dots' pixels (:meth:`_joint_refine`) and pass that estimate and its std to the filter, in every frame
-    with markers (True) or only with fewer than three markers seen ("weak": two stacked markers leave the
-    pose weak in a yaw + depth direction), or never (False). Measured over the demo's scene noise seeds 0-9
+    with markers (True) or only with fewer than three markers seen ("weak", the default: two stacked markers
+    leave the pose weak in a yaw + depth direction), or never (False). The default keeps the demo above the
+    issue's 120 fps: in one run of the 1280x720 demo, "weak" ran at 150-155 fps and True at 121-124 fps
+    (both with forward-difference Jacobians). Measured over the demo's scene noise seeds 0-9
     (benchmarks/bench_ar_seeds.py): "weak" takes the frames with two markers hidden from up to 10.6 mm error
     to under 3 mm (3467/3470 judged frames within 5 mm, worst 5.94 mm, the three misses four-marker frames
     where single assimilations were 2.7-3.3 std off or the dwell model lagged a move's onset); True takes
-    all seeds to 3470/3470, worst 4.12 mm (mean 0.50 instead of 0.77 mm), for ~3.3 ms more estimation per
-    frame (median assimilate stage 1.0 -> 4.3 ms); the dwell at 60 mm (next to the clamp, not judged) is
+    all seeds to 3470/3470, worst 4.12 mm (mean 0.50 instead of 0.77 mm), for more estimation time per
+    frame (+3.3 ms with central-difference Jacobians, +1.6 ms with the forward differences now used); the dwell at 60 mm (next to the clamp, not judged) is
     then up to 3.0 mm off on average instead of 1.7 mm. The overlay of those frames is drawn with the refined
     pose (the marker tracker keeps its own): the beam's corners land 0.08 px from their true-pose projection
     on average instead of 1.05 px in the demo's two-marker frames (seed 0, frames 210-229), and 0.062 px
@@ -183,7 +185,7 @@ class ARPipeline:
                  rotation_sigma_deg: float = 0.005, dot_sigma_px: float = 0.07,
                  smoothing: float = 0.6, jump_sigma: float = 4.0, track_markers: bool = True,
                  dot_flow: bool | str = "auto", filter: str = "imm", dwell_sigma: float = 1e-4,
-                 motion_accel: float = 5e-3, switch: tuple = (0.05, 0.1), joint_pose: bool | str = True):
+                 motion_accel: float = 5e-3, switch: tuple = (0.05, 0.1), joint_pose: bool | str = "weak"):
         from physar.ar.overlay import BeamOverlay
 
         self.rom, self.camera = rom, camera
@@ -399,14 +401,14 @@ class ARPipeline:
         th[6:6 + p] = np.clip(mu0, lo, hi)
         steps = np.r_[np.full(3, 1e-6), np.full(3, 1e-6), 1e-6 * (hi - lo)]
 
-        def jac(th):  # central differences
+        def jac(th, r):  # forward differences from the residual r at th (half the cost of central ones)
             E = np.diag(steps)
-            return np.stack([(resid(th + e) - resid(th - e)) / (2 * h) for e, h in zip(E, steps)], 1)
+            return np.stack([(resid(th + e) - r) / h for e, h in zip(E, steps)], 1)
 
         r = resid(th)
         cost = r @ r
         for _ in range(iters):
-            J = jac(th)
+            J = jac(th, r)
             A = J.T @ J
             try:
                 dx = -np.linalg.solve(A, J.T @ r)
@@ -426,7 +428,7 @@ class ARPipeline:
             th, r, cost = tn, rn, rn @ rn
             if done:
                 break
-        J = jac(th)
+        J = jac(th, r)
         try:
             cov = np.linalg.inv(J.T @ J) * cost / max(r.size - th.size, 1)
         except np.linalg.LinAlgError:

@@ -172,7 +172,7 @@ def test_overlay_draws_with_the_jointly_refined_pose(pipe, monkeypatch):
 
 def test_joint_refinement_runs_with_four_markers_unless_weak_only(pipe, monkeypatch):
     """process() on a synthetic four-marker frame (:func:`_two_marker_frame` with all four markers, trackers
-    replaced by their outputs): with the default ``joint_pose=True`` the joint pose + load refinement runs
+    replaced by their outputs): with ``joint_pose=True`` the joint pose + load refinement runs
     there too, and its s lies within 3 std of the true s and its pose within 0.5 mm (camera centre) and 0.05
     deg (yaw) of the true pose (measured over noise seeds 0-5 at 640x360: s within 2.1 mm, std 1.0-1.9 mm,
     centre 0.07-0.28 mm, yaw <= 0.019 deg); with ``joint_pose="weak"`` (fewer than three markers only) it
