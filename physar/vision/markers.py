@@ -245,7 +245,10 @@ class MarkerTracker:
         if prediction is not None:
             proj = self.camera.project(self.board.corners.reshape(-1, 3), prediction).reshape(-1, 4, 2)
             periodic = self.redetect_every > 0 and self._frame % self.redetect_every == 0
-            if self.track and not periodic:
+            # corner tracking only from a measured pose: after a hold the prediction has drifted too far for
+            # the sub-pixel refinement to converge fully (2-3.5 px overlay error in the first frames after a
+            # one-second full occlusion), so the markers are detected again in their ROIs
+            if self.track and not periodic and self._missed == 0:
                 found = self._track(gray, proj)
                 self.n_tracked += len(found)
             for k, p in enumerate(proj):
@@ -261,8 +264,12 @@ class MarkerTracker:
                 if k in det:
                     found[k] = det[k]
                     self.n_detected += 1
-            if len(found) >= self.min_markers:
+            if len(found) >= self.min_markers and (self._missed == 0 or len(found) == len(proj)):
                 return found, False
+            # markers back after a hold: the drifted prediction's ROIs may miss some of them, so the frame is
+            # searched in full (once: the pose is measured again from then on)
+            if found:
+                return self._detect(gray), True
             if self._missed % self.full_search_every:  # held pose: full-frame search every few frames
                 return found, False
         return self._detect(gray), True
