@@ -178,16 +178,21 @@ def test_marker_tracker_holds_pose_under_occlusion():
     assert lost.status == "lost" and lost.pose is None
 
 
+def _tracking_setup():
+    """720p camera, the 4-marker board and its texture, a corner-tracking MarkerTracker, OpenCV's detector."""
+    cam = Camera.from_fov(1280, 720, 65)
+    board = _board()
+    tex, s = _board_texture(board, 2000.0)
+    tr = MarkerTracker(cam, board, redetect_every=0)
+    ref = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), tr._params)
+    return cam, board, tex, s, Pose(np.eye(3), [-0.3, -0.2, 0]), tr, ref
+
+
 def test_marker_corner_tracking_matches_detector_and_checks_bits():
     """Corner tracking (sub-pixel refinement of predicted corners) gives the corners of OpenCV's ArUco detector
     (an independent full-frame detection with the same refinement) to < 0.02 px while the camera moves; a marker
     swapped for another id, or covered, fails the bit check and is not used (the others still are)."""
-    cam = Camera.from_fov(1280, 720, 65)
-    board = _board()
-    tex, s = _board_texture(board, 2000.0)
-    shift = Pose(np.eye(3), [-0.3, -0.2, 0])
-    tr = MarkerTracker(cam, board, redetect_every=0)
-    ref = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), tr._params)
+    cam, board, tex, s, shift, tr, ref = _tracking_setup()
 
     def frame(k, texture):
         pose = Pose(rotation_x(3 + 0.1 * k) @ rotation_y(-5 + 0.15 * k), [0.0005 * k, -0.0003 * k, 0.58])
@@ -246,12 +251,7 @@ def test_markers_detected_again_after_a_hold():
     far that its search windows catch only some of the markers: the first frame back must find all four, with
     the corners of OpenCV's ArUco detector on that frame (an independent full detection with the same
     sub-pixel refinement), and the pose within 2 mm (from the two markers in the windows it was 4.2 mm off)."""
-    cam = Camera.from_fov(1280, 720, 65)
-    board = _board()
-    tex, s = _board_texture(board, 2000.0)
-    shift = Pose(np.eye(3), [-0.3, -0.2, 0])
-    tr = MarkerTracker(cam, board, redetect_every=0)
-    ref = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), tr._params)
+    cam, _, tex, s, shift, tr, ref = _tracking_setup()
 
     def frame(k, visible=True):
         pose = Pose(rotation_x(3 + 0.2 * k) @ rotation_y(-5 + 0.3 * k), [0.002 * k, -0.001 * k, 0.58])
