@@ -9,7 +9,6 @@ pose projection, KLT only when that misses), and the encoder thread (the overlay
 """
 from __future__ import annotations
 
-import csv
 import json
 import os
 import time
@@ -159,19 +158,12 @@ class ARPipeline:
     larger than ``jump_sigma`` standard deviations re-initialises the filter at the measurement.
     ``joint_pose``: refine the camera pose and the parameters together from the marker corners and the
     dots' pixels (:meth:`_joint_refine`) and pass that estimate and its std to the filter, in every frame
-    with markers (True) or only with fewer than three markers seen ("weak", the default: two stacked markers
-    leave the pose weak in a yaw + depth direction), or never (False). The default keeps the demo above the
-    issue's 120 fps: in one run of the 1280x720 demo, "weak" ran at 150-155 fps and True at 121-124 fps
-    (both with forward-difference Jacobians). Measured over the demo's scene noise seeds 0-9
-    (benchmarks/bench_ar_seeds.py): "weak" takes the frames with two markers hidden from up to 10.6 mm error
-    to under 3 mm (3467/3470 judged frames within 5 mm, worst 5.94 mm, the three misses four-marker frames
-    where single assimilations were 2.7-3.3 std off or the dwell model lagged a move's onset); True takes
-    all seeds to 3470/3470, worst 4.12 mm (mean 0.50 instead of 0.77 mm), for more estimation time per
-    frame (+3.3 ms with central-difference Jacobians, +1.6 ms with the forward differences now used); the dwell at 60 mm (next to the clamp, not judged) is
-    then up to 3.0 mm off on average instead of 1.7 mm. The overlay of those frames is drawn with the refined
-    pose (the marker tracker keeps its own): the beam's corners land 0.08 px from their true-pose projection
-    on average instead of 1.05 px in the demo's two-marker frames (seed 0, frames 210-229), and 0.062 px
-    instead of 0.089 px over its other tracking frames.
+    with markers (True), only with fewer than three markers seen ("weak", the default: two stacked markers
+    leave the pose weak in a yaw + depth direction), or never (False); the overlay of those frames is drawn
+    with the refined pose (the marker tracker keeps its own). Over the demo's scene noise seeds 0-9
+    (benchmarks/bench_ar_noise_seeds.py): "weak" 3467/3470 judged frames within 5 mm (worst 5.94 mm, the
+    two-marker frames under 3 mm), True 3470/3470 (worst 4.12 mm) at ~1.6 ms more per frame (demo 121-124
+    instead of 150-155 fps; the unjudged dwell next to the clamp is then up to 3.0 mm off instead of 1.7).
     Dots not seen in a frame are searched for next at the reduced model's displacement for the current
     estimate (:meth:`_predict_unseen`).
     ``track_markers``: follow the marker corners by sub-pixel refinement of their predictions (bit-checked,
@@ -189,6 +181,7 @@ class ARPipeline:
         from physar.ar.overlay import BeamOverlay
 
         self.rom, self.camera = rom, camera
+        self._lo, self._hi = (np.array(b, float) for b in zip(*rom.ranges))  # parameter bounds
         self.obj = obj or object_from_model(rom)
         self.space = self.obj.space()
         if rom.F.shape[1] != self.space.n_dofs:
@@ -224,9 +217,8 @@ class ARPipeline:
         self._fresh = True  # next measurement (re)initialises the temporal filter
         self.overlay = BeamOverlay(self.space, rom, self.obj, field=field, exaggeration=exaggeration) if overlay \
             else None
-        lo, hi = (np.array(b, float) for b in zip(*rom.ranges))
-        self.mu = (lo + hi) / 2
-        self.std = np.full(lo.size, np.nan)
+        self.mu = (self._lo + self._hi) / 2
+        self.std = np.full(self._lo.size, np.nan)
         self._mask = None
         self._proj = None
         self._initialised = False
@@ -269,20 +261,30 @@ class ARPipeline:
         world motion applied before the pose, X -> c + exp(δθ)(X - c) + δt (c: the board's centre), as in
         :func:`physar.vision.markers.rotation_std`; J by central differences of the projection. None without
         marker corners."""
-        idx = [k for k in (self._board.index(i) for i in pe.ids) if k is not None]
-        if not idx or pe.pose is None:
+        X = self._seen_corners(pe)
+        if X is None:
             return None
-        X = self._board.corners[idx].reshape(-1, 3)
         h = 1e-6
         dirs = self._motion_basis(X)                              # (6, n, 3)
         Xs = X[None, None] + h * np.array([1.0, -1.0])[None, :, None, None] * dirs[:, None]
         p = self.camera.project(Xs.reshape(-1, 3), pe.pose).reshape(6, 2, -1)
         J = ((p[:, 0] - p[:, 1]) / (2 * h)).T                    # (2n, 6)
-        sigma = max(float(np.nan_to_num(pe.reprojection_px, nan=0.0)), self.markers.noise_px)
         try:
-            return np.linalg.inv(J.T @ J) * sigma ** 2
+            return np.linalg.inv(J.T @ J) * self._corner_sigma(pe) ** 2
         except np.linalg.LinAlgError:
             return None
+
+    def _seen_corners(self, pe):
+        """World corners (4k, 3) of the board markers seen in the frame (in the order of ``pe.ids``), or None
+        without markers or pose."""
+        idx = [k for k in (self._board.index(i) for i in pe.ids) if k is not None]
+        if not idx or pe.pose is None:
+            return None
+        return self._board.corners[idx].reshape(-1, 3)
+
+    def _corner_sigma(self, pe) -> float:
+        """Pixel noise of the marker corners: the larger of the frame's reprojection rms and the tracker's."""
+        return max(float(np.nan_to_num(pe.reprojection_px, nan=0.0)), self.markers.noise_px)
 
     def _motion_basis(self, X):
         """(6, n, 3): displacement of the points X per unit small world rotation about the board centre
@@ -370,17 +372,15 @@ class ARPipeline:
         the corners or dots are missing or the normal matrix is singular."""
         from physar.vision.camera import Pose
 
-        idx = [k for k in (self._board.index(i) for i in pe.ids) if k is not None]
-        if not idx or pe.pose is None or pe.image_corners is None or valid.sum() < 3:
+        X = self._seen_corners(pe)
+        if X is None or pe.image_corners is None or valid.sum() < 3:
             return None
-        X = self._board.corners[idx].reshape(-1, 3)
         img = np.asarray(pe.image_corners, float).reshape(-1, 2)
         if img.shape[0] != X.shape[0]:
             return None
-        sc = max(float(np.nan_to_num(pe.reprojection_px, nan=0.0)), self.markers.noise_px)
-        sd = self.dot_sigma_px
+        sc, sd = self._corner_sigma(pe), self.dot_sigma_px
         ref, px = self._dots_ref[valid], pixels[valid]
-        lo, hi = (np.array(b, float) for b in zip(*self.rom.ranges))
+        lo, hi = self._lo, self._hi
         p = lo.size
         R0, t0, c = pe.pose.R, pe.pose.t, self._pose_centre
 
@@ -462,7 +462,7 @@ class ARPipeline:
         variance is the assimilation's own (std² of the frame: larger when fewer markers fix the pose or the
         residual is larger), so an uncertain frame moves the estimate less; an innovation beyond
         ``jump_sigma`` standard deviations of the moving model re-initialises the filter at the measurement."""
-        lo, hi = (np.array(b, float) for b in zip(*self.rom.ranges))
+        lo, hi = self._lo, self._hi
         rng = hi - lo
         R = np.maximum(np.nan_to_num(std, nan=0.0), 2e-4 * rng) ** 2
         n = z.size
@@ -523,7 +523,7 @@ class ARPipeline:
         m = mu + v; innovation e = z - m; mu <- m + a e, v <- v + b e with a = smoothing and b = a²/(2 - a)
         (critically damped), so a load moving at constant speed is followed without lag; when
         |e| > jump_sigma * max(std, 0.2 % of the range) the measurement passes unfiltered (a = 1, v = 0)."""
-        lo, hi = (np.array(b, float) for b in zip(*self.rom.ranges))
+        lo, hi = self._lo, self._hi
         if self._fresh or self.smoothing >= 1:
             self.mu, self.std = mu.copy(), std.copy()
             self._vel = np.zeros_like(mu)
@@ -699,8 +699,10 @@ def _estimates_row(r: FrameResult) -> list:
 
 
 def read_estimates(path) -> dict:
-    with open(path, newline="") as fh:
-        rows = list(csv.reader(fh))
-    head, body = rows[0], rows[1:]
-    return {h: (np.array([r[j] for r in body]) if h == "status" else np.array([r[j] for r in body], float))
-            for j, h in enumerate(head)}
+    """Columns of an estimates.csv as numpy arrays (status as str)."""
+    from physar.ar.scene import read_csv_columns
+
+    cols = read_csv_columns(path, "estimates file")
+    if "status" in cols:
+        cols["status"] = cols["status"].astype(str)
+    return cols
