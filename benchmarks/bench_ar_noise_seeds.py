@@ -4,10 +4,10 @@ The demo scene (physar.ar.demo.demo_scene) is rendered once per ``SceneSpec.seed
 shake, the textures, the sensor noise and the occluder shades) and the reduced model once (it does not
 depend on the seed); renders are cached in ``--cache`` so that a change of the estimator can be compared on
 the same videos. For each seed the AR pipeline (default settings, as in the demo) runs on the video and the
-judged frames of tests/ar/test_demo_slow.py (tracking, load beyond 20 % of the span, the 5 frames after the
-full occlusion left to the recovery criterion) are scored against the fine-mesh truth.
+judged frames of :func:`physar.ar.demo.judged_frames` (tracking, load beyond 20 % of the span, the 5 frames
+after the full occlusion left to the recovery criterion) are scored against the fine-mesh truth.
 
-    .venv/bin/python benchmarks/bench_ar_seeds.py --seeds 0 1 2 3 4 --cache /tmp/ar_seeds
+    .venv/bin/python benchmarks/bench_ar_noise_seeds.py --seeds 0 1 2 3 4 --cache /tmp/ar_seeds
 """
 from __future__ import annotations
 
@@ -18,19 +18,8 @@ from pathlib import Path
 import numpy as np
 
 
-def judged(truth: dict, est: dict, L: float):
-    """|error| and the judged-frame mask, exactly as tests/ar/test_demo_slow.py::_errors."""
-    err = np.abs(est["s_est"] - truth["s_true_m"])
-    full = np.array(["full" in o for o in truth["occluded"]])
-    sel = (est["status"] == "tracking") & (truth["s_true_m"] >= 0.2 * L)
-    if full.any():
-        end = int(np.flatnonzero(full)[-1]) + 1
-        sel[end:end + 5] = False
-    return err, sel
-
-
 def run_seed(seed: int, cache: Path, rom, obj, pipe_kwargs: dict | None = None, tag: str = "") -> dict:
-    from physar.ar.demo import demo_scene, evaluate
+    from physar.ar.demo import demo_scene, evaluate, judged_frames
     from physar.ar.pipeline import ARPipeline, read_estimates
     from physar.ar.scene import read_truth, render_scene
     from physar.vision.camera import Camera
@@ -45,7 +34,7 @@ def run_seed(seed: int, cache: Path, rom, obj, pipe_kwargs: dict | None = None, 
     summ = pipe.run(d / "scene.mp4", None, d / name, fps=spec.video.fps)
     truth, est = read_truth(d / "truth.csv"), read_estimates(d / name)
     L = spec.beam.length
-    err, sel = judged(truth, est, L)
+    err, sel, _ = judged_frames(L, truth, est)
     e = err[sel] * 1e3
     moving = sel & (np.abs(np.gradient(truth["s_true_m"])) > 1e-9)
     ev = evaluate(spec, truth, est)

@@ -32,27 +32,33 @@ def demo_scene(quick: bool = False) -> SceneSpec:
                    Occlusion(start=10.0, frames=15, kind="beam")])
 
 
-def evaluate(spec: SceneSpec, truth: dict, est: dict, recovery_frames: int = 5) -> dict:
-    """Accuracy of the estimates against the truth (positions in mm)."""
-    L = spec.beam.length
+def judged_frames(L: float, truth: dict, est: dict, recovery_frames: int = 5):
+    """|s_est - s_true| (m) per frame and the frames the accuracy goal is judged on: tracking, the load beyond
+    20 % of the span L from the clamp, and not the ``recovery_frames`` frames after a full occlusion (those are
+    judged by the recovery criterion: the frames until the error is back within 1 % of the span, listed per
+    occlusion). Returns (err, judged, recovery), over the frames both files have."""
     s_t, s_e = truth["s_true_m"], est["s_est"]
     n = min(len(s_t), len(s_e))
-    s_t, s_e, status = s_t[:n], s_e[:n], est["status"][:n]
-    err = np.abs(s_e - s_t)
-    occl = truth["occluded"][:n]
-    occl_any = np.array([bool(o) for o in occl])
-    full = np.array(["full" in o for o in occl])
-    tracking = status == "tracking"
-    far = s_t >= 0.2 * L
-    # frames right after each full occlusion are judged by the recovery criterion instead
+    err = np.abs(s_e[:n] - s_t[:n])
+    tracking = est["status"][:n] == "tracking"
+    full = np.array(["full" in o for o in truth["occluded"][:n]])
     after = np.zeros(n, bool)
-    ends = np.flatnonzero(full[:-1] & ~full[1:]) + 1
     recovery = []
-    for e in ends:
+    for e in np.flatnonzero(full[:-1] & ~full[1:]) + 1:
         after[e:e + recovery_frames] = True
         ok = np.flatnonzero((err[e:e + 30] <= 0.01 * L) & tracking[e:e + 30])
         recovery.append(int(ok[0]) + 1 if ok.size else None)
-    judged = tracking & far & ~after
+    return err, tracking & (s_t[:n] >= 0.2 * L) & ~after, recovery
+
+
+def evaluate(spec: SceneSpec, truth: dict, est: dict, recovery_frames: int = 5) -> dict:
+    """Accuracy of the estimates against the truth (positions in mm)."""
+    L = spec.beam.length
+    err, judged, recovery = judged_frames(L, truth, est, recovery_frames)
+    n = len(err)
+    s_t, s_e = truth["s_true_m"][:n], est["s_est"][:n]
+    tracking = est["status"][:n] == "tracking"
+    occl_any = np.array([bool(o) for o in truth["occluded"][:n]])
     table = []
     for s in spec.load.positions:
         sel = tracking & (np.abs(s_t - s) < 1e-9)

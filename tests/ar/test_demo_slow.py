@@ -50,7 +50,7 @@ def test_demo_scene_every_frame_within_1pct(demo):
     the span in every tracked frame with the load beyond 20 % of the span from the clamp (moving frames
     included), except the 5 frames after the full occlusion, which must recover within 5 frames.
     Measured 2026-11-23 (scene seed 0): mean 0.62 mm, max 4.42 mm (limit 5 mm), recovery 1 frame. This is the
-    demo's seed; over scene seeds 0-9 (benchmarks/bench_ar_seeds.py) 3467/3470 judged frames are within
+    demo's seed; over scene seeds 0-9 (benchmarks/bench_ar_noise_seeds.py) 3467/3470 judged frames are within
     5 mm (99.91 %, worst 5.94 mm, all three misses with four markers seen), so the every-frame goal holds on
     this seed but not on every noise draw."""
     tmp_path, rep = demo
