@@ -4,8 +4,6 @@ render -> reduced model -> pipeline stages of the scene demos), with :func:`pipe
 :func:`write_report` for their report.json."""
 from __future__ import annotations
 
-import contextlib
-import csv
 import json
 import os
 import time
@@ -54,7 +52,7 @@ def run_video(process: Callable, camera, source, out_video=None, out_csv=None, f
     default every stage met, sorted; a stage missing in a frame counts 0), process_cpu_ms_per_frame (with
     ``cpu``: CPU time of all threads per frame) and results (the ``result`` of every frame).
     """
-    from physar.ar.video import VideoReader, VideoWriter, atomic_path
+    from physar.ar.video import VideoReader, clip_outputs
 
     reader = VideoReader(source, convert=convert) if isinstance(source, (str, Path)) else source
     w, h = getattr(reader, "width", None), getattr(reader, "height", None)
@@ -63,16 +61,8 @@ def run_video(process: Callable, camera, source, out_video=None, out_csv=None, f
     fps = fps or getattr(reader, "fps", 30.0)
     total = getattr(reader, "frames_hint", 0)
     results = []
-    with contextlib.ExitStack() as stack:
-        vtmp = stack.enter_context(atomic_path(out_video)) if out_video else None
-        ctmp = stack.enter_context(atomic_path(out_csv)) if out_csv else None
-        writer = stack.enter_context(VideoWriter(vtmp, camera.width, camera.height, fps, crf=crf, preset=preset,
-                                                 threaded=True, threads=encoder_threads,
-                                                 convert=convert)) if vtmp else None
-        fh = stack.enter_context(open(ctmp, "w", newline="")) if ctmp else None
-        rows = csv.writer(fh) if fh else None
-        if rows:
-            rows.writerow(["frame", "time_s", "status", *csv_header])
+    with clip_outputs(out_video, out_csv, camera.size, fps, ["frame", "time_s", "status", *csv_header], crf=crf,
+                      preset=preset, threaded=True, threads=encoder_threads, convert=convert) as (writer, rows):
         t_start, cpu_start = time.perf_counter(), time.process_time()
         t_prev = t_start
         for k, item in enumerate(frames(reader) if frames else reader):

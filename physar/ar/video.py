@@ -7,7 +7,7 @@ import os
 import queue
 import tempfile
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +30,25 @@ def atomic_path(path):
             os.remove(tmp)
 
 
+@contextlib.contextmanager
+def clip_outputs(video=None, table=None, size: tuple[int, int] = (0, 0), fps: float = 30.0,
+                 header: Sequence[str] = (), **writer_options):
+    """Open the outputs of a frame loop, both optional: ``video`` (an H.264 :class:`VideoWriter` of ``size``
+    (width, height) at ``fps``, ``writer_options`` passed on) and ``table`` (a CSV file, ``header`` written
+    first).  Yields (VideoWriter or None, csv.writer or None).  Both are written to temporaries next to their
+    paths and renamed only when the block completes: an error leaves no partial output."""
+    import csv
+
+    with contextlib.ExitStack() as stack:
+        vtmp = stack.enter_context(atomic_path(video)) if video else None
+        ctmp = stack.enter_context(atomic_path(table)) if table else None
+        writer = stack.enter_context(VideoWriter(vtmp, *size, fps, **writer_options)) if vtmp else None
+        rows = csv.writer(stack.enter_context(open(ctmp, "w", newline=""))) if ctmp else None
+        if rows is not None and header:
+            rows.writerow(header)
+        yield writer, rows
+
+
 def write_clip(out_dir, video_name: str, camera, fps: float, crf: int, header: list[str], n_frames: int,
                frame: Callable[[int], tuple[np.ndarray, list]], progress: Callable[[int, int], None] | None = None,
                preset: str = "veryfast", threads: int = 0) -> dict:
@@ -37,22 +56,14 @@ def write_clip(out_dir, video_name: str, camera, fps: float, crf: int, header: l
     row per frame), both written to temporaries and renamed only when every frame is done (no partial outputs),
     then ``camera.toml``.  ``frame(k)`` returns the BGR image and the CSV row of frame k.  Returns the paths
     and the clip's size."""
-    import csv
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    with (
-        atomic_path(out / video_name) as vtmp,
-        atomic_path(out / "truth.csv") as ctmp,
-        VideoWriter(vtmp, camera.width, camera.height, fps, crf=crf, preset=preset, threads=threads) as vw,
-        open(ctmp, "w", newline="") as fh,
-    ):
-        wr = csv.writer(fh)
-        wr.writerow(header)
+    with clip_outputs(out / video_name, out / "truth.csv", camera.size, fps, header, crf=crf, preset=preset,
+                      threads=threads) as (vw, rows):
         for k in range(n_frames):
             img, row = frame(k)
             vw.write(img)
-            wr.writerow(row)
+            rows.writerow(row)
             if progress:
                 progress(k + 1, n_frames)
     camera.save(out / "camera.toml")
