@@ -56,36 +56,9 @@ def test_damping_bad_input(app, args, msg):
     assert msg in res.output
 
 
-CFG = """
-[mesh]
-box = [0.2, 0.2, 0.2]
-cells = [2, 2, 2]
-
-[material]
-model = "corotated"
-E = 5e4
-nu = 0.3
-density = 500
-
-[fem]
-element = "P1"
-
-[dynamics]
-method = "{method}"
-h = 0.01
-steps = 12
-gravity = [0, 0, -9.81]
-output_every = 4
-
-[dynamics.ground]
-z = -0.02
-stiffness = 2e4
-"""
-
-
-def test_simulate_writes_xdmf_csv_video(app, tmp_path):
+def test_simulate_writes_xdmf_csv_video(app, tmp_path, drop_config):
     cfg = tmp_path / "drop.toml"
-    cfg.write_text(CFG.format(method="midpoint"))
+    cfg.write_text(drop_config("midpoint", "output_every = 4"))
     out = tmp_path / "traj.xdmf"
     video = tmp_path / "out.mp4"
     res = CliRunner().invoke(app, ["simulate", str(cfg), "--out", str(out), "--video", str(video), "--json"])
@@ -108,15 +81,15 @@ def test_simulate_writes_xdmf_csv_video(app, tmp_path):
         assert s.codec_context.name == "h264" and s.codec_context.pix_fmt == "yuv420p"
 
 
-def test_simulate_config_errors(app, tmp_path):
+def test_simulate_config_errors(app, tmp_path, drop_config):
     cfg = tmp_path / "bad.toml"
-    cfg.write_text(CFG.format(method="rk4"))
+    cfg.write_text(drop_config("rk4", "output_every = 4"))
     res = CliRunner().invoke(app, ["simulate", str(cfg), "--out", str(tmp_path / "t.xdmf")])
     assert res.exit_code == 2 and "dynamics.method" in res.output
-    cfg.write_text(CFG.format(method="be").replace("steps = 12", "steps = 12\nr = 0.5"))
+    cfg.write_text(drop_config("be", "r = 0.5"))
     res = CliRunner().invoke(app, ["simulate", str(cfg), "--out", str(tmp_path / "t.xdmf")])
     assert res.exit_code == 2 and "genalpha" in res.output
-    cfg.write_text(CFG.format(method="be").replace("h = 0.01", "h = 0.01\nstep = 3"))
+    cfg.write_text(drop_config("be", "step = 3"))
     res = CliRunner().invoke(app, ["simulate", str(cfg), "--out", str(tmp_path / "t.xdmf")])
     assert res.exit_code == 2 and "unknown key 'step'" in res.output
     assert not list(tmp_path.glob("t.*"))
@@ -133,19 +106,19 @@ def test_examples_validate_and_build(name):
     assert sim.model.kernel.name == "corotated-p1"
 
 
-def test_newton_table_linear_solver_pcg_matches_direct(tmp_path):
+def test_newton_table_linear_solver_pcg_matches_direct(tmp_path, drop_config):
     from physar.integrators.config import build_simulation, load_dynamics_config, run_simulation
 
     finals = {}
     for ls in ("direct", "pcg"):
         cfg = tmp_path / f"{ls}.toml"
-        cfg.write_text(CFG.format(method="si") + f'\n[dynamics.newton]\nlinear_solver = "{ls}"\n'
+        cfg.write_text(drop_config("si", "output_every = 4") + f'\n[dynamics.newton]\nlinear_solver = "{ls}"\n'
                        'linear_rtol = 1e-12\ntangent = "warped"\n')
         sim = build_simulation(load_dynamics_config(cfg))
         assert sim.integrator.solver.method == ls and sim.model.kernel.tangent == "warped"
         finals[ls] = np.array([r["total"] for r in run_simulation(sim).energy])
     np.testing.assert_allclose(finals["pcg"], finals["direct"], rtol=1e-8)
     cfg = tmp_path / "bad.toml"
-    cfg.write_text(CFG.format(method="si") + '\n[dynamics.newton]\nlinear_solver = "gmres"\n')
+    cfg.write_text(drop_config("si", "output_every = 4") + '\n[dynamics.newton]\nlinear_solver = "gmres"\n')
     with pytest.raises(Exception, match="linear_solver"):
         load_dynamics_config(cfg)

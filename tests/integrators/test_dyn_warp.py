@@ -166,31 +166,7 @@ def test_solid_model_linearization_warp_free_pattern_matches_numpy():
     assert mods["warp"].kernel._wk.has_slots(("free", id(mods["warp"]._fp)))
 
 
-CFG = """
-[mesh]
-box = [0.2, 0.2, 0.2]
-cells = [2, 2, 2]
-
-[material]
-model = "corotated"
-E = 5e4
-nu = 0.3
-density = 500
-
-[fem]
-element = "P1"
-
-[dynamics]
-method = "si"
-h = 0.01
-steps = 12
-gravity = [0, 0, -9.81]
-backend = "{backend}"
-
-[dynamics.ground]
-z = -0.02
-stiffness = 2e4
-
+NEWTON = """
 [dynamics.newton]
 linear_solver = "pcg"
 linear_rtol = 1e-12
@@ -198,19 +174,19 @@ tangent = "warped"
 """
 
 
-def test_config_backend_warp_matches_numpy(tmp_path):
+def test_config_backend_warp_matches_numpy(tmp_path, drop_config):
     """[dynamics] backend = "warp": a cube dropped on the penalty ground, same energies as numpy."""
     from physar.integrators.config import build_simulation, load_dynamics_config, run_simulation
 
     energy = {}
     for backend in ("numpy", "warp"):
         path = tmp_path / f"{backend}.toml"
-        path.write_text(CFG.format(backend=backend))
+        path.write_text(drop_config("si", f'backend = "{backend}"', NEWTON))
         sim = build_simulation(load_dynamics_config(path))
         assert sim.model.kernel.backend == backend
         energy[backend] = np.array([r["total"] for r in run_simulation(sim).energy])
     np.testing.assert_allclose(energy["warp"], energy["numpy"], rtol=1e-9)
     path = tmp_path / "bad.toml"
-    path.write_text(CFG.format(backend="cuda"))
+    path.write_text(drop_config("si", 'backend = "cuda"', NEWTON))
     with pytest.raises(Exception, match="backend"):
         load_dynamics_config(path)
