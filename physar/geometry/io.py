@@ -96,10 +96,10 @@ def write_mesh(
     """Write `mesh` with optional nodal and per-element fields; the format follows the file suffix."""
     path = Path(path)
     meshio = _meshio()
-    if isinstance(mesh, TetMesh):
-        cells = [("tetra", mesh.cells)]
-    else:
-        cells = [("triangle", mesh.faces)]
+    conn = mesh.cells if isinstance(mesh, TetMesh) else mesh.faces
+    if path.suffix.lower() == ".ply" and mesh.n_points < 2 ** 31:
+        conn = np.asarray(conn, dtype=np.int32)  # PLY has no 64-bit integers (meshio would warn and cast)
+    cells = [("tetra" if isinstance(mesh, TetMesh) else "triangle", conn)]
     cd = {k: [np.asarray(v)] for k, v in (cell_data or {}).items()}
     pd = {k: np.asarray(v) for k, v in (point_data or {}).items()}
     for k, v in pd.items():
