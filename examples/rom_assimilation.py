@@ -22,7 +22,7 @@ import numpy as np
 from physar.assimilation import assimilate, observation_matrix
 from physar.fem import ElasticModel, FESpace, LinearElastic, LinearSolver, fixed_dofs, point_load, probe
 from physar.geometry import box_mesh
-from physar.rom import SeparatedModel, pgd_linear
+from physar.rom import build_moving_load_pgd
 
 QUICK = os.environ.get("PHYSAR_EXAMPLE_QUICK") == "1"
 OUT = Path(os.environ.get("PHYSAR_EXAMPLE_OUT", "example_out"))
@@ -54,21 +54,15 @@ space, model, solver = beam(ROM_CELLS)
 
 # %% [markdown]
 # ## Intrusive PGD (seed §3)
-# Sampled on a grid s_q, the load is already separated: f(x; s) = sum_q f_q(x) delta_q(s), with f_q the
-# nodal forces of a 1 N load at s_q. `pgd_linear` solves K u = f(x; s) for all s at once as
+# `build_moving_load_pgd` (what `physar rom build` runs) samples the load on a grid of s, separates it
+# exactly (an SVD of the load matrix), and solves K u = f(x; s) for all s at once as
 # u = sum_i F_i(x) G_i(s), adding one mode at a time until its amplitude drops below 1e-5 of the first.
 # For a linear material the magnitude is a second, exactly separated parameter: G^P(P) = P.
 
 # %%
-s_grid = np.linspace(0.0, L, 61 if QUICK else 101)
-f = np.stack([load(space, s, 1.0)[solver.free] for s in s_grid])  # (n_s, free dofs)
-K = model.tangent_stiffness()[solver.free][:, solver.free]
-red, info = pgd_linear(K, f, np.eye(len(s_grid)), s_grid, max_modes=25, tol=1e-5, solve=solver.factor.solve)
-n_modes = red.n_modes
-F = np.zeros((n_modes, space.n_dofs))
-F[:, solver.free] = red.F
-P_grid = np.linspace(0.2, 3.0, 3)
-rom = SeparatedModel(F, [s_grid, P_grid], [red.G[0], np.tile(P_grid, (n_modes, 1))], ["s", "P"], ["m", "N"])
+rom, info = build_moving_load_pgd(model, solver.fixed, [[0, W / 2, H], [L, W / 2, H]], points=61 if QUICK else 101,
+                                  load=(0, 0, -1.0), radius=R, max_modes=25, tol=1e-5, magnitude_range=(0.2, 3.0))
+n_modes = rom.n_modes
 rom.save(OUT / "cantilever_rom.npz", space=space)  # for `physar rom eval` / `physar assimilate`
 
 # ROM error against full solves on the same mesh at random (s, P): max_k |u_PGD - u_FE| / max_k |u_FE|
