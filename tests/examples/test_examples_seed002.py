@@ -1,7 +1,8 @@
 """The seed-002 notebook-style examples run in quick mode, and their numbers hold against independent
 references: a scalar per-pixel 3DGS compositing loop written here, trimesh as a peer PLY reader with scipy
 rotations for Eq. (3), central finite differences, the exact symplectic-Euler free fall, the closed-form
-frequency of a free-free bar, and the Young's modulus of a finer-grid ground truth."""
+frequency of a free-free bar, the Young's modulus of a finer-grid ground truth, and the frames and 3-D motion
+of a finer (8 particles per cell) MPM truth for the reconstruction."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import math
 import runpy
 from pathlib import Path
 
+import av
 import matplotlib.image
 import numpy as np
 import pytest
@@ -116,3 +118,27 @@ def test_mpm_block_example(tmp_path, monkeypatch):
     png = matplotlib.image.imread(tmp_path / "mpm_block.png")
     assert png.ndim == 3 and png.shape[1] > png.shape[0]
     assert json.loads((tmp_path / "mpm_block.json").read_text())["E_fit"] == g["E_fit"]
+
+
+# -- recon_tiny.py -----------------------------------------------------------------------------------
+def test_recon_tiny_example(tmp_path, monkeypatch):
+    g = run_example("recon_tiny.py", tmp_path, monkeypatch)
+    truth = g["nov"]["rgb"]  # novel action, rendered from the fine (8 particles/cell) MPM truth
+    assert g["rgb_phys"].shape == g["rgb_lbs"].shape == truth.shape
+
+    def psnr(a, b, frames):  # written here, not physar.recon.metrics
+        return float(np.mean([10 * np.log10(1 / np.mean((a[f] - b[f]) ** 2)) for f in frames]))
+
+    later = range(1, len(truth))  # frame 0 is the canonical scene, the same for both methods
+    p_phys, p_lbs = psnr(g["rgb_phys"], truth, later), psnr(g["rgb_lbs"], truth, later)
+    assert p_phys > p_lbs + 0.5  # learned physics predicts the unseen action better than LBS only
+    assert p_phys == pytest.approx(g["psnr"]["physics"]["novel"], abs=1e-3)
+    assert g["psnr"]["physics"]["pred"] > g["psnr"]["lbs"]["pred"]
+    assert g["err3d"]["physics"] < 0.8 * g["err3d"]["lbs"]  # 3-D error vs the fine MPM truth positions
+    assert g["mat"]["E_soft_learned_geomean"] < g["mat"]["E_stiff_learned_geomean"]  # truth: 3 vs 12 kPa
+    assert g["ev"]["omega"]["object_max_abs"] == 0.0  # no actuation on the object (Eq. 6-7)
+    assert len(g["gaussians"]) > 100
+    with av.open(str(tmp_path / "recon_novel.mp4")) as c:
+        assert sum(1 for _ in c.decode(video=0)) == len(truth)
+    assert matplotlib.image.imread(tmp_path / "recon_novel.png").ndim == 3
+    assert json.loads((tmp_path / "recon_tiny.json").read_text())["psnr"] == g["psnr"]
