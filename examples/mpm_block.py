@@ -23,8 +23,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import torch
 
-from physar.mpm import MPMSolver, MPMState, build_model, parse_scene
-from physar.mpm.torch_bridge import Params, simulate
+from physar.mpm import MPMSolver, MPMState, Params, build_model, parse_scene, simulate
 
 QUICK = os.environ.get("PHYSAR_EXAMPLE_QUICK") == "1"
 OUT = Path(os.environ.get("PHYSAR_EXAMPLE_OUT", "example_out"))
@@ -59,7 +58,7 @@ def run(sc, frames, stretch=False):
     xs = [x1]
     for _ in range(frames):
         a, b = solver.simulate_frame(a, b)
-        xs.append(a.x.numpy().copy())  # numpy() is a view of the Warp buffer
+        xs.append(a.numpy()["x"])  # a copy (a.x.numpy() is a view of the Warp buffer)
     return model, x, xs
 
 

@@ -7,5 +7,17 @@ for forward runs; :mod:`physar.mpm.torch_bridge` for gradients through PyTorch.
 from physar.mpm.model import Control, MPMModel, MPMSolver, MPMState, diagnostics
 from physar.mpm.scene import build_model, load_scene, parse_scene
 
-__all__ = ["Control", "MPMModel", "MPMSolver", "MPMState", "build_model", "diagnostics", "load_scene",
-           "parse_scene"]
+__all__ = ["Control", "MPMModel", "MPMSolver", "MPMState", "Params", "build_model", "diagnostics", "identify",
+           "load_scene", "parse_scene", "simulate"]
+
+_TORCH = {"Params": "physar.mpm.torch_bridge", "simulate": "physar.mpm.torch_bridge",
+          "identify": "physar.mpm.identify"}
+
+
+def __getattr__(name: str):
+    """``simulate``, ``Params`` and ``identify`` need PyTorch: imported on first use, not with the package."""
+    if name in _TORCH:
+        import importlib
+
+        return getattr(importlib.import_module(_TORCH[name]), name)
+    raise AttributeError(f"module 'physar.mpm' has no attribute {name!r}")

@@ -545,7 +545,10 @@ class MPMModel:
 
 @dataclass
 class MPMState:
-    """Per-particle state s = {x (m), v (m/s), C (1/s), F (-)} of Alg. 1, plus the plastic Jacobian J_p."""
+    """Per-particle state s = {x (m), v (m/s), C (1/s), F (-)} of Alg. 1, plus the plastic Jacobian J_p.
+
+    Fields are Warp arrays: ``state.numpy()`` returns copies, while ``state.x.numpy()`` is a view of the buffer
+    that the next step overwrites (copy it to keep a frame)."""
 
     x: wp.array
     v: wp.array
