@@ -12,8 +12,6 @@ from typer.testing import CliRunner
 from physar.cli.recon import register
 from physar.recon.train import Reconstruction, TrainConfig, fit
 
-pytestmark = pytest.mark.slow  # ~2-3 min on 2 shared cores (differentiable MPM backward dominates)
-
 
 @pytest.fixture(scope="module")
 def fitted(tiny_scene, tmp_path_factory):
