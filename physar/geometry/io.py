@@ -108,7 +108,7 @@ def write_mesh(
     m = meshio.Mesh(mesh.points, cells, point_data=pd, cell_data=cd)
     with _atomic_target(path) as tmp:
         try:
-            m.write(tmp)
+            m.write(tmp, **({"binary": True} if path.suffix.lower() == ".stl" else {}))  # binary STL: compact, standard
         except KeyError:
             raise PhysarError(f"unknown mesh format {path.suffix!r} for {path}") from None
     return path

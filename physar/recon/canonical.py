@@ -53,6 +53,8 @@ def zero_stress_deformation(x: np.ndarray | torch.Tensor, dt: float, substeps: i
     """Deformation gradients F (F, N, 3, 3) of particles following the trajectories ``x`` (F, N, 3) (m),
     frames ``dt`` (s) apart, by Alg. 1 with sigma = 0 (module docstring); F_0 = I.  ``dx`` is the grid
     spacing (m), ``mass`` (N,) the particle masses (default 1)."""
+    if isinstance(x, np.ndarray) and not x.flags.writeable:
+        x = np.array(x, dtype=np.float64)  # a read-only view (e.g. broadcast): torch needs writable memory
     x = torch.as_tensor(x, dtype=torch.float64)
     nf, n = x.shape[:2]
     m = torch.ones(n, dtype=torch.float64) if mass is None else torch.as_tensor(mass, dtype=torch.float64)
