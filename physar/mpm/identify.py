@@ -60,8 +60,11 @@ def target_moments(frames: list[dict], n_bodies: int, n_frames: int):
 
 
 def _sampling_scale(target_s0: torch.Tensor, model_s0: torch.Tensor) -> torch.Tensor:
-    """W_b,ij = sqrt(S*_ii S*_jj / (S_ii S_jj)) from the frame-0 covariances (n_bodies, 3, 3) of target and model."""
-    r = torch.sqrt(torch.diagonal(target_s0, dim1=1, dim2=2) / torch.diagonal(model_s0, dim1=1, dim2=2))
+    """W_b,ij = sqrt(S*_ii S*_jj / (S_ii S_jj)) from the frame-0 covariances (n_bodies, 3, 3) of target and model;
+    1 along an axis where either body is flat (one particle layer: S_ii = 0)."""
+    t, m = torch.diagonal(target_s0, dim1=1, dim2=2), torch.diagonal(model_s0, dim1=1, dim2=2)
+    flat = (t <= 0) | (m <= 0)
+    r = torch.where(flat, torch.ones_like(t), torch.sqrt(t / torch.where(flat, torch.ones_like(m), m)))
     return r[:, :, None] * r[:, None, :]
 
 
