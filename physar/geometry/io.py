@@ -87,14 +87,22 @@ def _atomic_target(path: Path):
     return _Ctx()
 
 
+_SURFACE_ONLY = {".stl", ".ply", ".obj", ".off"}
+
+
 def write_mesh(
     path: str | os.PathLike,
     mesh: TetMesh | TriMesh,
     point_data: Mapping[str, np.ndarray] | None = None,
     cell_data: Mapping[str, np.ndarray] | None = None,
 ) -> Path:
-    """Write `mesh` with optional nodal and per-element fields; the format follows the file suffix."""
+    """Write `mesh` with optional nodal and per-element fields; the format follows the file suffix.  STL is
+    written binary, whose coordinates are float32 (use PLY, OBJ, OFF or VTU for exact float64 round trips);
+    a TetMesh needs a volume format (VTU, XDMF, Gmsh .msh, Medit .mesh)."""
     path = Path(path)
+    if isinstance(mesh, TetMesh) and path.suffix.lower() in _SURFACE_ONLY:
+        raise PhysarError(f"{path}: {path.suffix} stores surfaces only, not a tetrahedral mesh; use .vtu, .xdmf, "
+                          ".msh or .mesh (or write its boundary surface)")
     meshio = _meshio()
     conn = mesh.cells if isinstance(mesh, TetMesh) else mesh.faces
     if path.suffix.lower() == ".ply" and mesh.n_points < 2 ** 31:

@@ -7,15 +7,14 @@ for forward runs; :mod:`physar.mpm.torch_bridge` for gradients through PyTorch.
 from physar.mpm.model import Control, MPMModel, MPMSolver, MPMState, diagnostics
 from physar.mpm.scene import build_model, load_scene, parse_scene
 
-__all__ = ["Control", "MPMModel", "MPMSolver", "MPMState", "Params", "build_model", "diagnostics", "identify",
-           "load_scene", "parse_scene", "simulate"]
+__all__ = ["Control", "MPMModel", "MPMSolver", "MPMState", "Params", "build_model", "diagnostics", "load_scene",
+           "parse_scene", "simulate"]  # identification: physar.mpm.identify.identify (a submodule of that name)
 
-_TORCH = {"Params": "physar.mpm.torch_bridge", "simulate": "physar.mpm.torch_bridge",
-          "identify": "physar.mpm.identify"}
+_TORCH = {"Params": "physar.mpm.torch_bridge", "simulate": "physar.mpm.torch_bridge"}
 
 
 def __getattr__(name: str):
-    """``simulate``, ``Params`` and ``identify`` need PyTorch: imported on first use, not with the package."""
+    """``simulate`` and ``Params`` need PyTorch: imported on first use, not with the package."""
     if name in _TORCH:
         import importlib
 

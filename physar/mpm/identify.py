@@ -3,15 +3,17 @@
 The target is a sequence of particle clouds (e.g. ``physar mpm run`` output) that may be sampled differently
 from the model (no one-to-one particle correspondence), so the misfit compares, per body b and frame n,
 moments of the body's particles that do not depend on the sampling: the centre c_b^n and the change of the
-covariance since frame 0, D_b^n = W_b o (S_b^n - S_b^0) (o: element-wise),
+covariance since frame 0, D_b^n = S^_b^n - S^_b^0,
 
     L(theta) = 1/N_f sum_n sum_b ( ||c_b^n - c*_b^n||^2 / h^2 + ||D_b^n - D*_b^n||_F^2 / h^4 ),
 
-h = grid spacing, D*_b^n = S*_b^n - S*_b^0.  Raw covariances would not do: a lattice of spacing s inside a body
-is short of the body's own second moment by about s^2/12 per axis, an offset between a model and a target
-sampled at different densities (it biased E by 9 % with 8 vs 27 particles per cell on a 16-cell bar).  The
-change of the covariance still scales with the sampled S^0; W_b,ij = sqrt(S*_ii S*_jj / (S_ii S_jj)) at frame 0
-rescales it to the target's sampling (exact for stretches along the axes).
+h = grid spacing.  S^ is the particles' covariance S plus the second moment of the lattice cell each particle
+stands for, carried by the body's affine motion: S^_b^n = S_b^n + A_b^n Delta_b A_b^n^T, with Delta_b =
+diag(s_i^2 / 12) (s_i: the lattice spacing of the body's frame-0 positions along axis i) and A_b^n the least-
+squares affine map of the body's frame-0 positions to frame n.  Without it the covariance of a lattice is
+short of the body's by s^2/12 per axis, an offset between a model and a target sampled at different densities
+(it biased E by 9 % with 8 vs 27 particles per cell on a 16-cell bar); with it S^ is exact for any affine
+motion of a box (stretch, shear, rotation) whatever the sampling.
 The unknowns are log(E_b) per body (and optionally nu_b), optimised by L-BFGS with
 gradients from :func:`physar.mpm.torch_bridge.simulate`.
 
@@ -33,7 +35,7 @@ import torch
 
 from physar.errors import ConfigError
 from physar.mpm.model import MPMModel, MPMSolver
-from physar.mpm.torch_bridge import Params, per_body_moments, simulate
+from physar.mpm.torch_bridge import Params, simulate
 
 
 @dataclass
@@ -45,36 +47,72 @@ class IdentifyResult:
     scan_factor: np.ndarray | None = None  # per body, the E factor chosen by the scan
 
 
+def lattice_moment(x0: np.ndarray, body: np.ndarray, n_bodies: int) -> np.ndarray:
+    """Delta_b = diag(s_i^2 / 12) (n_bodies, 3, 3): s_i = (max - min) / (k - 1) over the k distinct frame-0
+    coordinates of body b along axis i (the lattice spacing; 0 for one particle layer, ~0 for scattered points)."""
+    out = np.zeros((n_bodies, 3, 3))
+    for b in range(n_bodies):
+        xb = np.asarray(x0, dtype=np.float64)[np.asarray(body) == b]
+        for i in range(3):
+            lo, hi = xb[:, i].min(), xb[:, i].max()
+            if hi > lo:
+                k = len(np.unique(np.round((xb[:, i] - lo) / (hi - lo) * 1e9)))
+                out[b, i, i] = ((hi - lo) / (k - 1)) ** 2 / 12
+    return out
+
+
+class _Moments:
+    """Centres c_b and lattice-corrected covariances S^_b (module docstring) of frames of one particle set, whose
+    frame-0 positions ``x0`` fix the lattice moment and the affine fits."""
+
+    def __init__(self, x0, body: np.ndarray, n_bodies: int):
+        x0 = torch.as_tensor(np.asarray(x0, dtype=np.float64))
+        self.idx = [torch.as_tensor(np.flatnonzero(np.asarray(body) == b)) for b in range(n_bodies)]
+        self.d0 = [x0[i] - x0[i].mean(0) for i in self.idx]
+        self.S0_pinv = [torch.linalg.pinv(d.T @ d / len(d), hermitian=True) for d in self.d0]
+        self.delta = torch.as_tensor(lattice_moment(x0.numpy(), body, n_bodies))
+        self.s0 = self(x0)[1]  # S^ at frame 0
+
+    def __call__(self, x: torch.Tensor):
+        cs, ss = [], []
+        for b, (i, d0) in enumerate(zip(self.idx, self.d0)):
+            c = x[i].mean(0)
+            d = x[i] - c
+            A = (d.T @ d0 / len(d)) @ self.S0_pinv[b]  # least-squares affine map from frame 0
+            cs.append(c)
+            ss.append(d.T @ d / len(d) + A @ self.delta[b] @ A.T)
+        return torch.stack(cs), torch.stack(ss)
+
+
 def target_moments(frames: list[dict], n_bodies: int, n_frames: int):
+    """Centres (F+1, nb, 3) and lattice-corrected covariances (F+1, nb, 3, 3) of the target's frames 0..n_frames
+    (one particle set: the same particles in every frame)."""
     if len(frames) < n_frames + 1:
         raise ConfigError(f"target has {len(frames)} frames, the scene needs {n_frames + 1} (frame 0 included)")
+    moments = None
     cs, ss = [], []
     for fr in frames[: n_frames + 1]:
         if set(np.unique(fr["body"])) != set(range(n_bodies)):
             raise ConfigError(f"target bodies {sorted(set(np.unique(fr['body'])))} do not match the scene's "
                               f"{n_bodies} bodies")
-        c, s = per_body_moments(torch.as_tensor(fr["x"]), fr["body"], n_bodies)
+        if moments is None:
+            moments = _Moments(fr["x"], fr["body"], n_bodies)
+        elif len(fr["x"]) != len(frames[0]["x"]):
+            raise ConfigError("target frames have different particle counts: a trajectory of one particle set is "
+                              "needed")
+        c, s = moments(torch.as_tensor(fr["x"]))
         cs.append(c)
         ss.append(s)
     return torch.stack(cs), torch.stack(ss)
 
 
-def _sampling_scale(target_s0: torch.Tensor, model_s0: torch.Tensor) -> torch.Tensor:
-    """W_b,ij = sqrt(S*_ii S*_jj / (S_ii S_jj)) from the frame-0 covariances (n_bodies, 3, 3) of target and model;
-    1 along an axis where either body is flat (one particle layer: S_ii = 0)."""
-    t, m = torch.diagonal(target_s0, dim1=1, dim2=2), torch.diagonal(model_s0, dim1=1, dim2=2)
-    flat = (t <= 0) | (m <= 0)
-    r = torch.where(flat, torch.ones_like(t), torch.sqrt(t / torch.where(flat, torch.ones_like(m), m)))
-    return r[:, :, None] * r[:, None, :]
+def _moment_terms(c, s, s0, tc, ts, n: int, h: float) -> torch.Tensor:
+    """Per body: ||c - c*||^2 / h^2 + ||(S^ - S^0) - (S*^ - S*^0)||_F^2 / h^4 at frame n."""
+    return ((c - tc[n]) ** 2).sum(-1) / h**2 + (((s - s0) - (ts[n] - ts[0])) ** 2).sum((-2, -1)) / h**4
 
 
-def _moment_terms(c, s, s0, W, tc, ts, n: int, h: float) -> torch.Tensor:
-    """Per body: ||c - c*||^2 / h^2 + ||W o (S - S^0) - (S* - S*^0)||_F^2 / h^4 at frame n."""
-    return ((c - tc[n]) ** 2).sum(-1) / h**2 + ((W * (s - s0) - (ts[n] - ts[0])) ** 2).sum((-2, -1)) / h**4
-
-
-def _per_body_misfit(model: MPMModel, x0, v0, frames: int, tc: torch.Tensor, ts: torch.Tensor, s0: torch.Tensor,
-                     W: torch.Tensor) -> np.ndarray:
+def _per_body_misfit(model: MPMModel, x0, v0, frames: int, tc: torch.Tensor, ts: torch.Tensor,
+                     moments: _Moments) -> np.ndarray:
     """Forward-only misfit of each body (the terms of L, see module docstring) for ``model``'s parameters."""
     nb = tc.shape[1]
     solver = MPMSolver(model)
@@ -86,8 +124,8 @@ def _per_body_misfit(model: MPMModel, x0, v0, frames: int, tc: torch.Tensor, ts:
         x = a.x.numpy()
         if not np.all(np.isfinite(x)):
             return np.full(nb, np.inf)
-        c, s = per_body_moments(torch.as_tensor(x), model.body, nb)
-        out += _moment_terms(c, s, s0, W, tc, ts, n, h).numpy()
+        c, s = moments(torch.as_tensor(x))
+        out += _moment_terms(c, s, moments.s0, tc, ts, n, h).numpy()
     return out / frames
 
 
@@ -102,13 +140,12 @@ def identify(model: MPMModel, x0: np.ndarray, v0: np.ndarray, frames: int, targe
     """
     nb = int(model.body.max()) + 1
     tc, ts = target_moments(target, nb, frames)
-    s0 = per_body_moments(torch.as_tensor(np.asarray(x0, dtype=np.float64)), model.body, nb)[1]
-    W = _sampling_scale(ts[0], s0)
+    moments = _Moments(x0, model.body, nb)
     body = torch.as_tensor(model.body, dtype=torch.long)
     scan_factor = None
     if scan_octaves > 0:
         ks = np.arange(-scan_octaves, scan_octaves + 1e-9, 0.25)
-        mis = np.array([_per_body_misfit(replace(model, E=model.E * 2.0**k), x0, v0, frames, tc, ts, s0, W) for k in ks])
+        mis = np.array([_per_body_misfit(replace(model, E=model.E * 2.0**k), x0, v0, frames, tc, ts, moments) for k in ks])
         scan_factor = 2.0 ** ks[np.argmin(mis, axis=0)]
         model = replace(model, E=model.E * scan_factor[model.body])
     E0 = np.array([model.E[model.body == b].mean() for b in range(nb)])
@@ -128,8 +165,8 @@ def identify(model: MPMModel, x0: np.ndarray, v0: np.ndarray, frames: int, targe
         xs, _ = simulate(model, x0, v0, p, frames)
         loss = torch.zeros((), dtype=torch.float64)
         for n in range(1, frames + 1):
-            c, s = per_body_moments(xs[n], model.body, nb)
-            loss = loss + _moment_terms(c, s, s0, W, tc, ts, n, h).sum()
+            c, s = moments(xs[n])
+            loss = loss + _moment_terms(c, s, moments.s0, tc, ts, n, h).sum()
         return loss / frames
 
     def closure():

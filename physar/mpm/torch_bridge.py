@@ -250,8 +250,8 @@ def _fused_frame(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref, v_ref, t0: f
 
 def per_body_moments(x: torch.Tensor, body: np.ndarray, n_bodies: int):
     """Centre (n_bodies, 3) and covariance (n_bodies, 3, 3) of each body's particles.  The centre of a centred
-    lattice is the body's; the covariance is short of the body's by about spacing^2/12 per axis, so compare its
-    changes between samplings (as :mod:`physar.mpm.identify` does), not raw values."""
+    lattice is the body's; the covariance is short of the body's by spacing^2/12 per axis (see
+    :mod:`physar.mpm.identify` for the corrected moments)."""
     out_c, out_s = [], []
     for b in range(n_bodies):
         xb = x[torch.as_tensor(body == b)]

@@ -58,6 +58,14 @@ def test_roundtrip_formats(tmp_path, suffix):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".physar-")]
 
 
+@pytest.mark.parametrize("suffix", [".stl", ".ply", ".obj", ".off"])
+def test_tet_mesh_to_a_surface_format_is_refused(tmp_path, suffix):
+    """A surface format would silently drop the tetrahedra: a clear error, and no file."""
+    with pytest.raises(PhysarError, match="surfaces only"):
+        write_mesh(tmp_path / f"m{suffix}", box_mesh((1, 1, 1), (1, 1, 1)))
+    assert not list(tmp_path.iterdir())
+
+
 def test_read_errors(tmp_path):
     with pytest.raises(PhysarError, match="not found"):
         read_mesh(tmp_path / "missing.vtu")
