@@ -157,13 +157,15 @@ class ARPipeline:
     ``switch``) or "alpha-beta" (fixed gain a = ``smoothing``, 1 = none, see :meth:`_filter_ab`). A change
     larger than ``jump_sigma`` standard deviations re-initialises the filter at the measurement.
     ``joint_pose``: refine the camera pose and the parameters together from the marker corners and the
-    dots' pixels (:meth:`_joint_refine`) and pass that estimate and its std to the filter, in every frame
-    with markers (True), only with fewer than three markers seen ("weak", the default: two stacked markers
-    leave the pose weak in a yaw + depth direction), or never (False); the overlay of those frames is drawn
-    with the refined pose (the marker tracker keeps its own). Over the demo's scene noise seeds 0-9
-    (benchmarks/bench_ar_noise_seeds.py): "weak" 3467/3470 judged frames within 5 mm (worst 5.94 mm, the
-    two-marker frames under 3 mm), True 3470/3470 (worst 4.12 mm) at ~1.6 ms more per frame (demo 121-124
-    instead of 150-155 fps; the unjudged dwell next to the clamp is then up to 3.0 mm off instead of 1.7).
+    dots' pixels (:meth:`_joint_refine`) and pass that estimate and its std to the filter: in every frame with
+    markers (True); with fewer than three markers seen (two stacked markers leave the pose weak in a yaw +
+    depth direction) and in frames whose estimate is more than ``joint_gate`` combined standard deviations
+    from the filtered one (:meth:`_surprising`: the start of a move, or a pose error the frame's std does not
+    cover) ("gated", the default); with fewer than three markers only ("weak"); or never (False). The
+    overlay of refined frames is drawn with the refined pose (the marker tracker keeps its own). Over the
+    demo's scene noise seeds 0-9 (benchmarks/bench_ar_noise_seeds.py), judged frames within 5 mm and worst:
+    "gated" 3470/3470, 4.47 mm; True 3470/3470, 4.12 mm; "weak" 3467/3470, 5.94 mm. Demo frame rate, same
+    process: "gated" 153-156 fps, "weak" 157-169, True 135.
     Dots not seen in a frame are searched for next at the reduced model's displacement for the current
     estimate (:meth:`_predict_unseen`).
     ``track_markers``: follow the marker corners by sub-pixel refinement of their predictions (bit-checked,
@@ -177,7 +179,8 @@ class ARPipeline:
                  rotation_sigma_deg: float = 0.005, dot_sigma_px: float = 0.07,
                  smoothing: float = 0.6, jump_sigma: float = 4.0, track_markers: bool = True,
                  dot_flow: bool | str = "auto", filter: str = "imm", dwell_sigma: float = 1e-4,
-                 motion_accel: float = 5e-3, switch: tuple = (0.05, 0.1), joint_pose: bool | str = "weak"):
+                 motion_accel: float = 5e-3, switch: tuple = (0.05, 0.1), joint_pose: bool | str = "gated",
+                 joint_gate: float = 1.0):
         from physar.ar.overlay import BeamOverlay
 
         self.rom, self.camera = rom, camera
@@ -211,9 +214,11 @@ class ARPipeline:
         if len(switch) != 2 or not all(0 < p < 1 for p in switch):
             raise ConfigError(f"switch must be two probabilities in (0, 1), got {switch!r}")
         self.filter, self.dwell_sigma, self.motion_accel, self.switch = filter, dwell_sigma, motion_accel, switch
-        if joint_pose not in (True, False, "weak"):
-            raise ConfigError(f"joint_pose must be True, False or 'weak', got {joint_pose!r}")
-        self.joint_pose = joint_pose
+        if joint_pose not in (True, False, "weak", "gated"):
+            raise ConfigError(f"joint_pose must be True, False, 'weak' or 'gated', got {joint_pose!r}")
+        if not joint_gate > 0:
+            raise ConfigError(f"joint_gate must be > 0, got {joint_gate!r}")
+        self.joint_pose, self.joint_gate = joint_pose, joint_gate
         self._fresh = True  # next measurement (re)initialises the temporal filter
         self.overlay = BeamOverlay(self.space, rom, self.obj, field=field, exaggeration=exaggeration) if overlay \
             else None
@@ -449,6 +454,14 @@ class ARPipeline:
         self.dots.displacement[lost, 1] = 0.0
         self.dots.displacement[lost, 2] = u[lost, 1]
 
+    def _surprising(self, mu, std) -> bool:
+        """Is the frame's estimate more than ``joint_gate`` combined standard deviations from the filtered one
+        (the start of a move, or a pose error the frame's own std does not cover)?"""
+        if self._fresh:
+            return False
+        d = np.abs(mu - self.mu) / np.sqrt(np.nan_to_num(std, nan=np.inf) ** 2 + self.std ** 2)
+        return bool(np.any(d > self.joint_gate))
+
     def _filter(self, mu, std):
         if self.filter == "imm":
             return self._filter_imm(mu, std)
@@ -568,7 +581,8 @@ class ARPipeline:
                 res = self._assimilate(obs.displacement, obs.valid, sw, obs.world, pe)
                 mu, std = res.params, res.std
                 if self.joint_pose and self.nuisance == "pose" and pe.n_markers > 0 \
-                        and (self.joint_pose is True or pe.n_markers < 3):
+                        and (self.joint_pose is True or pe.n_markers < 3 or (self.joint_pose == "gated"
+                                                                             and self._surprising(mu, std))):
                     joint = self._joint_refine(pe, obs.pixels, obs.valid, mu)
                     if joint is not None:
                         mu, std, draw_pose = joint

@@ -204,3 +204,31 @@ def test_joint_refinement_runs_with_four_markers_unless_weak_only(pipe, monkeypa
                 assert pose is pe.pose
     with pytest.raises(ConfigError, match="joint_pose"):
         ARPipeline(p0.rom, p0.camera, p0.obj, overlay=False, joint_pose="always")
+
+
+def test_gated_joint_refinement_runs_when_the_estimate_leaves_the_filtered_one(pipe, monkeypatch):
+    """joint_pose="gated" on a synthetic four-marker frame: the first frame (filter fresh) and a repeat of it
+    (its estimate agrees with the filtered one) are not refined; once the filtered estimate is moved 10 mm away
+    (as at the start of a move) the frame is more than joint_gate std off and the joint refinement runs."""
+    from physar.vision.dots import DotObservation
+
+    p0, spec = pipe
+    frame = np.zeros((spec.video.height, spec.video.width, 3), np.uint8)
+    _, pnp, pe, px = _two_marker_frame(p0, spec, 0.3, seed=2, n_markers=4)
+    world = p0.camera.backproject_to_plane(px, pnp, [0, 0, 0], [0, 1.0, 0])
+    obs = DotObservation(px, np.ones(len(px), bool), world, world - np.asarray(p0.obj.dots, float))
+    p = ARPipeline(p0.rom, p0.camera, p0.obj, overlay=False)
+    assert p.joint_pose == "gated"
+    monkeypatch.setattr(p.markers, "update", lambda gray: pe)
+    monkeypatch.setattr(p.dots, "update", lambda frame, gray, pose: obs)
+    refined = []
+    jr = p._joint_refine
+    monkeypatch.setattr(p, "_joint_refine", lambda *a, _j=jr, **k: refined.append(_j(*a, **k)) or refined[-1])
+    p.process(frame, 0, draw=False)
+    p.process(frame, 1, draw=False)
+    assert refined == []
+    p.mu = p.mu + np.r_[0.01, np.zeros(len(p.mu) - 1)]
+    _, r = p.process(frame, 2, draw=False)
+    assert len(refined) == 1 and abs(r.mu[0] - 0.3) < 5e-3
+    with pytest.raises(ConfigError, match="joint_gate"):
+        ARPipeline(p0.rom, p0.camera, p0.obj, overlay=False, joint_gate=0)
