@@ -366,8 +366,8 @@ class ARPipeline:
         return res
 
     def _joint_refine(self, pe, pixels, valid, mu0, iters: int = 8):
-        """Camera pose and reduced parameters refined together from the image (used when fewer than three
-        markers are seen, where PnP alone is weak in a yaw + depth direction): Gauss-Newton on
+        """Camera pose and reduced parameters refined together from the image (when ``joint_pose`` asks for it:
+        with fewer than three markers seen, PnP alone is weak in a yaw + depth direction): Gauss-Newton on
         theta = (6 small world-motion pose parameters as in :meth:`_pose_cov`, mu) minimising
         ||(p(corners; pose) - corners*)/sigma_c||² + ||(p(ref + C u(mu); pose) - dots*)/sigma_px||², with
         sigma_c = max(reprojection rms, the tracker's corner noise) and sigma_px = ``dot_sigma_px`` (p: the

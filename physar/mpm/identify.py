@@ -85,8 +85,8 @@ class _Moments:
 
 
 def target_moments(frames: list[dict], n_bodies: int, n_frames: int):
-    """Centres (F+1, nb, 3) and lattice-corrected covariances (F+1, nb, 3, 3) of the target's frames 0..n_frames
-    (one particle set: the same particles in every frame)."""
+    """Centres c* (F+1, nb, 3) and changes of the lattice-corrected covariances since frame 0, D* (F+1, nb, 3, 3),
+    of the target's frames 0..n_frames (one particle set: the same particles in every frame)."""
     if len(frames) < n_frames + 1:
         raise ConfigError(f"target has {len(frames)} frames, the scene needs {n_frames + 1} (frame 0 included)")
     moments = None
@@ -102,16 +102,16 @@ def target_moments(frames: list[dict], n_bodies: int, n_frames: int):
                               "needed")
         c, s = moments(torch.as_tensor(fr["x"]))
         cs.append(c)
-        ss.append(s)
+        ss.append(s - moments.s0)
     return torch.stack(cs), torch.stack(ss)
 
 
-def _moment_terms(c, s, s0, tc, ts, n: int, h: float) -> torch.Tensor:
-    """Per body: ||c - c*||^2 / h^2 + ||(S^ - S^0) - (S*^ - S*^0)||_F^2 / h^4 at frame n."""
-    return ((c - tc[n]) ** 2).sum(-1) / h**2 + (((s - s0) - (ts[n] - ts[0])) ** 2).sum((-2, -1)) / h**4
+def _moment_terms(c, s, moments: _Moments, tc, td, n: int, h: float) -> torch.Tensor:
+    """Per body: ||c - c*||^2 / h^2 + ||(S^ - S^0) - D*||_F^2 / h^4 at frame n (``td``: the target's D*)."""
+    return ((c - tc[n]) ** 2).sum(-1) / h**2 + ((s - moments.s0 - td[n]) ** 2).sum((-2, -1)) / h**4
 
 
-def _per_body_misfit(model: MPMModel, x0, v0, frames: int, tc: torch.Tensor, ts: torch.Tensor,
+def _per_body_misfit(model: MPMModel, x0, v0, frames: int, tc: torch.Tensor, td: torch.Tensor,
                      moments: _Moments) -> np.ndarray:
     """Forward-only misfit of each body (the terms of L, see module docstring) for ``model``'s parameters."""
     nb = tc.shape[1]
@@ -125,7 +125,7 @@ def _per_body_misfit(model: MPMModel, x0, v0, frames: int, tc: torch.Tensor, ts:
         if not np.all(np.isfinite(x)):
             return np.full(nb, np.inf)
         c, s = moments(torch.as_tensor(x))
-        out += _moment_terms(c, s, moments.s0, tc, ts, n, h).numpy()
+        out += _moment_terms(c, s, moments, tc, td, n, h).numpy()
     return out / frames
 
 
@@ -139,13 +139,13 @@ def identify(model: MPMModel, x0: np.ndarray, v0: np.ndarray, frames: int, targe
     from the body's mean.
     """
     nb = int(model.body.max()) + 1
-    tc, ts = target_moments(target, nb, frames)
+    tc, td = target_moments(target, nb, frames)
     moments = _Moments(x0, model.body, nb)
     body = torch.as_tensor(model.body, dtype=torch.long)
     scan_factor = None
     if scan_octaves > 0:
         ks = np.arange(-scan_octaves, scan_octaves + 1e-9, 0.25)
-        mis = np.array([_per_body_misfit(replace(model, E=model.E * 2.0**k), x0, v0, frames, tc, ts, moments) for k in ks])
+        mis = np.array([_per_body_misfit(replace(model, E=model.E * 2.0**k), x0, v0, frames, tc, td, moments) for k in ks])
         scan_factor = 2.0 ** ks[np.argmin(mis, axis=0)]
         model = replace(model, E=model.E * scan_factor[model.body])
     E0 = np.array([model.E[model.body == b].mean() for b in range(nb)])
@@ -160,13 +160,13 @@ def identify(model: MPMModel, x0: np.ndarray, v0: np.ndarray, frames: int, targe
 
     def loss_fn():
         E = torch.as_tensor(E0) * torch.exp(logE.clamp(-4.0, 4.0))
-        nu = 0.2 + 0.25 * (1 + torch.tanh(nu_u)) if fit_nu else None  # fitted nu in (0.2, 0.45)
-        p = Params(E=E[body], nu=nu[body] if fit_nu else nu_model)
+        nu = (0.2 + 0.25 * (1 + torch.tanh(nu_u)))[body] if fit_nu else nu_model  # fitted nu in (0.2, 0.45)
+        p = Params(E=E[body], nu=nu)
         xs, _ = simulate(model, x0, v0, p, frames)
         loss = torch.zeros((), dtype=torch.float64)
         for n in range(1, frames + 1):
             c, s = moments(xs[n])
-            loss = loss + _moment_terms(c, s, moments.s0, tc, ts, n, h).sum()
+            loss = loss + _moment_terms(c, s, moments, tc, td, n, h).sum()
         return loss / frames
 
     def closure():

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 import torch.utils.checkpoint
 import warp as wp
@@ -246,17 +245,3 @@ def _fused_frame(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref, v_ref, t0: f
     t = lambda a: torch.as_tensor(a, dtype=torch.float64)
     return FusedFrameFunction.apply(runner, float(t0), float(kp), float(kd), x, v, C, F, Jp, t(p.E), t(p.nu),
                                     t(omega), t(x_ref), t(v_ref), _fiber_E(model, p))
-
-
-def per_body_moments(x: torch.Tensor, body: np.ndarray, n_bodies: int):
-    """Centre (n_bodies, 3) and covariance (n_bodies, 3, 3) of each body's particles.  The centre of a centred
-    lattice is the body's; the covariance is short of the body's by spacing^2/12 per axis (see
-    :mod:`physar.mpm.identify` for the corrected moments)."""
-    out_c, out_s = [], []
-    for b in range(n_bodies):
-        xb = x[torch.as_tensor(body == b)]
-        c = xb.mean(0)
-        d = xb - c
-        out_c.append(c)
-        out_s.append(d.T @ d / len(xb))
-    return torch.stack(out_c), torch.stack(out_s)
