@@ -100,12 +100,13 @@ def write_mesh(
     written binary, whose coordinates are float32 (use PLY, OBJ, OFF or VTU for exact float64 round trips);
     a TetMesh needs a volume format (VTU, XDMF, Gmsh .msh, Medit .mesh)."""
     path = Path(path)
-    if isinstance(mesh, TetMesh) and path.suffix.lower() in _SURFACE_ONLY:
+    suffix = path.suffix.lower()
+    if isinstance(mesh, TetMesh) and suffix in _SURFACE_ONLY:
         raise PhysarError(f"{path}: {path.suffix} stores surfaces only, not a tetrahedral mesh; use .vtu, .xdmf, "
                           ".msh or .mesh (or write its boundary surface)")
     meshio = _meshio()
     conn = mesh.cells if isinstance(mesh, TetMesh) else mesh.faces
-    if path.suffix.lower() == ".ply" and mesh.n_points < 2 ** 31:
+    if suffix == ".ply" and mesh.n_points < 2 ** 31:
         conn = np.asarray(conn, dtype=np.int32)  # PLY has no 64-bit integers (meshio would warn and cast)
     cells = [("tetra" if isinstance(mesh, TetMesh) else "triangle", conn)]
     cd = {k: [np.asarray(v)] for k, v in (cell_data or {}).items()}
@@ -116,7 +117,7 @@ def write_mesh(
     m = meshio.Mesh(mesh.points, cells, point_data=pd, cell_data=cd)
     with _atomic_target(path) as tmp:
         try:
-            m.write(tmp, **({"binary": True} if path.suffix.lower() == ".stl" else {}))  # binary STL: compact, standard
+            m.write(tmp, **({"binary": True} if suffix == ".stl" else {}))  # binary STL: compact, standard
         except KeyError:
             raise PhysarError(f"unknown mesh format {path.suffix!r} for {path}") from None
     return path

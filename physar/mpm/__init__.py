@@ -10,13 +10,10 @@ from physar.mpm.scene import build_model, load_scene, parse_scene
 __all__ = ["Control", "MPMModel", "MPMSolver", "MPMState", "Params", "build_model", "diagnostics", "load_scene",
            "parse_scene", "simulate"]  # identification: physar.mpm.identify.identify (a submodule of that name)
 
-_TORCH = {"Params": "physar.mpm.torch_bridge", "simulate": "physar.mpm.torch_bridge"}
-
-
 def __getattr__(name: str):
     """``simulate`` and ``Params`` need PyTorch: imported on first use, not with the package."""
-    if name in _TORCH:
-        import importlib
+    if name in ("Params", "simulate"):
+        from physar.mpm import torch_bridge
 
-        return getattr(importlib.import_module(_TORCH[name]), name)
+        return getattr(torch_bridge, name)
     raise AttributeError(f"module 'physar.mpm' has no attribute {name!r}")
