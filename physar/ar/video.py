@@ -31,8 +31,7 @@ def atomic_path(path):
 
 
 @contextlib.contextmanager
-def clip_outputs(video=None, table=None, size: tuple[int, int] = (0, 0), fps: float = 30.0,
-                 header: Sequence[str] = (), **writer_options):
+def clip_outputs(video, table, size: tuple[int, int], fps: float, header: Sequence[str] = (), **writer_options):
     """Open the outputs of a frame loop, both optional: ``video`` (an H.264 :class:`VideoWriter` of ``size``
     (width, height) at ``fps``, ``writer_options`` passed on) and ``table`` (a CSV file, ``header`` written
     first).  Yields (VideoWriter or None, csv.writer or None).  Both are written to temporaries next to their
