@@ -2,7 +2,6 @@
 their numbers are checked against independent references: Timoshenko / Saint-Venant closed forms
 (computed here, not by the library), full FE solves built here, and the known true load."""
 import csv
-import runpy
 from pathlib import Path
 
 import matplotlib.image as mpimg
@@ -13,17 +12,6 @@ import pytest
 from physar.rom._threads import single_blas_thread
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-
-
-@pytest.fixture
-def run_example(monkeypatch, tmp_path):
-    def run(name):
-        monkeypatch.setenv("PHYSAR_EXAMPLE_QUICK", "1")
-        monkeypatch.setenv("PHYSAR_EXAMPLE_OUT", str(tmp_path))
-        with single_blas_thread():  # two BLAS pools on 2 shared cores slow the solves several times
-            return runpy.run_path(str(EXAMPLES / name)), tmp_path
-
-    return run
 
 
 def _timoshenko(P, L, b, h, E, nu, x):
@@ -37,7 +25,7 @@ def test_fem_cantilever(run_example):
     """Quick mesh P2 20x2x2: tip 1.13 % below Timoshenko, curve within 1.13 % of the tip deflection,
     bending stress within 0.5 %. Bounds: 2 % (the converged 3-D solution is ~0.6 % stiffer than the beam
     model because of the clamp; the rest is discretisation) and 1 % for the stress."""
-    g, out = run_example("fem_cantilever.py")
+    g, out = run_example("fem_cantilever.py", one_blas_thread=True)
     L, W, H, E, nu, P = (g[k] for k in ("L", "W", "H", "E", "NU", "P"))
     assert (L, W, H, E, nu, P) == (1.0, 0.05, 0.05, 69e9, 0.334, 1000.0)
     tip = _timoshenko(P, L, W, H, E, nu, L)
@@ -75,7 +63,7 @@ def test_rom_assimilation(run_example):
     mesh bias (exact data: s off by -0.06 to -0.14 % of the span, P by +0.3 to +0.6 %), so errors reach
     4.5 std (rms 1.3-1.5 std) but none reached 5; the largest magnitude error was 1.8 %.
     """
-    g, out = run_example("rom_assimilation.py")
+    g, out = run_example("rom_assimilation.py", one_blas_thread=True)
     from physar.assimilation import assimilate, observation_matrix, read_observations
     from physar.fem import ElasticModel, FESpace, LinearElastic, LinearSolver, fixed_dofs, point_load
     from physar.geometry import box_mesh

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import csv
 import json
-import runpy
 from pathlib import Path
 
 import matplotlib.image
@@ -15,12 +14,6 @@ import numpy as np
 import pytest
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-
-
-def run_example(name, tmp_path, monkeypatch):
-    monkeypatch.setenv("PHYSAR_EXAMPLE_QUICK", "1")
-    monkeypatch.setenv("PHYSAR_EXAMPLE_OUT", str(tmp_path))
-    return runpy.run_path(str(EXAMPLES / name))
 
 
 # -- artificial_damping.py ---------------------------------------------------------------------------
@@ -50,8 +43,8 @@ def reference_rho(method, x, r=None, theta=None):
     return float(np.abs(np.linalg.eigvals(T)).max())
 
 
-def test_artificial_damping_example(tmp_path, monkeypatch):
-    g = run_example("artificial_damping.py", tmp_path, monkeypatch)
+def test_artificial_damping_example(run_example):
+    g, _ = run_example("artificial_damping.py")
     hw, cases, results = g["HW"], g["CASES"], g["RESULTS"]
     assert len(hw) >= 5 and hw.min() <= 0.1 and hw.max() >= 10
     assert {m for m, _ in cases.values()} == {"be", "si", "midpoint", "genalpha", "theta", "trbdf2"}
@@ -81,8 +74,8 @@ def exact_torus_distance(p, R=1.0, r=0.4):
     return np.hypot(np.hypot(p[:, 0], p[:, 1]) - R, p[:, 2]) - r
 
 
-def test_denoise_mesh_example(tmp_path, monkeypatch):
-    g = run_example("denoise_mesh.py", tmp_path, monkeypatch)
+def test_denoise_mesh_example(run_example):
+    g, _ = run_example("denoise_mesh.py")
     clean, err, red = g["clean"], g["ERRORS"], g["REDUCTION"]
     assert (g["R"], g["r"]) == (1.0, 0.4)
     # the example's distance and normal: zero on the exact torus, t after a move of t along the normal
@@ -117,8 +110,8 @@ def test_denoise_mesh_example(tmp_path, monkeypatch):
     assert summary["reduction"]["MSAL"] == pytest.approx(red["MSAL"])
 
 
-def test_denoise_mesh_example_peer_taubin(tmp_path, monkeypatch):
+def test_denoise_mesh_example_peer_taubin(run_example):
     pytest.importorskip("trimesh")
-    g = run_example("denoise_mesh.py", tmp_path, monkeypatch)
+    g, _ = run_example("denoise_mesh.py")
     # trimesh's Taubin (10 half-steps) is shown beside physar's: it too lowers the error (measured 2.3x)
     assert g["REDUCTION"]["Taubin (trimesh)"] > 1.5

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import math
-import runpy
 from pathlib import Path
 
 import av
@@ -19,12 +18,6 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
-
-
-def run_example(name, tmp_path, monkeypatch):
-    monkeypatch.setenv("PHYSAR_EXAMPLE_QUICK", "1")
-    monkeypatch.setenv("PHYSAR_EXAMPLE_OUT", str(tmp_path))
-    return runpy.run_path(str(EXAMPLES / name))
 
 
 # -- gaussians_render.py -----------------------------------------------------------------------------
@@ -50,8 +43,8 @@ def pixel_reference(mu, cov, eta, rgb, cam, bg, i, j):
     return c + T * bg, 1 - T
 
 
-def test_gaussians_render_example(tmp_path, monkeypatch):
-    g = run_example("gaussians_render.py", tmp_path, monkeypatch)
+def test_gaussians_render_example(run_example):
+    g, tmp_path = run_example("gaussians_render.py")
     out, cam, g0, F = g["out"], g["cam"], g["g"], g["F"].numpy()
     W, H = g["W"], g["H"]
     assert out.rgb.shape == (H, W, 3) and g["n"] >= 30
@@ -97,8 +90,8 @@ def test_gaussians_render_example(tmp_path, monkeypatch):
 
 
 # -- mpm_block.py ------------------------------------------------------------------------------------
-def test_mpm_block_example(tmp_path, monkeypatch):
-    g = run_example("mpm_block.py", tmp_path, monkeypatch)
+def test_mpm_block_example(run_example):
+    g, tmp_path = run_example("mpm_block.py")
     # free fall: symplectic Euler, x_n = x_0 - g dt^2 n (n + 1) / 2, lags g t^2 / 2 by exactly g dt t / 2
     sc = g["sc_fall"]
     dt, t_end = sc.time.frame_dt / sc.time.substeps, g["t_fall"][-1]
@@ -121,8 +114,8 @@ def test_mpm_block_example(tmp_path, monkeypatch):
 
 
 # -- recon_tiny.py -----------------------------------------------------------------------------------
-def test_recon_tiny_example(tmp_path, monkeypatch):
-    g = run_example("recon_tiny.py", tmp_path, monkeypatch)
+def test_recon_tiny_example(run_example):
+    g, tmp_path = run_example("recon_tiny.py")
     truth = g["nov"]["rgb"]  # novel action, rendered from the fine (8 particles/cell) MPM truth
     assert g["rgb_phys"].shape == g["rgb_lbs"].shape == truth.shape
 
