@@ -121,3 +121,15 @@ def test_lattice_corrected_moments_are_the_box_moments_for_any_sampling(name):
         raw = np.cov(x.numpy().T, bias=True)
         assert np.abs(raw - exact).max() > 1e-2 * spacing**2 / 12  # the raw covariance is off ...
         assert np.abs(moments(x)[1][0].numpy() - exact).max() < 1e-12 * exact.max()  # ... the corrected one exact
+
+
+def test_target_of_changing_particle_sets_is_refused():
+    """The corrected moments follow one particle set through the frames: a target whose frames have different
+    particle counts gets a clear error."""
+    from physar.errors import ConfigError
+    from physar.mpm.identify import target_moments
+
+    x = np.random.default_rng(0).random((8, 3))
+    frames = [{"x": x, "body": np.zeros(8, int)}, {"x": x[:6], "body": np.zeros(6, int)}]
+    with pytest.raises(ConfigError, match="particle counts"):
+        target_moments(frames, 1, 1)
