@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from physar.ar.runner import run_video
+from physar.assimilation.filters import IMMFilter
 from physar.errors import ConfigError
 from physar.vision.camera import Camera
 from physar.vision.dots import DotTracker
@@ -214,6 +215,7 @@ class ARPipeline:
         if len(switch) != 2 or not all(0 < p < 1 for p in switch):
             raise ConfigError(f"switch must be two probabilities in (0, 1), got {switch!r}")
         self.filter, self.dwell_sigma, self.motion_accel, self.switch = filter, dwell_sigma, motion_accel, switch
+        self._imm = IMMFilter(self._lo, self._hi, dwell_sigma, motion_accel, switch, jump_sigma)
         if joint_pose not in (True, False, "weak", "gated"):
             raise ConfigError(f"joint_pose must be True, False, 'weak' or 'gated', got {joint_pose!r}")
         if not joint_gate > 0:
@@ -468,68 +470,13 @@ class ARPipeline:
         return self._filter_ab(mu, std)
 
     def _filter_imm(self, z, std):
-        """Interacting multiple model filter (Blom & Bar-Shalom 1988) on each parameter, state (value, rate
-        per frame), two models: "dwell" (the parameter stays: x <- x, rate 0, drift ``dwell_sigma``) and
-        "moving" (constant rate, white acceleration of std ``motion_accel``; both as fractions of the
-        parameter range, per frame), Markov switching with probabilities ``switch``. The measurement
-        variance is the assimilation's own (std² of the frame: larger when fewer markers fix the pose or the
-        residual is larger), so an uncertain frame moves the estimate less; an innovation beyond
-        ``jump_sigma`` standard deviations of the moving model re-initialises the filter at the measurement."""
-        lo, hi = self._lo, self._hi
-        rng = hi - lo
-        R = np.maximum(np.nan_to_num(std, nan=0.0), 2e-4 * rng) ** 2
-        n = z.size
+        """The interacting multiple model filter (:class:`physar.assimilation.filters.IMMFilter`) with this
+        pipeline's ``dwell_sigma``, ``motion_accel``, ``switch`` and ``jump_sigma``; restarted when
+        ``self._fresh`` is set (a lost pose)."""
         if self._fresh:
-            self._imm_x = np.zeros((2, n, 2))          # (model, parameter, [value, rate])
-            self._imm_x[:, :, 0] = z
-            self._imm_P = np.zeros((2, n, 2, 2))
-            self._imm_P[:, :, 0, 0] = R
-            self._imm_P[:, :, 1, 1] = (self.motion_accel * rng) ** 2 * 4  # unknown rate at the start
-            self._imm_P[0, :, 1, 1] = 0.0
-            self._imm_w = np.tile(np.array([0.5, 0.5])[:, None], (1, n))  # model probabilities
+            self._imm.reset()
             self._fresh = False
-            self.mu, self.std = z.copy(), np.sqrt(R)
-            return
-        p01, p10 = self.switch
-        Pi = np.array([[1 - p01, p01], [p10, 1 - p10]])   # Pi[i, j]: from model i to model j
-        qd = (self.dwell_sigma * rng) ** 2
-        qa = (self.motion_accel * rng) ** 2
-        F = [np.array([[1.0, 0.0], [0.0, 0.0]]), np.array([[1.0, 1.0], [0.0, 1.0]])]
-        out_x, out_P = np.empty((n, 2)), np.empty((n, 2, 2))
-        for k in range(n):
-            x, P, w = self._imm_x[:, k], self._imm_P[:, k], self._imm_w[:, k]
-            c = Pi.T @ w                                   # predicted model probabilities
-            mix = Pi * w[:, None] / np.maximum(c[None, :], 1e-300)   # mix[i, j] = P(i | j)
-            xs, Ps, lik = np.empty((2, 2)), np.empty((2, 2, 2)), np.empty(2)
-            for j in range(2):
-                x0 = mix[:, j] @ x
-                d = x - x0
-                P0 = np.einsum("i,iab->ab", mix[:, j], P + d[:, :, None] * d[:, None, :])
-                xp = F[j] @ x0
-                Q = np.array([[qd[k], 0.0], [0.0, 0.0]]) if j == 0 else qa[k] * np.array([[0.25, 0.5], [0.5, 1.0]])
-                Pp = F[j] @ P0 @ F[j].T + Q
-                S = Pp[0, 0] + R[k]
-                e = z[k] - xp[0]
-                K = Pp[:, 0] / S
-                xs[j] = xp + K * e
-                Ps[j] = Pp - np.outer(K, Pp[0])
-                lik[j] = np.exp(-0.5 * e * e / S) / np.sqrt(2 * np.pi * S)
-                if j == 1:
-                    jump = abs(e) > self.jump_sigma * np.sqrt(S)
-            w = c * lik
-            if jump or not np.isfinite(w.sum()) or w.sum() <= 0:   # a jump no model explains: restart here
-                xs[:] = [z[k], 0.0]
-                Ps[:] = np.diag([R[k], qa[k] * 4])
-                Ps[0, 1, 1] = 0.0
-                w = np.array([0.5, 0.5])
-            w = w / w.sum()
-            self._imm_x[:, k], self._imm_P[:, k], self._imm_w[:, k] = xs, Ps, w
-            xm = w @ xs
-            d = xs - xm
-            out_x[k] = xm
-            out_P[k] = np.einsum("i,iab->ab", w, Ps + d[:, :, None] * d[:, None, :])
-        self.mu = np.clip(out_x[:, 0], lo, hi)
-        self.std = np.sqrt(out_P[:, 0, 0])
+        self.mu, self.std = self._imm.update(z, std)
 
     def _filter_ab(self, mu, std):
         """Alpha-beta (constant-velocity) filter on the estimate, with a jump detector: prediction
