@@ -122,55 +122,120 @@ def scene_model(
 
 
 def ar_run(
-    model: Path = typer.Argument(..., help="reduced model .npz (physar scene model)"),  # noqa: B008 - typer idiom
-    video: Path | None = typer.Argument(None, help="input video (omit with --camera)"),  # noqa: B008 - typer idiom
-    camera_file: Path = typer.Option(..., "--camera-file", help="camera TOML (physar calibrate)"),  # noqa: B008 - typer idiom
+    model: Path = typer.Argument(..., help="AR project file (.toml; `physar ar init`), or a reduced model .npz "  # noqa: B008 - typer idiom
+                                           "of `physar scene model` with --camera-file"),
+    source: str | None = typer.Argument(None, help="video file, camera index (0, 1, ...) or stream URL "
+                                                    "(rtsp://, tcp://, udp://, http://...)"),
+    camera_file: Path | None = typer.Option(None, "--camera-file", help="camera TOML (with a .npz model; a "  # noqa: B008 - typer idiom
+                                                                         "project names its own)"),
     out: Path | None = typer.Option(None, "--out", "-o", help="augmented video (.mp4) to write"),  # noqa: B008 - typer idiom
     csv_out: Path | None = typer.Option(None, "--csv", help="per-frame estimates CSV"),  # noqa: B008 - typer idiom
     camera: int | None = typer.Option(None, "--camera", help="live camera index instead of a video file"),
-    field: str = typer.Option("von_mises", help="overlay field: von_mises or u"),
+    field: str | None = typer.Option(None, help="overlay field: von_mises, u (a project also: ux, uy, uz); "
+                                                "default the project's"),
     max_frames: int | None = typer.Option(None, help="stop after this many frames"),
     preset: str = typer.Option("ultrafast", help="libx264 preset of the augmented video (ultrafast ... veryslow)"),
     crf: int = typer.Option(20, help="libx264 constant rate factor (quality; lower = better, 0-51)"),
     json_out: bool = typer.Option(False, "--json"),
 ) -> None:
-    """Run the AR pipeline: markers -> pose -> dots -> assimilation -> overlay."""
-    from physar.ar.pipeline import ARPipeline
-    from physar.ar.video import CameraSource
+    """Run the AR pipeline on a video, a camera or a stream: markers -> pose -> dots -> assimilation -> overlay."""
     from physar.errors import ConfigError
-    from physar.rom import SeparatedModel
-    from physar.vision.camera import Camera
 
-    if (video is None) == (camera is None):
-        raise ConfigError("give either a VIDEO file or --camera INDEX")
-    if field not in ("von_mises", "u"):
-        raise ConfigError(f"--field must be von_mises or u, got {field!r}")
+    if (source is None) == (camera is None):
+        raise ConfigError("give either a SOURCE (video file, camera index or URL) or --camera INDEX")
     presets = ("ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow")
     if preset not in presets:
         raise ConfigError(f"--preset must be one of {', '.join(presets)}, got {preset!r}")
     if not 0 <= crf <= 51:
         raise ConfigError(f"--crf must be within 0..51, got {crf}")
-    cam = Camera.load(camera_file)
-    if not Path(model).is_file():
-        raise ConfigError(f"{model}: reduced model file not found")
-    if video is not None:  # open (and decode the first frame of) the input before the expensive setup
-        from physar.ar.video import VideoReader
-
-        source = VideoReader(video, convert="opencv")
+    spec = source if source is not None else str(camera)
+    if model.suffix.lower() == ".toml":
+        summary = _run_project(model, spec, out, csv_out, field, max_frames, preset, crf, camera_file)
     else:
-        source = CameraSource(camera, cam.width, cam.height)
-    if (source.width, source.height) != cam.size:
-        raise ConfigError(f"{video or f'camera {camera}'} is {source.width}x{source.height} but {camera_file} is "
-                          f"for {cam.width}x{cam.height}")
-    rom = SeparatedModel.load(model)
-    pipe = ARPipeline(rom, cam, field=field)
-    summary = pipe.run(source, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf)
-    summary.pop("results")
+        summary = _run_scene_model(model, spec, camera_file, out, csv_out, field or "von_mises", max_frames,
+                                   preset, crf)
+    summary.pop("results", None)
     if json_out:
         print_json(summary)
     else:
         log(f"{summary['frames']} frames at {summary['fps']:.1f} fps, median latency "
             f"{summary['latency_ms_median']:.2f} ms" + (f"; wrote {out}" if out else ""))
+
+
+def _open(spec: str, cam, what: str):
+    """The frame source of SOURCE (see physar.ar.sources), its size checked against the camera file."""
+    from physar.ar.video import CameraSource, VideoReader
+    from physar.errors import ConfigError
+
+    try:
+        from physar.ar.sources import open_source
+    except ImportError:  # pragma: no cover - before physar.ar.sources exists
+        open_source = None
+    if open_source is not None:
+        src = open_source(spec, width=cam.width, height=cam.height, convert="opencv")
+    elif spec.isdigit():
+        src = CameraSource(int(spec), cam.width, cam.height)
+    else:
+        src = VideoReader(spec, convert="opencv")
+    if (src.width, src.height) != cam.size:
+        src.close()
+        raise ConfigError(f"{spec} is {src.width}x{src.height} but {what} is for {cam.width}x{cam.height}")
+    return src
+
+
+def _run_project(project_path, spec, out, csv_out, field, max_frames, preset, crf, camera_file):
+    from physar.ar.project import FIELDS, load_project
+    from physar.ar.project_pipeline import ProjectPipeline
+    from physar.errors import ConfigError
+
+    if camera_file is not None:
+        raise ConfigError("--camera-file goes with a .npz model; a project names its camera in [camera] file")
+    if field is not None and field not in FIELDS:
+        raise ConfigError(f"--field must be one of {', '.join(FIELDS)}, got {field!r}")
+    project = load_project(project_path, progress=_bar("model"))
+    if field is not None:
+        project.config.overlay.field = field
+    src = _open(spec, project.camera, f"{project_path} [camera] file")
+    pipe = ProjectPipeline(project)
+    return pipe.run(src, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf)
+
+
+def _run_scene_model(model, spec, camera_file, out, csv_out, field, max_frames, preset, crf):
+    from physar.ar.pipeline import ARPipeline
+    from physar.errors import ConfigError
+    from physar.rom import SeparatedModel
+    from physar.vision.camera import Camera
+
+    if camera_file is None:
+        raise ConfigError("a .npz model needs --camera-file CAMERA.toml (or use an AR project file)")
+    if field not in ("von_mises", "u"):
+        raise ConfigError(f"--field must be von_mises or u, got {field!r}")
+    cam = Camera.load(camera_file)
+    if not Path(model).is_file():
+        raise ConfigError(f"{model}: reduced model file not found")
+    src = _open(spec, cam, str(camera_file))  # opened (first frame decoded) before the expensive setup
+    rom = SeparatedModel.load(model)
+    pipe = ARPipeline(rom, cam, field=field)
+    return pipe.run(src, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf)
+
+
+def ar_init(
+    output: Path = typer.Argument(Path("project.toml"), help="project file to write"),  # noqa: B008 - typer idiom
+    force: bool = typer.Option(False, "--force", help="overwrite an existing file"),
+) -> None:
+    """Write a commented AR project template (model, camera, markers, dots, overlay) to edit for your object."""
+    from physar.ar.project import TEMPLATE
+    from physar.errors import ConfigError
+    from physar.vision.camera import _atomic_write_text
+
+    if output.exists() and not force:
+        raise ConfigError(f"{output} exists; pass --force to overwrite it")
+    if output.is_dir():
+        raise ConfigError(f"{output} is a folder; give a file name such as {output / 'project.toml'}")
+    if not output.parent.is_dir() if str(output.parent) else False:
+        raise ConfigError(f"{output.parent}: folder not found")
+    _atomic_write_text(output, TEMPLATE)
+    log(f"wrote {output}: edit [model], [camera], [[marker]] and [dots], then `physar ar run {output} VIDEO`")
 
 
 def register(app: typer.Typer) -> None:
@@ -182,4 +247,5 @@ def register(app: typer.Typer) -> None:
     app.add_typer(scene, name="scene")
     ar = typer.Typer(help="Augmented-reality pipeline.", no_args_is_help=True)
     ar.command("run")(user_errors(ar_run))
+    ar.command("init")(user_errors(ar_init))
     app.add_typer(ar, name="ar")

@@ -1,0 +1,355 @@
+"""The AR project file (TOML): what a user describes of their own object, camera and markers (seed 000 §2.1).
+
+Nothing in it belongs to a synthetic renderer. A project holds
+
+- ``[model]``: the reduced model, a ``physar rom build`` configuration (``config = "rom.toml"``, built on
+  first use and cached in ``file``) or a built model file (``file = "model.npz"``). The model file carries
+  the mesh, the material and the parameters (names, units, ranges, the load path), so the object's
+  geometry comes from the model;
+- ``[camera]``: the camera file written by ``physar calibrate``;
+- ``[[marker]]``: ArUco markers fixed in the object's frame (on the object's clamp, a support or a board
+  beside it), each with dictionary, id, side length and pose (centre, outward normal of its face, the
+  direction of the marker image's top edge), on any face and in any number;
+- ``[dots]``: printed dots at object coordinates on the surface, their colour and diameter;
+- ``[overlay]``: the field drawn (|u|, a component, von Mises stress), its colour range, the
+  exaggeration of the drawn displacement and which parameters are written with their std;
+- ``[tracking]``: optional settings of the frame loop (defaults need no tuning).
+
+Every error is one line naming the file, the table and the field (:func:`load_project`).
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, Strict, field_validator, model_validator
+from typing_extensions import Annotated
+
+from physar.errors import ConfigError
+
+# strict scalars: no bool -> number or str -> number coercion (TOML arrays still become tuples)
+Float = Annotated[float, Strict()]
+Int = Annotated[int, Strict()]
+Str = Annotated[str, Strict()]
+Bool = Annotated[bool, Strict()]
+Vec3 = tuple[Float, Float, Float]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ModelSection(_Strict):
+    config: Str | None = Field(None, description="a `physar rom build` configuration (TOML), relative to the "
+                                                 "project file; built on first use")
+    file: Str | None = Field(None, description="the reduced model file (.npz): read if it exists (and was built "
+                                               "from `config` when that is given), else written there")
+
+    @model_validator(mode="after")
+    def _one(self):
+        if self.config is None and self.file is None:
+            raise ValueError("give config = \"rom.toml\" (a `physar rom build` file) and/or file = \"model.npz\"")
+        return self
+
+
+class CameraSection(_Strict):
+    file: Str = Field(..., description="camera file written by `physar calibrate` (TOML)")
+
+
+class MarkerSection(_Strict):
+    id: Int = Field(..., ge=0, description="ArUco id within the dictionary")
+    size: Float = Field(..., gt=0, description="side length of the black square [m]")
+    center: Vec3 = Field(..., description="centre of the marker in the object's frame [m]")
+    normal: Vec3 = Field(..., description="outward normal of the face the marker is stuck on")
+    up: Vec3 = Field(..., description="direction of the marker image's top edge (from its centre to the top)")
+    dictionary: Str = Field("DICT_4X4_50", description="ArUco dictionary (one per project)")
+
+    @model_validator(mode="after")
+    def _frame(self):
+        n, u = np.asarray(self.normal, float), np.asarray(self.up, float)
+        if not np.linalg.norm(n) > 0 or not np.linalg.norm(u) > 0:
+            raise ValueError("normal and up must be non-zero")
+        c = abs(n @ u) / (np.linalg.norm(n) * np.linalg.norm(u))
+        if c > 1e-3:
+            raise ValueError(f"up {list(self.up)} must be perpendicular to normal {list(self.normal)} "
+                             f"(cos = {c:.3g})")
+        return self
+
+    def corners(self) -> np.ndarray:
+        """(4, 3) corners in ArUco order (top-left, top-right, bottom-right, bottom-left) seen from outside:
+        right = up x normal."""
+        n = np.asarray(self.normal, float)
+        n /= np.linalg.norm(n)
+        u = np.asarray(self.up, float)
+        u /= np.linalg.norm(u)
+        r = np.cross(u, n)
+        h = self.size / 2
+        c = np.asarray(self.center, float)
+        return np.array([c - r * h + u * h, c + r * h + u * h, c + r * h - u * h, c - r * h - u * h])
+
+
+class DotsSection(_Strict):
+    points: list[Vec3] = Field(..., min_length=1, description="dot centres on the object's surface [m]")
+    colour: tuple[Int, Int, Int] = Field((30, 70, 200), description="printed colour, RGB 0-255")
+    diameter: Float = Field(..., gt=0, description="dot diameter [m]")
+    tol: Float | None = Field(None, gt=0, description="largest distance of a dot from the model's surface [m] "
+                                                      "(default: a quarter of the diameter)")
+
+    @field_validator("colour")
+    @classmethod
+    def _rgb(cls, v):
+        if not all(0 <= c <= 255 for c in v):
+            raise ValueError(f"colour must be RGB values in 0..255, got {list(v)}")
+        return v
+
+
+FIELDS = ("von_mises", "u", "ux", "uy", "uz")
+
+
+class OverlaySection(_Strict):
+    field: Literal["von_mises", "u", "ux", "uy", "uz"] = Field("von_mises", description="field drawn on the "
+                                                                "deformed surface: von Mises stress [Pa], |u| or "
+                                                                "a displacement component [m]")
+    range: tuple[Float, Float] | None = Field(None, description="colour range (SI units); default: 0 to the "
+                                                                "field's maximum over the parameter box")
+    exaggeration: Float = Field(1.0, gt=0, description="scale of the drawn displacement")
+    alpha: Float = Field(0.65, ge=0, le=1, description="opacity of the drawn surface")
+    show: list[Str] | None = Field(None, description="parameters written as estimate ± std (default all)")
+
+    @field_validator("range")
+    @classmethod
+    def _increasing(cls, v):
+        if v is not None and not v[1] > v[0]:
+            raise ValueError(f"range must be increasing, got {list(v)}")
+        return v
+
+
+class TrackingSection(_Strict):
+    dot_sigma_px: Float = Field(0.3, gt=0, description="dot centroid noise [px]")
+    corner_sigma_px: Float = Field(0.15, gt=0, description="marker corner noise [px]")
+    min_dots: Int = Field(3, ge=1, description="fewest dots seen to assimilate a frame (else the estimate is held)")
+    search_px: Float = Field(0.0, ge=0, description="extra search radius around each predicted dot [px] "
+                                                    "(0: from the dot's size in the image)")
+    joint_pose: Bool = Field(True, description="refine the camera pose together with the parameters")
+    filter: Literal["imm", "none"] = Field("imm", description="temporal filter of the estimates")
+
+
+class ProjectConfig(_Strict):
+    """Top level of an AR project file."""
+
+    model: ModelSection
+    camera: CameraSection
+    marker: list[MarkerSection] = Field(..., min_length=1)
+    dots: DotsSection
+    overlay: OverlaySection = OverlaySection()
+    tracking: TrackingSection = TrackingSection()
+    name: Str | None = None
+    _base_dir: Path = PrivateAttr(default=Path("."))
+
+    @model_validator(mode="after")
+    def _markers(self):
+        ids = [m.id for m in self.marker]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"marker ids must be distinct, got {ids}")
+        dicts = {m.dictionary for m in self.marker}
+        if len(dicts) > 1:
+            raise ValueError(f"all markers must use one dictionary, got {sorted(dicts)}")
+        return self
+
+
+@dataclass
+class ARProject:
+    """A validated project with its files resolved: the reduced model (``rom``, a SeparatedModel with its
+    mesh), the camera, the marker board, the dots and the overlay/tracking settings. ``source`` is the
+    project file (for messages)."""
+
+    config: ProjectConfig
+    source: str
+    rom: object
+    camera: object
+    board: object
+    dots: np.ndarray
+    dot_normals: np.ndarray
+
+    @property
+    def overlay(self) -> OverlaySection:
+        return self.config.overlay
+
+    @property
+    def tracking(self) -> TrackingSection:
+        return self.config.tracking
+
+    def space(self):
+        return self.rom.space()
+
+    def parameters(self) -> list[dict]:
+        """The model's parameters as built: name, unit, range and (from the build configuration) kind,
+        path/load for a load position."""
+        meta = self.rom.metadata.get("parameters") or []
+        out = []
+        for j, (n, u, r) in enumerate(zip(self.rom.names, self.rom.units, self.rom.ranges)):
+            d = dict(meta[j]) if j < len(meta) else {}
+            d.update(name=n, unit=u, range=[float(r[0]), float(r[1])])
+            out.append(d)
+        return out
+
+
+def read_project_toml(path) -> dict:
+    from physar.fem.config import read_toml
+
+    return read_toml(path)
+
+
+def parse_project(data: dict, source: str) -> ProjectConfig:
+    from physar.fem.config import parse_config
+
+    return parse_config(data, source, ProjectConfig)
+
+
+def _file(base: Path, name: str) -> Path:
+    p = Path(name)
+    return p if p.is_absolute() else base / p
+
+
+def _config_hash(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def load_model(cfg: ProjectConfig, source: str, progress=None, build: bool = True):
+    """The project's reduced model: ``[model] file`` if it exists (and, when ``config`` is given too, was
+    built from that configuration as it is now: its SHA-256 is stored in the model), else built from
+    ``[model] config`` (``physar rom build``) and, if ``file`` is given, written there atomically."""
+    from physar.rom import SeparatedModel
+    from physar.rom.config import build_rom, load_rom_config
+
+    base = cfg._base_dir
+    m = cfg.model
+    file = _file(base, m.file) if m.file else None
+    conf = _file(base, m.config) if m.config else None
+    if conf is not None and not conf.is_file():
+        raise ConfigError(f"{source}: [model] config = {m.config!r}: file not found")
+    digest = _config_hash(conf) if conf is not None else None
+    if file is not None and file.is_file():
+        rom = SeparatedModel.load(file)
+        if digest is None or rom.metadata.get("config_sha256") == digest:
+            return rom
+        if not build:
+            raise ConfigError(f"{source}: [model] file = {m.file!r} was not built from {m.config!r} as it is now; "
+                              "run `physar ar build` (or delete the file)")
+    elif file is not None and conf is None:
+        raise ConfigError(f"{source}: [model] file = {m.file!r}: file not found (give config = \"rom.toml\" to "
+                          "build it)")
+    rcfg = load_rom_config(conf)
+    rom, space, _ = build_rom(rcfg, progress=progress, source=str(conf))
+    rom.metadata.update(config_sha256=digest, element=space.element, mesh_checksum=space.mesh.checksum())
+    rom._mesh_arrays = (space.mesh.points, space.mesh.cells)
+    rom.__dict__["_space_cache"] = [space]
+    if file is not None:
+        rom.save(file, space=space)
+    return rom
+
+
+def load_project(path, progress=None, build: bool = True) -> ARProject:
+    """Read, validate and resolve an AR project file (model built if needed, see :func:`load_model`).
+
+    Checks beyond the schema, each one clear line: the camera file, every marker id within its dictionary,
+    every dot on the model's surface (within ``[dots] tol``), ``[overlay] show`` naming the model's
+    parameters. The camera's resolution is checked against the video when a source is opened."""
+    from physar.vision.calibration import aruco_dictionary
+    from physar.vision.camera import Camera
+    from physar.vision.markers import MarkerBoard
+
+    path = Path(path)
+    source = str(path)
+    cfg = parse_project(read_project_toml(path), source)
+    cfg._base_dir = path.resolve().parent
+    cam_path = _file(cfg._base_dir, cfg.camera.file)
+    try:
+        camera = Camera.load(cam_path)
+    except ConfigError as e:
+        raise ConfigError(f"{source}: [camera] file: {e}") from None
+    dictionary = cfg.marker[0].dictionary
+    try:
+        dic = aruco_dictionary(dictionary)
+    except ConfigError as e:
+        raise ConfigError(f"{source}: [[marker]] dictionary: {e}") from None
+    n_ids = dic.bytesList.shape[0]
+    for k, m in enumerate(cfg.marker):
+        if m.id >= n_ids:
+            raise ConfigError(f"{source}: [[marker]] {k + 1}: id = {m.id} is outside {dictionary} "
+                              f"(ids 0-{n_ids - 1})")
+    board = MarkerBoard([m.id for m in cfg.marker], np.stack([m.corners() for m in cfg.marker]), dictionary)
+    rom = load_model(cfg, source, progress=progress, build=build)
+    space = rom.space()
+    dots = np.asarray(cfg.dots.points, float)
+    normals = _dot_normals(space, dots, cfg.dots.tol or cfg.dots.diameter / 4, source)
+    if cfg.overlay.show is not None:
+        bad = [s for s in cfg.overlay.show if s not in rom.names]
+        if bad:
+            raise ConfigError(f"{source}: [overlay] show = {bad} is not a parameter of the model "
+                              f"(parameters: {', '.join(rom.names)})")
+    return ARProject(cfg, source, rom, camera, board, dots, normals)
+
+
+def _dot_normals(space, dots, tol, source) -> np.ndarray:
+    """Outward unit normals (n, 3) of the surface at the dots; a dot farther than ``tol`` from the surface
+    is an error naming it."""
+    from physar.vision.observation import closest_on_triangles
+
+    surf = space.mesh.boundary().mesh
+    tri = surf.points[surf.faces]
+    f, _, dist = closest_on_triangles(dots, tri)
+    far = np.flatnonzero(dist > tol)
+    if far.size:
+        k = int(far[np.argmax(dist[far])])
+        raise ConfigError(f"{source}: [dots] points[{k}] = {dots[k].tolist()} is {dist[k] * 1e3:.3g} mm from the "
+                          f"model's surface (tol {tol * 1e3:.3g} mm)")
+    n = np.cross(tri[f, 1] - tri[f, 0], tri[f, 2] - tri[f, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    # orient outward: away from the centroid of the tets touching the face is not at hand here, so use the
+    # surface's own orientation (boundary faces are outward-oriented, checked in geometry)
+    return n
+
+
+TEMPLATE = '''# physar AR project: your object, your camera, your markers.  `physar ar run project.toml VIDEO|CAMERA|URL`
+# Every length is in metres, in the object's frame (the frame of the model's mesh).
+name = "my-object"
+
+[model]
+config = "rom.toml"        # a `physar rom build` file: mesh (box, or a VTU/XDMF/MSH file, or a closed STL/OBJ/PLY
+                           # surface), material, supports, [[parameter]] tables (load position along a path,
+                           # magnitude, ...)
+file = "model.npz"         # the built reduced model (written on first use, rebuilt when rom.toml changes)
+
+[camera]
+file = "camera.toml"       # `physar calibrate board_*.png -o camera.toml` (print the board with --print-board)
+
+[[marker]]                 # one table per ArUco marker (any number, on any face); print them with
+id = 0                     # `physar ar print-markers project.toml -o markers.pdf`
+size = 0.04                # side of the black square [m]
+center = [0.02, -0.001, 0.05]
+normal = [0, -1, 0]        # outward normal of the face it is stuck on
+up = [0, 0, 1]             # direction of the marker's top edge
+dictionary = "DICT_4X4_50"
+
+[dots]                     # printed dots on the surface, tracked in every frame
+points = [[0.1, 0.0, 0.0075], [0.2, 0.0, 0.0075], [0.3, 0.0, 0.0075]]
+diameter = 0.005           # [m]
+colour = [30, 70, 200]     # RGB of the printed dots
+
+[overlay]
+field = "von_mises"        # von_mises | u | ux | uy | uz
+# range = [0, 100e6]       # colour range (Pa or m); default 0 .. the field's maximum
+exaggeration = 1.0
+# show = ["s"]             # parameters written as estimate ± std (default all)
+
+[tracking]                 # optional; the defaults need no tuning
+# dot_sigma_px = 0.3
+# min_dots = 3
+'''
+
+
+__all__ = ["ARProject", "ProjectConfig", "TEMPLATE", "load_model", "load_project"]

@@ -1,0 +1,315 @@
+"""The frame loop of any AR project (seed 000 §2.1, §4, §5): markers -> camera pose -> printed dots ->
+parameters mu* of the reduced model by Levenberg-Marquardt on the image -> overlay -> encode.
+
+Nothing here knows the object's shape: the project gives the reduced model (its mesh and modes), the
+markers' corners and the dots' positions in the object's frame. Each frame:
+
+1. the markers give the camera pose (ArUco, tracked corners, filtered: :class:`physar.vision.markers.MarkerTracker`);
+2. each dot is searched near its predicted pixel, the projection of its reference position moved by the
+   reduced model at the previous estimate, dots on faces turned away from the camera are skipped, and the
+   search is brightness-invariant (:func:`physar.vision.blobs.find_dots`);
+3. the parameters and the camera pose are refined together (Gauss-Newton with step halving, bounds by
+   clipping) on theta = (6 small world-motion pose parameters, mu):
+   ||(P(X_c; pose) - c*) / sigma_c||² + ||(P(x_i + u_i(mu); pose) - d*_i) / sigma_d||², with X_c the seen
+   marker corners, c* their pixels, x_i the dots' reference positions, u_i(mu) = Σ_m c_m(mu) C_i F_m the
+   reduced model at the dots (C: the surface observation operator), d*_i the dots' pixels; a pose error
+   moves the points as X -> c + exp(δθ)(X - c) + δt before the pose (c: the markers' centre). The
+   covariance of mu is the inverse Gauss-Newton matrix scaled by max(1, chi²/dof). On a fresh start (first
+   frame, after a loss) or when the residual is far above the recent ones, the parameter box is searched on
+   a grid first (the cost is not convex in a load position);
+4. an interacting multiple model filter (:class:`physar.assimilation.filters.IMMFilter`) smooths the
+   estimate with each frame's std;
+5. the overlay (:class:`physar.ar.surface.SurfaceOverlay`) draws the deformed surface coloured by the field.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from physar.ar.runner import run_video
+from physar.assimilation.filters import IMMFilter
+from physar.vision.blobs import find_dots
+from physar.vision.camera import Pose
+from physar.vision.markers import MarkerTracker
+from physar.vision.observation import surface_observation_matrix
+
+STAGES = ("decode", "markers_pose", "dots", "assimilate", "overlay", "encode")
+
+
+@dataclass
+class ProjectFrame:
+    frame: int
+    status: str            # tracking | hold | lost
+    mu: np.ndarray
+    std: np.ndarray
+    residual_px: float
+    n_markers: int
+    n_dots: int
+    latency_ms: float
+    stages_ms: dict = field(default_factory=dict)
+    cpu_ms: float = float("nan")
+
+
+class ProjectPipeline:
+    """The frame loop on an :class:`physar.ar.project.ARProject` (see the module doc). ``overlay``: draw the
+    augmented frames (False: estimation only)."""
+
+    def __init__(self, project, overlay: bool = True):
+        from physar.ar.surface import SurfaceOverlay
+
+        self.project = project
+        rom, cam = project.rom, project.camera
+        self.rom, self.camera = rom, cam
+        trk = project.tracking
+        self.names, self.units = list(rom.names), list(rom.units)
+        self.lo, self.hi = (np.array(b, float) for b in zip(*rom.ranges))
+        space = rom.space()
+        self.dots, self.normals = project.dots, project.dot_normals
+        C = surface_observation_matrix(space, self.dots, components=(0, 1, 2),
+                                       tol=project.config.dots.tol or project.config.dots.diameter / 4)
+        self.Fd = np.asarray(C @ rom.F.T).T.reshape(rom.n_modes, -1, 3)   # (modes, n dots, 3)
+        self.markers = MarkerTracker(cam, project.board, noise_px=trk.corner_sigma_px)
+        self.board = project.board
+        self.centre = self.board.corners.reshape(-1, 3).mean(0)
+        self.filter = IMMFilter(self.lo, self.hi) if trk.filter == "imm" else None
+        self.mu = (self.lo + self.hi) / 2
+        self.std = np.full(self.lo.size, np.nan)
+        self._fresh = True
+        self._res_hist: list[float] = []
+        self.radius_m = project.config.dots.diameter / 2
+        self.colour = project.config.dots.colour
+        # the largest dot displacement over the parameter box bounds the search after a fresh start
+        corners = np.stack(np.meshgrid(*[np.linspace(a, b, 5) for a, b in rom.ranges], indexing="ij"),
+                           -1).reshape(-1, rom.n_params)
+        self._umax = max(float(np.abs(np.tensordot(rom.coefficients(m)[0], self.Fd, 1)).max()) for m in corners)
+        self.overlay = None
+        if overlay:
+            params = project.parameters()
+            pos = next((j for j, p in enumerate(params) if p.get("kind") == "load_position"), None)
+            mat = rom.metadata.get("material_params") or {}
+            ov = project.overlay
+            material = (float(mat["E"]), float(mat["nu"])) if "E" in mat and "nu" in mat else None
+            fld = ov.field if (ov.field != "von_mises" or material is not None) else "u"
+            show = None if ov.show is None else [self.names.index(s) for s in ov.show]
+            self.overlay = SurfaceOverlay(rom, fld, ov.range, ov.exaggeration, ov.alpha, material,
+                                          None if pos is None else params[pos].get("path"), pos,
+                                          None if pos is None else params[pos].get("load"), show)
+
+    # -- geometry ------------------------------------------------------------------------------------------
+    def dot_positions(self, mu) -> np.ndarray:
+        """Deformed dot positions (n, 3) [m] for the parameters mu."""
+        return self.dots + np.tensordot(self.rom.coefficients(mu)[0], self.Fd, 1)
+
+    def _expected(self, pose: Pose, X):
+        """Visibility (faces towards the camera), expected image radius [px] of the dots at X."""
+        Xc = X @ pose.R.T + pose.t
+        nc = self.normals @ pose.R.T
+        view = Xc / np.linalg.norm(Xc, axis=1, keepdims=True)
+        cos = -np.einsum("ij,ij->i", nc, view)
+        r = self.camera.fx * self.radius_m / np.maximum(Xc[:, 2], 1e-9) * np.sqrt(np.clip(cos, 0.05, 1))
+        return (cos > 0.15) & (Xc[:, 2] > 0), r
+
+    # -- estimation ----------------------------------------------------------------------------------------
+    def _pose_of(self, pose: Pose, th):
+        E = cv2.Rodrigues(np.asarray(th[:3], float).reshape(3, 1))[0]
+        c = self.centre
+        return Pose(pose.R @ E, pose.R @ (c - E @ c + th[3:6]) + pose.t)
+
+    def _residual(self, pose, th, Xc, img_c, px, valid, sc, sd):
+        p = self.lo.size
+        P = self._pose_of(pose, th)
+        c = self.rom._coeffs(np.clip(th[6:6 + p], self.lo, self.hi).tolist())[0]
+        w = self.dots[valid] + np.tensordot(c, self.Fd[:, valid], 1)
+        if Xc is None:
+            q = self.camera.project(w, P)
+            return ((q - px[valid]) / sd).ravel()
+        q = self.camera.project(np.vstack([Xc, w]), P)
+        return np.concatenate([((q[:len(Xc)] - img_c) / sc).ravel(), ((q[len(Xc):] - px[valid]) / sd).ravel()])
+
+    def _grid_start(self, pose, px, valid) -> np.ndarray:
+        """The grid point of the parameter box with the smallest dot reprojection error (pose fixed)."""
+        g = 9 if self.lo.size < 3 else 6
+        mus = np.stack(np.meshgrid(*[np.linspace(a, b, g) for a, b in zip(self.lo, self.hi)], indexing="ij"),
+                       -1).reshape(-1, self.lo.size)
+        cs = np.array([self.rom._coeffs(m.tolist())[0] for m in mus])            # (G, modes)
+        W = self.dots[valid][None] + np.einsum("gm,mnk->gnk", cs, self.Fd[:, valid])
+        q = self.camera.project(W.reshape(-1, 3), pose).reshape(len(mus), -1, 2)
+        cost = np.sum((q - px[valid][None]) ** 2, (1, 2))
+        return mus[int(np.argmin(cost))]
+
+    def _solve(self, pe, px, valid, mu0, iters: int = 10):
+        """Joint Gauss-Newton on (pose, mu) from the frame's pose and mu0; returns (mu, std, pose, rms px)."""
+        trk = self.project.tracking
+        sd = trk.dot_sigma_px
+        Xc = img_c = None
+        sc = max(float(np.nan_to_num(pe.reprojection_px, nan=0.0)), trk.corner_sigma_px)
+        npose = 0
+        if trk.joint_pose and pe.image_corners is not None and pe.ids:
+            idx = [k for k in (self.board.index(i) for i in pe.ids) if k is not None]
+            img_c = np.asarray(pe.image_corners, float).reshape(-1, 2)
+            if idx and img_c.shape[0] == 4 * len(idx):
+                Xc = self.board.corners[idx].reshape(-1, 3)
+                npose = 6
+            else:
+                img_c = None
+        p = self.lo.size
+        rng = self.hi - self.lo
+        th = np.zeros(6 + p)
+        th[6:] = np.clip(mu0, self.lo, self.hi)
+        free = np.r_[np.arange(6) if npose else np.array([], int), 6 + np.arange(p)]
+        steps = np.r_[np.full(6, 1e-6), 1e-6 * rng]
+
+        def res(t):
+            return self._residual(pe.pose, t, Xc, img_c, px, valid, sc, sd)
+
+        def jac(t, r):
+            J = np.empty((r.size, free.size))
+            for j, k in enumerate(free):
+                e = t.copy()
+                e[k] += steps[k]
+                J[:, j] = (res(e) - r) / steps[k]
+            return J
+
+        r = res(th)
+        cost = r @ r
+        lam = 1e-3
+        for _ in range(iters):
+            J = jac(th, r)
+            A = J.T @ J
+            g = J.T @ r
+            improved = False
+            for _ in range(8):
+                try:
+                    dx = -np.linalg.solve(A + lam * np.diag(np.diag(A) + 1e-12), g)
+                except np.linalg.LinAlgError:
+                    lam *= 10
+                    continue
+                tn = th.copy()
+                tn[free] += dx
+                tn[6:] = np.clip(tn[6:], self.lo, self.hi)
+                rn = res(tn)
+                if rn @ rn < cost:
+                    improved = True
+                    lam = max(lam / 3, 1e-7)
+                    break
+                lam *= 10
+            if not improved:
+                break
+            done = np.all(np.abs(tn - th) <= steps)
+            th, r, cost = tn, rn, rn @ rn
+            if done:
+                break
+        J = jac(th, r)
+        dof = max(r.size - free.size, 1)
+        try:
+            cov = np.linalg.pinv(J.T @ J) * max(1.0, cost / dof)
+        except np.linalg.LinAlgError:
+            cov = np.full((free.size, free.size), np.inf)
+        std = np.sqrt(np.abs(np.diag(cov)[-p:]))
+        n_d = int(valid.sum())
+        rms = float(np.sqrt(np.mean((r[-2 * n_d:] * sd) ** 2))) if n_d else float("nan")
+        return th[6:].copy(), std, self._pose_of(pe.pose, th), rms
+
+    def process(self, frame: np.ndarray, index: int, draw: bool = True, gray: np.ndarray | None = None):
+        """One BGR frame -> (image, :class:`ProjectFrame`)."""
+        t0, c0 = time.perf_counter(), time.thread_time()
+        st = {}
+        if gray is None:
+            gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        pe = self.markers.update(gray)
+        t1 = time.perf_counter()
+        st["markers_pose"] = (t1 - t0) * 1e3
+        status, rms, n_dots, draw_pose = "lost", float("nan"), 0, pe.pose
+        st["dots"] = st["assimilate"] = 0.0
+        if pe.status == "measured":
+            X = self.dot_positions(self.mu)
+            vis, r_px = self._expected(pe.pose, X)
+            pred = self.camera.project(X, pe.pose)
+            pred[~vis] = np.nan
+            extra = self.project.tracking.search_px
+            if self._fresh:   # the load may be anywhere: search as far as the model can move a dot
+                extra = max(extra, self.camera.fx * self._umax / max(float(np.median(
+                    (X @ pe.pose.R.T + pe.pose.t)[:, 2])), 1e-9))
+            search = np.maximum(2.5 * r_px, 4.0) + extra
+            px, valid = find_dots(frame, gray, pred, r_px, self.colour, search)
+            n_dots = int(valid.sum())
+            t2 = time.perf_counter()
+            st["dots"] = (t2 - t1) * 1e3
+            if n_dots >= self.project.tracking.min_dots:
+                start = self.mu
+                if self._fresh:
+                    start = self._grid_start(pe.pose, px, valid)
+                mu, std, pose, rms = self._solve(pe, px, valid, start)
+                med = np.median(self._res_hist[-30:]) if len(self._res_hist) >= 5 else np.inf
+                if not self._fresh and rms > 4 * med:       # stuck in a local minimum, or a jump: search again
+                    mu2, std2, pose2, rms2 = self._solve(pe, px, valid, self._grid_start(pe.pose, px, valid))
+                    if rms2 < rms:
+                        mu, std, pose, rms = mu2, std2, pose2, rms2
+                self._res_hist.append(rms)
+                del self._res_hist[:-60]
+                if self.filter is not None:
+                    if self._fresh:
+                        self.filter.reset()
+                    self.mu, self.std = self.filter.update(mu, std)
+                else:
+                    self.mu, self.std = mu, std
+                self._fresh = False
+                draw_pose = pose
+                status = "tracking"
+            else:
+                status = "hold"
+            st["assimilate"] = (time.perf_counter() - t2) * 1e3
+        else:
+            self._fresh = True
+            status = "hold" if pe.status == "predicted" else "lost"
+        t3 = time.perf_counter()
+        out = frame
+        if draw and self.overlay is not None:
+            info = {"markers": pe.n_markers, "dots": n_dots, "dots_total": len(self.dots)}
+            out = self.overlay.draw(frame, self.camera, draw_pose, self.rom.coefficients(self.mu)[0], self.mu,
+                                    self.std, status if draw_pose is not None else "lost", info, self.names,
+                                    self.units)
+        t4 = time.perf_counter()
+        st["overlay"] = (t4 - t3) * 1e3
+        return out, ProjectFrame(index, status, self.mu.copy(), self.std.copy(), rms, pe.n_markers, n_dots,
+                                 (t4 - t0) * 1e3, st, (time.thread_time() - c0) * 1e3)
+
+    # -- whole videos --------------------------------------------------------------------------------------
+    def csv_header(self) -> list[str]:
+        return ([f"{n}_est" for n in self.names] + [f"{n}_std" for n in self.names]
+                + ["residual_px", "markers", "dots", "latency_ms"])
+
+    @staticmethod
+    def csv_row(r: ProjectFrame) -> list:
+        return ([f"{v:.6g}" for v in r.mu] + [f"{v:.6g}" for v in r.std]
+                + [f"{r.residual_px:.4f}", r.n_markers, r.n_dots, f"{r.latency_ms:.3f}"])
+
+    def run(self, source, out_video=None, out_csv=None, fps: float | None = None, crf: int = 20,
+            preset: str = "ultrafast", progress: Callable[[int, int], None] | None = None,
+            max_frames: int | None = None, snapshots: dict | None = None, **kw) -> dict:
+        """Process a source (path, or a frame source from :mod:`physar.ar.sources`); outputs as in
+        :func:`physar.ar.runner.run_video`. Returns its summary."""
+        def step(k, item, draw):
+            frame, luma = item
+            return self.process(frame, k, draw=draw and self.overlay is not None, gray=luma)
+
+        def frames(reader):
+            if hasattr(reader, "frames_with_luma"):
+                return reader.frames_with_luma()
+            return ((f, None) for f in reader)
+
+        prev = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            return run_video(step, self.camera, source, out_video, out_csv, fps, crf, self.csv_header(),
+                             self.csv_row, progress, snapshots, max_frames, STAGES, preset=preset,
+                             convert="opencv", frames=frames, time_io=True, cpu=True, **kw)
+        finally:
+            cv2.setNumThreads(prev)
+
+
+__all__ = ["ProjectFrame", "ProjectPipeline"]

@@ -1,0 +1,199 @@
+"""The overlay of any object (seed 000 §5.1, Fig. 7): the reduced model's deformed surface drawn on the
+video, coloured by a field (von Mises stress, |u| or a displacement component) with a colour bar, an
+arrow at the estimated load and the estimates ± std.
+
+The fields are linear in the mode coefficients c(mu): u = Σ c_i F_i and σ = Σ c_i σ(F_i), so the per-mode
+displacements and stresses at the surface vertices are precomputed and a frame costs a few small matrix
+products (von Mises = sqrt(3/2 s:s), s the deviatoric part of σ). The surface is drawn by the painter's
+algorithm: faces turned away from the camera are culled, the others filled far to near.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from physar.ar.overlay import turbo_lut
+from physar.vision.camera import Camera, Pose
+
+_FONT = cv2.FONT_HERSHEY_SIMPLEX
+UNITS = {"von_mises": ("von Mises", "MPa", 1e-6), "u": ("|u|", "mm", 1e3), "ux": ("u_x", "mm", 1e3),
+         "uy": ("u_y", "mm", 1e3), "uz": ("u_z", "mm", 1e3)}
+
+
+def surface_stress_modes(space, F, E: float, nu: float, nodes) -> np.ndarray:
+    """Cauchy stress (n_modes, len(nodes), 3, 3) [Pa] of each displacement mode (rows of F) at the mesh
+    vertices ``nodes``, linear elasticity with (E, nu), recovered by volume-weighted nodal averaging."""
+    from physar.fem import ElasticModel, LinearElastic
+    from physar.fem.post import cauchy_stress, nodal_average
+
+    em = ElasticModel(space, LinearElastic(E, nu))
+    out = []
+    for Fi in F:
+        sig = cauchy_stress(em, Fi)
+        out.append(nodal_average(space, sig.reshape(len(sig), 9))[nodes].reshape(-1, 3, 3))
+    return np.array(out)
+
+
+def von_mises(s: np.ndarray) -> np.ndarray:
+    """sqrt(3/2 s:s) of stresses (..., 3, 3), s the deviatoric part."""
+    dev = s - np.trace(s, axis1=-2, axis2=-1)[..., None, None] * np.eye(3) / 3
+    return np.sqrt(1.5 * np.einsum("...ij,...ij->...", dev, dev))
+
+
+class SurfaceOverlay:
+    """Draws a reduced model's deformed boundary surface for one frame.
+
+    ``field``: von_mises | u | ux | uy | uz; ``vrange``: colour range in SI units (default 0 to the 98th
+    percentile of the field's maximum over a grid of the parameter box); ``exaggeration`` scales the drawn
+    displacement; ``alpha`` the surface's opacity; ``load_path``: (k, 3) polyline of the load position
+    parameter (index ``load_param``), for the arrow; ``show``: indices of the parameters written."""
+
+    def __init__(self, rom, field: str = "von_mises", vrange=None, exaggeration: float = 1.0, alpha: float = 0.65,
+                 material: tuple[float, float] | None = None, load_path=None, load_param: int | None = None,
+                 load_dir=None, show=None, levels: int = 48):
+        space = rom.space()
+        surf = space.mesh.boundary()
+        self.faces = surf.mesh.faces                       # (f, 3) into the surface vertices
+        self.X0 = surf.mesh.points                          # (v, 3) reference positions
+        nodes = surf.node_map                               # volume vertex ids (P2: vertices come first)
+        F = rom.F.reshape(rom.n_modes, -1, 3)
+        self.U = np.ascontiguousarray(F[:, nodes])           # (modes, v, 3)
+        self.field, self.exag, self.alpha = field, exaggeration, alpha
+        self.rom = rom
+        if field == "von_mises":
+            if material is None:
+                raise ValueError("von Mises overlay needs the material (E, nu)")
+            self.S = surface_stress_modes(space, rom.F, *material, nodes)
+        elif field not in UNITS:
+            raise ValueError(f"overlay field must be one of {', '.join(UNITS)}, got {field!r}")
+        self.label, self.unit, self.scale = UNITS[field]
+        if vrange is None:  # 98th percentile over a grid of the parameter box (a point load's contact stress
+            grids = [np.linspace(a, b, 9 if rom.n_params < 3 else 5) for a, b in rom.ranges]  # would wash out the rest)
+            mus = np.stack(np.meshgrid(*grids, indexing="ij"), -1).reshape(-1, rom.n_params)
+            top = max(float(np.percentile(np.abs(self.values(rom.coefficients(m)[0])), 98)) for m in mus) or 1.0
+            vrange = (0.0, top) if field in ("von_mises", "u") else (-top, top)
+        self.vrange = (float(vrange[0]), float(vrange[1]))
+        self.lut = turbo_lut(levels)
+        self.levels = levels
+        self.load_path = None if load_path is None else np.asarray(load_path, float)
+        self.load_param = load_param
+        self.load_dir = None if load_dir is None else np.asarray(load_dir, float) / np.linalg.norm(load_dir)
+        self.show = list(range(rom.n_params)) if show is None else list(show)
+        self._bar = None
+
+    def values(self, c: np.ndarray) -> np.ndarray:
+        """The field (SI units) at the surface vertices for mode coefficients c."""
+        if self.field == "von_mises":
+            return von_mises(np.tensordot(c, self.S, 1))
+        u = np.tensordot(c, self.U, 1)
+        if self.field == "u":
+            return np.linalg.norm(u, axis=1)
+        return u[:, "xyz".index(self.field[1])]
+
+    def _colour_bar(self, h: int) -> np.ndarray:
+        bh = int(0.45 * h)
+        if self._bar is None or self._bar.shape[0] != bh:
+            ramp = np.linspace(255, 0, bh).astype(np.uint8).reshape(-1, 1)
+            self._bar = cv2.applyColorMap(np.repeat(ramp, 18, 1), cv2.COLORMAP_TURBO)
+        return self._bar
+
+    def draw(self, img: np.ndarray, camera: Camera, pose: Pose, c: np.ndarray, mu, std, status: str,
+             info: dict, names=(), units=()) -> np.ndarray:
+        """Draw onto ``img`` (BGR, in place) and return it."""
+        if pose is not None and status != "lost":
+            info = dict(info, field_max=float(self._surface(img, camera, pose, c)))
+            self._arrow(img, camera, pose, c, mu)
+        self._hud(img, mu, std, status, info, names, units)
+        return img
+
+    def _surface(self, img, camera, pose, c) -> float:
+        """Fill the deformed surface; returns the field's maximum (SI units)."""
+        v = self.values(c)
+        X = self.X0 + self.exag * np.tensordot(c, self.U, 1)
+        Xc = X @ pose.R.T + pose.t
+        if np.any(Xc[:, 2] <= 1e-6):
+            return v.max()
+        p = camera.project(X, pose)
+        tri = self.faces
+        n = np.cross(Xc[tri[:, 1]] - Xc[tri[:, 0]], Xc[tri[:, 2]] - Xc[tri[:, 0]])
+        front = np.einsum("ij,ij->i", n, Xc[tri[:, 0]]) < 0      # outward normal towards the camera
+        tri = tri[front]
+        if not len(tri):
+            return v.max()
+        depth = Xc[tri, 2].mean(1)
+        tri = tri[np.argsort(-depth)]
+        lo, hi = self.vrange
+        lev = np.clip(((v[tri].mean(1) - lo) / (hi - lo) * (self.levels - 1)).round(), 0, self.levels - 1).astype(int)
+        h, w = img.shape[:2]
+        pts = np.round(p[tri] * 16).astype(np.int32)             # 4 bits of sub-pixel precision
+        lo_xy = np.clip(p[tri].reshape(-1, 2).min(0).astype(int) - 2, 0, [w, h])
+        hi_xy = np.clip(np.ceil(p[tri].reshape(-1, 2).max(0)).astype(int) + 2, 0, [w, h])
+        if np.any(hi_xy - lo_xy <= 0):
+            return v.max()
+        x0, y0 = lo_xy
+        x1, y1 = hi_xy
+        roi = img[y0:y1, x0:x1]
+        layer = roi.copy()
+        off = np.array([x0, y0]) * 16
+        colours = self.lut[lev].tolist()
+        for q, col in zip(pts - off, colours):
+            cv2.fillConvexPoly(layer, q, col, cv2.LINE_8, 4)
+        cv2.addWeighted(layer, self.alpha, roi, 1 - self.alpha, 0, dst=roi)
+        return v.max()
+
+    def _arrow(self, img, camera, pose, c, mu):
+        if self.load_path is None or self.load_param is None:
+            return
+        P = self.load_path
+        arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))]
+        s = float(np.clip(mu[self.load_param], 0.0, arc[-1]))
+        base = np.array([np.interp(s, arc, P[:, k]) for k in range(3)])   # the point at arc length s
+        d = self.load_dir if self.load_dir is not None else np.array([0, 0, -1.0])
+        span = float(np.linalg.norm(self.X0.max(0) - self.X0.min(0)))
+        q = camera.project(np.array([base - d * 0.12 * span, base]), pose)
+        if np.all(np.isfinite(q)):
+            a, b = (tuple(int(round(v)) for v in x) for x in q)
+            cv2.arrowedLine(img, a, b, (255, 255, 255), 4, cv2.LINE_AA, tipLength=0.25)
+            cv2.arrowedLine(img, a, b, (0, 0, 200), 2, cv2.LINE_AA, tipLength=0.25)
+
+    def _hud(self, img, mu, std, status, info, names, units):
+        """Text panel (estimates ± 2 std in display units, tracking state) and the colour bar."""
+        h, w = img.shape[:2]
+        sc = h / 720
+        lines = []
+        if status == "lost":
+            lines.append(("no pose: markers not found", (80, 80, 255)))
+        else:
+            col = (255, 255, 255) if status == "tracking" else (150, 200, 255)
+            for j in self.show:
+                unit = units[j] if j < len(units) else ""
+                f, u = (1e3, "mm") if unit == "m" else (np.degrees(1.0), "deg") if unit == "rad" else (1.0, unit)
+                sd = f"+/- {2 * std[j] * f:.3g} {u} (2 sd)" if np.isfinite(std[j]) else u
+                lines.append((f"{names[j]} = {mu[j] * f:.4g} {sd}", col))
+            if "field_max" in info:
+                lines.append((f"max {self.label} {info['field_max'] * self.scale:.3g} {self.unit}", (230, 230, 230)))
+        lines.append((f"{status}: {info.get('markers', 0)} markers, {info.get('dots', 0)}/"
+                      f"{info.get('dots_total', 0)} dots", (200, 200, 200)))
+        fs, lh = 0.62 * sc, int(28 * sc)
+        x0, y0 = int(14 * sc), int(14 * sc)
+        roi = img[y0:y0 + lh * len(lines) + int(14 * sc), x0:x0 + int(560 * sc)]
+        cv2.addWeighted(roi, 0.35, np.zeros_like(roi), 0.65, 0, dst=roi)
+        for k, (txt, c) in enumerate(lines):
+            cv2.putText(img, txt, (x0 + int(10 * sc), y0 + (k + 1) * lh), _FONT, fs, c, 1, cv2.LINE_AA)
+        bar = self._colour_bar(h)
+        bh, bw = bar.shape[:2]
+        bx, by = w - bw - int(100 * sc), int(0.27 * h)
+        panel = img[by - int(46 * sc):by + bh + int(16 * sc), bx - int(10 * sc):w - int(8 * sc)]
+        cv2.addWeighted(panel, 0.35, np.zeros_like(panel), 0.65, 0, dst=panel)
+        img[by:by + bh, bx:bx + bw] = bar
+        cv2.putText(img, f"{self.label} [{self.unit}]", (bx - int(6 * sc), by - int(16 * sc)), _FONT, 0.45 * sc,
+                    (255, 255, 255), 1, cv2.LINE_AA)
+        lo, hi = self.vrange
+        for k in range(5):
+            yy = by + bh - 1 - int(k / 4 * (bh - 1))
+            cv2.line(img, (bx + bw, yy), (bx + bw + 5, yy), (255, 255, 255), 1)
+            cv2.putText(img, f"{(lo + (hi - lo) * k / 4) * self.scale:.3g}", (bx + bw + int(8 * sc), yy + 5), _FONT,
+                        0.45 * sc, (255, 255, 255), 1, cv2.LINE_AA)
+
+
+__all__ = ["SurfaceOverlay", "surface_stress_modes", "von_mises"]
