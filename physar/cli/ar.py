@@ -177,8 +177,7 @@ def _open(spec: str, cam, what: str):
         src = CameraSource(int(spec), cam.width, cam.height)
     else:
         src = VideoReader(spec, convert="opencv")
-    if (src.width, src.height) != cam.size:
-        src.close()
+    if (src.width, src.height) != cam.size:  # (not closed here: a reader's decoding thread may still use it)
         raise ConfigError(f"{spec} is {src.width}x{src.height} but {what} is for {cam.width}x{cam.height}")
     return src
 
