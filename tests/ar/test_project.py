@@ -163,3 +163,14 @@ def test_load_project_rejects_a_dot_off_the_surface(project_dir):
         p = project_dir / "bad_dot.toml"
         p.write_text(cfg_text)
         load_project(p)
+
+
+def test_readme_project_block_is_a_valid_project():
+    """The README's AR project example validates against the schema (the docs cannot drift from it)."""
+    import re
+    import tomllib
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    block = next(b for b in re.findall(r"```toml\n(.*?)```", readme, re.S) if "[[marker]]" in b and "[dots]" in b)
+    cfg = parse_project(tomllib.loads(block), "README")
+    assert cfg.overlay.field == "von_mises" and len(cfg.dots.points) == 2
