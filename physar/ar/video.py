@@ -3,9 +3,7 @@ background threads so that decoding and encoding overlap computing, atomic outpu
 from __future__ import annotations
 
 import contextlib
-import os
 import queue
-import tempfile
 import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -13,21 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from physar.errors import PhysarError
-
-
-@contextlib.contextmanager
-def atomic_path(path):
-    """Yield a temporary path next to `path`; rename it to `path` on success, delete it on failure."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+from physar.output import atomic_path  # moved to physar.output; re-exported for its users
 
 
 @contextlib.contextmanager
@@ -35,14 +19,17 @@ def clip_outputs(video, table, size: tuple[int, int], fps: float, header: Sequen
     """Open the outputs of a frame loop, both optional: ``video`` (an H.264 :class:`VideoWriter` of ``size``
     (width, height) at ``fps``, ``writer_options`` passed on) and ``table`` (a CSV file, ``header`` written
     first).  Yields (VideoWriter or None, csv.writer or None).  Both are written to temporaries next to their
-    paths and renamed only when the block completes: an error leaves no partial output."""
+    paths and renamed only when the block completes: an error leaves no partial output. The CSV is line
+    buffered (each row reaches the temporary as it is written), so a loop that stops early on a signal
+    (:class:`physar.output.SignalGuard`) and leaves the block normally gets a closed, playable MP4 and one
+    row per frame written."""
     import csv
 
     with contextlib.ExitStack() as stack:
         vtmp = stack.enter_context(atomic_path(video)) if video else None
         ctmp = stack.enter_context(atomic_path(table)) if table else None
         writer = stack.enter_context(VideoWriter(vtmp, *size, fps, **writer_options)) if vtmp else None
-        rows = csv.writer(stack.enter_context(open(ctmp, "w", newline=""))) if ctmp else None
+        rows = csv.writer(stack.enter_context(open(ctmp, "w", newline="", buffering=1))) if ctmp else None
         if rows is not None and header:
             rows.writerow(header)
         yield writer, rows
@@ -206,8 +193,15 @@ class VideoReader:
     luma plane (h, w) (limited range, 16-235; None for non-YUV streams), so that grey-level work needs no
     colour conversion.
 
+    ``last_time``: the presentation time (s) of the frame last yielded (None before the first, or when the
+    stream has no timestamps); ``live`` is False and ``dropped`` 0 (a file is read frame by frame; see
+    :func:`physar.ar.sources.open_source` for live sources with the same interface).
+
     Raises PhysarError for a missing, empty or undecodable file (checked on open: the first frame is decoded).
     """
+
+    live = False
+    dropped = 0
 
     def __init__(self, path, threaded: bool = True, prefetch: int = 8, convert: str = "ffmpeg"):
         import av
@@ -241,9 +235,12 @@ class VideoReader:
         rate = self._s.average_rate or self._s.guessed_rate
         self.fps = float(rate) if rate else 30.0
         self.frames_hint = int(self._s.frames or 0)
-        self._first = _to_bgr(first, convert)
+        self._first = (*_to_bgr(first, convert), first.time)
+        self.last_time = None
         self._q = queue.Queue(maxsize=prefetch) if threaded else None
         self._err = None
+        self._stop = threading.Event()
+        self._thread = None
         if threaded:
             self._thread = threading.Thread(target=self._run, daemon=True)
             self._thread.start()
@@ -253,11 +250,11 @@ class VideoReader:
             f = next(self._it)
         except StopIteration:
             return None
-        return _to_bgr(f, self.convert)
+        return (*_to_bgr(f, self.convert), f.time)
 
     def _run(self):
         try:
-            while True:
+            while not self._stop.is_set():
                 img = self._next()
                 self._q.put(img)
                 if img is None:
@@ -272,19 +269,29 @@ class VideoReader:
 
     def frames_with_luma(self):
         """(BGR uint8 (h, w, 3), luma uint8 (h, w) or None) for every frame."""
-        yield self._first
+        self.last_time = self._first[2]
+        yield self._first[:2]
         while True:
             img = self._q.get() if self._q is not None else self._next()
             if img is None:
                 break
-            yield img
+            self.last_time = img[2]
+            yield img[:2]
         if self._err is not None:
             raise self._err
         self._c.close()
 
     def close(self):
+        """Stop the decoding thread (it may be blocked on the full prefetch queue: drained here), then close
+        the file. Closing the container under a running decoder would crash it."""
         import av
 
+        if self._thread is not None:
+            self._stop.set()
+            while self._thread.is_alive():
+                with contextlib.suppress(queue.Empty):
+                    self._q.get(timeout=0.05)
+            self._thread = None
         with contextlib.suppress(av.FFmpegError):  # best effort, like closing a file twice
             self._c.close()
 
