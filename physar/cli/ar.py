@@ -158,25 +158,20 @@ def ar_run(
     if json_out:
         print_json(summary)
     else:
-        log(f"{summary['frames']} frames at {summary['fps']:.1f} fps, median latency "
-            f"{summary['latency_ms_median']:.2f} ms" + (f"; wrote {out}" if out else ""))
+        log(("interrupted after " if summary.get("interrupted") else "") +
+            f"{summary['frames']} frames at {summary['fps']:.1f} fps, median latency "
+            f"{summary['latency_ms_median']:.2f} ms" + (f"; wrote {out}" if out else "")
+            + (f" and {csv_out}" if csv_out else ""))
+    if summary.get("interrupted"):
+        raise typer.Exit(code=130)  # Ctrl-C / SIGTERM: the outputs up to the last frame are complete
 
 
 def _open(spec: str, cam, what: str):
     """The frame source of SOURCE (see physar.ar.sources), its size checked against the camera file."""
-    from physar.ar.video import CameraSource, VideoReader
+    from physar.ar.sources import open_source
     from physar.errors import ConfigError
 
-    try:
-        from physar.ar.sources import open_source
-    except ImportError:  # pragma: no cover - before physar.ar.sources exists
-        open_source = None
-    if open_source is not None:
-        src = open_source(spec, width=cam.width, height=cam.height, convert="opencv")
-    elif spec.isdigit():
-        src = CameraSource(int(spec), cam.width, cam.height)
-    else:
-        src = VideoReader(spec, convert="opencv")
+    src = open_source(spec, width=cam.width, height=cam.height, convert="opencv")
     if (src.width, src.height) != cam.size:  # (not closed here: a reader's decoding thread may still use it)
         raise ConfigError(f"{spec} is {src.width}x{src.height} but {what} is for {cam.width}x{cam.height}")
     return src
@@ -196,7 +191,8 @@ def _run_project(project_path, spec, out, csv_out, field, max_frames, preset, cr
         project.config.overlay.field = field
     src = _open(spec, project.camera, f"{project_path} [camera] file")
     pipe = ProjectPipeline(project)
-    return pipe.run(src, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf)
+    return pipe.run(src, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf,
+                    keep_results=False)  # running statistics only: bounded memory on a live source
 
 
 def _run_scene_model(model, spec, camera_file, out, csv_out, field, max_frames, preset, crf):
