@@ -186,6 +186,11 @@ def _run_project(project_path, spec, out, csv_out, field, max_frames, preset, cr
         raise ConfigError("--camera-file goes with a .npz model; a project names its camera in [camera] file")
     if field is not None and field not in FIELDS:
         raise ConfigError(f"--field must be one of {', '.join(FIELDS)}, got {field!r}")
+    from physar.output import check_destination
+
+    for path, suf, kind in ((out, [".mp4"], "augmented video"), (csv_out, [".csv"], "estimates CSV")):
+        if path is not None:
+            check_destination(path, inputs=[project_path, spec], suffixes=suf, kind=kind)
     project = load_project(project_path, progress=_bar("model"))
     if field is not None:
         project.config.overlay.field = field
@@ -212,6 +217,22 @@ def _run_scene_model(model, spec, camera_file, out, csv_out, field, max_frames, 
     rom = SeparatedModel.load(model)
     pipe = ARPipeline(rom, cam, field=field)
     return pipe.run(src, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf)
+
+
+def ar_print_markers(
+    project: Path = typer.Argument(..., help="AR project file"),  # noqa: B008 - typer idiom
+    output: Path = typer.Option(Path("markers.pdf"), "--out", "-o", help="sheet to write (.pdf or .png)"),  # noqa: B008 - typer idiom
+    dpi: float = typer.Option(300, help="resolution of the raster [dots per inch]"),
+) -> None:
+    """Write the project's markers at true size (print at 100 %, no scaling) with their ids and sides."""
+    from physar.ar.project import parse_project, read_project_toml
+    from physar.output import check_destination
+    from physar.vision.printing import write_marker_sheet
+
+    cfg = parse_project(read_project_toml(project), str(project))
+    check_destination(output, inputs=[project], suffixes=[".pdf", ".png"], kind="marker sheet")
+    res = write_marker_sheet([(m.dictionary, m.id, m.size) for m in cfg.marker], output, dpi=dpi)
+    log(f"wrote {len(cfg.marker)} markers to {res.get('path', output)}: print at 100 % (no fit-to-page)")
 
 
 def ar_init(
@@ -243,4 +264,5 @@ def register(app: typer.Typer) -> None:
     ar = typer.Typer(help="Augmented-reality pipeline.", no_args_is_help=True)
     ar.command("run")(user_errors(ar_run))
     ar.command("init")(user_errors(ar_init))
+    ar.command("print-markers")(user_errors(ar_print_markers))
     app.add_typer(ar, name="ar")

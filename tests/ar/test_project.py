@@ -244,3 +244,26 @@ def test_ar_run_reads_a_tcp_stream_and_stops_cleanly_on_sigint(project_dir, scen
     est = read_estimates(out / "est.csv")
     assert np.all(est["status"][-3:] == "tracking")
     assert sorted(p.name for p in out.iterdir()) == ["aug.mp4", "est.csv"]
+
+
+def test_print_markers_writes_the_projects_markers_at_true_scale(project_dir, tmp_path):
+    """The sheet holds every marker of the project, detectable with its id, at its side length (300 dpi).
+    Catches: a marker left out, a wrong id, a sheet not at true scale."""
+    r = CliRunner().invoke(_app(), ["ar", "print-markers", str(project_dir / "project.toml"), "-o",
+                                    str(tmp_path / "m.png")])
+    assert r.exit_code == 0, r.output
+    img = cv2.imread(str(tmp_path / "m.png"), cv2.IMREAD_GRAYSCALE)
+    det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50))
+    corners, ids, _ = det.detectMarkers(img)
+    assert sorted(ids.ravel().tolist()) == [0, 1, 2, 3]
+    side = np.mean([np.linalg.norm(c[0, 1] - c[0, 0]) for c in corners])
+    assert abs(side - 0.05 / 0.0254 * 300) < 1.5, side
+
+
+def test_ar_run_refuses_an_output_over_the_input(project_dir, scene, tmp_path):
+    """--out equal to the input video is refused before any work; the video is intact."""
+    v = tmp_path / "in.mp4"
+    shutil.copy(scene / "scene.mp4", v)
+    size = v.stat().st_size
+    r = CliRunner().invoke(_app(), ["ar", "run", str(project_dir / "project.toml"), str(v), "-o", str(v)])
+    assert r.exit_code == 2 and v.stat().st_size == size, r.output
