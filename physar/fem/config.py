@@ -15,14 +15,14 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
 
-from physar.errors import ConfigError, PhysarError, format_validation_error
+from physar.errors import ConfigError, MeshError, PhysarError, format_validation_error
 from physar.fem.assembly import ElasticModel
 from physar.fem.elements import FESpace
-from physar.fem.loads import fixed_dofs, gravity_load, point_load, traction_load
+from physar.fem.loads import gravity_load, point_load, select_nodes_mask, traction_load
 from physar.fem.materials import MATERIALS, make_material
 from physar.fem.post import nodal_average, probe, von_mises
 from physar.fem.solvers import StaticResult, solve_static
-from physar.geometry import TetMesh, box_mesh, read_mesh
+from physar.geometry import TetMesh, TriMesh, box_mesh, read_mesh, tetrahedralize
 
 Vec3 = tuple[float, float, float]
 Box = tuple[Vec3, Vec3]
@@ -36,6 +36,7 @@ class MeshSection(_Strict):
     file: str | None = None
     box: Vec3 | None = None
     cells: tuple[int, int, int] | None = None
+    size: float | None = Field(None, gt=0, description="element size [m] when tetrahedralising a surface file")
 
     @model_validator(mode="after")
     def _one_source(self):
@@ -43,7 +44,57 @@ class MeshSection(_Strict):
             raise ValueError("give either file = \"...\" or box = [L, W, H] with cells = [nx, ny, nz]")
         if self.box is not None and self.cells is None:
             raise ValueError("box needs cells = [nx, ny, nz]")
+        if self.size is not None and self.file is None:
+            raise ValueError("size applies to a surface file (file = \"part.stl\"), not to box")
         return self
+
+
+class PlaneSelector(_Strict):
+    point: Vec3
+    normal: Vec3
+    tol: float | None = Field(None, ge=0, description="m; default 1e-9 of the mesh extent")
+
+    @model_validator(mode="after")
+    def _normal(self):
+        if not np.linalg.norm(self.normal) > 0:
+            raise ValueError("plane normal must be non-zero")
+        return self
+
+
+class _Selector(_Strict):
+    """Exactly one of box, region, points, plane selects the nodes/faces of a table."""
+
+    box: Box | None = None
+    region: str | int | None = Field(None, description="mesh tag (physical group) name or id")
+    points: list[Vec3] | None = Field(None, min_length=1, description="nodes within tol of these points")
+    tol: float | None = Field(None, ge=0, description="m, for points; default 1e-9 of the mesh extent")
+    plane: PlaneSelector | None = None
+
+    def _check_selector(self, required: bool = True):
+        given = [k for k in ("box", "region", "points", "plane") if getattr(self, k) is not None]
+        if not given and required:
+            raise ValueError(f"{self._what()} needs one of box, region, points, plane")
+        if len(given) > 1:
+            raise ValueError(f"give exactly one of box, region, points, plane (got {', '.join(given) or 'none'})")
+        if self.tol is not None and self.points is None:
+            raise ValueError("tol applies to points (a plane takes its own tol)")
+
+    def _what(self) -> str:
+        return f"a {self.type} load" if hasattr(self, "type") else "[[fix]]"
+
+    def selector(self) -> dict:
+        plane = None if self.plane is None else (self.plane.point, self.plane.normal)
+        tol = self.plane.tol if self.plane is not None else self.tol
+        return {"box": self.box, "region": self.region, "points": self.points, "plane": plane, "tol": tol}
+
+    def describe(self) -> str:
+        if self.box is not None:
+            return f"box {list(map(list, self.box))}"
+        if self.region is not None:
+            return f"region {self.region!r}"
+        if self.points is not None:
+            return f"points {list(map(list, self.points))} (tol {self.tol})"
+        return f"plane {{point={list(self.plane.point)}, normal={list(self.plane.normal)}, tol={self.plane.tol}}}"
 
 
 class MaterialSection(_Strict):
@@ -55,15 +106,18 @@ class MaterialSection(_Strict):
     density: float = Field(0.0, ge=0, description="kg/m^3")
 
 
-class FixSection(_Strict):
-    box: Box
+class FixSection(_Selector):
     components: list[Literal["x", "y", "z"]] = ["x", "y", "z"]
     value: Vec3 | None = Field(None, description="prescribed displacement [m] (x, y, z); default 0")
 
+    @model_validator(mode="after")
+    def _one(self):
+        self._check_selector()
+        return self
 
-class LoadSection(_Strict):
+
+class LoadSection(_Selector):
     type: Literal["point", "traction", "gravity"]
-    box: Box | None = None
     total: Vec3 | None = None
     point: Vec3 | None = None
     radius: float | None = Field(None, gt=0)
@@ -71,10 +125,14 @@ class LoadSection(_Strict):
 
     @model_validator(mode="after")
     def _needed(self):
-        need = {"traction": ("box", "total"), "point": ("point", "total", "radius"), "gravity": ()}[self.type]
+        need = {"traction": ("total",), "point": ("point", "total", "radius"), "gravity": ()}[self.type]
         missing = [k for k in need if getattr(self, k) is None]
         if missing:
             raise ValueError(f"a {self.type} load needs {', '.join(missing)}")
+        if self.type == "traction":
+            self._check_selector()
+        elif any(getattr(self, k) is not None for k in ("box", "region", "points", "plane")):
+            raise ValueError(f"a {self.type} load takes no box/region/points/plane (only traction does)")
         return self
 
 
@@ -144,13 +202,22 @@ class Problem:
 
 
 def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
+    """The [mesh] of a problem file: a box, a volume mesh file (with its tags), or a closed surface file
+    (STL, OBJ, PLY, OFF, or any file with triangles only) tetrahedralised by
+    :func:`physar.geometry.tetrahedralize` at `size` (default: half the smallest bounding-box extent)."""
     if section.file is not None:
         p = Path(section.file)
         if not p.is_absolute() and base_dir is not None:
             p = base_dir / p
-        mesh = read_mesh(p, kind="tet")
-        if not isinstance(mesh, TetMesh):  # pragma: no cover - read_mesh(kind="tet") guarantees it
-            raise ConfigError(f"{p}: not a tetrahedral mesh")
+        mesh = read_mesh(p, kind="auto")
+        if isinstance(mesh, TriMesh):
+            try:
+                return tetrahedralize(mesh, size=section.size, source=f"[mesh] file {p.name}")
+            except MeshError as exc:
+                raise ConfigError(str(exc)) from None
+        if section.size is not None:
+            raise ConfigError(f"[mesh] size = {section.size}: {p.name} is already a volume mesh (size applies "
+                              "to a surface file that is tetrahedralised)")
         return mesh
     return box_mesh(section.box, section.cells)
 
@@ -166,26 +233,29 @@ def build_problem(cfg: FemConfig, base_dir: Path | None = None) -> Problem:
     except ConfigError as exc:
         raise ConfigError(f"[material] {exc}") from None
     model = ElasticModel(space, material, density=mat.density)
-    fixed = np.unique(
-        np.concatenate(
-            [fixed_dofs(space, box=f.box, components="".join(f.components)) for f in cfg.fix]
-            or [np.zeros(0, dtype=np.int64)]
-        )
-    ).astype(np.int64)
-    prescribed = None
+    fix_dofs = []
     for i, f in enumerate(cfg.fix):
-        if len(fixed_dofs(space, box=f.box)) == 0:
-            raise ConfigError(f"[[fix]] #{i + 1}: no node lies in box {list(map(list, f.box))}")
+        mask = select_nodes_mask(space, **f.selector(), what=f"[[fix]] #{i + 1}")
+        if not mask.any():
+            if f.box is not None:
+                raise ConfigError(f"[[fix]] #{i + 1}: no node lies in box {list(map(list, f.box))}")
+            raise ConfigError(f"[[fix]] #{i + 1}: no node matches {f.describe()}")
+        nodes = np.flatnonzero(mask)
+        fix_dofs.append({c: 3 * nodes + "xyz".index(c) for c in f.components})
+    fixed = np.unique(np.concatenate([d for fd in fix_dofs for d in fd.values()] or [np.zeros(0, np.int64)]))
+    fixed = fixed.astype(np.int64)
+    prescribed = None
     if any(f.value is not None for f in cfg.fix):
         prescribed = np.zeros(space.n_dofs)
-        for f in cfg.fix:  # in file order: a later [[fix]] overrides an earlier one where boxes overlap
-            for c in f.components:
-                prescribed[fixed_dofs(space, box=f.box, components=c)] = 0.0 if f.value is None else f.value["xyz".index(c)]
+        for f, fd in zip(cfg.fix, fix_dofs):  # in file order: a later [[fix]] overrides an earlier one
+            for c, dofs in fd.items():
+                prescribed[dofs] = 0.0 if f.value is None else f.value["xyz".index(c)]
     f_ext = np.zeros(space.n_dofs)
     for i, ld in enumerate(cfg.load):
         try:
             if ld.type == "traction":
-                f_ext += traction_load(space, ld.box, ld.total)
+                sel = ld.selector()
+                f_ext += traction_load(space, sel.pop("box"), ld.total, **sel)
             elif ld.type == "point":
                 f_ext += point_load(space, ld.point, ld.total, ld.radius)
             else:

@@ -1,5 +1,9 @@
 """External loads as consistent nodal force vectors (n_dofs,) [N], and Dirichlet dof selection.
 
+Nodes and boundary faces are selected by exactly one of: a `box`, a mesh `region` (physical group name
+or id of the mesh file, :class:`physar.geometry.regions.MeshTags`), `points` (nodes within `tol`) or a
+`plane` ((point, normal): nodes within `tol` of it) — see :func:`select_nodes_mask`, :func:`select_faces`.
+
 Surface loads integrate f_a = ∫_Γ N_a t dA over boundary faces; the tet shape functions are evaluated
 on the face (the barycentric coordinate of the opposite vertex is 0), so P1 and P2 are treated alike.
 """
@@ -10,9 +14,11 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from physar.errors import ConfigError
-from physar.fem.elements import FESpace, shape_functions, tri_quadrature
-from physar.geometry.mesh import TET_FACES, BoundarySurface, in_box, select_boundary_faces
+from physar.errors import ConfigError, MeshError
+from physar.fem.elements import P2_EDGES, FESpace, shape_functions, tri_quadrature
+from physar.geometry.mesh import TET_FACES, BoundarySurface, in_box, row_keys, select_boundary_faces
+from physar.geometry.path import path_length, path_point  # noqa: F401 - re-exported: the load path helpers
+from physar.geometry.regions import near_points, on_plane
 
 _COMPONENTS = {"x": 0, "y": 1, "z": 2}
 
@@ -48,12 +54,112 @@ def _scatter(space: FESpace, cells: np.ndarray, nodal: np.ndarray) -> np.ndarray
     return np.bincount(dofs.ravel(), weights=nodal.reshape(len(cells), -1).ravel(), minlength=space.n_dofs)
 
 
-def traction_load(space: FESpace, box: Sequence[Sequence[float]], total: Sequence[float]) -> np.ndarray:
-    """Uniform traction t = total / area on the boundary faces whose centroids lie in `box`."""
+def _one_selector(box, region, points, plane) -> str:
+    given = [k for k, v in (("box", box), ("region", region), ("points", points), ("plane", plane)) if v is not None]
+    if len(given) != 1:
+        raise ConfigError(f"give exactly one of box, region, points, plane (got {', '.join(given) or 'none'})")
+    return given[0]
+
+
+def _describe(kind, box, region, points, plane, tol) -> str:
+    if kind == "box":
+        return f"box {np.asarray(box, float).tolist()}"
+    if kind == "region":
+        return f"region {region!r}"
+    if kind == "points":
+        return f"points {np.asarray(points, float).tolist()} (tol {tol})"
+    return f"plane point {np.asarray(plane[0], float).tolist()} normal {np.asarray(plane[1], float).tolist()} (tol {tol})"
+
+
+def _region(space: FESpace, region, what: str):
+    tags = space.mesh.tags
+    if tags is None:
+        raise ConfigError(f"{what} region {region!r} not in mesh (available: none, the mesh has no tags; "
+                          "use a mesh file with physical groups, or box/points/plane)")
+    try:
+        return tags.resolve(region, what=f"{what} region")
+    except MeshError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def _edge_nodes(space: FESpace, edges: np.ndarray) -> np.ndarray:
+    """P2 nodes at the midpoints of the given vertex edges (e, 2) (empty for P1)."""
+    if space.element == "P1" or len(edges) == 0:
+        return np.zeros(0, np.int64)
+    n = space.mesh.n_points
+    want = row_keys(np.sort(edges, axis=1), n)
+    cells = space.mesh.cells
+    ce = np.sort(cells[:, P2_EDGES].reshape(-1, 2), axis=1)
+    hit = np.isin(row_keys(ce, n), want)
+    return space.cells[:, 4:].reshape(-1)[hit]
+
+
+def select_nodes_mask(space: FESpace, box=None, region=None, points=None, plane=None, tol=None,
+                      what: str = "selection") -> np.ndarray:
+    """Mask over ``space.nodes`` of the nodes picked by exactly one selector.
+
+    box [[lo], [hi]] (closed); region (name or id): the vertices of the tagged triangles/tetrahedra and,
+    for P2, the midpoints of their edges; points [[x, y, z], ...]: nodes within `tol` of one of them;
+    plane (point, normal): nodes within `tol` of the plane. `tol` defaults to 1e-9 of the mesh extent.
+    An empty selection is not an error here (see :func:`fixed_dofs` callers).
+    """
+    kind = _one_selector(box, region, points, plane)
+    X = space.nodes
+    if kind == "box":
+        return in_box(X, box)
+    if kind == "points":
+        return near_points(X, points, tol)
+    if kind == "plane":
+        return on_plane(X, plane[0], plane[1], tol)
+    rows, cells = _region(space, region, what)
+    mask = np.zeros(space.n_nodes, bool)
+    mask[rows.ravel()] = True
+    mask[space.mesh.cells[cells].ravel()] = True
+    edges = [rows[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), space.mesh.cells[cells][:, P2_EDGES].reshape(-1, 2)]
+    mask[_edge_nodes(space, np.concatenate(edges))] = True
+    return mask
+
+
+def select_faces(space: FESpace, box=None, region=None, points=None, plane=None, tol=None,
+                 what: str = "selection") -> np.ndarray:
+    """Indices of boundary faces (of ``space.mesh.boundary()``) picked by exactly one selector.
+
+    box: the face centroid lies in it; region: the face is a tagged triangle of that region, or a
+    boundary face of a tagged tetrahedron; points / plane: all three vertices are selected (as in
+    :func:`select_nodes_mask`).
+    """
+    kind = _one_selector(box, region, points, plane)
     surf = _surface(space)
-    faces = select_boundary_faces(surf, box=box)
+    if kind == "box":
+        return select_boundary_faces(surf, box=box)
+    fg = surf.faces_global
+    if kind in ("points", "plane"):
+        X = space.mesh.points
+        m = near_points(X, points, tol) if kind == "points" else on_plane(X, plane[0], plane[1], tol)
+        return np.flatnonzero(m[fg].all(axis=1))
+    rows, cells = _region(space, region, what)
+    n = space.mesh.n_points
+    hit = np.isin(row_keys(np.sort(fg, axis=1), n), row_keys(np.sort(rows, axis=1), n)) if len(rows) else \
+        np.zeros(len(fg), bool)
+    if cells.any():
+        hit |= cells[surf.face_cell]
+    return np.flatnonzero(hit)
+
+
+def traction_load(space: FESpace, box: Sequence[Sequence[float]] | None = None,
+                  total: Sequence[float] | None = None, *, region=None, points=None, plane=None,
+                  tol=None) -> np.ndarray:
+    """Uniform traction t = total / area on the boundary faces picked by :func:`select_faces` (e.g. whose
+    centroids lie in `box`)."""
+    if total is None:
+        raise ConfigError("traction load needs total = [Fx, Fy, Fz]")
+    surf = _surface(space)
+    kind = _one_selector(box, region, points, plane)
+    faces = select_faces(space, box=box, region=region, points=points, plane=plane, tol=tol, what="traction load:")
     if len(faces) == 0:
-        raise ConfigError(f"traction load: no boundary face has its centroid in box {np.asarray(box).tolist()}")
+        if kind == "box":
+            raise ConfigError(f"traction load: no boundary face has its centroid in box {np.asarray(box).tolist()}")
+        raise ConfigError(f"traction load: no boundary face matches {_describe(kind, box, region, points, plane, tol)}")
     total = np.asarray(total, dtype=float)
     area = surf.mesh.face_areas()[faces].sum()
     cells, _, w, N = _face_quadrature(space, faces, 2)
@@ -111,15 +217,23 @@ def fixed_dofs(
     box: Sequence[Sequence[float]] | None = None,
     where: Callable[[np.ndarray], np.ndarray] | None = None,
     components: str | Sequence[str] = "xyz",
+    *,
+    region=None,
+    points=None,
+    plane=None,
+    tol=None,
 ) -> np.ndarray:
-    """Dofs of the nodes in `box` (and/or satisfying `where(nodes)`), for the given components."""
+    """Dofs of the nodes in `box` (and/or satisfying `where(nodes)`), or picked by `region`, `points` or
+    `plane` (:func:`select_nodes_mask`), for the given components."""
     comps = []
     for c in components:
         if c not in _COMPONENTS:
             raise ConfigError(f"unknown component {c!r}; use x, y or z")
         comps.append(_COMPONENTS[c])
     mask = np.ones(space.n_nodes, dtype=bool)
-    if box is not None:
+    if region is not None or points is not None or plane is not None:
+        mask &= select_nodes_mask(space, box=box, region=region, points=points, plane=plane, tol=tol)
+    elif box is not None:
         mask &= in_box(space.nodes, box)
     if where is not None:
         mask &= np.asarray(where(space.nodes), dtype=bool)

@@ -1,6 +1,8 @@
 """Geometry layer: meshes, generation, I/O (meshio), boundary extraction, selection."""
 
 from physar.geometry.io import read_mesh, write_mesh
+from physar.geometry.path import path_length, path_point
+from physar.geometry.regions import MeshTags
 from physar.geometry.mesh import (
     TET_FACES,
     BoundarySurface,
@@ -13,8 +15,10 @@ from physar.geometry.mesh import (
     select_nodes,
     tet_signed_volumes,
 )
+from physar.geometry.tetra import l_bracket_surface, plate_with_hole_surface, tet_quality, tetrahedralize
 
 __all__ = [
+    "MeshTags",
     "TET_FACES",
     "BoundarySurface",
     "TetMesh",
@@ -22,9 +26,15 @@ __all__ = [
     "boundary_surface",
     "box_mesh",
     "in_box",
+    "l_bracket_surface",
+    "path_length",
+    "path_point",
+    "plate_with_hole_surface",
     "read_mesh",
     "select_boundary_faces",
     "select_nodes",
+    "tet_quality",
     "tet_signed_volumes",
+    "tetrahedralize",
     "write_mesh",
 ]

@@ -18,6 +18,51 @@ import numpy as np
 
 from physar.errors import MeshError, PhysarError
 from physar.geometry.mesh import TetMesh, TriMesh
+from physar.geometry.regions import MeshTags
+
+TAG_KEYS = ("gmsh:physical", "medit:ref", "cell_tags")  # meshio cell_data names of region tags, by priority
+
+
+def _block_tags(m, i: int) -> np.ndarray | None:
+    """Integer tags of cell block i from the first of TAG_KEYS present, or None."""
+    for key in TAG_KEYS:
+        data = m.cell_data.get(key)
+        if data is not None and i < len(data) and data[i] is not None and len(data[i]) == len(m.cells[i].data):
+            return np.asarray(data[i]).astype(np.int64).ravel()
+    return None
+
+
+def _mesh_tags(m, remap: np.ndarray | None) -> MeshTags | None:
+    """MeshTags of the tetra and triangle blocks of a meshio mesh (None when it carries no tags)."""
+    cell_tags, faces, face_tags, any_tag, n_tets = [], [], [], False, 0
+    for i, c in enumerate(m.cells):
+        t = _block_tags(m, i)
+        if c.type in ("tetra", "tetra10"):
+            n_tets += len(c.data)
+            cell_tags.append(t if t is not None else np.zeros(len(c.data), np.int64))
+            any_tag |= t is not None
+        elif c.type in ("triangle", "triangle6") and t is not None:
+            f = np.asarray(c.data[:, :3], np.int64)
+            if remap is not None:
+                f = remap[f]
+                keep = (f >= 0).all(axis=1)
+                f, t = f[keep], t[keep]
+            faces.append(f)
+            face_tags.append(t)
+            any_tag = True
+    names = {}
+    for name, v in (getattr(m, "field_data", None) or {}).items():
+        v = np.asarray(v).ravel()
+        if v.size >= 1:
+            names[str(name)] = (int(v[0]), int(v[1]) if v.size > 1 else 3)
+    if not any_tag and not names:
+        return None
+    return MeshTags(
+        cell_tags=np.concatenate(cell_tags) if cell_tags and any(len(t) for t in cell_tags) else None,
+        face_nodes=np.concatenate(faces) if faces else np.zeros((0, 3), np.int64),
+        face_tags=np.concatenate(face_tags) if face_tags else np.zeros(0, np.int64),
+        names=names,
+    )
 
 VOLUME_FORMATS = {".vtu", ".xdmf", ".xmf", ".msh", ".mesh", ".vtk"}
 SURFACE_FORMATS = {".ply", ".obj", ".stl", ".off", ".vtu", ".vtk", ".msh", ".mesh", ".xdmf"}
@@ -33,6 +78,8 @@ def read_mesh(path: str | os.PathLike, kind: str = "auto") -> TetMesh | TriMesh:
     """Read a tetrahedral (`kind="tet"`) or triangle (`kind="tri"`) mesh; `auto` prefers tetrahedra.
 
     Second-order tetrahedra (tetra10) are read as their four corner nodes (physar builds P2 nodes itself).
+    A tet mesh keeps the region tags of its tetrahedra and triangles (meshio cell_data "gmsh:physical",
+    "medit:ref" or "cell_tags") and the group names (field_data) as ``mesh.tags`` (:class:`MeshTags`).
     """
     path = Path(path)
     if not path.exists():
@@ -54,11 +101,12 @@ def read_mesh(path: str | os.PathLike, kind: str = "auto") -> TetMesh | TriMesh:
     if kind in ("auto", "tet") and tets:
         cells = np.concatenate(tets)
         used = np.unique(cells)
+        remap = None
         if len(used) < len(points):  # drop points not used by tets (e.g. gmsh geometry points)
             remap = -np.ones(len(points), dtype=np.int64)
             remap[used] = np.arange(len(used))
             points, cells = points[used], remap[cells]
-        return TetMesh(points, cells, name=path.name)
+        return TetMesh(points, cells, name=path.name, tags=_mesh_tags(m, remap))
     if kind in ("auto", "tri") and tris:
         return TriMesh(points, np.concatenate(tris), name=path.name)
     want = {"auto": "tetrahedra or triangles", "tet": "tetrahedra", "tri": "triangles"}.get(kind, kind)

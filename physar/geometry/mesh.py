@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from physar.errors import MeshError
+from physar.geometry.regions import MeshTags
 
 # Local faces of a positively oriented tetrahedron (vol = det[x1-x0, x2-x0, x3-x0] / 6 > 0), ordered
 # so that the right-hand normal points outward; face k is opposite local vertex k.
@@ -56,13 +57,15 @@ class TetMesh:
 
     Every tetrahedron must be positively oriented with a volume above `rel_tol` times the mean volume;
     otherwise a MeshError names the element. Use :meth:`reoriented` to fix orientation of a mesh read
-    from a tool that uses the other convention.
+    from a tool that uses the other convention. `tags` (optional, :class:`MeshTags`): physical groups
+    of a mesh file (tetrahedra and boundary triangles), for ``region = ...`` selections.
     """
 
     points: np.ndarray
     cells: np.ndarray
     name: str = field(default="mesh", compare=False)
     rel_tol: float = field(default=1e-12, compare=False, repr=False)
+    tags: MeshTags | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         pts = _check_points(self.points, self.name)
@@ -88,13 +91,14 @@ class TetMesh:
         cells.setflags(write=False)
 
     @classmethod
-    def reoriented(cls, points: np.ndarray, cells: np.ndarray, name: str = "mesh") -> TetMesh:
+    def reoriented(cls, points: np.ndarray, cells: np.ndarray, name: str = "mesh",
+                   tags: MeshTags | None = None) -> TetMesh:
         """Build a mesh after swapping two nodes of every negatively oriented tetrahedron."""
         points = _check_points(points, name)
         cells = _check_cells(cells, len(points), 4, name).copy()
         neg = tet_signed_volumes(points, cells) < 0
         cells[neg, 2], cells[neg, 3] = cells[neg, 3].copy(), cells[neg, 2].copy()
-        return cls(points, cells, name=name)
+        return cls(points, cells, name=name, tags=tags)
 
     @property
     def n_points(self) -> int:

@@ -6,7 +6,7 @@ Example (see README, "Reduced models")::
     [[parameter]]
     name = "s"
     kind = "load_position"                    # arc length s (m) from path[0] along the path
-    path = [[0.0, 0.05, 0.1], [1.0, 0.05, 0.1]]
+    path = [[0.0, 0.05, 0.1], [1.0, 0.05, 0.1]]   # a polyline of >= 2 points; s uniform in arc length
     points = 60                               # grid of s values (PGD/POD); initial samples (non-intrusive)
     load = [0, 0, -1.0]                       # N, spread like a fem `point` load of this radius
     radius = 0.04
@@ -25,7 +25,9 @@ Example (see README, "Reduced models")::
     max_modes = 20
     tol = 1e-4
 
-The load of ``rom eval`` at s is exactly the load of a ``[[load]] type = "point"`` at path(s) with the
+The load point is ``physar.geometry.path_point(path, s)``; a point off the surface loads the body where
+the bump kernel of radius ``radius`` meets it (as a fem ``point`` load does). The load of ``rom eval``
+at s is exactly the load of a ``[[load]] type = "point"`` at path(s) with the
 same total and radius, so the two commands solve the same problem.
 """
 from __future__ import annotations
@@ -44,7 +46,7 @@ from physar.fem.config import FemConfig, Vec3, _Strict, build_problem, load_conf
 class ParameterSection(_Strict):
     name: str = Field(..., min_length=1)
     kind: Literal["load_position", "load_magnitude", "load_offset"]
-    path: tuple[Vec3, Vec3] | None = Field(None, description="[[x0,y0,z0],[x1,y1,z1]] (m)")
+    path: list[Vec3] | None = Field(None, min_length=2, description="polyline [[x0,y0,z0],[x1,y1,z1],...] (m)")
     points: int = Field(60, ge=3, description="grid points of the parameter")
     load: Vec3 | None = Field(None, description="total force (N)")
     radius: float | None = Field(None, gt=0, description="m")
@@ -61,8 +63,11 @@ class ParameterSection(_Strict):
             raise ValueError(f"a {self.kind} parameter needs {', '.join(missing)}")
         if self.range is not None and not self.range[1] > self.range[0]:
             raise ValueError(f"range must be increasing, got {list(self.range)}")
-        if self.kind == "load_position" and np.linalg.norm(np.subtract(self.path[1], self.path[0])) <= 0:
-            raise ValueError("path has zero length")
+        if self.kind == "load_position":
+            seg = np.linalg.norm(np.diff(np.asarray(self.path, float), axis=0), axis=1)
+            if (seg <= 0).any():
+                i = int(np.flatnonzero(seg <= 0)[0])
+                raise ValueError(f"path segment {i} (points {i} and {i + 1}) has zero length")
         if self.kind == "load_position" and np.linalg.norm(self.load) <= 0:
             raise ValueError("load must be non-zero")
         if self.direction is not None and np.linalg.norm(self.direction) <= 0:

@@ -1,28 +1,29 @@
-"""Intrusive PGD for linear elasticity with a point load moving along a line (seed 000 §3, §5.1)."""
+"""Intrusive PGD for linear elasticity with a point load moving along a polyline (seed 000 §3, §5.1).
+
+The load position is path(s) = :func:`physar.geometry.path_point` at arc length s along a polyline of
+>= 2 points; the grid of s is uniform in arc length.
+"""
 from __future__ import annotations
 
 import numpy as np
 
 from physar.errors import ConfigError
 from physar.fem import factorize, point_load
+from physar.geometry.path import as_path, path_length, path_point
 from physar.rom._threads import blas_single_threaded
 from physar.rom.pgd import pgd_linear
 
 
 def load_path_matrix(space, path, points, load, radius):
-    """Nodal forces of the regularised point load at `points` arc-length positions s (m) along `path`.
+    """Nodal forces of the regularised point load at `points` arc-length positions s (m) along the
+    polyline `path` (>= 2 points), uniformly spaced in arc length from 0 to its length.
 
-    Returns (s_grid, B) with B (n_dofs, points), column q = point_load(space, path(s_q), load, radius).
+    Returns (s_grid, B) with B (n_dofs, points), column q = point_load(space, path_point(path, s_q), load,
+    radius).
     """
-    path = np.asarray(path, float)
-    if path.shape != (2, 3):
-        raise ConfigError(f"load path must be two points [[x0,y0,z0],[x1,y1,z1]], got shape {path.shape}")
-    length = np.linalg.norm(path[1] - path[0])
-    if length <= 0:
-        raise ConfigError("load path has zero length")
-    s = np.linspace(0.0, length, int(points))
-    d = (path[1] - path[0]) / length
-    B = np.stack([point_load(space, path[0] + si * d, load, radius) for si in s], axis=1)
+    path = as_path(path, "load path")
+    s = np.linspace(0.0, path_length(path), int(points))
+    B = np.stack([point_load(space, x, load, radius) for x in path_point(path, s)], axis=1)
     return s, B
 
 
@@ -43,8 +44,8 @@ def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radi
     ||u_PGD - u_FE|| / max ||u_FE||, L2 over the dofs), and with ``check_tol`` the enrichment also stops
     once that estimate is <= check_tol. ``progress(mode, max_modes)``.
 
-    With ``offset_range=(t_lo, t_hi)`` (m) and ``offset_dir`` the load point is path(s) + t d (position on
-    a surface patch, two parameters s and t): the load is sampled on the (points x offset_points) tensor
+    With ``offset_range=(t_lo, t_hi)`` (m) and ``offset_dir`` d the load point is path(s) + t d (position on
+    a surface patch, two parameters s and t; on a bent polyline d stays fixed, it does not turn with the path): the load is sampled on the (points x offset_points) tensor
     grid and the two-parameter PGD :func:`physar.rom.pgd.pgd_linear_tensor` is run (the check points
     are then random (s, t)).
     """
@@ -65,9 +66,8 @@ def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radi
     check = None
     if n_check:
         length = float(s[-1])
-        d = (np.asarray(path[1], float) - np.asarray(path[0], float)) / length
         checks = np.random.default_rng(seed).uniform(0, length, int(n_check))
-        Fc = np.stack([point_load(space, np.asarray(path[0], float) + c * d, load, radius)[free] for c in checks], 1)
+        Fc = np.stack([point_load(space, x, load, radius)[free] for x in path_point(path, checks)], 1)
         check = _checker(fac.solve(Fc).reshape(len(free), -1), checks[:, None])
     red, info = pgd_linear(K, f, Vt[:r], s, max_modes=max_modes, tol=tol, solve=fac.solve,
                            name="s", unit="m", progress=progress, check=check, check_tol=check_tol)
@@ -120,26 +120,21 @@ def _build_patch_load_pgd(model, fixed, path, points, load, radius, max_modes, t
     if not hi > lo:
         raise ConfigError(f"offset range must be increasing, got {list(offset_range)}")
     space = model.space
-    path = np.asarray(path, float)
-    if path.shape != (2, 3):
-        raise ConfigError(f"load path must be two points [[x0,y0,z0],[x1,y1,z1]], got shape {path.shape}")
-    length = float(np.linalg.norm(path[1] - path[0]))
-    if length <= 0:
-        raise ConfigError("load path has zero length")
-    d = (path[1] - path[0]) / length
+    path = as_path(path, "load path")
+    length = path_length(path)
     e = np.asarray(offset_dir, float) / np.linalg.norm(offset_dir)
     s = np.linspace(0.0, length, int(points))
     t = np.linspace(lo, hi, int(offset_points))
     free = np.setdiff1d(np.arange(space.n_dofs), fixed)
-    cols = [sp.csc_matrix(point_load(space, path[0] + si * d + ti * e, load, radius)[free][:, None])
-            for si in s for ti in t]
+    cols = [sp.csc_matrix(point_load(space, xi + ti * e, load, radius)[free][:, None])
+            for xi in path_point(path, s) for ti in t]
     B = sp.hstack(cols).tocsr()
     K = model.tangent_stiffness()[free][:, free].tocsr()
     fac = factorize(K)
     check = None
     if n_check:
         checks = np.random.default_rng(seed).uniform([0.0, lo], [length, hi], (int(n_check), 2))
-        Fc = np.stack([point_load(space, path[0] + c[0] * d + c[1] * e, load, radius)[free] for c in checks], 1)
+        Fc = np.stack([point_load(space, path_point(path, c[0]) + c[1] * e, load, radius)[free] for c in checks], 1)
         check = _checker(fac.solve(Fc).reshape(len(free), -1), checks)
     red, info = pgd_linear_tensor(K, B, [s, t], max_modes=max_modes, tol=tol, solve=fac.solve,
                                   names=["s", "t"], units=["m", "m"], progress=progress, check=check,

@@ -343,7 +343,8 @@ def nonintrusive_pgd(blackbox: Callable[[np.ndarray], np.ndarray], ranges, names
 
 class MovingLoadProblem:
     """The black box of the moving-load examples: the static (possibly nonlinear) response to a
-    point load (regularised Dirac, :func:`physar.fem.point_load`) at arc length s along `path`.
+    point load (regularised Dirac, :func:`physar.fem.point_load`) at arc length s along the polyline
+    `path` (>= 2 points, :func:`physar.geometry.path_point`).
 
     Parameters, in order: ``s`` (m); with ``magnitude_range`` a load scale ``P`` (N, the magnitude
     of the load vector); with ``offset_dir`` a lateral offset ``t`` (m) of the load point along that
@@ -352,12 +353,10 @@ class MovingLoadProblem:
 
     def __init__(self, model, fixed, path, load, radius, steps=4, tol=1e-10, max_iter=30,
                  magnitude=False, offset_dir=None):
-        path = np.asarray(path, float)
-        if path.shape != (2, 3):
-            raise ConfigError(f"load path must be two points [[x0,y0,z0],[x1,y1,z1]], got shape {path.shape}")
-        self.length = float(np.linalg.norm(path[1] - path[0]))
-        if self.length <= 0:
-            raise ConfigError("load path has zero length")
+        from physar.geometry.path import as_path, path_length
+
+        path = as_path(path, "load path")
+        self.length = path_length(path)
         self.model, self.fixed, self.path = model, np.asarray(fixed), path
         self.load = np.asarray(load, float)
         self.radius, self.steps, self.tol, self.max_iter = float(radius), int(steps), tol, max_iter
@@ -366,7 +365,9 @@ class MovingLoadProblem:
 
     def point(self, mu):
         mu = np.atleast_1d(np.asarray(mu, float))
-        x = self.path[0] + mu[0] / self.length * (self.path[1] - self.path[0])
+        from physar.geometry.path import path_point
+
+        x = path_point(self.path, mu[0])
         if self.offset_dir is not None:
             x = x + mu[-1] * self.offset_dir
         return x

@@ -59,7 +59,8 @@ def pod_from_snapshots(snapshots, grids, names, units=None, max_modes=20, tol=1e
 def build_moving_load_pod(model, fixed, path, points=60, load=(0, 0, -1.0), radius=0.04, max_modes=20,
                           tol=1e-8, progress=None):
     """POD model u(x, s) of the moving-load problem of :func:`physar.rom.elastic.build_moving_load_pgd`
-    (same load, same grid of `points` positions), from full linear solves at the grid points."""
+    (same load, same grid of `points` positions uniform in arc length along the polyline `path`), from
+    full linear solves at the grid points."""
     from physar.fem import LinearSolver
     from physar.rom.elastic import load_path_matrix
 
