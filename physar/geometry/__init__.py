@@ -1,8 +1,6 @@
 """Geometry layer: meshes, generation, I/O (meshio), boundary extraction, selection."""
 
 from physar.geometry.io import read_mesh, write_mesh
-from physar.geometry.path import path_length, path_point
-from physar.geometry.regions import MeshTags
 from physar.geometry.mesh import (
     TET_FACES,
     BoundarySurface,
@@ -15,12 +13,14 @@ from physar.geometry.mesh import (
     select_nodes,
     tet_signed_volumes,
 )
+from physar.geometry.path import path_length, path_point
+from physar.geometry.regions import MeshTags
 from physar.geometry.tetra import l_bracket_surface, plate_with_hole_surface, tet_quality, tetrahedralize
 
 __all__ = [
-    "MeshTags",
     "TET_FACES",
     "BoundarySurface",
+    "MeshTags",
     "TetMesh",
     "TriMesh",
     "boundary_surface",

@@ -134,7 +134,7 @@ def tetrahedralize(surface: TriMesh, size: float | None = None, angle: float = 4
             gmsh.option.setNumber("Mesh.Optimize", 1 if optimize else 0)
             gmsh.option.setNumber("Mesh.OptimizeNetgen", 1 if optimize else 0)
             gmsh.model.mesh.generate(3)
-        except Exception as exc:  # gmsh raises Exception with its last error message
+        except Exception as exc:  # noqa: BLE001 - gmsh raises a bare Exception with its last error message
             msg = " ".join(str(exc).split())
             hint = " (self-intersecting surface?)" if "intersect" in msg.lower() or "invalid" in msg.lower() else ""
             raise MeshError(f"{name}: gmsh could not mesh the volume{hint}: {msg}"[:300]) from None

@@ -67,8 +67,8 @@ def test_pgd_on_polyline_matches_full_solves(full):
     """Within 1e-3 of the largest response (the README's PGD tolerance). Catches: the load placed on
     the straight chord from the first to the last point (measured error 8e-2),
     a grid not uniform in arc length."""
-    space, model, fixed, ss, U = full
-    rom, info = build_moving_load_pgd(model, fixed, PATH, points=81, load=LOAD, radius=RADIUS,
+    _space, model, fixed, ss, U = full
+    rom, _info = build_moving_load_pgd(model, fixed, PATH, points=81, load=LOAD, radius=RADIUS,
                                       max_modes=25, tol=1e-5, n_check=4)
     err = max(np.linalg.norm(rom.evaluate([s]) - u) for s, u in zip(ss, U)) / np.linalg.norm(U, axis=1).max()
     assert err < 1e-3, err
@@ -76,7 +76,7 @@ def test_pgd_on_polyline_matches_full_solves(full):
 
 
 def test_pod_on_polyline_matches_full_solves(full):
-    space, model, fixed, ss, U = full
+    _space, model, fixed, ss, U = full
     rom, _ = build_moving_load_pod(model, fixed, PATH, points=81, load=LOAD, radius=RADIUS, max_modes=30, tol=1e-8)
     err = max(np.linalg.norm(rom.evaluate([s]) - u) for s, u in zip(ss, U)) / np.linalg.norm(U, axis=1).max()
     assert err < 1e-3, err
