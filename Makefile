@@ -16,9 +16,9 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e '.[dev]'
 	@# CHOLMOD (sparse Cholesky, factor once / re-solve many) needs SuiteSparse headers, and OpenBLAS
 	@# (Debian's default reference BLAS makes the factorisation ~5x slower).
-	@if [ ! -e /usr/include/suitesparse/cholmod.h ] || [ ! -e /usr/lib/x86_64-linux-gnu/openblas-pthread ]; then \
+	@if [ ! -e /usr/include/suitesparse/cholmod.h ] || [ ! -e /usr/lib/x86_64-linux-gnu/openblas-pthread ] || [ ! -e /usr/lib/x86_64-linux-gnu/libGLU.so.1 ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
-	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libsuitesparse-dev libopenblas-dev) >/dev/null \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libsuitesparse-dev libopenblas-dev libglu1-mesa libgl1 libxcursor1 libxft2 libxinerama1 libxrender1 libfontconfig1 libgomp1) >/dev/null \
 	      || echo "warning: could not install libsuitesparse-dev; physar will use the slower scipy solver"; \
 	  else \
 	    echo "note: for the fast CHOLMOD solver run: sudo apt-get install libsuitesparse-dev libopenblas-dev && rm -f $(STAMP) && make env"; \
