@@ -3,7 +3,9 @@ video, coloured by a field (von Mises stress, |u| or a displacement component) w
 arrow at the estimated load and the estimates ± std.
 
 The fields are linear in the mode coefficients c(mu): u = Σ c_i F_i and σ = Σ c_i σ(F_i), so the per-mode
-displacements and stresses at the surface vertices are precomputed and a frame costs a few small matrix
+displacements and stresses at the surface vertices are precomputed (stress evaluated at each element's own
+vertices and averaged there, :func:`physar.fem.post.nodal_stress`: element means read low where the stress
+varies across an element, as in bending; README "What you can trust") and a frame costs a few small matrix
 products (von Mises = sqrt(3/2 s:s), s the deviatoric part of σ). The surface is drawn by the painter's
 algorithm: faces turned away from the camera are culled, the others filled far to near.
 """
@@ -13,6 +15,8 @@ import cv2
 import numpy as np
 
 from physar.ar.overlay import turbo_lut
+from physar.fem import ElasticModel, LinearElastic
+from physar.fem.post import nodal_stress
 from physar.vision.camera import Camera, Pose
 
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
@@ -21,17 +25,14 @@ UNITS = {"von_mises": ("von Mises", "MPa", 1e-6), "u": ("|u|", "mm", 1e3), "ux":
 
 
 def surface_stress_modes(space, F, E: float, nu: float, nodes) -> np.ndarray:
-    """Cauchy stress (n_modes, len(nodes), 3, 3) [Pa] of each displacement mode (rows of F) at the mesh
-    vertices ``nodes``, linear elasticity with (E, nu), recovered by volume-weighted nodal averaging."""
-    from physar.fem import ElasticModel, LinearElastic
-    from physar.fem.post import cauchy_stress, nodal_average
+    """Cauchy stress (n_modes, len(nodes), 3, 3) [Pa] of each displacement mode (rows of F, (n_modes, n_dofs))
+    at the mesh vertices ``nodes``, linear elasticity with (E [Pa], nu).
 
+    Recovered by :func:`physar.fem.post.nodal_stress`: σ = λ tr(ε) I + 2 μ ε with ε evaluated at each element's
+    own vertices from the shape-function gradients there, averaged over the elements sharing a vertex
+    (weights: element volumes). Only the elements touching ``nodes`` are evaluated."""
     em = ElasticModel(space, LinearElastic(E, nu))
-    out = []
-    for Fi in F:
-        sig = cauchy_stress(em, Fi)
-        out.append(nodal_average(space, sig.reshape(len(sig), 9))[nodes].reshape(-1, 3, 3))
-    return np.array(out)
+    return np.array([nodal_stress(em, Fi, nodes) for Fi in F])
 
 
 def von_mises(s: np.ndarray) -> np.ndarray:

@@ -1,4 +1,14 @@
-"""Post-processing: point probes, Cauchy and von Mises stress, nodal averaging."""
+"""Post-processing: point probes, Cauchy and von Mises stress, nodal averaging and nodal stress recovery.
+
+Two stress fields at the mesh vertices:
+
+* :func:`nodal_average` of the element-averaged stress (:func:`cauchy_stress`): smooth but low where the
+  stress varies across an element (bending: the mean over an element reaching from the neutral axis to the
+  top fibre is half the fibre stress);
+* :func:`nodal_stress`: the stress of each element evaluated at its own vertices from the shape-function
+  gradients there (exact for the linear strain field of P2), then averaged at shared vertices: the value a
+  user should read at a surface.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +17,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from physar.errors import ConfigError
-from physar.fem.elements import FESpace, shape_functions
+from physar.fem.elements import FESpace, shape_functions, shape_gradients_ref
 
 
 def locate(space: FESpace, points: np.ndarray, tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
@@ -39,15 +49,59 @@ def probe(space: FESpace, u: np.ndarray, point: Sequence[float] | np.ndarray) ->
 
 def cauchy_stress(model, u: np.ndarray) -> np.ndarray:
     """Cauchy stress sigma = P Fᵀ / J (small-strain sigma for the linear material) averaged over each element's quadrature points: (m, 3, 3) [Pa]."""
-    F = model.deformation_gradient(u)
-    P = model.material.stress(F.reshape(-1, 3, 3)).reshape(F.shape)
-    if model.material.linear:  # small strain: no distinction between stress measures
-        sig = P
-    else:
-        J = np.linalg.det(F)
-        sig = np.einsum("mqij,mqkj->mqik", P, F) / J[..., None, None]
+    sig = _cauchy(model.material, model.deformation_gradient(u))
     _, wdet = model._quad
     return np.einsum("mq,mqij->mij", wdet, sig) / wdet.sum(axis=1)[:, None, None]
+
+
+def _cauchy(material, F: np.ndarray) -> np.ndarray:
+    """Cauchy stress sigma = P Fᵀ / J (P for a linear material) at deformation gradients F (..., 3, 3) [Pa]."""
+    P = material.stress(F.reshape(-1, 3, 3)).reshape(F.shape)
+    if material.linear:
+        return P
+    return np.einsum("...ij,...kj->...ik", P, F) / np.linalg.det(F)[..., None, None]
+
+
+def nodal_stress(model, u: np.ndarray, vertices: np.ndarray | None = None) -> np.ndarray:
+    """Cauchy stress at mesh vertices recovered from each element's own vertex values: (n, 3, 3) [Pa].
+
+    For every element e holding vertex a, the deformation gradient is evaluated at that vertex from the
+    shape-function gradients there (not at the quadrature points),
+
+        F_e(X_a) = I + Σ_b u_b ⊗ ∇N_b(X_a),      σ_e(X_a) = σ(F_e(X_a))   (P Fᵀ / J; small-strain σ if linear),
+
+    and the element values are averaged with the element volumes V_e as weights,
+
+        σ(X_a) = Σ_{e ∋ a} V_e σ_e(X_a) / Σ_{e ∋ a} V_e.
+
+    On P2 the strain is linear in each element, so σ_e(X_a) is its exact vertex value and a linear stress
+    field (pure bending) is recovered exactly; on P1 it is the element's constant stress. ``vertices``:
+    indices into ``model.space.mesh.points`` (default all); only the elements touching them are evaluated.
+    ``u``: (n_dofs,) [m].
+    """
+    space = model.space
+    mesh = space.mesh
+    cells = mesh.cells
+    if vertices is None:
+        vertices = np.arange(mesh.n_points)
+        elems = np.arange(len(cells))
+    else:
+        vertices = np.asarray(vertices, dtype=np.int64).ravel()
+        wanted = np.zeros(mesh.n_points, dtype=bool)
+        wanted[vertices] = True
+        elems = np.flatnonzero(wanted[cells].any(axis=1))
+    Jinv, detJ = space.jacobians
+    dref = shape_gradients_ref(space.element, np.eye(4))  # (4 vertices, nen, 3)
+    ue = np.asarray(u, dtype=float).reshape(-1, 3)[space.cells[elems]]  # (m, nen, 3)
+    H = np.einsum("mbi,vbk,mkj->mvij", ue, dref, Jinv[elems], optimize=True)  # ∇u at the 4 vertices
+    sig = _cauchy(model.material, np.eye(3) + H)  # (m, 4, 3, 3)
+    vol = np.abs(detJ[elems]) / 6.0
+    idx = cells[elems].ravel()
+    w = np.bincount(idx, weights=np.repeat(vol, 4), minlength=mesh.n_points)[vertices]
+    flat = (sig * vol[:, None, None, None]).reshape(-1, 9)
+    out = np.stack([np.bincount(idx, weights=flat[:, k], minlength=mesh.n_points)[vertices] for k in range(9)],
+                   axis=1)
+    return (out / w[:, None]).reshape(-1, 3, 3)
 
 
 def von_mises(model, u: np.ndarray) -> np.ndarray:
