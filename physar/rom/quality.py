@@ -1,0 +1,300 @@
+"""How far a reduced model is from the converged solution: its discretisation error against a finer check solve.
+
+The finite-element problem of a ``physar rom build`` configuration is rebuilt on a finer mesh (``[mesh] box``:
+cells x ``refine`` in every direction; a mesh file or a tetrahedralised surface: every tetrahedron split into 8
+at its edge midpoints, log2(``refine``) times, region tags carried over) with the same material, supports and
+parameter loads, and solved in full at a few parameter points mu_k. The reduced model u_R(mu) (its modes live on
+the configuration's mesh) is compared with the finer solution u_f(mu) at the reduced model's nodes, all of
+which are nodes of the finer mesh:
+
+  displacement  e_L2 = ||u_R - u_f||_2 / ||u_f||_2 over all dofs,   e_max = max_a |u_R,a - u_f,a| / max_a |u_f,a|
+  von Mises     the same with sigma_vM = sqrt(3/2 s:s) (s the deviatoric Cauchy stress) at the mesh vertices,
+                both recovered by :func:`physar.fem.post.nodal_stress` (each mesh with its own elements)
+
+(|.| the Euclidean norm of a node's displacement). The difference holds the reduced model's truncation error
+and the discretisation error of the coarser mesh; the latter dominates a converged PGD. For smooth solutions
+e(h) - e(h/2) = (1 - 2^-p) e(h) with p the order of convergence, so the check is a slight underestimate (P2
+displacement p = 3: 7/8 of the error; P2 stress and P1 displacement p = 2: 3/4; P1 stress p = 1: 1/2).
+
+Where the exact stress is singular (a perfect clamp's edge, a re-entrant corner) or concentrated under a point
+load, the stress error does not shrink with refinement. The von Mises errors are therefore also given *away*
+from them: over the vertices at least 2 l from every supported node and 2 l beyond the load's radius from the
+load point, l = (6 V / n_cells)^(1/3) the model's mean element size (the edge of a cube that 6 such tetrahedra
+fill). A re-entrant corner that is neither support nor load stays in that set: ``*_max_at`` says where the
+largest error lies.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from physar.errors import ConfigError
+from physar.fem import ElasticModel, FESpace, LinearSolver, point_load, solve_static
+from physar.fem.config import build_mesh, build_problem
+from physar.fem.elements import p2_nodes
+from physar.fem.loads import select_nodes_mask
+from physar.fem.post import nodal_stress
+from physar.geometry import MeshTags, TetMesh, box_mesh, path_point
+from physar.geometry.mesh import row_keys
+from physar.rom.separated import ReducedModelError
+
+GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
+LOAD_KINDS = ("load_position", "load_magnitude", "load_offset")
+
+
+@dataclass(frozen=True)
+class DiscretisationCheck:
+    """Errors of a reduced model against the finer check solve at ``params`` (k, p) (order of ``names``).
+
+    Per point (k,), relative, as defined in the module docstring: ``displacement_l2``, ``displacement_max``;
+    von Mises ``stress_l2``, ``stress_max`` over all vertices and ``away_l2``, ``away_max`` over the vertices
+    at least ``away`` [m] from the supports and beyond the load radius (NaN when there are none);
+    ``stress_max_at``/``away_max_at`` (k, 3) [m] where the largest of each lies; ``peak_model``/``peak_fine``
+    (k,) [Pa] the largest von Mises stress of each. ``refine``, the dofs of both meshes and the wall time [s]."""
+
+    names: list
+    params: np.ndarray
+    displacement_l2: np.ndarray
+    displacement_max: np.ndarray
+    stress_l2: np.ndarray
+    stress_max: np.ndarray
+    stress_max_at: np.ndarray
+    away_l2: np.ndarray
+    away_max: np.ndarray
+    away_max_at: np.ndarray
+    peak_model: np.ndarray
+    peak_fine: np.ndarray
+    away: float
+    refine: int
+    dofs: int
+    fine_dofs: int
+    time_s: float
+
+    def summary(self) -> dict:
+        """JSON-ready: the worst value over the points of each error, and every point."""
+        keys = ("displacement_l2", "displacement_max", "stress_l2", "stress_max", "away_l2", "away_max")
+        points = []
+        for k, mu in enumerate(self.params):
+            row = {"params": dict(zip(self.names, map(float, mu)))}
+            row.update({key: _num(getattr(self, key)[k]) for key in keys})
+            row.update(stress_max_at=self.stress_max_at[k].tolist(), away_max_at=self.away_max_at[k].tolist(),
+                       peak_von_mises=float(self.peak_model[k]), peak_von_mises_fine=float(self.peak_fine[k]))
+            points.append(row)
+        worst = {key: _num(np.nanmax(getattr(self, key)) if np.isfinite(getattr(self, key)).any() else np.nan)
+                 for key in keys}
+        return {"refine": self.refine, "dofs": self.dofs, "fine_dofs": self.fine_dofs, "away_m": self.away,
+                **worst, "time_s": self.time_s, "points": points}
+
+
+def _num(v) -> float | None:
+    """A float for JSON (None for NaN)."""
+    return float(v) if np.isfinite(v) else None
+
+
+def split_tets(mesh: TetMesh, times: int = 1) -> TetMesh:
+    """Every tetrahedron split into 8 at its edge midpoints (4 corner tets, the inner octahedron cut along one
+    diagonal), ``times`` times. The new points are the P2 nodes of the parent (vertices first, then edge
+    midpoints); a tagged tetrahedron's children keep its tag, a tagged triangle becomes 4 tagged triangles."""
+    for _ in range(int(times)):
+        nodes, conn = p2_nodes(mesh)
+        v0, v1, v2, v3, e01, e12, e02, e03, e13, e23 = conn.T
+        kids = np.stack([[v0, e01, e02, e03], [e01, v1, e12, e13], [e02, e12, v2, e23], [e03, e13, e23, v3],
+                         [e02, e13, e01, e12], [e02, e13, e12, e23], [e02, e13, e23, e03], [e02, e13, e03, e01]])
+        cells = kids.transpose(2, 0, 1).reshape(-1, 4)
+        tags = mesh.tags
+        if tags is not None:
+            tags = _split_tags(mesh, conn, tags)
+        mesh = TetMesh.reoriented(nodes, cells, name=mesh.name, tags=tags)
+    return mesh
+
+
+def _split_tags(mesh: TetMesh, conn: np.ndarray, tags: MeshTags) -> MeshTags:
+    """The tags of :func:`split_tets`' children (``conn``: the parent's P2 connectivity)."""
+    cell_tags = None if tags.cell_tags is None else np.repeat(tags.cell_tags, 8)
+    tri = np.asarray(tags.face_nodes, np.int64).reshape(-1, 3)
+    if not len(tri):
+        return MeshTags(cell_tags, tri, np.asarray(tags.face_tags), dict(tags.names))
+    n = mesh.n_points
+    pairs = np.sort(mesh.cells[:, [0, 1, 1, 2, 0, 2, 0, 3, 1, 3, 2, 3]].reshape(-1, 2), axis=1)  # P2_EDGES order
+    keys, mids = row_keys(pairs, n), conn[:, 4:].ravel()
+    order = np.argsort(keys)
+
+    def mid(a, b):
+        k = row_keys(np.sort(np.column_stack([a, b]), axis=1), n)
+        return mids[order[np.searchsorted(keys, k, sorter=order)]]
+
+    a, b, c = tri.T
+    ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
+    faces = np.concatenate([np.column_stack(t) for t in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
+    return MeshTags(cell_tags, faces, np.tile(np.asarray(tags.face_tags), 4), dict(tags.names))
+
+
+def check_points(ranges, n: int) -> np.ndarray:
+    """n parameter points (n, p) in the box ``ranges`` [(lo, hi)], k = 0..n-1: the first parameter (the load
+    position) at lo + (k + 1) / n (hi - lo), reaching the end of its range; parameter j >= 1 at
+    lo_j + frac((k + 1) / n + j g) (hi_j - lo_j), g = (sqrt 5 - 1) / 2 (a rank-1 lattice: no two parameters
+    move together)."""
+    lo, hi = (np.array(v, float) for v in zip(*ranges))
+    frac = np.mod((np.arange(n)[:, None] + 1.0) / n + GOLDEN * np.arange(len(lo))[None, :], 1.0)
+    frac[:, 0] = (np.arange(n) + 1.0) / n
+    return lo + frac * (hi - lo)
+
+
+def _problems(cfg, refine: int, base: Path | None, source: str):
+    """The problem of ``cfg`` as ``rom build`` builds it, and (space, model, fixed) on the finer mesh."""
+    coarse = build_problem(cfg, base)
+    if cfg.mesh.box is not None:
+        mesh = box_mesh(cfg.mesh.box, tuple(int(c) * refine for c in cfg.mesh.cells))
+    else:
+        times = round(np.log2(refine))
+        if 2 ** times != refine:
+            raise ConfigError(f"{source}: [mesh] file: the check mesh splits every tetrahedron into 8 "
+                              f"(refine = 2, 4, 8, ...), got {refine}")
+        mesh = split_tets(build_mesh(cfg.mesh, base), times)
+    space = FESpace(mesh, cfg.fem.element)
+    model = ElasticModel(space, coarse.model.material, coarse.model.density)
+    dofs = []
+    for i, f in enumerate(cfg.fix):
+        if f.value is not None and any(f.value):
+            raise ConfigError(f"{source}: [[fix]] #{i + 1} value: prescribed displacements are not supported")
+        nodes = np.flatnonzero(select_nodes_mask(space, **f.selector(), what=f"[[fix]] #{i + 1}"))
+        dofs += [3 * nodes + "xyz".index(c) for c in f.components]
+    fixed = np.unique(np.concatenate(dofs or [np.zeros(0, np.int64)])).astype(np.int64)
+    return coarse, space, model, fixed
+
+
+def _load(space, params, mu) -> np.ndarray:
+    """Nodal forces (n_dofs,) [N] at mu, built as ``rom build`` defines the parameters: a point load at
+    path(s) + t d/|d| with the total load P / |load| (load_position s, load_offset t, load_magnitude P)."""
+    pos = params[0]
+    point, total = path_point(pos.path, float(mu[0])), np.asarray(pos.load, float)
+    for p, v in zip(params[1:], mu[1:]):
+        if p.kind == "load_magnitude":
+            total = total * (float(v) / np.linalg.norm(pos.load))
+        else:
+            point = point + float(v) * np.asarray(p.direction, float) / np.linalg.norm(p.direction)
+    return point_load(space, point, total, pos.radius)
+
+
+def _matching(coarse: np.ndarray, fine: np.ndarray, what: str) -> np.ndarray:
+    """Index into ``fine`` of every point of ``coarse`` (they coincide)."""
+    scale = max(float(np.ptp(fine, axis=0).max()), 1e-300)
+    d, idx = cKDTree(fine).query(coarse)
+    if d.max() > 1e-9 * scale:
+        raise ConfigError(f"the finer check mesh misses {what} of the model's mesh (largest gap {d.max():.3g} m)")
+    return idx
+
+
+def _rel(a: np.ndarray, b: np.ndarray) -> tuple[float, float, int]:
+    """(||a - b|| / ||b||, max_i |a_i - b_i| / max_i |b_i|, argmax) over the rows (norm of each row)."""
+    diff = np.linalg.norm((a - b).reshape(len(b), -1), axis=1)
+    ref = np.linalg.norm(b.reshape(len(b), -1), axis=1)
+    l2 = float(np.linalg.norm(diff) / max(np.linalg.norm(ref), 1e-300))
+    return l2, float(diff.max() / max(ref.max(), 1e-300)), int(diff.argmax())
+
+
+def _von_mises(sig: np.ndarray) -> np.ndarray:
+    dev = sig - np.trace(sig, axis1=-2, axis2=-1)[..., None, None] * np.eye(3) / 3
+    return np.sqrt(1.5 * np.einsum("...ij,...ij->...", dev, dev))
+
+
+def _away(space, fixed: np.ndarray, load_point: np.ndarray, radius: float) -> tuple[np.ndarray, float]:
+    """Mask over the mesh vertices at least 2 l from the supported nodes and 2 l beyond ``radius`` from
+    ``load_point``, and 2 l [m] (l = (6 V / n_cells)^(1/3))."""
+    mesh = space.mesh
+    ell = float((6.0 * np.abs(space.jacobians[1]).sum() / 6.0 / mesh.n_cells) ** (1.0 / 3.0))
+    X = mesh.points
+    ok = np.linalg.norm(X - load_point, axis=1) >= radius + 2 * ell
+    if len(fixed):
+        ok &= cKDTree(space.nodes[np.unique(fixed // 3)]).query(X)[0] >= 2 * ell
+    return ok, 2 * ell
+
+
+def _load_point(params, mu) -> np.ndarray:
+    pos = params[0]
+    point = path_point(pos.path, float(mu[0]))
+    for p, v in zip(params[1:], mu[1:]):
+        if p.kind == "load_offset":
+            point = point + float(v) * np.asarray(p.direction, float) / np.linalg.norm(p.direction)
+    return point
+
+
+def _compare(cfg, coarse, fine, rom, mu, node_of, vert_of) -> tuple:
+    """The errors at one parameter point (the fields of a DiscretisationCheck row)."""
+    space_f, model_f, fixed_f, solver = fine
+    f = _load(space_f, cfg.parameter, mu)
+    if solver is not None:
+        u_f = solver.solve(f)
+    else:
+        s = cfg.solver
+        u_f = solve_static(model_f, f, fixed_f, steps=s.steps, tol=s.tol, max_iter=s.max_iter).u
+    u_r = rom.evaluate(mu)
+    du = _rel(u_r.reshape(-1, 3), u_f.reshape(-1, 3)[node_of])
+    vm_r = _von_mises(nodal_stress(coarse.model, u_r))
+    vm_f = _von_mises(nodal_stress(model_f, u_f, vert_of))
+    X = coarse.space.mesh.points
+    ds = _rel(vm_r, vm_f)
+    away, _ = _away(coarse.space, coarse.fixed, _load_point(cfg.parameter, mu), cfg.parameter[0].radius)
+    if away.any():
+        da = _rel(vm_r[away], vm_f[away])
+        da = (da[0], da[1], X[away][da[2]])
+    else:
+        da = (np.nan, np.nan, np.full(3, np.nan))
+    return (du[0], du[1], ds[0], ds[1], X[ds[2]], *da, vm_r.max(), vm_f.max())
+
+
+def discretisation_error(cfg, rom, points: int | np.ndarray = 3, refine: int = 2, source: str = "config",
+                         progress=None) -> DiscretisationCheck:
+    """The reduced model ``rom`` (built from the RomConfig ``cfg``) against full solves of ``cfg`` on a mesh
+    ``refine`` times finer, at ``points`` parameter points (a count: :func:`check_points` over the model's
+    ranges; or an array (k, p) in the order of ``rom.names``). See the module docstring for the errors.
+    ``progress(done, total)`` after each solve. Raises ConfigError when ``rom`` does not belong to ``cfg``
+    (other parameters or another mesh) or a parameter kind has no check."""
+    t0 = time.perf_counter()
+    refine = int(refine)
+    if refine < 2:
+        raise ConfigError(f"the check mesh must be finer than the model's: refine >= 2, got {refine}")
+    names = [p.name for p in cfg.parameter]
+    if list(rom.names) != names:
+        raise ConfigError(f"{source}: parameters {names}, the reduced model has {list(rom.names)}: "
+                          "not the configuration it was built from")
+    unknown = [p.kind for p in cfg.parameter if p.kind not in LOAD_KINDS]
+    if unknown:
+        raise ConfigError(f"{source}: the discretisation check supports the parameter kinds "
+                          f"{', '.join(LOAD_KINDS)}, not {', '.join(unknown)}")
+    coarse, space_f, model_f, fixed_f = _problems(cfg, refine, getattr(cfg, "_base_dir", None), source)
+    space = coarse.space
+    _check_mesh(rom, space, source)
+    mus = check_points(rom.ranges, int(points)) if np.ndim(points) == 0 else np.atleast_2d(np.asarray(points, float))
+    node_of = _matching(space.nodes, space_f.nodes, "nodes")
+    vert_of = _matching(space.mesh.points, space_f.mesh.points, "vertices")
+    fine = (space_f, model_f, fixed_f, LinearSolver(model_f, fixed_f) if model_f.linear else None)
+    rows = []
+    for k, mu in enumerate(mus):
+        rows.append(_compare(cfg, coarse, fine, rom, mu, node_of, vert_of))
+        if progress is not None:
+            progress(k + 1, len(mus))
+    cols = [np.array(c) for c in zip(*rows)]
+    _, away = _away(space, coarse.fixed, np.zeros(3), 0.0)
+    return DiscretisationCheck(names, mus, *cols, away=away, refine=refine, dofs=space.n_dofs,
+                               fine_dofs=space_f.n_dofs, time_s=time.perf_counter() - t0)
+
+
+def _check_mesh(rom, space, source: str) -> None:
+    """ConfigError unless the reduced model lives on ``space``'s mesh (same dofs; same mesh when stored)."""
+    try:
+        stored = rom.mesh()
+    except ReducedModelError:  # a model saved without its mesh: the dof count must do
+        stored = None
+    same = stored is None or (stored.n_points == space.mesh.n_points and np.array_equal(stored.cells, space.mesh.cells)
+                               and np.allclose(stored.points, space.mesh.points, rtol=0, atol=1e-9))
+    if rom.F.shape[1] != space.n_dofs or not same:
+        raise ConfigError(f"{source}: the reduced model's mesh ({rom.F.shape[1]} dofs) is not this configuration's "
+                          f"mesh ({space.n_dofs} dofs): not the configuration it was built from")
+
+
+__all__ = ["DiscretisationCheck", "check_points", "discretisation_error", "split_tets"]
