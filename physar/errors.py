@@ -22,6 +22,11 @@ class SolverError(PhysarError, RuntimeError):
     """A solve failed for a reason the user can fix (singular system, divergence)."""
 
 
+class PhysarWarning(UserWarning):
+    """A result that ran to the end but should not be trusted as it is (e.g. a calibration with a large
+    reprojection error); the CLI prints it as one ``warning:`` line on stderr."""
+
+
 def format_validation_error(exc, source: str, model=None, section: str | None = None) -> str:
     """One line naming the file, the table/key and the problem of a pydantic ``ValidationError``.
 

@@ -9,16 +9,29 @@
   (``g.stopped``) that a frame loop polls, so that it can finish the current frame, close its writers and
   rename its outputs; a second signal raises KeyboardInterrupt (abort: the temporaries are removed).
   :func:`stop_requested` lets blocking readers (live sources) see the flag.
+* :func:`check_folder` / :func:`atomic_folder` do the same for a command that writes a folder: a folder holding
+  files the command did not write is refused (never deleted), a previous output of the same command is
+  replaced only once the new one is complete.
+* :func:`write_text`, :func:`write_bytes`, :func:`write_json`, :func:`write_npz`, :func:`save_figure`: whole
+  files through :func:`atomic_path`; ``atomic_path(path, companions=True)`` for formats that write companion
+  files next to the named one (XDMF's ``.h5``).
+* :func:`sigterm_as_interrupt` makes SIGTERM unwind like Ctrl-C (the temporaries are removed on the way out);
+  :func:`check_memory` refuses a job whose estimated memory exceeds what the machine has available.
 """
 from __future__ import annotations
 
 import contextlib
+import json
 import os
+import re
+import shutil
 import signal
 import tempfile
 import threading
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+
+import numpy as np
 
 from physar.errors import ConfigError
 
@@ -74,12 +87,29 @@ def _umask() -> int:
 
 
 @contextlib.contextmanager
-def atomic_path(path):
+def atomic_path(path, *, companions: bool = False) -> Iterator[Path]:
     """Yield a hidden temporary path next to ``path`` (its parent folders created); on success it is renamed
     to ``path`` with the permissions a plain ``open`` would give (0666 minus the umask), on any exception
-    (KeyboardInterrupt and SystemExit included) it is removed and the exception re-raised."""
+    (KeyboardInterrupt and SystemExit included) it is removed and the exception re-raised.
+
+    ``companions=True`` is for writers that create sibling files named after the file (XDMF + ``.h5``): the
+    yielded path is ``path.name`` inside a hidden temporary folder beside ``path``; on success every file
+    the writer left there is moved beside ``path`` (the companions first, the named file last), and the
+    folder is removed in every case.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    if companions:
+        tmpdir = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+        try:
+            yield tmpdir / path.name
+            files = sorted(tmpdir.iterdir(), key=lambda f: f.name == path.name)
+            for f in files:
+                os.chmod(f, 0o666 & ~_umask())
+                os.replace(f, path.parent / f.name)
+        finally:
+            shutil.rmtree(tmpdir, ignore_errors=True)
+        return
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
     os.close(fd)
     os.chmod(tmp, 0o666 & ~_umask())
@@ -95,6 +125,158 @@ def atomic_write_text(path, text: str) -> None:
     """Write ``text`` to ``path`` through :func:`atomic_path`."""
     with atomic_path(path) as tmp:
         tmp.write_text(text)
+
+
+write_text = atomic_write_text
+
+
+def write_bytes(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` through :func:`atomic_path`; returns the path."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return Path(path)
+
+
+def jsonable(obj):
+    """``obj`` with numpy arrays and scalars (and Paths) turned into plain lists, numbers and strings."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def write_json(path, obj, *, indent: int | None = 1) -> Path:
+    """Write ``obj`` (numpy values allowed, see :func:`jsonable`) as JSON through :func:`atomic_path`."""
+    return write_bytes(path, (json.dumps(jsonable(obj), indent=indent) + "\n").encode())
+
+
+def write_npz(path, **arrays) -> Path:
+    """``np.savez`` of ``arrays`` to ``path`` through :func:`atomic_path` (the name keeps its suffix)."""
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, **arrays)
+    return Path(path)
+
+
+def save_figure(fig, path, dpi: int = 110, **kwargs) -> Path:
+    """``fig.savefig`` to ``path`` through :func:`atomic_path` (format from the suffix); closes ``fig``."""
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".").lower() or "png", **kwargs)
+    finally:
+        plt.close(fig)
+    return path
+
+
+def _entries(folder: Path) -> list[str]:
+    return sorted(e.name for e in folder.iterdir()) if folder.is_dir() else []
+
+
+def check_folder(path, *, own: Callable[[str], bool] | None = None, inputs: Iterable = (),
+                 kind: str = "output folder") -> Path:
+    """Check that ``path`` can be written as a folder of outputs (``kind``); returns it as a Path.
+
+    Raises ConfigError (one line naming ``path``) when: it is empty or an existing file; its nearest existing
+    ancestor is not a writable folder; it is one of ``inputs``; ``own`` is given (a predicate on entry names:
+    the files and folders the command writes) and the folder exists holding an entry it does not accept, so
+    that a command never mixes its outputs with, or deletes, files it did not write. Nothing is created.
+    """
+    if path is None or str(path) == "":
+        raise ConfigError(f"{kind} path is empty")
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise ConfigError(f"{path}: {kind} is an existing file; give a folder")
+    anc = p.absolute()
+    while not anc.exists():
+        anc = anc.parent
+    if not anc.is_dir():
+        raise ConfigError(f"{path}: cannot create the {kind} ({anc} is a file)")
+    if not os.access(anc, os.W_OK | os.X_OK):
+        raise ConfigError(f"{path}: {'the ' + kind if anc == p.absolute() else 'its parent ' + str(anc)} "
+                          "is not writable")
+    for inp in inputs:
+        if inp is not None and str(inp) != "" and Path(inp).absolute().resolve() == p.absolute().resolve():
+            raise ConfigError(f"{path}: {kind} is the same as the input {inp}")
+    if own is not None:
+        foreign = [e for e in _entries(p) if not own(e)]
+        if foreign:
+            more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
+            raise ConfigError(f"{path}: {kind} holds files this command did not write ({foreign[0]}{more}); "
+                              "choose a new or empty folder")
+    return p
+
+
+def own_names(*patterns: str) -> Callable[[str], bool]:
+    """A predicate for :func:`check_folder`: the entry name matches one of the regular ``patterns`` in full."""
+    rx = re.compile("|".join(f"(?:{p})" for p in patterns))
+    return lambda name: rx.fullmatch(name) is not None
+
+
+@contextlib.contextmanager
+def atomic_folder(path, *, own: Callable[[str], bool] | None = None) -> Iterator[Path]:
+    """Yield a new hidden temporary folder beside ``path`` to fill; on success it takes the place of ``path``.
+
+    An existing ``path`` (a previous output: every entry accepted by ``own``, checked again just before it
+    is replaced, else ConfigError) is removed only once the new folder is in place. On any exception,
+    interrupts included, the temporary folder is removed and ``path`` is left as it was.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    os.chmod(tmp, 0o777 & ~_umask())
+    try:
+        yield tmp
+        if path.exists():
+            check_folder(path, own=own)
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+            os.replace(path, old)  # onto an empty folder: allowed by rename(2)
+            try:
+                os.replace(tmp, path)
+            except BaseException:
+                os.replace(old, path)
+                raise
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _size(n: float) -> str:
+    """Bytes in MiB, GiB or TiB (three significant digits)."""
+    for unit, scale in (("TiB", 2**40), ("GiB", 2**30)):
+        if n >= scale:
+            return f"{n / scale:.3g} {unit}"
+    return f"{n / 2**20:.3g} MiB"
+
+
+def available_memory() -> int:
+    """Bytes of memory the machine can give a new allocation (Linux MemAvailable; else physical memory)."""
+    with contextlib.suppress(OSError, ValueError, IndexError):
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - non-POSIX
+        return 2**63
+
+
+def check_memory(nbytes: float, what: str) -> None:
+    """Raise ConfigError when ``nbytes`` (an estimate of the memory ``what`` needs) exceeds the memory
+    available now (:func:`available_memory`): one line with both figures, before anything is allocated."""
+    avail = available_memory()
+    if not nbytes <= avail:
+        raise ConfigError(f"{what} needs about {_size(nbytes)} of memory, more than the {_size(avail)} available")
 
 
 _ACTIVE: list[SignalGuard] = []
@@ -155,3 +337,23 @@ class SignalGuard:
 def signal_guard(signals=(signal.SIGINT, signal.SIGTERM)) -> SignalGuard:
     """A :class:`SignalGuard` for ``signals`` (use as ``with signal_guard() as guard:``)."""
     return SignalGuard(signals)
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Inside the block SIGTERM raises KeyboardInterrupt (as Ctrl-C does), so that ``finally`` blocks, and
+    with them :func:`atomic_path`'s cleanup, run instead of the process dying with its temporaries on disk.
+    Only from the main thread and only where SIGTERM has its default action; restored on exit."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+    signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)

@@ -5,13 +5,14 @@ from __future__ import annotations
 import functools
 import json
 import sys
+import warnings
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import typer
 
-from physar.errors import PhysarError
+from physar.errors import PhysarError, PhysarWarning
 
 
 def _to_jsonable(obj: Any) -> Any:
@@ -37,15 +38,26 @@ def log(msg: str) -> None:
     typer.echo(msg, err=True)
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None, _default=warnings.showwarning):
+    if issubclass(category, PhysarWarning):
+        typer.echo(f"warning: {message}", err=True)
+    else:
+        _default(message, category, filename, lineno, file, line)
+
+
 def user_errors(fn: Callable) -> Callable:
-    """Decorator: a PhysarError (bad input) prints `error: <message>` to stderr and exits with code 2."""
+    """Decorator: a PhysarError (bad input) prints `error: <message>` to stderr and exits with code 2; a
+    PhysarWarning (a result to doubt, e.g. a poor calibration) prints one `warning: <message>` line."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        try:
-            return fn(*args, **kwargs)
-        except PhysarError as exc:
-            typer.echo(f"error: {exc}", err=True)
-            raise typer.Exit(code=2) from None
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", PhysarWarning)
+            warnings.showwarning = _show_warning
+            try:
+                return fn(*args, **kwargs)
+            except PhysarError as exc:
+                typer.echo(f"error: {exc}", err=True)
+                raise typer.Exit(code=2) from None
 
     return wrapper

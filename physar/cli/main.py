@@ -40,7 +40,10 @@ for _name in TOPICS:
 
 
 def main() -> None:  # console-script entry point
-    app()
+    from physar.output import sigterm_as_interrupt
+
+    with sigterm_as_interrupt():  # SIGTERM unwinds like Ctrl-C: no temporary is left behind
+        app()
 
 
 if __name__ == "__main__":  # pragma: no cover
