@@ -28,13 +28,21 @@ def _load(path: Path):
     return m, None
 
 
+def _check_out(out: Path, inp: Path, cloud: bool) -> None:
+    """The output checked before any work: a surface format (.ply only for a point cloud), not the input,
+    a writable place (one line naming the path)."""
+    from physar.geometry.io import SURFACE_FORMATS
+    from physar.output import check_destination
+
+    check_destination(out, inputs=[inp], suffixes=[".ply"] if cloud else sorted(SURFACE_FORMATS),
+                      kind="point cloud" if cloud else "surface mesh")
+
+
 def _save(path: Path, mesh, pts) -> None:
     from physar.geometry.io import write_mesh
     from physar.geometry.pointcloud import write_ply
 
     if mesh is None:
-        if path.suffix.lower() != ".ply":
-            raise PhysarError(f"{path}: point clouds are written as .ply only")
         write_ply(path, pts)
     else:
         write_mesh(path, mesh)
@@ -60,23 +68,28 @@ def register(app: typer.Typer) -> None:
         import numpy as np
         from tqdm import tqdm
 
-        from physar.geometry.denoise import METHODS, denoise
+        from physar.geometry.denoise import MAX_ITERATIONS, METHODS, denoise
         from physar.geometry.pointcloud import denoise_points
 
         if method not in METHODS:
             raise PhysarError(f"unknown denoising method {method!r}; choose one of {sorted(METHODS)}")
-        if iterations is not None and iterations < 1:
-            raise PhysarError(f"--iterations must be >= 1, got {iterations}")
+        if iterations is not None and not 1 <= iterations <= MAX_ITERATIONS:
+            raise PhysarError(f"--iterations must be within 1..{MAX_ITERATIONS}, got {iterations}")
+        _check_out(out, inp, cloud=False)
         mesh, pts = _load(inp)
-        if mesh is None and method not in ("al", "msal"):
-            raise PhysarError(f"{inp}: point clouds support --method al or msal, got {method!r}")
+        if mesh is None:
+            if method not in ("al", "msal"):
+                raise PhysarError(f"{inp}: point clouds support --method al or msal, got {method!r}")
+            if k < 1:
+                raise PhysarError(f"--k must be >= 1 (neighbours per point), got {k}")
+            _check_out(out, inp, cloud=True)
         total = iterations
         if total is None:  # the method's own default, for the progress bar
             if mesh is None:
                 total = 10 if method == "al" else 8  # denoise_points defaults
             else:
                 total = inspect.signature(METHODS[method]).parameters["iterations"].default
-        bar = tqdm(total=total, desc=f"{method} iterations", file=sys.stderr, disable=json_out)
+        bar = tqdm(total=total, desc=f"{method} iterations", file=sys.stderr, disable=None if not json_out else True)
         prog = lambda i, q: bar.update(1)
         try:
             if mesh is not None:
@@ -104,13 +117,16 @@ def register(app: typer.Typer) -> None:
         inp: Annotated[Path, typer.Argument(help="input surface mesh")],
         out: Annotated[Path, typer.Argument(help="output surface mesh")],
         sigma: float = typer.Option(0.2, "--sigma", help="noise std as a fraction of the mean edge length"),
-        seed: int = typer.Option(0, "--seed"),
+        seed: int = typer.Option(0, "--seed", help="random seed (an integer >= 0)"),
         direction: str = typer.Option("normal", "--direction", help="normal | random"),
         json_out: bool = typer.Option(False, "--json"),
     ) -> None:
         """Add seeded Gaussian noise to a surface mesh."""
         from physar.geometry.quality import add_noise, mean_edge_length
 
+        if seed < 0:
+            raise PhysarError(f"--seed must be an integer >= 0, got {seed}")
+        _check_out(out, inp, cloud=False)
         mesh, _ = _load(inp)
         if mesh is None:
             raise PhysarError(f"{inp}: `noise` needs a surface mesh (faces), got a point cloud")

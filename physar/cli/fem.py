@@ -23,7 +23,9 @@ def solve(
 
     from physar.fem.config import run_config
     from physar.geometry import write_mesh
+    from physar.geometry.io import check_mesh_destination
 
+    check_mesh_destination(out, inputs=[config], kind="result mesh")
     bar = None
 
     def progress(step: int, steps: int) -> None:

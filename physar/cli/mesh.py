@@ -8,6 +8,7 @@ import typer
 
 from physar.cli._common import log, print_json, user_errors
 from physar.geometry import box_mesh, read_mesh, write_mesh
+from physar.geometry.io import check_mesh_destination
 
 mesh_app = typer.Typer(help="Create and convert meshes.", no_args_is_help=True)
 
@@ -21,6 +22,7 @@ def box(
     json_out: bool = typer.Option(False, "--json", help="print a JSON summary on stdout"),
 ) -> None:
     """Structured tetrahedral mesh of a box."""
+    check_mesh_destination(out)
     m = box_mesh(size, cells)
     write_mesh(out, m)
     summary = {"file": str(out), "points": m.n_points, "tetrahedra": m.n_cells}
@@ -37,6 +39,10 @@ def convert(
     dst: Path = typer.Argument(..., help="output mesh; format from the suffix"),  # noqa: B008 - typer idiom
 ) -> None:
     """Convert a tetrahedral or triangle mesh between formats (validated on the way)."""
+    from physar.geometry.io import SURFACE_FORMATS, VOLUME_FORMATS
+    from physar.output import check_destination
+
+    check_destination(dst, inputs=[src], suffixes=sorted(VOLUME_FORMATS | SURFACE_FORMATS), kind="mesh")
     m = read_mesh(src)
     write_mesh(dst, m)
     log(f"wrote {dst}")

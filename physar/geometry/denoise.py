@@ -301,9 +301,15 @@ def al_iterate(
     return q
 
 
+# Upper bound on denoising iterations. Each iteration is a full pass over the mesh; the methods converge
+# long before (MSAL's step xi^k is below 1e-4500 after 1e5 iterations, AL/Laplacian/Taubin reach their fixed
+# point, a flattened surface, within thousands), so a larger count is a typo that would only run for hours.
+MAX_ITERATIONS = 100_000
+
+
 def _check_iter(iterations: int) -> None:
-    if int(iterations) < 1:
-        raise PhysarError(f"iterations must be >= 1, got {iterations}")
+    if not 1 <= int(iterations) <= MAX_ITERATIONS:
+        raise PhysarError(f"iterations must be within 1..{MAX_ITERATIONS}, got {iterations}")
 
 
 def anisotropic_laplacian(

@@ -1,7 +1,8 @@
 """Mesh I/O through meshio (VTU, XDMF, Gmsh .msh, Medit .mesh, PLY, OBJ, STL, OFF).
 
-Writes are atomic: a file is written under a temporary name in the target folder and renamed, so a
-failed write never leaves a half-written output.
+Writes go through :func:`physar.output.atomic_path` (an XDMF file with its ``.h5`` companion), so a failed or
+interrupted write never leaves a half-written output; :func:`check_mesh_destination` checks an output path
+before any work.
 """
 
 from __future__ import annotations
@@ -9,9 +10,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
-import shutil
-import tempfile
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +18,7 @@ import numpy as np
 from physar.errors import MeshError, PhysarError
 from physar.geometry.mesh import TetMesh, TriMesh
 from physar.geometry.regions import MeshTags
+from physar.output import atomic_path, check_destination
 
 TAG_KEYS = ("gmsh:physical", "medit:ref", "cell_tags")  # meshio cell_data names of region tags, by priority
 
@@ -114,28 +114,16 @@ def read_mesh(path: str | os.PathLike, kind: str = "auto") -> TetMesh | TriMesh:
     raise MeshError(f"{path}: expected {want}, found {', '.join(found)}")
 
 
-def _atomic_target(path: Path):
-    """Context: yields a temporary path with the same suffix; moves it (and siblings) into place."""
-
-    class _Ctx:
-        def __enter__(self):
-            path.parent.mkdir(parents=True, exist_ok=True)
-            self.tmpdir = Path(tempfile.mkdtemp(prefix=".physar-", dir=path.parent))
-            return self.tmpdir / path.name
-
-        def __exit__(self, exc_type, exc, tb):
-            try:
-                if exc_type is None:
-                    for f in self.tmpdir.iterdir():  # XDMF writes a companion .h5
-                        os.replace(f, path.parent / f.name)
-            finally:
-                shutil.rmtree(self.tmpdir, ignore_errors=True)
-            return False
-
-    return _Ctx()
-
-
 _SURFACE_ONLY = {".stl", ".ply", ".obj", ".off"}
+
+
+def check_mesh_destination(path: str | os.PathLike, *, volume: bool = True, inputs: Iterable = (),
+                           kind: str = "mesh") -> Path:
+    """Check ``path`` as the destination of a tetrahedral (``volume``) or surface mesh before any work:
+    a suffix :func:`write_mesh` writes for that kind, and :func:`physar.output.check_destination`'s checks
+    (existing folder, unwritable or file parent, same file as one of ``inputs``). One ConfigError line."""
+    return check_destination(path, inputs=inputs, kind=kind,
+                             suffixes=sorted(VOLUME_FORMATS if volume else SURFACE_FORMATS))
 
 
 def write_mesh(
@@ -152,6 +140,7 @@ def write_mesh(
     if isinstance(mesh, TetMesh) and suffix in _SURFACE_ONLY:
         raise PhysarError(f"{path}: {path.suffix} stores surfaces only, not a tetrahedral mesh; use .vtu, .xdmf, "
                           ".msh or .mesh (or write its boundary surface)")
+    check_mesh_destination(path, volume=isinstance(mesh, TetMesh))
     meshio = _meshio()
     conn = mesh.cells if isinstance(mesh, TetMesh) else mesh.faces
     if suffix == ".ply" and mesh.n_points < 2 ** 31:
@@ -163,9 +152,6 @@ def write_mesh(
         if len(v) != mesh.n_points:
             raise PhysarError(f"point field {k!r} has {len(v)} rows, the mesh has {mesh.n_points} points")
     m = meshio.Mesh(mesh.points, cells, point_data=pd, cell_data=cd)
-    with _atomic_target(path) as tmp:
-        try:
-            m.write(tmp, **({"binary": True} if suffix == ".stl" else {}))  # binary STL: compact, standard
-        except KeyError:
-            raise PhysarError(f"unknown mesh format {path.suffix!r} for {path}") from None
+    with atomic_path(path, companions=suffix in (".xdmf", ".xmf")) as tmp:
+        m.write(tmp, **({"binary": True} if suffix == ".stl" else {}))  # binary STL: compact, standard
     return path

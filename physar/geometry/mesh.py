@@ -13,6 +13,7 @@ import numpy as np
 
 from physar.errors import MeshError
 from physar.geometry.regions import MeshTags
+from physar.output import check_memory
 
 # Local faces of a positively oriented tetrahedron (vol = det[x1-x0, x2-x0, x3-x0] / 6 > 0), ordered
 # so that the right-hand normal points outward; face k is opposite local vertex k.
@@ -292,12 +293,19 @@ def _kuhn_tets() -> np.ndarray:
 _KUHN = _kuhn_tets()
 
 
+# Peak bytes per hexahedron while box_mesh builds: index grids (3 x 8), corner ids (8 x 8), tetrahedra
+# (6 x 4 x 8, twice while reshaping) and the points with their coordinate grids (~4 x 24 per node).
+BOX_BYTES_PER_CELL = 3 * 8 + 8 * 8 + 2 * 6 * 4 * 8 + 4 * 24
+
+
 def box_mesh(
     size: Sequence[float], cells: Sequence[int], origin: Sequence[float] = (0.0, 0.0, 0.0)
 ) -> TetMesh:
     """Structured tetrahedral mesh of the box origin + [0, L] x [0, W] x [0, H].
 
-    `cells = (nx, ny, nz)` hexahedra, each split into 6 Kuhn tetrahedra (6 nx ny nz tets in all).
+    `cells = (nx, ny, nz)` hexahedra, each split into 6 Kuhn tetrahedra (6 nx ny nz tets in all). A mesh
+    whose construction would need more memory than is available (``BOX_BYTES_PER_CELL`` per cell) is
+    refused with a ConfigError before anything is allocated.
     """
     size = np.asarray(size, dtype=float)
     n = np.asarray(cells, dtype=int)
@@ -305,7 +313,9 @@ def box_mesh(
         raise MeshError(f"box size must be three positive lengths, got {[float(v) for v in np.atleast_1d(size)]}")
     if n.shape != (3,) or np.any(n < 1):
         raise MeshError(f"box cells must be three positive integers, got {list(np.atleast_1d(n))}")
-    nx, ny, nz = n
+    nx, ny, nz = (int(v) for v in n)
+    n_cells = nx * ny * nz  # Python ints: no overflow for absurd requests
+    check_memory(BOX_BYTES_PER_CELL * n_cells, f"a box mesh of {nx} x {ny} x {nz} cells ({6 * n_cells:.3g} tetrahedra)")
     axes = [np.linspace(0.0, size[i], n[i] + 1) + origin[i] for i in range(3)]
     X, Y, Z = np.meshgrid(*axes, indexing="ij")
     points = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])

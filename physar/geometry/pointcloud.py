@@ -32,17 +32,21 @@ from physar.geometry.denoise import (
     MSAL_FIDELITY,
     MSAL_XI,
     Progress,
+    _check_iter,
     al_iterate,
     directed_edges,
     msal_lambda,
     scales_of,
 )
+from physar.output import check_destination, write_bytes
 
 
 def _check_cloud(points: np.ndarray, k: int) -> np.ndarray:
     p = np.asarray(points, dtype=float)
     if p.ndim != 2 or p.shape[1] != 3:
         raise MeshError(f"point cloud must have shape (n, 3), got {p.shape}")
+    if int(k) != k or k < 0:
+        raise MeshError(f"the number of neighbours k must be a non-negative integer, got {k}")
     if len(p) <= k:
         raise MeshError(f"point cloud has {len(p)} points; need more than k={k}")
     if not np.isfinite(p).all():
@@ -162,6 +166,8 @@ def denoise_points(
     cloud encloses no defined volume).
     Returns the (n, 3) denoised points (m).
     """
+    if int(k) != k or k < 1:
+        raise MeshError(f"point-cloud denoising needs k >= 1 neighbours, got {k}")
     p = _check_cloud(points, k)
     edges = knn_edges(p, k)
     # unoriented normals in the loop: h_ij n_i does not depend on the sign of n_i (module doc); the
@@ -171,8 +177,7 @@ def denoise_points(
     if method not in ("al", "msal"):
         raise PhysarError(f"point clouds support methods 'al' and 'msal', got {method!r}")
     it = (10 if method == "al" else 8) if iterations is None else int(iterations)
-    if it < 1:
-        raise PhysarError(f"iterations must be >= 1, got {it}")
+    _check_iter(it)
     if method == "al":
         return al_iterate(p, geometry, edges, np.full(it, tau), 0.0, kappa, g, False, progress,
                           shrink_correction=shrink_correction)
@@ -208,16 +213,12 @@ def write_ply(path: str | os.PathLike, points: np.ndarray) -> Path:
 
     path = Path(path)
     p = _check_cloud(points, 0)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    check_destination(path, suffixes=[".ply"], kind="point cloud")
+    data = trimesh.PointCloud(p).export(file_type="ply")
     try:
-        data = trimesh.PointCloud(p).export(file_type="ply")
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
+        write_bytes(path, data)
     except OSError as exc:
-        raise PhysarError(f"{path}: cannot write ({exc})") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+        raise PhysarError(f"{path}: cannot write ({exc.strerror or exc})") from None
     return path
 
 

@@ -73,8 +73,10 @@ def add_noise(
     ``direction="normal"`` displaces each vertex along its vertex normal by N(0, s^2); ``"random"`` adds
     an isotropic N(0, s^2 I) displacement.
     """
-    if sigma < 0:
-        raise MeshError(f"noise sigma must be >= 0, got {sigma}")
+    if not 0 <= sigma < np.inf:
+        raise MeshError(f"noise sigma must be a finite number >= 0, got {sigma}")
+    if isinstance(seed, bool) or int(seed) != seed or seed < 0:
+        raise MeshError(f"noise seed must be an integer >= 0, got {seed}")
     check_surface(mesh)
     rng = np.random.default_rng(seed)
     s = sigma * mean_edge_length(mesh)
