@@ -47,6 +47,10 @@ def damping(
     values = _parse_hw(hw, ctx.args)
     if method is None and plot is None:
         raise ConfigError("give --method (with --hw) and/or --plot PNG")
+    if plot is not None:
+        from physar.output import check_destination
+
+        check_destination(plot, suffixes=[".png"], kind="plot")
     if method is not None:
         if method not in _METHODS:
             raise ConfigError(f"--method {method!r} is unknown; choose one of {', '.join(_METHODS)}")
@@ -81,11 +85,15 @@ def simulate(
     fps: float = typer.Option(30.0, "--fps", help="video frame rate"),
     json_out: bool = typer.Option(False, "--json", help="print a run summary as JSON"),
 ) -> None:
-    """Integrate M q'' = f_els + f_dmp + f_ext in time and write the trajectory, energies and a video."""
+    """Integrate M q'' = f_els + f_dmp + f_ext in time and write the trajectory, energies and a video.
+
+    Ctrl-C or SIGTERM stops after the current step: the steps done so far are written (exit 130). A run
+    that diverges (non-finite or runaway state) writes the steps before it and exits 2 naming the step."""
     from tqdm import tqdm
 
     from physar.errors import PhysarError
     from physar.integrators.config import (
+        SimulationDiverged,
         build_simulation,
         load_dynamics_config,
         run_simulation,
@@ -93,27 +101,38 @@ def simulate(
         write_energy_csv,
         write_xdmf,
     )
+    from physar.integrators.render import check_fps
+    from physar.output import check_destination, signal_guard
 
-    if out.suffix.lower() != ".xdmf":
-        raise ConfigError(f"--out must end in .xdmf, got {out.name}")
-    if video is not None and video.suffix.lower() != ".mp4":
-        raise ConfigError(f"--video must end in .mp4, got {video.name}")
+    check_fps(fps, "--fps")
+    csv_path = energy_csv or out.with_suffix(".csv")
+    check_destination(out, inputs=[config], suffixes=[".xdmf"], kind="trajectory")
+    check_destination(out.with_suffix(".h5"), inputs=[config], kind="trajectory data")
+    check_destination(csv_path, inputs=[config, out, out.with_suffix(".h5")], suffixes=[".csv"],
+                      kind="energy CSV")
+    if video is not None:
+        check_destination(video, inputs=[config, out, csv_path], suffixes=[".mp4"], kind="video")
     cfg = load_dynamics_config(config)
+    failure = None
     try:
         sim = build_simulation(cfg)
-        bar = tqdm(total=cfg.dynamics.steps, desc=f"{cfg.dynamics.method} steps", file=sys.stderr,
-                   disable=None)
-        traj = run_simulation(sim, lambda k, n: bar.update(1))
-        bar.close()
+        with signal_guard() as guard, tqdm(total=cfg.dynamics.steps, desc=f"{cfg.dynamics.method} steps",
+                                           file=sys.stderr, disable=None) as bar:
+            try:
+                traj = run_simulation(sim, lambda k, n: bar.update(1), stop=lambda: guard.stopped)
+            except SimulationDiverged as exc:
+                traj, failure = exc.trajectory, exc
     except PhysarError as exc:
         if str(exc).startswith(str(config)):
             raise
         raise type(exc)(f"{config}: {exc}") from None
     write_xdmf(out, sim, traj)
-    csv_path = energy_csv or out.with_suffix(".csv")
     write_energy_csv(csv_path, traj)
+    if failure is not None:
+        raise type(failure)(f"{config}: {failure}; wrote steps 0-{traj.energy[-1]['step']} to {out} and "
+                            f"{csv_path}", traj) from None
     summary = summarize(sim, traj)
-    summary.update({"output": str(out), "energy_csv": str(csv_path)})
+    summary.update({"output": str(out), "energy_csv": str(csv_path), "interrupted": traj.interrupted})
     if video is not None:
         from physar.integrators.render import write_video
 
@@ -125,9 +144,12 @@ def simulate(
     if json_out:
         print_json(summary)
     else:
-        log(f"wrote {out}, {csv_path}" + (f", {video}" if video else ""))
+        log(("interrupted: " if traj.interrupted else "") + f"wrote {out}, {csv_path}"
+            + (f", {video}" if video else ""))
         log(f"energy {summary['energy_initial']:.6g} J -> {summary['energy_final']:.6g} J, "
             f"Newton iterations mean {summary['newton_iterations_mean']:.2f} (max {summary['newton_iterations_max']})")
+    if traj.interrupted:
+        raise typer.Exit(code=130)
 
 
 def register(app: typer.Typer) -> None:

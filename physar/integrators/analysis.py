@@ -14,6 +14,7 @@ import numpy as np
 
 from physar.integrators.model import LinearDynamics
 from physar.integrators.steppers import Integrator, make_integrator
+from physar.output import check_destination, save_figure
 
 
 def amplification_matrix(integrator: Integrator, hw: float, omega: float = 1.0, zeta: float = 0.0) -> np.ndarray:
@@ -67,15 +68,14 @@ def d_backward_euler(hw, h=1.0):
 
 def plot_damping_figures(path, hw=None, rs=(0.0, 0.25, 0.5, 0.75, 1.0), thetas=(0.0, 0.25, 0.5, 0.75, 1.0)):
     """Seed Fig. 2.1 (generalized-α, r = 0:.25:1) and Fig. 2.2 (θ method, θ = 0:.25:1), plus BE/SI,
-    midpoint and TR-BDF2 for reference: d/ω versus hω (log axis). Written atomically as PNG."""
-    import os
-    from pathlib import Path
-
+    midpoint and TR-BDF2 for reference: d/ω versus hω (log axis). Written atomically as PNG (the path is
+    checked first: a .png suffix and a writable place)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
+    check_destination(path, suffixes=[".png"], kind="plot")
     hw = np.logspace(-2, 3, 101) if hw is None else np.asarray(hw, dtype=float)
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
     ax = axes[0]
@@ -102,13 +102,7 @@ def plot_damping_figures(path, hw=None, rs=(0.0, 0.25, 0.5, 0.75, 1.0), thetas=(
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(".tmp_" + path.name)
-    fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return save_figure(fig, path, dpi=110)
 
 
 def dominant_frequency(signal, dt: float, pad: int = 16) -> float:

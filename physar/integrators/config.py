@@ -34,9 +34,6 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import os
-import shutil
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,11 +42,12 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from physar.errors import ConfigError, PhysarError
+from physar.errors import ConfigError, SolverError
 from physar.fem.config import FemConfig, Problem, _Strict, build_problem, load_config
 from physar.fem.solvers import solve_static
 from physar.integrators.model import Ground, SolidModel
 from physar.integrators.steppers import Integrator, State, make_integrator
+from physar.output import atomic_path
 
 Vec3 = tuple[float, float, float]
 
@@ -154,56 +152,84 @@ class Trajectory:
     u: list = field(default_factory=list)
     v: list = field(default_factory=list)
     energy: list = field(default_factory=list)  # dicts: step, t, kinetic, elastic, potential, total, newton
+    interrupted: bool = False  # stopped early on request (a signal); the frames end at the last step done
 
 
-def run_simulation(sim: Simulation, progress: Callable[[int, int], None] | None = None) -> Trajectory:
-    """Integrate; record the energy at every step and the vertex fields at every output_every-th step."""
+# A node displaced by more than RUNAWAY times the body's bounding-box diagonal means the integration ran
+# away (an explicit step beyond its stability limit grows the solution geometrically, and its energy with it,
+# long before the numbers overflow to inf). No run this toolkit models (a beam swinging, a body dropped onto
+# the ground) moves a node by a thousand body sizes.
+RUNAWAY = 1e3
+
+
+class SimulationDiverged(SolverError):
+    """The solution became non-finite or ran away; ``trajectory`` holds the steps before that (all finite)."""
+
+    def __init__(self, message: str, trajectory: Trajectory):
+        super().__init__(message)
+        self.trajectory = trajectory
+
+
+def _diverged(state: State, energy: dict, size: float) -> str | None:
+    """Why ``state`` is not a valid step (non-finite values, runaway displacement), or None."""
+    if not (np.all(np.isfinite(state.q)) and np.all(np.isfinite(state.v))):
+        return "the solution is no longer finite"
+    if not all(np.isfinite(v) for v in energy.values()):
+        return "the energy is no longer finite"
+    umax = float(np.abs(state.q).max()) if state.q.size else 0.0
+    if umax > RUNAWAY * size:
+        return f"a displacement reached {umax:.3g} m, more than {RUNAWAY:g} times the body's size ({size:.3g} m)"
+    return None
+
+
+def run_simulation(sim: Simulation, progress: Callable[[int, int], None] | None = None,
+                   stop: Callable[[], bool] | None = None) -> Trajectory:
+    """Integrate; record the energy at every step and the vertex fields at every output_every-th step.
+
+    ``stop()`` is polled after every step: when it returns True the run ends there (``trajectory.
+    interrupted``). A step whose state is not finite, whose energy is not finite or whose displacement ran
+    away (``RUNAWAY``) raises :class:`SimulationDiverged` carrying the trajectory up to the step before it,
+    with its last state recorded as a frame, so that what is written from it is valid.
+    """
     d = sim.config.dynamics
     space = sim.problem.space
     nv = space.mesh.n_points
+    pts = space.mesh.points
+    size = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))) if len(pts) else 1.0
     traj = Trajectory()
     integ, model = sim.integrator, sim.model
     state: State = integ.init(model, sim.q0, sim.v0)
 
-    def record(k, s):
-        e = model.energy(s.q, s.v)
+    def frame(s):
+        traj.times.append(s.t)
+        traj.u.append(s.q.reshape(-1, 3)[:nv].astype(np.float64).copy())
+        traj.v.append(s.v.reshape(-1, 3)[:nv].astype(np.float32).copy())
+
+    def record(k, s, e):
         traj.energy.append({"step": k, "t": s.t, **e, "newton_iterations": s.newton_iterations})
         if k % d.output_every == 0 or k == d.steps:
-            traj.times.append(s.t)
-            traj.u.append(s.q.reshape(-1, 3)[:nv].astype(np.float64).copy())
-            traj.v.append(s.v.reshape(-1, 3)[:nv].astype(np.float32).copy())
+            frame(s)
 
-    record(0, state)
+    record(0, state, model.energy(state.q, state.v))
     for k in range(1, d.steps + 1):
-        state = integ.step(model, state, d.h)
-        if not (np.all(np.isfinite(state.q)) and np.all(np.isfinite(state.v))):
-            raise PhysarError(f"{integ.name}: the solution blew up at step {k} (t = {state.t:.4g} s); "
-                              "reduce [dynamics] h or use an implicit method")
-        record(k, state)
+        prev, state = state, integ.step(model, state, d.h)
+        with np.errstate(all="ignore"):
+            e = model.energy(state.q, state.v)
+        why = _diverged(state, e, size)
+        if why is not None:
+            if traj.times[-1] != prev.t:
+                frame(prev)
+            raise SimulationDiverged(f"{integ.name} diverged at step {k} (t = {state.t:.4g} s): {why}; reduce "
+                                     "[dynamics] h or use an implicit method", traj)
+        record(k, state, e)
         if progress:
             progress(k, d.steps)
+        if stop is not None and stop() and k < d.steps:
+            traj.interrupted = True
+            if traj.times[-1] != state.t:
+                frame(state)
+            break
     return traj
-
-
-class _AtomicDir:
-    """Write files into a temporary folder next to `path`, then move them into place together."""
-
-    def __init__(self, path: Path):
-        self.path = Path(path)
-
-    def __enter__(self) -> Path:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = Path(tempfile.mkdtemp(prefix=".physar-", dir=self.path.parent))
-        return self.tmp / self.path.name
-
-    def __exit__(self, exc_type, exc, tb):
-        try:
-            if exc_type is None:
-                for f in self.tmp.iterdir():
-                    os.replace(f, self.path.parent / f.name)
-        finally:
-            shutil.rmtree(self.tmp, ignore_errors=True)
-        return False
 
 
 def write_xdmf(path: str | Path, sim: Simulation, traj: Trajectory) -> Path:
@@ -217,7 +243,7 @@ def write_xdmf(path: str | Path, sim: Simulation, traj: Trajectory) -> Path:
     # meshio's TimeSeriesWriter opens its .h5 relative to the working directory: write from inside
     # the temporary folder (single-threaded CLI use)
     with (
-        _AtomicDir(path) as tmp,
+        atomic_path(path, companions=True) as tmp,
         contextlib.chdir(tmp.parent),
         meshio.xdmf.TimeSeriesWriter(tmp.name) as w,
     ):
@@ -231,8 +257,9 @@ ENERGY_COLUMNS = ["step", "t", "kinetic", "elastic", "potential", "total", "newt
 
 
 def write_energy_csv(path: str | Path, traj: Trajectory) -> Path:
+    """One row per step: step, t (s), kinetic, elastic, potential, total energy (J), Newton iterations."""
     path = Path(path)
-    with _AtomicDir(path) as tmp, open(tmp, "w", newline="") as fh:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=ENERGY_COLUMNS)
         w.writeheader()
         for row in traj.energy:
@@ -255,5 +282,5 @@ def summarize(sim: Simulation, traj: Trajectory) -> dict:
     }
 
 
-__all__ = ["DynamicsConfig", "DynamicsSection", "Simulation", "Trajectory", "build_simulation",
-           "load_dynamics_config", "run_simulation", "summarize", "write_energy_csv", "write_xdmf"]
+__all__ = ["DynamicsConfig", "DynamicsSection", "Simulation", "SimulationDiverged", "Trajectory",
+           "build_simulation", "load_dynamics_config", "run_simulation", "summarize", "write_energy_csv", "write_xdmf"]

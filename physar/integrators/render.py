@@ -3,12 +3,26 @@ oblique camera; frames drawn with matplotlib (Agg) and encoded as H.264 MP4 (PyA
 
 from __future__ import annotations
 
+import math
 import os
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 
-from physar.errors import PhysarError
+from physar.errors import ConfigError, PhysarError
+from physar.output import atomic_path
+
+MAX_FPS = 1000.0  # frames per second; H.264 levels end at 300 fps, a larger request is a typo
+
+
+def check_fps(fps: float, name: str = "video frame rate") -> Fraction:
+    """``fps`` as the exact rational rate the MP4 gets (29.97 -> 2997/100); ConfigError unless it is a finite
+    number in (0, MAX_FPS] frames per second (no silent rounding: 0 does not become 1)."""
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not math.isfinite(fps) or \
+            not 0 < fps <= MAX_FPS:
+        raise ConfigError(f"{name} must be a number of frames per second in (0, {MAX_FPS:g}], got {fps}")
+    return Fraction(fps).limit_denominator(1001)
 
 
 def _camera(azim: float, elev: float) -> np.ndarray:
@@ -34,6 +48,7 @@ def write_video(path: str | os.PathLike, points: np.ndarray, faces: np.ndarray, 
     path = Path(path)
     if path.suffix.lower() != ".mp4":
         raise PhysarError(f"video output must end in .mp4, got {path.name}")
+    rate = check_fps(fps)
     if "libx264" not in av.codecs_available:
         raise PhysarError("PyAV has no libx264 encoder; install a PyAV wheel with H.264 support")
     P = _camera(azim, elev)
@@ -46,10 +61,9 @@ def write_video(path: str | os.PathLike, points: np.ndarray, faces: np.ndarray, 
     light /= np.linalg.norm(light)
     fig = plt.figure(figsize=(w / 100, h / 100), dpi=100)
     ax = fig.add_axes([0, 0, 1, 1])
-    tmp = path.with_name(".tmp_" + path.name)
     try:
-        with av.open(str(tmp), mode="w", format="mp4") as container:
-            stream = container.add_stream("libx264", rate=max(1, round(fps)))
+        with atomic_path(path) as tmp, av.open(str(tmp), mode="w", format="mp4") as container:
+            stream = container.add_stream("libx264", rate=rate)
             stream.width, stream.height = w - w % 2, h - h % 2
             stream.pix_fmt = "yuv420p"
             for u, t in zip(frames_u, times):
@@ -73,10 +87,6 @@ def write_video(path: str | os.PathLike, points: np.ndarray, faces: np.ndarray, 
                     container.mux(packet)
             for packet in stream.encode():
                 container.mux(packet)
-    except Exception:
-        tmp.unlink(missing_ok=True)
-        raise
     finally:
         plt.close(fig)
-    os.replace(tmp, path)
     return path
