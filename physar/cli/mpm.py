@@ -20,29 +20,39 @@ def run(
     json_out: bool = typer.Option(False, "--json", help="print per-frame time, COM, momentum, kinetic energy"),
     no_preview: bool = typer.Option(False, "--no-preview", help="skip the MP4 preview"),
 ) -> None:
-    """Simulate a scene and write per-frame particles, diagnostics and a preview video."""
+    """Simulate a scene and write per-frame particles, diagnostics and a preview video.
+
+    Ctrl-C or SIGTERM stops after the current frame: diagnostics.csv and the preview cover the frames written
+    (exit 130)."""
     from tqdm import tqdm
 
-    from physar.mpm.runner import run_scene
+    from physar.mpm.runner import check_run_folder, run_scene
+    from physar.output import signal_guard
 
+    check_run_folder(out, inputs=[scene])
     bar = None
 
     def progress(frame: int, frames: int) -> None:
         nonlocal bar
-        bar = bar or tqdm(total=frames, desc="frames", file=sys.stderr, disable=json_out and not sys.stderr.isatty())
+        bar = bar or tqdm(total=frames, desc="frames", file=sys.stderr, disable=True if json_out else None)
         bar.update(1)
 
-    res = run_scene(scene, out, progress, preview=not no_preview)
-    if bar is not None:
-        bar.close()
+    try:
+        with signal_guard() as guard:
+            res = run_scene(scene, out, progress, preview=not no_preview, stop=lambda: guard.stopped)
+    finally:
+        if bar is not None:
+            bar.close()
     if json_out:
         print_json(res.summary())
     else:
         d0, d1 = res.diagnostics[0], res.diagnostics[-1]
-        log(f"{res.n_particles} particles, {res.frames} frames -> {out}"
-            + ("" if res.preview or no_preview else " (no MP4 encoder: preview skipped)"))
+        log(("interrupted: " if res.interrupted else "") + f"{res.n_particles} particles, {res.frames} frames -> "
+            f"{out}" + ("" if res.preview or no_preview else " (no MP4 encoder: preview skipped)"))
         log(f"centre of mass {d0['com'].round(4).tolist()} -> {d1['com'].round(4).tolist()} m; "
             f"total energy {d0['total_energy']:.4e} -> {d1['total_energy']:.4e} J")
+    if res.interrupted:
+        raise typer.Exit(code=130)
 
 
 @mpm_app.command("identify")

@@ -1,26 +1,22 @@
 """Outputs of MPM runs: per-frame particle PLY (binary little-endian), energy/momentum CSV, MP4 preview.
 
-Every file is written to a temporary name in the same folder and renamed, so no half-written file is left.
+Every file goes through :mod:`physar.output` (a temporary name in the same folder, renamed when complete), so
+no half-written file is left.
 """
 
 from __future__ import annotations
 
-import os
 import re
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 
 from physar.errors import ConfigError
+from physar.output import atomic_path, write_bytes
 
 _PLY_DTYPE = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("vx", "<f8"), ("vy", "<f8"), ("vz", "<f8"),
                        ("body", "<i4")])
-
-
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
 
 
 def write_particles_ply(path: str | Path, x: np.ndarray, v: np.ndarray, body: np.ndarray) -> None:
@@ -34,7 +30,7 @@ def write_particles_ply(path: str | Path, x: np.ndarray, v: np.ndarray, body: np
     header = ("ply\nformat binary_little_endian 1.0\ncomment physar mpm particles\n"
               f"element vertex {n}\n" + "".join(f"property double {k}\n" for k in ("x", "y", "z", "vx", "vy", "vz"))
               + "property int body\nend_header\n")
-    _atomic_write_bytes(Path(path), header.encode("ascii") + rec.tobytes())
+    write_bytes(Path(path), header.encode("ascii") + rec.tobytes())
 
 
 def read_particles_ply(path: str | Path) -> dict:
@@ -78,7 +74,7 @@ def write_diagnostics_csv(path: str | Path, times, diags: list[dict]) -> None:
         vals = [i, t, *d["com"], *d["momentum"], *d["angular_momentum"], d["kinetic_energy"],
                 d["potential_energy"], d["elastic_energy"], d["total_energy"]]
         rows.append(",".join(repr(float(v)) if j else str(v) for j, v in enumerate(vals)))
-    _atomic_write_bytes(Path(path), ("\n".join(rows) + "\n").encode())
+    write_bytes(Path(path), ("\n".join(rows) + "\n").encode())
 
 
 _PALETTE = np.array([[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40], [148, 103, 189],
@@ -100,27 +96,33 @@ def render_side_view(x: np.ndarray, body: np.ndarray, size: float, pixels: int =
     return img
 
 
-def write_preview_mp4(path: str | Path, frames_x: list[np.ndarray], body: np.ndarray, size: float,
-                      fps: float = 30.0, pixels: int = 256) -> bool:
-    """Side (x-z) view of the particles per frame as an H.264 MP4 (PyAV). Returns False if no encoder works."""
+def mp4_encoder() -> str | None:
+    """The H.264 encoder (or MPEG-4 part 2 as a fallback) PyAV offers, None when it has neither."""
     import av
 
-    path = Path(path)
-    tmp = path.with_name("tmp_" + path.name)
-    try:
-        with av.open(str(tmp), mode="w", format="mp4") as container:
-            stream = container.add_stream("libx264" if "libx264" in av.codecs_available else "mpeg4",
-                                          rate=max(1, round(fps)))
-            stream.width = stream.height = pixels
-            stream.pix_fmt = "yuv420p"
-            for x in frames_x:
-                frame = av.VideoFrame.from_ndarray(render_side_view(x, body, size, pixels), format="rgb24")
-                for packet in stream.encode(frame):
-                    container.mux(packet)
-            for packet in stream.encode():
-                container.mux(packet)
-    except Exception:  # noqa: BLE001 - the preview is optional; a missing codec must not fail the run
-        tmp.unlink(missing_ok=True)
+    for name in ("libx264", "mpeg4"):
+        if name in av.codecs_available:
+            return name
+    return None
+
+
+def write_preview_mp4(path: str | Path, frames_x: list[np.ndarray], body: np.ndarray, size: float,
+                      fps: float = 30.0, pixels: int = 256) -> bool:
+    """Side (x-z) view of the particles per frame as an H.264 MP4 (PyAV). Returns False (nothing written) when
+    PyAV has no MP4 encoder; any other failure raises, leaving no file behind."""
+    import av
+
+    codec = mp4_encoder()
+    if codec is None or not frames_x:
         return False
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp, av.open(str(tmp), mode="w", format="mp4") as container:
+        stream = container.add_stream(codec, rate=Fraction(fps).limit_denominator(1001))
+        stream.width = stream.height = pixels
+        stream.pix_fmt = "yuv420p"
+        for x in frames_x:
+            frame = av.VideoFrame.from_ndarray(render_side_view(x, body, size, pixels), format="rgb24")
+            for packet in stream.encode(frame):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
     return True

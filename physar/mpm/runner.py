@@ -20,10 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from physar.errors import ConfigError
+from physar.errors import SolverError
 from physar.mpm.io import read_trajectory, write_diagnostics_csv, write_particles_ply, write_preview_mp4
 from physar.mpm.model import MPMSolver, diagnostics
 from physar.mpm.scene import Scene, build_model, load_scene
+from physar.output import check_folder, own_names
 
 
 @dataclass
@@ -33,6 +34,7 @@ class RunResult:
     diagnostics: list = field(default_factory=list)  # one dict per frame (see model.diagnostics)
     n_particles: int = 0
     preview: bool = False  # whether preview.mp4 was written
+    interrupted: bool = False  # stopped early on request; the outputs cover frames 0..frames
 
     def summary(self) -> dict:
         """The ``--json`` record of ``physar mpm run`` (per frame, frame 0 included)."""
@@ -51,19 +53,30 @@ def _scene_and_dir(scene: Scene | str | Path) -> tuple[Scene, Path | None]:
     return load_scene(scene), Path(scene).resolve().parent
 
 
+OWN_FILES = own_names(r"frame_\d{4,}\.ply", r"diagnostics\.csv", r"preview\.mp4")  # what run_scene writes
+
+
+def check_run_folder(out: str | Path, inputs=()) -> Path:
+    """The output folder of :func:`run_scene`, checked before any work: a new, empty or previous-run folder
+    (one holding only frame_NNNN.ply, diagnostics.csv and preview.mp4), never one with other files."""
+    return check_folder(out, own=OWN_FILES, inputs=inputs, kind="MPM output folder")
+
+
 def run_scene(scene: Scene | str | Path, out: str | Path | None, progress: Callable[[int, int], None] | None = None,
-              preview: bool = True, particles_per_cell: int | None = None) -> RunResult:
+              preview: bool = True, particles_per_cell: int | None = None,
+              stop: Callable[[], bool] | None = None) -> RunResult:
     """Simulate ``scene`` (a TOML path or a parsed :class:`Scene`) and write its outputs into ``out``.
 
     ``out = None`` only computes the diagnostics.  ``particles_per_cell`` overrides the scene's sampling.
-    ``progress(frame, frames)`` is called after every frame.
+    ``progress(frame, frames)`` is called after every frame; ``stop()`` is polled after every frame and ends
+    the run there when it returns True (``interrupted``). Either way, and when the state stops being finite
+    (SolverError after writing), ``diagnostics.csv`` and the preview cover exactly the frames written.
     """
+    if out is not None:
+        out = check_run_folder(out, inputs=[] if isinstance(scene, Scene) else [scene])
     sc, base = _scene_and_dir(scene)
     model, x0, v0 = build_model(sc, base, particles_per_cell=particles_per_cell)
     if out is not None:
-        out = Path(out)
-        if out.exists() and not out.is_dir():
-            raise ConfigError(f"--out '{out}' exists and is not a folder")
         out.mkdir(parents=True, exist_ok=True)
         for old in out.glob("frame_*.ply"):  # a shorter re-run must not leave frames of an older one behind
             old.unlink()
@@ -71,11 +84,15 @@ def run_scene(scene: Scene | str | Path, out: str | Path | None, progress: Calla
     a, b = model.state(x0, v0), model.state(x0, v0)
     n_frames = sc.time.frames
     res = RunResult(frames=n_frames, n_particles=model.n_particles)
-    xs = []
+    xs, failure = [], None
     for f in range(n_frames + 1):
         if f > 0:
             a, b = solver.simulate_frame(a, b)
         st = a.numpy()
+        if not (np.isfinite(st["x"]).all() and np.isfinite(st["v"]).all()):
+            failure = (f"the particle state is no longer finite at frame {f} (t = {f * model.frame_dt:.4g} s); "
+                       "reduce frame_dt / raise substeps, or soften the material")
+            break
         res.time.append(f * model.frame_dt)
         res.diagnostics.append(diagnostics(model, st))
         if out is not None:
@@ -83,11 +100,18 @@ def run_scene(scene: Scene | str | Path, out: str | Path | None, progress: Calla
             xs.append(st["x"])
         if progress and f > 0:
             progress(f, n_frames)
+        if stop is not None and f < n_frames and stop():
+            res.interrupted = True
+            break
+    res.frames = len(res.time) - 1
     if out is not None:
         write_diagnostics_csv(out / "diagnostics.csv", res.time, res.diagnostics)
         if preview:
             res.preview = write_preview_mp4(out / "preview.mp4", xs, model.body, sc.grid.size,
                                             fps=1.0 / model.frame_dt)
+    if failure is not None:
+        wrote = f"; wrote frames 0-{res.frames} to {out}" if out is not None and res.time else ""
+        raise SolverError(failure + wrote)
     return res
 
 
