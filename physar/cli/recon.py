@@ -37,18 +37,21 @@ def _close(bars) -> None:
 @recon_app.command("synth")
 @user_errors
 def synth(
-    out: Path = typer.Argument(..., help="DATA_DIR to write (replaced atomically)"),  # noqa: B008 - typer idiom
+    out: Path = typer.Argument(..., help="DATA_DIR to write: new, empty or a previous scene (replaced when done)"),  # noqa: B008 - typer idiom
     config: Path | None = typer.Option(None, "--config", "-c", help="TOML with a [synth] table"),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json", help="print a summary as JSON"),
 ) -> None:
     """Generate a synthetic scene (fine MPM ground truth, heterogeneous and anisotropic): the humanoid presses a
     pillow, squeezes a C-shaped pillow or lifts a bag (see examples/recon_pillow|cpillow|bag.toml)."""
-    from physar.recon.synth import generate, load_synth_config
+    from physar.recon.synth import check_data_dir, generate, load_synth_config
 
+    check_data_dir(out, inputs=[config])
     cfg = load_synth_config(config)
-    progress, bars = _bars(json_out and not sys.stderr.isatty())
-    generate(out, cfg, lambda i, n: progress("simulate", i, n, 0.0))
-    _close(bars)
+    progress, bars = _bars(json_out or None)
+    try:
+        generate(out, cfg, lambda i, n: progress("simulate", i, n, 0.0))
+    finally:
+        _close(bars)
     summary = {"data_dir": str(out), "object": cfg.object, "action": cfg.action, "frames": cfg.frames, "n_obs": cfg.n_obs, "novel_frames": cfg.novel_frames,
                "image_size": cfg.image_size}
     print_json(summary) if json_out else log(f"scene -> {out} ({cfg.object} + {cfg.action}, {cfg.frames} frames, {cfg.n_obs} observed, "
@@ -68,12 +71,16 @@ def fit_cmd(
 ) -> None:
     """Fit canonical Gaussians (spin clip), per-frame flows and the physical parameters (resumes from
     RUN_DIR/checkpoint.pt)."""
+    from physar.output import check_folder
     from physar.recon.train import fit, load_train_config
 
+    check_folder(out, inputs=[data_dir, reuse], kind="RUN_DIR")
     cfg = load_train_config(config)
-    progress, bars = _bars(json_out and not sys.stderr.isatty())
-    report = fit(data_dir, out, cfg, progress, restart=restart, reuse=reuse)
-    _close(bars)
+    progress, bars = _bars(json_out or None)
+    try:
+        report = fit(data_dir, out, cfg, progress, restart=restart, reuse=reuse)
+    finally:
+        _close(bars)
     if json_out:
         print_json(report)
     else:
@@ -93,22 +100,33 @@ def predict_cmd(
     """Render the learned scene under a (new) pose sequence: future frames or a novel action."""
     import numpy as np
 
-    from physar.errors import ConfigError
-    from physar.recon.io import save_npz_atomic, write_mp4
+    from physar.errors import ConfigError, PhysarError
+    from physar.mpm.io import mp4_encoder
+    from physar.output import check_destination, write_npz
+    from physar.recon.io import write_mp4
     from physar.recon.train import Reconstruction, _npz
 
+    model_file = run_dir / "model.npz" if run_dir.is_dir() else run_dir
+    check_destination(out, inputs=[model_file, poses], suffixes=[".mp4"], kind="video")
+    if frames_npz is not None:
+        check_destination(frames_npz, inputs=[model_file, poses, out], suffixes=[".npz"], kind="frames file")
+    if mp4_encoder() is None:
+        raise PhysarError(f"{out}: PyAV offers no MP4 encoder (libx264 or mpeg4); install a PyAV wheel with one")
     rec = Reconstruction.load(run_dir)
     p = _npz(poses)
     if "rotations" not in p:
         raise ConfigError(f"{poses}: missing array 'rotations' (F, B, 3, 3)")
-    progress, bars = _bars(False)
+    progress, bars = _bars(None)
     rot = p["rotations"]
-    rgb, alpha = rec.predict(rot, p.get("root_translation", np.zeros((len(rot), 3))), method, progress)
-    _close(bars)
-    ok = write_mp4(out, (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), rec.rig.meta["fps"])
+    try:
+        rgb, alpha = rec.predict(rot, p.get("root_translation", np.zeros((len(rot), 3))), method, progress)
+    finally:
+        _close(bars)
+    if not write_mp4(out, (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), rec.rig.meta["fps"]):
+        raise PhysarError(f"{out}: no frame to write")
     if frames_npz is not None:
-        save_npz_atomic(frames_npz, rgb=rgb, alpha=alpha)
-    log(f"{len(rgb)} frames -> {out}" + ("" if ok else " (no MP4 encoder available: video skipped)"))
+        write_npz(frames_npz, rgb=rgb, alpha=alpha)
+    log(f"{len(rgb)} frames -> {out}" + (f", {frames_npz}" if frames_npz is not None else ""))
 
 
 @recon_app.command("eval")

@@ -59,8 +59,6 @@ DATA_DIR layout (written atomically: to a temporary folder renamed at the end)::
 from __future__ import annotations
 
 import json
-import os
-import shutil
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
@@ -72,6 +70,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from physar.errors import ConfigError, format_validation_error
 from physar.mpm.model import Control, MPMModel, MPMSolver
+from physar.output import atomic_folder, check_folder, own_names
 from physar.recon import scene as S
 from physar.recon.pointrender import render_spheres
 
@@ -419,20 +418,33 @@ def _render_clip(cfg, meta, body, poses, xo, xh, Xo, h, out_dir: Path):
     return frames
 
 
+# The entries of a DATA_DIR (module docstring): a folder holding only these (and scene.json) is a previous
+# scene that `generate` may replace; any other entry makes it a user's folder, which is refused, never deleted.
+DATA_DIR_FILES = own_names(r"scene\.json", r"(novel_|spin_)?poses\.npz", r"rgb", r"mask", r"spin", r"novel",
+                           r"truth\.npz", r"video\.mp4")
+
+
+def check_data_dir(out_dir: str | Path, inputs=()) -> Path:
+    """``out_dir`` as the destination of :func:`generate`, checked before any work (one ConfigError line):
+    new, empty, or a previous DATA_DIR (only the files ``generate`` writes); not a file, not unwritable."""
+    return check_folder(out_dir, own=DATA_DIR_FILES, inputs=inputs, kind="DATA_DIR")
+
+
 def generate(out_dir: str | Path, cfg: SynthConfig | None = None,
              progress: Callable[[int, int], None] | None = None) -> Path:
-    """Simulate and render a synthetic scene into ``out_dir`` (see the module docstring). Returns the path."""
+    """Simulate and render a synthetic scene into ``out_dir`` (see the module docstring). Returns the path.
+
+    The scene is written into a hidden temporary folder that replaces ``out_dir`` once complete
+    (:func:`physar.output.atomic_folder`): an error or an interrupt leaves ``out_dir`` as it was, and a
+    folder holding anything else than a previous scene is refused (:func:`check_data_dir`)."""
     from physar.recon.io import write_mp4
 
     cfg = cfg or SynthConfig()
-    out = Path(out_dir)
+    out = check_data_dir(out_dir)
     body = S.humanoid(cfg.height)
     meta = scene_meta(cfg)
     clips = clip_poses(cfg, body)
-    tmp = out.with_name(out.name + ".tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    try:
+    with atomic_folder(out, own=DATA_DIR_FILES) as tmp:
         (tmp / "scene.json").write_text(json.dumps(meta, indent=1))
         total = cfg.frames + cfg.novel_frames - 2
         truth, offset, preview = {}, 0, None
@@ -463,10 +475,4 @@ def generate(out_dir: str | Path, cfg: SynthConfig | None = None,
                 preview = frames
         np.savez(tmp / "truth.npz", **truth)
         write_mp4(tmp / "video.mp4", preview, cfg.fps)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    if out.exists():
-        shutil.rmtree(out)
-    os.replace(tmp, out)
     return out

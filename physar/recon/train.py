@@ -36,10 +36,13 @@ resuming an interrupted ``fit``.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
-import os
 import time
+import warnings
+import zipfile
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,10 +56,12 @@ from physar.errors import ConfigError, PhysarError
 from physar.gaussians import Camera, Gaussians, render, rgb_to_sh0, save_ply
 from physar.mpm import torch_bridge as tb
 from physar.mpm.model import MPMModel
+from physar.output import atomic_path, check_folder, write_json, write_npz
 from physar.recon import scene as S
-from physar.recon.io import read_pngs, save_json_atomic, save_npz_atomic, write_mp4
+from physar.recon.io import read_pngs, write_mp4
 
 MODEL_FORMAT = 2
+CHECKPOINT_FORMAT = 1  # checkpoint.pt / stages.pt: _state_dict + format + data_hash (data_fingerprint)
 Progress = Callable[[str, int, int, float], None]
 
 
@@ -178,10 +183,17 @@ def _npz(path: Path) -> dict:
     if not path.exists():
         raise ConfigError(f"missing file '{path}'")
     try:
-        with np.load(path, allow_pickle=False) as d:
-            return {k: d[k] for k in d.files}
-    except (ValueError, OSError) as exc:
-        raise ConfigError(f"'{path}' is not a readable npz file: {exc}") from None
+        d = np.load(path, allow_pickle=False)
+        arrays = None
+        if isinstance(d, np.lib.npyio.NpzFile):
+            with d:
+                arrays = {k: d[k] for k in d.files}
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        detail = "not a NumPy .npz archive" if "pickle" in str(exc) else " ".join(str(exc).split())[:120]
+        raise ConfigError(f"'{path}' is not a readable npz file ({detail})") from None
+    if arrays is None:
+        raise ConfigError(f"'{path}' is not a readable npz file (a single .npy array)")
+    return arrays
 
 
 # ----------------------------------------------------------------------------------------------- rig
@@ -447,10 +459,37 @@ def _state_dict(st: FitState, cfg: TrainConfig, opt=None) -> dict:
             "frame_loss": st.frame_loss, "seconds": st.seconds, "info": st.info}
 
 
-def _save_checkpoint(run_dir: Path, st: FitState, cfg: TrainConfig, opt=None, name: str = "checkpoint.pt") -> None:
-    tmp = run_dir / ("tmp_" + name)
-    torch.save(_state_dict(st, cfg, opt), tmp)
-    os.replace(tmp, run_dir / name)
+def _save_checkpoint(run_dir: Path, st: FitState, cfg: TrainConfig, opt=None, name: str = "checkpoint.pt",
+                     data_hash: str = "") -> None:
+    with atomic_path(run_dir / name) as tmp:
+        torch.save({**_state_dict(st, cfg, opt), "format": CHECKPOINT_FORMAT, "data_hash": data_hash}, tmp)
+
+
+def data_fingerprint(ds: Dataset) -> str:
+    """SHA-256 of what ``fit`` learns from: scene.json's content, the poses and the observed images and masks
+    (a checkpoint resumes only on the same data)."""
+    h = hashlib.sha256(json.dumps(ds.meta, sort_keys=True).encode())
+    for a in (ds.rotations, ds.root_t, ds.rgb, ds.mask):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+_CHECKPOINT_KEYS = ("config", "stage", "iteration", "app", "flow", "phys", "opt", "history", "frame_loss", "seconds")
+
+
+def _read_checkpoint(p: Path) -> dict:
+    """A physar checkpoint (torch.load with weights_only=True: tensors and plain containers, never code), or
+    one ConfigError line for any other file."""
+    try:
+        with warnings.catch_warnings():  # torch warns about foreign pickle protocols before refusing them
+            warnings.simplefilter("ignore")
+            d = torch.load(p, weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - torch raises UnpicklingError, RuntimeError, EOFError, ...
+        raise ConfigError(f"{p}: not a physar checkpoint (torch.load with weights_only=True refuses it: "
+                          f"{type(exc).__name__}); remove it or use --restart") from None
+    if not isinstance(d, dict) or any(k not in d for k in _CHECKPOINT_KEYS) or not isinstance(d["config"], dict):
+        raise ConfigError(f"{p}: not a physar checkpoint (missing fields); remove it or use --restart")
+    return d
 
 
 def _state_from(d: dict, rig: Rig) -> FitState:
@@ -468,15 +507,20 @@ def _state_from(d: dict, rig: Rig) -> FitState:
     return st
 
 
-def _load_checkpoint(run_dir: Path, rig: Rig, cfg: TrainConfig) -> FitState | None:
+def _load_checkpoint(run_dir: Path, cfg: TrainConfig, data_hash: str) -> dict | None:
+    """RUN_DIR/checkpoint.pt checked against the configuration and the data (refused, nothing written,
+    when it was made from others); None when there is none."""
     p = run_dir / "checkpoint.pt"
     if not p.exists():
         return None
-    d = torch.load(p, weights_only=True)
+    d = _read_checkpoint(p)
     if d["config"] != cfg.model_dump():
         raise ConfigError(f"{p}: checkpoint was made with another configuration; use a new --out folder "
                           "or --restart")
-    return _state_from(d, rig)
+    if d.get("data_hash") != data_hash:
+        raise ConfigError(f"{p}: checkpoint was made from another DATA_DIR (or its files changed); use a new "
+                          "--out folder or --restart")
+    return d
 
 
 def _load_stages(reuse: Path, rig: Rig, cfg: TrainConfig) -> FitState:
@@ -484,7 +528,7 @@ def _load_stages(reuse: Path, rig: Rig, cfg: TrainConfig) -> FitState:
     p = Path(reuse) / "stages.pt"
     if not p.exists():
         raise ConfigError(f"--reuse {reuse}: missing {p} (that run has not finished its flow stages)")
-    d = torch.load(p, weights_only=True)
+    d = _read_checkpoint(p)
     mine = cfg.model_dump()
     bad = [k for k in _PRE_PHYSICS if d["config"].get(k) != mine[k]]
     if bad:
@@ -549,17 +593,21 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
     (appearance, flows) are taken as they are (physics-only variants such as the ablations).  Returns the
     report dict."""
     cfg = cfg or TrainConfig()
+    run = check_folder(run_dir, inputs=[data_dir], kind="RUN_DIR")
     ds = load_dataset(data_dir)
-    run = Path(run_dir)
-    run.mkdir(parents=True, exist_ok=True)
-    if restart:
-        (run / "checkpoint.pt").unlink(missing_ok=True)
+    data_hash = data_fingerprint(ds)
+    saved = None if restart else _load_checkpoint(run, cfg, data_hash)  # refused before anything is written
     torch.manual_seed(cfg.seed)
     rig = Rig(ds.meta, cfg)
     kin = rig.kinematics(ds.rotations, ds.root_t)
-    st = _load_checkpoint(run, rig, cfg)
-    if st is None:
+    if saved is not None:
+        st = _state_from(saved, rig)
+    else:
         st = _load_stages(reuse, rig, cfg) if reuse is not None else FitState()
+    run.mkdir(parents=True, exist_ok=True)
+    if restart:
+        (run / "checkpoint.pt").unlink(missing_ok=True)
+    save = lambda st, opt=None, name="checkpoint.pt": _save_checkpoint(run, st, cfg, opt, name, data_hash)
     rgb = torch.as_tensor(ds.rgb)
     mask = torch.as_tensor(ds.mask)
     prog = progress or (lambda *a: None)
@@ -602,7 +650,7 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
                 st.info["spin_psnr_physics_F_after_finetune"] = _spin_psnr(rig, st.app, sk, True)
         st.stage, st.iteration, st.flow = "flow", 0, [Xo.clone()]
         st.seconds = time.perf_counter() - t0
-        _save_checkpoint(run, st, cfg)
+        save(st)
     app = Appearance(*[t.detach() for t in st.app.params()])
 
     # ---- stage 2a: per-frame positions with RGB + mask + edge rigidity = the 4DGS-like baseline
@@ -614,9 +662,9 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
             st.flow.append(x)
             prog("flow", f, ds.n_obs - 1, loss)
             st.seconds = time.perf_counter() - t0
-            _save_checkpoint(run, st, cfg)
+            save(st)
         st.stage, st.iteration, st.spflow = "spflow", 0, [Xo.clone()]
-        _save_checkpoint(run, st, cfg)
+        save(st)
 
     # ---- stage 2b: structure-preserving 3-D flow, RGB + DIS optical flow + ARAP (Eq. 9)
     if st.stage == "spflow":
@@ -639,12 +687,12 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
             st.spflow.append(x)
             prog("spflow", f, ds.n_obs - 1, loss)
             st.seconds = time.perf_counter() - t0
-            _save_checkpoint(run, st, cfg)
+            save(st)
         st.stage, st.iteration = "physics", 0
         st.seconds = time.perf_counter() - t0
         st.info["stages_seconds"] = st.seconds
-        _save_checkpoint(run, st, cfg)
-        _save_checkpoint(run, st, cfg, name="stages.pt")
+        save(st)
+        save(st, name="stages.pt")
 
     # ---- stage 3: end-to-end physics (Eq. 10-11), progressive and loss-balanced
     if st.stage == "physics":
@@ -693,10 +741,10 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
             prog("physics", st.iteration, cfg.physics_iters, float(loss.detach()))
             if st.iteration % cfg.checkpoint_every == 0 or st.iteration == cfg.physics_iters:
                 st.seconds = time.perf_counter() - t0
-                _save_checkpoint(run, st, cfg, opt)
+                save(st, opt)
         st.stage = "done"
         st.seconds = time.perf_counter() - t0
-        _save_checkpoint(run, st, cfg, opt)
+        save(st, opt)
 
     recon = Reconstruction(rig, app, st.flow, st.phys, ds.root, st.spflow)
     recon.save(run / "model.npz", cfg, st)
@@ -707,7 +755,7 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
     report["canonical"] = st.info
     report["history_final"] = {k: (v[-1] if v else None) for k, v in st.history.items()}
     report["history_first"] = {k: (v[0] if v else None) for k, v in st.history.items()}
-    save_json_atomic(run / "report.json", report)
+    write_json(run / "report.json", report)
     _preview(recon, ds, run / "preview.mp4")
     return report
 
@@ -765,7 +813,7 @@ class Reconstruction:
                 arrays["l_e"] = self.phys.l_e.detach().numpy()
             for k, v in self.phys.nets.state_dict().items():
                 arrays[f"net.{k}"] = v.numpy()
-        save_npz_atomic(path, **arrays)
+        write_npz(path, **arrays)
 
     @classmethod
     def load(cls, path: str | Path) -> Reconstruction:
@@ -773,8 +821,20 @@ class Reconstruction:
         if path.is_dir():
             path = path / "model.npz"
         d = _npz(path)
-        if int(d.get("format_version", -1)) != MODEL_FORMAT:
+        try:
+            version = int(d.get("format_version", -1))
+        except (TypeError, ValueError):
+            version = None
+        if version != MODEL_FORMAT:
             raise ConfigError(f"{path}: not a physar recon model (format_version {d.get('format_version')})")
+        try:
+            return cls._from_arrays(d)
+        except (KeyError, ValueError, TypeError, RuntimeError, IndexError) as exc:  # json, pydantic, torch shapes
+            what = f"missing array {exc}" if isinstance(exc, KeyError) else " ".join(str(exc).split())[:120]
+            raise ConfigError(f"{path}: not a valid physar recon model ({what})") from None
+
+    @classmethod
+    def _from_arrays(cls, d: dict) -> Reconstruction:
         meta, cfg = json.loads(str(d["meta_json"])), TrainConfig.model_validate(json.loads(str(d["config_json"])))
         rig = Rig(meta, cfg)
         app = Appearance(torch.as_tensor(d["sh"]), torch.as_tensor(d["opacity_logits"]),
