@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import typer
+from typer.core import TyperCommand
 
 from physar.cli._common import log, print_json, user_errors
 
@@ -50,8 +52,10 @@ def build(
     from tqdm import tqdm
 
     from physar.errors import PhysarError
+    from physar.output import check_destination
     from physar.rom.config import build_rom, load_rom_config
 
+    check_destination(out, inputs=[config], suffixes=[".npz"], kind="reduced model")
     cfg = load_rom_config(config)
     bar = tqdm(desc=f"rom build ({cfg.rom.method})", file=sys.stderr, unit="mode" if cfg.rom.method == "pgd" else "solve")
 
@@ -82,14 +86,24 @@ def build(
                 log(f"{k.replace('_', ' ')}: {rom.metadata[k]:.3e}")
 
 
+def _kinds(rom) -> list:
+    """Each parameter's kind: the model's own (format 2), else the build configuration's, else None."""
+    kinds = getattr(rom, "kinds", None)
+    if kinds:
+        return list(kinds)
+    params = rom.metadata.get("parameters")
+    by_name = {p.get("name"): p.get("kind") for p in params if isinstance(p, dict)} if isinstance(params, list) else {}
+    return [by_name.get(n) for n in rom.names]
+
+
 def _info(rom) -> dict:
     from physar.rom import FORMAT_VERSION
 
     meta = dict(rom.metadata)
     d = {"format_version": FORMAT_VERSION, "method": meta.get("method"), "n_modes": rom.n_modes,
          "n_dofs": int(rom.F.shape[1]),
-         "parameters": [{"name": n, "unit": u, "range": list(r), "grid_points": int(g.size)}
-                        for n, u, r, g in zip(rom.names, rom.units, rom.ranges, rom.grids)],
+         "parameters": [{"name": n, "kind": k, "unit": u, "range": [float(r[0]), float(r[1])], "grid_points": int(g.size)}
+                        for n, k, u, r, g in zip(rom.names, _kinds(rom), rom.units, rom.ranges, rom.grids)],
          "mode_amplitudes": rom.mode_amplitudes().tolist()}
     for k in ("check_error", "check_errors", "error_estimate", "n_solves", "build_time_s", "material", "element",
               "mesh_checksum", "path", "load", "radius"):
@@ -104,38 +118,111 @@ def _info(rom) -> dict:
 @user_errors
 def info(
     model_file: Path = typer.Argument(..., help="reduced model (.npz)"),  # noqa: B008 - typer idiom
+    check: Path | None = typer.Option(None, "--check", help="the model's `rom build` file: also report its "  # noqa: B008 - typer idiom
+                                      "discretisation error against full solves on a twice finer mesh"),
+    check_points: int = typer.Option(3, "--check-points", min=1, max=100, help="parameter points of --check"),
     json_out: bool = typer.Option(False, "--json", help="print as JSON on stdout"),
 ) -> None:
-    """Describe a reduced model: method, modes, parameters and ranges, mesh, error estimates."""
+    """Describe a reduced model: method, modes, parameters (kind, range, unit), mesh, error estimates; with
+    --check CONFIG its error of displacement and von Mises stress against a finer check solve."""
     from physar.rom import SeparatedModel
 
-    d = _info(SeparatedModel.load(model_file))
+    rom = SeparatedModel.load(model_file)
+    d = _info(rom)
+    if check is not None:
+        from physar.rom.config import load_rom_config
+        from physar.rom.quality import discretisation_error
+
+        chk = discretisation_error(load_rom_config(check), rom, points=check_points, source=str(check))
+        d["check"] = chk.summary()
     if json_out:
         print_json(d)
         return
     for k, v in d.items():
-        if k == "mode_amplitudes":
-            v = ", ".join(f"{a:.2e}" for a in v)
-        log(f"{k}: {v}")
+        if k == "parameters":
+            for p in v:
+                lo, hi = p["range"]
+                log(f"parameter {p['name']}: {p['kind'] or 'unspecified'}, range [{lo:.6g}, {hi:.6g}] {p['unit']}, "
+                    f"{p['grid_points']} grid points")
+        elif k == "mode_amplitudes":
+            log(f"{k}: " + ", ".join(f"{a:.2e}" for a in v))
+        elif k == "check":
+            _log_check(v)
+        else:
+            log(f"{k}: {v}")
 
 
-@rom_app.command("eval")
+def _pct(v) -> str:
+    return "n/a" if v is None else f"{100 * v:.2g} %"
+
+
+def _log_check(c: dict) -> None:
+    """The discretisation check in a few lines (worst over the points, then each point)."""
+    log(f"check against a {c['refine']}x finer mesh ({c['dofs']} -> {c['fine_dofs']} dofs, {c['time_s']:.1f} s), "
+        f"relative errors (L2 / max):")
+    rows = [("displacement", "displacement"), ("von Mises, everywhere", "stress"),
+            (f"von Mises, >= {1e3 * c['away_m']:.3g} mm from supports and load", "away")]
+    width = max(len(label) for label, _ in rows) + 1
+    for label, key in rows:
+        log(f"  {label + ':':<{width}} {_pct(c[key + '_l2'])} / {_pct(c[key + '_max'])}")
+    for p in c["points"]:
+        mu = ", ".join(f"{n}={v:.4g}" for n, v in p["params"].items())
+        at = ", ".join(f"{x:.4g}" for x in p["stress_max_at"])
+        log(f"  at {mu}: displacement {_pct(p['displacement_max'])}, von Mises {_pct(p['stress_max'])} (largest at "
+            f"({at}) m), away {_pct(p['away_max'])}; peak {p['peak_von_mises']:.4g} Pa (finer mesh "
+            f"{p['peak_von_mises_fine']:.4g} Pa)")
+
+
+class _RepeatableProbe(TyperCommand):
+    """`rom eval` with ``--probe X Y Z`` repeatable (typer has no list-of-tuples option: three values each)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        for p in self.params:
+            if p.name == "probe":
+                p.nargs = 3
+
+
+def _probe_points(items) -> np.ndarray:
+    from physar.errors import ConfigError
+
+    try:
+        return np.array([[float(v) for v in it] for it in items], float).reshape(-1, 3)
+    except ValueError:
+        bad = next(" ".join(it) for it in items if not all(_is_number(v) for v in it))
+        raise ConfigError(f"--probe {bad}: expected three numbers x y z (m)") from None
+
+
+def _is_number(v) -> bool:
+    try:
+        float(v)
+    except ValueError:
+        return False
+    return True
+
+
+@rom_app.command("eval", cls=_RepeatableProbe)
 @user_errors
 def evaluate(
     model_file: Path = typer.Argument(..., help="reduced model (.npz)"),  # noqa: B008 - typer idiom
     param: list[str] = typer.Option([], "--param", help="NAME=VALUE, one per parameter, e.g. s=0.3"),  # noqa: B008 - typer idiom
-    probe: tuple[float, float, float] | None = typer.Option(None, "--probe", help="probe point x y z (m)"),
+    probe: list[Any] = typer.Option([], "--probe", metavar="X Y Z",  # noqa: B008 - typer idiom
+                                    help="probe point x y z \\[m]; repeat for more points"),
     out: Path | None = typer.Option(None, "--out", "-o", help="write the displacement field (.vtu/.xdmf)"),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json", help="print results as JSON on stdout"),
 ) -> None:
     """Evaluate u(mu) of a reduced model, at probe points and/or on the whole mesh."""
     from physar.fem import probe as fe_probe
+    from physar.geometry.io import VOLUME_FORMATS
+    from physar.output import check_destination
     from physar.rom import SeparatedModel
 
+    if out is not None:
+        check_destination(out, inputs=[model_file], suffixes=sorted(VOLUME_FORMATS), kind="displacement field")
+    pts = _probe_points(probe)
     rom = SeparatedModel.load(model_file)
     mu = _parse_params(rom, param)
     u = rom.evaluate(mu)
-    pts = np.array([] if probe is None else probe, float).reshape(-1, 3)
     space = rom.space() if (len(pts) or out) else None
     probes = [{"point": p.tolist(), "u": fe_probe(space, u, p).tolist()} for p in pts]
     res = {"params": dict(zip(rom.names, mu.tolist())),
