@@ -10,6 +10,12 @@ import typer
 
 from physar.cli._common import log, print_json, user_errors
 
+# Every file a demo writes (the scenes' report["files"]): the output folder may hold these and nothing else,
+# so that a demo never mixes its outputs with, or overwrites, a user's files.
+DEMO_FILES = frozenset({"scene.mp4", "truth.csv", "camera.toml", "model.npz", "model_von_mises.npz", "plate.png",
+                        "plate.json", "augmented.mp4", "estimates.csv", "estimate_vs_truth.png",
+                        "augmented_frame.png", "report.json", "cantilever.vtu", "cantilever.png"})
+
 
 def demo(
     out: Path = typer.Option(Path("demo_out"), "--out", "-o", help="output folder"),  # noqa: B008 - typer idiom
@@ -21,7 +27,11 @@ def demo(
 ) -> None:
     """Run the demo: video of a loaded beam in, augmented video + estimates + report out."""
     from physar.errors import ConfigError
+    from physar.output import check_folder
 
+    if scene not in ("ar", "foam", "seal", "cantilever"):
+        raise ConfigError(f"--scene must be ar, foam, seal or cantilever, got {scene!r}")
+    check_folder(out, own=lambda name: name in DEMO_FILES, kind="demo output folder")
     if scene == "cantilever":
         from physar.fem.examples import run_cantilever_demo
 
@@ -33,8 +43,6 @@ def demo(
                 f"{report['timoshenko_m'] * 1e3:.4f} mm (relative difference {report['relative_error']:.2%})")
             log(f"wrote {', '.join(str(out / f) for f in report['files'])}")
         return
-    if scene not in ("ar", "foam", "seal"):
-        raise ConfigError(f"--scene must be ar, foam, seal or cantilever, got {scene!r}")
     from tqdm import tqdm
 
     from physar.ar.demo import run_ar_demo

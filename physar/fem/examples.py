@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -17,6 +16,7 @@ from physar.fem.reference import timoshenko_cantilever_tip
 from physar.fem.solvers import solve_static
 from physar.geometry import TriMesh, box_mesh, write_mesh
 from physar.geometry.plot import render_surface
+from physar.output import write_json
 
 
 def cantilever(
@@ -70,7 +70,5 @@ def run_cantilever_demo(out: str | os.PathLike) -> dict:
         "dofs": space.n_dofs,
         "files": ["cantilever.vtu", "cantilever.png", "report.json"],
     }
-    tmp = out / ".report.json.tmp"
-    tmp.write_text(json.dumps(report, indent=2))
-    os.replace(tmp, out / "report.json")
+    write_json(out / "report.json", report, indent=2)
     return report

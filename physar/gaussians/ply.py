@@ -12,7 +12,6 @@ float or double; missing properties raise a :class:`PhysarError` naming the file
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +19,7 @@ import torch
 
 from physar.errors import PhysarError
 from physar.gaussians.model import Gaussians
+from physar.output import atomic_path
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
@@ -58,16 +58,9 @@ def save_ply(path: str | os.PathLike, g: Gaussians) -> Path:
     rec.view("<f4").reshape(n, len(names))[:] = data
     header = ["ply", "format binary_little_endian 1.0", "comment physar 3DGS layout",
               f"element vertex {n}"] + [f"property float {name}" for name in names] + ["end_header"]
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(("\n".join(header) + "\n").encode("ascii"))
-            f.write(rec.tobytes())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(rec.tobytes())
     return path
 
 

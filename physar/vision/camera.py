@@ -8,8 +8,6 @@ Lengths in m, pixels in px.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +16,7 @@ import cv2
 import numpy as np
 
 from physar.errors import ConfigError, PhysarError
+from physar.output import atomic_write_text, check_destination
 
 _DIST_SIZES = (0, 4, 5, 8, 12, 14)
 
@@ -190,14 +189,16 @@ class Camera:
 
     # --- files ------------------------------------------------------------------------------------
     def save(self, path, rms_px: float | None = None) -> None:
-        """Write the camera as TOML ([camera] width, height, matrix, distortion) atomically."""
+        """Write the camera as TOML ([camera] width, height, matrix, distortion) atomically; ``path`` must end
+        in .toml (so that an image given by mistake, ``-o board_0.png``, is refused, never overwritten)."""
         lines = ["# physar camera (pinhole + OpenCV distortion k1, k2, p1, p2, k3, ...)", "[camera]",
                  f"width = {self.width}", f"height = {self.height}",
                  "matrix = [" + ", ".join("[" + ", ".join(repr(float(v)) for v in row) + "]" for row in self.K) + "]",
                  "distortion = [" + ", ".join(repr(float(v)) for v in self.dist) + "]"]
         if rms_px is not None:
             lines.append(f"rms_px = {float(rms_px)!r}")
-        _atomic_write_text(path, "\n".join(lines) + "\n")
+        check_destination(path, suffixes=[".toml"], kind="camera file")
+        atomic_write_text(path, "\n".join(lines) + "\n")
 
     @classmethod
     def load(cls, path) -> Camera:
@@ -244,17 +245,7 @@ class Camera:
             raise ConfigError(f"{path}: {e}") from None
 
 
-def _atomic_write_text(path, text: str) -> None:
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent if str(path.parent) else ".")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+_atomic_write_text = atomic_write_text  # the name physar.cli.ar imports
 
 
 def rotation_x(deg: float) -> np.ndarray:
