@@ -14,6 +14,7 @@ coefficients (no scipy objects in the loop).
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -171,21 +172,46 @@ def _bounds(model, bounds):
     return lo, hi
 
 
+def _start(model, mu0, lo, hi) -> np.ndarray:
+    """The start vector: the centre of the ranges, ``mu0`` itself, or a partial mapping over the centre."""
+    centre = (lo + hi) / 2
+    if mu0 is None:
+        return centre
+    if isinstance(mu0, Mapping):
+        names = list(getattr(model, "names", []))
+        unknown = [n for n in mu0 if n not in names]
+        if unknown:
+            raise PhysarError(f"mu0: unknown parameter(s) {', '.join(map(str, unknown))}; the model has "
+                              f"{names}")
+        mu0 = np.array([float(mu0.get(n, c)) for n, c in zip(names, centre)])
+    mu0 = np.asarray(mu0, float).ravel()
+    if mu0.shape != lo.shape:
+        raise PhysarError(f"mu0 must have {lo.size} values, got {mu0.size}")
+    if not np.all(np.isfinite(mu0)):
+        raise PhysarError(f"mu0 must be finite, got {mu0.tolist()}")
+    return mu0
+
+
 def assimilate(model, observed, mu0=None, bounds=None, alpha=0.0, prior=None, max_iter=50,
                tol=1e-10, restart_residual=None, n_starts=7):
     """Estimate the parameters from observed displacements (model.set_observation must match).
 
-    ``restart_residual``: if the relative residual ||r||/||u_obs|| stays above it, a coarse
-    multi-start over ``n_starts`` points per parameter is run and the best result kept.
+    ``mu0``: the start, all parameters (an array) or some of them (a mapping name -> value over
+    ``model.names``; the others start at the centre of their range). ``restart_residual``: if the relative
+    residual ||r||/||u_obs|| stays above it, a coarse multi-start over ``n_starts`` points per parameter is
+    run and the best result kept. ``alpha`` and ``restart_residual`` must be finite and >= 0.
     """
     t0 = time.perf_counter()
     y = np.asarray(observed, float).ravel()
     if not np.all(np.isfinite(y)):
         raise PhysarError("observed displacements contain NaN or inf")
+    if not 0 <= alpha < np.inf:
+        raise PhysarError(f"alpha (Tikhonov weight) must be a finite number >= 0, got {alpha}")
+    if restart_residual is not None and not 0 <= restart_residual < np.inf:
+        raise PhysarError("restart_residual (relative residual) must be a finite number >= 0, got "
+                          f"{restart_residual}")
     lo, hi = _bounds(model, bounds)
-    mu0 = (lo + hi) / 2 if mu0 is None else np.asarray(mu0, float).ravel()
-    if mu0.shape != lo.shape:
-        raise PhysarError(f"mu0 must have {lo.size} values, got {mu0.size}")
+    mu0 = _start(model, mu0, lo, hi)
     prior = mu0 if prior is None else np.asarray(prior, float)
     fast = getattr(model, "_obs_qr", None) is not None and hasattr(model, "_coeffs")
     restarted = False
@@ -288,8 +314,13 @@ def read_observations(path) -> tuple[np.ndarray, np.ndarray]:
         raise ConfigError(f"observation file not found: {path}")
     import csv
 
-    with open(path, newline="") as fh:
-        rows = list(csv.reader(fh))
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            rows = list(csv.reader(fh))
+    except (UnicodeDecodeError, csv.Error):
+        raise ConfigError(f"{path}: not a text CSV file (need a header x,y,z,ux,uy,uz)") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the observation file ({exc.strerror or exc})") from None
     rows = [r for r in rows if r and not r[0].lstrip().startswith("#")]
     if not rows:
         raise ConfigError(f"{path}: empty observation file")
