@@ -6,6 +6,10 @@ with code 2. Anything else is a bug.
 """
 
 
+import types
+import typing
+
+
 class PhysarError(Exception):
     """An error caused by the input (file, field, value), with a message a user can act on."""
 
@@ -78,3 +82,44 @@ def _type_args(ann) -> tuple:
     """Type arguments of ``ann``, one level of nesting included (``list[Model] | None`` -> Model)."""
     args = getattr(ann, "__args__", ())
     return (*args, *(b for a in args for b in getattr(a, "__args__", ())))
+
+
+def refuse_coercion(value, annotation):
+    """``value`` unchanged, or ValueError when pydantic would silently coerce it into ``annotation``.
+
+    Config files are TOML, whose numbers, booleans and strings are distinct types; pydantic's lax mode reads
+    ``E = true`` as 1.0 and ``E = "69e9"`` or ``cells = ["40", 2, 2]`` as numbers. A number field (int or
+    float, also inside tuples, lists, dicts and unions) refuses a boolean or a string, and a bool field
+    refuses anything but true/false. Used as a ``field_validator("*", mode="before")`` of the config models
+    (their ``_Strict`` base); the message becomes ``file: [table.key] ...`` (:func:`format_validation_error`).
+    """
+    msg = _coercion(value, annotation)
+    if msg is not None:
+        raise ValueError(msg)
+    return value
+
+
+def _coercion(value, ann) -> str | None:
+    origin, args = typing.get_origin(ann), typing.get_args(ann)
+    if origin is typing.Annotated:
+        return _coercion(value, args[0])
+    if origin in (typing.Union, types.UnionType):
+        found = [_coercion(value, a) for a in args if a is not type(None) or value is None]
+        return None if not found or any(f is None for f in found) else found[0]
+    if origin in (list, tuple, set, frozenset) and isinstance(value, (list, tuple)):
+        if origin is tuple and args and args[-1] is not Ellipsis:
+            pairs = zip(value, args)
+        else:
+            pairs = ((v, args[0] if args else typing.Any) for v in value)
+        return next((m for v, a in pairs if (m := _coercion(v, a)) is not None), None)
+    if origin is dict and isinstance(value, dict) and len(args) == 2:
+        return next((m for v in value.values() if (m := _coercion(v, args[1])) is not None), None)
+    if ann in (int, float):
+        kind = "an integer" if ann is int else "a number"
+        if isinstance(value, bool):
+            return f"expected {kind}, got {str(value).lower()} (a boolean)"
+        if isinstance(value, str):
+            return f"expected {kind}, got the string {value!r} (write it without quotes)"
+    if ann is bool and not isinstance(value, bool):
+        return f"expected true or false, got {value!r}"
+    return None

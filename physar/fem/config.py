@@ -13,9 +13,17 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
-from physar.errors import ConfigError, MeshError, PhysarError, format_validation_error
+from physar.errors import ConfigError, MeshError, PhysarError, format_validation_error, refuse_coercion
 from physar.fem.assembly import ElasticModel
 from physar.fem.elements import FESpace
 from physar.fem.loads import gravity_load, point_load, select_nodes_mask, traction_load
@@ -30,6 +38,11 @@ Box = tuple[Vec3, Vec3]
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_coercion(cls, value, info):  # E = true, E = "69e9" and cells = ["40", 2, 2] are errors, not numbers
+        return refuse_coercion(value, cls.model_fields[info.field_name].annotation)
 
 
 class MeshSection(_Strict):

@@ -46,7 +46,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from physar.errors import ConfigError, format_validation_error
+from physar.errors import ConfigError, format_validation_error, refuse_coercion
 from physar.mpm.colliders import MAX_COLLIDERS, Collider
 from physar.mpm.constitutive import ELASTIC_CODES, PLASTIC_CODES, drucker_prager_alpha
 from physar.mpm.model import MPMModel
@@ -69,6 +69,11 @@ Vec3 = tuple[float, float, float]
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_coercion(cls, value, info):  # E = true, E = "69e9" and cells = ["40", 2, 2] are errors, not numbers
+        return refuse_coercion(value, cls.model_fields[info.field_name].annotation)
 
 
 class Grid(_Strict):

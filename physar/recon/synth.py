@@ -66,9 +66,9 @@ from typing import Literal
 
 import cv2
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from physar.errors import ConfigError, format_validation_error
+from physar.errors import ConfigError, format_validation_error, refuse_coercion
 from physar.mpm.model import Control, MPMModel, MPMSolver
 from physar.output import atomic_folder, check_folder, own_names
 from physar.recon import scene as S
@@ -89,6 +89,11 @@ class SynthConfig(BaseModel):
     """Parameters of a synthetic scene (SI units)."""
 
     model_config = ConfigDict(extra="forbid")
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_coercion(cls, value, info):  # E = true, E = "69e9" and cells = ["40", 2, 2] are errors, not numbers
+        return refuse_coercion(value, cls.model_fields[info.field_name].annotation)
+
     image_size: int = Field(64, ge=16, le=1024, description="square image side, px")
     fov_deg: float = Field(35.0, gt=5, lt=120)
     object: Literal["pillow", "c_pillow", "bag"] = Field("pillow", description="pillow | c_pillow | bag")

@@ -49,10 +49,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from scipy.spatial import cKDTree
 
-from physar.errors import ConfigError, PhysarError
+from physar.errors import ConfigError, PhysarError, refuse_coercion
 from physar.gaussians import Camera, Gaussians, render, rgb_to_sh0, save_ply
 from physar.mpm import torch_bridge as tb
 from physar.mpm.model import MPMModel
@@ -75,6 +75,11 @@ class TrainConfig(BaseModel):
         return self
 
     model_config = ConfigDict(extra="forbid")
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_coercion(cls, value, info):  # E = true, E = "69e9" and cells = ["40", 2, 2] are errors, not numbers
+        return refuse_coercion(value, cls.model_fields[info.field_name].annotation)
+
     particles_per_cell: int = Field(1, description="object/body MPM particles per grid cell: 1, 8 or 27")
     body_spacing: float = Field(0.03, gt=0, description="spacing of the kinematic body Gaussians, m")
     appearance_iters: int = Field(150, ge=0)
