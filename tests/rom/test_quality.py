@@ -36,7 +36,8 @@ def _config(element, cells=(10, 1, 1), mesh=None, fix=None):
 
 
 def _true_errors(cfg, rom):
-    """(tip deflection error vs Timoshenko, fibre von Mises error vs M c / I in the check's away zone)."""
+    """(tip deflection error vs Timoshenko, fibre von Mises error vs M c / I in the check's away zone relative to
+    the largest bending stress P a c / I, as the check normalises by the whole field)."""
     problem = build_problem(cfg)
     u = rom.evaluate([A])
     e_u = 1 - np.abs(u.reshape(-1, 3)[:, 2]).max() / _tip_deflection(A)
@@ -47,12 +48,12 @@ def _true_errors(cfg, rom):
     away, _ = _away(problem.space, problem.fixed, np.array([A, B / 2, H]), R)
     fibre = away & (np.isclose(X[:, 2], 0) | np.isclose(X[:, 2], H))
     beam = P * np.clip(A - X[fibre, 0], 0, None) * (H / 2) / I
-    return e_u, np.abs(vm[fibre] - beam).max() / beam.max()
+    return e_u, np.abs(vm[fibre] - beam).max() / (P * A * (H / 2) / I)
 
 
 def test_a_coarse_model_has_a_large_error_that_bounds_its_true_error():
-    """P1 10x1x1 (locks in bending): 78 % short of Timoshenko's deflection, 94 % off the fibre stress. The
-    check reports about 3/4 and 1/2 of that (measured 0.71, 0.71; asserted 1/2..1 and 1/4..1). Catches: the check comparing the model with itself or with
+    """P1 10x1x1 (locks in bending): 78 % short of Timoshenko's deflection, 67 % off the fibre stress. The
+    check reports about 3/4 and 1/2 of that (measured 0.71, 0.53; asserted 1/2..1 and 1/4..1). Catches: the check comparing the model with itself or with
     the coarse mesh (0), errors normalised by the model instead of the check solve (> 1)."""
     cfg = _config("P1")
     rom, _, _ = build_rom(cfg)
