@@ -1,6 +1,10 @@
 """Separated parametric models u(x, mu) = sum_i F_i(x) prod_j G_i^j(mu_j) (seed 000, §2.2 and §4).
 
-Displacements in m, parameters in the units given by ``units``.
+Displacements in m, parameters in the units given by ``units``; ``kinds`` says what each parameter is
+(:data:`KIND_UNITS`: a load position, a load magnitude, a prescribed displacement, ...).
+
+File format (``.npz``, no pickle): version 2 stores ``kinds``; version 1 files (no ``kinds``) still load,
+their kinds taken from the build configuration in the metadata or, failing that, from the units.
 """
 from __future__ import annotations
 
@@ -15,7 +19,12 @@ from scipy.interpolate import CubicSpline
 
 from physar.errors import PhysarError
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+
+#: the parameter kinds of ``physar rom build`` and their default units
+KIND_UNITS = {"load_position": "m", "load_magnitude": "N", "load_offset": "m", "displacement": "m",
+              "rotation": "deg", "youngs_modulus": "Pa"}
 
 
 class ReducedModelError(PhysarError, ValueError):
@@ -33,7 +42,7 @@ class SeparatedModel:
     Outside the grid the end polynomials extrapolate (as scipy's CubicSpline does).
     """
 
-    def __init__(self, F, grids, G, names, units=None, metadata=None):
+    def __init__(self, F, grids, G, names, units=None, metadata=None, kinds=None):
         F = np.asarray(F, float)
         if F.ndim != 2:
             raise PhysarError(f"SeparatedModel: F must be 2-D (n_modes, n_dof), got shape {F.shape}")
@@ -50,6 +59,9 @@ class SeparatedModel:
         self.names = list(names)
         self.units = list(units) if units is not None else [""] * len(names)
         self.metadata = dict(metadata or {})
+        self.kinds = list(kinds) if kinds is not None else infer_kinds(self.names, self.units, self.metadata)
+        if len(self.kinds) != len(self.names):
+            raise PhysarError(f"SeparatedModel: {len(self.kinds)} kinds for {len(self.names)} parameters")
         # piecewise-cubic coefficients per interval, rows for t^3, t^2, t, 1: (n_int, 4, n_modes)
         self._coef = [np.ascontiguousarray(CubicSpline(x, g, axis=1).c.transpose(1, 0, 2))
                       for x, g in zip(self.grids, self.G)]
@@ -147,7 +159,7 @@ class SeparatedModel:
         if not 1 <= n <= self.n_modes:
             raise PhysarError(f"cannot keep {n} of {self.n_modes} modes")
         return SeparatedModel(self.F[:n], self.grids, [g[:n] for g in self.G], self.names, self.units,
-                              self.metadata)
+                              self.metadata, self.kinds)
 
     def mode_amplitudes(self):
         """||F_i|| prod_j ||G_i^j||_inf, the amplitude of each mode (decreasing for a good PGD)."""
@@ -168,6 +180,7 @@ class SeparatedModel:
             meta["mesh_checksum"] = mesh.checksum()
         arrays = {"format_version": np.array(FORMAT_VERSION), "F": self.F,
                   "names": np.array(self.names, dtype=str), "units": np.array(self.units, dtype=str),
+                  "kinds": np.array(self.kinds, dtype=str),
                   "meta_keys": np.array(list(meta), dtype=str),
                   "meta_values": np.array([str(v) for v in meta.values()], dtype=str),
                   "metadata_json": np.array(json.dumps(meta, default=_jsonable))}
@@ -212,10 +225,10 @@ class SeparatedModel:
                 v = int(z["format_version"])
             except (TypeError, ValueError):
                 raise ReducedModelError(f"{path}: unreadable format_version") from None
-            if v != FORMAT_VERSION:
+            if v not in READABLE_VERSIONS:
                 raise ReducedModelError(
-                    f"{path}: reduced-model format version {v}, this physar reads version {FORMAT_VERSION}; "
-                    "rebuild it with `physar rom build`")
+                    f"{path}: reduced-model format version {v}, this physar reads version {FORMAT_VERSION} "
+                    f"(and {', '.join(map(str, READABLE_VERSIONS[:-1]))}); rebuild it with `physar rom build`")
             try:
                 names = [str(s) for s in z["names"]]
                 if "metadata_json" in z.files:
@@ -224,7 +237,8 @@ class SeparatedModel:
                     meta = dict(zip([str(k) for k in z["meta_keys"]], [str(s) for s in z["meta_values"]]))
                 model = cls(z["F"], [z[f"grid_{j}"] for j in range(len(names))],
                             [z[f"G_{j}"] for j in range(len(names))], names,
-                            [str(s) for s in z["units"]], meta)
+                            [str(s) for s in z["units"]], meta,
+                            [str(s) for s in z["kinds"]] if v >= 2 else None)  # version 1: inferred
                 if "mesh_points" in z.files:
                     model._mesh_arrays = (z["mesh_points"], z["mesh_cells"])
             except KeyError as e:
@@ -268,6 +282,25 @@ class SeparatedModel:
         if not cache:
             cache.append(FESpace(self.mesh(), self.metadata.get("element", "P2")))
         return cache[0]
+
+
+def infer_kinds(names, units, metadata) -> list[str]:
+    """Kinds of parameters stored without them (format version 1, models built in code): from the build
+    configuration in ``metadata["parameters"]`` when it names them, else from the units (version 1 knew
+    only load_position "m", load_magnitude "N" and load_offset "m", in that order); "unspecified" else."""
+    params = metadata.get("parameters")
+    if isinstance(params, list) and len(params) == len(names) and all(
+            isinstance(p, dict) and p.get("kind") in KIND_UNITS and p.get("name") == n for p, n in zip(params, names)):
+        return [p["kind"] for p in params]
+    kinds, seen_length = [], False
+    for u in units:
+        if u == "m":
+            kinds.append("load_offset" if seen_length else "load_position")
+            seen_length = True
+        else:
+            kinds.append({"N": "load_magnitude", "deg": "rotation", "rad": "rotation", "Pa": "youngs_modulus"}
+                         .get(u, "unspecified"))
+    return kinds
 
 
 def _jsonable(v):
