@@ -120,6 +120,21 @@ def select_nodes_mask(space: FESpace, box=None, region=None, points=None, plane=
     return mask
 
 
+def select_cells_mask(space: FESpace, box=None, region=None, what: str = "selection") -> np.ndarray:
+    """Mask over the cells (tetrahedra) picked by a `box` (the cell centroid lies in it, closed) or a mesh
+    `region` (its tagged tetrahedra); neither: every cell. A region of triangles only selects no cell.
+    An empty selection is not an error here."""
+    mesh = space.mesh
+    if box is not None and region is not None:
+        raise ConfigError("give at most one of box, region (a cell selection)")
+    if box is not None:
+        return in_box(mesh.points[mesh.cells].mean(axis=1), box, tol=1e-9 * max(np.ptp(mesh.points, axis=0).max(), 1e-300))
+    if region is not None:
+        _, cells = _region(space, region, what)
+        return cells if cells.size == mesh.n_cells else np.zeros(mesh.n_cells, bool)
+    return np.ones(mesh.n_cells, bool)
+
+
 def select_faces(space: FESpace, box=None, region=None, points=None, plane=None, tol=None,
                  what: str = "selection") -> np.ndarray:
     """Indices of boundary faces (of ``space.mesh.boundary()``) picked by exactly one selector.
