@@ -10,7 +10,7 @@ against references that share nothing with the overlay's stress recovery:
 Both at the load positions s = 0.2, 0.35, 0.5 m and at the overlay's own surface vertices, in the zone the
 README calls trustworthy: at least one beam depth h from the clamp (whose edge is a stress singularity of a
 perfect clamp) and h beyond the load's radius from the load point (contact stress). The drawn maximum over the
-whole surface must also be on the safe side of beam theory's clamp stress P s c / I, as the README states.
+whole surface must also not fall below beam theory's clamp stress P s c / I (2 % allowed; README: 0.999-1.03).
 
 Catches the mutant of element-averaged stress then nodal averaging (the overlay's recovery before: 31 % low in
 the zone, 35 % low at the clamp).
@@ -57,7 +57,7 @@ def _zone(X, s):
 def test_overlay_stress_matches_beam_theory(drawn):
     """On the top and bottom fibres of the zone every drawn value is within 5 % of the zone's peak of M c / I,
     and the zone's drawn maximum within 5 % of beam theory's there; the maximum drawn anywhere (at the clamp)
-    is at least 0.98 P s c / I (README: not below beam theory's clamp stress)."""
+    is at least 0.98 P s c / I (README: 0.999-1.03 times the beam-theory clamp stress)."""
     X, values = drawn
     for s, v in values.items():
         fibre = _zone(X, s) & ((np.abs(X[:, 2]) < 1e-12) | (np.abs(X[:, 2] - H) < 1e-12))
