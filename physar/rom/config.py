@@ -21,9 +21,39 @@ Example (see README, "Reduced models")::
     kind = "load_magnitude"
     range = [0.5, 2.0]
     [rom]
-    method = "pgd"                            # "pgd" | "pgd_nonintrusive" | "pod"
-    max_modes = 20
+    method = "pgd"                            # "pgd" | "pgd_nonintrusive" | "pod"; default: "pgd" for a
+    max_modes = 20                            # linear material, else "pgd_nonintrusive"
     tol = 1e-4
+
+Other kinds (1 to 3 parameters in all, in any combination; load_magnitude and load_offset act on the one
+load_position parameter), see :mod:`physar.rom.problem` for what each does::
+
+    [[parameter]]                             # a prescribed translation u = d direction of a region
+    name = "d"
+    kind = "displacement"                     # unit "m"
+    range = [-0.01, 0.01]
+    direction = [0, 0, 1]
+    box = [[0.9, 0, 0], [1, 0.1, 0.1]]        # region: box | region (mesh tag) | at (points) + tol | plane
+    [[parameter]]                             # a rigid rotation of a region: the finite rotation
+    name = "theta"                            # u = R(theta)(X - point) + point - X
+    kind = "rotation"                         # unit "deg" (default) or "rad"; right hand about axis
+    range = [-20, 20]
+    axis = [0, 1, 0]
+    point = [1.0, 0.05, 0.2]
+    plane = {point = [1, 0, 0], normal = [1, 0, 0]}
+    [[parameter]]                             # Young's modulus of the cells of a region (box: centroid in
+    name = "E"                                # it, or region = a tag of tetrahedra; default every cell;
+    kind = "youngs_modulus"                   # the rest keeps [material] E); unit "Pa"; grid geometric
+    range = [1e6, 1e7]
+    box = [[0, 0, 0], [0.5, 0.1, 0.1]]
+
+`points` is the grid of each parameter (intrusive PGD, POD; its initial samples non-intrusively), an integer
+3..2001, so the point-set selector of a region is ``at`` here. Nodes of a prescribed region are driven by
+it (all three components), not by a [[fix]] they also lie in; [[fix]] values and [[load]] tables apply at
+every parameter value. The method: intrusive PGD (:func:`physar.rom.elastic.build_parametric_pgd`) for a
+linear material, where the operator is affine in E and the loads and prescribed displacements are
+separated in the parameters (a rotation too: cos theta - 1 and sin theta); non-intrusive PGD (full
+Newton solves as a black box) for any other material.
 
 The load point is ``physar.geometry.path_point(path, s)``; a point off the surface loads the body where
 the bump kernel of radius ``radius`` meets it (as a fem ``point`` load does). The load of ``rom eval``
@@ -37,30 +67,68 @@ from collections.abc import Callable
 from typing import Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
-from physar.errors import ConfigError
-from physar.fem.config import FemConfig, Vec3, _Strict, build_problem, load_config
+from physar.errors import ConfigError, SolverError
+from physar.fem.config import Box, FemConfig, PlaneSelector, Vec3, _Strict, build_problem, load_config
+from physar.fem.loads import select_cells_mask, select_nodes_mask
+from physar.fem.solvers import check_constraints
+from physar.rom.problem import LOAD_KINDS, Modulus, ParametricProblem, Rotation, Translation, moving_load
+from physar.rom.separated import KIND_UNITS, SeparatedModel
+
+Kind = Literal["load_position", "load_magnitude", "load_offset", "displacement", "rotation", "youngs_modulus"]
+MAX_POINTS = 2001
+_NEEDS = {"load_position": ("path", "load", "radius"), "load_magnitude": ("range",),
+          "load_offset": ("range", "direction"), "displacement": ("range", "direction"),
+          "rotation": ("range", "axis", "point"), "youngs_modulus": ("range",)}
+_SELECTORS = ("box", "region", "at", "plane")
+_NODE_KINDS = ("displacement", "rotation")
+_UNITS = {"displacement": ("m",), "rotation": ("deg", "rad"), "youngs_modulus": ("Pa",)}
 
 
 class ParameterSection(_Strict):
     name: str = Field(..., min_length=1)
-    kind: Literal["load_position", "load_magnitude", "load_offset"]
+    kind: Kind
     path: list[Vec3] | None = Field(None, min_length=2, description="polyline [[x0,y0,z0],[x1,y1,z1],...] (m)")
-    points: int = Field(60, ge=3, description="grid points of the parameter")
+    points: int = Field(60, description=f"grid points of the parameter, an integer 3..{MAX_POINTS}")
     load: Vec3 | None = Field(None, description="total force (N)")
     radius: float | None = Field(None, gt=0, description="m")
     range: tuple[float, float] | None = None
-    direction: Vec3 | None = Field(None, description="offset direction (load_offset)")
+    direction: Vec3 | None = Field(None, description="offset direction (load_offset), translation (displacement)")
     unit: str | None = None
+    axis: Vec3 | None = Field(None, description="rotation axis (right hand)")
+    point: Vec3 | None = Field(None, description="a point of the rotation axis (m)")
+    box: Box | None = None
+    region: str | int | None = Field(None, description="mesh tag (physical group) name or id")
+    at: list[Vec3] | None = Field(None, min_length=1, description="nodes within tol of these points (m)")
+    tol: float | None = Field(None, ge=0, description="m, for at; default 1e-9 of the mesh extent")
+    plane: PlaneSelector | None = None
+
+    @field_validator("points", mode="before")
+    @classmethod
+    def _grid_size(cls, v, info):
+        if isinstance(v, bool) or not isinstance(v, int) or not 3 <= v <= MAX_POINTS:
+            name = info.data.get("name")
+            raise ValueError(f"points = {v!r} is not an integer from 3 to {MAX_POINTS} (the grid of parameter "
+                             f"{name!r})")
+        return v
 
     @model_validator(mode="after")
     def _needed(self):
-        need = {"load_position": ("path", "load", "radius"), "load_magnitude": ("range",),
-                "load_offset": ("range", "direction")}[self.kind]
-        missing = [k for k in need if getattr(self, k) is None]
+        what = f"a {self.kind} parameter"
+        missing = [k for k in _NEEDS[self.kind] if getattr(self, k) is None]
         if missing:
-            raise ValueError(f"a {self.kind} parameter needs {', '.join(missing)}")
+            raise ValueError(f"{what} needs {', '.join(missing)}")
+        new = ("axis", "point", *_SELECTORS, "tol")
+        allowed = {"displacement": ("direction", *_SELECTORS, "tol"), "rotation": ("axis", "point", *_SELECTORS, "tol"),
+                   "youngs_modulus": ("box", "region")}.get(self.kind, ())
+        extra = [k for k in new if getattr(self, k) is not None and k not in allowed]
+        if self.kind in ("youngs_modulus", "rotation") and self.direction is not None:
+            extra.insert(0, "direction")
+        if self.kind in _UNITS:
+            extra += [k for k in ("path", "load", "radius") if getattr(self, k) is not None]
+        if extra:
+            raise ValueError(f"{', '.join(extra)} does not apply to {what}")
         if self.range is not None and not self.range[1] > self.range[0]:
             raise ValueError(f"range must be increasing, got {list(self.range)}")
         if self.kind == "load_position":
@@ -70,20 +138,61 @@ class ParameterSection(_Strict):
                 raise ValueError(f"path segment {i} (points {i} and {i + 1}) has zero length")
         if self.kind == "load_position" and np.linalg.norm(self.load) <= 0:
             raise ValueError("load must be non-zero")
-        if self.direction is not None and np.linalg.norm(self.direction) <= 0:
-            raise ValueError("direction must be non-zero")
+        for k in ("direction", "axis"):
+            if getattr(self, k) is not None and np.linalg.norm(getattr(self, k)) <= 0:
+                raise ValueError(f"{k} must be non-zero")
+        return self._kind_rules()
+
+    def _kind_rules(self):
+        if self.kind in _UNITS and self.unit is not None and self.unit not in _UNITS[self.kind]:
+            raise ValueError(f"unit = {self.unit!r}: a {self.kind} parameter is in "
+                             f"{' or '.join(repr(u) for u in _UNITS[self.kind])}")
+        given = [k for k in _SELECTORS if getattr(self, k) is not None]
+        if self.kind in _NODE_KINDS and len(given) != 1:
+            raise ValueError(f"a {self.kind} parameter needs exactly one of box, region, at, plane (the nodes "
+                             f"it moves; got {', '.join(given) or 'none'})")
+        if self.kind == "youngs_modulus" and len(given) > 1:
+            raise ValueError(f"give at most one of box, region (the cells of E; got {', '.join(given)})")
+        if self.tol is not None and self.at is None:
+            raise ValueError("tol applies to at (a plane takes its own tol)")
+        if self.kind == "youngs_modulus" and self.range[0] <= 0:
+            raise ValueError(f"range of Young's modulus must be > 0 Pa, got {list(self.range)}")
+        if self.kind == "rotation":
+            limit = 360.0 if self.unit != "rad" else 2 * np.pi
+            if max(abs(self.range[0]), abs(self.range[1])) > limit:
+                raise ValueError(f"range {list(self.range)} of a rotation exceeds one turn "
+                                 f"({'2 pi rad' if self.unit == 'rad' else '360 deg'})")
         return self
+
+    def selector(self) -> dict:
+        """Keywords of :func:`physar.fem.loads.select_nodes_mask` (``at`` is its ``points``)."""
+        plane = None if self.plane is None else (self.plane.point, self.plane.normal)
+        tol = self.plane.tol if self.plane is not None else self.tol
+        return {"box": self.box, "region": self.region, "points": self.at, "plane": plane, "tol": tol}
+
+    def describe(self) -> str:
+        if self.box is not None:
+            return f"box {list(map(list, self.box))}"
+        if self.region is not None:
+            return f"region {self.region!r}"
+        if self.at is not None:
+            return f"at {list(map(list, self.at))} (tol {self.tol})"
+        if self.plane is not None:
+            return f"plane {{point={list(self.plane.point)}, normal={list(self.plane.normal)}, tol={self.plane.tol}}}"
+        return "every cell"
 
 
 class RomSection(_Strict):
-    method: Literal["pgd", "pgd_nonintrusive", "pod"] = "pgd"
+    method: Literal["pgd", "pgd_nonintrusive", "pod"] | None = Field(
+        None, description="default: pgd for a linear material, else pgd_nonintrusive")
     max_modes: int = Field(20, ge=1)
     tol: float = Field(1e-4, gt=0, description="PGD: relative mode amplitude; POD: energy; "
                                                 "non-intrusive: relative error at new samples")
     check_points: int = Field(5, ge=0, description="random full solves for the error estimate (pgd)")
     check_tol: float | None = Field(None, gt=0, description="pgd: also stop once the error estimate at the "
                                                              "check points is <= check_tol")
-    max_points: int = Field(65, ge=3, description="non-intrusive: max samples per parameter")
+    max_points: int = Field(65, ge=3, le=MAX_POINTS, strict=True, description="non-intrusive: max samples per "
+                                                                                "parameter")
     workers: int | None = Field(None, ge=1, description="non-intrusive: Dask LocalCluster workers")
     scheduler: str | None = Field(None, description="non-intrusive: address of a Dask scheduler")
 
@@ -97,25 +206,34 @@ class RomSection(_Strict):
 class RomConfig(FemConfig):
     """Top level of a `physar rom build` file: a FemConfig plus [[parameter]] and [rom]."""
 
-    parameter: list[ParameterSection]
+    parameter: list[ParameterSection] = Field(..., min_length=1)
     rom: RomSection = RomSection()
 
     @model_validator(mode="after")
     def _parameters(self):
         kinds = [p.kind for p in self.parameter]
-        if kinds.count("load_position") != 1 or kinds[0] != "load_position":
-            raise ValueError("the first [[parameter]] must be the one kind = \"load_position\" parameter")
-        if kinds.count("load_magnitude") > 1 or kinds.count("load_offset") > 1:
-            raise ValueError("at most one load_magnitude and one load_offset [[parameter]]")
-        if len(self.parameter) > 3:
-            raise ValueError("at most 3 [[parameter]] tables")
+        if len(kinds) > 3:
+            raise ValueError(f"at most 3 [[parameter]] tables (estimated jointly), got {len(kinds)}")
+        for k in LOAD_KINDS:
+            if kinds.count(k) > 1:
+                raise ValueError(f"at most one kind = \"{k}\" [[parameter]] (got {kinds.count(k)})")
+        for k in ("load_magnitude", "load_offset"):
+            if k in kinds and "load_position" not in kinds:
+                name = self.parameter[kinds.index(k)].name
+                raise ValueError(f"[[parameter]] {name!r}: a {k} parameter acts on the load of a "
+                                 "kind = \"load_position\" [[parameter]]; there is none")
         names = [p.name for p in self.parameter]
         if len(set(names)) != len(names):
             raise ValueError(f"parameter names must be distinct, got {names}")
-        if self.load:
-            raise ValueError("[[load]] is not used by `rom build`: the load is the [[parameter]] load_position")
+        if "youngs_modulus" in kinds and self.material.E is None:
+            name = self.parameter[kinds.index("youngs_modulus")].name
+            raise ValueError(f"[[parameter]] {name!r}: a youngs_modulus parameter needs [material] E (the "
+                             "modulus outside its region and the reference of the others)")
+        if self.rom.method is None:  # the default: intrusive where the model is linear
+            self.rom = self.rom.model_copy(update={"method": "pgd" if self.material.model == "linear"
+                                                   else "pgd_nonintrusive"})
         order = {"load_position": 0, "load_magnitude": 1, "load_offset": 2}
-        self.parameter.sort(key=lambda p: order[p.kind])
+        self.parameter.sort(key=lambda p: order.get(p.kind, 3))
         return self
 
 
@@ -125,83 +243,189 @@ def load_rom_config(path) -> RomConfig:
 
 def build_rom(cfg: RomConfig, progress: Callable[[int, int], None] | None = None, source: str = "config",
               workers: int | None = None, scheduler: str | None = None):
-    """Build the reduced model a RomConfig describes. Returns (SeparatedModel, space, info)."""
+    """Build the reduced model a RomConfig describes. Returns (SeparatedModel, space, info).
+
+    A moving load alone (load_position, with load_magnitude / load_offset) on supports at u = 0 takes the
+    moving-load builders (:func:`physar.rom.elastic.build_moving_load_pgd`, POD, non-intrusive); every
+    other combination the general :class:`physar.rom.problem.ParametricProblem`.
+    """
     problem = build_problem(cfg)
-    space, model, fixed = problem.space, problem.model, problem.fixed
-    if problem.prescribed is not None and np.any(problem.prescribed[fixed] != 0):
-        raise ConfigError(f"{source}: [[fix]] value (prescribed displacement) is not supported by `rom build`")
+    r = cfg.rom
+    workers = workers if workers is not None else r.workers
+    scheduler = scheduler if scheduler is not None else r.scheduler
+    kinds = [p.kind for p in cfg.parameter]
+    fix_values = problem.prescribed is not None and np.any(problem.prescribed[problem.fixed] != 0)
+    t0 = time.perf_counter()
+    if r.method in ("pgd", "pod") and not problem.model.linear:
+        raise ConfigError(f"{source}: [rom] method = {r.method!r} needs [material] model = \"linear\"; "
+                          "use method = \"pgd_nonintrusive\" for a nonlinear material")
+    if set(kinds) <= set(LOAD_KINDS) and not cfg.load and not fix_values:
+        rom, info = _build_moving_load(cfg, problem, progress, source, workers, scheduler)
+    else:
+        if r.method == "pod":
+            raise ConfigError(f"{source}: [rom] method = \"pod\" builds a moving load alone (load_position, "
+                              "load_magnitude) on fixed supports; use \"pgd\" or \"pgd_nonintrusive\"")
+        rom, info = _build_parametric(cfg, build_parametric_problem(cfg, problem, source), progress, workers,
+                                      scheduler)
+    rom.names = [p.name for p in cfg.parameter]
+    rom.units = [p.unit or KIND_UNITS[p.kind] for p in cfg.parameter]
+    rom.kinds = kinds
+    rom.metadata.update({"method": r.method, "material": cfg.material.model,
+                         "material_params": cfg.material.model_dump(exclude_none=True),
+                         "parameters": [p.model_dump(exclude_none=True) for p in cfg.parameter],
+                         "fixed_dofs": len(problem.fixed), "build_time_s": time.perf_counter() - t0})
+    if "check_errors" in info:
+        rom.metadata["check_errors"] = [float(v) for v in info["check_errors"]]
+    for k in ("check_error", "error_estimate", "n_solves", "svd_rank", "n_prescribed_modes"):
+        if k in info:
+            v = info[k]
+            rom.metadata[k] = int(v) if k in ("n_solves", "svd_rank", "n_prescribed_modes") else float(v)
+    if "amplitudes" in info:
+        rom.metadata["mode_amplitudes"] = [float(a) for a in info["amplitudes"]]
+    return rom, problem.space, info
+
+
+def _build_moving_load(cfg, problem, progress, source, workers, scheduler):
+    """A moving load alone: the builders of :mod:`physar.rom.elastic`, :mod:`pod`, :mod:`nonintrusive`."""
+    model, fixed, r = problem.model, problem.fixed, cfg.rom
     pos = cfg.parameter[0]
     mag = next((p for p in cfg.parameter if p.kind == "load_magnitude"), None)
     off = next((p for p in cfg.parameter if p.kind == "load_offset"), None)
-    r = cfg.rom
-    method = r.method
-    workers = workers if workers is not None else r.workers
-    scheduler = scheduler if scheduler is not None else r.scheduler
-    t0 = time.perf_counter()
-    if method in ("pgd", "pod"):
-        if not model.linear:
-            raise ConfigError(f"{source}: [rom] method = {method!r} needs [material] model = \"linear\"; "
-                              "use method = \"pgd_nonintrusive\" for a nonlinear material")
-        if off is not None and method == "pod":
-            raise ConfigError(f"{source}: a load_offset parameter needs [rom] method = \"pgd\" or "
-                              "\"pgd_nonintrusive\"")
-        if method == "pgd":
-            from physar.rom.elastic import build_moving_load_pgd
-
-            extra = {} if off is None else {"offset_range": off.range, "offset_dir": off.direction,
-                                            "offset_points": off.points}
-            rom, info = build_moving_load_pgd(model, fixed, pos.path, points=pos.points, load=pos.load,
-                                              radius=pos.radius, max_modes=r.max_modes, tol=r.tol,
-                                              n_check=r.check_points, check_tol=r.check_tol,
-                                              progress=progress, **extra)
-        else:
-            from physar.rom.pod import build_moving_load_pod
-
-            rom, info = build_moving_load_pod(model, fixed, pos.path, points=pos.points, load=pos.load,
-                                              radius=pos.radius, max_modes=r.max_modes, tol=r.tol,
-                                              progress=progress)
-        if mag is not None:  # linear elasticity: u(s, P) = u(s) P / |load| exactly
-            rom = _with_magnitude(rom, mag.range, float(np.linalg.norm(pos.load)))
-            if off is not None:  # built as (s, t, P); the [[parameter]] order is (s, P, t)
-                from physar.rom.separated import SeparatedModel
-
-                rom = SeparatedModel(rom.F, [rom.grids[i] for i in (0, 2, 1)], [rom.G[i] for i in (0, 2, 1)],
-                                     [rom.names[i] for i in (0, 2, 1)], [rom.units[i] for i in (0, 2, 1)],
-                                     rom.metadata)
-    else:
+    if r.method == "pgd_nonintrusive":
         from physar.rom.nonintrusive import build_moving_load_nonintrusive
 
-        rom, info = build_moving_load_nonintrusive(
+        return build_moving_load_nonintrusive(
             model, fixed, pos.path, load=pos.load, radius=pos.radius,
             magnitude_range=None if mag is None else mag.range,
             offset_range=None if off is None else off.range, offset_dir=None if off is None else off.direction,
             steps=cfg.solver.steps, tol=r.tol, max_modes=r.max_modes, max_points=r.max_points,
             initial_points=min(pos.points, 9), workers=workers, scheduler=scheduler, progress=progress)
+    if off is not None and r.method == "pod":
+        raise ConfigError(f"{source}: a load_offset parameter needs [rom] method = \"pgd\" or "
+                          "\"pgd_nonintrusive\"")
+    if r.method == "pgd":
+        from physar.rom.elastic import build_moving_load_pgd
+
+        extra = {} if off is None else {"offset_range": off.range, "offset_dir": off.direction,
+                                        "offset_points": off.points}
+        rom, info = build_moving_load_pgd(model, fixed, pos.path, points=pos.points, load=pos.load,
+                                          radius=pos.radius, max_modes=r.max_modes, tol=r.tol,
+                                          n_check=r.check_points, check_tol=r.check_tol,
+                                          progress=progress, **extra)
+    else:
+        from physar.rom.pod import build_moving_load_pod
+
+        rom, info = build_moving_load_pod(model, fixed, pos.path, points=pos.points, load=pos.load,
+                                          radius=pos.radius, max_modes=r.max_modes, tol=r.tol,
+                                          progress=progress)
+    if mag is not None:  # linear elasticity: u(s, P) = u(s) P / |load| exactly
+        rom = _with_magnitude(rom, mag.range, float(np.linalg.norm(pos.load)))
+        if off is not None:  # built as (s, t, P); the [[parameter]] order is (s, P, t)
+            rom = SeparatedModel(rom.F, [rom.grids[i] for i in (0, 2, 1)], [rom.G[i] for i in (0, 2, 1)],
+                                 [rom.names[i] for i in (0, 2, 1)], [rom.units[i] for i in (0, 2, 1)],
+                                 rom.metadata)
+    return rom, info
+
+
+def parameter_grid(p: ParameterSection, problem: ParametricProblem, j: int) -> np.ndarray:
+    """The grid of parameter j of the intrusive PGD: uniform (s uniform in arc length), 3 points for the
+    load magnitude (u is linear in it), geometric for Young's modulus (u varies like 1/E)."""
+    if p.kind == "load_position":
+        return np.linspace(0.0, problem.parts[j].length, p.points)
+    if p.kind == "load_magnitude":
+        return np.linspace(*p.range, 3)
+    if p.kind == "youngs_modulus":
+        return np.geomspace(*p.range, p.points)
+    return np.linspace(*p.range, p.points)
+
+
+def _build_parametric(cfg, problem, progress, workers, scheduler):
+    r = cfg.rom
     names = [p.name for p in cfg.parameter]
-    units = [p.unit or {"load_position": "m", "load_magnitude": "N", "load_offset": "m"}[p.kind]
-             for p in cfg.parameter]
-    rom.names, rom.units = names, units
-    rom.metadata.update({"method": method, "material": cfg.material.model,
-                         "material_params": cfg.material.model_dump(exclude_none=True),
-                         "parameters": [p.model_dump(exclude_none=True) for p in cfg.parameter],
-                         "fixed_dofs": len(fixed), "build_time_s": time.perf_counter() - t0})
-    if "check_errors" in info:
-        rom.metadata["check_errors"] = [float(v) for v in info["check_errors"]]
-    for k in ("check_error", "error_estimate", "n_solves", "svd_rank"):
-        if k in info:
-            v = info[k]
-            rom.metadata[k] = float(v) if k != "n_solves" and k != "svd_rank" else int(v)
-    if "amplitudes" in info:
-        rom.metadata["mode_amplitudes"] = [float(a) for a in info["amplitudes"]]
-    return rom, space, info
+    units = [p.unit or KIND_UNITS[p.kind] for p in cfg.parameter]
+    if r.method == "pgd":
+        from physar.rom.elastic import build_parametric_pgd
+
+        grids = [parameter_grid(p, problem, j) for j, p in enumerate(cfg.parameter)]
+        rom, info = build_parametric_pgd(problem, grids, names, units, max_modes=r.max_modes, tol=r.tol,
+                                         n_check=r.check_points, check_tol=r.check_tol, progress=progress)
+    else:
+        from physar.rom.nonintrusive import nonintrusive_pgd
+
+        ranges = [(0.0, problem.parts[j].length) if p.kind == "load_position" else p.range
+                  for j, p in enumerate(cfg.parameter)]
+        rom, info = nonintrusive_pgd(problem, ranges, names, units, tol=r.tol, max_modes=r.max_modes,
+                                     max_points=r.max_points, initial_points=min(9, *(p.points for p in cfg.parameter)),
+                                     workers=workers, scheduler=scheduler, progress=progress,
+                                     metadata={"kind": "parametric", "material": type(problem.model.material).__name__})
+    ml = problem.moving_load
+    if ml is not None:  # as the moving-load builders record it (rom info, the AR overlay)
+        rom.metadata.update({"path": ml.path.tolist(), "load": ml.load.tolist(), "radius": ml.radius})
+    return rom, info
+
+
+def build_parametric_problem(cfg: RomConfig, problem, source: str = "config") -> ParametricProblem:
+    """The :class:`ParametricProblem` of a RomConfig on its built FE ``problem`` (:func:`build_problem`):
+    the regions of the displacement / rotation / youngs_modulus parameters selected on its mesh, each a
+    ConfigError naming the file, the [[parameter]] and its selector when it selects nothing."""
+    space = problem.space
+    fixed = [np.asarray(problem.fixed, np.int64)]
+    u_fix = np.zeros(space.n_dofs) if problem.prescribed is None else problem.prescribed.copy()
+    off = next((p for p in cfg.parameter if p.kind == "load_offset"), None)
+    parts, moved = [], np.zeros(space.n_nodes, bool)
+    E_cells = np.zeros(space.mesh.n_cells, int)
+    for p in cfg.parameter:
+        what = f"{source}: [[parameter]] {p.name!r}"
+        if p.kind == "load_position":
+            parts.append(moving_load(p.path, p.load, p.radius, None if off is None else off.direction))
+        elif p.kind in LOAD_KINDS:
+            parts.append(None)
+        elif p.kind in ("displacement", "rotation"):
+            try:
+                mask = select_nodes_mask(space, **p.selector(), what=f"[[parameter]] {p.name!r}")
+            except ConfigError as exc:
+                raise ConfigError(f"{source}: {exc}") from None
+            if not mask.any():
+                raise ConfigError(f"{what}: no node matches {p.describe()}")
+            nodes = np.flatnonzero(mask)
+            moved |= mask
+            if p.kind == "displacement":
+                parts.append(Translation(nodes, np.asarray(p.direction, float) / np.linalg.norm(p.direction)))
+            else:
+                parts.append(Rotation(nodes, np.asarray(p.axis, float) / np.linalg.norm(p.axis),
+                                      np.asarray(p.point, float), degrees=p.unit != "rad"))
+        else:
+            try:
+                cells = select_cells_mask(space, box=p.box, region=p.region, what=f"[[parameter]] {p.name!r}")
+            except ConfigError as exc:
+                raise ConfigError(f"{source}: {exc}") from None
+            if not cells.any():
+                raise ConfigError(f"{what}: no cell (tetrahedron) matches {p.describe()}")
+            if (E_cells[cells] > 0).any():
+                raise ConfigError(f"{what}: its cells overlap those of another youngs_modulus parameter")
+            E_cells[cells] += 1
+            parts.append(Modulus(cells, float(cfg.material.E)))
+    region_dofs = (3 * np.flatnonzero(moved)[:, None] + np.arange(3)).ravel()
+    u_fix[region_dofs] = 0.0
+    fixed = np.unique(np.concatenate(fixed + [region_dofs])).astype(np.int64)
+    if len(fixed) < space.n_dofs:
+        try:
+            check_constraints(space.nodes, fixed)
+        except SolverError as exc:
+            raise ConfigError(f"{source}: [[fix]] and the prescribed [[parameter]] regions: {exc}") from None
+    mask = np.zeros(space.n_dofs, bool)
+    mask[fixed] = True
+    u_fix[~mask] = 0.0
+    s = cfg.solver
+    return ParametricProblem(problem.model, fixed, tuple(p.kind for p in cfg.parameter), tuple(parts), u_fix,
+                             problem.f_ext, steps=s.steps, tol=s.tol, max_iter=s.max_iter)
 
 
 def _with_magnitude(rom, magnitude_range, load_norm):
-    from physar.rom.separated import SeparatedModel
-
     gp = np.linspace(*map(float, magnitude_range), 3)
     return SeparatedModel(rom.F, list(rom.grids) + [gp], list(rom.G) + [np.tile(gp / load_norm, (rom.n_modes, 1))],
                           list(rom.names) + ["P"], list(rom.units) + ["N"], rom.metadata)
 
 
-__all__ = ["ParameterSection", "RomConfig", "RomSection", "build_rom", "load_rom_config"]
+__all__ = ["MAX_POINTS", "ParameterSection", "RomConfig", "RomSection", "build_parametric_problem", "build_rom",
+           "load_rom_config", "parameter_grid"]

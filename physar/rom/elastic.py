@@ -159,3 +159,87 @@ def _build_patch_load_pgd(model, fixed, path, points, load, radius, max_modes, t
                           "load": list(map(float, load)), "radius": float(radius),
                           "material": type(model.material).__name__})
     return out, info
+
+
+def _merged(a: dict, b: dict) -> dict:
+    """Product of two factor dicts {j: h_j(mu_j)} (factors on the same parameter multiply)."""
+    out = dict(a)
+    for j, h in b.items():
+        out[j] = out[j] * h if j in out else h
+    return out
+
+
+def _with_prescribed(problem, lifts, grids, red, names, units):
+    """The full model: the prescribed modes (w, prod h) first, then the PGD modes ``red`` on the free dofs."""
+    from physar.rom.separated import SeparatedModel
+
+    n = problem.model.n_dofs
+    F = [w for w, _ in lifts]
+    G = [[h.get(j, np.ones(len(x))) for w, h in lifts] for j, x in enumerate(grids)]
+    if red is not None:
+        Fr = np.zeros((red.n_modes, n))
+        Fr[:, problem.free] = red.F
+        F += list(Fr)
+        G = [g + list(rg) for g, rg in zip(G, red.G)]
+    if not F:  # no load and nothing prescribed: u = 0
+        F, G = [np.zeros(n)], [[np.zeros(len(x))] for x in grids]
+    return SeparatedModel(np.array(F), grids, [np.array(g) for g in G], names, units, kinds=list(problem.kinds))
+
+
+@blas_single_threaded
+def build_parametric_pgd(problem, grids, names, units, max_modes=40, tol=1e-4, n_check=0, check_tol=None,
+                         progress=None, seed=0, update=2):
+    """Intrusive PGD of a linear :class:`physar.rom.problem.ParametricProblem` (any of its parameter kinds).
+
+    With u = u_D(mu) + u_0(mu), u_D the prescribed displacements (u_fix and each region's
+    sum_r w_r h_r(mu_j), exact, kept as the first modes) and u_0 = 0 on the Dirichlet dofs:
+
+      K_ff(mu) u_0 = f_f(mu) - K_fd(mu) u_D(mu),   K(mu) = sum_m K_m alpha_m(mu)
+
+    a separated operator and a separated load (products of the terms), solved by
+    :func:`physar.rom.pgd.pgd_affine` on the tensor ``grids``. ``n_check`` random full solves
+    (``problem(mu)``) give info["check_errors"] (max over the points of ||u_ROM - u_FE|| / max ||u_FE||,
+    after each mode) and info["check_error"]; ``check_tol`` also stops the enrichment (as
+    :func:`build_moving_load_pgd`). Returns (SeparatedModel, info).
+    """
+    from physar.rom.pgd import SeparatedTerm, pgd_affine
+
+    model = problem.model
+    if not model.linear:
+        raise ConfigError("intrusive PGD needs a linear material; use method='pgd_nonintrusive'")
+    grids = [np.asarray(x, float) for x in grids]
+    fixed, free = problem.fixed, problem.free
+    ops = problem.stiffness_terms(grids)
+    lifts = problem.prescribed_terms(grids)
+    loads = [SeparatedTerm(B[free], axes, h) for B, axes, h in problem.load_terms(grids)]
+    for K, alpha in ops:
+        Kfd = K[free][:, fixed]
+        for w, h in lifts:
+            r = -(Kfd @ w[fixed])
+            if np.any(r):
+                loads.append(SeparatedTerm(r[:, None], (), _merged(alpha, h)))
+    check, info = None, {"n_prescribed_modes": len(lifts)}
+    if n_check:
+        rng = np.random.default_rng(seed)
+        mus = rng.uniform([x[0] for x in grids], [x[-1] for x in grids], (int(n_check), len(grids)))
+        Uc = np.stack([problem(m) for m in mus], 1)
+        scale = np.linalg.norm(Uc, axis=0).max() or 1.0
+
+        def check(red):
+            full = _with_prescribed(problem, lifts, grids, red, names, units)
+            return max(np.linalg.norm(full.evaluate(m) - Uc[:, k]) for k, m in enumerate(mus)) / scale
+
+    red = None
+    if loads and len(free):
+        Kf = [SeparatedTerm(K[free][:, free].tocsr(), (), alpha) for K, alpha in ops]
+        red, pinfo = pgd_affine(Kf, loads, grids, max_modes=max_modes, tol=tol, names=names, units=units,
+                                progress=progress, check=check, check_tol=check_tol, update=update)
+        info.update(pinfo)
+    elif check is not None:
+        info["check_errors"] = [check(None)]
+    if n_check:
+        info["check_error"] = info["check_errors"][-1]
+        info["check_points"] = mus
+    out = _with_prescribed(problem, lifts, grids, red, names, units)
+    out.metadata.update({"kind": "parametric", "material": type(model.material).__name__})
+    return out, info

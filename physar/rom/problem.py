@@ -1,0 +1,266 @@
+"""The parametric problem behind `physar rom build`: what each parameter does to the FE problem.
+
+Parameters mu = (mu_1, .., mu_p), 1 <= p <= 3, each of one kind (seed 000 §5.1-5.3):
+
+* ``load_position`` s [m]: a point load (regularised Dirac, :func:`physar.fem.point_load`) at path(s) on a
+  polyline; ``load_magnitude`` P [N] scales it to |load| = P; ``load_offset`` t [m] moves it to path(s) + t e.
+* ``displacement`` d [m]: the nodes of a region are prescribed u = d e (a translation along the unit e).
+* ``rotation`` theta [deg]: the nodes of a region follow the rigid rotation R(theta) about the unit axis a
+  through the point c, the finite rotation u = R(theta)(X - c) + c - X; by Rodrigues' formula, with v = X - c,
+  u = (cos theta - 1)(v - a (a.v)) + sin theta (a x v), a sum of two separated terms in theta.
+* ``youngs_modulus`` E [Pa]: the cells of a region have Young's modulus E (the rest E_ref of [material]).
+  Every material here has W proportional to E at fixed nu, so K(E) = K_rest + (E / E_ref) K_region.
+
+The other supports ([[fix]], u = u_fix there) and loads ([[load]], f_fix) of the file apply at every mu.
+A node in a prescribed region is driven by the region, not by a [[fix]] it also lies in; a node in two
+regions moves by the sum. :class:`ParametricProblem` is the full model as a black box ``u = problem(mu)``
+(non-intrusive PGD, check solves) and, for a linear material, gives the separated operator, loads and
+prescribed displacements of the intrusive PGD (:func:`physar.rom.elastic.build_parametric_pgd`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from physar.errors import SolverError
+from physar.fem import ElasticModel, point_load, solve_static
+from physar.geometry.path import as_path, path_length, path_point
+
+LOAD_KINDS = ("load_position", "load_magnitude", "load_offset")
+
+
+class CellScaledModel(ElasticModel):
+    """An :class:`ElasticModel` whose energy density is multiplied by ``cell_scale`` (n_cells,) cell by cell
+    (the Young's modulus of cell e is cell_scale[e] E_ref: W is proportional to E at fixed nu).
+
+    Shares the shape-function gradients of ``base`` (its quadrature weights w det J are scaled); mass and
+    body-force integrals are not scaled.
+    """
+
+    def __init__(self, base: ElasticModel, cell_scale):
+        super().__init__(base.space, base.material, base.density)
+        scale = np.asarray(cell_scale, float)
+        if scale.shape != (base.space.mesh.n_cells,) or np.any(scale < 0):
+            raise SolverError(f"cell scale must be >= 0 with shape ({base.space.mesh.n_cells},), got {scale.shape}")
+        self.cell_scale = scale
+        G, wdet = base._quad
+        self.__dict__["_quad"] = (G, wdet * scale[:, None])  # the cached property of ElasticModel
+
+
+@dataclass(frozen=True)
+class MovingLoad:
+    """A point load ``load`` (3,) [N] of radius ``radius`` [m] at path(s) (+ t ``offset_dir``)."""
+
+    path: np.ndarray
+    load: np.ndarray
+    radius: float
+    offset_dir: np.ndarray | None = None
+
+    @property
+    def length(self) -> float:
+        return path_length(self.path)
+
+    def point(self, s, t=0.0) -> np.ndarray:
+        x = path_point(self.path, s)
+        return x if self.offset_dir is None else x + t * self.offset_dir
+
+    def force(self, space, s, t=0.0, magnitude=None) -> np.ndarray:
+        """Nodal forces (n_dofs,) [N]; ``magnitude`` P rescales the load to |load| = P."""
+        load = self.load if magnitude is None else self.load * (magnitude / np.linalg.norm(self.load))
+        return point_load(space, self.point(s, t), load, self.radius)
+
+
+@dataclass(frozen=True)
+class Translation:
+    """u = d e on the nodes ``nodes`` (indices into space.nodes), e = ``direction`` (unit), d in m."""
+
+    nodes: np.ndarray
+    direction: np.ndarray
+
+    def shapes(self, X) -> np.ndarray:
+        """(1, n_dofs): the prescribed field per unit d."""
+        out = np.zeros((len(X), 3))
+        out[self.nodes] = self.direction
+        return out.reshape(1, -1)
+
+    def factors(self, d) -> np.ndarray:
+        return np.atleast_1d(np.asarray(d, float))[None, :]
+
+
+@dataclass(frozen=True)
+class Rotation:
+    """u = R(theta)(X - c) + c - X on ``nodes``, about the unit ``axis`` a through ``point`` c (right hand);
+    theta in degrees (``degrees=False``: radians)."""
+
+    nodes: np.ndarray
+    axis: np.ndarray
+    point: np.ndarray
+    degrees: bool = True
+
+    def shapes(self, X) -> np.ndarray:
+        """(2, n_dofs): w1 = v - a (a.v) and w2 = a x v (v = X - c) on the nodes, 0 elsewhere."""
+        a = self.axis
+        v = X[self.nodes] - self.point
+        out = np.zeros((2, len(X), 3))
+        out[0, self.nodes] = v - np.outer(v @ a, a)
+        out[1, self.nodes] = np.cross(a, v)
+        return out.reshape(2, -1)
+
+    def factors(self, theta) -> np.ndarray:
+        """(2, len(theta)): cos(theta) - 1 and sin(theta)."""
+        th = np.atleast_1d(np.asarray(theta, float)) * (np.pi / 180.0 if self.degrees else 1.0)
+        return np.stack([np.cos(th) - 1.0, np.sin(th)])
+
+
+@dataclass(frozen=True)
+class Modulus:
+    """Young's modulus E [Pa] on the cells ``cells`` (bool mask); ``E_ref`` [Pa] of the material."""
+
+    cells: np.ndarray
+    E_ref: float
+
+
+@dataclass(frozen=True)
+class ParametricProblem:
+    """The full FE model of a parametric problem; ``problem(mu)`` solves it (a picklable black box).
+
+    ``kinds`` (p,) and ``parts`` (p,): per parameter its kind and data (:class:`MovingLoad` for
+    load_position, :class:`Translation`, :class:`Rotation`, :class:`Modulus`; None for load_magnitude and
+    load_offset, which act on the load_position part). ``fixed``: every Dirichlet dof ([[fix]] and the
+    prescribed regions, all three components); ``u_fix`` (n_dofs,): the [[fix]] values (0 on the regions);
+    ``f_fix`` (n_dofs,): the constant loads [N]. Nonlinear materials: ``steps`` increments of the loads and
+    of the prescribed displacements along their parameter (a rotation turns by theta / steps per step).
+    """
+
+    model: ElasticModel
+    fixed: np.ndarray
+    kinds: tuple
+    parts: tuple
+    u_fix: np.ndarray
+    f_fix: np.ndarray
+    steps: int = 1
+    tol: float = 1e-10
+    max_iter: int = 30
+
+    def index(self, kind):
+        return self.kinds.index(kind) if kind in self.kinds else None
+
+    @property
+    def free(self) -> np.ndarray:
+        mask = np.ones(self.model.n_dofs, bool)
+        mask[self.fixed] = False
+        return np.flatnonzero(mask)
+
+    @property
+    def moving_load(self) -> MovingLoad | None:
+        j = self.index("load_position")
+        return None if j is None else self.parts[j]
+
+    def force(self, mu, lam=1.0) -> np.ndarray:
+        """External forces (n_dofs,) [N] at mu (times the load factor lam)."""
+        mu = np.asarray(mu, float)
+        f = self.f_fix.copy()
+        ml = self.moving_load
+        if ml is not None:
+            jp, jt = self.index("load_magnitude"), self.index("load_offset")
+            f += ml.force(self.model.space, mu[self.index("load_position")], 0.0 if jt is None else mu[jt],
+                          None if jp is None else mu[jp])
+        return lam * f
+
+    def prescribed(self, mu, lam=1.0) -> np.ndarray:
+        """Dirichlet values (n_dofs,) [m] at mu; lam scales u_fix and the prescribed parameters' values."""
+        mu = np.asarray(mu, float)
+        u = lam * self.u_fix
+        X = self.model.space.nodes
+        for j, part in enumerate(self.parts):
+            if isinstance(part, (Translation, Rotation)):
+                u = u + part.factors(lam * mu[j])[:, 0] @ part.shapes(X)
+        return u
+
+    def cell_scale(self, mu) -> np.ndarray | None:
+        """E / E_ref per cell at mu, None without a youngs_modulus parameter."""
+        mods = [(j, p) for j, p in enumerate(self.parts) if isinstance(p, Modulus)]
+        if not mods:
+            return None
+        scale = np.ones(self.model.space.mesh.n_cells)
+        for j, p in mods:
+            scale[p.cells] = float(mu[j]) / p.E_ref
+        return scale
+
+    def model_at(self, mu) -> ElasticModel:
+        scale = self.cell_scale(mu)
+        return self.model if scale is None else CellScaledModel(self.model, scale)
+
+    def __call__(self, mu) -> np.ndarray:
+        """u(mu) (n_dofs,) [m] by :func:`physar.fem.solve_static`."""
+        mu = np.atleast_1d(np.asarray(mu, float))
+        model = self.model_at(mu)
+        if len(self.free) == 0:
+            return self.prescribed(mu)
+        steps = 1 if model.linear else self.steps
+        u = None
+        try:
+            for k in range(1, steps + 1):
+                lam = k / steps
+                u = solve_static(model, self.force(mu, lam), self.fixed, steps=1, u0=u, tol=self.tol,
+                                 max_iter=self.max_iter, prescribed=self.prescribed(mu, lam)).u
+        except SolverError as exc:
+            raise SolverError(f"full solve at parameters {np.round(mu, 6).tolist()}: {exc}") from None
+        return u
+
+    # -- the separated form of a linear problem (intrusive PGD) ------------------------------------------
+    def stiffness_terms(self, grids):
+        """[(K_m (n_dofs, n_dofs), {j: alpha_m(mu_j) on grids[j]})]: K(mu) = sum_m K_m prod alpha_m; K_rest
+        (cells in no youngs_modulus region, omitted when empty) and one K_region per youngs_modulus."""
+        mods = [(j, p) for j, p in enumerate(self.parts) if isinstance(p, Modulus)]
+        if not mods:
+            return [(self.model.tangent_stiffness(), {})]
+        rest = np.ones(self.model.space.mesh.n_cells, bool)
+        out = []
+        for j, p in mods:
+            rest &= ~p.cells
+            out.append((CellScaledModel(self.model, p.cells.astype(float)).tangent_stiffness(),
+                        {j: np.asarray(grids[j], float) / p.E_ref}))
+        if rest.any():
+            out.insert(0, (CellScaledModel(self.model, rest.astype(float)).tangent_stiffness(), {}))
+        return out
+
+    def prescribed_terms(self, grids):
+        """[(w (n_dofs,), {j: h(mu_j) on grids[j]})]: u_D(mu) = sum w prod h (u_fix, then per region)."""
+        X = self.model.space.nodes
+        out = [(self.u_fix, {})] if np.any(self.u_fix) else []
+        for j, part in enumerate(self.parts):
+            if isinstance(part, (Translation, Rotation)):
+                for w, h in zip(part.shapes(X), part.factors(grids[j])):
+                    out.append((w, {j: h}))
+        return out
+
+    def load_terms(self, grids):
+        """[(B (n_dofs, N) sparse/dense, axes, {j: h(mu_j)})]: f(mu) = sum B[:, grid node of axes] prod h."""
+        import scipy.sparse as sp
+
+        out = [(self.f_fix[:, None], (), {})] if np.any(self.f_fix) else []
+        ml = self.moving_load
+        if ml is not None:
+            js, jt, jp = self.index("load_position"), self.index("load_offset"), self.index("load_magnitude")
+            space = self.model.space
+            ts = [0.0] if jt is None else grids[jt]
+            cols = [sp.csc_matrix(point_load(space, ml.point(s, t), ml.load, ml.radius)[:, None])
+                    for s in grids[js] for t in ts]
+            axes = (js,) if jt is None else (js, jt)
+            B = sp.hstack(cols).tocsr()
+            if jt is not None and jt < js:  # columns in C order of the axes as numbered
+                B = B[:, np.arange(B.shape[1]).reshape(len(grids[js]), len(ts)).T.ravel()]
+                axes = (jt, js)
+            out.append((B, axes, {} if jp is None else {jp: np.asarray(grids[jp], float) / np.linalg.norm(ml.load)}))
+        return out
+
+
+def moving_load(path, load, radius, offset_dir=None) -> MovingLoad:
+    e = None if offset_dir is None else np.asarray(offset_dir, float) / np.linalg.norm(offset_dir)
+    return MovingLoad(as_path(path, "load path"), np.asarray(load, float), float(radius), e)
+
+
+__all__ = ["LOAD_KINDS", "CellScaledModel", "Modulus", "MovingLoad", "ParametricProblem", "Rotation",
+           "Translation", "moving_load"]
