@@ -161,7 +161,7 @@ def _log_check(c: dict) -> None:
     log(f"check against a {c['refine']}x finer mesh ({c['dofs']} -> {c['fine_dofs']} dofs, {c['time_s']:.1f} s), "
         f"relative errors (L2 / max):")
     rows = [("displacement", "displacement"), ("von Mises, everywhere", "stress"),
-            (f"von Mises, >= {1e3 * c['away_m']:.3g} mm from supports and load", "away")]
+            (f"von Mises, >= {1e3 * c['away_m']:.3g} mm from supports and loads", "away")]
     width = max(len(label) for label, _ in rows) + 1
     for label, key in rows:
         log(f"  {label + ':':<{width}} {_pct(c[key + '_l2'])} / {_pct(c[key + '_max'])}")

@@ -62,7 +62,8 @@ def _cauchy(material, F: np.ndarray) -> np.ndarray:
     return np.einsum("...ij,...kj->...ik", P, F) / np.linalg.det(F)[..., None, None]
 
 
-def nodal_stress(model, u: np.ndarray, vertices: np.ndarray | None = None) -> np.ndarray:
+def nodal_stress(model, u: np.ndarray, vertices: np.ndarray | None = None,
+                 cell_scale: np.ndarray | None = None) -> np.ndarray:
     """Cauchy stress at mesh vertices recovered from each element's own vertex values: (n, 3, 3) [Pa].
 
     For every element e holding vertex a, the deformation gradient is evaluated at that vertex from the
@@ -77,7 +78,8 @@ def nodal_stress(model, u: np.ndarray, vertices: np.ndarray | None = None) -> np
     On P2 the strain is linear in each element, so σ_e(X_a) is its exact vertex value and a linear stress
     field (pure bending) is recovered exactly; on P1 it is the element's constant stress. ``vertices``:
     indices into ``model.space.mesh.points`` (default all); only the elements touching them are evaluated.
-    ``u``: (n_dofs,) [m].
+    ``u``: (n_dofs,) [m]. ``cell_scale`` (n_cells,): σ_e multiplied by it before averaging (a Young's modulus
+    E_e = cell_scale[e] E varying by cell: σ is proportional to E at fixed ν for every physar material).
     """
     space = model.space
     mesh = space.mesh
@@ -95,6 +97,8 @@ def nodal_stress(model, u: np.ndarray, vertices: np.ndarray | None = None) -> np
     ue = np.asarray(u, dtype=float).reshape(-1, 3)[space.cells[elems]]  # (m, nen, 3)
     H = np.einsum("mbi,vbk,mkj->mvij", ue, dref, Jinv[elems], optimize=True)  # ∇u at the 4 vertices
     sig = _cauchy(model.material, np.eye(3) + H)  # (m, 4, 3, 3)
+    if cell_scale is not None:
+        sig = sig * np.asarray(cell_scale, dtype=float)[elems, None, None, None]
     vol = np.abs(detJ[elems]) / 6.0
     idx = cells[elems].ravel()
     w = np.bincount(idx, weights=np.repeat(vol, 4), minlength=mesh.n_points)[vertices]

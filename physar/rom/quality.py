@@ -2,8 +2,9 @@
 
 The finite-element problem of a ``physar rom build`` configuration is rebuilt on a finer mesh (``[mesh] box``:
 cells x ``refine`` in every direction; a mesh file or a tetrahedralised surface: every tetrahedron split into 8
-at its edge midpoints, log2(``refine``) times, region tags carried over) with the same material, supports and
-parameter loads, and solved in full at a few parameter points mu_k. The reduced model u_R(mu) (its modes live on
+at its edge midpoints, log2(``refine``) times, region tags carried over) with the same material, supports, loads
+and parameters (:func:`physar.rom.config.build_parametric_problem`: every parameter kind), and solved in full at
+a few parameter points mu_k. The reduced model u_R(mu) (its modes live on
 the configuration's mesh) is compared with the finer solution u_f(mu) at the reduced model's nodes, all of
 which are nodes of the finer mesh:
 
@@ -18,8 +19,8 @@ displacement p = 3: 7/8 of the error; P2 stress and P1 displacement p = 2: 3/4; 
 
 Where the exact stress is singular (a perfect clamp's edge, a re-entrant corner) or concentrated under a point
 load, the stress error does not shrink with refinement. The von Mises errors are therefore also given *away*
-from them, over the set A of vertices at least 2 l from every supported node and 2 l beyond the load's radius
-from the load point (l = (6 V / n_cells)^(1/3) the model's mean element size, the edge of a cube that 6 such
+from them, over the set A of vertices at least 2 l from every supported or prescribed node and 2 l beyond the
+radius of every point load (l = (6 V / n_cells)^(1/3) the model's mean element size, the edge of a cube that 6 such
 tetrahedra fill), relative to the whole field (the scale an overlay's colours span; the field in A alone may be
 near zero, beyond a load):
 
@@ -37,17 +38,17 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from physar.errors import ConfigError
-from physar.fem import ElasticModel, FESpace, LinearSolver, point_load, solve_static
-from physar.fem.config import build_mesh, build_problem
+from physar.fem import ElasticModel, FESpace, gravity_load, point_load, traction_load
+from physar.fem.config import Problem, build_mesh, build_problem
 from physar.fem.elements import p2_nodes
 from physar.fem.loads import select_nodes_mask
 from physar.fem.post import nodal_stress
-from physar.geometry import MeshTags, TetMesh, box_mesh, path_point
+from physar.geometry import MeshTags, TetMesh
 from physar.geometry.mesh import row_keys
+from physar.rom.config import build_parametric_problem
 from physar.rom.separated import ReducedModelError
 
 GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
-LOAD_KINDS = ("load_position", "load_magnitude", "load_offset")
 
 
 @dataclass(frozen=True)
@@ -56,8 +57,8 @@ class DiscretisationCheck:
 
     Per point (k,), relative, as defined in the module docstring: ``displacement_l2``, ``displacement_max``;
     von Mises ``stress_l2``, ``stress_max`` over all vertices and ``away_l2``, ``away_max`` over the vertices
-    at least ``away`` [m] from the supports and beyond the load radius, relative to the whole field (NaN when
-    there are none);
+    at least ``away`` [m] from the supported or prescribed nodes and beyond the radius of every point load,
+    relative to the whole field (NaN when there are none);
     ``stress_max_at``/``away_max_at`` (k, 3) [m] where the largest of each lies; ``peak_model``/``peak_fine``
     (k,) [Pa] the largest von Mises stress of each. ``refine``, the dofs of both meshes and the wall time [s]."""
 
@@ -139,8 +140,8 @@ def _split_tags(mesh: TetMesh, conn: np.ndarray, tags: MeshTags) -> MeshTags:
 
 
 def check_points(ranges, n: int) -> np.ndarray:
-    """n parameter points (n, p) in the box ``ranges`` [(lo, hi)], k = 0..n-1: the first parameter (the load
-    position) at lo + (k + 1) / n (hi - lo), reaching the end of its range; parameter j >= 1 at
+    """n parameter points (n, p) in the box ``ranges`` [(lo, hi)], k = 0..n-1: the first parameter at
+    lo + (k + 1) / n (hi - lo), reaching the end of its range (a load position: the far end); parameter j >= 1 at
     lo_j + frac((k + 1) / n + j g) (hi_j - lo_j), g = (sqrt 5 - 1) / 2 (a rank-1 lattice: no two parameters
     move together)."""
     lo, hi = (np.array(v, float) for v in zip(*ranges))
@@ -149,40 +150,46 @@ def check_points(ranges, n: int) -> np.ndarray:
     return lo + frac * (hi - lo)
 
 
-def _problems(cfg, refine: int, base: Path | None, source: str):
-    """The problem of ``cfg`` as ``rom build`` builds it, and (space, model, fixed) on the finer mesh."""
+def _problems(cfg, refine: int, base: Path | None, source: str) -> tuple[Problem, Problem]:
+    """The problem of ``cfg`` as ``rom build`` builds it, and the same on the finer mesh."""
     coarse = build_problem(cfg, base)
     if cfg.mesh.box is not None:
-        mesh = box_mesh(cfg.mesh.box, tuple(int(c) * refine for c in cfg.mesh.cells))
-    else:
-        times = round(np.log2(refine))
-        if 2 ** times != refine:
-            raise ConfigError(f"{source}: [mesh] file: the check mesh splits every tetrahedron into 8 "
-                              f"(refine = 2, 4, 8, ...), got {refine}")
-        mesh = split_tets(build_mesh(cfg.mesh, base), times)
+        fine = cfg.model_copy(deep=True)
+        fine.mesh.cells = tuple(int(c) * refine for c in cfg.mesh.cells)
+        return coarse, build_problem(fine, base)
+    times = round(np.log2(refine))
+    if 2 ** times != refine:
+        raise ConfigError(f"{source}: [mesh] file: the check mesh splits every tetrahedron into 8 "
+                          f"(refine = 2, 4, 8, ...), got {refine}")
+    return coarse, _problem_on(cfg, split_tets(build_mesh(cfg.mesh, base), times), coarse.model)
+
+
+def _problem_on(cfg, mesh: TetMesh, coarse_model) -> Problem:
+    """:func:`physar.fem.config.build_problem` of ``cfg`` on another ``mesh`` (same material, [[fix]] with
+    their values, [[load]]); the rules are build_problem's (a later [[fix]] value overrides an earlier one)."""
     space = FESpace(mesh, cfg.fem.element)
-    model = ElasticModel(space, coarse.model.material, coarse.model.density)
-    dofs = []
+    model = ElasticModel(space, coarse_model.material, coarse_model.density)
+    fixed, prescribed = [], np.zeros(space.n_dofs)
     for i, f in enumerate(cfg.fix):
-        if f.value is not None and any(f.value):
-            raise ConfigError(f"{source}: [[fix]] #{i + 1} value: prescribed displacements are not supported")
         nodes = np.flatnonzero(select_nodes_mask(space, **f.selector(), what=f"[[fix]] #{i + 1}"))
-        dofs += [3 * nodes + "xyz".index(c) for c in f.components]
-    fixed = np.unique(np.concatenate(dofs or [np.zeros(0, np.int64)])).astype(np.int64)
-    return coarse, space, model, fixed
-
-
-def _load(space, params, mu) -> np.ndarray:
-    """Nodal forces (n_dofs,) [N] at mu, built as ``rom build`` defines the parameters: a point load at
-    path(s) + t d/|d| with the total load P / |load| (load_position s, load_offset t, load_magnitude P)."""
-    pos = params[0]
-    point, total = path_point(pos.path, float(mu[0])), np.asarray(pos.load, float)
-    for p, v in zip(params[1:], mu[1:]):
-        if p.kind == "load_magnitude":
-            total = total * (float(v) / np.linalg.norm(pos.load))
+        if not len(nodes):
+            raise ConfigError(f"[[fix]] #{i + 1}: no node of the check mesh matches {f.describe()}")
+        for c in f.components:
+            dofs = 3 * nodes + "xyz".index(c)
+            fixed.append(dofs)
+            prescribed[dofs] = 0.0 if f.value is None else f.value["xyz".index(c)]
+    f_ext = np.zeros(space.n_dofs)
+    for ld in cfg.load:
+        if ld.type == "traction":
+            sel = ld.selector()
+            f_ext += traction_load(space, sel.pop("box"), ld.total, **sel)
+        elif ld.type == "point":
+            f_ext += point_load(space, ld.point, ld.total, ld.radius)
         else:
-            point = point + float(v) * np.asarray(p.direction, float) / np.linalg.norm(p.direction)
-    return point_load(space, point, total, pos.radius)
+            f_ext += gravity_load(space, cfg.material.density, ld.g)
+    fixed = np.unique(np.concatenate(fixed or [np.zeros(0, np.int64)])).astype(np.int64)
+    return Problem(space, model, f_ext, fixed, np.zeros((0, 3)), cfg,
+                   prescribed if any(f.value is not None for f in cfg.fix) else None)
 
 
 def _matching(coarse: np.ndarray, fine: np.ndarray, what: str) -> np.ndarray:
@@ -207,43 +214,44 @@ def _von_mises(sig: np.ndarray) -> np.ndarray:
     return np.sqrt(1.5 * np.einsum("...ij,...ij->...", dev, dev))
 
 
-def _away(space, fixed: np.ndarray, load_point: np.ndarray, radius: float) -> tuple[np.ndarray, float]:
-    """Mask over the mesh vertices at least 2 l from the supported nodes and 2 l beyond ``radius`` from
-    ``load_point``, and 2 l [m] (l = (6 V / n_cells)^(1/3))."""
-    mesh = space.mesh
-    ell = float((6.0 * np.abs(space.jacobians[1]).sum() / 6.0 / mesh.n_cells) ** (1.0 / 3.0))
-    X = mesh.points
-    ok = np.linalg.norm(X - load_point, axis=1) >= radius + 2 * ell
+def _element_size(space) -> float:
+    """l = (6 V / n_cells)^(1/3) [m]: the edge of a cube that 6 tetrahedra of the mean volume fill."""
+    return float((np.abs(space.jacobians[1]).sum() / space.mesh.n_cells) ** (1.0 / 3.0))
+
+
+def _away(space, fixed: np.ndarray, loads, distance: float) -> np.ndarray:
+    """Mask over the mesh vertices at least ``distance`` from the nodes of the ``fixed`` dofs and ``distance``
+    beyond the radius of each point load of ``loads`` [(point (3,), radius)]."""
+    X = space.mesh.points
+    ok = np.ones(len(X), bool)
+    for point, radius in loads:
+        ok &= np.linalg.norm(X - point, axis=1) >= radius + distance
     if len(fixed):
-        ok &= cKDTree(space.nodes[np.unique(fixed // 3)]).query(X)[0] >= 2 * ell
-    return ok, 2 * ell
+        ok &= cKDTree(space.nodes[np.unique(fixed // 3)]).query(X)[0] >= distance
+    return ok
 
 
-def _load_point(params, mu) -> np.ndarray:
-    pos = params[0]
-    point = path_point(pos.path, float(mu[0]))
-    for p, v in zip(params[1:], mu[1:]):
-        if p.kind == "load_offset":
-            point = point + float(v) * np.asarray(p.direction, float) / np.linalg.norm(p.direction)
-    return point
+def _point_loads(cfg, pp, mu) -> list:
+    """(point, radius) of the moving load at mu and of every [[load]] type = "point"."""
+    out = [(np.asarray(ld.point, float), float(ld.radius)) for ld in cfg.load if ld.type == "point"]
+    ml = pp.moving_load
+    if ml is not None:
+        jt = pp.index("load_offset")
+        out.append((ml.point(mu[pp.index("load_position")], 0.0 if jt is None else mu[jt]), ml.radius))
+    return out
 
 
-def _compare(cfg, coarse, fine, rom, mu, node_of, vert_of) -> tuple:
+def _compare(cfg, pp_c, pp_f, rom, mu, node_of, vert_of, distance) -> tuple:
     """The errors at one parameter point (the fields of a DiscretisationCheck row)."""
-    space_f, model_f, fixed_f, solver = fine
-    f = _load(space_f, cfg.parameter, mu)
-    if solver is not None:
-        u_f = solver.solve(f)
-    else:
-        s = cfg.solver
-        u_f = solve_static(model_f, f, fixed_f, steps=s.steps, tol=s.tol, max_iter=s.max_iter).u
+    u_f = pp_f(mu)
     u_r = rom.evaluate(mu)
     du = _rel(u_r.reshape(-1, 3), u_f.reshape(-1, 3)[node_of])
-    vm_r = _von_mises(nodal_stress(coarse.model, u_r))
-    vm_f = _von_mises(nodal_stress(model_f, u_f, vert_of))
-    X = coarse.space.mesh.points
+    vm_r = _von_mises(nodal_stress(pp_c.model, u_r, cell_scale=pp_c.cell_scale(mu)))
+    vm_f = _von_mises(nodal_stress(pp_f.model, u_f, vert_of, cell_scale=pp_f.cell_scale(mu)))
+    space = pp_c.model.space
+    X = space.mesh.points
     ds = _rel(vm_r, vm_f)
-    away, _ = _away(coarse.space, coarse.fixed, _load_point(cfg.parameter, mu), cfg.parameter[0].radius)
+    away = _away(space, pp_c.fixed, _point_loads(cfg, pp_c, mu), distance)
     if away.any():
         e = np.abs(vm_r - vm_f)[away]
         k = int(e.argmax())
@@ -260,7 +268,7 @@ def discretisation_error(cfg, rom, points: int | np.ndarray = 3, refine: int = 2
     ``refine`` times finer, at ``points`` parameter points (a count: :func:`check_points` over the model's
     ranges; or an array (k, p) in the order of ``rom.names``). See the module docstring for the errors.
     ``progress(done, total)`` after each solve. Raises ConfigError when ``rom`` does not belong to ``cfg``
-    (other parameters or another mesh) or a parameter kind has no check."""
+    (other parameters or another mesh)."""
     t0 = time.perf_counter()
     refine = int(refine)
     if refine < 2:
@@ -269,26 +277,21 @@ def discretisation_error(cfg, rom, points: int | np.ndarray = 3, refine: int = 2
     if list(rom.names) != names:
         raise ConfigError(f"{source}: parameters {names}, the reduced model has {list(rom.names)}: "
                           "not the configuration it was built from")
-    unknown = [p.kind for p in cfg.parameter if p.kind not in LOAD_KINDS]
-    if unknown:
-        raise ConfigError(f"{source}: the discretisation check supports the parameter kinds "
-                          f"{', '.join(LOAD_KINDS)}, not {', '.join(unknown)}")
-    coarse, space_f, model_f, fixed_f = _problems(cfg, refine, getattr(cfg, "_base_dir", None), source)
-    space = coarse.space
-    _check_mesh(rom, space, source)
+    coarse, fine = _problems(cfg, refine, getattr(cfg, "_base_dir", None), source)
+    _check_mesh(rom, coarse.space, source)
+    pp_c, pp_f = (build_parametric_problem(cfg, p, source) for p in (coarse, fine))
     mus = check_points(rom.ranges, int(points)) if np.ndim(points) == 0 else np.atleast_2d(np.asarray(points, float))
-    node_of = _matching(space.nodes, space_f.nodes, "nodes")
-    vert_of = _matching(space.mesh.points, space_f.mesh.points, "vertices")
-    fine = (space_f, model_f, fixed_f, LinearSolver(model_f, fixed_f) if model_f.linear else None)
+    node_of = _matching(coarse.space.nodes, fine.space.nodes, "nodes")
+    vert_of = _matching(coarse.space.mesh.points, fine.space.mesh.points, "vertices")
+    distance = 2 * _element_size(coarse.space)
     rows = []
     for k, mu in enumerate(mus):
-        rows.append(_compare(cfg, coarse, fine, rom, mu, node_of, vert_of))
+        rows.append(_compare(cfg, pp_c, pp_f, rom, mu, node_of, vert_of, distance))
         if progress is not None:
             progress(k + 1, len(mus))
     cols = [np.array(c) for c in zip(*rows)]
-    _, away = _away(space, coarse.fixed, np.zeros(3), 0.0)
-    return DiscretisationCheck(names, mus, *cols, away=away, refine=refine, dofs=space.n_dofs,
-                               fine_dofs=space_f.n_dofs, time_s=time.perf_counter() - t0)
+    return DiscretisationCheck(names, mus, *cols, away=distance, refine=refine, dofs=coarse.space.n_dofs,
+                               fine_dofs=fine.space.n_dofs, time_s=time.perf_counter() - t0)
 
 
 def _check_mesh(rom, space, source: str) -> None:

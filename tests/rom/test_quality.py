@@ -14,7 +14,7 @@ from physar.fem.config import build_problem, parse_config
 from physar.fem.post import nodal_stress
 from physar.geometry import box_mesh, read_mesh
 from physar.rom.config import RomConfig, build_rom
-from physar.rom.quality import _away, check_points, discretisation_error, split_tets
+from physar.rom.quality import _away, _element_size, check_points, discretisation_error, split_tets
 
 L, B, H, E, NU, P, R, A = 1.0, 0.1, 0.1, 1e9, 0.3, 1.0, 0.04, 0.7
 I = B * H**3 / 12
@@ -45,7 +45,7 @@ def _true_errors(cfg, rom):
     sig = nodal_stress(problem.model, u)
     dev = sig - np.trace(sig, axis1=1, axis2=2)[:, None, None] * np.eye(3) / 3
     vm = np.sqrt(1.5 * np.einsum("vij,vij->v", dev, dev))
-    away, _ = _away(problem.space, problem.fixed, np.array([A, B / 2, H]), R)
+    away = _away(problem.space, problem.fixed, [(np.array([A, B / 2, H]), R)], 2 * _element_size(problem.space))
     fibre = away & (np.isclose(X[:, 2], 0) | np.isclose(X[:, 2], H))
     beam = P * np.clip(A - X[fibre, 0], 0, None) * (H / 2) / I
     return e_u, np.abs(vm[fibre] - beam).max() / (P * A * (H / 2) / I)
@@ -143,3 +143,28 @@ def test_check_points_span_the_box():
     assert np.allclose(mu[:, 0], [0.125, 0.25, 0.375, 0.5])
     assert np.all((mu[:, 1:] >= [10, -1]) & (mu[:, 1:] <= [20, 1]))
     assert len(np.unique(mu[:, 1])) == 4 and len(np.unique(mu[:, 2])) == 4
+
+
+def test_a_region_of_another_youngs_modulus_keeps_the_bar_stress():
+    """A bar (nu = 0, rollers) pulled by F at x = L, its half x > L/2 of Young's modulus E: sigma = F / A in
+    both halves for every E (series springs), u(L) = F L/2 / A (1/E_ref + 1/E). The model's peak von Mises and
+    the check solve agree with F / A; catches stress recovered with one modulus everywhere (E_ref / E off)."""
+    F, E_ref = 1000.0, 1e9
+    cfg = parse_config({
+        "mesh": {"box": [L, B, H], "cells": [4, 1, 1]},
+        "material": {"model": "linear", "E": E_ref, "nu": 0.0},
+        "fix": [{"box": [[0, 0, 0], [0, B, H]], "components": ["x"]},
+                {"box": [[0, 0, 0], [L, 0, H]], "components": ["y"]},
+                {"box": [[0, 0, 0], [L, B, 0]], "components": ["z"]}],
+        "load": [{"type": "traction", "box": [[L, 0, 0], [L, B, H]], "total": [F, 0, 0]}],
+        "fem": {"element": "P1"},
+        "parameter": [{"name": "E", "kind": "youngs_modulus", "range": [0.5e9, 4e9], "points": 41,
+                       "box": [[L / 2, 0, 0], [L, B, H]]}],
+        "rom": {"max_modes": 10, "tol": 1e-10}}, "bar.toml", RomConfig)
+    rom, _, _ = build_rom(cfg)
+    E = np.array([[0.7e9], [3.1e9]])
+    chk = discretisation_error(cfg, rom, points=E)
+    assert np.allclose(chk.peak_model, F / (B * H), rtol=1e-3) and np.allclose(chk.peak_fine, F / (B * H), rtol=1e-9)
+    assert chk.stress_max.max() < 1e-3 and chk.displacement_max.max() < 1e-3
+    tip = [rom.evaluate(e).reshape(-1, 3)[:, 0].max() for e in E[:, 0]]
+    assert np.allclose(tip, F * L / 2 / (B * H) * (1 / E_ref + 1 / E[:, 0]), rtol=1e-3)
