@@ -141,6 +141,16 @@ class ProjectPipeline:
         cost = np.sum((q - px[valid][None]) ** 2, (1, 2))
         return mus[int(np.argmin(cost))]
 
+    def _inliers(self, pose, mu, px, valid) -> np.ndarray:
+        """Dots whose reprojection error is below max(1 px, 4 x 1.4826 MAD of the errors): a detection
+        farther than that from the fitted model is another blob (texture, a reflection), not the dot."""
+        q = self.camera.project(self.dot_positions(mu)[valid], pose)
+        e = np.linalg.norm(q - px[valid], axis=1)
+        lim = max(1.0, 4 * 1.4826 * float(np.median(np.abs(e - np.median(e)))) + float(np.median(e)))
+        out = valid.copy()
+        out[np.flatnonzero(valid)[e > lim]] = False
+        return out
+
     def _solve(self, pe, px, valid, mu0, iters: int = 10):
         """Joint Gauss-Newton on (pose, mu) from the frame's pose and mu0; returns (mu, std, pose, rms px)."""
         trk = self.project.tracking
@@ -170,8 +180,11 @@ class ProjectPipeline:
             J = np.empty((r.size, free.size))
             for j, k in enumerate(free):
                 e = t.copy()
-                e[k] += steps[k]
-                J[:, j] = (res(e) - r) / steps[k]
+                h = steps[k]
+                if k >= 6 and e[k] + h > self.hi[k - 6]:   # at the upper bound: a backward difference (a forward
+                    h = -h                                  # one would be clipped to zero and freeze it there)
+                e[k] += h
+                J[:, j] = (res(e) - r) / h
             return J
 
         r = res(th)
@@ -244,6 +257,11 @@ class ProjectPipeline:
                 if self._fresh:
                     start = self._grid_start(pe.pose, px, valid)
                 mu, std, pose, rms = self._solve(pe, px, valid, start)
+                valid2 = self._inliers(pose, mu, px, valid)
+                if valid2.sum() < valid.sum() and valid2.sum() >= self.project.tracking.min_dots:
+                    valid = valid2                  # a wrong blob taken for a dot: solve without it
+                    n_dots = int(valid.sum())
+                    mu, std, pose, rms = self._solve(pe, px, valid, mu)
                 med = np.median(self._res_hist[-30:]) if len(self._res_hist) >= 5 else np.inf
                 if not self._fresh and rms > 4 * med:       # stuck in a local minimum, or a jump: search again
                     mu2, std2, pose2, rms2 = self._solve(pe, px, valid, self._grid_start(pe.pose, px, valid))

@@ -17,7 +17,7 @@ app = typer.Typer(
 )
 
 # Topic modules registering their commands; each is physar.cli.<name> with a `register(app)` function.
-TOPICS = ["mesh", "fem", "rom", "dynamics", "denoise", "ar", "mpm", "recon", "demo"]
+TOPICS = ["mesh", "fem", "rom", "dynamics", "denoise", "ar", "synth", "mpm", "recon", "demo"]
 
 
 def _version(value: bool) -> None:

@@ -1,0 +1,465 @@
+"""A synthetic video of ANY AR project: its object deformed by a finer finite-element model, textured, lit and
+filmed by a handheld camera, with the project's markers and dots, a cluttered wall behind, sensor noise and
+occluders. Test data for the product pipeline, never part of it (it knows the truth).
+
+Each frame (scenario time t):
+
+1. parameters p(t) from the scenario's schedule, displacement u = u_fine(p(t)) of :class:`FineTruth` (a mesh
+   ``refine`` times finer than the reduced model's: no inverse crime);
+2. the fine mesh's boundary triangles at X + u and the markers (rigid squares with a white quiet zone, placed as
+   the project declares them; a depth bias in the z-test keeps them above the face they are on), projected with the camera's lens model;
+3. a z-buffer rasteriser (:func:`rasterize`) gives per pixel the nearest front-facing triangle and its
+   perspective-correct barycentric coordinates b, so every surface pixel knows its REFERENCE point
+   X = Σ b_i X_i: the texture (tri-planar procedural noise), the dots (coverage
+   clip(0.5 + (r - |X - d|) / m, 0, 1), m = the triangle's metres per pixel: anti-aliased, sub-pixel exact)
+   and the marker images are functions of X, so they deform with the object;
+4. Lambert shading I = albedo (a + (1 - a) max(0, n·l)) with n interpolated from the deformed vertex normals,
+   global brightness with flicker, vignetting, a Gaussian PSF, read and shot noise.
+
+The wall is a textured plane behind the object, drawn by a homography. Outputs (:func:`render_project`):
+``video.mp4`` (H.264), ``truth.csv`` (per frame: time, every parameter's true value, camera pose, occluders),
+``scenario.json`` (the scenario with every default resolved) and ``camera.toml``.
+"""
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from physar.synth.scenario import Resolved, Scenario
+from physar.synth.truth import FineTruth
+
+MARKER_LIFT = 2e-5  # m: a printed marker's thickness above its face
+MARKER_BIAS = 5e-4  # m: depth bias of marker pixels in the z-test (a marker wins over the face it is stuck on)
+
+
+# ----------------------------------------------------------------------------------------------- rasteriser
+def rasterize(xy: np.ndarray, z: np.ndarray, tris: np.ndarray, width: int, height: int, front=None, bias=None):
+    """Z-buffer rasterisation of triangles with a pinhole's perspective-correct interpolation.
+
+    ``xy`` (n, 2) pixel coordinates of the vertices (pixel centres at integers), ``z`` (n,) their depths [m]
+    (> 0 in front of the camera), ``tris`` (m, 3) vertex indices, ``front`` (m,) bool mask of triangles drawn
+    (default: all), ``bias`` (m,) depth offsets [m] added in the z-test only (decals). A pixel p is inside a triangle when its three edge functions are >= 0; its screen-space
+    barycentrics β give the perspective-correct b_i = (β_i / z_i) / Σ_j β_j / z_j and the depth
+    1 / Σ_j β_j / z_j; the nearest triangle wins. Returns (pix (N,) flat pixel indices, tri (N,), b (N, 3)),
+    one entry per covered pixel."""
+    tris = np.asarray(tris, np.int64)
+    keep = np.all(z[tris] > 1e-6, axis=1)
+    if front is not None:
+        keep &= front
+    t_ids = np.flatnonzero(keep)
+    if t_ids.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+    P = xy[tris[t_ids]]  # (k, 3, 2)
+    x0 = np.clip(np.floor(P[..., 0].min(1)), 0, width - 1).astype(np.int64)
+    x1 = np.clip(np.ceil(P[..., 0].max(1)), 0, width - 1).astype(np.int64)
+    y0 = np.clip(np.floor(P[..., 1].min(1)), 0, height - 1).astype(np.int64)
+    y1 = np.clip(np.ceil(P[..., 1].max(1)), 0, height - 1).astype(np.int64)
+    inside_img = (P[..., 0].max(1) >= 0) & (P[..., 0].min(1) <= width - 1) & (P[..., 1].max(1) >= 0) & \
+        (P[..., 1].min(1) <= height - 1)
+    bw, bh = (x1 - x0 + 1) * inside_img, (y1 - y0 + 1) * inside_img
+    n = bw * bh
+    total = int(n.sum())
+    if total == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+    owner = np.repeat(np.arange(t_ids.size), n)
+    local = np.arange(total) - np.repeat(np.cumsum(n) - n, n)
+    px = x0[owner] + local % bw[owner]
+    py = y0[owner] + local // bw[owner]
+    a, b, c = P[owner, 0], P[owner, 1], P[owner, 2]
+    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    ok = np.abs(area) > 1e-12
+    inv = np.where(ok, 1.0 / np.where(ok, area, 1.0), 0.0)
+
+    def edge(p, q):  # twice the signed area of (p, q, pixel)
+        return (q[:, 0] - p[:, 0]) * (py - p[:, 1]) - (q[:, 1] - p[:, 1]) * (px - p[:, 0])
+
+    w0, w1, w2 = edge(b, c) * inv, edge(c, a) * inv, edge(a, b) * inv
+    eps = -1e-9
+    inside = ok & (w0 >= eps) & (w1 >= eps) & (w2 >= eps)
+    owner, px, py = owner[inside], px[inside], py[inside]
+    beta = np.column_stack([w0[inside], w1[inside], w2[inside]])
+    tri = t_ids[owner]
+    iz = 1.0 / z[tris[tri]]
+    wz = beta * iz
+    s = wz.sum(1)
+    depth = 1.0 / s
+    bary = wz / s[:, None]
+    pix = py * width + px
+    if bias is not None:
+        depth = depth + bias[tri]
+    order = np.lexsort((depth, pix))
+    pix, tri, bary = pix[order], tri[order], bary[order]
+    first = np.ones(pix.size, bool)
+    first[1:] = pix[1:] != pix[:-1]
+    return pix[first], tri[first], bary[first]
+
+
+# ------------------------------------------------------------------------------------------------- textures
+def noise_image(shape: tuple[int, int], feature_px: float, octaves: int, rng: np.random.Generator) -> np.ndarray:
+    """Zero-mean, unit-std band-limited noise (h, w) float32: octaves of white noise upsampled with bicubic
+    interpolation from cells of ``feature_px * 2**o`` pixels, amplitudes halving with the frequency."""
+    h, w = shape
+    out = np.zeros((h, w), np.float32)
+    for o in range(octaves):
+        cell = max(1.0, feature_px * 2 ** (octaves - 1 - o))
+        small = rng.standard_normal((max(2, int(h / cell) + 2), max(2, int(w / cell) + 2))).astype(np.float32)
+        out += cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC) * 0.5 ** (octaves - 1 - o)
+    out -= out.mean()
+    return out / max(float(out.std()), 1e-9)
+
+
+def aruco_texture(dictionary: str, marker_id: int, px_per_cell: int = 16) -> np.ndarray:
+    """The marker's image (float32 grey in [0, 1]) with a white quiet zone of one cell on every side; the
+    marker's own square spans [c, 1 - c] of the texture, c = 1 / (cells + 2)."""
+    from physar.vision.calibration import aruco_dictionary
+
+    d = aruco_dictionary(dictionary)
+    cells = d.markerSize + 2
+    side = cells * px_per_cell
+    img = cv2.aruco.generateImageMarker(d, int(marker_id), side, borderBits=1)
+    out = np.full((side + 2 * px_per_cell,) * 2, 255, np.uint8)
+    out[px_per_cell:-px_per_cell, px_per_cell:-px_per_cell] = img
+    return out.astype(np.float32) / 255.0
+
+
+def _remap(img: np.ndarray, u: np.ndarray, v: np.ndarray, border=cv2.BORDER_REFLECT) -> np.ndarray:
+    """Bilinear samples of ``img`` at pixel coordinates (u, v) (1-D arrays)."""
+    if u.size == 0:
+        return np.zeros((0,) + img.shape[2:], np.float32)
+    n, w = u.size, 4096  # OpenCV maps are at most 32767 wide: fold the samples into rows
+    rows = -(-n // w)
+    mx = np.zeros(rows * w, np.float32)
+    my = np.zeros(rows * w, np.float32)
+    mx[:n], my[:n] = u, v
+    out = cv2.remap(img, mx.reshape(rows, w), my.reshape(rows, w), cv2.INTER_LINEAR, borderMode=border)
+    return out.reshape((rows * w,) + img.shape[2:])[:n]
+
+
+# ------------------------------------------------------------------------------------------------- renderer
+class ProjectRenderer:
+    """Renders frames of a project's synthetic clip: ``render(k) -> (BGR uint8 image, truth row dict)``."""
+
+    def __init__(self, project, scenario: Scenario | Resolved, truth: FineTruth | None = None, quick: bool = False):
+        self.res = scenario if isinstance(scenario, Resolved) else Resolved(scenario, project, quick=quick)
+        self.project = project
+        sc = self.res.sc
+        self.truth = truth or FineTruth(project, refine=sc.truth.refine)
+        self.camera = self.res.camera
+        self.rng = np.random.default_rng(sc.seed)
+        space = self.truth.space
+        mesh = space.mesh
+        surf = mesh.boundary()
+        self.X = mesh.points  # reference vertex positions (P2 spaces number mesh points first)
+        self.n_vert = len(self.X)
+        self.tris = surf.faces_global
+        # reference face normals (for tri-planar texture weights) and metres-per-unit reference quantities
+        e1 = self.X[self.tris[:, 1]] - self.X[self.tris[:, 0]]
+        e2 = self.X[self.tris[:, 2]] - self.X[self.tris[:, 0]]
+        nref = np.cross(e1, e2)
+        self.area_ref = 0.5 * np.linalg.norm(nref, axis=1)
+        self.nref = nref / np.maximum(2 * self.area_ref, 1e-30)[:, None]
+        self.corner_pairs = self._crease_pairs(math.radians(35.0))
+        # dots: for each triangle the (up to 2) nearest dots within reach (static, reference frame)
+        dots_cfg = project.config.dots
+        self.dots = np.asarray(project.dots, float)
+        self.dot_r = 0.5 * float(dots_cfg.diameter) if len(self.dots) else 0.0
+        self.dot_rgb = np.asarray(dots_cfg.colour, float) / 255.0 if len(self.dots) else np.zeros(3)
+        self.tri_dots = self._near_dots()
+        # textures
+        tex = sc.texture
+        self.base_rgb = np.asarray(tex.base, float) / 255.0
+        self.contrast = tex.contrast
+        self.feature = self.res.feature
+        lo, hi = mesh.bounds
+        self.lo = lo - 1e-3
+        ext = (hi - lo) + 2e-3
+        texel = 0.5 * self.feature  # texture pixel [m]
+        scale = min(1.0, 4096.0 / max(float(ext.max()) / texel, 1.0))
+        self.texel = texel / scale
+        self.planes = []  # tri-planar textures: projections onto yz, xz, xy
+        for ax in range(3):
+            a, b = [i for i in range(3) if i != ax]
+            shape = (int(ext[b] / self.texel) + 4, int(ext[a] / self.texel) + 4)
+            self.planes.append((a, b, noise_image(shape, 2.0, tex.octaves, self.rng)))
+        self._markers()
+        self._wall()
+
+    # -------------------------------------------------------------------------------------- setup helpers
+    def _crease_pairs(self, crease: float) -> tuple[np.ndarray, np.ndarray]:
+        """Smoothing groups of the shading normals: pairs (corner c = 3 f + j, face g) such that g touches
+        the vertex of corner c and its reference normal is within ``crease`` of face f's. A corner's normal
+        is the sum of those faces' (area-weighted) normals: smooth on curved surfaces, sharp at edges."""
+        m = len(self.tris)
+        corner_v = self.tris.ravel()
+        order = np.argsort(corner_v, kind="stable")
+        sv = corner_v[order]
+        starts = np.searchsorted(sv, np.arange(self.n_vert + 1))
+        deg = starts[1:] - starts[:-1]
+        n_c = deg[corner_v]
+        c_idx = np.repeat(np.arange(3 * m), n_c)
+        offs = np.arange(n_c.sum()) - np.repeat(np.cumsum(n_c) - n_c, n_c)
+        g = order[np.repeat(starts[corner_v], n_c) + offs] // 3
+        f = c_idx // 3
+        keep = np.einsum("ij,ij->i", self.nref[f], self.nref[g]) >= math.cos(crease)
+        return c_idx[keep], g[keep]
+
+    def _near_dots(self) -> np.ndarray:
+        m = len(self.tris)
+        out = np.full((m, 2), -1, np.int64)
+        if not len(self.dots):
+            return out
+        from scipy.spatial import cKDTree
+
+        c = self.X[self.tris].mean(1)
+        reach = np.linalg.norm(self.X[self.tris] - c[:, None], axis=2).max(1) + 1.5 * self.dot_r
+        tree = cKDTree(self.dots)
+        k = min(2, len(self.dots))
+        d, i = tree.query(c, k=k)
+        d, i = d.reshape(m, k), i.reshape(m, k)
+        near = d <= reach[:, None]
+        out[:, :k] = np.where(near, i, -1)
+        return out
+
+    def _markers(self):
+        """Marker plates: a (g+1)^2 vertex grid per marker (follows the lens distortion), UV in the texture."""
+        from physar.vision.calibration import aruco_dictionary
+
+        board = self.project.board
+        self.marker_tex, verts, uvs, tris, owner = [], [], [], [], []
+        g = 4
+        base = 0
+        for k, (mid, C) in enumerate(zip(board.ids, board.corners)):
+            tex = aruco_texture(board.dictionary, int(mid))
+            self.marker_tex.append(tex)
+            n = np.cross(C[1] - C[0], C[3] - C[0])
+            n = -n / np.linalg.norm(n)  # outward normal (see physar.synth.scenario._marker_normals)
+            cells = aruco_dictionary(board.dictionary).markerSize + 2
+            q = 1.0 / cells  # quiet zone width as a fraction of the marker side
+            s = np.linspace(-q, 1 + q, g + 1)
+            S, T = np.meshgrid(s, s)  # S along TL->TR, T along TL->BL
+            P = C[0] + S[..., None] * (C[1] - C[0]) + T[..., None] * (C[3] - C[0]) + MARKER_LIFT * n
+            verts.append(P.reshape(-1, 3))
+            side = tex.shape[0]
+            # texel i covers [i - 1/2, i + 1/2] in remap coordinates: the texture spans [-1/2, side - 1/2]
+            uvs.append(np.column_stack([(S.ravel() + q) / (1 + 2 * q) * side - 0.5,
+                                        (T.ravel() + q) / (1 + 2 * q) * side - 0.5]))
+            i = np.arange((g + 1) ** 2).reshape(g + 1, g + 1) + base
+            a, b, c, d = i[:-1, :-1].ravel(), i[:-1, 1:].ravel(), i[1:, 1:].ravel(), i[1:, :-1].ravel()
+            # orientation: (TL, TR, BR) seen from outside is clockwise in the object frame -> use (a, d, c)
+            # and (a, c, b) so that the face normal of each triangle is the outward n
+            tris.append(np.concatenate([np.column_stack([a, d, c]), np.column_stack([a, c, b])]))
+            owner.append(np.full(2 * g * g, k))
+            base += (g + 1) ** 2
+        if verts:
+            self.m_X = np.vstack(verts)
+            self.m_uv = np.vstack(uvs)
+            self.m_tris = np.vstack(tris)
+            self.m_owner = np.concatenate(owner)
+            n = np.cross(self.m_X[self.m_tris[:, 1]] - self.m_X[self.m_tris[:, 0]],
+                         self.m_X[self.m_tris[:, 2]] - self.m_X[self.m_tris[:, 0]])
+            self.m_n = n / np.linalg.norm(n, axis=1, keepdims=True)
+        else:
+            self.m_X = np.zeros((0, 3))
+            self.m_tris = np.zeros((0, 3), np.int64)
+
+    def _wall(self):
+        """A cluttered wall: plane perpendicular to the mean line of sight, ``wall_distance`` behind the target,
+        with band-limited noise and random rectangles and discs (features for markerless registration)."""
+        res = self.res
+        view = res._eye_dir(res.azimuth, res.elevation)  # target -> camera
+        self.wall_o = res.target - res.wall_distance * view
+        e1 = np.cross(res.up, view)
+        if np.linalg.norm(e1) < 1e-6:
+            e1 = res.axes[0]
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(view, e1)  # up on the wall
+        self.wall_axes = (e1, -e2)  # texture u right, v down
+        cam = self.camera
+        D = res.distance + res.wall_distance
+        half = 1.6 * D * max(cam.width / cam.fx, cam.height / cam.fy)  # half side [m], covers the orbit
+        n = 2048
+        self.wall_half, self.wall_n = half, n
+        bg = self.res.sc.background
+        rng = self.rng
+        base = np.asarray(bg.base, float)[::-1] / 255.0  # BGR
+        img = base * (1 + bg.contrast * noise_image((n, n), 3.0, 4, rng)[..., None])
+        for _ in range(90):  # clutter: posters, boxes, round things
+            col = np.clip(base * rng.uniform(0.5, 1.5, 3), 0, 1)
+            x, y = rng.integers(0, n, 2)
+            if rng.random() < 0.6:
+                w, h = rng.integers(n // 80, n // 12, 2)
+                cv2.rectangle(img, (int(x), int(y)), (int(x + w), int(y + h)), col.tolist(), -1, cv2.LINE_AA)
+            else:
+                cv2.circle(img, (int(x), int(y)), int(rng.integers(n // 150, n // 30)), col.tolist(), -1,
+                           cv2.LINE_AA)
+        self.wall_img = np.clip(img, 0, 1).astype(np.float32)
+
+    # ---------------------------------------------------------------------------------------------- frames
+    def deformed(self, params: dict) -> np.ndarray:
+        """Deformed vertex positions X + u (n, 3) [m] of the fine truth at the parameter values."""
+        u = self.truth.solve(params).reshape(-1, 3)[: self.n_vert]
+        return self.X + u
+
+    def render(self, k: int) -> tuple[np.ndarray, dict]:
+        res = self.res
+        cam = self.camera
+        W, H = cam.size
+        t = k / res.fps
+        params = res.params(t)
+        pose = res.pose(t)
+        x = self.deformed(params)
+        light = res.light
+        sc = res.sc
+        L = sc.lighting
+        fr = np.random.default_rng([sc.seed, k])
+        # wall
+        e1, e2 = self.wall_axes
+        s = 2 * self.wall_half / (self.wall_n - 1)
+        Hm = cam.K @ np.column_stack([pose.R @ (e1 * s), pose.R @ (e2 * s),
+                                      pose.R @ (self.wall_o - self.wall_half * (e1 + e2)) + pose.t])
+        img = cv2.warpPerspective(self.wall_img, Hm, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        wall_n = np.cross(e2, e1)
+        img *= L.ambient + (1 - L.ambient) * max(0.0, float(wall_n @ light)) * 0.8
+        # geometry: object surface then marker plates, one z-buffer
+        nv = len(x)
+        allX = np.vstack([x, self.m_X])
+        tris = np.vstack([self.tris, self.m_tris + nv])
+        xc = allX @ pose.R.T + pose.t
+        z = xc[:, 2]
+        xy = cam.project(allX, pose)
+        tn = np.cross(allX[tris[:, 1]] - allX[tris[:, 0]], allX[tris[:, 2]] - allX[tris[:, 0]])
+        front = np.einsum("ij,ij->i", tn @ pose.R.T, -xc[tris].mean(1)) > 0
+        bias = np.r_[np.zeros(len(self.tris)), np.full(len(self.m_tris), -MARKER_BIAS)]
+        pix, tri, b = rasterize(xy, z, tris, W, H, front, bias)
+        flat = img.reshape(-1, 3)
+        ns = len(self.tris)
+        obj = tri < ns
+        if obj.any():
+            flat[pix[obj]] = self._shade_surface(x, tri[obj], b[obj], xy, light, L)
+        mk = ~obj
+        if mk.any():
+            flat[pix[mk]] = self._shade_markers(tri[mk] - ns, b[mk], light, L)
+        # brightness, flicker, vignetting
+        gain = L.brightness * (1 + L.flicker * math.sin(2 * math.pi * 1.7 * t + sc.seed))
+        yy, xx = np.mgrid[0:H, 0:W]
+        r2 = ((xx - cam.K[0, 2]) ** 2 + (yy - cam.K[1, 2]) ** 2) / (0.25 * (W * W + H * H))
+        img *= (gain * (1 - L.vignetting * r2)).astype(np.float32)[..., None]
+        occ = res.occlusions(k)
+        for o in occ:
+            self._occluder(img, o, pose)
+        # sensor: PSF, shot and read noise [DN]
+        dn = img * 255.0
+        if sc.sensor.psf > 0:
+            dn = cv2.GaussianBlur(dn, (0, 0), sc.sensor.psf)
+        sen = sc.sensor
+        sigma = np.sqrt(sen.read_noise ** 2 + sen.shot_noise ** 2 * np.maximum(dn, 0))
+        dn = dn + sigma * fr.standard_normal(dn.shape).astype(np.float32)
+        out = np.clip(dn + 0.5, 0, 255).astype(np.uint8)
+        row = {"frame": k, "time_s": t, **{f"{n}_true": v for n, v in params.items()},
+               **dict(zip(("rx", "ry", "rz"), pose.rvec.tolist())), **dict(zip(("tx", "ty", "tz"), pose.t.tolist())),
+               "occluders": len(occ)}
+        return out, row
+
+    def _shade_surface(self, x, tri, b, xy, light, L) -> np.ndarray:
+        T = self.tris[tri]
+        Xr = np.einsum("ni,nij->nj", b, self.X[T])  # reference point of each pixel
+        # deformed vertex normals (area weighted), interpolated
+        fn = np.cross(x[self.tris[:, 1]] - x[self.tris[:, 0]], x[self.tris[:, 2]] - x[self.tris[:, 0]])
+        c_idx, g = self.corner_pairs
+        cn = np.zeros((3 * len(self.tris), 3))
+        np.add.at(cn, c_idx, fn[g])
+        cn /= np.maximum(np.linalg.norm(cn, axis=1, keepdims=True), 1e-30)
+        n = np.einsum("ni,nij->nj", b, cn.reshape(-1, 3, 3)[tri])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+        # tri-planar texture in the reference frame
+        w = np.abs(self.nref[tri]) ** 4
+        w /= w.sum(1, keepdims=True)
+        tex = np.zeros(len(tri), np.float32)
+        for ax, (a, bb, im) in enumerate(self.planes):
+            sel = w[:, ax] > 1e-3
+            u = (Xr[sel, a] - self.lo[a]) / self.texel
+            v = (Xr[sel, bb] - self.lo[bb]) / self.texel
+            tex[sel] += w[sel, ax] * _remap(im, u, v)
+        albedo = np.clip(self.base_rgb[None, ::-1] * (1 + self.contrast * tex[:, None]), 0, 1)
+        # dots: anti-aliased coverage from the distance in the reference frame, m = metres per pixel
+        if len(self.dots):
+            e1, e2 = xy[T[:, 1]] - xy[T[:, 0]], xy[T[:, 2]] - xy[T[:, 0]]
+            a2 = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+            mpp = np.sqrt(self.area_ref[tri] / np.maximum(a2, 1e-12))
+            cover = np.zeros(len(tri))
+            for j in range(self.tri_dots.shape[1]):
+                di = self.tri_dots[tri, j]
+                has = di >= 0
+                if has.any():
+                    d = np.linalg.norm(Xr[has] - self.dots[di[has]], axis=1)
+                    cover[has] = np.maximum(cover[has], np.clip(0.5 + (self.dot_r - d) / mpp[has], 0, 1))
+            albedo = albedo * (1 - cover[:, None]) + self.dot_rgb[None, ::-1] * cover[:, None]
+        lam = L.ambient + (1 - L.ambient) * np.maximum(0.0, n @ light)
+        return (albedo * lam[:, None]).astype(np.float32)
+
+    def _shade_markers(self, tri, b, light, L) -> np.ndarray:
+        T = self.m_tris[tri]
+        uv = np.einsum("ni,nij->nj", b, self.m_uv[T])
+        out = np.zeros((len(tri), 3), np.float32)
+        own = self.m_owner[tri]
+        for k in np.unique(own):
+            sel = own == k
+            out[sel] = _remap(self.marker_tex[k], uv[sel, 0], uv[sel, 1], cv2.BORDER_REPLICATE)[:, None]
+        paper = 0.05 + 0.85 * out  # printed black / white paper
+        lam = L.ambient + (1 - L.ambient) * np.maximum(0.0, self.m_n[tri] @ light)
+        return (paper * lam[:, None]).astype(np.float32)
+
+    def _occluder(self, img, o, pose):
+        cam = self.camera
+        H = cam.height
+        if o.point is not None:
+            c = cam.project(np.asarray(o.point, float)[None], pose)[0]
+        else:
+            c = np.array([o.center[0] * cam.width, o.center[1] * H])
+        r = o.radius * H
+        col = (np.asarray(o.colour, float)[::-1] / 255.0).tolist()
+        # a hand-like blob: a disc and an arm to the nearest image border, anti-aliased
+        sh = 4
+        cv2.circle(img, (round(c[0] * 2 ** sh), round(c[1] * 2 ** sh)), int(r * 2 ** sh), col, -1,
+                   cv2.LINE_AA, sh)
+        edge = np.array([c[0], H + r])
+        cv2.line(img, (int(c[0]), int(c[1])), (int(edge[0]), int(edge[1])), col, int(1.2 * r), cv2.LINE_AA)
+
+
+# ---------------------------------------------------------------------------------------------------- files
+def truth_header(names) -> list[str]:
+    return ["frame", "time_s", *[f"{n}_true" for n in names], "rx", "ry", "rz", "tx", "ty", "tz", "occluders"]
+
+
+def render_project(project, scenario: Scenario, out_dir, progress: Callable[[int, int], None] | None = None,
+                   quick: bool = False, crf: int | None = None) -> dict:
+    """Render a project's synthetic clip into ``out_dir`` (created; only these files are written):
+    ``video.mp4``, ``truth.csv``, ``camera.toml`` and ``scenario.json``. ``quick``: half size, at most 2 s.
+    Returns a summary (paths, frames, size, truth solves)."""
+    from physar.ar.video import write_clip
+    from physar.output import atomic_write_text
+
+    r = ProjectRenderer(project, scenario, quick=quick)
+    res = r.res
+    names = list(project.rom.names)
+    header = truth_header(names)
+
+    def frame(k):
+        img, row = r.render(k)
+        return img, [row[h] if not isinstance(row[h], float) else f"{row[h]:.9g}" for h in header]
+
+    out = Path(out_dir)
+    info = write_clip(out, "video.mp4", res.camera, res.fps, crf if crf is not None else res.sc.video.crf, header,
+                      res.n_frames, frame, progress)
+    atomic_write_text(out / "scenario.json", json.dumps(res.as_dict(), indent=1))
+    info.update(scenario=str(out / "scenario.json"), truth_solves=r.truth.solves,
+                truth_dofs=int(r.truth.space.n_dofs))
+    return info
+
+
+__all__ = ["ProjectRenderer", "aruco_texture", "noise_image", "rasterize", "render_project", "truth_header"]

@@ -1,0 +1,88 @@
+"""Accuracy of an AR run against the truth of a synthetic clip: ``truth.csv`` of :func:`physar.synth.render_project`
+(columns ``{name}_true``, ``occluders``) against the estimates CSV of ``physar ar run`` (``{name}_est``,
+``status``).
+
+Judged frames: every frame both files have, except frames with an occluder in view and the ``recovery`` frames
+after one (those measure recovery, reported separately as the frames until the error is back within the
+tolerance). The tolerance of a parameter is ``tol`` times the length of its range (for a load position: the
+path length; 1 % is seed 000's accuracy goal, §5.1)."""
+from __future__ import annotations
+
+import numpy as np
+
+from physar.errors import ConfigError
+
+
+def read_columns(path, what: str = "CSV file") -> dict:
+    """Columns of a CSV file with a header row: float arrays where every value parses, else str arrays.
+    A missing, empty, binary or ragged file is one ConfigError naming it."""
+    import csv
+    from pathlib import Path
+
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{path}: {what} not found")
+    try:
+        with open(p, newline="", encoding="utf-8") as fh:
+            rows = list(csv.reader(fh))
+    except (UnicodeDecodeError, csv.Error) as e:
+        raise ConfigError(f"{path}: not a CSV {what} ({e.__class__.__name__})") from None
+    if not rows or not rows[0]:
+        raise ConfigError(f"{path}: empty {what}")
+    head, body = rows[0], rows[1:]
+    bad = next((i for i, r in enumerate(body) if len(r) != len(head)), None)
+    if bad is not None:
+        raise ConfigError(f"{path}: row {bad + 2} has {len(body[bad])} values, the header {len(head)}")
+    cols = {}
+    for j, h in enumerate(head):
+        vals = [r[j] for r in body]
+        try:
+            cols[h] = np.array(vals, float)
+        except ValueError:
+            cols[h] = np.array(vals)
+    return cols
+
+
+def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None = None, tol: float = 0.01,
+          recovery: int = 5, source: str = "estimates") -> dict:
+    """Per parameter: judged frames, frames within tol x range, max / mean / median |error|, and the recovery
+    frames after each occlusion. ``ranges`` {name: (lo, hi)} (default: the span of the truth)."""
+    names = [c[:-5] for c in truth if c.endswith("_true")]
+    if not names:
+        raise ConfigError("truth file has no <name>_true column")
+    missing = [n for n in names if f"{n}_est" not in est]
+    if missing:
+        raise ConfigError(f"{source}: no column {missing[0]}_est (the truth has parameters {', '.join(names)})")
+    n = min(len(truth[f"{names[0]}_true"]), len(est[f"{names[0]}_est"]))
+    occ = np.asarray(truth.get("occluders", np.zeros(n)), float)[:n] > 0
+    after = np.zeros(n, bool)
+    ends = np.flatnonzero(occ[:-1] & ~occ[1:]) + 1
+    for e in ends:
+        after[e:e + recovery] = True
+    status = np.asarray(est.get("status", np.array(["tracking"] * n)))[:n]
+    judged = ~occ & ~after
+    out = {"frames": int(n), "judged": int(judged.sum()), "tol": tol, "parameters": {}}
+    for name in names:
+        t = np.asarray(truth[f"{name}_true"], float)[:n]
+        e = np.asarray(est[f"{name}_est"], float)[:n]
+        lo, hi = (ranges or {}).get(name, (float(t.min()), float(t.max())))
+        lim = tol * max(hi - lo, 1e-300)
+        err = np.abs(e - t)
+        err[~np.isfinite(err)] = np.inf
+        ej = err[judged]
+        rec = []
+        for s in ends:
+            ok = np.flatnonzero(err[s:s + 30] <= lim)
+            rec.append(int(ok[0]) + 1 if ok.size else None)
+        out["parameters"][name] = {
+            "tolerance": lim, "within": int(np.sum(ej <= lim)), "judged": int(ej.size),
+            "max_error": float(ej.max()) if ej.size else float("nan"),
+            "mean_error": float(ej.mean()) if ej.size else float("nan"),
+            "median_error": float(np.median(ej)) if ej.size else float("nan"),
+            "worst_frame": int(np.flatnonzero(judged)[np.argmax(ej)]) if ej.size else None,
+            "recovery_frames": rec}
+    out["tracking"] = int(np.sum(status[:n] == "tracking"))
+    return out
+
+
+__all__ = ["read_columns", "score"]

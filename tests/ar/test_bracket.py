@@ -1,0 +1,54 @@
+"""The new example object (issue 16): a printed L-bracket tetrahedralised from an STL surface, clamped by a plane,
+a load moving along a curved path on its arm plus a sideways offset, markers on three planes (its web, the
+wall, the table). Filmed by the general test-data renderer with truth from a mesh 8x finer; run by the same
+project pipeline as every other project."""
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from physar.ar.project import load_project
+from physar.ar.project_pipeline import ProjectPipeline
+from physar.synth import Scenario, render_project
+from physar.synth.score import read_columns, score
+
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "ar" / "bracket"
+
+
+@pytest.fixture(scope="module")
+def bracket(tmp_path_factory):
+    d = tmp_path_factory.mktemp("bracket")
+    for f in ("project.toml", "rom.toml", "bracket.stl"):
+        shutil.copy(EXAMPLE / f, d / f)
+    shutil.copy(EXAMPLE.parents[1] / "camera_720p.toml", d / "camera.toml")
+    (d / "project.toml").write_text((d / "project.toml").read_text().replace("../../camera_720p.toml", "camera.toml"))
+    return load_project(d / "project.toml")
+
+
+def test_bracket_load_position_along_the_curved_path(bracket, tmp_path):
+    """1.6 s at 1280x720: the load dwells at s = 100 mm, moves to 60 mm and dwells, 4 mm off the path. Every
+    frame's position within 3 % of the 128 mm path of the truth, the median within 1 % (measured: the model's
+    5 mm mesh is 0.8 % stiffer than the truth, which alone biases s by about 0.7 mm; the offset is weakly
+    observable and correlated with s; the filter lags at the start of a move). Catches: the polyline path read as its chord
+    (s off by mm), a tetrahedralised mesh without the plane clamp (no equilibrium: the build fails), the
+    offset parameter ignored by the truth or the model (s biased), the 3-plane board solved as planar."""
+    p = bracket
+    sc = Scenario.model_validate({
+        "seed": 5, "video": {"duration": 1.6},
+        "schedule": {"s": {"keyframes": [[0.0, 0.10], [0.5, 0.10], [1.1, 0.06]]},
+                     "o": {"keyframes": [[0.0, 0.004]]}},
+        "camera": {"target": [0.11, 0.02, 0.0], "azimuth": -55.0, "elevation": 38.0, "distance": 0.4}})
+    info = render_project(p, sc, tmp_path / "clip")
+    assert info["truth_dofs"] > 4 * 3 * p.space().n_nodes          # the truth is finer than the model
+    ProjectPipeline(p).run(tmp_path / "clip" / "video.mp4", tmp_path / "aug.mp4", tmp_path / "est.csv")
+    ranges = {n: tuple(map(float, r)) for n, r in zip(p.rom.names, p.rom.ranges)}
+    res = score(read_columns(tmp_path / "clip" / "truth.csv"), read_columns(tmp_path / "est.csv"), ranges)
+    s = res["parameters"]["s"]
+    assert abs(ranges["s"][1] - 0.1278) < 1e-3                       # arc length of the curved path
+    assert res["tracking"] == res["frames"] == 48
+    assert s["judged"] == 48 and s["max_error"] <= 0.03 * 0.1278, s
+    assert s["median_error"] <= 0.01 * 0.1278, s
+    # the sideways offset is weakly observable (plate twist): only its sign and rough size
+    o = read_columns(tmp_path / "est.csv")["o_est"]
+    assert np.median(o) > 0
