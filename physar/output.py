@@ -9,8 +9,8 @@
   (``g.stopped``) that a frame loop polls, so that it can finish the current frame, close its writers and
   rename its outputs; a second signal raises KeyboardInterrupt (abort: the temporaries are removed).
   :func:`stop_requested` lets blocking readers (live sources) see the flag.
-* :func:`check_folder` / :func:`atomic_folder` do the same for a command that writes a folder: a folder holding
-  files the command did not write is refused (never deleted), a previous output of the same command is
+* :func:`check_folder` / :func:`atomic_folder` do the same for a command that writes a folder: a folder
+  holding files the command did not write is refused (never deleted), a previous output of the same command is
   replaced only once the new one is complete.
 * :func:`write_text`, :func:`write_bytes`, :func:`write_json`, :func:`write_npz`, :func:`save_figure`: whole
   files through :func:`atomic_path`; ``atomic_path(path, companions=True)`` for formats that write companion
@@ -216,7 +216,7 @@ def check_folder(path, *, own: Callable[[str], bool] | None = None, inputs: Iter
 
 
 def own_names(*patterns: str) -> Callable[[str], bool]:
-    """A predicate for :func:`check_folder`: the entry name matches one of the regular ``patterns`` in full."""
+    """A predicate for :func:`check_folder`: the name matches one of the regular ``patterns`` in full."""
     rx = re.compile("|".join(f"(?:{p})" for p in patterns))
     return lambda name: rx.fullmatch(name) is not None
 
@@ -276,7 +276,8 @@ def check_memory(nbytes: float, what: str) -> None:
     available now (:func:`available_memory`): one line with both figures, before anything is allocated."""
     avail = available_memory()
     if not nbytes <= avail:
-        raise ConfigError(f"{what} needs about {_size(nbytes)} of memory, more than the {_size(avail)} available")
+        raise ConfigError(f"{what} needs about {_size(nbytes)} of memory, more than the {_size(avail)} "
+                          "available")
 
 
 _ACTIVE: list[SignalGuard] = []

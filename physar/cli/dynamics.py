@@ -118,6 +118,7 @@ def simulate(
         sim = build_simulation(cfg)
         with signal_guard() as guard, tqdm(total=cfg.dynamics.steps, desc=f"{cfg.dynamics.method} steps",
                                            file=sys.stderr, disable=None) as bar:
+            log(f"simulating {cfg.dynamics.steps} steps (Ctrl-C stops and writes the steps done)")
             try:
                 traj = run_simulation(sim, lambda k, n: bar.update(1), stop=lambda: guard.stopped)
             except SimulationDiverged as exc:
