@@ -49,23 +49,25 @@ def demo(
 
     bars = {}
 
-    def progress(stage, k, n):
+    def progress(stage, k, n):  # bars on a terminal only (disable=None), always closed
         if stage not in bars:
-            bars[stage] = tqdm(total=n or None, desc=stage, leave=True, file=__import__("sys").stderr)
+            bars[stage] = tqdm(total=n or None, desc=stage, leave=True, file=__import__("sys").stderr, disable=None)
         bars[stage].update(k - bars[stage].n)
 
-    if scene == "foam":
-        from physar.ar.foam import run_foam_demo
+    try:
+        if scene == "foam":
+            from physar.ar.foam import run_foam_demo
 
-        report = run_foam_demo(out, quick=quick, progress=progress)
-    elif scene == "seal":
-        from physar.ar.seal import run_seal_demo
+            report = run_foam_demo(out, quick=quick, progress=progress)
+        elif scene == "seal":
+            from physar.ar.seal import run_seal_demo
 
-        report = run_seal_demo(out, quick=quick, progress=progress)
-    else:
-        report = run_ar_demo(out, quick=quick, progress=progress)
-    for b in bars.values():
-        b.close()
+            report = run_seal_demo(out, quick=quick, progress=progress)
+        else:
+            report = run_ar_demo(out, quick=quick, progress=progress)
+    finally:
+        for b in bars.values():
+            b.close()
     if json_out:
         print_json(report)
         return

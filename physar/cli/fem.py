@@ -30,13 +30,15 @@ def solve(
 
     def progress(step: int, steps: int) -> None:
         nonlocal bar
-        if steps > 1:
-            bar = bar or tqdm(total=steps, desc="load steps", file=__import__("sys").stderr)
+        if steps > 1:  # a bar on a terminal only (disable=None), always closed
+            bar = bar or tqdm(total=steps, desc="load steps", file=__import__("sys").stderr, disable=None)
             bar.update(1)
 
-    result = run_config(config, progress)
-    if bar is not None:
-        bar.close()
+    try:
+        result = run_config(config, progress)
+    finally:
+        if bar is not None:
+            bar.close()
     write_mesh(out, result.problem.space.mesh, point_data=result.point_data(),
                cell_data={"von_mises": result.von_mises})
     summary = result.summary()
