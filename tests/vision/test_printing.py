@@ -105,7 +105,7 @@ def test_bad_inputs_give_one_line_and_no_file(tmp_path):
         (lambda p: write_marker_sheet([("DICT_4X4_50", -1, 0.03)], p), "outside DICT_4X4_50's range"),
         (lambda p: write_marker_sheet([("DICT_9X9_1", 0, 0.03)], p), "unknown ArUco dictionary"),
         (lambda p: write_marker_sheet([("DICT_4X4_50", 1, 1.5)], p), "larger than A0"),
-        (lambda p: write_board_sheet(CharucoSpec(40, 30, 0.04, 0.03), p), "larger than A0"),
+        (lambda p: write_board_sheet(CharucoSpec(40, 30, 0.04, 0.03, "DICT_5X5_1000"), p), "larger than A0"),
         (lambda p: write_board_sheet(CharucoSpec(), p, paper="A4"), "do not fit on paper 'A4'"),
         (lambda p: write_board_sheet(CharucoSpec(), p, dpi=10), "dpi must be within 72..1200, got 10"),
         (lambda p: write_marker_sheet([], p), "no markers"),
