@@ -22,13 +22,13 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, Strict, field_validator, model_validator
-from typing_extensions import Annotated
+from pydantic import Field, PrivateAttr, Strict, field_validator, model_validator
 
 from physar.errors import ConfigError
+from physar.fem.config import _Strict  # extra keys forbidden, no bool/str -> number coercion
 
 # strict scalars: no bool -> number or str -> number coercion (TOML arrays still become tuples)
 Float = Annotated[float, Strict()]
@@ -38,8 +38,6 @@ Bool = Annotated[bool, Strict()]
 Vec3 = tuple[Float, Float, Float]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
 
 
 class ModelSection(_Strict):
@@ -352,4 +350,4 @@ exaggeration = 1.0
 '''
 
 
-__all__ = ["ARProject", "ProjectConfig", "TEMPLATE", "load_model", "load_project"]
+__all__ = ["TEMPLATE", "ARProject", "ProjectConfig", "load_model", "load_project"]

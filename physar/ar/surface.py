@@ -145,10 +145,10 @@ class SurfaceOverlay:
     def _arrow(self, img, camera, pose, c, mu):
         if self.load_path is None or self.load_param is None:
             return
-        P = self.load_path
-        arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))]
-        s = float(np.clip(mu[self.load_param], 0.0, arc[-1]))
-        base = np.array([np.interp(s, arc, P[:, k]) for k in range(3)])   # the point at arc length s
+        from physar.geometry import path_length, path_point
+
+        s = float(np.clip(mu[self.load_param], 0.0, path_length(self.load_path)))
+        base = path_point(self.load_path, s)
         d = self.load_dir if self.load_dir is not None else np.array([0, 0, -1.0])
         span = float(np.linalg.norm(self.X0.max(0) - self.X0.min(0)))
         q = camera.project(np.array([base - d * 0.12 * span, base]), pose)

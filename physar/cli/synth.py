@@ -35,7 +35,17 @@ def render(
         check_destination(out / name, inputs=[project, scenario], kind=name)
     proj = load_project(project, progress=bar("model"))
     sc = load_scenario(scenario, proj) if scenario is not None else Scenario()
-    info = render_project(proj, sc, out, progress=bar("render"), quick=quick)
+    existed = out.is_dir()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ConfigError(f"{out}: cannot create the output folder ({e.strerror})") from None
+    try:
+        info = render_project(proj, sc, out, progress=bar("render"), quick=quick)
+    except BaseException:
+        if not existed and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # the empty folder this command created; the outputs' temporaries are already gone
+        raise
     if json_out:
         print_json(info)
     else:

@@ -33,9 +33,10 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, Strict, model_validator
+from pydantic import Field, Strict, model_validator
 
 from physar.errors import ConfigError
+from physar.fem.config import _Strict  # extra keys forbidden, no bool/str -> number coercion
 
 Float = Annotated[float, Strict()]
 Int = Annotated[int, Strict()]
@@ -43,8 +44,6 @@ Vec3 = tuple[float, float, float]
 RGB = tuple[Int, Int, Int]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
 
 
 def _rgb_ok(v):
@@ -159,13 +158,13 @@ class Scenario(_Strict):
 
     seed: Int = 0
     video: VideoSection = VideoSection()
-    schedule: dict[str, Schedule] = {}
+    schedule: dict[str, Schedule] = Field(default_factory=dict)
     camera: CameraSection = CameraSection()
     lighting: LightingSection = LightingSection()
     sensor: SensorSection = SensorSection()
     texture: TextureSection = TextureSection()
     background: BackgroundSection = BackgroundSection()
-    occlusion: list[Occlusion] = []
+    occlusion: list[Occlusion] = Field(default_factory=list)
     truth: TruthSection = TruthSection()
 
     @property

@@ -31,8 +31,8 @@ def test_bracket_load_position_along_the_curved_path(bracket, tmp_path):
     frame's position within 3 % of the 128 mm path of the truth, the median within 1 % (measured: the model's
     5 mm mesh is 0.8 % stiffer than the truth, which alone biases s by about 0.7 mm; the offset is weakly
     observable and correlated with s; the filter lags at the start of a move). Catches: the polyline path read as its chord
-    (s off by mm), a tetrahedralised mesh without the plane clamp (no equilibrium: the build fails), the
-    offset parameter ignored by the truth or the model (s biased), the 3-plane board solved as planar."""
+    (its arc length is asserted), a position off by more than 3.8 mm anywhere (a wrong path point, a pose error), a
+    lost track, the offset's sign flipped (below)."""
     p = bracket
     sc = Scenario.model_validate({
         "seed": 5, "video": {"duration": 1.6},
@@ -49,6 +49,7 @@ def test_bracket_load_position_along_the_curved_path(bracket, tmp_path):
     assert res["tracking"] == res["frames"] == 48
     assert s["judged"] == 48 and s["max_error"] <= 0.03 * 0.1278, s
     assert s["median_error"] <= 0.01 * 0.1278, s
-    # the sideways offset is weakly observable (plate twist): only its sign and rough size
+    # the sideways offset is weakly observable (plate twist): within 2.5 mm of its 4 mm (measured 4.5-6 mm);
+    # catches the offset direction flipped in the model or the truth (the estimate would sit near -3 mm)
     o = read_columns(tmp_path / "est.csv")["o_est"]
-    assert np.median(o) > 0
+    assert abs(np.median(o) - 0.004) < 0.0025, np.median(o)
