@@ -15,7 +15,11 @@ from physar.cli._common import log, print_json, user_errors
 rom_app = typer.Typer(help="Reduced parametric models (PGD, non-intrusive PGD, POD).", no_args_is_help=True)
 
 
-def _parse_params(model, items: list[str]) -> np.ndarray:
+def _parse_params(model, items: list[str], flag: str = "--param", partial: bool = False):
+    """NAME=VALUE items -> the parameter vector (every parameter required), or with ``partial`` the mapping
+    {name: value} of those given (``assimilate`` starts the others at the centre of their range)."""
+    import math
+
     from physar.errors import ConfigError
 
     given = {}
@@ -23,19 +27,21 @@ def _parse_params(model, items: list[str]) -> np.ndarray:
         name, sep, val = it.partition("=")
         name = name.strip()
         if not sep or name not in model.names:
-            raise ConfigError(f"--param {it!r}: expected NAME=VALUE with NAME one of {model.names}")
+            raise ConfigError(f"{flag} {it!r}: expected NAME=VALUE with NAME one of {model.names}")
         try:
             given[name] = float(val)
         except ValueError:
-            raise ConfigError(f"--param {it!r}: {val!r} is not a number") from None
+            raise ConfigError(f"{flag} {it!r}: {val!r} is not a number") from None
+        if not math.isfinite(given[name]):
+            raise ConfigError(f"{flag} {it!r}: not a finite number")
     missing = [n for n in model.names if n not in given]
-    if missing:
-        raise ConfigError(f"missing --param for {', '.join(missing)} (model parameters: {model.names})")
-    mu = np.array([given[n] for n in model.names])
-    for n, v, (lo, hi), u in zip(model.names, mu, model.ranges, model.units):
-        if not lo - 1e-12 * max(1.0, abs(hi - lo)) <= v <= hi + 1e-12 * max(1.0, abs(hi - lo)):
-            raise ConfigError(f"--param {n}={v}: outside the model's range [{lo}, {hi}] {u}")
-    return mu
+    if missing and not partial:
+        raise ConfigError(f"missing {flag} for {', '.join(missing)} (model parameters: {model.names})")
+    for n, (lo, hi), u in zip(model.names, model.ranges, model.units):
+        v = given.get(n)
+        if v is not None and not lo - 1e-12 * max(1.0, abs(hi - lo)) <= v <= hi + 1e-12 * max(1.0, abs(hi - lo)):
+            raise ConfigError(f"{flag} {n}={v}: outside the model's range [{lo}, {hi}] {u}")
+    return given if partial else np.array([given[n] for n in model.names])
 
 
 @rom_app.command("build")
@@ -264,7 +270,7 @@ def assimilate_cmd(
     except PhysarError as exc:
         raise type(exc)(f"{observations}: {exc}") from None
     rom.set_observation(matrix=C)
-    start = _parse_params(rom, mu0) if mu0 else None
+    start = _parse_params(rom, mu0, "--mu0", partial=True) if mu0 else None
     res = assimilate(rom, disp.ravel(), mu0=start, alpha=alpha, restart_residual=restart)
     out = {"params": dict(zip(rom.names, res.params.tolist())), "std": dict(zip(rom.names, res.std.tolist())),
            "residual": res.residual, "iterations": res.iterations, "time_us": res.time_us,

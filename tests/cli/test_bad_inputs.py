@@ -456,12 +456,15 @@ def test_assimilate_partial_mu0_in_the_library(data):
     assert np.array_equal(full.params, part.params)
 
 
-@pytest.mark.xfail(strict=True, reason="physar/cli/rom.py (_parse_params) still requires every parameter for "
-                                       "--mu0; assimilate() accepts a partial mapping")
 def test_assimilate_partial_mu0_cli(data):
-    # mutant: the README's own `--mu0 s=0.5` refused unless every parameter is given
+    # mutant: the README's own `--mu0 s=0.5` refused unless every parameter is given; a partial --mu0 that
+    # skips the range check or accepts an unknown name
     r = invoke("assimilate", data / "rom.npz", data / "obs.csv", "--mu0", "s=0.5", "--json")
     assert r.exit_code == 0, r.output
+    for bad, msg in (("q=0.5", "--mu0 'q=0.5': expected NAME=VALUE"), ("s=99", "--mu0 s=99.0: outside"),
+                     ("s=nan", "not a finite number")):
+        r = invoke("assimilate", data / "rom.npz", data / "obs.csv", "--mu0", bad)
+        assert r.exit_code == 2 and msg in r.output, r.output
 
 
 # ------------------------------------------------------------------------------------------------ one module
