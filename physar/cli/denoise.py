@@ -116,12 +116,21 @@ def register(app: typer.Typer) -> None:
     def noise_cmd(
         inp: Annotated[Path, typer.Argument(help="input surface mesh")],
         out: Annotated[Path, typer.Argument(help="output surface mesh")],
-        sigma: float = typer.Option(0.2, "--sigma", help="noise std as a fraction of the mean edge length"),
+        sigma: float = typer.Option(0.2, "--sigma", help="noise std s as a fraction of the mean edge length ē"),
         seed: int = typer.Option(0, "--seed", help="random seed (an integer >= 0)"),
-        direction: str = typer.Option("normal", "--direction", help="normal | random"),
+        direction: str = typer.Option(
+            "random", "--direction",
+            help="random (default, the normal-filtering literature's convention: each vertex moves by "
+                 "s·N(0,1) along its own uniformly random unit direction, covariance s²/3·I) | "
+                 "normal (s·N(0,1) along the vertex normal)"),
         json_out: bool = typer.Option(False, "--json"),
     ) -> None:
-        """Add seeded Gaussian noise to a surface mesh."""
+        """Add seeded Gaussian noise to a surface mesh.
+
+        Default (the convention of the mesh normal-filtering papers, e.g. Zheng et al. 2011, Zhang et al.
+        2015): vertex i moves by s·t_i·u_i, t_i ~ N(0, 1), u_i uniform on the unit sphere, s = sigma·ē,
+        so the mean squared displacement is s² (not 3s² as for N(0, s²I) per coordinate).
+        """
         from physar.geometry.quality import add_noise, mean_edge_length
 
         if seed < 0:

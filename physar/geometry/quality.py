@@ -68,24 +68,30 @@ def vertex_normals_arrays(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def add_noise(
     mesh: TriMesh, sigma: float = 0.2, seed: int = 0, direction: str = "normal"
 ) -> TriMesh:
-    """Gaussian noise of standard deviation ``sigma * mean_edge_length`` (m), seeded.
+    """Seeded Gaussian noise of standard deviation s = ``sigma * mean_edge_length`` (m).
 
-    ``direction="normal"`` displaces each vertex along its vertex normal by N(0, s^2); ``"random"`` adds
-    an isotropic N(0, s^2 I) displacement.
+    ``direction="random"`` is the convention of the mesh normal-filtering literature (e.g. Sun et al.,
+    IEEE TVCG 2007; Zheng et al., IEEE TVCG 2011; Zhang et al., IEEE TVCG 2015): each vertex moves by
+    d_i = s · t_i · u_i with t_i ~ N(0, 1) and u_i a unit vector drawn uniformly on the sphere, so that
+    E|d_i|² = s² and the displacement covariance is isotropic, Cov(d) = (s²/3) I (trace s²).
+    ``direction="normal"`` moves each vertex along its unit vertex normal by s · t_i (Cov = s² n nᵀ).
     """
     if not 0 <= sigma < np.inf:
         raise MeshError(f"noise sigma must be a finite number >= 0, got {sigma}")
     if isinstance(seed, bool) or int(seed) != seed or seed < 0:
         raise MeshError(f"noise seed must be an integer >= 0, got {seed}")
+    if direction not in ("normal", "random"):
+        raise MeshError(f"noise direction must be 'normal' or 'random', got {direction!r}")
     check_surface(mesh)
     rng = np.random.default_rng(seed)
     s = sigma * mean_edge_length(mesh)
+    t = rng.normal(0.0, s, mesh.n_points)[:, None]
     if direction == "normal":
-        d = rng.normal(0.0, s, mesh.n_points)[:, None] * vertex_normals(mesh)
-    elif direction == "random":
-        d = rng.normal(0.0, s, mesh.points.shape)
+        d = t * vertex_normals(mesh)
     else:
-        raise MeshError(f"noise direction must be 'normal' or 'random', got {direction!r}")
+        u = rng.normal(size=mesh.points.shape)  # isotropic Gaussian, normalised: uniform on the sphere
+        u /= np.maximum(np.linalg.norm(u, axis=1), 1e-300)[:, None]
+        d = t * u
     return mesh.with_points(mesh.points + d)
 
 
