@@ -45,6 +45,8 @@ class ModelSection(_Strict):
                                                  "project file; built on first use")
     file: Str | None = Field(None, description="the reduced model file (.npz): read if it exists (and was built "
                                                "from `config` when that is given), else written there")
+    visible: Bool = Field(True, description="the modelled object is in the video (false: a virtual object driven "
+                                            "by what is observed, like the seed's boot seal on a real lever)")
 
     @model_validator(mode="after")
     def _one(self):
@@ -104,6 +106,95 @@ class DotsSection(_Strict):
         return v
 
 
+def _unit(v, what):
+    a = np.asarray(v, float)
+    n = float(np.linalg.norm(a))
+    if not n > 0:
+        raise ValueError(f"{what} must be a non-zero vector")
+    return a / n
+
+
+class PlaneSection(_Strict):
+    """A planar textured surface fixed in the object's frame that gives the camera pose without markers in
+    view: a support plate, a printed poster, the wall behind the object (seed 000 §5.2, §5.3.2)."""
+
+    origin: Vec3 = Field(..., description="object coordinates of the top-left corner of the plane's image [m]")
+    u: Vec3 = Field((1.0, 0.0, 0.0), description="direction of the image's rows (rightwards) in the object frame")
+    v: Vec3 = Field((0.0, 0.0, -1.0), description="direction of the image's columns (downwards)")
+    image: Str | None = Field(None, description="reference image of the plane (its design file or a scan), "
+                                                "relative to the project; none: learned from the first frame "
+                                                "whose pose the markers give")
+    px_per_m: Float | None = Field(None, gt=0, description="resolution of `image` [px/m]")
+
+    @model_validator(mode="after")
+    def _check(self):
+        u, v = _unit(self.u, "u"), _unit(self.v, "v")
+        if abs(u @ v) > 1e-3:
+            raise ValueError(f"u {list(self.u)} and v {list(self.v)} must be perpendicular")
+        if self.image is not None and self.px_per_m is None:
+            raise ValueError("image needs px_per_m (its resolution in pixels per metre)")
+        return self
+
+
+class RegistrationSection(_Strict):
+    method: Literal["markers", "plane"] = Field("markers", description="camera pose from the [[marker]] tables "
+                                                "in every frame, or from a textured plane ([registration.plane])")
+    plane: PlaneSection | None = None
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.method == "plane" and self.plane is None:
+            raise ValueError("method = \"plane\" needs a [registration.plane] table")
+        return self
+
+
+class BarSection(_Strict):
+    """A rigid bar (a lever) turned by a rotation parameter of the model about that parameter's axis, seen by
+    its colour in the plane it turns in (seed 000 §5.3.2): the parameter is measured directly."""
+
+    parameter: Str = Field(..., description="name of a rotation parameter of the model")
+    zero: Vec3 = Field(..., description="direction from the pivot along the bar at parameter 0 (perpendicular "
+                                        "to the rotation axis)")
+    length: Float = Field(..., gt=0, description="from the pivot to the bar's tip [m]")
+    width: Float = Field(..., gt=0, description="[m]")
+    face: Float = Field(0.0, description="position of the bar's visible face along the rotation axis, from the "
+                                         "axis point [m]")
+    saturation_max: Int = Field(45, ge=0, le=255, description="the bar's colour: HSV saturation at most this")
+    value_min: Int = Field(150, ge=0, le=255, description="the bar's colour: HSV value at least this")
+    sigma: Float = Field(0.2, gt=0, description="std of one measurement, in the parameter's unit")
+
+
+class FeaturesSection(_Strict):
+    """The object's own texture on one planar face: features chosen in the first frames (the object at rest,
+    u = 0), tracked by Lucas-Kanade in the face's rectified view; their in-plane displacements are the
+    observations (seed 000 §5.2)."""
+
+    origin: Vec3 = Field(..., description="a corner of the face [m]")
+    u: Vec3 = Field(..., description="direction of the face's first side")
+    v: Vec3 = Field(..., description="direction of its second side (perpendicular to u)")
+    size: tuple[Float, Float] = Field(..., description="lengths of the two sides [m]")
+    margin: Float | None = Field(None, ge=0, description="rectified band around the face [m] (default: a "
+                                                         "quarter of the shorter side)")
+    reference_frames: Int = Field(8, ge=1, description="first frames showing the object at rest")
+    points: Int = Field(600, ge=3, le=20000, description="features tracked")
+    window_px: Int = Field(15, ge=5, le=61, description="Lucas-Kanade window")
+    nuisance: Literal["none", "rigid", "similarity", "affine"] = Field(
+        "similarity", description="apparent in-plane motion of the whole face removed from the observations "
+                                  "(pose error between the registration plane and the face)")
+    free_scale: Bool = Field(True, description="fit the displacement's amplitude as a nuisance (a stiffness "
+                                               "error of the model does not bias the parameters)")
+    rest_mm: Float = Field(1.0, ge=0, description="rms displacement below which the object is taken as at rest")
+
+    @model_validator(mode="after")
+    def _check(self):
+        u, v = _unit(self.u, "u"), _unit(self.v, "v")
+        if abs(u @ v) > 1e-3:
+            raise ValueError(f"u {list(self.u)} and v {list(self.v)} must be perpendicular")
+        if not min(self.size) > 0:
+            raise ValueError(f"size must be positive, got {list(self.size)}")
+        return self
+
+
 FIELDS = ("von_mises", "u", "ux", "uy", "uz")
 
 
@@ -140,8 +231,11 @@ class ProjectConfig(_Strict):
 
     model: ModelSection
     camera: CameraSection
-    marker: list[MarkerSection] = Field(..., min_length=1)
-    dots: DotsSection
+    marker: list[MarkerSection] = []
+    registration: RegistrationSection = RegistrationSection()
+    dots: DotsSection | None = None
+    features: FeaturesSection | None = None
+    bar: list[BarSection] = []
     overlay: OverlaySection = OverlaySection()
     tracking: TrackingSection = TrackingSection()
     name: Str | None = None
@@ -149,6 +243,16 @@ class ProjectConfig(_Strict):
 
     @model_validator(mode="after")
     def _markers(self):
+        reg = self.registration
+        if reg.method == "markers" and not self.marker:
+            raise ValueError("the camera pose needs [[marker]] tables, or [registration] method = \"plane\"")
+        if reg.method == "plane" and reg.plane.image is None and not self.marker:
+            raise ValueError("[registration.plane] without an image is learned from a frame registered by "
+                             "markers: give [[marker]] tables or the plane's image")
+        if self.dots is None and self.features is None and not self.bar:
+            raise ValueError("nothing observes the parameters: give [dots], [features] or [[bar]]")
+        if self.dots is not None and self.features is not None:
+            raise ValueError("give [dots] or [features], not both")
         ids = [m.id for m in self.marker]
         if len(set(ids)) != len(ids):
             raise ValueError(f"marker ids must be distinct, got {ids}")
@@ -168,9 +272,10 @@ class ARProject:
     source: str
     rom: object
     camera: object
-    board: object
-    dots: np.ndarray
+    board: object            # MarkerBoard, or None without markers
+    dots: np.ndarray         # (n, 3), empty without [dots]
     dot_normals: np.ndarray
+    plane_image: np.ndarray | None = None   # [registration.plane] image (BGR)
 
     @property
     def overlay(self) -> OverlaySection:
@@ -186,13 +291,7 @@ class ARProject:
     def parameters(self) -> list[dict]:
         """The model's parameters as built: name, unit, range and (from the build configuration) kind,
         path/load for a load position."""
-        meta = self.rom.metadata.get("parameters") or []
-        out = []
-        for j, (n, u, r) in enumerate(zip(self.rom.names, self.rom.units, self.rom.ranges)):
-            d = dict(meta[j]) if j < len(meta) else {}
-            d.update(name=n, unit=u, range=[float(r[0]), float(r[1])])
-            out.append(d)
-        return out
+        return _parameters(self.rom)
 
 
 def read_project_toml(path) -> dict:
@@ -269,27 +368,76 @@ def load_project(path, progress=None, build: bool = True) -> ARProject:
         camera = Camera.load(cam_path)
     except ConfigError as e:
         raise ConfigError(f"{source}: [camera] file: {e}") from None
-    dictionary = cfg.marker[0].dictionary
-    try:
-        dic = aruco_dictionary(dictionary)
-    except ConfigError as e:
-        raise ConfigError(f"{source}: [[marker]] dictionary: {e}") from None
-    n_ids = dic.bytesList.shape[0]
-    for k, m in enumerate(cfg.marker):
-        if m.id >= n_ids:
-            raise ConfigError(f"{source}: [[marker]] {k + 1}: id = {m.id} is outside {dictionary} "
-                              f"(ids 0-{n_ids - 1})")
-    board = MarkerBoard([m.id for m in cfg.marker], np.stack([m.corners() for m in cfg.marker]), dictionary)
+    board = None
+    if cfg.marker:
+        dictionary = cfg.marker[0].dictionary
+        try:
+            dic = aruco_dictionary(dictionary)
+        except ConfigError as e:
+            raise ConfigError(f"{source}: [[marker]] dictionary: {e}") from None
+        n_ids = dic.bytesList.shape[0]
+        for k, m in enumerate(cfg.marker):
+            if m.id >= n_ids:
+                raise ConfigError(f"{source}: [[marker]] {k + 1}: id = {m.id} is outside {dictionary} "
+                                  f"(ids 0-{n_ids - 1})")
+        board = MarkerBoard([m.id for m in cfg.marker], np.stack([m.corners() for m in cfg.marker]), dictionary)
+    plane_image = None
+    pl = cfg.registration.plane
+    if pl is not None and pl.image is not None:
+        plane_image = _read_image(_file(cfg._base_dir, pl.image), f"{source}: [registration.plane] image")
     rom = load_model(cfg, source, progress=progress, build=build)
     space = rom.space()
-    dots = np.asarray(cfg.dots.points, float)
-    normals = _dot_normals(space, dots, cfg.dots.tol or cfg.dots.diameter / 4, source)
+    dots, normals = np.zeros((0, 3)), np.zeros((0, 3))
+    if cfg.dots is not None:
+        dots = np.asarray(cfg.dots.points, float)
+        normals = _dot_normals(space, dots, cfg.dots.tol or cfg.dots.diameter / 4, source)
+    params = {p["name"]: p for p in _parameters(rom)}
+    for k, b in enumerate(cfg.bar):
+        p = params.get(b.parameter)
+        if p is None:
+            raise ConfigError(f"{source}: [[bar]] {k + 1}: parameter = {b.parameter!r} is not a parameter of the "
+                              f"model (parameters: {', '.join(rom.names)})")
+        if p.get("kind") != "rotation":
+            raise ConfigError(f"{source}: [[bar]] {k + 1}: parameter {b.parameter!r} is a {p.get('kind')} "
+                              "parameter; a bar measures a rotation")
+        axis = _unit(p["axis"], "axis")
+        if abs(_unit(b.zero, "zero") @ axis) > 1e-3:
+            raise ConfigError(f"{source}: [[bar]] {k + 1}: zero = {list(b.zero)} must be perpendicular to the "
+                              f"rotation axis {list(p['axis'])}")
+    if len({b.parameter for b in cfg.bar}) < len(cfg.bar):
+        raise ConfigError(f"{source}: [[bar]]: two bars measure the same parameter")
+    if cfg.dots is None and cfg.features is None:
+        unobserved = [n for n in rom.names if n not in {b.parameter for b in cfg.bar}]
+        if unobserved:
+            raise ConfigError(f"{source}: parameters {unobserved} are observed by nothing (give [dots] or "
+                              "[features], or a [[bar]] for each)")
     if cfg.overlay.show is not None:
         bad = [s for s in cfg.overlay.show if s not in rom.names]
         if bad:
             raise ConfigError(f"{source}: [overlay] show = {bad} is not a parameter of the model "
                               f"(parameters: {', '.join(rom.names)})")
-    return ARProject(cfg, source, rom, camera, board, dots, normals)
+    return ARProject(cfg, source, rom, camera, board, dots, normals, plane_image)
+
+
+def _read_image(path: Path, what: str) -> np.ndarray:
+    import cv2
+
+    if not path.is_file():
+        raise ConfigError(f"{what} = {str(path)!r}: file not found")
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None or min(img.shape[:2]) < 16:
+        raise ConfigError(f"{what} = {str(path)!r}: not an image OpenCV reads (PNG, JPEG, ...) of at least 16 px")
+    return img
+
+
+def _parameters(rom) -> list[dict]:
+    meta = rom.metadata.get("parameters") or []
+    out = []
+    for j, (n, u, r) in enumerate(zip(rom.names, rom.units, rom.ranges)):
+        d = dict(meta[j]) if j < len(meta) else {}
+        d.update(name=n, unit=u, range=[float(r[0]), float(r[1])])
+        out.append(d)
+    return out
 
 
 def _dot_normals(space, dots, tol, source) -> np.ndarray:

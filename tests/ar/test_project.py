@@ -136,7 +136,7 @@ def _bad(project_dir, tmp_path, edit, video=None):
 def test_bad_project_files_give_one_line_and_write_nothing(project_dir, scene, tmp_path):
     cases = [
         (lambda s: s.replace("[overlay]", "[overlay]\ncolour_map = 'jet'"), "unknown key 'colour_map'"),
-        (lambda s: s[:s.index("[[marker]]")] + s[s.index("[dots]"):], "missing key 'marker'"),
+        (lambda s: s[:s.index("[[marker]]")] + s[s.index("[dots]"):], "the camera pose needs [[marker]] tables"),
         (lambda s: s.replace("[0.02, 0.0, 0.0075]", "[0.02, -0.05, 0.0075]"), "points[0]"),
         (lambda s: s.replace("id = 3", "id = 77"), "outside DICT_4X4_50"),
         (lambda s: s.replace("size = 0.05", "size = true", 1), "size"),
