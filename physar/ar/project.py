@@ -125,6 +125,8 @@ class PlaneSection(_Strict):
                                                 "relative to the project; none: learned from the first frame "
                                                 "whose pose the markers give")
     px_per_m: Float | None = Field(None, gt=0, description="resolution of `image` [px/m]")
+    distance: Float | None = Field(None, gt=0, description="typical distance of the camera from the plane [m] "
+                                                           "(default: the plane fills 3/4 of the image width)")
 
     @model_validator(mode="after")
     def _check(self):

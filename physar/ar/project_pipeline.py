@@ -59,36 +59,49 @@ class ProjectPipeline:
     augmented frames (False: estimation only)."""
 
     def __init__(self, project, overlay: bool = True):
+        from physar.ar.bars import BarObserver
+        from physar.ar.features import FeatureObserver
+        from physar.ar.registration import Registration
         from physar.ar.surface import SurfaceOverlay
 
         self.project = project
+        cfg = project.config
         rom, cam = project.rom, project.camera
         self.rom, self.camera = rom, cam
         trk = project.tracking
         self.names, self.units = list(rom.names), list(rom.units)
         self.lo, self.hi = (np.array(b, float) for b in zip(*rom.ranges))
         space = rom.space()
-        self.dots, self.normals = project.dots, project.dot_normals
-        C = surface_observation_matrix(space, self.dots, components=(0, 1, 2),
-                                       tol=project.config.dots.tol or project.config.dots.diameter / 4)
-        self.Fd = np.asarray(C @ rom.F.T).T.reshape(rom.n_modes, -1, 3)   # (modes, n dots, 3)
-        self.markers = MarkerTracker(cam, project.board, noise_px=trk.corner_sigma_px)
+        pts = space.mesh.points
+        self.registration = Registration(project, bounds=np.array([pts.min(0), pts.max(0)]))
+        self.markers = self.registration.markers
         self.board = project.board
-        self.centre = self.board.corners.reshape(-1, 3).mean(0)
+        self.centre = (self.board.corners.reshape(-1, 3).mean(0) if self.board is not None else pts.mean(0))
+        params = project.parameters()
+        self.bars = [BarObserver(b, params[self.names.index(b.parameter)], self.names.index(b.parameter), cam)
+                     for b in cfg.bar]
+        self.features = FeatureObserver(project) if cfg.features is not None else None
+        self.dots, self.normals = project.dots, project.dot_normals
+        self.use_dots = cfg.dots is not None and len(self.dots) > 0
+        if self.use_dots:
+            C = surface_observation_matrix(space, self.dots, components=(0, 1, 2),
+                                           tol=cfg.dots.tol or cfg.dots.diameter / 4)
+            self.Fd = np.asarray(C @ rom.F.T).T.reshape(rom.n_modes, -1, 3)   # (modes, n dots, 3)
+            self.radius_m = cfg.dots.diameter / 2
+            self.colour = cfg.dots.colour
+            # the largest dot displacement over the parameter box bounds the search after a fresh start
+            corners = np.stack(np.meshgrid(*[np.linspace(a, b, 5) for a, b in rom.ranges], indexing="ij"),
+                               -1).reshape(-1, rom.n_params)
+            self._umax = max(float(np.abs(np.tensordot(rom.coefficients(m)[0], self.Fd, 1)).max())
+                             for m in corners)
         self.filter = IMMFilter(self.lo, self.hi) if trk.filter == "imm" else None
         self.mu = (self.lo + self.hi) / 2
         self.std = np.full(self.lo.size, np.nan)
+        self.at_rest = self.features is not None      # texture features: the first frames show the object at rest
         self._fresh = True
         self._res_hist: list[float] = []
-        self.radius_m = project.config.dots.diameter / 2
-        self.colour = project.config.dots.colour
-        # the largest dot displacement over the parameter box bounds the search after a fresh start
-        corners = np.stack(np.meshgrid(*[np.linspace(a, b, 5) for a, b in rom.ranges], indexing="ij"),
-                           -1).reshape(-1, rom.n_params)
-        self._umax = max(float(np.abs(np.tensordot(rom.coefficients(m)[0], self.Fd, 1)).max()) for m in corners)
         self.overlay = None
         if overlay:
-            params = project.parameters()
             pos = next((j for j, p in enumerate(params) if p.get("kind") == "load_position"), None)
             mat = rom.metadata.get("material_params") or {}
             ov = project.overlay
@@ -227,48 +240,79 @@ class ProjectPipeline:
         rms = float(np.sqrt(np.mean((r[-2 * n_d:] * sd) ** 2))) if n_d else float("nan")
         return th[6:].copy(), std, self._pose_of(pe.pose, th), rms
 
+    def _dots(self, frame, gray, pe, st, t1):
+        """Dots stage: search, joint (pose, mu) solve, outlier dots, re-search of the box on a jump.
+        -> (mu, std, pose, rms px, dots used) or None when too few dots."""
+        X = self.dot_positions(self.mu)
+        vis, r_px = self._expected(pe.pose, X)
+        pred = self.camera.project(X, pe.pose)
+        pred[~vis] = np.nan
+        extra = self.project.tracking.search_px
+        if self._fresh:   # the load may be anywhere: search as far as the model can move a dot
+            extra = max(extra, self.camera.fx * self._umax / max(float(np.median(
+                (X @ pe.pose.R.T + pe.pose.t)[:, 2])), 1e-9))
+        search = np.maximum(2.5 * r_px, 4.0) + extra
+        px, valid = find_dots(frame, gray, pred, r_px, self.colour, search)
+        n_dots = int(valid.sum())
+        t2 = time.perf_counter()
+        st["dots"] = (t2 - t1) * 1e3
+        if n_dots < self.project.tracking.min_dots:
+            return None, n_dots
+        start = self.mu
+        if self._fresh:
+            start = self._grid_start(pe.pose, px, valid)
+        mu, std, pose, rms = self._solve(pe, px, valid, start)
+        valid2 = self._inliers(pose, mu, px, valid)
+        if valid2.sum() < valid.sum() and valid2.sum() >= self.project.tracking.min_dots:
+            valid = valid2                  # a wrong blob taken for a dot: solve without it
+            n_dots = int(valid.sum())
+            mu, std, pose, rms = self._solve(pe, px, valid, mu)
+        med = np.median(self._res_hist[-30:]) if len(self._res_hist) >= 5 else np.inf
+        if not self._fresh and rms > 4 * med:       # stuck in a local minimum, or a jump: search again
+            mu2, std2, pose2, rms2 = self._solve(pe, px, valid, self._grid_start(pe.pose, px, valid))
+            if rms2 < rms:
+                mu, std, pose, rms = mu2, std2, pose2, rms2
+        self._res_hist.append(rms)
+        del self._res_hist[:-60]
+        return (mu, std, pose, rms), n_dots
+
     def process(self, frame: np.ndarray, index: int, draw: bool = True, gray: np.ndarray | None = None):
         """One BGR frame -> (image, :class:`ProjectFrame`)."""
         t0, c0 = time.perf_counter(), time.thread_time()
         st = {}
         if gray is None:
             gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
-        pe = self.markers.update(gray)
+        pe = self.registration.update(gray)
         t1 = time.perf_counter()
         st["markers_pose"] = (t1 - t0) * 1e3
-        status, rms, n_dots, draw_pose = "lost", float("nan"), 0, pe.pose
+        status, rms, n_obs, draw_pose = "lost", float("nan"), 0, pe.pose
         st["dots"] = st["assimilate"] = 0.0
         if pe.status == "measured":
-            X = self.dot_positions(self.mu)
-            vis, r_px = self._expected(pe.pose, X)
-            pred = self.camera.project(X, pe.pose)
-            pred[~vis] = np.nan
-            extra = self.project.tracking.search_px
-            if self._fresh:   # the load may be anywhere: search as far as the model can move a dot
-                extra = max(extra, self.camera.fx * self._umax / max(float(np.median(
-                    (X @ pe.pose.R.T + pe.pose.t)[:, 2])), 1e-9))
-            search = np.maximum(2.5 * r_px, 4.0) + extra
-            px, valid = find_dots(frame, gray, pred, r_px, self.colour, search)
-            n_dots = int(valid.sum())
+            p = self.lo.size
+            mu, std = np.full(p, np.nan), np.full(p, np.nan)
+            status = "hold"
+            if self.use_dots:
+                out, n_obs = self._dots(frame, gray, pe, st, t1)
+                if out is not None:
+                    mu, std, draw_pose, rms = out
+            elif self.features is not None:
+                if not self.features.ready:
+                    self.features.add_reference(frame, gray, pe.pose)
+                    status = "reference"
+                else:
+                    fs, fmu, fstd, res, n_obs = self.features.update(gray, pe.pose)
+                    if fs == "rest":
+                        status, self.at_rest, self._fresh = "rest", True, True
+                    elif fs == "tracking":
+                        mu, std, rms = fmu, fstd, res * 1e3
+                st["dots"] = (time.perf_counter() - t1) * 1e3
             t2 = time.perf_counter()
-            st["dots"] = (t2 - t1) * 1e3
-            if n_dots >= self.project.tracking.min_dots:
-                start = self.mu
-                if self._fresh:
-                    start = self._grid_start(pe.pose, px, valid)
-                mu, std, pose, rms = self._solve(pe, px, valid, start)
-                valid2 = self._inliers(pose, mu, px, valid)
-                if valid2.sum() < valid.sum() and valid2.sum() >= self.project.tracking.min_dots:
-                    valid = valid2                  # a wrong blob taken for a dot: solve without it
-                    n_dots = int(valid.sum())
-                    mu, std, pose, rms = self._solve(pe, px, valid, mu)
-                med = np.median(self._res_hist[-30:]) if len(self._res_hist) >= 5 else np.inf
-                if not self._fresh and rms > 4 * med:       # stuck in a local minimum, or a jump: search again
-                    mu2, std2, pose2, rms2 = self._solve(pe, px, valid, self._grid_start(pe.pose, px, valid))
-                    if rms2 < rms:
-                        mu, std, pose, rms = mu2, std2, pose2, rms2
-                self._res_hist.append(rms)
-                del self._res_hist[:-60]
+            for b in self.bars:                      # a lever measured directly
+                a, npx = b.measure(frame, pe.pose)
+                if np.isfinite(a):
+                    mu[b.index], std[b.index] = a, b.bar.sigma
+                    n_obs += 1
+            if np.all(np.isfinite(mu)):
                 if self.filter is not None:
                     if self._fresh:
                         self.filter.reset()
@@ -276,24 +320,26 @@ class ProjectPipeline:
                 else:
                     self.mu, self.std = mu, std
                 self._fresh = False
-                draw_pose = pose
+                self.at_rest = False
                 status = "tracking"
-            else:
-                status = "hold"
             st["assimilate"] = (time.perf_counter() - t2) * 1e3
         else:
             self._fresh = True
+            if self.features is not None:
+                self.features.reset()
             status = "hold" if pe.status == "predicted" else "lost"
         t3 = time.perf_counter()
         out = frame
         if draw and self.overlay is not None:
-            info = {"markers": pe.n_markers, "dots": n_dots, "dots_total": len(self.dots)}
-            out = self.overlay.draw(frame, self.camera, draw_pose, self.rom.coefficients(self.mu)[0], self.mu,
-                                    self.std, status if draw_pose is not None else "lost", info, self.names,
-                                    self.units)
+            info = {"markers": pe.n_markers, "dots": n_obs,
+                    "dots_total": len(self.dots) if self.use_dots else
+                    (len(self.features.points) if self.features is not None and self.features.ready else 0)}
+            c = np.zeros(self.rom.n_modes) if self.at_rest else self.rom.coefficients(self.mu)[0]
+            out = self.overlay.draw(frame, self.camera, draw_pose, c, self.mu, self.std,
+                                    status if draw_pose is not None else "lost", info, self.names, self.units)
         t4 = time.perf_counter()
         st["overlay"] = (t4 - t3) * 1e3
-        return out, ProjectFrame(index, status, self.mu.copy(), self.std.copy(), rms, pe.n_markers, n_dots,
+        return out, ProjectFrame(index, status, self.mu.copy(), self.std.copy(), rms, pe.n_markers, n_obs,
                                  (t4 - t0) * 1e3, st, (time.thread_time() - c0) * 1e3)
 
     # -- whole videos --------------------------------------------------------------------------------------
