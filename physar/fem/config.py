@@ -158,9 +158,11 @@ class FemSection(_Strict):
 
 
 class SolverSection(_Strict):
-    steps: int = Field(1, ge=1)
+    steps: int = Field(1, ge=1, description="least number of load steps (more are taken where Newton needs them)")
     tol: float = Field(1e-10, gt=0)
-    max_iter: int = Field(30, ge=1)
+    max_iter: int = Field(50, ge=1, description="Newton iterations per load step before it is cut back")
+    linear: Literal["auto", "direct", "amg"] = Field(
+        "auto", description="linear solver: direct (Cholesky), amg (CG + smoothed aggregation), auto (by size)")
 
 
 class FemConfig(_Strict):
@@ -319,7 +321,7 @@ def solve_problem(problem: Problem, progress: Callable[[int, int], None] | None 
     for p in problem.probes:  # fail before the solve if a probe is outside the mesh
         probe(problem.space, np.zeros(problem.space.n_dofs), p)
     res = solve_static(problem.model, problem.f_ext, problem.fixed, steps=s.steps, tol=s.tol,
-                       max_iter=s.max_iter, progress=progress, prescribed=problem.prescribed)
+                       max_iter=s.max_iter, progress=progress, prescribed=problem.prescribed, linear=s.linear)
     return FemResult(problem, res, von_mises(problem.model, res.u))
 
 

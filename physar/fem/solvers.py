@@ -1,15 +1,34 @@
 """Linear and nonlinear static solvers.
 
-* `factorize(K)`: sparse Cholesky by CHOLMOD (scikit-sparse) when available, factored once and re-solved
-  many times; otherwise scipy's SuperLU with a warning. A matrix that is not positive definite (a
-  tangent past a limit point) falls back to LU.
-* `solve_static`: Newton–Raphson with backtracking line search on the residual and load stepping,
-  R(u) = f_int(u) - lambda f_ext = 0 on the free dofs.
-* `check_constraints`: fails early, with a clear message, when the fixed dofs leave rigid-body modes free.
+Linear systems K u = f on the free dofs (u = 0 or u_D on the fixed ones) are solved by one of:
+
+* ``direct``: sparse Cholesky, CHOLMOD (scikit-sparse) when available, factored once and re-solved many
+  times; otherwise scipy's SuperLU with a warning. A matrix that is not positive definite (a tangent past
+  a limit point) falls back to LU. Time grows as about N^1.8 and memory as N^1.2 on 3-D meshes.
+* ``amg``: conjugate gradients preconditioned by one V-cycle of smoothed-aggregation algebraic multigrid
+  (pyamg, energy-minimising prolongation smoothing), with the six rigid-body modes of elasticity
+  (3 translations, 3 infinitesimal rotations ω × (x - x̄) per node) as near-nullspace; stops at
+  |K u - f| <= rtol |f|. Time and memory grow about linearly in N.
+* ``auto``: ``amg`` from :data:`AMG_MIN_DOFS` free dofs on (measured crossover, benchmarks/RESULTS.md)
+  or when the direct factor would need more than half of the available memory, else ``direct``.
+
+`solve_static` solves R(u) = f_int(u) - λ f_ext = 0 by Newton–Raphson, K(u) Δu = -R(u), with
+
+* a line search on the total potential Π(u) = E(u) - λ f_ext·u along Δu: the step α makes the
+  directional derivative g(α) = Δu·R(u + α Δu) small, |g(α)| <= 0.5 |g(0)| (regula falsi on g);
+* automatic load-step control: λ advances by Δλ <= 1/steps; a step that fails is retried with Δλ/4,
+  a step that converges in few iterations lets Δλ grow (x2); each step starts from a secant predictor;
+* the stopping test |R_free| <= tol · max(λ |f_ext|, |f_int(u)|) (f_int over all dofs, i.e. including
+  the reactions), or, once Newton stagnates, |R_free| <= 10 ε ||diag K_ff|| h: the round-off of f_int
+  (ε machine epsilon, h the cube root of the mean element volume x 6), so tiny loads and stiff materials
+  converge.
+
+`check_constraints` fails early, with a clear message, when the fixed dofs leave rigid-body modes free.
 """
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -18,7 +37,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from physar.errors import SolverError
+from physar.errors import ConfigError, PhysarWarning, SolverError
 
 try:  # pragma: no cover - depends on the platform
     from sksparse import cholmod as _cholmod
@@ -26,6 +45,11 @@ except (ImportError, OSError, ValueError):  # not installed, a broken shared lib
     _cholmod = None
 
 _warned = False
+
+LINEAR_METHODS = ("auto", "direct", "amg")
+# "auto" switches to AMG from this many free dofs on: the direct solve is faster below, AMG above (P1 and P2
+# box cantilevers on a 2-core machine, benchmarks/RESULTS.md 2026-11-25).
+AMG_MIN_DOFS = 150_000
 
 
 def has_cholmod() -> bool:
@@ -77,7 +101,7 @@ def factorize(A: sp.spmatrix, method: str = "auto") -> Factor:
 
 
 def rigid_body_modes(nodes: np.ndarray) -> np.ndarray:
-    """The six rigid-body modes (3 translations, 3 small rotations) as columns (n_dofs, 6)."""
+    """The six rigid-body modes (3 translations, 3 small rotations ω × (x - x̄)) as columns (n_dofs, 6)."""
     x = nodes - nodes.mean(axis=0)
     n = len(nodes)
     R = np.zeros((n, 3, 6))
@@ -88,6 +112,91 @@ def rigid_body_modes(nodes: np.ndarray) -> np.ndarray:
     R[:, 0, 4], R[:, 2, 4] = x[:, 2], -x[:, 0]
     R[:, 0, 5], R[:, 1, 5] = -x[:, 1], x[:, 0]
     return R.reshape(3 * n, 6)
+
+
+class AMGSolver:
+    """K x = b by CG preconditioned with smoothed-aggregation AMG (pyamg), K SPD (n, n).
+
+    `near_nullspace` (n, k): the modes K nearly annihilates, for elasticity the rigid-body modes of the
+    free dofs (:func:`rigid_body_modes`); they span the coarse spaces, which is what makes the iteration
+    count independent of the mesh size. When the dofs come in node triples (3 a, 3 a + 1, 3 a + 2) K is
+    aggregated by 3x3 node blocks. `solve(b, rtol)` stops at |K x - b| <= rtol |b|; `iterations` lists the
+    CG iterations of each solve. Raises SolverError if CG does not reach `rtol` in `maxiter` iterations
+    (K not positive definite, or far too ill-conditioned).
+    """
+
+    def __init__(self, K: sp.spmatrix, near_nullspace: np.ndarray | None, rtol: float = 1e-10,
+                 maxiter: int = 2000, node_blocks: bool = True):
+        import pyamg
+
+        K = sp.csr_matrix(K)
+        n = K.shape[0]
+        if node_blocks and n % 3 == 0:
+            K = K.tobsr(blocksize=(3, 3))
+        B = None if near_nullspace is None else np.ascontiguousarray(near_nullspace, dtype=float)
+        self.K = K
+        self.rtol = float(rtol)
+        self.maxiter = int(maxiter)
+        self.iterations: list[int] = []
+        self.ml = pyamg.smoothed_aggregation_solver(
+            K, B=B, smooth="energy", strength=("symmetric", {"theta": 0.0}), max_coarse=300,
+            coarse_solver="splu")
+        self._M = self.ml.aspreconditioner(cycle="V")
+
+    def solve(self, b: np.ndarray, rtol: float | None = None, x0: np.ndarray | None = None) -> np.ndarray:
+        b = np.asarray(b, dtype=float)
+        if b.ndim == 2:
+            return np.column_stack([self.solve(b[:, j], rtol) for j in range(b.shape[1])])
+        rtol = self.rtol if rtol is None else float(rtol)
+        count = [0]
+
+        def cb(_x):
+            count[0] += 1
+
+        x, info = spla.cg(self.K, b, x0=x0, rtol=rtol, atol=0.0, maxiter=self.maxiter, M=self._M, callback=cb)
+        self.iterations.append(count[0])
+        if info != 0 or not np.all(np.isfinite(x)):
+            res = np.linalg.norm(b - self.K @ x) / max(np.linalg.norm(b), 1e-300)
+            raise SolverError(f"AMG-preconditioned CG did not reach relative residual {rtol:.1e} in "
+                              f"{count[0]} iterations ({res:.1e}): the matrix may not be positive definite; "
+                              "use the direct solver")
+        return x
+
+
+def available_memory() -> int:
+    """Bytes of memory available to a new allocation (MemAvailable of /proc/meminfo; 4 GiB if unknown)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:  # pragma: no cover - not Linux
+        pass
+    try:  # pragma: no cover - not Linux
+        return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):  # pragma: no cover
+        return 4 << 30
+
+
+def direct_memory_estimate(n: int, nnz: int) -> float:
+    """Estimated peak bytes of a sparse Cholesky factor of a 3-D elasticity matrix (n free dofs, nnz
+    entries): nested dissection fills L to O(n^(4/3)); the constant is fitted to CHOLMOD's measured
+    peak on box cantilevers (P1 and P2, benchmarks/RESULTS.md)."""
+    return _FILL_BYTES * (nnz / max(n, 1)) * float(n) ** (4.0 / 3.0)
+
+
+_FILL_BYTES = 0.6  # fitted (see direct_memory_estimate)
+
+
+def choose_linear(linear: str, n: int, nnz: int) -> str:
+    """'direct' or 'amg' for `linear` in {'auto', 'direct', 'amg'} and a system of n free dofs, nnz entries."""
+    if linear not in LINEAR_METHODS:
+        raise ConfigError(f"linear solver must be one of {', '.join(LINEAR_METHODS)}, got {linear!r}")
+    if linear != "auto":
+        return linear
+    if n >= AMG_MIN_DOFS or direct_memory_estimate(n, nnz) > 0.5 * available_memory():
+        return "amg"
+    return "direct"
 
 
 _MODE_NAMES = ["translation x", "translation y", "translation z", "rotation x", "rotation y", "rotation z"]
@@ -122,17 +231,37 @@ def _free_dofs(n: int, fixed: np.ndarray) -> np.ndarray:
     return np.flatnonzero(mask)
 
 
-class LinearSolver:
-    """K u = f with u = 0 on `fixed` for a linear model: factored once, re-solved for many loads."""
+def _node_triples(free: np.ndarray) -> bool:
+    """True when the free dofs are whole nodes (3 a, 3 a + 1, 3 a + 2), so K_ff has 3x3 node blocks."""
+    if len(free) % 3:
+        return False
+    t = free.reshape(-1, 3)
+    return bool(np.all(t[:, 0] % 3 == 0) and np.all(t - t[:, :1] == np.arange(3)))
 
-    def __init__(self, model, fixed: np.ndarray, method: str = "auto"):
+
+class LinearSolver:
+    """K u = f with u = 0 on `fixed` for a linear model: set up once, re-solved for many loads.
+
+    `linear`: 'direct' (default: one factorisation, each further load one back-substitution), 'amg' (CG
+    with AMG to relative residual `rtol` per load) or 'auto' (see :func:`choose_linear`). `method` is the
+    factorisation of the direct solver ('auto', 'cholmod', 'lu').
+    """
+
+    def __init__(self, model, fixed: np.ndarray, method: str = "auto", linear: str = "direct",
+                 rtol: float = 1e-10):
         fixed = np.unique(np.asarray(fixed, dtype=np.int64))
         check_constraints(model.space.nodes, fixed)
         self.n = model.n_dofs
         self.fixed = fixed
         self.free = _free_dofs(self.n, fixed)
         K = model.tangent_stiffness()
-        self.factor = factorize(K[self.free][:, self.free], method)
+        K_ff = K[self.free][:, self.free]
+        self.linear = choose_linear(linear, len(self.free), K_ff.nnz)
+        if self.linear == "direct":
+            self.factor = factorize(K_ff, method)
+        else:
+            self.factor = AMGSolver(K_ff, rigid_body_modes(model.space.nodes)[self.free], rtol=rtol,
+                                    node_blocks=_node_triples(self.free))
 
     def solve(self, f_ext: np.ndarray) -> np.ndarray:
         f_ext = np.asarray(f_ext, dtype=float)
@@ -143,19 +272,196 @@ class LinearSolver:
         return U[:, 0] if squeeze else U
 
 
-def solve_linear(model, f_ext: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+def solve_linear(model, f_ext: np.ndarray, fixed: np.ndarray, linear: str = "direct") -> np.ndarray:
     """Displacement of a linear model under `f_ext` with zero displacement on `fixed` dofs [m]."""
-    return LinearSolver(model, fixed).solve(f_ext)
+    return LinearSolver(model, fixed, linear=linear).solve(f_ext)
 
 
 @dataclass
 class StaticResult:
-    """Result of a static solve: displacement and Newton history per load step."""
+    """Result of a static solve: displacement and Newton history per accepted load step.
+
+    `load_factors`: λ at the end of each accepted step; `rejected_steps` / `rejected_iterations`: load steps
+    cut back by the step control and the Newton iterations they cost; `linear_solver`: 'direct' or 'amg';
+    `cg_iterations`: CG iterations of each AMG solve.
+    """
 
     u: np.ndarray
     newton_iterations: list[int] = field(default_factory=list)
     residuals: list[list[float]] = field(default_factory=list)
     converged: bool = True
+    load_factors: list[float] = field(default_factory=list)
+    rejected_steps: int = 0
+    rejected_iterations: int = 0
+    linear_solver: str = "direct"
+    cg_iterations: list[int] = field(default_factory=list)
+
+
+_EPS = float(np.finfo(float).eps)
+_LS_ETA = 0.5        # line search: accept α once |g(α)| <= η |g(0)|
+_LS_TRIALS = 10
+_EASY_ITERATIONS = 5  # a load step converged within this many iterations doubles the next increment
+_CUT = 0.25           # a failed load step is retried with this fraction of its increment
+_MIN_INCREMENT = 1e-3  # ... down to this fraction of the largest increment 1/steps
+_INEXACT = 1e-2       # loosest relative tolerance of an iterative (AMG) Newton solve
+
+
+@dataclass
+class _Attempt:
+    u: np.ndarray
+    history: list[float]
+    converged: bool
+    reason: str = ""
+
+
+class _Tangent:
+    """The linear solves of one static problem: K_ff x = b by 'direct' or 'amg', chosen at the first solve
+    (:func:`choose_linear`) from the size of K_ff; AMG's near-nullspace are the rigid-body modes of the
+    current positions X + u."""
+
+    def __init__(self, linear: str, model, free: np.ndarray):
+        self.linear = linear
+        self.kind: str | None = None
+        self.nodes = model.space.nodes
+        self.free = free
+        self.triples = _node_triples(free)
+        self.cg_iterations: list[int] = []
+
+    def solve(self, K_ff: sp.spmatrix, b: np.ndarray, u: np.ndarray, rtol: float) -> np.ndarray:
+        if self.kind is None:
+            self.kind = choose_linear(self.linear, K_ff.shape[0], K_ff.nnz)
+        if self.kind == "direct":
+            return factorize(K_ff).solve(b)
+        modes = rigid_body_modes(self.nodes + u.reshape(-1, 3))[self.free]
+        amg = AMGSolver(K_ff, modes, rtol=rtol, node_blocks=self.triples)
+        x = amg.solve(b)
+        self.cg_iterations += amg.iterations
+        return x
+
+
+def _line_search(model, f, u, du, free, r, rn):
+    """Step length α along the Newton direction Δu: (u, f_int, r, |r_free|) at u + α Δu, or a reason string.
+
+    For a descent direction of Π (g(0) = Δu·R(u) < 0) α makes g(α) = Δu·R(u + α Δu) = dΠ/dα small,
+    |g(α)| <= η |g(0)|, by regula falsi on g with bisection where a trial inverts elements (non-finite
+    forces); the full step is kept when g(1) is still negative. Otherwise (tangent not positive definite)
+    the first of α = 1, 1/2, 1/4, ... that lowers |R_free|.
+    """
+    def trial(a):
+        ut = u + a * du
+        fi = model.internal_force(ut)
+        return ut, fi, fi - f
+
+    g0 = float(du[free] @ r[free])
+    if not g0 < 0:
+        a = 1.0
+        for _ in range(_LS_TRIALS):
+            ut, fi, rt = trial(a)
+            rnt = float(np.linalg.norm(rt[free]))
+            if np.isfinite(rnt) and rnt < rn:
+                return ut, fi, rt, rnt
+            a *= 0.5
+        return ("the tangent stiffness is not positive definite and no step along the Newton direction lowers "
+                "the residual: the load is past a limit point (buckling or snap-through); prescribe a "
+                "displacement instead of the load, or load a slightly imperfect geometry")
+    lo, glo, hi, ghi = 0.0, g0, None, None
+    a, best = 1.0, None
+    for _ in range(_LS_TRIALS):
+        ut, fi, rt = trial(a)
+        g = float(du[free] @ rt[free])
+        if not np.isfinite(g):  # an element inverted: the minimum along Δu lies before a
+            hi, ghi = a, None
+            a = lo + 0.5 * (a - lo)
+            continue
+        rnt = float(np.linalg.norm(rt[free]))
+        if best is None or abs(g) < best[0]:
+            best = (abs(g), (ut, fi, rt, rnt))
+        if abs(g) <= _LS_ETA * abs(g0) or (g < 0 and hi is None):
+            return ut, fi, rt, rnt
+        if g < 0:
+            lo, glo = a, g
+        else:
+            hi, ghi = a, g
+        if ghi is None:
+            a = 0.5 * (lo + hi)
+        else:
+            a = lo - glo * (hi - lo) / (ghi - glo)
+            a = min(max(a, lo + 0.1 * (hi - lo)), hi - 0.1 * (hi - lo))
+    if best is not None:
+        return best[1]
+    return ("every trial step inverts elements (det F <= 0): the load increment is far too large for the "
+            "material and mesh")
+
+
+def _newton(model, f, u, free, tol, max_iter, tangent: _Tangent, h: float) -> _Attempt:
+    """Newton iterations on R(u) = f_int(u) - f from `u` (fixed dofs already at their values)."""
+    f_int = model.internal_force(u)
+    r = f_int - f
+    rn = float(np.linalg.norm(r[free]))
+    fnorm = float(np.linalg.norm(f[free]))
+    history = [rn]
+    if not np.isfinite(rn):
+        return _Attempt(u, history, False, "the start point inverts elements")
+    if rn <= tol * max(fnorm, float(np.linalg.norm(f_int))):
+        return _Attempt(u, history, True)
+    floor = 0.0
+    for _ in range(max_iter):
+        K = model.tangent_stiffness(u)
+        K_ff = K[free][:, free]
+        floor = 10.0 * _EPS * float(np.linalg.norm(K_ff.diagonal())) * h  # round-off of f_int [N]
+        scale = max(fnorm, float(np.linalg.norm(f_int)))
+        # inexact Newton (iterative solver only): |K Δu + R| <= η |R| with η = |R| / scale (keeps the
+        # quadratic rate), at most 1e-2, and no smaller than needed to reach tol at this iteration
+        eta = min(_INEXACT, max(rn / scale, 0.1 * tol * scale / rn, 1e-12))
+        du = np.zeros_like(u)
+        try:
+            du[free] = -tangent.solve(K_ff, r[free], u, rtol=eta)
+        except SolverError as exc:
+            return _Attempt(u, history, False, str(exc))
+        step = _line_search(model, f, u, du, free, r, rn)
+        if isinstance(step, str):
+            return _Attempt(u, history, False, step)
+        u, f_int, r, rn = step
+        history.append(rn)
+        if rn <= tol * max(fnorm, float(np.linalg.norm(f_int))):
+            return _Attempt(u, history, True)
+        if rn <= floor and rn > 0.5 * history[-2]:  # stagnating at the round-off of f_int
+            return _Attempt(u, history, True)
+    scale = max(fnorm, float(np.linalg.norm(f_int)))
+    if min(history[-3:]) > 0.5 * min(history) or rn <= 10 * floor:
+        reason = (f"the residual stalled at {rn:.2e} N (relative {rn / scale:.1e}; round-off of the internal "
+                  f"forces about {floor:.1e} N) above tol = {tol:.0e}: raise tol")
+    elif rn > history[0]:
+        reason = f"the residual grew from {history[0]:.2e} to {rn:.2e} N in {max_iter} iterations"
+    else:
+        reason = (f"the residual fell from {history[0]:.2e} to {rn:.2e} N but not to tol = {tol:.0e} relative "
+                  f"in {max_iter} iterations: raise max_iter")
+    return _Attempt(u, history, False, reason)
+
+
+def _element_size(model) -> float:
+    """h = (6 |mean tet volume|)^(1/3) [m], the edge of a cube cut into 6 such tetrahedra."""
+    _, detJ = model.space.jacobians
+    return float(np.cbrt(np.mean(np.abs(detJ))))
+
+
+def _warn_p1_locking(model, u: np.ndarray) -> None:
+    """PhysarWarning when a nonlinear P1 model bends far: the element rotations spread by more than 0.1 rad
+    about their mean while the stretches stay 3x smaller, i.e. large-deflection bending, where linear
+    tetrahedra lock (their constant strain cannot bend without spurious shear)."""
+    from physar.fem.materials import polar
+
+    if model.space.element != "P1" or model.linear:
+        return
+    R, S = polar(model.deformation_gradient(u)[:, 0])
+    Rm, _ = polar(R.mean(axis=0))
+    spread = np.arccos(np.clip((np.einsum("mij,ij->m", R, Rm) - 1.0) / 2.0, -1.0, 1.0))
+    strain = np.abs(np.linalg.eigvalsh(S) - 1.0).max()
+    if spread.max() > 0.1 and spread.max() > 3.0 * strain:
+        warnings.warn(PhysarWarning(
+            f"P1 tetrahedra lock in bending: this large deflection (element rotations spread over "
+            f"{np.degrees(spread.max()):.0f} deg about their mean, strains below {100 * strain:.1f} %) is "
+            "too stiff, typically by tens of percent; use P2 elements"), stacklevel=3)
 
 
 def solve_static(
@@ -165,19 +471,21 @@ def solve_static(
     steps: int = 1,
     u0: np.ndarray | None = None,
     tol: float = 1e-10,
-    max_iter: int = 30,
+    max_iter: int = 50,
     progress: Callable[[int, int], None] | None = None,
     prescribed: np.ndarray | None = None,
+    linear: str = "auto",
 ) -> StaticResult:
-    """Static equilibrium f_int(u) = f_ext on the free dofs, u = u_D on `fixed` (Newton, line search, load steps).
+    """Static equilibrium f_int(u) = f_ext on the free dofs, u = u_D on `fixed` (Newton, line search,
+    automatic load steps; see the module docstring).
 
     `prescribed` (shape (n_dofs,), only its entries at `fixed` are used; default 0) gives u_D, the
-    Dirichlet values, e.g. a rigid rotation of a clamped lever. Load step k of `steps` applies
-    lambda_k f_ext and lambda_k u_D with lambda_k = k / steps.
-    Convergence: |R_free| <= tol * max(lambda |f_ext|, |f_int(u)|, tiny), where f_int over all dofs
-    includes the reactions (the scale of a displacement-driven problem). For a linear model one
-    factorisation and one solve. `progress(step, steps)` is called after each load step.
-    Raises SolverError if a load step does not converge (try more `steps`).
+    Dirichlet values, e.g. a rigid rotation of a clamped lever. Load factor λ runs from 0 to 1 in
+    increments of at most 1/`steps` (cut back on failure, grown on easy steps); each step applies
+    λ f_ext and λ u_D. Convergence: |R_free| <= tol · max(λ |f_ext|, |f_int(u)|, tiny), or the round-off
+    floor once Newton stagnates. For a linear model one solve. `linear`: 'auto' | 'direct' | 'amg' (the
+    linear solver, see :func:`choose_linear`). `progress(step, steps)` is called as λ passes k / steps.
+    Raises SolverError naming the cause if even a small load increment does not converge.
     """
     f_ext = np.asarray(f_ext, dtype=float)
     fixed = np.unique(np.asarray(fixed, dtype=np.int64))
@@ -186,6 +494,8 @@ def solve_static(
         raise SolverError(f"external force must have shape ({n},), got {f_ext.shape}")
     if steps < 1:
         raise SolverError(f"load steps must be >= 1, got {steps}")
+    if linear not in LINEAR_METHODS:
+        raise ConfigError(f"linear solver must be one of {', '.join(LINEAR_METHODS)}, got {linear!r}")
     if prescribed is None:
         u_d = np.zeros(n)
     else:
@@ -198,60 +508,56 @@ def solve_static(
     free = _free_dofs(n, fixed)
     u = np.zeros(n) if u0 is None else np.array(u0, dtype=float)
     u[fixed] = 0.0
+    tangent = _Tangent(linear, model, free)
     if model.linear:
         u[fixed] = u_d[fixed]
         K = model.tangent_stiffness(u)
         r = model.internal_force(u) - f_ext
-        u[free] -= factorize(K[free][:, free]).solve(r[free])
+        u[free] -= tangent.solve(K[free][:, free], r[free], u, rtol=tol)
         res = np.linalg.norm((model.internal_force(u) - f_ext)[free])
         if progress:
             progress(1, 1)
-        return StaticResult(u, [1], [[float(res)]])
+        return StaticResult(u, [1], [[float(res)]], load_factors=[1.0], linear_solver=tangent.kind,
+                            cg_iterations=tangent.cg_iterations)
 
     result = StaticResult(u)
-    fnorm = np.linalg.norm(f_ext[free])
-    for step in range(1, steps + 1):
-        lam = step / steps
-        history = []
-        f = lam * f_ext
-        u[fixed] = lam * u_d[fixed]
-        f_int = model.internal_force(u)
-        r = f_int - f
-        rn = np.linalg.norm(r[free])
-        history.append(float(rn))
-        it = 0
-        while rn > tol * max(lam * fnorm, np.linalg.norm(f_int), 1e-300):
-            if it >= max_iter:
+    h = _element_size(model)
+    dlam_max = 1.0 / steps
+    dlam, lam, u_prev, dlam_prev, shown = dlam_max, 0.0, None, None, 0
+    while lam < 1.0:
+        dlam = min(dlam, 1.0 - lam)
+        lam_t = 1.0 if 1.0 - (lam + dlam) < 1e-12 else lam + dlam
+        start = u.copy()
+        if u_prev is not None:  # secant predictor along the last converged step
+            start[free] += (lam_t - lam) / dlam_prev * (u[free] - u_prev[free])
+        start[fixed] = lam_t * u_d[fixed]
+        att = _newton(model, lam_t * f_ext, start, free, tol, max_iter, tangent, h)
+        if not att.converged and u_prev is not None:  # the predictor may overshoot: retry from u
+            start = u.copy()
+            start[fixed] = lam_t * u_d[fixed]
+            result.rejected_iterations += len(att.history) - 1
+            att = _newton(model, lam_t * f_ext, start, free, tol, max_iter, tangent, h)
+        its = len(att.history) - 1
+        if not att.converged:
+            result.rejected_steps += 1
+            result.rejected_iterations += its
+            dlam = (lam_t - lam) * _CUT
+            if dlam < _MIN_INCREMENT * dlam_max:
                 raise SolverError(
-                    f"Newton did not converge in {max_iter} iterations at load step {step}/{steps} "
-                    f"(residual {rn:.3e}); increase [solver] steps"
-                )
-            K = model.tangent_stiffness(u)
-            du = np.zeros(n)
-            du[free] = -factorize(K[free][:, free]).solve(r[free])
-            alpha = 1.0
-            pi0 = model.energy(u) - f @ u
-            for _ in range(16):
-                # backtracking: accept the first step that lowers the residual or the total potential
-                # energy Π = E(u) - f·u (the Newton step is a descent direction of Π where K > 0)
-                trial = u + alpha * du
-                f_int_t = model.internal_force(trial)
-                r_t = f_int_t - f
-                rn_t = np.linalg.norm(r_t[free])
-                if np.isfinite(rn_t) and (rn_t < rn or model.energy(trial) - f @ trial < pi0):
-                    break
-                alpha *= 0.5
-            else:
-                raise SolverError(
-                    f"line search failed at load step {step}/{steps} (residual {rn:.3e}); "
-                    "increase [solver] steps"
-                )
-            u, r, rn, f_int = trial, r_t, rn_t, f_int_t
-            history.append(float(rn))
-            it += 1
-        result.newton_iterations.append(it)
-        result.residuals.append(history)
-        if progress:
-            progress(step, steps)
+                    f"Newton did not converge at load factor {lam_t:.3g} even with the load increment cut "
+                    f"to {lam_t - lam:.2g}: {att.reason}")
+            continue
+        u_prev, u, dlam_prev, lam = u, att.u, lam_t - lam, lam_t
+        result.newton_iterations.append(its)
+        result.residuals.append(att.history)
+        result.load_factors.append(lam)
+        if its <= _EASY_ITERATIONS:
+            dlam = min(2.0 * dlam_prev, dlam_max)
+        while progress and shown < steps and lam >= (shown + 1) / steps - 1e-12:
+            shown += 1
+            progress(shown, steps)
     result.u = u
+    result.linear_solver = tangent.kind or "direct"
+    result.cg_iterations = tangent.cg_iterations
+    _warn_p1_locking(model, u)
     return result

@@ -43,5 +43,5 @@ def test_key_errors_name_the_key():
     msg = _error({**BASE, "solver": {"steps": 0}})
     assert msg.startswith("beam.toml: solver.steps: ") and msg.endswith("(got 0)")
     assert _error({**BASE, "solver": {"stpes": 2}}) == ("beam.toml: unknown key 'stpes' in [solver] "
-                                                        "(allowed: steps, tol, max_iter)")
+                                                        "(allowed: steps, tol, max_iter, linear)")
     assert _error({"mesh": BASE["mesh"]}) == "beam.toml: missing key 'material' in [top level]"
