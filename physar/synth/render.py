@@ -30,6 +30,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from physar.geometry import path_point
 from physar.synth.scenario import Resolved, Scenario
 from physar.synth.truth import FineTruth
 
@@ -142,17 +143,36 @@ def _remap(img: np.ndarray, u: np.ndarray, v: np.ndarray, border=cv2.BORDER_REFL
 
 # ------------------------------------------------------------------------------------------------- renderer
 class ProjectRenderer:
-    """Renders frames of a project's synthetic clip: ``render(k) -> (BGR uint8 image, truth row dict)``."""
+    """Renders frames of a project's synthetic clip: ``render(k) -> (BGR uint8 image, truth row dict)``.
+
+    ``truth`` is None for a virtual object (``[model] visible = false``): its mesh is not drawn."""
 
     def __init__(self, project, scenario: Scenario | Resolved, truth: FineTruth | None = None, quick: bool = False):
         self.res = scenario if isinstance(scenario, Resolved) else Resolved(scenario, project, quick=quick)
         self.project = project
         sc = self.res.sc
-        self.truth = truth or FineTruth(project, refine=sc.truth.refine)
+        self.visible = self.res.visible
+        self.truth = (truth or FineTruth(project, refine=sc.truth.refine)) if self.visible else None
         self.camera = self.res.camera
         self.rng = np.random.default_rng(sc.seed)
-        space = self.truth.space
-        mesh = space.mesh
+        if self.visible:
+            self._surface(project, sc)
+        else:
+            self.X, self.n_vert = np.zeros((0, 3)), 0
+            self.tris = np.zeros((0, 3), np.int64)
+        self._markers()
+        self._plate()
+        self._load_path()
+        self._wall()
+        W, H = self.camera.size
+        yy, xx = np.mgrid[0:H, 0:W]
+        q = self.camera.normalized(np.column_stack([xx.ravel(), yy.ravel()]).astype(float))
+        self.rays = np.column_stack([q, np.ones(len(q))]).astype(np.float32)  # camera-frame rays of the pixels
+
+    # -------------------------------------------------------------------------------------- setup helpers
+    def _surface(self, project, sc):
+        """The fine truth mesh's boundary, its shading groups, the dots near each triangle, the textures."""
+        mesh = self.truth.space.mesh
         surf = mesh.boundary()
         self.X = mesh.points  # reference vertex positions (P2 spaces number mesh points first)
         self.n_vert = len(self.X)
@@ -181,15 +201,16 @@ class ProjectRenderer:
         texel = 0.5 * self.feature  # texture pixel [m]
         scale = min(1.0, 4096.0 / max(float(ext.max()) / texel, 1.0))
         self.texel = texel / scale
-        self.planes = []  # tri-planar textures: projections onto yz, xz, xy
+        self.planes = []  # tri-planar textures: projections onto yz, xz, xy (noise, then dark pores)
         for ax in range(3):
             a, b = [i for i in range(3) if i != ax]
             shape = (int(ext[b] / self.texel) + 4, int(ext[a] / self.texel) + 4)
-            self.planes.append((a, b, noise_image(shape, 2.0, tex.octaves, self.rng)))
-        self._markers()
-        self._wall()
+            im = noise_image(shape, 2.0, tex.octaves, self.rng)
+            if tex.pores > 0:
+                im = np.stack([im, pore_image(shape, (tex.pore_size or 4 * self.feature) / self.texel, tex.pores,
+                                              self.rng)], axis=-1)
+            self.planes.append((a, b, im))
 
-    # -------------------------------------------------------------------------------------- setup helpers
     def _crease_pairs(self, crease: float) -> tuple[np.ndarray, np.ndarray]:
         """Smoothing groups of the shading normals: pairs (corner c = 3 f + j, face g) such that g touches
         the vertex of corner c and its reference normal is within ``crease`` of face f's. A corner's normal
@@ -233,7 +254,7 @@ class ProjectRenderer:
         self.marker_tex, verts, uvs, tris, owner = [], [], [], [], []
         g = 4
         base = 0
-        for k, (mid, C) in enumerate(zip(board.ids, board.corners)):
+        for k, (mid, C) in enumerate(zip(board.ids, board.corners) if board is not None else ()):
             tex = aruco_texture(board.dictionary, int(mid))
             self.marker_tex.append(tex)
             n = np.cross(C[1] - C[0], C[3] - C[0])
@@ -248,11 +269,7 @@ class ProjectRenderer:
             # texel i covers [i - 1/2, i + 1/2] in remap coordinates: the texture spans [-1/2, side - 1/2]
             uvs.append(np.column_stack([(S.ravel() + q) / (1 + 2 * q) * side - 0.5,
                                         (T.ravel() + q) / (1 + 2 * q) * side - 0.5]))
-            i = np.arange((g + 1) ** 2).reshape(g + 1, g + 1) + base
-            a, b, c, d = i[:-1, :-1].ravel(), i[:-1, 1:].ravel(), i[1:, 1:].ravel(), i[1:, :-1].ravel()
-            # orientation: (TL, TR, BR) seen from outside is clockwise in the object frame -> use (a, d, c)
-            # and (a, c, b) so that the face normal of each triangle is the outward n
-            tris.append(np.concatenate([np.column_stack([a, d, c]), np.column_stack([a, c, b])]))
+            tris.append(_grid_tris(g, base))
             owner.append(np.full(2 * g * g, k))
             base += (g + 1) ** 2
         if verts:
@@ -260,32 +277,62 @@ class ProjectRenderer:
             self.m_uv = np.vstack(uvs)
             self.m_tris = np.vstack(tris)
             self.m_owner = np.concatenate(owner)
-            n = np.cross(self.m_X[self.m_tris[:, 1]] - self.m_X[self.m_tris[:, 0]],
-                         self.m_X[self.m_tris[:, 2]] - self.m_X[self.m_tris[:, 0]])
-            self.m_n = n / np.linalg.norm(n, axis=1, keepdims=True)
+            self.m_n = _tri_normals(self.m_X, self.m_tris)
         else:
             self.m_X = np.zeros((0, 3))
             self.m_tris = np.zeros((0, 3), np.int64)
 
+    def _plate(self):
+        """The [registration.plane] image (when the project has one) on its rectangle, a (g+1)^2 grid with UV
+        in image pixels (pixel j's centre at (j + 1/2) / px_per_m from the origin), and its dark rim."""
+        pl = self.res.plane
+        self.p_X = np.zeros((0, 3))
+        self.p_tris = np.zeros((0, 3), np.int64)
+        if pl is None or pl.image is None:
+            return
+        g = 16
+        w, h = pl.size
+        s = np.linspace(0.0, 1.0, g + 1)
+        S, T = np.meshgrid(s, s)
+        P = pl.origin + (S * w)[..., None] * pl.u + (T * h)[..., None] * pl.v
+        self.p_X = P.reshape(-1, 3)
+        self.p_uv = np.column_stack([S.ravel() * w * pl.px_per_m - 0.5, T.ravel() * h * pl.px_per_m - 0.5])
+        self.p_tris = _grid_tris(g, 0)
+        self.p_img = pl.image.astype(np.float32) / 255.0
+        look = self.res.sc.plane
+        self.rim = None
+        if look.border > 0:
+            b = look.border
+            C = pl.corners() + np.array([-b * (pl.u + pl.v), b * (pl.u - pl.v), b * (pl.u + pl.v),
+                                         b * (pl.v - pl.u)]) - 1e-4 * pl.normal
+            self.rim = (C, np.asarray(look.border_colour, float)[::-1] / 255.0)
+
+    def _load_path(self):
+        """The load point of the load_position parameter (path, offset direction) for [load_body]."""
+        self.load_def = None
+        if self.res.sc.load_body is None or not self.visible:
+            return
+        ps = {p["kind"]: p for p in self.truth.params}
+        pos = ps["load_position"]
+        off = ps.get("load_offset")
+        self.load_def = (pos["name"], np.asarray(pos["path"], float), np.asarray(pos["load"], float),
+                         None if off is None else (off["name"], np.asarray(off["direction"], float)))
+        surf = np.unique(self.tris)
+        self.surf_nodes = surf
+
     def _wall(self):
-        """A cluttered wall: plane perpendicular to the mean line of sight, ``wall_distance`` behind the target,
-        with band-limited noise and random rectangles and discs (features for markerless registration)."""
+        """A cluttered wall on the resolved wall plane (the project's plane without an image, else behind the
+        target), with band-limited noise and random rectangles and discs (features for markerless
+        registration); texture pixel (i, j) centred at wall_centre + ((j + 1/2) s - half) right +
+        ((i + 1/2) s - half) down, s = 2 half / n."""
         res = self.res
-        view = res._eye_dir(res.azimuth, res.elevation)  # target -> camera
-        self.wall_o = res.target - res.wall_distance * view
-        e1 = np.cross(res.up, view)
-        if np.linalg.norm(e1) < 1e-6:
-            e1 = res.axes[0]
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(view, e1)  # up on the wall
-        self.wall_axes = (e1, -e2)  # texture u right, v down
         cam = self.camera
         D = res.distance + res.wall_distance
         half = 1.6 * D * max(cam.width / cam.fx, cam.height / cam.fy)  # half side [m], covers the orbit
         n = 2048
         self.wall_half, self.wall_n = half, n
         bg = self.res.sc.background
-        rng = self.rng
+        rng = np.random.default_rng([self.res.sc.seed, 7])  # its own stream: the same wall whatever is drawn
         base = np.asarray(bg.base, float)[::-1] / 255.0  # BGR
         img = base * (1 + bg.contrast * noise_image((n, n), 3.0, 4, rng)[..., None])
         for _ in range(90):  # clutter: posters, boxes, round things
@@ -299,9 +346,36 @@ class ProjectRenderer:
                            cv2.LINE_AA)
         self.wall_img = np.clip(img, 0, 1).astype(np.float32)
 
+    def draw_wall(self, pose) -> np.ndarray:
+        """The wall seen from ``pose`` (H, W, 3) float32 BGR, unlit: every pixel's ray (lens distortion
+        included) meets the wall plane at X, sampled bilinearly; pixels whose ray misses it (behind the
+        camera) are dark grey."""
+        res = self.res
+        W, H = self.camera.size
+        e1, e2 = (np.asarray(a, np.float32) for a in res.wall_axes)
+        n = np.asarray(res.wall_normal, np.float32)
+        c = pose.center.astype(np.float32)
+        d = self.rays @ pose.R.astype(np.float32)  # world directions (rows: R^T r)
+        dn = d @ n
+        depth = float((res.wall_centre - c) @ n)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = depth / dn
+        hit = np.isfinite(lam) & (lam > 0)
+        lam = np.where(hit, lam, 0.0).astype(np.float32)
+        rel = (c - res.wall_centre).astype(np.float32)
+        s = 2 * self.wall_half / self.wall_n
+        mx = ((rel @ e1 + lam * (d @ e1)) + self.wall_half) / s - 0.5
+        my = ((rel @ e2 + lam * (d @ e2)) + self.wall_half) / s - 0.5
+        img = cv2.remap(self.wall_img, mx.reshape(H, W), my.reshape(H, W), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_REFLECT)
+        img[~hit.reshape(H, W)] = 0.25
+        return img
+
     # ---------------------------------------------------------------------------------------------- frames
-    def deformed(self, params: dict) -> np.ndarray:
-        """Deformed vertex positions X + u (n, 3) [m] of the fine truth at the parameter values."""
+    def deformed(self, params: dict, at_rest: bool = False) -> np.ndarray:
+        """Deformed vertex positions X + u (n, 3) [m] of the fine truth at the parameter values (X at rest)."""
+        if at_rest or not self.visible:
+            return self.X
         u = self.truth.solve(params).reshape(-1, 3)[: self.n_vert]
         return self.X + u
 
@@ -311,39 +385,34 @@ class ProjectRenderer:
         W, H = cam.size
         t = k / res.fps
         params = res.params(t)
+        rest = res.at_rest(t)
+        markers = res.markers_on(t)
         pose = res.pose(t)
-        x = self.deformed(params)
+        x = self.deformed(params, rest)
         light = res.light
         sc = res.sc
         L = sc.lighting
         fr = np.random.default_rng([sc.seed, k])
-        # wall
-        e1, e2 = self.wall_axes
-        s = 2 * self.wall_half / (self.wall_n - 1)
-        Hm = cam.K @ np.column_stack([pose.R @ (e1 * s), pose.R @ (e2 * s),
-                                      pose.R @ (self.wall_o - self.wall_half * (e1 + e2)) + pose.t])
-        img = cv2.warpPerspective(self.wall_img, Hm, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-        wall_n = np.cross(e2, e1)
-        img *= L.ambient + (1 - L.ambient) * max(0.0, float(wall_n @ light)) * 0.8
-        # geometry: object surface then marker plates, one z-buffer
-        nv = len(x)
-        allX = np.vstack([x, self.m_X])
-        tris = np.vstack([self.tris, self.m_tris + nv])
-        xc = allX @ pose.R.T + pose.t
-        z = xc[:, 2]
-        xy = cam.project(allX, pose)
-        tn = np.cross(allX[tris[:, 1]] - allX[tris[:, 0]], allX[tris[:, 2]] - allX[tris[:, 0]])
-        front = np.einsum("ij,ij->i", tn @ pose.R.T, -xc[tris].mean(1)) > 0
-        bias = np.r_[np.zeros(len(self.tris)), np.full(len(self.m_tris), -MARKER_BIAS)]
-        pix, tri, b = rasterize(xy, z, tris, W, H, front, bias)
-        flat = img.reshape(-1, 3)
-        ns = len(self.tris)
-        obj = tri < ns
-        if obj.any():
-            flat[pix[obj]] = self._shade_surface(x, tri[obj], b[obj], xy, light, L)
-        mk = ~obj
-        if mk.any():
-            flat[pix[mk]] = self._shade_markers(tri[mk] - ns, b[mk], light, L)
+        img = self.draw_wall(pose)
+        img *= L.ambient + (1 - L.ambient) * max(0.0, float(res.wall_normal @ light)) * 0.8
+        # geometry: object surface, markers, plate, bars, load body: one z-buffer
+        parts = [(x, self.tris, 0.0, self._shade_surface_fn(x, light, L))] if self.visible else []
+        if markers and len(self.m_tris):
+            parts.append((self.m_X, self.m_tris, -MARKER_BIAS, lambda tri, b: self._shade_markers(tri, b, light, L)))
+        if len(self.p_tris):
+            parts.append((self.p_X, self.p_tris, 0.0, lambda tri, b: self._shade_plate(tri, b, light, L)))
+            if self.rim is not None:
+                C, col = self.rim
+                T = np.array([[0, 3, 2], [0, 2, 1]])  # wound like the plate: normal -(u x v)
+                parts.append((C, T, MARKER_BIAS, self._flat(C, T, col, light, L)))
+        for bar in res.bars:
+            X, T = bar_box(bar, params[bar.name], sc.bar.thickness * bar.width)
+            parts.append((X, T, 0.0, self._flat(X, T, np.asarray(sc.bar.colour, float)[::-1] / 255.0, light, L)))
+        if self.load_def is not None and not rest:
+            X, T = self._load_body(params, x)
+            parts.append((X, T, 0.0, self._flat(X, T, np.asarray(sc.load_body.colour, float)[::-1] / 255.0, light, L)))
+        if parts:
+            self._draw(img, parts, pose)
         # brightness, flicker, vignetting
         gain = L.brightness * (1 + L.flicker * math.sin(2 * math.pi * 1.7 * t + sc.seed))
         yy, xx = np.mgrid[0:H, 0:W]
@@ -352,18 +421,75 @@ class ProjectRenderer:
         occ = res.occlusions(k)
         for o in occ:
             self._occluder(img, o, pose)
-        # sensor: PSF, shot and read noise [DN]
+        # sensor: motion blur, PSF, shot and read noise [DN]
         dn = img * 255.0
-        if sc.sensor.psf > 0:
-            dn = cv2.GaussianBlur(dn, (0, 0), sc.sensor.psf)
         sen = sc.sensor
+        if sen.motion_blur > 0:
+            tgt = res.target[None]
+            blur = (cam.project(tgt, pose)[0] - cam.project(tgt, res.pose(t - 1 / res.fps))[0]) * sen.motion_blur
+            dn = motion_blur(dn, blur)
+        if sen.psf > 0:
+            dn = cv2.GaussianBlur(dn, (0, 0), sen.psf)
         sigma = np.sqrt(sen.read_noise ** 2 + sen.shot_noise ** 2 * np.maximum(dn, 0))
         dn = dn + sigma * fr.standard_normal(dn.shape).astype(np.float32)
         out = np.clip(dn + 0.5, 0, 255).astype(np.uint8)
         row = {"frame": k, "time_s": t, **{f"{n}_true": v for n, v in params.items()},
                **dict(zip(("rx", "ry", "rz"), pose.rvec.tolist())), **dict(zip(("tx", "ty", "tz"), pose.t.tolist())),
-               "occluders": len(occ)}
+               "occluders": len(occ), "at_rest": int(rest), "markers": int(markers and len(self.m_tris) > 0),
+               "pan_deg": res.pan(t)}
         return out, row
+
+    def _draw(self, img, parts, pose):
+        """Rasterise the parts [(X (n, 3) world, tris (m, 3) outward-wound, depth bias [m], shader(tri, b) ->
+        (N, 3) BGR)] in one z-buffer and write the shaded pixels into img."""
+        cam = self.camera
+        W, H = cam.size
+        offs = np.cumsum([0] + [len(p[0]) for p in parts])
+        toffs = np.cumsum([0] + [len(p[1]) for p in parts])
+        allX = np.vstack([p[0] for p in parts])
+        tris = np.vstack([p[1] + o for p, o in zip(parts, offs)])
+        bias = np.concatenate([np.full(len(p[1]), p[2]) for p in parts])
+        xc = allX @ pose.R.T + pose.t
+        xy = cam.project(allX, pose)
+        tn = np.cross(allX[tris[:, 1]] - allX[tris[:, 0]], allX[tris[:, 2]] - allX[tris[:, 0]])
+        front = np.einsum("ij,ij->i", tn @ pose.R.T, -xc[tris].mean(1)) > 0
+        pix, tri, b = rasterize(xy, xc[:, 2], tris, W, H, front, bias if np.any(bias) else None)
+        flat = img.reshape(-1, 3)
+        part = np.searchsorted(toffs, tri, side="right") - 1
+        self._xy = xy[: offs[1]] if self.visible else None  # the object's projected vertices (dot coverage)
+        for j, p in enumerate(parts):
+            sel = part == j
+            if sel.any():
+                flat[pix[sel]] = p[3](tri[sel] - toffs[j], b[sel])
+
+    def _flat(self, X, T, bgr, light, L):
+        """Shader of a rigid part of one colour: Lambert with its triangles' normals."""
+        n = _tri_normals(X, T)
+        lam = L.ambient + (1 - L.ambient) * np.maximum(0.0, n @ light)
+        cols = (bgr[None] * lam[:, None]).astype(np.float32)
+        return lambda tri, b: cols[tri]
+
+    def _load_body(self, params, x):
+        """Cylinder (diameter, thickness of [load_body]) standing on the deformed surface at the load point:
+        its base centre at the reference point moved by the mean displacement of the surface vertices under
+        it, axis along -load."""
+        name, path, load, off = self.load_def
+        p = path_point(path, float(params[name]))
+        if off is not None:
+            p = p + float(params[off[0]]) * off[1] / np.linalg.norm(off[1])
+        lb = self.res.sc.load_body
+        r = 0.5 * lb.diameter
+        a = -load / np.linalg.norm(load)
+        Xs = self.X[self.surf_nodes]
+        dist = np.linalg.norm((Xs - p) - np.outer((Xs - p) @ a, a), axis=1)
+        under = (dist <= r) & (np.abs((Xs - p) @ a) < 0.5 * r)
+        if not under.any():
+            under = dist <= dist.min() + 1e-12
+        base = p + (x[self.surf_nodes[under]] - Xs[under]).mean(0)
+        return cylinder(base, a, r, lb.thickness)
+
+    def _shade_surface_fn(self, x, light, L):
+        return lambda tri, b: self._shade_surface(x, tri, b, self._xy, light, L)
 
     def _shade_surface(self, x, tri, b, xy, light, L) -> np.ndarray:
         T = self.tris[tri]
@@ -376,16 +502,23 @@ class ProjectRenderer:
         cn /= np.maximum(np.linalg.norm(cn, axis=1, keepdims=True), 1e-30)
         n = np.einsum("ni,nij->nj", b, cn.reshape(-1, 3, 3)[tri])
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-        # tri-planar texture in the reference frame
+        # tri-planar texture in the reference frame (noise, and dark pores when [texture] pores > 0)
         w = np.abs(self.nref[tri]) ** 4
         w /= w.sum(1, keepdims=True)
         tex = np.zeros(len(tri), np.float32)
+        pore = np.zeros(len(tri), np.float32)
         for ax, (a, bb, im) in enumerate(self.planes):
             sel = w[:, ax] > 1e-3
             u = (Xr[sel, a] - self.lo[a]) / self.texel
             v = (Xr[sel, bb] - self.lo[bb]) / self.texel
-            tex[sel] += w[sel, ax] * _remap(im, u, v)
+            sample = _remap(im, u, v)
+            if im.ndim == 3:
+                tex[sel] += w[sel, ax] * sample[:, 0]
+                pore[sel] += w[sel, ax] * sample[:, 1]
+            else:
+                tex[sel] += w[sel, ax] * sample
         albedo = np.clip(self.base_rgb[None, ::-1] * (1 + self.contrast * tex[:, None]), 0, 1)
+        albedo *= 1 - 0.55 * pore[:, None]
         # dots: anti-aliased coverage from the distance in the reference frame, m = metres per pixel
         if len(self.dots):
             e1, e2 = xy[T[:, 1]] - xy[T[:, 0]], xy[T[:, 2]] - xy[T[:, 0]]
@@ -414,6 +547,12 @@ class ProjectRenderer:
         lam = L.ambient + (1 - L.ambient) * np.maximum(0.0, self.m_n[tri] @ light)
         return (paper * lam[:, None]).astype(np.float32)
 
+    def _shade_plate(self, tri, b, light, L) -> np.ndarray:
+        uv = np.einsum("ni,nij->nj", b, self.p_uv[self.p_tris[tri]])
+        col = _remap(self.p_img, uv[:, 0], uv[:, 1], cv2.BORDER_REPLICATE)
+        lam = L.ambient + (1 - L.ambient) * max(0.0, float(self.res.plane.normal @ light))
+        return (col * lam).astype(np.float32)
+
     def _occluder(self, img, o, pose):
         cam = self.camera
         H = cam.height
@@ -431,9 +570,91 @@ class ProjectRenderer:
         cv2.line(img, (int(c[0]), int(c[1])), (int(edge[0]), int(edge[1])), col, int(1.2 * r), cv2.LINE_AA)
 
 
+# ------------------------------------------------------------------------------------------- rigid parts
+def _tri_normals(X, T) -> np.ndarray:
+    n = np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+
+
+def _grid_tris(g: int, base: int) -> np.ndarray:
+    """Triangles of a (g+1) x (g+1) vertex grid (row-major, rows along the second axis T, columns along S),
+    wound so that their normal is -(dS x dT) (the outward ``normal`` of a marker / plane whose S and T are
+    its right and down directions)."""
+    i = np.arange((g + 1) ** 2).reshape(g + 1, g + 1) + base
+    a, b, c, d = i[:-1, :-1].ravel(), i[:-1, 1:].ravel(), i[1:, 1:].ravel(), i[1:, :-1].ravel()
+    return np.concatenate([np.column_stack([a, d, c]), np.column_stack([a, c, b])])
+
+
+def _outward(X, T) -> np.ndarray:
+    """Triangles of a convex body wound so that their normals point away from its centroid."""
+    n = np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])
+    flip = np.einsum("ij,ij->i", n, X[T].mean(1) - X.mean(0)) < 0
+    T = T.copy()
+    T[flip] = T[flip][:, ::-1]
+    return T
+
+
+_BOX_TRIS = np.array([[0, 1, 3], [0, 3, 2], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4], [2, 3, 7], [2, 7, 6],
+                      [0, 2, 6], [0, 6, 4], [1, 3, 7], [1, 7, 5]])
+
+
+def bar_box(bar, value: float, thickness: float) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (8, 3) and outward triangles (12, 3) of a [[bar]] at the parameter value: the box
+    [0, length] along its direction, [-width/2, width/2] across, from its visible face (through the pivot)
+    ``thickness`` back against its facing normal."""
+    d = bar.direction(value)
+    across = np.cross(bar.axis, d)
+    X = np.array([bar.pivot + i * bar.length * d + (j - 0.5) * bar.width * across - k * thickness * bar.facing
+                  for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    return X, _outward(X, _BOX_TRIS)
+
+
+def cylinder(base, axis, radius: float, height: float, n: int = 48) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and outward triangles of a closed cylinder: base centre (3,), unit axis (3,), radius, height."""
+    e1 = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    a = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    ring = radius * (np.cos(a)[:, None] * e1 + np.sin(a)[:, None] * e2)
+    X = np.vstack([base + ring, base + height * axis + ring, base, base + height * axis])
+    i, j = np.arange(n), (np.arange(n) + 1) % n
+    T = np.vstack([np.column_stack([i, j, n + j]), np.column_stack([i, n + j, n + i]),
+                   np.column_stack([np.full(n, 2 * n), j, i]), np.column_stack([np.full(n, 2 * n + 1), n + i, n + j])])
+    return X, _outward(X, T)
+
+
+def pore_image(shape: tuple[int, int], size_px: float, fraction: float, rng: np.random.Generator) -> np.ndarray:
+    """Coverage (h, w) float32 in [0, 1] of random dark pores (discs of diameter 0.5..1.2 ``size_px``,
+    anti-aliased) covering about ``fraction`` of the area."""
+    h, w = shape
+    out = np.zeros((h, w), np.float32)
+    r = rng.uniform(0.25, 0.6, max(1, int(fraction * h * w / (np.pi * (0.42 * size_px) ** 2))))
+    r = r * size_px
+    c = rng.uniform(0, 1, (len(r), 2)) * (w, h)
+    for (cx, cy), rr in zip(c, r):
+        cv2.circle(out, (int(cx * 16), int(cy * 16)), max(int(rr * 16), 8), 1.0, -1, cv2.LINE_AA, shift=4)
+    return out
+
+
+def motion_blur(img: np.ndarray, blur_px: np.ndarray) -> np.ndarray:
+    """Blur along the image motion ``blur_px`` (2,) [px] during the exposure: a line kernel of that length."""
+    n = float(np.linalg.norm(blur_px))
+    if n <= 0.5:
+        return img
+    k = math.ceil(n) | 1
+    ker = np.zeros((k + 2, k + 2), np.float32)
+    c = (k + 1) / 2
+    d = blur_px / n
+    p0 = (round((c - d[0] * n / 2) * 16), round((c - d[1] * n / 2) * 16))
+    p1 = (round((c + d[0] * n / 2) * 16), round((c + d[1] * n / 2) * 16))
+    cv2.line(ker, p0, p1, 1.0, 1, cv2.LINE_AA, shift=4)
+    return cv2.filter2D(img, -1, ker / ker.sum())
+
+
 # ---------------------------------------------------------------------------------------------------- files
 def truth_header(names) -> list[str]:
-    return ["frame", "time_s", *[f"{n}_true" for n in names], "rx", "ry", "rz", "tx", "ty", "tz", "occluders"]
+    return ["frame", "time_s", *[f"{n}_true" for n in names], "rx", "ry", "rz", "tx", "ty", "tz", "occluders",
+            "at_rest", "markers", "pan_deg"]
 
 
 def render_project(project, scenario: Scenario, out_dir, progress: Callable[[int, int], None] | None = None,
@@ -457,9 +678,10 @@ def render_project(project, scenario: Scenario, out_dir, progress: Callable[[int
     info = write_clip(out, "video.mp4", res.camera, res.fps, crf if crf is not None else res.sc.video.crf, header,
                       res.n_frames, frame, progress)
     atomic_write_text(out / "scenario.json", json.dumps(res.as_dict(), indent=1))
-    info.update(scenario=str(out / "scenario.json"), truth_solves=r.truth.solves,
-                truth_dofs=int(r.truth.space.n_dofs))
+    info.update(scenario=str(out / "scenario.json"), truth_solves=0 if r.truth is None else r.truth.solves,
+                truth_dofs=0 if r.truth is None else int(r.truth.space.n_dofs))
     return info
 
 
-__all__ = ["ProjectRenderer", "aruco_texture", "noise_image", "rasterize", "render_project", "truth_header"]
+__all__ = ["ProjectRenderer", "aruco_texture", "bar_box", "cylinder", "motion_blur", "noise_image", "pore_image",
+           "rasterize", "render_project", "truth_header"]

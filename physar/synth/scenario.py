@@ -10,30 +10,44 @@ face, at the distance where the object and its markers fill the field of view.
 seed = 0
 [video]        # width, height (default: the camera's; another size of the same aspect scales the camera),
                # fps = 30, duration = 8 (s), crf = 18
+[schedule]     # rest_until [s]: before it the object is at rest (u = 0, no load body) whatever the schedule
+               # (truth.csv at_rest = 1, not scored); markers_until [s]: the markers are drawn only before it
+               # (e.g. markers on the wall that register the first frame, then removed); default: always
 [schedule.s]   # one table per model parameter (default: a sweep of load_position over 90 % .. 10 % of its
 keyframes = [[0, 0.45], [1.5, 0.45], [2, 0.3]]   # range with dwells, other parameters at mid-range)
 interp = "smooth"   # "smooth" (smooth-step between keyframes; equal values = a dwell) | "linear"
 [camera]       # target [m] (bbox centre), distance [m], azimuth/elevation [deg] of the camera seen from the
-               # target (from the mean normal of the dots and markers), orbit = [d_azimuth, d_elevation] deg,
-               # period [s], shake_mm, shake_deg, up = [0, 0, 1]
+               # target (from the mean normal of the dots, markers, plane, bars and features face),
+               # orbit = [d_azimuth, d_elevation] deg, period [s], shake_mm, shake_deg, up = [0, 0, 1]
+[[camera.pan]] # the camera looks away and back: start [s], duration [s], yaw [deg], ramp [s]; it turns
+               # about the vertical (up) through its own centre: R = R_base R_up(a), t = -R c
 [lighting]     # ambient, direction (towards the light), brightness (0.4: dimmed), flicker, vignetting
-[sensor]       # read_noise [DN], shot_noise, psf [px]
-[texture]      # base = RGB, contrast, feature [m] (finest noise feature; default 3 px at the target), octaves
-[background]   # base = RGB, contrast, distance [m] behind the target
+[sensor]       # read_noise [DN], shot_noise, psf [px], motion_blur (fraction of the frame interval)
+[texture]      # base = RGB, contrast, feature [m] (finest noise feature; default 3 px at the target), octaves,
+               # pores (area fraction of dark pores, foam-like), pore_size [m] (default 4 feature)
+[background]   # base = RGB, contrast, distance [m] behind the target; with a project [registration.plane]
+               # without image the wall IS that plane (the pipeline learns its texture)
+[bar]          # look of the project's [[bar]] levers: colour = RGB (white), thickness (fraction of width)
+[plane]        # look of a [registration.plane] with an image: border [m] (dark rim), border_colour
+[load_body]    # a body drawn at the load point while loaded (a lead disk): diameter, thickness [m], colour
 [[occlusion]]  # start [s], frames, center = [u, v] (image fractions) or point = [x, y, z] (m), radius
                # (fraction of the image height), colour = RGB
 [truth]        # refine = 2 (times finer than the model mesh)
 ```
+
+A model with ``[model] visible = false`` (a virtual object) is not drawn and has no finer truth: the truth of its
+parameters is the schedule.
 """
 from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Field, Strict, model_validator
+from pydantic import ConfigDict, Field, Strict, model_validator
 
 from physar.errors import ConfigError
 from physar.fem.config import _Strict  # extra keys forbidden, no bool/str -> number coercion
@@ -84,6 +98,38 @@ class Schedule(_Strict):
         return k[i, 1] + a * (k[i + 1, 1] - k[i, 1])
 
 
+class ScheduleSection(_Strict):
+    """``[schedule]``: events of the clip, and one ``[schedule.NAME]`` table per model parameter."""
+
+    model_config = ConfigDict(extra="allow")
+    rest_until: float = Field(0.0, ge=0, description="s: the object at rest (u = 0) before this time")
+    markers_until: float | None = Field(None, ge=0, description="s: markers drawn only before (default: always)")
+    __pydantic_extra__: dict[str, Schedule] = Field(init=False)
+
+    @property
+    def parameters(self) -> dict[str, Schedule]:
+        """{parameter name: Schedule} of the [schedule.NAME] tables."""
+        return dict(self.__pydantic_extra__ or {})
+
+
+class Pan(_Strict):
+    """The camera turns away by ``yaw`` about the vertical through its centre, holds, and turns back."""
+
+    start: float = Field(..., ge=0, description="s")
+    duration: float = Field(..., gt=0, description="s (turn away, hold, turn back)")
+    yaw: float = Field(45.0, ge=-180, le=180, description="deg, right hand about up")
+    ramp: float = Field(0.5, gt=0, description="s to turn away (and back), cosine profile")
+
+    def angle(self, t: float) -> float:
+        """Yaw [deg] at time t: 0 outside [start, start + duration], yaw * (1 - cos(pi r)) / 2 with
+        r = min(tau / ramp, (duration - tau) / ramp, 1) inside."""
+        tau = t - self.start
+        if not 0 <= tau <= self.duration:
+            return 0.0
+        r = min(tau / self.ramp, (self.duration - tau) / self.ramp, 1.0)
+        return self.yaw * 0.5 * (1 - math.cos(math.pi * r))
+
+
 class CameraSection(_Strict):
     target: Vec3 | None = Field(None, description="point looked at [m] (default: model bbox centre)")
     distance: float | None = Field(None, gt=0, description="m (default: object and markers fill the view)")
@@ -94,6 +140,7 @@ class CameraSection(_Strict):
     shake_mm: float = Field(1.0, ge=0)
     shake_deg: float = Field(0.2, ge=0)
     up: Vec3 = (0.0, 0.0, 1.0)
+    pan: list[Pan] = Field(default_factory=list)
 
 
 class LightingSection(_Strict):
@@ -108,6 +155,8 @@ class SensorSection(_Strict):
     read_noise: float = Field(1.5, ge=0, description="std [DN]")
     shot_noise: float = Field(0.25, ge=0, description="std = shot_noise * sqrt(intensity [DN])")
     psf: float = Field(0.6, ge=0, le=5, description="Gaussian blur sigma [px]")
+    motion_blur: float = Field(0.0, ge=0, le=1, description="shutter time as a fraction of the frame interval "
+                                                             "(blur along the target's image motion)")
 
 
 class TextureSection(_Strict):
@@ -115,6 +164,8 @@ class TextureSection(_Strict):
     contrast: float = Field(0.12, ge=0, le=1, description="relative std of the procedural noise")
     feature: float | None = Field(None, gt=0, description="finest noise feature [m] (default 3 px at the target)")
     octaves: Int = Field(4, ge=1, le=8)
+    pores: float = Field(0.0, ge=0, le=0.6, description="area fraction of dark pores (foam-like texture)")
+    pore_size: float | None = Field(None, gt=0, description="pore diameter [m] (default 4 feature)")
 
     @model_validator(mode="after")
     def _rgb(self):
@@ -130,6 +181,40 @@ class BackgroundSection(_Strict):
     @model_validator(mode="after")
     def _rgb(self):
         _rgb_ok(self.base)
+        return self
+
+
+class BarLook(_Strict):
+    colour: RGB = (236, 238, 240)
+    thickness: float = Field(0.3, gt=0, le=5, description="of the bar's width (the box behind its visible face)")
+
+    @model_validator(mode="after")
+    def _rgb(self):
+        _rgb_ok(self.colour)
+        return self
+
+
+class PlaneLook(_Strict):
+    border: float = Field(0.0, ge=0, description="dark rim around the plane's image [m] (a plate's edge)")
+    border_colour: RGB = (45, 40, 40)
+
+    @model_validator(mode="after")
+    def _rgb(self):
+        _rgb_ok(self.border_colour)
+        return self
+
+
+class LoadBody(_Strict):
+    """A cylinder standing on the loaded surface at the load point (the path point of the load_position
+    parameter, plus its offset), axis along -load, drawn while the object is loaded (not at rest)."""
+
+    diameter: float = Field(..., gt=0, description="m")
+    thickness: float = Field(..., gt=0, description="m")
+    colour: RGB = (96, 90, 88)
+
+    @model_validator(mode="after")
+    def _rgb(self):
+        _rgb_ok(self.colour)
         return self
 
 
@@ -158,12 +243,15 @@ class Scenario(_Strict):
 
     seed: Int = 0
     video: VideoSection = VideoSection()
-    schedule: dict[str, Schedule] = Field(default_factory=dict)
+    schedule: ScheduleSection = ScheduleSection()
     camera: CameraSection = CameraSection()
     lighting: LightingSection = LightingSection()
     sensor: SensorSection = SensorSection()
     texture: TextureSection = TextureSection()
     background: BackgroundSection = BackgroundSection()
+    bar: BarLook = BarLook()
+    plane: PlaneLook = PlaneLook()
+    load_body: LoadBody | None = None
     occlusion: list[Occlusion] = Field(default_factory=list)
     truth: TruthSection = TruthSection()
 
@@ -193,7 +281,10 @@ def load_scenario(path, project=None) -> Scenario:
 def check_scenario(sc: Scenario, project, source: str) -> None:
     """Schedules must name parameters of the model and stay within their ranges."""
     rom = project.rom
-    for name, s in sc.schedule.items():
+    if sc.load_body is not None and not any(p.get("kind") == "load_position" for p in project.parameters()):
+        raise ConfigError(f"{source}: [load_body]: the model has no load_position parameter (the body is drawn "
+                          "at the load point)")
+    for name, s in sc.schedule.parameters.items():
         if name not in rom.names:
             raise ConfigError(f"{source}: [schedule.{name}]: {name!r} is not a parameter of the model "
                               f"(parameters: {', '.join(rom.names)})")
@@ -222,6 +313,89 @@ def default_schedule(project, duration: float) -> dict[str, Schedule]:
         else:
             out[name] = Schedule(keyframes=[(0.0, 0.5 * (lo + hi))])
     return out
+
+
+@dataclass(frozen=True)
+class BarGeometry:
+    """A project's [[bar]] resolved against its rotation parameter: the visible face's pivot (the axis point
+    moved by ``face`` along the unit ``axis``), the unit direction ``zero`` at parameter 0, length and width
+    [m]; ``facing``: the unit normal of the visible face (sign(face) axis; +axis for face = 0)."""
+
+    name: str
+    axis: np.ndarray
+    pivot: np.ndarray
+    zero: np.ndarray
+    length: float
+    width: float
+    degrees: bool
+    facing: np.ndarray
+
+    def direction(self, value: float) -> np.ndarray:
+        """Unit direction (3,) of the bar at the parameter value: ``zero`` turned by it about ``axis`` (right
+        hand; Rodrigues, zero perpendicular to axis: cos(a) zero + sin(a) axis x zero)."""
+        a = math.radians(value) if self.degrees else float(value)
+        return math.cos(a) * self.zero + math.sin(a) * np.cross(self.axis, self.zero)
+
+    def tip(self, value: float) -> np.ndarray:
+        """Centre of the bar's tip on its visible face (3,) [m]."""
+        return self.pivot + self.length * self.direction(value)
+
+
+def bar_geometries(project) -> list[BarGeometry]:
+    params = {p["name"]: p for p in project.parameters()}
+    out = []
+    for b in project.config.bar:
+        p = params[b.parameter]
+        axis = _unit(p["axis"])
+        zero = _unit(np.asarray(b.zero, float) - (np.asarray(b.zero, float) @ axis) * axis)
+        facing = axis * (1.0 if b.face >= 0 else -1.0)
+        out.append(BarGeometry(b.parameter, axis, np.asarray(p["point"], float) + b.face * axis, zero,
+                               float(b.length), float(b.width), p.get("unit", "deg") != "rad", facing))
+    return out
+
+
+@dataclass(frozen=True)
+class PlaneGeometry:
+    """The project's [registration.plane]: ``origin`` (the image's top-left corner), unit ``u`` (image rows,
+    rightwards) and ``v`` (columns, downwards), ``normal`` = -(u x v) (the side the image is seen from);
+    with an image: ``image`` (BGR uint8), ``px_per_m`` and ``size`` = (width, height) [m]."""
+
+    origin: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    normal: np.ndarray
+    image: np.ndarray | None = None
+    px_per_m: float | None = None
+
+    @property
+    def size(self) -> tuple[float, float] | None:
+        if self.image is None:
+            return None
+        h, w = self.image.shape[:2]
+        return w / self.px_per_m, h / self.px_per_m
+
+    def corners(self) -> np.ndarray:
+        """(4, 3) corners of the image's rectangle: top-left, top-right, bottom-right, bottom-left [m]."""
+        w, h = self.size
+        o, u, v = self.origin, self.u, self.v
+        return np.array([o, o + w * u, o + w * u + h * v, o + h * v])
+
+
+def plane_geometry(project) -> PlaneGeometry | None:
+    pl = project.config.registration.plane
+    if pl is None:
+        return None
+    u, v = _unit(pl.u), _unit(pl.v)
+    v = _unit(v - (v @ u) * u)
+    return PlaneGeometry(np.asarray(pl.origin, float), u, v, -np.cross(u, v), project.plane_image,
+                         None if pl.px_per_m is None else float(pl.px_per_m))
+
+
+def _rotation(axis: np.ndarray, deg: float) -> np.ndarray:
+    """Rotation matrix (3, 3) by deg about the unit axis (right hand)."""
+    a = math.radians(deg)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + math.sin(a) * k + (1 - math.cos(a)) * k @ k
 
 
 class Resolved:
@@ -253,20 +427,29 @@ class Resolved:
         self.duration = duration
         self.n_frames = max(1, round(duration * v.fps))
         self.schedule = default_schedule(project, duration)
-        self.schedule.update(sc.schedule)
-        # geometry of the object and its markers
+        self.schedule.update(sc.schedule.parameters)
+        self.visible = bool(project.config.model.visible)
+        self.bars = bar_geometries(project)
+        self.plane = plane_geometry(project)
+        # geometry of the object, its markers, plane image and bars
         mesh = project.space().mesh
         lo, hi = mesh.bounds
         c = sc.camera
         self.target = np.asarray(c.target if c.target is not None else 0.5 * (lo + hi), float)
-        corners = project.board.corners.reshape(-1, 3)
-        pts = np.vstack([lo, hi, [lo[0], lo[1], hi[2]], [hi[0], hi[1], lo[2]], corners])
+        box = np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]] for i in (0, 1) for j in (0, 1)
+                        for k in (0, 1)])
+        pts = [box, _marker_corners(project).reshape(-1, 3)]
+        if self.plane is not None and self.plane.image is not None:
+            pts.append(self.plane.corners())
+        for b in self.bars:
+            r = project.rom.ranges[project.rom.names.index(b.name)]
+            pts.append(np.array([b.tip(float(x)) for x in (r[0], 0.5 * (r[0] + r[1]), r[1])]))
+        pts = np.vstack(pts)
         radius = float(np.linalg.norm(pts - self.target, axis=1).max())
         self.size = float(np.linalg.norm(hi - lo))
         half = math.atan(min(cam.width / (2 * cam.fx), cam.height / (2 * cam.fy)))
         self.distance = float(c.distance if c.distance is not None else 1.1 * radius / math.sin(half))
-        normals = np.vstack([project.dot_normals, _marker_normals(project)])
-        view = normals.mean(0)
+        view = self._facing().mean(0) if len(self._facing()) else np.zeros(3)
         if np.linalg.norm(view) < 1e-6:
             view = np.array([0.0, -1.0, 0.0])
         view = view / np.linalg.norm(view)
@@ -284,11 +467,49 @@ class Resolved:
         else:
             self.light = self._eye_dir(self.azimuth - 25, self.elevation + 30)
         self.light = self.light / np.linalg.norm(self.light)
-        self.wall_distance = sc.background.distance or max(2.0 * self.size, 0.2 * self.distance)
+        self._wall_plane(sc)
         tex = sc.texture
         self.feature = tex.feature or 3 * self.distance / cam.fx
         rng = np.random.default_rng(sc.seed + 12345)
         self._shake = (rng.uniform(0.7, 2.5, (6, 3)), rng.uniform(0, 2 * np.pi, (6, 3)), rng.uniform(0.5, 1, (6, 3)))
+
+    def _facing(self) -> np.ndarray:
+        """Unit normals (k, 3) of what the camera must see: dots, markers, the plane, the bars' faces, the
+        [features] face (outward)."""
+        p = self.project
+        out = [np.asarray(p.dot_normals, float).reshape(-1, 3), _marker_normals(p)]
+        if self.plane is not None:
+            out.append(self.plane.normal[None])
+        out += [b.facing[None] for b, cfg in zip(self.bars, p.config.bar) if cfg.face != 0]
+        f = p.config.features
+        if f is not None:
+            n = _unit(np.cross(_unit(f.u), _unit(f.v)))
+            lo, hi = p.space().mesh.bounds
+            centre = np.asarray(f.origin) + 0.5 * (f.size[0] * _unit(f.u) + f.size[1] * _unit(f.v))
+            out.append((n if n @ (centre - 0.5 * (lo + hi)) >= 0 else -n)[None])
+        return np.vstack(out)
+
+    def _wall_plane(self, sc):
+        """The wall behind the scene: the project's [registration.plane] when it has no image (the pipeline
+        learns its texture), else a plane perpendicular to the mean line of sight ``distance`` behind the
+        target. ``wall_centre`` (the point of the plane nearest the target), ``wall_axes`` (texture right,
+        down), ``wall_normal`` (towards the camera side), ``wall_distance`` [m]."""
+        pl = self.plane
+        if pl is not None and pl.image is None:
+            n = pl.normal
+            self.wall_centre = self.target - ((self.target - pl.origin) @ n) * n
+            self.wall_axes, self.wall_normal = (pl.u, pl.v), n
+            self.wall_distance = float(abs((self.target - pl.origin) @ n))
+            return
+        view = self._eye_dir(self.azimuth, self.elevation)  # target -> camera
+        self.wall_distance = sc.background.distance or max(2.0 * self.size, 0.2 * self.distance)
+        self.wall_centre = self.target - self.wall_distance * view
+        e1 = np.cross(self.up, view)
+        if np.linalg.norm(e1) < 1e-6:
+            e1 = self.axes[0]
+        e1 = e1 / np.linalg.norm(e1)
+        down = -np.cross(view, e1)
+        self.wall_axes, self.wall_normal = (e1, down), view
 
     def _eye_dir(self, az, el) -> np.ndarray:
         e1, e2 = self.axes
@@ -296,12 +517,26 @@ class Resolved:
         return math.cos(b) * (math.cos(a) * e1 + math.sin(a) * e2) + math.sin(b) * self.up
 
     def params(self, t: float) -> dict:
-        """{parameter name: value} at time t [s]."""
+        """{parameter name: value} at time t [s] (the schedule's, also while at rest)."""
         return {n: float(self.schedule[n].value(t)) for n in self.project.rom.names}
+
+    def at_rest(self, t: float) -> bool:
+        """The object is undeformed (u = 0, unloaded) before [schedule] rest_until."""
+        return t < self.sc.schedule.rest_until
+
+    def markers_on(self, t: float) -> bool:
+        """The markers are drawn before [schedule] markers_until (always without it)."""
+        m = self.sc.schedule.markers_until
+        return m is None or t < m
+
+    def pan(self, t: float) -> float:
+        """Yaw [deg] of the [[camera.pan]] events at time t (summed)."""
+        return float(sum(p.angle(t) for p in self.sc.camera.pan))
 
     def pose(self, t: float):
         """World -> camera Pose at time t: orbit around the target plus a handheld shake (a seeded sum of
-        sinusoids of amplitude shake_mm / shake_deg)."""
+        sinusoids of amplitude shake_mm / shake_deg), turned by the pan yaw a about the vertical (up) through
+        the camera centre c: R = R_base R_up(a), t = -R c."""
         from physar.vision.camera import Pose
 
         c = self.sc.camera
@@ -314,7 +549,13 @@ class Resolved:
         pose = Pose.look_at(eye, self.target, tuple(self.up))
         roll = math.radians(c.shake_deg * shake[2])
         Rz = np.array([[math.cos(roll), -math.sin(roll), 0], [math.sin(roll), math.cos(roll), 0], [0, 0, 1]])
-        return Pose(Rz @ pose.R, Rz @ pose.t)
+        R = Rz @ pose.R
+        yaw = self.pan(t)
+        if yaw:
+            centre = -R.T @ (Rz @ pose.t)
+            R = R @ _rotation(self.up, yaw)
+            return Pose(R, -R @ centre)
+        return Pose(R, Rz @ pose.t)
 
     def occlusions(self, frame: int) -> list:
         return [o for o in self.sc.occlusion if 0 <= frame - round(o.start * self.fps) < o.frames]
@@ -323,18 +564,29 @@ class Resolved:
         d = self.sc.model_dump(mode="json")
         d["video"].update(width=self.camera.width, height=self.camera.height, duration=self.duration,
                           frames=self.n_frames)
-        d["schedule"] = {n: s.model_dump(mode="json") for n, s in self.schedule.items()}
+        d["schedule"] = {"rest_until": self.sc.schedule.rest_until, "markers_until": self.sc.schedule.markers_until,
+                         **{n: s.model_dump(mode="json") for n, s in self.schedule.items()}}
         d["camera"].update(target=self.target.tolist(), distance=self.distance, azimuth=self.azimuth,
                            elevation=self.elevation)
         d["lighting"]["direction"] = self.light.tolist()
         d["background"]["distance"] = self.wall_distance
+        d["background"]["on_plane"] = self.plane is not None and self.plane.image is None
         d["texture"]["feature"] = self.feature
         d["project"] = self.project.source
         return d
 
 
+def _unit(v) -> np.ndarray:
+    a = np.asarray(v, float)
+    return a / np.linalg.norm(a)
+
+
+def _marker_corners(project) -> np.ndarray:
+    return np.zeros((0, 4, 3)) if project.board is None else np.asarray(project.board.corners, float)
+
+
 def _marker_normals(project) -> np.ndarray:
-    c = project.board.corners
+    c = _marker_corners(project)
     # corners TL, TR, BR, BL seen from outside: (TR - TL) x (BL - TL) = 4 h^2 right x (-up) = -normal
     n = -np.cross(c[:, 1] - c[:, 0], c[:, 3] - c[:, 0])
     return n / np.linalg.norm(n, axis=1, keepdims=True)
@@ -348,5 +600,5 @@ def _plane_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(up, e1)
 
 
-__all__ = ["Resolved", "Scenario", "Schedule", "check_scenario", "default_schedule", "load_scenario",
+__all__ = ["BarGeometry", "PlaneGeometry", "Resolved", "Scenario", "Schedule", "bar_geometries", "plane_geometry", "check_scenario", "default_schedule", "load_scenario",
            "parse_scenario"]

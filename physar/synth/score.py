@@ -2,9 +2,9 @@
 (columns ``{name}_true``, ``occluders``) against the estimates CSV of ``physar ar run`` (``{name}_est``,
 ``status``).
 
-Judged frames: every frame both files have, except frames with an occluder in view and the ``recovery`` frames
-after one (those measure recovery, reported separately as the frames until the error is back within the
-tolerance). The tolerance of a parameter is ``tol`` times the length of its range (for a load position: the
+Judged frames: every frame both files have, except frames at rest (``at_rest`` = 1: the object undeformed, its
+parameters unobservable), frames with an occluder in view and the ``recovery`` frames after one (those measure
+recovery, reported separately as the frames until the error is back within the tolerance). The tolerance of a parameter is ``tol`` times the length of its range (for a load position: the
 path length; 1 % is seed 000's accuracy goal, §5.1)."""
 from __future__ import annotations
 
@@ -45,8 +45,9 @@ def read_columns(path, what: str = "CSV file") -> dict:
 
 def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None = None, tol: float = 0.01,
           recovery: int = 5, source: str = "estimates") -> dict:
-    """Per parameter: judged frames, frames within tol x range, max / mean / median |error|, and the recovery
-    frames after each occlusion. ``ranges`` {name: (lo, hi)} (default: the span of the truth)."""
+    """Per parameter: judged frames (not at rest, no occluder, not recovering), frames within tol x range, max /
+    mean / median |error|, and the recovery frames after each occlusion. ``ranges`` {name: (lo, hi)} (default:
+    the span of the truth)."""
     names = [c[:-5] for c in truth if c.endswith("_true")]
     if not names:
         raise ConfigError("truth file has no <name>_true column")
@@ -60,8 +61,9 @@ def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None 
     for e in ends:
         after[e:e + recovery] = True
     status = np.asarray(est.get("status", np.array(["tracking"] * n)))[:n]
-    judged = ~occ & ~after
-    out = {"frames": int(n), "judged": int(judged.sum()), "tol": tol, "parameters": {}}
+    rest = np.asarray(truth.get("at_rest", np.zeros(n)), float)[:n] > 0
+    judged = ~occ & ~after & ~rest
+    out = {"frames": int(n), "judged": int(judged.sum()), "at_rest": int(rest.sum()), "tol": tol, "parameters": {}}
     for name in names:
         t = np.asarray(truth[f"{name}_true"], float)[:n]
         e = np.asarray(est[f"{name}_est"], float)[:n]

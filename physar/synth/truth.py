@@ -1,22 +1,31 @@
 """Ground truth of a synthetic clip from a FINER finite-element model than the project's reduced model.
 
 The FE problem is rebuilt from the project's ``physar rom build`` configuration (``[model] config``): the
-same material, supports and ``[[parameter]]`` load definitions, on a mesh ``refine`` times finer
+same material, supports, constant loads and ``[[parameter]]`` definitions, on a mesh ``refine`` times finer
 (``[mesh] box``: cells multiplied by ``refine``; a mesh file or a tetrahedralised surface: every
-tetrahedron split into 8, ``log2(refine)`` times, with its region tags carried over). The load of a
-parameter vector is built exactly as the reduced model's parameters define it
-(:func:`physar.fem.point_load` at ``path_point(path, s) + t * direction`` with the total ``load * P / |load|``),
-so truth and model differ only by the discretisation (no inverse crime). Linear material only: K is factored
-once and each distinct parameter vector is solved once (dwell frames reuse it).
+tetrahedron split into 8, ``log2(refine)`` times, with its region tags carried over). The parameters act
+exactly as in the reduced model's build (:class:`physar.rom.problem.ParametricProblem`, from
+:func:`physar.rom.config.build_parametric_problem`): a load at ``path_point(path, s) + t * direction`` with the
+total ``load * P / |load|``, a prescribed translation d e of a region, the finite rigid rotation
+u = R(theta)(X - c) + c - X of a region, a Young's modulus of a region; so truth and model differ only by the
+discretisation (no inverse crime).
+
+Linear material: K (on the free dofs) is factored once (per Young's modulus value when a youngs_modulus
+parameter changes it) and u = u_D + K_ff^-1 (f - K u_D) with u_D the prescribed values. Nonlinear material
+(St.VK, neo-Hookean, ...): Newton (:func:`physar.fem.solve_static`) by continuation in the parameters from the
+previous solution (the frames' order: a loading path), its step halved until Newton converges; the first
+solve from the unloaded state in the configuration's ``[solver] steps``. Each distinct parameter vector is
+solved once (dwell frames reuse it).
 """
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
 
-from physar.errors import ConfigError
+from physar.errors import ConfigError, SolverError
 
 
 def refine_tets(mesh, times: int = 1):
@@ -63,98 +72,113 @@ def refine_tets(mesh, times: int = 1):
     return mesh
 
 
-def _fixed_dofs(space, cfg, source: str) -> np.ndarray:
-    """The [[fix]] dofs of a rom configuration on ``space`` (the selection rules of ``fem solve``)."""
+def _problem_on(mesh, cfg, source: str):
+    """The FE problem of a rom configuration on another (refined) ``mesh``: material, [[fix]] (with their
+    values) and [[load]] tables, as :func:`physar.fem.config.build_problem` builds them from ``[mesh]``."""
+    from physar.fem import ElasticModel, FESpace, gravity_load, make_material, point_load, traction_load
+    from physar.fem.config import Problem
     from physar.fem.loads import select_nodes_mask
 
-    out = []
+    space = FESpace(mesh, cfg.fem.element)
+    mat = cfg.material
+    params = {k: v for k, v in mat.model_dump().items() if k not in ("model", "density") and v is not None}
+    model = ElasticModel(space, make_material(mat.model, **params), density=mat.density)
+    fixed, prescribed = [], np.zeros(space.n_dofs)
     for i, f in enumerate(cfg.fix):
-        if f.value is not None and any(f.value):
-            raise ConfigError(f"{source}: [[fix]] #{i + 1} value: prescribed displacements are not supported")
         mask = select_nodes_mask(space, **f.selector(), what=f"[[fix]] #{i + 1}")
         if not mask.any():
             raise ConfigError(f"{source}: [[fix]] #{i + 1}: no node of the refined truth mesh matches {f.describe()}")
         nodes = np.flatnonzero(mask)
-        out += [3 * nodes + "xyz".index(c) for c in f.components]
-    return np.unique(np.concatenate(out or [np.zeros(0, np.int64)])).astype(np.int64)
+        for c in f.components:
+            dofs = 3 * nodes + "xyz".index(c)
+            fixed.append(dofs)
+            prescribed[dofs] = 0.0 if f.value is None else f.value["xyz".index(c)]
+    f_ext = np.zeros(space.n_dofs)
+    for ld in cfg.load:
+        if ld.type == "traction":
+            sel = ld.selector()
+            f_ext += traction_load(space, sel.pop("box"), ld.total, **sel)
+        elif ld.type == "point":
+            f_ext += point_load(space, ld.point, ld.total, ld.radius)
+        else:
+            f_ext += gravity_load(space, mat.density, ld.g)
+    fixed = np.unique(np.concatenate(fixed or [np.zeros(0, np.int64)])).astype(np.int64)
+    return Problem(space, model, f_ext, fixed, np.zeros((0, 3)), cfg, prescribed)
 
 
 class FineTruth:
-    """The finer FE model of a project: ``space`` (P2 or the config's element), ``solve(params)`` -> u
-    (n_dofs,) [m] for a dict {parameter name: value}, cached per distinct parameter vector."""
+    """The finer FE model of a project: ``space`` (the config's element on the refined mesh), ``problem``
+    (its :class:`physar.rom.problem.ParametricProblem`), ``solve(params)`` -> u (n_dofs,) [m] for a dict
+    {parameter name: value}, cached per distinct parameter vector; ``solves`` counts the distinct solves."""
 
     def __init__(self, project, refine: int = 2, cache: int = 64):
-        from physar.fem import ElasticModel, FESpace, LinearSolver, make_material
+        """``project``: an ARProject (its ``[model] config``) or the path of a ``physar rom build`` file."""
         from physar.fem.config import build_mesh, build_problem
-        from physar.rom.config import load_rom_config
+        from physar.rom.config import build_parametric_problem, load_rom_config
 
-        cfg_p = project.config
-        src = project.source
-        if cfg_p.model.config is None:
-            raise ConfigError(f"{src}: [model] config: the truth renderer rebuilds the FE problem from the "
-                              "`physar rom build` file; give config = \"rom.toml\"")
-        path = Path(cfg_p.model.config)
-        if not path.is_absolute():
-            path = cfg_p._base_dir / path
+        if isinstance(project, (str, Path)):
+            path = Path(project)
+        else:
+            cfg_p = project.config
+            if cfg_p.model.config is None:
+                raise ConfigError(f"{project.source}: [model] config: the truth renderer rebuilds the FE problem "
+                                  "from the `physar rom build` file; give config = \"rom.toml\"")
+            path = Path(cfg_p.model.config)
+            if not path.is_absolute():
+                path = cfg_p._base_dir / path
         cfg = load_rom_config(path)
         self.source = str(path)
-        if cfg.material.model != "linear":
-            raise ConfigError(f"{path}: [material] model = {cfg.material.model!r}: the synthetic truth supports "
-                              "linear elasticity only (model = \"linear\")")
-        other = [p.kind for p in cfg.parameter if p.kind not in ("load_position", "load_magnitude", "load_offset")]
-        if other:
-            raise ConfigError(f"{path}: [[parameter]] kind = {other[0]!r}: the synthetic truth supports load_position, "
-                              "load_magnitude and load_offset parameters")
         refine = int(refine)
         if refine < 1:
             raise ConfigError(f"{path}: truth refinement must be >= 1, got {refine}")
         base = path.resolve().parent
-        if cfg.mesh.box is not None:
-            fine = cfg.model_copy(deep=True)
-            fine.mesh.cells = tuple(int(c) * refine for c in cfg.mesh.cells)
-            problem = build_problem(fine, base)
-            space, model, fixed = problem.space, problem.model, problem.fixed
-        else:
-            times = round(np.log2(refine))
-            if 2 ** times != refine:
-                raise ConfigError(f"{path}: [mesh] file: the truth refinement of a mesh file splits each tet into "
-                                  f"8 (refine = 2, 4, 8, ...), got {refine}")
-            mesh = refine_tets(build_mesh(cfg.mesh, base), times)
-            space = FESpace(mesh, cfg.fem.element)
-            mat = cfg.material
-            model = ElasticModel(space, make_material("linear", E=mat.E, nu=mat.nu), density=mat.density)
-            fixed = _fixed_dofs(space, cfg, str(path))
-        self.space, self.model, self.fixed = space, model, fixed
-        self.params = [p.model_dump() for p in cfg.parameter]
+        try:
+            if cfg.mesh.box is not None:
+                fine = cfg.model_copy(deep=True)
+                fine.mesh.cells = tuple(int(c) * refine for c in cfg.mesh.cells)
+                problem = build_problem(fine, base)
+            else:
+                times = round(np.log2(refine))
+                if 2 ** times != refine:
+                    raise ConfigError(f"[mesh] file: the truth refinement of a mesh file splits each tet into 8 "
+                                      f"(refine = 2, 4, 8, ...), got {refine}")
+                problem = _problem_on(refine_tets(build_mesh(cfg.mesh, base), times), cfg, str(path))
+            self.problem = build_parametric_problem(cfg, problem, str(path))
+        except ConfigError as exc:
+            msg = str(exc)
+            raise ConfigError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
+        self.space, self.model, self.fixed = problem.space, self.problem.model, self.problem.fixed
+        self.linear = bool(self.model.linear)
         self.names = [p.name for p in cfg.parameter]
-        self.solver = LinearSolver(model, fixed)  # K factored once
+        self.params = [p.model_dump() for p in cfg.parameter]
+        self._modulus = "youngs_modulus" in self.problem.kinds
+        self._solver = None
         self._cache: OrderedDict = OrderedDict()
         self._max = cache
+        self._last = None  # (mu, u) of the latest nonlinear solve: the continuation's start
+        # largest continuation step per parameter: a rotation turns by at most 5 deg per Newton solve (a larger
+        # jump of a region can land on a spurious, inverted equilibrium); the others are not limited
+        self._max_step = np.array([(5.0 if p.unit != "rad" else math.radians(5.0)) if p.kind == "rotation"
+                                   else np.inf for p in cfg.parameter])
         self.solves = 0
 
-    def load(self, values: dict) -> np.ndarray:
-        """The nodal force vector (n_dofs,) [N] of the parameter values, built as the model's parameters
-        define it."""
-        from physar.fem import point_load
-        from physar.geometry import path_point
+    def mu(self, values: dict) -> np.ndarray:
+        return np.array([float(values[n]) for n in self.names])
 
-        pos = self.params[0]
-        point = path_point(pos["path"], float(values[pos["name"]]))
-        total = np.asarray(pos["load"], float)
-        for p in self.params[1:]:
-            v = float(values[p["name"]])
-            if p["kind"] == "load_magnitude":
-                total = total * (v / np.linalg.norm(pos["load"]))
-            elif p["kind"] == "load_offset":
-                d = np.asarray(p["direction"], float)
-                point = point + v * d / np.linalg.norm(d)
-        return point_load(self.space, point, total, pos["radius"])
+    def load(self, values: dict) -> np.ndarray:
+        """The nodal force vector (n_dofs,) [N] at the parameter values (with the constant [[load]] tables)."""
+        return self.problem.force(self.mu(values))
+
+    def prescribed(self, values: dict) -> np.ndarray:
+        """The Dirichlet values (n_dofs,) [m] at the parameter values (zero off the fixed dofs)."""
+        return self.problem.prescribed(self.mu(values))
 
     def solve(self, values: dict) -> np.ndarray:
-        key = tuple(round(float(values[n]), 12) for n in self.names)
+        mu = self.mu(values)
+        key = tuple(np.round(mu, 12).tolist())
         u = self._cache.get(key)
         if u is None:
-            u = self.solver.solve(self.load(values))
+            u = self._linear(mu) if self.linear else self._newton(mu)
             self.solves += 1
             self._cache[key] = u
             if len(self._cache) > self._max:
@@ -162,6 +186,95 @@ class FineTruth:
         else:
             self._cache.move_to_end(key)
         return u
+
+    def _linear(self, mu) -> np.ndarray:
+        from physar.fem import LinearSolver
+
+        pb = self.problem
+        if self._solver is None or self._modulus:
+            self._solver = LinearSolver(pb.model_at(mu), pb.fixed)  # K factored once (per E value)
+            self._K = pb.model_at(mu).tangent_stiffness()
+        u_d = pb.prescribed(mu)
+        f = pb.force(mu)
+        if np.any(u_d):
+            f = f - self._K @ u_d
+        return u_d + self._solver.solve(f)
+
+    def _newton(self, mu, max_halvings: int = 6) -> np.ndarray:
+        """Continuation from the previous solution (mu0, u0) to mu (from rest, mu0 = mu at load factor 0, for
+        the first solve, in [solver] steps): n equal steps in the parameters (and the load factor), a rotation
+        by at most 5 deg per step, n doubled while Newton fails."""
+        pb = self.problem
+        if self._last is None:
+            mu0, u0, lam0 = mu, np.zeros(self.space.n_dofs), 0.0
+            n0 = max(1, pb.steps)
+        else:
+            (mu0, u0), lam0 = self._last, 1.0
+            n0 = max(1, int(np.ceil(np.max(np.abs(mu - mu0) / self._max_step))))
+        for k in range(max_halvings + 1):
+            n = n0 * 2 ** k
+            u = u0
+            try:
+                for i in range(1, n + 1):
+                    a = i / n
+                    u = self._equilibrium(mu0 + (mu - mu0) * a, lam0 + (1.0 - lam0) * a, u)
+                break
+            except SolverError:
+                if k == max_halvings:
+                    raise SolverError(f"{self.source}: truth Newton continuation from parameters "
+                                      f"{np.round(mu0, 6).tolist()} to {np.round(mu, 6).tolist()} did not converge "
+                                      f"in {n} steps") from None
+        self._last = (mu, u)
+        return u
+
+    def _equilibrium(self, mu, lam: float, u0: np.ndarray) -> np.ndarray:
+        """Newton with backtracking from u0 for f_int(u) = lam f(mu) on the free dofs, u = lam u_D(mu) on the
+        fixed ones, from the tangent predictor at u0; a state with an inverted element (J <= 0 at a quadrature
+        point) is refused. Converged when |R_free| <= tol max(|f|, |f_int|, |R_0|),
+        R_0 the predictor's right-hand side (the out-of-balance force of the increment): it keeps the criterion
+        meaningful where the reactions vanish (a free part turned rigidly)."""
+        from physar.fem import factorize
+
+        pb = self.problem
+        model = pb.model_at(mu)
+        free, fixed = pb.free, pb.fixed
+        f = pb.force(mu, lam)
+        u = np.array(u0, float)
+        # tangent predictor at u0: the increment of the Dirichlet values enters linearly (K_fd du_D), not as a
+        # jump of the boundary nodes alone that can invert the elements next to them
+        du_d = pb.prescribed(mu, lam)[fixed] - u[fixed]
+        K = model.tangent_stiffness(u)
+        rhs = (f - model.internal_force(u))[free] - K[free][:, fixed] @ du_d
+        scale = float(np.linalg.norm(rhs))
+        try:
+            u[free] += factorize(K[free][:, free]).solve(rhs)
+        except SolverError:
+            pass
+        u[fixed] += du_d
+        f_int = model.internal_force(u)
+        r = f_int - f
+        rn = float(np.linalg.norm(r[free]))
+        scale = max(float(np.linalg.norm(f[free])), scale)
+        for _ in range(pb.max_iter):
+            if rn <= pb.tol * max(scale, float(np.linalg.norm(f_int)), 1e-300):
+                if np.linalg.det(model.deformation_gradient(u)).min() <= 0:
+                    raise SolverError("an inverted element (J <= 0) in the converged state")
+                return u
+            K = model.tangent_stiffness(u)
+            du = np.zeros_like(u)
+            du[free] = -factorize(K[free][:, free]).solve(r[free])
+            pi0, alpha = model.energy(u) - f @ u, 1.0
+            for _ in range(16):  # backtracking: lower the residual or the potential energy
+                trial = u + alpha * du
+                f_t = model.internal_force(trial)
+                rn_t = float(np.linalg.norm((f_t - f)[free]))
+                if np.isfinite(rn_t) and (rn_t < rn or model.energy(trial) - f @ trial < pi0):
+                    break
+                alpha *= 0.5
+            else:
+                raise SolverError(f"line search failed (residual {rn:.3e})")
+            u, f_int, r, rn = trial, f_t, f_t - f, rn_t
+        raise SolverError(f"Newton did not converge in {pb.max_iter} iterations (residual {rn:.3e})")
 
 
 __all__ = ["FineTruth", "refine_tets"]
