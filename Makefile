@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.physar-installed
 PYTEST_ARGS ?=
 
-.PHONY: demo test test-slow bench env clean
+.PHONY: demo test test-slow bench env clean docs
 
 env: $(STAMP)
 
@@ -41,6 +41,16 @@ demo: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_fem.py
+
+# the documentation site into docs/_build/html (examples run in quick mode; warnings are errors)
+DOCS_STAMP := $(VENV)/.physar-docs-installed
+$(DOCS_STAMP): $(STAMP) pyproject.toml
+	$(PY) -m pip install -q -e '.[docs]'
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	$(VENV)/bin/sphinx-build -b html -W --keep-going -q docs docs/_build/html
+	@echo "docs: docs/_build/html/index.html"
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache
