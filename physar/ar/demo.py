@@ -80,6 +80,7 @@ def evaluate(spec: SceneSpec, truth: dict, est: dict, recovery_frames: int = 5) 
 
 
 def plot_estimates(spec: SceneSpec, truth: dict, est: dict, path) -> None:
+    """Plot the estimated load against the truth over time, written to ``path`` (PNG)."""
     import matplotlib
 
     matplotlib.use("Agg")

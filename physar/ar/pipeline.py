@@ -98,6 +98,7 @@ def build_scene_model(spec, progress: Callable[[int, int], None] | None = None, 
 
 
 def object_from_model(rom) -> BeamObject:
+    """The AR object (beam geometry, markers, dots) stored in a reduced model's metadata."""
     text = rom.metadata.get("ar_object")
     if not text:
         raise ConfigError("reduced model has no AR object description (metadata 'ar_object'); build it with "

@@ -292,6 +292,7 @@ class Corotated(Material):
         return P, A
 
 
+#: Material classes by the name a FEM problem file gives in ``[material] model``.
 MATERIALS = {
     "linear": LinearElastic,
     "stvk": StVK,

@@ -17,6 +17,7 @@ from physar.output import check_memory
 
 # Local faces of a positively oriented tetrahedron (vol = det[x1-x0, x2-x0, x3-x0] / 6 > 0), ordered
 # so that the right-hand normal points outward; face k is opposite local vertex k.
+#: (4, 3) local vertex ids of the faces of a tetrahedron, outward normals; face k is opposite vertex k.
 TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
 
 

@@ -38,6 +38,7 @@ def amplification_matrix(integrator: Integrator, hw: float, omega: float = 1.0, 
 
 
 def spectral_radius(T: np.ndarray) -> float:
+    """Largest eigenvalue modulus of an amplification matrix ``T``."""
     return float(np.max(np.abs(np.linalg.eigvals(T))))
 
 

@@ -351,6 +351,7 @@ class TRBDF2(Integrator):
         return self._done(State(q, v, state.t + h, f=f), it1 + it2)
 
 
+#: Stepper classes by the name a dynamics file gives in ``[dynamics] method``.
 METHODS: dict[str, type[Integrator]] = {
     "symplectic_euler": SymplecticEuler,
     "be": BackwardEuler,

@@ -261,6 +261,7 @@ def load_scene(path: str | Path) -> Scene:
 
 
 def parse_scene(data: dict, name: str = "scene") -> Scene:
+    """Validate an MPM scene given as a dict (a parsed TOML); one-line errors naming ``name``."""
     try:
         return Scene.model_validate(data)
     except ValidationError as exc:

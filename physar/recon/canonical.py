@@ -4,7 +4,7 @@ The canonical Gaussians are learned on the spin clip with fixed skinning; before
 appearance is fine-tuned under the deformation gradients that the simulator itself would produce.  For each
 frame n of the spin clip the particles are put at their LBS means x_n with the central-difference velocities
 v_n = (x_{n+1} - x_{n-1}) / (2 dt)  (Eq. 4), and Alg. 1 is run with the stress fixed to sigma = 0 and the
-plasticity F = F_trial, i.e. one frame of ``substeps`` MLS-MPM substeps (quadratic B-splines, APIC) of
+plasticity F = F_trial, i.e. one frame of ``substeps`` MLS-MPM substeps (quadratic B-splines, APIC) of::
 
     P2G:  m_i = sum_p w_ip m_p,   m_i v_i = sum_p w_ip m_p (v_p + C_p (x_i - x_p))
     G2P:  v_p = sum_i w_ip v_i,   C_p = 4 / dx^2 sum_i w_ip v_i (x_i - x_p)^T

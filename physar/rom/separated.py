@@ -19,6 +19,7 @@ from scipy.interpolate import CubicSpline
 
 from physar.errors import PhysarError
 
+#: Version of the reduced-model file (.npz) that :meth:`SeparatedModel.save` writes.
 FORMAT_VERSION = 2
 READABLE_VERSIONS = (1, 2)
 

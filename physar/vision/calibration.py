@@ -20,6 +20,7 @@ from physar.vision.camera import Camera, Pose
 
 
 def aruco_dictionary(name: str):
+    """The OpenCV ArUco dictionary of a name such as ``"DICT_4X4_50"`` or ``"4x4_50"``."""
     key = name.upper()
     if not key.startswith("DICT_"):
         key = "DICT_" + key
