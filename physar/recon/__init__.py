@@ -3,3 +3,6 @@
 Synthetic scenes (:mod:`physar.recon.synth`), metrics (:mod:`physar.recon.metrics`), and the training
 pipeline with its baselines (:mod:`physar.recon.train`).
 """
+
+# Public API: these submodules (imported on use, not with the package: train needs PyTorch).
+__all__ = ["canonical", "flow", "io", "metrics", "synth", "train"]
