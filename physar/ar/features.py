@@ -91,7 +91,7 @@ class FeatureObserver:
             return None
         k = lo + int(np.argmax(g[lo:hi]))
         a, b, c = g[k - 1], g[k], g[k + 1]
-        if b < 4 * np.median(g) or (a - 2 * b + c) >= 0:
+        if b < 2.5 * np.median(g) or (a - 2 * b + c) >= 0:
             return None
         return k + 0.5 * (a - c) / (a - 2 * b + c)
 

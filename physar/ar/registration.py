@@ -58,7 +58,7 @@ class Registration:
         z0 = seen / s
         zooms = tuple(sorted({round(min(1.0, z0 * f), 3) for f in (1.4, 0.8, 0.45)}, reverse=True))
         self.map = PlanarMap.from_image(cam, img, s, o, eu, ev, n_features=2500, scales=zooms)
-        r = float(np.clip(0.42 * z0, 0.1, 1.0))
+        r = float(np.clip(0.418 * z0, 0.1, 1.0))
         small = cv2.resize(img, None, fx=r, fy=r, interpolation=cv2.INTER_AREA)
         self.map.enable_refinement(small, r * s, n_points=300)
         self.map.orb = cv2.ORB_create(nfeatures=2000, scaleFactor=1.2, nlevels=8, edgeThreshold=19, patchSize=19,

@@ -199,15 +199,35 @@ class ParametricProblem:
         if len(self.free) == 0:
             return self.prescribed(mu)
         steps = 1 if model.linear else self.steps
-        u = None
+        u = np.zeros(model.space.n_dofs)
         try:
             for k in range(1, steps + 1):
                 lam = k / steps
-                u = solve_static(model, self.force(mu, lam), self.fixed, steps=1, u0=u, tol=self.tol,
-                                 max_iter=self.max_iter, prescribed=self.prescribed(mu, lam)).u
+                f, u_d = self.force(mu, lam), self.prescribed(mu, lam)
+                if not model.linear:
+                    u = self._predict(model, u, f, u_d)
+                u = solve_static(model, f, self.fixed, steps=1, u0=u, tol=self.tol,
+                                 max_iter=self.max_iter, prescribed=u_d).u
         except SolverError as exc:
             raise SolverError(f"full solve at parameters {np.round(mu, 6).tolist()}: {exc}") from None
         return u
+
+    def _predict(self, model, u, f, u_d) -> np.ndarray:
+        """Predictor of a load/Dirichlet increment: the tangent at the last equilibrium u,
+        K_ff(u) du_f = (f - f_int(u) - K(u) du_d)_f with du_d the increment of the prescribed values (Newton
+        from the raw jump of the prescribed nodes alone starts from badly distorted elements next to them)."""
+        from physar.fem.solvers import factorize
+
+        free = self.free
+        du = np.zeros_like(u)
+        du[self.fixed] = u_d[self.fixed] - u[self.fixed]
+        K = model.tangent_stiffness(u)
+        r = f - model.internal_force(u) - K @ du
+        try:
+            du[free] = factorize(K[free][:, free]).solve(r[free])
+        except Exception:          # an indefinite tangent (past a limit point): no predictor
+            return u
+        return u + du
 
     # -- the separated form of a linear problem (intrusive PGD) ------------------------------------------
     def stiffness_terms(self, grids):
