@@ -1,0 +1,233 @@
+"""The documentation site (issue 22): format pages generated from the schemas, the public-API docstring check,
+and (slow) the full quick build of ``make docs`` with screenshots.
+
+Fast tests need only pydantic, except those marked as needing Sphinx (the ``docs`` extra: skipped where it is
+not installed, as in ``make test``'s environment; ``make docs`` installs it).
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+sys.path.insert(0, str(DOCS / "_ext"))
+
+import physar_formats as F  # noqa: E402
+
+
+# --- format pages --------------------------------------------------------------------------------------
+
+def _schema_keys(model, root: str) -> set[str]:
+    """Every key of a schema as ``table.key`` (``fix.plane.normal``), from its JSON schema: a walk that shares
+    no code with the page generator (which reads ``model_fields``)."""
+    schema = model.model_json_schema()
+    defs = schema.get("$defs", {})
+
+    def sub_models(node) -> list[dict]:
+        if "$ref" in node:
+            return [defs[node["$ref"].split("/")[-1]]]
+        found = []
+        for key in ("anyOf", "oneOf", "allOf"):
+            for option in node.get(key, []):
+                found += sub_models(option)
+        if node.get("type") == "array" and isinstance(node.get("items"), dict):
+            found += sub_models(node["items"])
+        return found
+
+    keys = set()
+
+    def walk(node, path):
+        for name, prop in node.get("properties", {}).items():
+            keys.add(f"{path}.{name}" if path else name)
+            for sub in sub_models(prop):
+                if "properties" in sub:
+                    walk(sub, f"{path}.{name}" if path else name)
+
+    walk(schema, root)
+    return keys
+
+
+def _page_keys(page: str) -> set[str]:
+    """Every key the page's tables list, as ``table.key``: headings ``## `[[fix]].plane``` name the table."""
+    keys, table = set(), None
+    for line in page.splitlines():
+        if line.startswith("## "):
+            head = line[3:].strip().strip("`")
+            table = "" if head == "Top level" else (re.sub(r"[\[\]]", "", head) if head.startswith("[") else None)
+        elif table is not None and (m := re.match(r"\| `([^`]+)` \|", line)):
+            keys.add(f"{table}.{m.group(1)}" if table else m.group(1))
+    return keys
+
+
+@pytest.mark.parametrize("fmt", F.FORMATS, ids=[f.name for f in F.FORMATS])
+def test_format_page_lists_exactly_the_schema_keys(fmt):
+    """Mutant caught: a hand-written (or stale) page, a table or key the generator skips (nested tables,
+    arrays of tables, optional sub-tables), a key invented by the page."""
+    page = F.format_page(fmt, ROOT)
+    expected = set().union(*(_schema_keys(F.load_class(path), root) for root, path in fmt.roots))
+    assert _page_keys(page) == expected
+
+
+def test_changed_schema_reaches_the_page(monkeypatch):
+    """A description, a default and a bound changed in the schema show on the page, and nothing else moves.
+    Mutant caught: a hard-coded page (or one cached from an earlier schema)."""
+    from physar.fem.config import SolverSection
+
+    fem = next(f for f in F.FORMATS if f.name == "fem")
+    before = F.format_page(fem, ROOT)
+    field = SolverSection.model_fields["tol"]
+    monkeypatch.setattr(field, "description", "relative residual of Newton's method (changed in a test)")
+    monkeypatch.setattr(field, "default", 2.5e-7)
+    after = F.format_page(fem, ROOT)
+    row = next(line for line in after.splitlines() if line.startswith("| `tol` | `float` | `2.5e-07`"))
+    assert "relative residual of Newton's method \\(changed in a test\\)" in row
+    assert "| > 0 |" in row
+    changed = [(a, b) for a, b in zip(before.splitlines(), after.splitlines(), strict=True) if a != b]
+    assert len(changed) == 1
+
+
+def test_units_and_markup_of_a_row():
+    """Units are read from the description ([Pa], ', m', a bare unit) or the key's suffix, never guessed;
+    markup characters in a description are escaped (a '|' would split the table row)."""
+    assert F.unit_text("E", "Young's modulus [Pa]") == "Pa"
+    assert F.unit_text("size", "side of the cubic domain [0, size]^3, m") == "m"
+    assert F.unit_text("density", "kg/m^3") == "kg/m^3"
+    assert F.unit_text("shake_mm", "") == "mm"
+    assert F.unit_text("nu", "Poisson ratio") == ""
+    assert F.escape("|u| * 2 [m]") == "\\|u\\| \\* 2 \\[m\\]"
+
+
+def test_every_format_page_is_in_the_index():
+    index = F.index_page()
+    assert all(f"({f.name}.md)" in index for f in F.FORMATS)
+
+
+# --- API reference and docstrings (need Sphinx) -------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def api():
+    pytest.importorskip("sphinx", reason="the docs extra is not installed (make docs installs it)")
+    return importlib.import_module("physar_api")
+
+
+def test_every_public_name_has_a_docstring(api):
+    """What ``make docs`` checks on every build (each miss is a warning, so an error under -W)."""
+    assert api.missing_docstrings() == []
+
+
+def test_docstring_check_catches_a_missing_docstring(api, monkeypatch):
+    """Mutant caught: a check that looks at inherited docstrings, or not at all."""
+    import physar.rom
+
+    monkeypatch.setattr(physar.rom.pgd_linear, "__doc__", None)
+    monkeypatch.setattr(physar.rom.SeparatedModel, "__doc__", None)  # a class: its own docstring only
+    assert {"physar.rom.pgd_linear", "physar.rom.SeparatedModel"} <= set(api.missing_docstrings(["physar.rom"]))
+
+
+def test_api_page_lists_the_package_all(api):
+    import physar.fem
+
+    page = api.api_page("physar.fem")
+    for name in physar.fem.__all__:
+        assert re.search(rf"^\.\. (autoclass|autofunction|py:data):: physar\.fem\.{name}$", page, re.M), name
+
+
+def test_plain_text_docstrings_are_escaped_outside_literals(api):
+    lines = ["|u| = sqrt(u**2), ``|a|`` and :func:`x`", "", "* a bullet with a*b", "", "Block::", "",
+             "    |u| stays", "after |v|"]
+    assert api.plain_text_markup(lines) == [
+        "\\|u\\| = sqrt(u\\*\\*2), ``|a|`` and :func:`x`", "", "* a bullet with a\\*b", "", "Block::", "",
+        "    |u| stays", "after \\|v\\|"]
+
+
+def test_cross_reference_to_nothing_stays_broken(api):
+    """Existing private physar objects render as code; a name that exists nowhere is not resolved (so the
+    build warns, and -W fails). Mutant caught: a resolver that silences every reference."""
+    from docutils import nodes
+    from sphinx.addnodes import pending_xref
+
+    def ref(target, module="physar.fem"):
+        node = pending_xref("", refdomain="py", reftype="func", reftarget=target)
+        node["py:module"] = module
+        node.source = "docstring of physar.fem.loads.fixed_dofs"
+        return api._existing_private_target(None, None, node, nodes.literal(text=target))
+
+    assert ref("select_nodes_mask") is not None  # in physar.fem.loads, the docstring's module
+    assert ref("physar.output.atomic_path") is not None
+    assert ref("no_such_function") is None
+    assert ref("physar.fem.no_such_function") is None
+
+
+def test_format_pages_build_into_html(tmp_path, monkeypatch):
+    """A Sphinx build of the format pages alone (the extension as ``make docs`` loads it) shows a changed
+    description in the HTML. Mutant caught: the extension not generating the pages at build time."""
+    pytest.importorskip("myst_parser", reason="the docs extra is not installed (make docs installs it)")
+    from sphinx.application import Sphinx
+
+    from physar.mpm.scene import Grid
+
+    monkeypatch.setattr(Grid.model_fields["resolution"], "description", "grid cells per side (test marker 41)")
+    src = tmp_path / "src"
+    src.mkdir()
+    (src / "conf.py").write_text("extensions = ['myst_parser', 'physar_formats']\nexclude_patterns = ['_build']\n"
+                                 "myst_heading_anchors = 3\n")
+    (src / "index.md").write_text("# t\n\n```{toctree}\n_generated/formats/index\n```\n")
+    t0 = time.perf_counter()
+    app = Sphinx(str(src), str(src), str(tmp_path / "html"), str(tmp_path / "doctrees"), "html",
+                 status=None, warning=None, warningiserror=True, keep_going=True, freshenv=True)
+    app.build()
+    assert app.statuscode == 0
+    html = (tmp_path / "html" / "_generated" / "formats" / "mpm_scene.html").read_text()
+    assert "grid cells per side (test marker 41)" in html
+    assert time.perf_counter() - t0 < 30
+
+
+# --- the full site (slow) ---------------------------------------------------------------------------------
+
+@pytest.mark.slow
+def test_make_docs_quick_build_and_screenshots():
+    """The build ``make docs`` runs (warnings as errors, examples executed in quick mode), what the site
+    holds, that it fetches nothing at view time, and screenshots of the landing page, a gallery page (its
+    figure) and the equations page (rendered math) under docs/_build/screenshots."""
+    pytest.importorskip("myst_nb", reason="the docs extra is not installed (make docs installs it)")
+    html = DOCS / "_build" / "html"
+    t0 = time.perf_counter()
+    run = subprocess.run([sys.executable, "-m", "sphinx", "-b", "html", "-W", "--keep-going", "-q", str(DOCS),
+                          str(html)], capture_output=True, text=True, timeout=1800, cwd=ROOT)
+    assert run.returncode == 0, run.stderr[-5000:]
+    print(f"docs build {time.perf_counter() - t0:.0f} s")
+    pages = list(html.rglob("*.html"))
+    assert len(pages) > 30
+    for name in ("index", "equations", "_generated/benchmarks", "_generated/api/physar.fem",
+                 "_generated/formats/fem", "_generated/formats/recon"):
+        assert (html / f"{name}.html").exists(), name
+    landing = (html / "index.html").read_text()
+    assert "A short tour" in landing
+    for example in (ROOT / "examples").glob("*.py"):
+        page = (html / "_generated" / "gallery" / f"{example.stem}.html").read_text()
+        assert "<img" in page, f"{example.name}: no figure in its gallery page"
+    recon = (html / "_generated" / "gallery" / "recon_tiny.html").read_text()
+    assert 'href="../../gallery_files/recon_tiny/recon_novel.mp4"' in recon
+    assert (html / "gallery_files" / "recon_tiny" / "recon_novel.mp4").stat().st_size > 0
+    assert 'class="math' in (html / "equations.html").read_text()
+    for page in pages:  # offline: no script, stylesheet or font from elsewhere
+        text = page.read_text()
+        assert not re.search(r'<(script|link)[^>]+(src|href)="(https?:)?//', text), page
+    assert (html / "_static" / "mathjax" / "tex-chtml.js").exists()
+
+    sys.path.insert(0, str(DOCS))
+    shot = importlib.import_module("screenshot")
+    chromium = shot.find_chromium() or shot.install_chromium()
+    if chromium is None:
+        pytest.skip("no Chromium and no root/apt-get to install Debian's package: screenshots not taken")
+    shots = shot.take_all(html)
+    for path in shots.values():
+        assert path.stat().st_size > 20_000, path  # a rendered page, not a blank one
