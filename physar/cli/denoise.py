@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 
 from physar.cli._common import log, print_json, user_errors
@@ -28,6 +29,14 @@ def _load(path: Path):
     return m, None
 
 
+def _is_cloud(path: Path, read_ply) -> bool:
+    """True when the PLY file holds no faces (a point cloud); unreadable files are left to _load."""
+    try:
+        return read_ply(path)[1] is None
+    except (PhysarError, OSError, ValueError):
+        return False
+
+
 def _check_out(out: Path, inp: Path, cloud: bool) -> None:
     """The output checked before any work: a surface format (.ply only for a point cloud), not the input,
     a writable place (one line naming the path)."""
@@ -48,6 +57,89 @@ def _save(path: Path, mesh, pts) -> None:
         write_mesh(path, mesh)
 
 
+# CLI option -> keyword of each method (None: the option does not apply to that method)
+_PARAMS = {
+    "guided": {"sigma_r": "sigma_r"},
+    "al": {"kappa": "kappa", "fidelity": "lam", "tau": "tau"},
+    "msal": {"kappa": "kappa", "xi": "xi", "fidelity": "fidelity", "rescale": "rescale"},
+    "msal-sharp": {"kappa": "kappa", "xi": "xi", "fidelity": "fidelity", "rescale": "rescale"},
+    "laplacian": {}, "taubin": {}, "bnf": {"sigma_r": "sigma_r"},
+}
+
+
+def _method_params(method: str, **given) -> dict:
+    """Map the options the user set to `method`'s keywords; an option the method does not take is one line."""
+    table = _PARAMS[method]
+    out = {}
+    for opt, val in given.items():
+        if val is None:
+            continue
+        if opt not in table:
+            takes = ", ".join("--" + o.replace("_", "-") for o in table) or "no parameters"
+            raise PhysarError(f"--{opt.replace('_', '-')} does not apply to --method {method} (it takes {takes})")
+        if not np.isfinite(val):
+            raise PhysarError(f"--{opt.replace('_', '-')} must be a finite number, got {val}")
+        out[table[opt]] = float(val)
+    return out
+
+
+def reference_errors(noisy, result, clean) -> dict:
+    """Errors of the input and of the result against the clean mesh (same faces): mean face-normal angle
+    (degrees), mean vertex-to-surface distance (m, and in mean edge lengths of the clean mesh), relative
+    volume change (NaN for an open surface)."""
+    from physar.geometry import quality as Q
+
+    ebar = Q.mean_edge_length(clean)
+    out = {}
+    for tag, m in (("_before", noisy), ("", result)):
+        d = float(Q.point_to_surface_distance(m.points, clean).mean())
+        out["normal_error_deg" + tag] = Q.normal_angle_error(m, clean)
+        out["mean_distance_m" + tag] = d
+        out["mean_distance_edge" + tag] = d / ebar
+        try:
+            out["volume_change" + tag] = Q.volume_change(m, clean) if _closed(clean) else float("nan")
+        except PhysarError:
+            out["volume_change" + tag] = float("nan")
+    return out
+
+
+def _closed(mesh) -> bool:
+    e = np.sort(mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, counts = np.unique(e, axis=0, return_counts=True)
+    return bool((counts == 2).all())
+
+
+def render_before_after(before, after, path: Path, title: str = "") -> Path:
+    """PNG of two flat-shaded views (Lambert, one directional light) of the surface before and after,
+    same camera and scale; matplotlib Agg (no display), written through physar.output.save_figure."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    from physar.output import save_figure
+
+    lo, hi = before.points.min(axis=0), before.points.max(axis=0)
+    ext = np.maximum(hi - lo, 1e-12)
+    light = np.array([0.35, -0.55, 0.76])
+    fig = plt.figure(figsize=(10, 4.8))
+    for k, (mesh, name) in enumerate(((before, "before"), (after, "after"))):
+        ax = fig.add_subplot(1, 2, k + 1, projection="3d")
+        n = mesh.face_normals()
+        fill = np.array([-0.6, 0.2, 0.3]) / np.linalg.norm([-0.6, 0.2, 0.3])  # second, weaker light
+        shade = np.clip(0.22 + 0.6 * np.abs(n @ light) + 0.25 * np.abs(n @ fill), 0, 1)
+        colours = np.c_[np.repeat(shade[:, None], 3, axis=1) * [0.86, 0.88, 0.92], np.ones(len(shade))]
+        ax.add_collection3d(Poly3DCollection(mesh.points[mesh.faces], facecolors=colours, edgecolors=colours, linewidths=0.1))
+        ax.set_xlim(lo[0], hi[0]), ax.set_ylim(lo[1], hi[1]), ax.set_zlim(lo[2], hi[2])
+        ax.set_box_aspect(np.maximum(ext, 0.12 * ext.max()))
+        ax.view_init(25, -60)
+        ax.set_axis_off()
+        ax.set_title(name)
+    fig.suptitle(title)
+    return save_figure(fig, path, dpi=120, bbox_inches="tight")
+
+
 def register(app: typer.Typer) -> None:
     """Add the `denoise` and `noise` commands to `app`."""
 
@@ -56,13 +148,31 @@ def register(app: typer.Typer) -> None:
     def denoise_cmd(
         inp: Annotated[Path, typer.Argument(help="input mesh (PLY/OBJ/STL/OFF) or PLY point cloud")],
         out: Annotated[Path, typer.Argument(help="output file (same kinds)")],
-        method: str = typer.Option("msal", "--method", help="al | msal | msal-sharp (CAD: edge-preserving) | laplacian | taubin | bnf"),
-        iterations: int = typer.Option(None, "--iterations", help="iterations (default per method)"),
+        method: str = typer.Option(
+            None, "--method",
+            help="guided (default for meshes: guided normal filter + feature-weighted Taubin + vertex update, parameters "
+                 "from the mesh's own noise estimate) | al | msal (seed 001) | msal-sharp (MSAL, CAD feature "
+                 "mode) | laplacian | taubin | bnf; point clouds: msal (default) | al"),
+        iterations: int = typer.Option(None, "--iterations", help="iterations (default per method; guided: "
+                                                                  "normal-filter iterations, automatic)"),
+        kappa: float = typer.Option(None, "--kappa", help="al/msal: edge-stopping width κ in units of the "
+                                                          "robust noise scale (default 1.5)"),
+        xi: float = typer.Option(None, "--xi", help="msal: step decay ξ, τ_k = ξ^k (default 0.9)"),
+        fidelity: float = typer.Option(None, "--fidelity", help="msal: fidelity factor f, λ_i = f σ_i/max σ "
+                                                                "(default 0.05); al: constant λ (default 0)"),
+        tau: float = typer.Option(None, "--tau", help="al: step size τ (default 0.5)"),
+        rescale: float = typer.Option(None, "--rescale", help="msal: sharp-edge rescale ρ in [0, 1] (edge-"
+                                                              "stopping scale follows the remaining noise)"),
+        sigma_r: float = typer.Option(None, "--sigma-r", help="guided/bnf: range kernel width on normals"),
+        reference: Path = typer.Option(None, "--reference", help="clean mesh with the same faces: print the "
+                                       "mean face-normal angle error, mean vertex distance, volume change"),
+        render: Path = typer.Option(None, "--render", help="before/after shaded picture (PNG; default: OUT "
+                                                          "with suffix .png)"),
+        no_render: bool = typer.Option(False, "--no-render", help="write no picture"),
         k: int = typer.Option(10, "--k", help="neighbours for point clouds"),
         json_out: bool = typer.Option(False, "--json", help="print a JSON summary on stdout"),
     ) -> None:
-        """Denoise a surface mesh or point cloud with AL/MSAL (seed 001 §3.2.1) or a baseline."""
-        import inspect
+        """Denoise a surface mesh or point cloud (seed 001 §3.2.1 AL/MSAL, or the guided default)."""
         import sys
 
         import numpy as np
@@ -70,46 +180,77 @@ def register(app: typer.Typer) -> None:
 
         from physar.geometry.denoise import MAX_ITERATIONS, METHODS, denoise
         from physar.geometry.pointcloud import denoise_points
+        from physar.output import check_destination
 
+        if method is None:  # guided for surfaces, msal for point clouds (the only ones they take)
+            from physar.geometry.pointcloud import read_ply
+
+            cloud_in = inp.suffix.lower() == ".ply" and inp.is_file() and _is_cloud(inp, read_ply)
+            method = "msal" if cloud_in else "guided"
         if method not in METHODS:
             raise PhysarError(f"unknown denoising method {method!r}; choose one of {sorted(METHODS)}")
         if iterations is not None and not 1 <= iterations <= MAX_ITERATIONS:
             raise PhysarError(f"--iterations must be within 1..{MAX_ITERATIONS}, got {iterations}")
+        params = _method_params(method, kappa=kappa, xi=xi, fidelity=fidelity, tau=tau, rescale=rescale,
+                                sigma_r=sigma_r)
         _check_out(out, inp, cloud=False)
+        png = None if no_render else (render or out.with_suffix(".png"))
+        if png is not None:
+            check_destination(png, inputs=[inp, out, reference], suffixes=[".png"], kind="picture")
         mesh, pts = _load(inp)
+        ref = None
+        if reference is not None:
+            if mesh is None:
+                raise PhysarError(f"{inp}: --reference needs a surface mesh (faces), got a point cloud")
+            ref, _ = _load(reference)
+            if ref is None or ref.faces.shape != mesh.faces.shape or not np.array_equal(ref.faces, mesh.faces):
+                raise PhysarError(f"{reference}: --reference must have the same faces as {inp} (the clean copy "
+                                  f"of the noisy mesh)")
         if mesh is None:
+            _check_out(out, inp, cloud=True)
             if method not in ("al", "msal"):
                 raise PhysarError(f"{inp}: point clouds support --method al or msal, got {method!r}")
             if k < 1:
                 raise PhysarError(f"--k must be >= 1 (neighbours per point), got {k}")
-            _check_out(out, inp, cloud=True)
-        total = iterations
-        if total is None:  # the method's own default, for the progress bar
-            if mesh is None:
-                total = 10 if method == "al" else 8  # denoise_points defaults
-            else:
-                total = inspect.signature(METHODS[method]).parameters["iterations"].default
-        bar = tqdm(total=total, desc=f"{method} iterations", file=sys.stderr, disable=None if not json_out else True)
+            if {"rescale", "sigma_r"} & set(params):
+                raise PhysarError(f"{inp}: point clouds take --kappa, --xi, --fidelity, --tau only")
+        bar = tqdm(desc=f"{method} iterations", file=sys.stderr, disable=None if not json_out else True)
         prog = lambda i, q: bar.update(1)
         try:
             if mesh is not None:
-                res = denoise(mesh, method, iterations, progress=prog)
+                res = denoise(mesh, method, iterations, progress=prog, **params)
                 moved = np.linalg.norm(res.points - mesh.points, axis=1)
                 _save(out, res, None)
                 n = mesh.n_points
             else:
-                q = denoise_points(pts, method, iterations, k=k, progress=prog)
+                kw = {"lam" if k_ == "fidelity" and method == "al" else k_: v for k_, v in params.items()}
+                if method == "al":
+                    kw.pop("lam", None)  # the point-cloud AL has no fidelity term
+                q = denoise_points(pts, method, iterations, k=k, progress=prog, **kw)
                 moved = np.linalg.norm(q - pts, axis=1)
                 _save(out, None, q)
                 n = len(pts)
         finally:
             bar.close()
-        summary = {"input": str(inp), "output": str(out), "method": method, "points": n,
+        summary = {"input": str(inp), "output": str(out), "method": method, "parameters": params, "points": n,
                    "mean_displacement_m": float(moved.mean()), "max_displacement_m": float(moved.max())}
+        if ref is not None:
+            summary["reference"] = {"path": str(reference), **reference_errors(mesh, res, ref)}
+        if png is not None and mesh is not None:
+            render_before_after(mesh, res, png, title=f"{inp.name}: {method}")
+            summary["picture"] = str(png)
         if json_out:
             print_json(summary)
-        else:
-            log(f"wrote {out}: {n} points, mean displacement {moved.mean():.3g} m")
+            return
+        log(f"wrote {out}: {n} points, mean displacement {moved.mean():.3g} m")
+        if ref is not None:
+            r = summary["reference"]
+            log(f"against {reference}: mean face-normal error {r['normal_error_deg_before']:.2f} -> "
+                f"{r['normal_error_deg']:.2f} deg, mean vertex distance {r['mean_distance_m_before']:.3g} -> "
+                f"{r['mean_distance_m']:.3g} m ({r['mean_distance_edge']:.3f} mean edge lengths), volume change "
+                f"{100 * r['volume_change_before']:+.2f} -> {100 * r['volume_change']:+.2f} %")
+        if "picture" in summary:
+            log(f"wrote {png} (before / after)")
 
     @app.command("noise")
     @user_errors

@@ -474,15 +474,42 @@ def bilateral_normal_filter(
     return mesh.with_points(q)
 
 
+def guided_denoise(
+    mesh: TriMesh, iterations: int | None = None, sigma_r: float | None = None, progress: Progress = None,
+) -> TriMesh:
+    """Guided normal filter + feature-weighted Taubin + vertex update, parameters from the mesh's own noise
+    level (:mod:`physar.geometry.normal_filter`); `iterations` = normal-filter iterations (default: auto)."""
+    from physar.geometry.normal_filter import NormalFilterSettings, normal_filter_denoise
+
+    if iterations is not None:
+        _check_iter(iterations)
+    return normal_filter_denoise(mesh, NormalFilterSettings(sigma_r=sigma_r, normal_iterations=iterations),
+                                 progress=progress)
+
+
 METHODS = {
-    "al": anisotropic_laplacian, "msal": msal, "msal-sharp": msal_sharp, "laplacian": laplacian_smooth, "taubin": taubin_smooth,
-    "bnf": bilateral_normal_filter,
+    "guided": guided_denoise, "al": anisotropic_laplacian, "msal": msal, "msal-sharp": msal_sharp,
+    "laplacian": laplacian_smooth, "taubin": taubin_smooth, "bnf": bilateral_normal_filter,
 }
+DEFAULT_METHOD = "guided"
 
 
-def denoise(mesh: TriMesh, method: str = "msal", iterations: int | None = None, progress: Progress = None) -> TriMesh:
-    """Dispatch to one of METHODS by name."""
+def denoise(mesh: TriMesh, method: str = DEFAULT_METHOD, iterations: int | None = None, progress: Progress = None,
+            **params) -> TriMesh:
+    """Dispatch to one of METHODS by name; `params` are that method's keyword parameters (e.g. kappa, xi,
+    fidelity, tau, rescale, sigma_r), and one it does not take is refused in one line."""
+    import inspect
+
     if method not in METHODS:
         raise PhysarError(f"unknown denoising method {method!r}; choose one of {sorted(METHODS)}")
+    fn = METHODS[method]
+    if method == "msal-sharp":  # msal in feature mode, with its parameters reachable
+        fn, params = msal, {"rescale": 0.5, **params}
+        iterations = 16 if iterations is None else iterations
+    accepted = set(inspect.signature(fn).parameters) - {"mesh", "progress", "iterations"}
+    extra = sorted(set(params) - accepted)
+    if extra:
+        raise PhysarError(f"method {method!r} does not take {', '.join(extra)}; it takes "
+                          f"{', '.join(sorted(accepted)) or 'no parameters'}")
     kw = {} if iterations is None else {"iterations": iterations}
-    return METHODS[method](mesh, progress=progress, **kw)
+    return fn(mesh, progress=progress, **kw, **params)
