@@ -164,10 +164,11 @@ def register(app: typer.Typer) -> None:
         rescale: float = typer.Option(None, "--rescale", help="msal: sharp-edge rescale ρ in [0, 1] (edge-"
                                                               "stopping scale follows the remaining noise)"),
         sigma_r: float = typer.Option(None, "--sigma-r", help="guided/bnf: range kernel width on normals"),
-        reference: Path = typer.Option(None, "--reference", help="clean mesh with the same faces: print the "
-                                       "mean face-normal angle error, mean vertex distance, volume change"),
-        render: Path = typer.Option(None, "--render", help="before/after shaded picture (PNG; default: OUT "
-                                                          "with suffix .png)"),
+        reference: Annotated[Path | None, typer.Option(
+            "--reference", help="clean mesh with the same faces: print the mean face-normal angle error, mean "
+                                "vertex distance, volume change")] = None,
+        render: Annotated[Path | None, typer.Option(
+            "--render", help="before/after shaded picture (PNG; default: OUT with suffix .png)")] = None,
         no_render: bool = typer.Option(False, "--no-render", help="write no picture"),
         k: int = typer.Option(10, "--k", help="neighbours for point clouds"),
         json_out: bool = typer.Option(False, "--json", help="print a JSON summary on stdout"),

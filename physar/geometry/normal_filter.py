@@ -52,6 +52,7 @@ from scipy import sparse
 from physar.errors import PhysarError
 from physar.geometry.mesh import TriMesh
 
+
 @dataclass(frozen=True)
 class NormalFilterSettings:
     """Parameters of :func:`normal_filter_denoise`; ``None`` means the automatic, scale-aware choice."""
@@ -196,7 +197,7 @@ def resolve(settings: NormalFilterSettings, nu: float) -> dict:
     return out
 
 
-def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings = NormalFilterSettings(),
+def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None = None,
                           progress=None) -> TriMesh:
     """Denoise a triangle surface: guided normal filter, feature-weighted Taubin, vertex update (module doc).
 
@@ -205,6 +206,7 @@ def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings = Normal
     """
     from physar.geometry.denoise import SurfaceOps, directed_edges
 
+    settings = settings or NormalFilterSettings()
     ops = SurfaceOps.from_mesh(mesh)  # validates the surface
     p = resolve(settings, noise_level(mesh))
     q = mesh.points.astype(float).copy()
