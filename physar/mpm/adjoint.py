@@ -64,6 +64,7 @@ def p2g_fused_kernel(
     omega: wp.array(dtype=wp.float64),
     x_ref: wp.array(dtype=wp.vec3d),
     v_ref: wp.array(dtype=wp.vec3d),
+    f_hold: wp.array(dtype=wp.vec3d),
     kp: wp.float64,
     kd: wp.float64,
     origin: wp.float64,
@@ -79,7 +80,7 @@ def p2g_fused_kernel(
     p = wp.tid() + p0
     h = hardening_factor(Jp[p], plastic[p], pp[p])
     tau = kirchhoff_stress_fiber(F[p], E[p], nu[p], elastic[p], h, fiber[p], fiber_E[p])
-    f = pd_force(mass[p], omega[p], x[p], v[p], x_ref[p], v_ref[p], kp, kd)
+    f = f_hold[p] + pd_force(mass[p], omega[p], x[p], v[p], x_ref[p], v_ref[p], kp, kd)
     p2g_particle(x[p], v[p], C[p], tau, mass[p], vol[p], f, origin, dx, dt, nmax, off, grid_mv, grid_m)
 
 
@@ -198,7 +199,8 @@ class FusedFrame:
             return lambda: wp.launch(
                 p2g_fused_kernel, cnt,
                 inputs=[x, v, C, F, Jp, P["E"], P["nu"], a["elastic"], a["plastic"], a["pp"], a["fiber"],
-                        P["fiber_E"], a["mass"], a["volume"], P["omega"], P["x_ref"], P["v_ref"], P["kp"], P["kd"], m.origin, m.dx, m.dt, nmax, off, p0],
+                        P["fiber_E"], a["mass"], a["volume"], P["omega"], P["x_ref"], P["v_ref"], P["f_hold"],
+                        P["kp"], P["kd"], m.origin, m.dx, m.dt, nmax, off, p0],
                 outputs=list(grids[k]))
 
         self._par([p2g(k) for k in range(len(self.parts))])
@@ -254,11 +256,11 @@ class FusedFrame:
         def p2g_adj(k):
             p0, cnt = self.parts[k]
             ins = [x, v, C, F, Jp, P["E"], P["nu"], a["elastic"], a["plastic"], a["pp"], a["fiber"], P["fiber_E"],
-                   a["mass"], a["volume"], P["omega"], P["x_ref"], P["v_ref"], P["kp"], P["kd"], m.origin, m.dx, m.dt,
-                   nmax, off, p0]
+                   a["mass"], a["volume"], P["omega"], P["x_ref"], P["v_ref"], P["f_hold"], P["kp"], P["kd"],
+                   m.origin, m.dx, m.dt, nmax, off, p0]
             adj_ins = _adj(ins, {0: adj_in[0], 1: adj_in[1], 2: adj_in[2], 3: adj_in[3], 4: adj_in[4], 5: adjP["E"],
                                  6: adjP["nu"], 11: adjP["fiber_E"], 14: adjP["omega"], 15: adjP["x_ref"],
-                                 16: adjP["v_ref"]})
+                                 16: adjP["v_ref"], 17: adjP["f_hold"]})
             # the forward summed the halves' grids: every half sees the adjoint of the sum
             return lambda: wp.launch(p2g_fused_kernel, cnt, inputs=ins, outputs=list(rec["grids"][k]),
                                      adj_inputs=adj_ins, adj_outputs=[adj_mv, adj_m], adjoint=True)
@@ -285,18 +287,20 @@ def _wp(t: torch.Tensor, dtype):
 
 
 class FusedFrameFunction(torch.autograd.Function):
-    """(x, v, C, F, Jp, E, nu, omega, x_ref, v_ref, fiber_E) at the start of a frame -> state at its end.
+    """(x, v, C, F, Jp, E, nu, omega, x_ref, v_ref, f_hold, fiber_E) at the start of a frame -> state at its end.
 
-    The fibre directions are the model's (``model.fiber``, constant); fiber_E (N,) Pa is differentiable."""
+    f_hold (N, 3) N is the external force held over the frame (seed Alg. 2); omega, x_ref, v_ref, kp, kd give
+    the per-substep PD force (zeros when the force is held).  The fibre directions are the model's
+    (``model.fiber``, constant); fiber_E (N,) Pa is differentiable."""
 
     @staticmethod
     def forward(ctx, runner: FusedFrame, t0: float, kp: float, kd: float, x, v, C, F, Jp, E, nu, omega, x_ref, v_ref,
-                fiber_E):
+                f_hold, fiber_E):
         m = runner.model
         n, T = m.n_particles, m.substeps
         P = {"E": _wp(E, wp.float64), "nu": _wp(nu, wp.float64), "omega": _wp(omega, wp.float64),
-             "x_ref": _wp(x_ref, wp.vec3d), "v_ref": _wp(v_ref, wp.vec3d), "fiber_E": _wp(fiber_E, wp.float64),
-             "kp": float(kp), "kd": float(kd)}
+             "x_ref": _wp(x_ref, wp.vec3d), "v_ref": _wp(v_ref, wp.vec3d), "f_hold": _wp(f_hold, wp.vec3d),
+             "fiber_E": _wp(fiber_E, wp.float64), "kp": float(kp), "kd": float(kd)}
         cur = [wp.array(t.detach().contiguous().numpy(), dtype=d) for t, (_, d) in zip((x, v, C, F, Jp), _STATE)]
         nxt = _alloc_state(n)
         bounds = {0: [a.numpy().copy() for a in cur]}
@@ -307,7 +311,7 @@ class FusedFrameFunction(torch.autograd.Function):
             if (s + 1) % runner.seg == 0 and s + 1 < T:
                 bounds[s + 1] = [a.numpy().copy() for a in cur]
         ctx.runner, ctx.t0, ctx.bounds, ctx.boxes, ctx.kp, ctx.kd = runner, t0, bounds, boxes, kp, kd
-        ctx.save_for_backward(E, nu, omega, x_ref, v_ref, fiber_E)
+        ctx.save_for_backward(E, nu, omega, x_ref, v_ref, f_hold, fiber_E)
         return tuple(torch.from_numpy(a.numpy().copy()) for a in cur)
 
     @staticmethod
@@ -315,13 +319,14 @@ class FusedFrameFunction(torch.autograd.Function):
         runner = ctx.runner
         m = runner.model
         n, T = m.n_particles, m.substeps
-        E, nu, omega, x_ref, v_ref, fiber_E = ctx.saved_tensors
+        E, nu, omega, x_ref, v_ref, f_hold, fiber_E = ctx.saved_tensors
         P = {"E": _wp(E, wp.float64), "nu": _wp(nu, wp.float64), "omega": _wp(omega, wp.float64),
-             "x_ref": _wp(x_ref, wp.vec3d), "v_ref": _wp(v_ref, wp.vec3d), "fiber_E": _wp(fiber_E, wp.float64),
-             "kp": float(ctx.kp), "kd": float(ctx.kd)}
+             "x_ref": _wp(x_ref, wp.vec3d), "v_ref": _wp(v_ref, wp.vec3d), "f_hold": _wp(f_hold, wp.vec3d),
+             "fiber_E": _wp(fiber_E, wp.float64), "kp": float(ctx.kp), "kd": float(ctx.kd)}
         adjP = {"E": wp.zeros(n, dtype=wp.float64), "nu": wp.zeros(n, dtype=wp.float64),
                 "omega": wp.zeros(n, dtype=wp.float64), "x_ref": wp.zeros(n, dtype=wp.vec3d),
-                "v_ref": wp.zeros(n, dtype=wp.vec3d), "fiber_E": wp.zeros(n, dtype=wp.float64)}
+                "v_ref": wp.zeros(n, dtype=wp.vec3d), "f_hold": wp.zeros(n, dtype=wp.vec3d),
+                "fiber_E": wp.zeros(n, dtype=wp.float64)}
         adj_next = [wp.array(np.ascontiguousarray(g.detach().numpy() if g is not None else np.zeros(sh)), dtype=d)
                     for g, (_, d), sh in zip(grads, _STATE, [(n, 3), (n, 3), (n, 3, 3), (n, 3, 3), (n,)])]
         adj_cur = _alloc_state(n)
@@ -342,5 +347,5 @@ class FusedFrameFunction(torch.autograd.Function):
                 adj_cur, adj_next = adj_next, adj_cur
         to_t = lambda a: torch.from_numpy(a.numpy().copy())
         g_state = [to_t(a) for a in adj_next]
-        g_par = [to_t(adjP[k]) for k in ("E", "nu", "omega", "x_ref", "v_ref", "fiber_E")]
+        g_par = [to_t(adjP[k]) for k in ("E", "nu", "omega", "x_ref", "v_ref", "f_hold", "fiber_E")]
         return (None, None, None, None, *g_state, *g_par)

@@ -30,7 +30,7 @@ import numpy as np
 import warp as wp
 
 from physar.errors import ConfigError, SolverError
-from physar.mpm.actuation import pd_force
+from physar.mpm.actuation import held_force, pd_force
 from physar.mpm.colliders import MAX_COLLIDERS, Collider, ColliderArrays, collider_sdf
 from physar.mpm.constitutive import (
     hardening_factor,
@@ -153,6 +153,7 @@ def p2g_kernel(
     omega: wp.array(dtype=wp.float64),
     x_ref: wp.array(dtype=wp.vec3d),
     v_ref: wp.array(dtype=wp.vec3d),
+    f_hold: wp.array(dtype=wp.vec3d),
     kp: wp.float64,
     kd: wp.float64,
     origin: wp.float64,
@@ -163,8 +164,10 @@ def p2g_kernel(
     grid_mv: wp.array3d(dtype=wp.vec3d),
     grid_m: wp.array3d(dtype=wp.float64),
 ):
+    """Step 2 with f_ex = f_hold (the force held over the frame, Alg. 2) + the per-substep PD force (zero when
+    omega = 0 or k_p = k_d = 0)."""
     p = wp.tid()
-    f = pd_force(mass[p], omega[p], x[p], v[p], x_ref[p], v_ref[p], kp, kd)
+    f = f_hold[p] + pd_force(mass[p], omega[p], x[p], v[p], x_ref[p], v_ref[p], kp, kd)
     p2g_particle(x[p], v[p], C[p], tau[p], mass[p], vol[p], f, origin, dx, dt, nmax, off, grid_mv, grid_m)
 
 
@@ -576,13 +579,24 @@ class MPMState:
 
 @dataclass
 class Control:
-    """PD actuation of seed Eq. (6)-(7): gate omega (N,), references x_ref, v_ref (N, 3), gains kp, kd."""
+    """PD actuation of seed Eq. (6)-(7): gate omega (N,), references x_ref, v_ref (N, 3), gains kp, kd.
+
+    ``hold=True`` (seed Alg. 2): :meth:`MPMSolver.simulate_frame` evaluates f_ex once from the state at the
+    start of the frame and applies it at every substep; ``False``: recomputed from each substep's state
+    (:mod:`physar.mpm.actuation` gives the stability bound of the held force)."""
 
     omega: np.ndarray
     x_ref: np.ndarray
     v_ref: np.ndarray
     kp: float = 2.0e2
     kd: float = 2.0e1
+    hold: bool = True
+
+    def held_force(self, model: MPMModel, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """f_ex (N, 3) of Eq. (6)-(7) at positions x and velocities v (N, 3) (Alg. 2, lines 2-4)."""
+        return held_force(model.mass, np.asarray(self.omega, dtype=np.float64), x, v,
+                          np.asarray(self.x_ref, dtype=np.float64), np.asarray(self.v_ref, dtype=np.float64),
+                          self.kp, self.kd)
 
     def warp(self):
         return (
@@ -609,10 +623,12 @@ class MPMSolver:
         self.time = 0.0  # s, start of the next substep (moves the kinematic colliders)
 
     def step(self, state_in: MPMState, state_out: MPMState, control: Control | None = None, dt: float | None = None,
-             t: float | None = None):
+             t: float | None = None, force: np.ndarray | None = None):
         """One substep of Alg. 1 from ``state_in`` into ``state_out`` (the two must not alias).
 
         ``t`` (s) is the time at the start of the substep (default: ``self.time``, which every step advances).
+        ``force`` (N, 3), N: an external force f_ex applied as is (the held PD force of Alg. 2); ``control``
+        adds the PD force evaluated on ``state_in`` (a one-substep frame; :meth:`simulate_frame` holds it).
         """
         m = self.model
         a = m.warp_arrays()
@@ -628,6 +644,7 @@ class MPMSolver:
                 self._ctrl_cache = (control, control.warp())
             omega, x_ref, v_ref = self._ctrl_cache[1]
             kp, kd = control.kp, control.kd
+        f_hold = a["zero_vec"] if force is None else wp.array(np.asarray(force, dtype=np.float64), dtype=wp.vec3d)
         nmax = g - 3
         zero = wp.vec3i(0, 0, 0)
         lo_box, shape = m.active_box(state_in.x.numpy()) if self.active_box else ((0, 0, 0), (g, g, g))
@@ -636,7 +653,7 @@ class MPMSolver:
                                                   a["plastic"], a["pp"], a["fiber"], a["fiber_E"]],
                   outputs=[self.tau])
         wp.launch(p2g_kernel, n, inputs=[state_in.x, state_in.v, state_in.C, self.tau, a["mass"], a["volume"],
-                                         omega, x_ref, v_ref, kp, kd, m.origin, m.dx, dt, nmax, zero],
+                                         omega, x_ref, v_ref, f_hold, kp, kd, m.origin, m.dx, dt, nmax, zero],
                   outputs=[self.grid_mv, self.grid_m])
         wp.launch(grid_update_kernel, shape,
                   inputs=[self.grid_mv, self.grid_m, wp.vec3d(*m.gravity), dt, m.pad, m.pad + m.resolution,
@@ -651,10 +668,16 @@ class MPMSolver:
 
     def simulate_frame(self, state: MPMState, scratch: MPMState, control: Control | None = None,
                        check: bool = True) -> tuple[MPMState, MPMState]:
-        """T = ``model.substeps`` substeps; returns (new state, scratch) — the two buffers swap roles."""
+        """T = ``model.substeps`` substeps; returns (new state, scratch) — the two buffers swap roles.
+
+        With ``control.hold`` the PD force is evaluated once on ``state`` and held over the T substeps (seed 002
+        Alg. 2, lines 2-4); otherwise it is recomputed at every substep."""
         a, b = state, scratch
+        force, ctrl = None, control
+        if control is not None and control.hold:
+            force, ctrl = control.held_force(self.model, state.x.numpy(), state.v.numpy()), None
         for _ in range(self.model.substeps):
-            self.step(a, b, control)
+            self.step(a, b, ctrl, force=force)
             a, b = b, a
         if check:
             check_state(self.model, a.x.numpy(), a.v.numpy(), a.F.numpy())

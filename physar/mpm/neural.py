@@ -12,6 +12,10 @@ the expert law.  Output scaling (physar's choice, so that the unit network outpu
 * P_theta: deformation-gradient residual = F_scale * reshape(out, 3, 3) (dimensionless).
 
 The singular values come from Warp's ``svd3`` (finite gradients at F = I, unlike ``torch.linalg.svd``).
+
+Activation truncation at inference (seed App. A.2, Eq. 12): O = 0 where ||O||_Fro < eps (eps = 1e-3), O the
+(3, 3) output matrix of a network.  physar applies it to the network's own (unit) output, before the output
+scaling above, so that eps keeps the seed's meaning of "a negligible network output" whatever the scale.
 """
 
 from __future__ import annotations
@@ -42,46 +46,62 @@ class ResidualMLP(nn.Module):
         nn.init.zeros_(self.l3.bias)
         self.act = nn.GELU()
 
-    def forward(self, feat: torch.Tensor, latent: torch.Tensor | None) -> torch.Tensor:
+    def forward(self, feat: torch.Tensor, latent: torch.Tensor | None, eps: float | None = None) -> torch.Tensor:
+        """scale * O with O the (N, 3, 3) network output; ``eps``: O truncated by Eq. 12 first."""
         h = self.l1(feat)
         if latent is not None:
             h = h + latent
         h = self.act(h)
         h = self.act(self.l2(h))
-        return self.scale * self.l3(h).reshape(-1, 3, 3)
+        out = self.l3(h).reshape(-1, 3, 3)
+        return self.scale * (out if eps is None else truncate(out, eps))
+
+
+def truncate(O: torch.Tensor, eps: float) -> torch.Tensor:
+    """Seed Eq. 12: O (N, 3, 3) with every matrix of Frobenius norm < eps set to 0."""
+    keep = torch.linalg.matrix_norm(O) >= eps
+    return torch.where(keep[:, None, None], O, torch.zeros_like(O))
 
 
 class NeuralResidual(nn.Module):
     """The pair (E_theta, P_theta) of Eq. (8); either may be disabled (None)."""
 
     def __init__(self, elastic: bool = True, plastic: bool = True, latent_dim: int = 64,
-                 stress_scale: float = 1.0e4, F_scale: float = 1.0e-3):
+                 stress_scale: float = 1.0e4, F_scale: float = 1.0e-3, eps: float = 1.0e-3):
         super().__init__()
+        self.eps = float(eps)  # Eq. 12 threshold on the unit network output
         self.elastic = ResidualMLP(latent_dim, latent_dim, stress_scale) if elastic else None
         self.plastic = ResidualMLP(latent_dim, latent_dim, F_scale) if plastic else None
         self.latent_dim = latent_dim
 
-    def stress(self, F, sv, l_e):
-        """Cauchy residual sigma_theta (N, 3, 3), symmetrised, Pa."""
-        out = self.elastic(invariant_features(F, sv), l_e)
+    def stress(self, F, sv, l_e, truncate: bool = False):
+        """Cauchy residual sigma_theta (N, 3, 3), symmetrised, Pa; ``truncate``: Eq. 12 (inference)."""
+        out = self.elastic(invariant_features(F, sv), l_e, self.eps if truncate else None)
         return 0.5 * (out + out.transpose(1, 2))
 
-    def deformation(self, F_trial, sv, l_p):
-        """Residual added to the projected deformation gradient, (N, 3, 3)."""
-        return self.plastic(invariant_features(F_trial, sv), l_p)
+    def deformation(self, F_trial, sv, l_p, truncate: bool = False):
+        """Residual added to the projected deformation gradient, (N, 3, 3); ``truncate``: Eq. 12 (inference)."""
+        return self.plastic(invariant_features(F_trial, sv), l_p, self.eps if truncate else None)
 
 
-def regulariser(nets: NeuralResidual, F, sv_F, l_e, F_trial, sv_Ft, l_p, omega, lam_law: float = 10.0,
-                lam_omega: float = 0.1, lam_feat: float = 1.0) -> torch.Tensor:
+def regulariser(nets: NeuralResidual | None, omega: torch.Tensor | None, F=None, l_e=None, F_trial=None, l_p=None,
+                lam_law: float = 10.0, lam_omega: float = 0.1, lam_feat: float = 1.0) -> torch.Tensor:
     """R = lam_law (||E_theta(F, l_e)||_2 + ||P_theta(F_trial, l_p)||_2) + lam_omega ||omega||_2     (Eq. 11)
-    + lam_feat (||l_e||_2 + ||l_p||_2) (seed 002 App. A, R_feat).  Defaults are the seed's weights."""
+    + lam_feat (||l_e||_2 + ||l_p||_2) (seed 002 App. A, R_feat).  Defaults are the seed's weights.
+
+    ||.||_2 is the 2-norm of all entries (over particles).  F, F_trial (N, 3, 3): deformation gradients where
+    the residuals are evaluated (their singular values enter as features only, without gradient); a residual
+    that is absent (``nets`` None or its network None) or has no F contributes nothing."""
     r = lam_omega * torch.linalg.vector_norm(omega) if omega is not None else torch.zeros((), dtype=torch.float64)
-    if nets.elastic is not None:
-        r = r + lam_law * torch.linalg.vector_norm(nets.stress(F, sv_F, l_e))
+    if nets is None:
+        return r
+    sv = lambda A: torch.linalg.svdvals(A.detach())
+    if nets.elastic is not None and F is not None:
+        r = r + lam_law * torch.linalg.vector_norm(nets.stress(F, sv(F), l_e))
         if l_e is not None:
             r = r + lam_feat * torch.linalg.vector_norm(l_e)
-    if nets.plastic is not None:
-        r = r + lam_law * torch.linalg.vector_norm(nets.deformation(F_trial, sv_Ft, l_p))
+    if nets.plastic is not None and F_trial is not None:
+        r = r + lam_law * torch.linalg.vector_norm(nets.deformation(F_trial, sv(F_trial), l_p))
         if l_p is not None:
             r = r + lam_feat * torch.linalg.vector_norm(l_p)
     return r

@@ -33,6 +33,7 @@ from physar.mpm.model import (
     singular_values_kernel,
     stress_kernel,
 )
+from physar.mpm.actuation import held_force as pd_held_force
 from physar.mpm.neural import NeuralResidual
 
 _DT = {1: wp.float64, 2: wp.vec3d, 3: wp.mat33d}
@@ -82,8 +83,9 @@ def _sv_op(model: MPMModel, F, grad=False):
     return (s,)
 
 
-def _transfer_op(model: MPMModel, x, v, C, F, tau, omega, x_ref, v_ref, gains, grad=False, t=0.0):
-    """P2G, grid update and G2P of the substep starting at time t (s); ``gains`` = [kp, kd] (1/s^2, 1/s)."""
+def _transfer_op(model: MPMModel, x, v, C, F, tau, omega, x_ref, v_ref, f_hold, gains, grad=False, t=0.0):
+    """P2G, grid update and G2P of the substep starting at time t (s); ``gains`` = [kp, kd] (1/s^2, 1/s) of the
+    per-substep PD force, ``f_hold`` (N, 3) N the force held over the frame (Alg. 2)."""
     a = model.warp_arrays()
     col = a["colliders"].at(t, model.dt)
     n, g = model.n_particles, model.n_grid
@@ -100,7 +102,7 @@ def _transfer_op(model: MPMModel, x, v, C, F, tau, omega, x_ref, v_ref, gains, g
     Co = wp.zeros(n, dtype=wp.mat33d, requires_grad=grad)
     Ft = wp.zeros(n, dtype=wp.mat33d, requires_grad=grad)
     nmax, dt = g - 3, model.dt
-    wp.launch(p2g_kernel, n, inputs=[x, v, C, tau, a["mass"], a["volume"], omega, x_ref, v_ref, kp, kd,
+    wp.launch(p2g_kernel, n, inputs=[x, v, C, tau, a["mass"], a["volume"], omega, x_ref, v_ref, f_hold, kp, kd,
                                      model.origin, model.dx, dt, nmax, off], outputs=[grid_mv, grid_m])
     wp.launch(grid_update_kernel, shape, inputs=[grid_mv, grid_m, wp.vec3d(*model.gravity), dt, model.pad,
                                                  model.pad + model.resolution, a["bc"], a["friction"],
@@ -121,13 +123,13 @@ def _plastic_op(model: MPMModel, Ft, Jp, E, nu, grad=False):
     return F, Jo
 
 
-def _transfer_wrapped(model, x, v, C, F, tau, omega, x_ref, v_ref, kp, kd, t=0.0):
+def _transfer_wrapped(model, x, v, C, F, tau, omega, x_ref, v_ref, f_hold, kp, kd, t=0.0):
     gains = torch.tensor([kp, kd], dtype=torch.float64)
 
-    def op(m, x, v, C, F, tau, omega, x_ref, v_ref, grad=False):
-        return _transfer_op(m, x, v, C, F, tau, omega, x_ref, v_ref, gains, grad=grad, t=t)
+    def op(m, x, v, C, F, tau, omega, x_ref, v_ref, f_hold, grad=False):
+        return _transfer_op(m, x, v, C, F, tau, omega, x_ref, v_ref, f_hold, gains, grad=grad, t=t)
 
-    return _WarpOp.apply(op, model, x, v, C, F, tau, omega, x_ref, v_ref)
+    return _WarpOp.apply(op, model, x, v, C, F, tau, omega, x_ref, v_ref, f_hold)
 
 
 @dataclass
@@ -137,6 +139,8 @@ class Params:
     E (N,) Pa, nu (N,), omega (N,) actuation gate, x_ref/v_ref (N, 3) PD references (constant over a frame, or
     a callable frame -> (x_ref, v_ref)), l_e/l_p (N, latent) latents, kp (1/s^2), kd (1/s), fiber_E (N,) Pa
     fibre moduli of the anisotropic term (``None``: the model's ``fiber_E``, not differentiated).
+    ``hold``: the PD force of Eq. (6)-(7) is evaluated once per frame on the frame's initial state and held over
+    its substeps (seed Alg. 2, the default); ``False``: recomputed on every substep's state.
     """
 
     E: torch.Tensor
@@ -149,25 +153,38 @@ class Params:
     kp: float = 2.0e2
     kd: float = 2.0e1
     fiber_E: torch.Tensor | None = None
+    hold: bool = True
 
 
 def _fiber_E(model: MPMModel, p: Params) -> torch.Tensor:
     return torch.as_tensor(model.fiber_E if p.fiber_E is None else p.fiber_E, dtype=torch.float64)
 
 
+def held_force(model: MPMModel, x, v, p: Params, x_ref, v_ref) -> torch.Tensor:
+    """f_ex (N, 3) of Eq. (6)-(7) at the state (x, v) (seed Alg. 2, lines 2-4; zeros without actuation)."""
+    n = model.n_particles
+    if p.omega is None or x_ref is None:
+        return torch.zeros(n, 3, dtype=torch.float64)
+    v_ref = torch.zeros(n, 3, dtype=torch.float64) if v_ref is None else v_ref
+    m = torch.as_tensor(model.mass, dtype=torch.float64)
+    return pd_held_force(m, p.omega, x, v, x_ref, v_ref, p.kp, p.kd)
+
+
 def substep(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref=None, v_ref=None,
-            nets: NeuralResidual | None = None, t: float = 0.0):
+            nets: NeuralResidual | None = None, t: float = 0.0, f_hold=None, truncate: bool = False):
     """One differentiable substep of Alg. 1 with the residuals of Eq. (8) and the actuation of Eq. (6)-(7).
 
-    ``t`` (s): time at the start of the substep (positions of the kinematic colliders).
+    ``t`` (s): time at the start of the substep (positions of the kinematic colliders).  ``f_hold`` (N, 3) N:
+    the force held over the frame (Alg. 2); otherwise the PD force is evaluated on this substep's state.
+    ``truncate``: the residual outputs are truncated as in seed Eq. 12 (inference).
     """
     n = model.n_particles
     (tau,) = _WarpOp.apply(_stress_op, model, F, Jp, p.E, p.nu, _fiber_E(model, p))
     if nets is not None and nets.elastic is not None:
         (sv,) = _WarpOp.apply(_sv_op, model, F)
         J = torch.linalg.det(F)
-        tau = tau + J[:, None, None] * nets.stress(F, sv, p.l_e)
-    if p.omega is None or x_ref is None:
+        tau = tau + J[:, None, None] * nets.stress(F, sv, p.l_e, truncate=truncate)
+    if f_hold is not None or p.omega is None or x_ref is None:
         omega = torch.zeros(n, dtype=torch.float64)
         x_ref = torch.zeros(n, 3, dtype=torch.float64)
         v_ref = torch.zeros(n, 3, dtype=torch.float64)
@@ -175,20 +192,24 @@ def substep(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref=None, v_ref=None,
     else:
         omega, kp, kd = p.omega, p.kp, p.kd
         v_ref = torch.zeros(n, 3, dtype=torch.float64) if v_ref is None else v_ref
-    x, v, C, Ft = _transfer_wrapped(model, x, v, C, F, tau, omega, x_ref, v_ref, kp, kd, t=t)
+    f_hold = torch.zeros(n, 3, dtype=torch.float64) if f_hold is None else f_hold
+    x, v, C, Ft = _transfer_wrapped(model, x, v, C, F, tau, omega, x_ref, v_ref, f_hold, kp, kd, t=t)
     F, Jp = _WarpOp.apply(_plastic_op, model, Ft, Jp, p.E, p.nu)
     if nets is not None and nets.plastic is not None:
         (svt,) = _WarpOp.apply(_sv_op, model, Ft)
-        F = F + nets.deformation(Ft, svt, p.l_p)
+        F = F + nets.deformation(Ft, svt, p.l_p, truncate=truncate)
     return x, v, C, F, Jp
 
 
 def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralResidual | None = None,
-             checkpoint: bool = True, C0=None, F0=None, Jp0=None, t0: float = 0.0, fused: bool = True):
+             checkpoint: bool = True, C0=None, F0=None, Jp0=None, t0: float = 0.0, fused: bool = True,
+             truncate: bool = False):
     """Differentiable simulation of ``frames`` frames of ``model.substeps`` substeps, starting at time t0 (s).
 
     Returns the list of positions (N, 3) at frames 0..frames and the final state (x, v, C, F, Jp).  The PD
-    references may be given per frame by a callable ``params.x_ref(frame) -> (x_ref, v_ref)``.
+    references may be given per frame by a callable ``params.x_ref(frame) -> (x_ref, v_ref)``; with
+    ``params.hold`` the PD force is evaluated at the start of each frame and held (seed Alg. 2).
+    ``truncate``: Eq. 12 truncation of the residual outputs (inference, seed App. A.2).
     """
     n = model.n_particles
     t = lambda a: torch.as_tensor(a, dtype=torch.float64)
@@ -203,32 +224,35 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
             x_ref, v_ref = params.x_ref(f)
         else:
             x_ref, v_ref = params.x_ref, params.v_ref
+        f_hold = held_force(model, x, v, params, x_ref, v_ref) if params.hold else None
         if use_fused:
-            x, v, C, F, Jp = _fused_frame(model, x, v, C, F, Jp, params, x_ref, v_ref, t0 + f * model.frame_dt)
+            x, v, C, F, Jp = _fused_frame(model, x, v, C, F, Jp, params, x_ref, v_ref, t0 + f * model.frame_dt,
+                                          f_hold)
             check_state(model, x.detach().numpy(), v.detach().numpy(), F.detach().numpy(), where=f" at frame {f + 1}")
             xs.append(x)
             continue
 
         tf = t0 + f * model.frame_dt
 
-        def frame_fn(x, v, C, F, Jp, *_params, tf=tf, x_ref=x_ref, v_ref=v_ref):  # bound now: re-run in backward
+        def frame_fn(x, v, C, F, Jp, f_hold, *_params, tf=tf, x_ref=x_ref, v_ref=v_ref):  # re-run in backward
             for s in range(model.substeps):
-                x, v, C, F, Jp = substep(model, x, v, C, F, Jp, params, x_ref, v_ref, nets, t=tf + s * model.dt)
+                x, v, C, F, Jp = substep(model, x, v, C, F, Jp, params, x_ref, v_ref, nets, t=tf + s * model.dt,
+                                         f_hold=f_hold, truncate=truncate)
             return x, v, C, F, Jp
 
         leaves = [z for z in (params.E, params.nu, params.omega, params.l_e, params.l_p, params.fiber_E)
                   if isinstance(z, torch.Tensor)]
         if checkpoint and torch.is_grad_enabled():
-            x, v, C, F, Jp = torch.utils.checkpoint.checkpoint(frame_fn, x, v, C, F, Jp, *leaves,
+            x, v, C, F, Jp = torch.utils.checkpoint.checkpoint(frame_fn, x, v, C, F, Jp, f_hold, *leaves,
                                                                use_reentrant=False)
         else:
-            x, v, C, F, Jp = frame_fn(x, v, C, F, Jp)
+            x, v, C, F, Jp = frame_fn(x, v, C, F, Jp, f_hold)
         check_state(model, x.detach().numpy(), v.detach().numpy(), F.detach().numpy(), where=f" at frame {f + 1}")
         xs.append(x)
     return xs, (x, v, C, F, Jp)
 
 
-def _fused_frame(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref, v_ref, t0: float):
+def _fused_frame(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref, v_ref, t0: float, f_hold=None):
     """One frame through :class:`physar.mpm.adjoint.FusedFrameFunction` (expert laws, no neural residuals)."""
     from physar.mpm.adjoint import FusedFrame, FusedFrameFunction
 
@@ -237,11 +261,12 @@ def _fused_frame(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref, v_ref, t0: f
         runner = model._fused = FusedFrame(model)
     n = model.n_particles
     z = lambda *sh: torch.zeros(*sh, dtype=torch.float64)
-    if p.omega is None or x_ref is None:
+    if f_hold is not None or p.omega is None or x_ref is None:
         omega, x_ref, v_ref, kp, kd = z(n), z(n, 3), z(n, 3), 0.0, 0.0
     else:
         omega, kp, kd = p.omega, p.kp, p.kd
         v_ref = z(n, 3) if v_ref is None else v_ref
+    f_hold = z(n, 3) if f_hold is None else f_hold
     t = lambda a: torch.as_tensor(a, dtype=torch.float64)
     return FusedFrameFunction.apply(runner, float(t0), float(kp), float(kd), x, v, C, F, Jp, t(p.E), t(p.nu),
-                                    t(omega), t(x_ref), t(v_ref), _fiber_E(model, p))
+                                    t(omega), t(x_ref), t(v_ref), f_hold, _fiber_E(model, p))

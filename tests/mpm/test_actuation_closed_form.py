@@ -1,0 +1,208 @@
+"""The gated PD force of seed 002 (Eq. 6-7, held over a frame as in Alg. 2) and the neural residual laws of
+Eq. 8 (with the Eq. 12 truncation) in forward MLS-MPM cases small enough to write the expected result by hand.
+
+References are closed forms, not physar: one free particle under a constant force (v_T = v_0 + T dt f/m,
+x_T = x_0 + T dt v_0 + dt^2 f/m T (T + 1)/2 for the symplectic update of the G2P step), the exact momentum
+balance of P2G/G2P for a few particles (sum_p m_p v_p changes by T dt sum_p f_p), and the APIC affine
+velocity of one particle after one substep, C' = -(4 dt V / (m dx^2)) tau (quadratic B-splines: sum_i w_i
+(x_i - x_p)(x_i - x_p)^T = dx^2/4 I), with tau = J (sigma_expert + sigma_theta) written out below.
+"""
+
+import numpy as np
+import pytest
+import torch
+
+from physar.mpm.model import Control, MPMModel, MPMSolver
+from physar.mpm.neural import NeuralResidual
+from physar.mpm.torch_bridge import Params, simulate, substep
+
+KP, KD = 200.0, 20.0  # seed 002 App. A.3 gains (mass-scaled in physar: 1/s^2, 1/s)
+
+
+def _model(n: int, T: int = 10, mass=0.3, E=1.0e3, dt=1.0e-3, res=8) -> MPMModel:
+    z = np.zeros(n)
+    return MPMModel(size=1.0, resolution=res, dt=dt, substeps=T, mass=np.full(n, mass), volume=np.full(n, 1e-3),
+                    E=np.full(n, E), nu=np.full(n, 0.3), elastic=z, plastic=z, plastic_params=np.zeros((n, 4)),
+                    body=z, gravity=(0.0, 0.0, 0.0))
+
+
+def _free_particle_case():
+    x0 = np.array([[0.52, 0.47, 0.51]])
+    v0 = np.array([[0.05, -0.02, 0.01]])
+    x_ref = np.array([[0.50, 0.49, 0.53]])
+    v_ref = np.array([[0.10, 0.00, -0.03]])
+    omega = 0.6
+    return x0, v0, x_ref, v_ref, omega
+
+
+def _expected_free_particle(T: int, dt: float):
+    """Seed Eq. 6-7 evaluated by hand at the frame start, held over T substeps (Alg. 2 lines 2-8)."""
+    x0, v0, x_ref, v_ref, omega = _free_particle_case()
+    a = omega * (KP * (x_ref - x0) + KD * (v_ref - v0))  # f / m (the force is m omega f_PD in physar)
+    v = v0 + T * dt * a
+    x = x0 + T * dt * v0 + dt * dt * a * T * (T + 1) / 2
+    return x, v
+
+
+def test_held_pd_force_moves_a_free_particle_as_the_closed_form():
+    """Mutants caught: the force recomputed at every substep instead of held (Alg. 2), f_PD with the wrong sign
+    (held or per-substep kernel), the k_d term dropped, omega dropped, the mass scaling dropped (m = 0.3 kg)."""
+    T, dt = 10, 1.0e-3
+    model = _model(1, T=T, dt=dt)
+    x0, v0, x_ref, v_ref, omega = _free_particle_case()
+    x_exp, v_exp = _expected_free_particle(T, dt)
+    # NumPy solver
+    st, scratch = model.state(x0, v0), model.state(x0, v0)
+    st, _ = MPMSolver(model).simulate_frame(st, scratch, Control(np.array([omega]), x_ref, v_ref, KP, KD))
+    d = st.numpy()
+    np.testing.assert_allclose(d["v"], v_exp, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(d["x"], x_exp, rtol=1e-12, atol=1e-14)
+    # differentiable path, fused and generic
+    t = lambda a: torch.tensor(a, dtype=torch.float64)
+    p = Params(E=t(model.E), nu=t(model.nu), omega=t([omega]), x_ref=t(x_ref), v_ref=t(v_ref), kp=KP, kd=KD)
+    for fused in (True, False):
+        _, (x, v, *_rest) = simulate(model, t(x0), t(v0), p, 1, fused=fused)
+        np.testing.assert_allclose(v.numpy(), v_exp, rtol=1e-10, atol=1e-14)
+        np.testing.assert_allclose(x.numpy(), x_exp, rtol=1e-12, atol=1e-14)
+    # the per-substep variant (hold=False, the synthetic truth's stiff tracking): Eq. 6-7 at every substep,
+    # v_{k+1} = v_k + dt omega (k_p (x_ref - x_k) + k_d (v_ref - v_k)), x_{k+1} = x_k + dt v_{k+1}
+    xk, vk = x0.copy(), v0.copy()
+    for _ in range(T):
+        vk = vk + dt * omega * (KP * (x_ref - xk) + KD * (v_ref - vk))
+        xk = xk + dt * vk
+    assert np.abs(vk - v_exp).max() > 1e-4  # the two laws differ measurably here
+    p.hold = False
+    st, scratch = model.state(x0, v0), model.state(x0, v0)
+    st, _ = MPMSolver(model).simulate_frame(st, scratch, Control(np.array([omega]), x_ref, v_ref, KP, KD, hold=False))
+    for fused in (True, False):
+        _, (x, v, *_rest) = simulate(model, t(x0), t(v0), p, 1, fused=fused)
+        for xx, vv in ((x.numpy(), v.numpy()), (st.x.numpy(), st.v.numpy())):
+            np.testing.assert_allclose(vv, vk, rtol=1e-10, atol=1e-14)
+            np.testing.assert_allclose(xx, xk, rtol=1e-12, atol=1e-14)
+
+
+def test_held_pd_force_momentum_balance_of_a_few_particles():
+    """Eight elastic particles (pre-stretched, E = 1 kPa), omega = 0 on two of them (the surface layer of seed
+    §4.2 receives no force): the total momentum changes by exactly T dt sum_p m_p omega_p f_PD,p(s_n) and the
+    ungated particles' reference has no effect.  Mutants caught: wrong sign, k_d dropped, force recomputed per
+    substep, omega ignored (gated particles' references would add momentum)."""
+    T, dt = 8, 1.0e-3
+    model = _model(8, T=T, dt=dt, mass=0.05)
+    g = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=np.float64)
+    x0 = 0.45 + 0.06 * g
+    rng = np.random.default_rng(3)
+    v0 = 0.05 * rng.standard_normal((8, 3))
+    x_ref = x0 + 0.01 * rng.standard_normal((8, 3))
+    v_ref = 0.05 * rng.standard_normal((8, 3))
+    omega = np.array([1.0, 0.5, 0.0, 1.5, 1.0, 0.0, 0.8, 1.2])
+    F0 = np.tile(np.diag([1.05, 0.97, 1.02]), (8, 1, 1))
+    m = model.mass
+    f = (m * omega)[:, None] * (KP * (x_ref - x0) + KD * (v_ref - v0))  # Eq. 6-7 by hand, at s_n
+    p_exp = (m[:, None] * v0).sum(0) + T * dt * f.sum(0)
+    t = lambda a: torch.tensor(a, dtype=torch.float64)
+    far = x_ref.copy()
+    far[omega == 0] += 0.3  # references of gated-off particles must not matter
+    for xr in (x_ref, far):
+        p = Params(E=t(model.E), nu=t(model.nu), omega=t(omega), x_ref=t(xr), v_ref=t(v_ref), kp=KP, kd=KD)
+        _, (x, v, C, F, _) = simulate(model, t(x0), t(v0), p, 1, F0=t(F0))
+        mom = (m[:, None] * v.numpy()).sum(0)
+        np.testing.assert_allclose(mom, p_exp, rtol=1e-10, atol=1e-12)
+    assert np.abs(F.numpy() - F0).max() > 1e-5  # the elastic stress did act (internal forces sum to zero)
+
+
+def _one_particle(F0):
+    model = _model(1, T=1, mass=0.2, E=2.0e3, dt=1.0e-4)
+    t = lambda a: torch.tensor(a, dtype=torch.float64)
+    x = t([[0.53, 0.46, 0.51]])
+    z3 = torch.zeros(1, 3, dtype=torch.float64)
+    state = (x, z3.clone(), torch.zeros(1, 3, 3, dtype=torch.float64), t(F0)[None], torch.ones(1, dtype=torch.float64))
+    return model, state
+
+
+def _expert_tau(F0, E, nu):
+    """Fixed-corotated Kirchhoff stress for a diagonal F = diag(s) > 0 (R = I): 2 mu (F - I) F + lambda (J-1) J I."""
+    mu, la = E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
+    s = np.diag(F0)
+    J = np.prod(s)
+    return np.diag(2 * mu * (s - 1) * s + la * (J - 1) * J), J
+
+
+def _bias_net(b_e, b_p, stress_scale=50.0, F_scale=1e-3):
+    """Residual networks whose output is the constant bias (last layer weights zero): sigma_theta =
+    stress_scale sym(b_e), P_theta = F_scale b_p."""
+    nets = NeuralResidual(latent_dim=8, stress_scale=stress_scale, F_scale=F_scale)
+    with torch.no_grad():
+        nets.elastic.l3.bias.copy_(torch.tensor(np.ravel(b_e), dtype=torch.float64))
+        nets.plastic.l3.bias.copy_(torch.tensor(np.ravel(b_p), dtype=torch.float64))
+    return nets
+
+
+B_E = np.array([[0.3, -0.8, 0.1], [0.2, -0.4, 0.5], [0.6, 0.0, 0.9]])  # not symmetric: sym() matters
+B_P = np.array([[0.5, 0.1, -0.2], [0.0, -0.7, 0.3], [0.4, 0.2, 0.1]])
+
+
+def test_residual_stress_and_plastic_residual_in_one_substep():
+    """sigma = E(F, E, nu) + E_theta, F = P(F_trial) + P_theta (seed Eq. 8, identity plasticity P): C after one
+    substep equals -(4 dt V/(m dx^2)) J (sigma_expert + sigma_theta) and F = (I + dt C) F_0 + P_theta.
+    Mutants caught: sign of the residual stress flipped, residual dropped, the J factor of tau = J sigma
+    dropped, the symmetrisation dropped, sign of the plastic residual flipped or the plastic residual dropped."""
+    F0 = np.diag([1.10, 0.95, 1.03])
+    model, (x, v, C, F, Jp) = _one_particle(F0)
+    nets = _bias_net(B_E, B_P)
+    p = Params(E=torch.tensor(model.E), nu=torch.tensor(model.nu))
+    _, _, C1, F1, _ = substep(model, x, v, C, F, Jp, p, nets=nets)
+    tau_ex, J = _expert_tau(F0, model.E[0], model.nu[0])
+    sig_th = 50.0 * 0.5 * (B_E + B_E.T)
+    c = -4 * model.dt * model.volume[0] / (model.mass[0] * model.dx**2)
+    C_exp = c * (tau_ex + J * sig_th)
+    np.testing.assert_allclose(C1.detach().numpy()[0], C_exp, rtol=1e-9, atol=1e-12)
+    F_exp = (np.eye(3) + model.dt * C_exp) @ F0 + 1e-3 * B_P
+    np.testing.assert_allclose(F1.detach().numpy()[0], F_exp, rtol=1e-12, atol=1e-14)
+    # the residual is not negligible here (a dropped residual would fail the checks above)
+    assert np.abs(c * J * sig_th).max() > 0.05 * np.abs(c * tau_ex).max()
+
+
+def test_eq12_truncation_zeroes_small_outputs_at_inference():
+    """Seed Eq. 12: O = 0 where ||O||_Fro < eps (1e-3), only when truncating (inference).  Mutants caught:
+    truncation never applied, applied to every output, or applied during training."""
+    F0 = np.diag([1.10, 0.95, 1.03])
+    model, (x, v, C, F, Jp) = _one_particle(F0)
+    p = Params(E=torch.tensor(model.E), nu=torch.tensor(model.nu))
+    tau_ex, J = _expert_tau(F0, model.E[0], model.nu[0])
+    c = -4 * model.dt * model.volume[0] / (model.mass[0] * model.dx**2)
+    for norm, kept in ((0.9e-3, False), (1.1e-3, True)):
+        b_e, b_p = B_E / np.linalg.norm(B_E) * norm, B_P / np.linalg.norm(B_P) * norm
+        nets = _bias_net(b_e, b_p, stress_scale=5.0e4, F_scale=10.0)
+        sig_th = 5.0e4 * 0.5 * (b_e + b_e.T)
+        for truncate in (False, True):
+            _, _, C1, F1, _ = substep(model, x, v, C, F, Jp, p, nets=nets, truncate=truncate)
+            on = kept or not truncate
+            C_exp = c * (tau_ex + (J * sig_th if on else 0.0))
+            F_exp = (np.eye(3) + model.dt * C_exp) @ F0 + (10.0 * b_p if on else 0.0)
+            np.testing.assert_allclose(C1.detach().numpy()[0], C_exp, rtol=1e-9, atol=1e-12)
+            np.testing.assert_allclose(F1.detach().numpy()[0], F_exp, rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("with_plastic", [False, True])
+def test_regulariser_is_eq11_by_hand(with_plastic):
+    """R = lam_law (||E_theta||_2 + ||P_theta||_2) + lam_omega ||omega||_2 + lam_feat (||l_e||_2 + ||l_p||_2)
+    (seed Eq. 11 and App. A) for constant network outputs.  Mutants caught: a term dropped or a weight swapped."""
+    from physar.mpm.neural import regulariser
+
+    n = 5
+    nets = _bias_net(B_E, B_P, stress_scale=2.0, F_scale=3.0)
+    if not with_plastic:
+        nets.plastic = None
+    F = torch.tensor(np.tile(np.diag([1.1, 0.9, 1.0]), (n, 1, 1)))
+    g = torch.Generator().manual_seed(0)
+    l_e = 0.1 * torch.randn(n, 8, dtype=torch.float64, generator=g)
+    l_p = 0.2 * torch.randn(n, 8, dtype=torch.float64, generator=g)
+    omega = torch.tensor([0.0, 0.5, 1.0, 1.5, 0.2], dtype=torch.float64)
+    # the latents enter the hidden layer, not the output (last layer weights are zero): outputs stay the biases
+    r = regulariser(nets, omega, F=F, l_e=l_e, F_trial=F, l_p=l_p, lam_law=10.0, lam_omega=0.1, lam_feat=1.0)
+    sig = 2.0 * 0.5 * (B_E + B_E.T)
+    exp = 10.0 * np.sqrt(n) * np.linalg.norm(sig) + 0.1 * np.linalg.norm(omega.numpy())
+    exp += np.linalg.norm(l_e.numpy())
+    if with_plastic:
+        exp += 10.0 * np.sqrt(n) * np.linalg.norm(3.0 * B_P) + np.linalg.norm(l_p.numpy())
+    assert float(r.detach()) == pytest.approx(exp, rel=1e-12)
