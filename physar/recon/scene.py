@@ -99,6 +99,34 @@ def skin_sequence(body: CapsuleBody, points: np.ndarray, rotations: np.ndarray, 
     return mu.numpy(), A[..., :3, :3].numpy()
 
 
+def box_distance(points: np.ndarray, lo, hi) -> np.ndarray:
+    """Euclidean distance (m) from points (..., 3) to the axis-aligned box [lo, hi] (0 inside)."""
+    d = np.maximum(np.maximum(np.asarray(lo) - points, 0.0), points - np.asarray(hi))
+    return np.linalg.norm(d, axis=-1)
+
+
+def reaching_bones(body: CapsuleBody, rotations: np.ndarray, root: np.ndarray, boxes, margin: float,
+                   samples: int = 17) -> list[str]:
+    """Bones whose capsule, posed rigidly by its own bone transform B_k (the LBS of Eq. 1 where W_k = 1) over the
+    pose sequence, comes within ``margin`` (m) of the object's boxes [(min, max), ...] in some frame: the bones
+    whose LBS impact reaches the object (seed 002 §4.2), which the reconstruction simulates and actuates (both
+    hands when both touch).  The axis is sampled at ``samples`` points; skeleton order."""
+    B = bone_transforms(body, rotations, root).numpy()  # (F, K, 4, 4)
+    s = np.linspace(0.0, 1.0, samples)[:, None]
+    out = []
+    for k, name in enumerate(body.skeleton.names):
+        r = float(body.radii[k])
+        if r <= 0:
+            continue
+        a, b = body.heads[k].numpy(), body.tails[k].numpy()
+        P = a + s * (b - a)  # (S, 3) rest axis
+        Pw = np.einsum("fij,sj->fsi", B[:, k, :3, :3], P) + B[:, k, None, :3, 3]
+        d = min(float(box_distance(Pw, lo, hi).min()) for lo, hi in boxes)
+        if d - r <= margin:
+            out.append(name)
+    return out
+
+
 def central_velocities(x: np.ndarray, dt: float) -> np.ndarray:
     """v_n = (x_{n+1} - x_{n-1}) / (2 dt) (seed Eq. 4), one-sided at the ends; x (F, N, 3)."""
     v = np.zeros_like(x)

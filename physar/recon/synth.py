@@ -379,7 +379,7 @@ def simulate_clip(cfg: SynthConfig, meta: dict, body, poses: dict, progress=None
     xs = [x0]
     for f in range(len(rot) - 1):
         ctrl = Control(omega, np.r_[np.zeros((no, 3)), ref[f] - origin], np.r_[np.zeros((no, 3)), vref[f]],
-                       kp=sim["kp"], kd=sim["kd"])
+                       kp=sim["kp"], kd=sim["kd"], hold=False)  # the truth's stiff tracking, not Alg. 2
         st, scratch = solver.simulate_frame(st, scratch, ctrl)
         xs.append(st.x.numpy().copy())
         if progress:

@@ -15,14 +15,18 @@ Stages (``fit``):
    predict (it holds the last observed frame).  (b) the **structure-preserving 3-D flow** of §4.4, Eq. 9
    (:mod:`physar.recon.flow`): per-frame positions x'_n optimised with RGB + mask, OpenCV-DIS optical flow
    between consecutive observed frames, and ARAP w.r.t. the rest lattice; x'_n supervises stage 3.
-3. **physics** (§4.2-4.4, Eq. 6-11): per-particle Young's modulus E of the object (log-parameterised), its
-   Poisson ratio nu (nu_min + (nu_max - nu_min) sigmoid(z), bounds 0.2-0.4 of seed App. B) and
-   the LBS-impact factor omega of the simulated body particles (omega = g_i 2 sigmoid(l_i), g_i = 1 strictly
-   inside the body, 0 elsewhere: object particles are never actuated) are learned through the
-   differentiable MPM (:mod:`physar.mpm.torch_bridge`) and the rasteriser with
+3. **physics** (§4.2-4.4, Eq. 6-11, Alg. 2): per-particle Young's modulus E of the object (log-parameterised),
+   its Poisson ratio nu (nu_min + (nu_max - nu_min) sigmoid(z), bounds 0.2-0.4 of seed App. B), the Young's
+   modulus of the simulated body particles and the LBS-impact factor omega of the simulated body particles
+   (omega = g_i 2 sigmoid(l_i), g_i = 1 inside the body deeper than the surface layer ``surface_layer``, 0
+   on that layer and on the object: object particles are never actuated) are learned through the
+   differentiable MPM (:mod:`physar.mpm.torch_bridge`; the PD force of Eq. 6-7 held over each frame's
+   substeps as in Alg. 2, gains ``kp``/``kd``) and the rasteriser with
    L_E2E = lambda_rgb |I - I*|_1 + lambda_mask |A - M|_1 + lambda_3Dflow |x_{n+1} - x'_{n+1}|_1   (Eq. 10)
-   + R = lambda_omega ||omega||_2 [+ lambda_law ||E_theta|| + lambda_feat ||l_e|| with the residual laws]
-   (Eq. 11, App. A); log E and the nu logits live on a coarse voxel grid interpolated trilinearly to the particles (the
+   + R (Eq. 11 and R_feat of App. A, :func:`physics_regulariser`); with ``residual`` the residual laws
+   E_theta and P_theta of Eq. 8 (latents l_e, l_p), truncated by Eq. 12 at inference.  Simulated bones: those
+   of ``scene.json`` and every bone whose posed capsule reaches the object (both hands when both touch it,
+   :func:`physar.recon.scene.reaching_bones`); log E and the nu logits live on a coarse voxel grid interpolated trilinearly to the particles (the
    "material space" of seed App. C.3) unless ``material_grid`` is 0; progressive (the frame window grows every ``window_grow_every`` iterations) and loss-balanced
    (each frame's loss is weighted by its previous loss relative to the mean).
 
@@ -105,6 +109,15 @@ class TrainConfig(BaseModel):
     material_grid: tuple[int, int, int] = Field((4, 3, 2), description="voxel nodes of the log E field per "
                                                 "axis over the object box; (0, 0, 0): one value per particle")
     omega_init: float = Field(1.0, gt=0, lt=2)
+    kp: float = Field(2.0e2, ge=0, description="PD gain of Eq. 6, 1/s^2 (mass-scaled; seed App. A.3: 2e2)")
+    kd: float = Field(2.0e1, ge=0, description="PD gain of Eq. 6, 1/s (mass-scaled; seed App. A.3: 2e1)")
+    pd_hold: bool = Field(True, description="PD force evaluated once per frame and held over its substeps "
+                          "(seed Alg. 2); false: recomputed every substep")
+    surface_layer: float | None = Field(None, ge=0, description="omega = 0 on body particles within this depth "
+                                        "of the body surface (seed §4.2), m; default: half the particle spacing")
+    reach_margin: float | None = Field(None, ge=0, description="bones whose posed capsule comes this close to the "
+                                       "object are simulated and actuated, m; default: one grid cell")
+    learn_human_E: bool = Field(True, description="learn the Young's modulus of the simulated body particles")
     window_start: int = Field(3, ge=2, description="frames in the first training window (progressive)")
     window_grow_every: int = Field(4, ge=1, description="iterations between window extensions")
     loss_balanced: bool = True
@@ -112,8 +125,9 @@ class TrainConfig(BaseModel):
     lambda_mask: float = Field(1.0, ge=0)
     lambda_flow: float = Field(20.0, ge=0, description="3-D flow term of Eq. 10 (vs the Eq. 9 flow), 1/m")
     lambda_omega: float = Field(1.0e-5, ge=0, description="Eq. 11 (per-pixel mean losses: keep it small)")
-    residual: bool = Field(False, description="neural residual laws E_theta with latents l_e (Eq. 8)")
-    latents: bool = Field(True, description="per-particle latents l_e of the residual law (ablation: False)")
+    residual: bool = Field(False, description="neural residual laws E_theta, P_theta with latents (Eq. 8)")
+    residual_plastic: bool = Field(True, description="with residual: the plastic residual P_theta too (Eq. 8)")
+    latents: bool = Field(True, description="per-particle latents l_e, l_p of the residual laws (ablation: False)")
     latent_dim: int = Field(16, ge=1)
     net_lr: float = Field(1.0e-3, gt=0, description="Adam step of the residual network and the latents")
     lambda_law: float = Field(1.0e-4, ge=0, description="Eq. 11, residual magnitude")
@@ -150,6 +164,7 @@ class Dataset:
 
 
 def load_dataset(path: str | Path, with_truth: bool = True) -> Dataset:
+    """Read a scene folder written by ``physar recon synth`` (``truth.npz`` too when ``with_truth``)."""
     root = Path(path)
     sj = root / "scene.json"
     if not sj.exists():
@@ -203,13 +218,17 @@ def _npz(path: Path) -> dict:
 
 # ----------------------------------------------------------------------------------------------- rig
 class Rig:
-    """Particles, MPM model, camera and LBS machinery of a scene at the reconstruction's sampling."""
+    """Particles, MPM model, camera and LBS machinery of a scene at the reconstruction's sampling.
 
-    def __init__(self, meta: dict, cfg: TrainConfig):
+    ``poses`` = (rotations, root translations) of the clip: the simulated bones are those of ``scene.json``
+    plus every bone whose LBS impact reaches the object in that clip (:func:`physar.recon.scene.reaching_bones`,
+    margin ``cfg.reach_margin``); ``self.meta`` records the list (a saved model rebuilds the same rig)."""
+
+    def __init__(self, meta: dict, cfg: TrainConfig, poses: tuple[np.ndarray, np.ndarray] | None = None):
         k = round(cfg.particles_per_cell ** (1 / 3))
         if k**3 != cfg.particles_per_cell:
             raise ConfigError(f"train.particles_per_cell = {cfg.particles_per_cell} must be 1, 8, 27 or 64")
-        self.meta, self.cfg = meta, cfg
+        self.cfg = cfg
         sim = meta["sim"]
         self.body = S.humanoid(meta["body"]["height"])
         self.origin = np.asarray(sim["origin"], dtype=np.float64)
@@ -217,14 +236,21 @@ class Rig:
         self.h = h = dx / k
         lo, hi = S.object_box(meta)
         self.Xo, vol_o = S.object_points(meta, h)  # the canonical shape: the same sampler as the generator
-        bones = meta["body"]["simulated_bones"]
+        bones = list(meta["body"]["simulated_bones"])
+        if poses is not None:
+            margin = dx if cfg.reach_margin is None else cfg.reach_margin
+            reach = S.reaching_bones(self.body, *poses, S.object_boxes(meta), margin)
+            bones = [b for b in self.body.skeleton.names if b in bones or b in reach]
+        self.meta = {**meta, "body": {**meta["body"], "simulated_bones": bones}}
         self.Xh = S.capsule_points(self.body, bones, h)
         if len(self.Xh) == 0:
             raise ConfigError(f"no body particles inside {bones} at spacing {h:.3f} m: raise particles_per_cell")
         self.no, self.nh = len(self.Xo), len(self.Xh)
         n = self.no + self.nh
-        # gating mask of Eq. 7: 1 strictly inside the body (at rest), 0 elsewhere (object, surface)
-        self.gate = self.body.inside(torch.as_tensor(self.Xh)).to(torch.float64)
+        # gating mask of Eq. 7 (seed §4.2): 1 strictly inside the body deeper than the surface layer, 0 on the
+        # layer at the body's surface (within ``surface_layer`` of it) and on the object
+        layer = 0.5 * h if cfg.surface_layer is None else cfg.surface_layer
+        self.gate = (self.body.signed_distance(torch.as_tensor(self.Xh)) < -layer).to(torch.float64)
         c = meta["camera"]
         self.cam = Camera(c["fx"], c["fy"], c["cx"], c["cy"], int(c["width"]), int(c["height"]),
                           torch.tensor(c["R"], dtype=torch.float32), torch.tensor(c["t"], dtype=torch.float32))
@@ -243,7 +269,11 @@ class Rig:
             elastic=np.zeros(n), plastic=np.zeros(n), plastic_params=np.zeros((n, 4)),
             body=np.r_[np.zeros(self.no), np.ones(self.nh)], gravity=tuple(sim["gravity"]),
             walls=sim.get("walls", {}))
-        self.kp, self.kd = float(sim["kp"]), float(sim["kd"])
+        self.kp, self.kd = float(cfg.kp), float(cfg.kd)  # the reconstruction's gains (not the generator's)
+        if cfg.pd_hold and 2.0 * self.kd * self.model.frame_dt >= 2.0:
+            raise ConfigError(f"train.kd = {self.kd:g} 1/s: a PD force held over a frame of {self.model.frame_dt:.3g} s "
+                              f"is unstable for omega kd dt >= 2 (omega <= 2); lower kd below "
+                              f"{1.0 / self.model.frame_dt:.3g} 1/s or set pd_hold = false")
         self.nu = torch.full((n,), nu, dtype=torch.float64)
         self.E_human = torch.full((self.nh,), float(meta["body"]["E"]), dtype=torch.float64)
         # lattice neighbours of the object (rigidity term, least-squares F)
@@ -345,6 +375,7 @@ def render_scene(rig: Rig, app: Appearance, x_obj, F_obj, x_hum, F_hum, x_kin, A
 
 
 def image_loss(res, rgb_gt: torch.Tensor, mask_gt: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:
+    """Weighted L1 loss of a render against the images and masks (``lambda_rgb``, ``lambda_mask``)."""
     return cfg.lambda_rgb * (res.rgb - rgb_gt).abs().mean() + cfg.lambda_mask * (res.alpha - mask_gt).abs().mean()
 
 
@@ -359,6 +390,8 @@ class Physics:
     nets: object = None
     l_e: torch.Tensor | None = None
     nu_logit: torch.Tensor | None = None
+    log_E_human: torch.Tensor | None = None  # (Nh,) log Pa, learned when cfg.learn_human_E
+    l_p: torch.Tensor | None = None
 
     @classmethod
     def init(cls, rig: Rig) -> Physics:
@@ -367,28 +400,39 @@ class Physics:
         le = torch.full((n_e,), math.log(cfg.E_init), dtype=torch.float64)
         w = cfg.omega_init / 2
         ol = torch.full((rig.nh,), math.log(w / (1 - w)), dtype=torch.float64)
-        nets = l_e = None
+        nets = l_e = l_p = None
         if cfg.residual:
             from physar.mpm.neural import NeuralResidual
 
             torch.manual_seed(cfg.seed)
-            nets = NeuralResidual(elastic=True, plastic=False, latent_dim=cfg.latent_dim)
+            nets = NeuralResidual(elastic=True, plastic=cfg.residual_plastic, latent_dim=cfg.latent_dim)
             if cfg.latents:  # small random latents break the symmetry between particles
                 g = torch.Generator().manual_seed(cfg.seed)
                 l_e = 0.1 * torch.randn(rig.no + rig.nh, cfg.latent_dim, dtype=torch.float64, generator=g)
+                if cfg.residual_plastic:
+                    l_p = 0.1 * torch.randn(rig.no + rig.nh, cfg.latent_dim, dtype=torch.float64, generator=g)
         nl = None
         if cfg.learn_nu:  # nu = nu_min + (nu_max - nu_min) sigmoid(z) on the same material grid as log E
             nu0 = rig.meta["object"]["nu"] if cfg.nu_init is None else cfg.nu_init
             s = (min(max(nu0, cfg.nu_min), cfg.nu_max) - cfg.nu_min) / (cfg.nu_max - cfg.nu_min)
             s = min(max(s, 1e-3), 1 - 1e-3)
             nl = torch.full((n_e,), math.log(s / (1 - s)), dtype=torch.float64)
-        return cls(le, ol, nets, l_e, nl)
+        leh = rig.E_human.log().clone() if cfg.learn_human_E else None
+        return cls(le, ol, nets, l_e, nl, leh, l_p)
+
+    def material_leaves(self) -> list:
+        """log E, the omega logits, the nu logits and log E of the body (the physics_lr group)."""
+        return [t for t in (self.log_E, self.omega_logit, self.nu_logit, self.log_E_human) if t is not None]
 
     def leaves(self):
-        out = [self.log_E, self.omega_logit] + ([self.nu_logit] if self.nu_logit is not None else [])
+        out = self.material_leaves()
         if self.nets is not None:
-            out += ([self.l_e] if self.l_e is not None else []) + [*self.nets.parameters()]
+            out += [t for t in (self.l_e, self.l_p) if t is not None] + [*self.nets.parameters()]
         return out
+
+    def E_human(self, rig: Rig) -> torch.Tensor:
+        """Young's modulus of the simulated body particles (Nh,), Pa (learned, or the scene's value)."""
+        return rig.E_human if self.log_E_human is None else torch.exp(self.log_E_human)
 
     def E_object(self, rig: Rig) -> torch.Tensor:
         """Young's modulus of the object particles (No,), Pa: exp of the (interpolated) log E field."""
@@ -407,15 +451,17 @@ class Physics:
         return torch.cat([torch.zeros(rig.no, dtype=torch.float64), rig.gate * 2 * torch.sigmoid(self.omega_logit)])
 
     def params(self, rig: Rig) -> tb.Params:
-        E = torch.cat([self.E_object(rig), rig.E_human])
+        E = torch.cat([self.E_object(rig), self.E_human(rig)])
         nu = torch.cat([self.nu_object(rig), rig.nu[rig.no:]])
-        return tb.Params(E=E, nu=nu, omega=self.omega(rig), l_e=self.l_e, kp=rig.kp, kd=rig.kd)
+        return tb.Params(E=E, nu=nu, omega=self.omega(rig), l_e=self.l_e, l_p=self.l_p, kp=rig.kp, kd=rig.kd,
+                         hold=rig.cfg.pd_hold)
 
 
 def simulate_clip(rig: Rig, phys: Physics, kin: dict, frames: int, grad: bool = True):
     """Differentiable MPM over ``frames`` frames from the rest object and the LBS body of frame 0.
 
-    Yields per frame n = 1 .. frames-1: (x_obj, F_obj, x_hum, F_hum) in world coordinates."""
+    Yields per frame n = 1 .. frames-1: (x_obj, F_obj, x_hum, F_hum) in world coordinates.  Without gradients
+    (inference) the residual outputs are truncated as in seed Eq. 12."""
     o = torch.as_tensor(rig.origin)
     x = torch.cat([torch.as_tensor(rig.Xo), kin["ref"][0]]) - o
     v = torch.cat([torch.zeros(rig.no, 3, dtype=torch.float64), kin["vref"][0]])
@@ -427,7 +473,7 @@ def simulate_clip(rig: Rig, phys: Physics, kin: dict, frames: int, grad: bool = 
             p.x_ref = torch.cat([zeros, kin["ref"][f] - o])
             p.v_ref = torch.cat([zeros, kin["vref"][f]])
             _, (x, v, C, F, Jp) = tb.simulate(rig.model, x, v, p, 1, nets=phys.nets, checkpoint=grad,
-                                              C0=C, F0=F, Jp0=Jp)
+                                              C0=C, F0=F, Jp0=Jp, truncate=not grad)
             xw = x + o
             yield f + 1, xw[:rig.no], F[:rig.no], xw[rig.no:], F[rig.no:]
 
@@ -603,7 +649,7 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
     data_hash = data_fingerprint(ds)
     saved = None if restart else _load_checkpoint(run, cfg, data_hash)  # refused before anything is written
     torch.manual_seed(cfg.seed)
-    rig = Rig(ds.meta, cfg)
+    rig = Rig(ds.meta, cfg, poses=(ds.rotations, ds.root_t))
     kin = rig.kinematics(ds.rotations, ds.root_t)
     if saved is not None:
         st = _state_from(saved, rig)
@@ -705,7 +751,7 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
         leaves = st.phys.leaves()
         for t in leaves:
             t.requires_grad_(True)
-        k = 3 if st.phys.nu_logit is not None else 2
+        k = len(st.phys.material_leaves())
         groups = [{"params": leaves[:k], "lr": cfg.physics_lr}]
         if len(leaves) > k:
             groups.append({"params": leaves[k:], "lr": cfg.net_lr})
@@ -728,17 +774,14 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
                     lf = lf + cfg.lambda_flow * (xo - st.spflow[f]).abs().mean()
                 per.append(float(lf.detach()))
                 total = total + wts[f] * lf / (W - 1)
-            reg = cfg.lambda_omega * torch.linalg.vector_norm(st.phys.omega(rig))
-            if st.phys.nets is not None:
-                reg = reg + cfg.lambda_law * _residual_norm(st.phys, Fo)
-                if st.phys.l_e is not None:
-                    reg = reg + cfg.lambda_feat * torch.linalg.vector_norm(st.phys.l_e)
-            loss = total + reg
+            loss = total + physics_regulariser(st.phys, rig, torch.cat([Fo, Fh]))
             opt.zero_grad()
             loss.backward()
             opt.step()
             with torch.no_grad():
                 st.phys.log_E.clamp_(lo_E, hi_E)
+                if st.phys.log_E_human is not None:
+                    st.phys.log_E_human.clamp_(lo_E, hi_E)
             fl_prev = list(st.frame_loss or [])
             st.frame_loss = per + fl_prev[len(per):]
             st.history["physics"].append(float(loss.detach()))
@@ -765,14 +808,16 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
     return report
 
 
-def _residual_norm(phys: Physics, F_obj: torch.Tensor) -> torch.Tensor:
-    """||E_theta(F, l_e)||_2 of Eq. 11 at the object's last deformation gradients."""
-    from physar.mpm.neural import invariant_features
+def physics_regulariser(phys: Physics, rig: Rig, F: torch.Tensor) -> torch.Tensor:
+    """R of seed Eq. 11 (+ R_feat of App. A) through :func:`physar.mpm.neural.regulariser`, with the weights of
+    the configuration: the residuals evaluated at the deformation gradients F (No + Nh, 3, 3) of the last
+    simulated frame (physar's choice: F also stands for F_trial, which lives inside a substep), omega of all
+    particles."""
+    from physar.mpm.neural import regulariser
 
-    sv = torch.linalg.svdvals(F_obj.detach())  # features only; the residual's weights get the gradient
-    feat = invariant_features(F_obj, sv)
-    out = phys.nets.elastic(feat, None if phys.l_e is None else phys.l_e[:F_obj.shape[0]])
-    return torch.linalg.vector_norm(out)
+    cfg = rig.cfg
+    return regulariser(phys.nets, phys.omega(rig), F=F, l_e=phys.l_e, F_trial=F, l_p=phys.l_p,
+                       lam_law=cfg.lambda_law, lam_omega=cfg.lambda_omega, lam_feat=cfg.lambda_feat)
 
 
 def render_gaussians_canonical(rig: Rig, app: Appearance, kin: dict) -> Gaussians:
@@ -810,12 +855,15 @@ class Reconstruction:
             "E": self.phys.E_object(self.rig).detach().numpy(), "omega": self.phys.omega(self.rig).detach().numpy(),
             "omega_logit": self.phys.omega_logit.detach().numpy(),
             "nu": self.phys.nu_object(self.rig).detach().numpy(),
+            "E_human": self.phys.E_human(self.rig).detach().numpy(),
             "object_rest": self.rig.Xo, "body_rest": self.rig.Xh,
             "loss_physics": np.asarray(st.history["physics"], dtype=np.float64),
         }
         if self.phys.nets is not None:
             if self.phys.l_e is not None:
                 arrays["l_e"] = self.phys.l_e.detach().numpy()
+            if self.phys.l_p is not None:
+                arrays["l_p"] = self.phys.l_p.detach().numpy()
             for k, v in self.phys.nets.state_dict().items():
                 arrays[f"net.{k}"] = v.numpy()
         write_npz(path, **arrays)
@@ -852,6 +900,10 @@ class Reconstruction:
                 phys.nu_logit.copy_(torch.as_tensor(d["nu_logit_param"]))
             if phys.l_e is not None:
                 phys.l_e.copy_(torch.as_tensor(d["l_e"]))
+            if phys.l_p is not None:
+                phys.l_p.copy_(torch.as_tensor(d["l_p"]))
+            if phys.log_E_human is not None:
+                phys.log_E_human.copy_(torch.log(torch.as_tensor(d["E_human"])))
             if phys.nets is not None:
                 phys.nets.load_state_dict({k[4:]: torch.as_tensor(v) for k, v in d.items() if k.startswith("net.")})
         return cls(rig, app, list(torch.as_tensor(d["flow"])), phys, Path(str(d["data_dir"])) or None,

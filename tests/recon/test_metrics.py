@@ -56,9 +56,28 @@ def test_large_deformation_subset():
     assert M.large_deformation_frames(d, range(5)) == [3, 4]
 
 
-def test_lpips_reports_missing_weights_clearly():
+def test_lpips_is_a_distance_or_a_clear_error():
+    """Installed with its backbone weights: d(a, a) = 0 < d(a, b) for different images; otherwise one
+    PhysarError saying LPIPS is unavailable.  Mutants caught: a distance that ignores its inputs, a missing
+    package or missing weights reported as anything but 'LPIPS unavailable'."""
+    rng = np.random.default_rng(0)
+    a = rng.random((64, 64, 3))
+    b = np.clip(a + 0.3 * rng.standard_normal(a.shape), 0, 1)
     try:
-        import lpips  # noqa: F401
-    except ImportError:
-        with pytest.raises(PhysarError, match="LPIPS unavailable"):
-            M.lpips(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)))
+        d = M.lpips_model()
+    except PhysarError as exc:
+        assert "LPIPS unavailable" in str(exc)
+        return
+    assert d(a, a) == pytest.approx(0.0, abs=1e-6)
+    assert d(a, b) > 0.01
+
+
+def test_sequence_metrics_average_the_given_distance_over_the_frames():
+    """The LPIPS slot of sequence_metrics is the mean of the distance over the listed frames only (a distance
+    written by hand: mean |a - b|).  Mutants caught: all frames averaged, the distance not called."""
+    rgb = np.stack([np.full((4, 4, 3), v) for v in (0.0, 0.2, 0.5, 0.9)])
+    gt = np.zeros_like(rgb)
+    alpha = np.ones((4, 4, 4))
+    out = M.sequence_metrics(rgb, alpha, gt, alpha, [1, 3], lpips_fn=lambda a, b: float(np.abs(a - b).mean()))
+    assert out["lpips"] == pytest.approx((0.2 + 0.9) / 2) and out["frames"] == 2
+    assert out["psnr"] == pytest.approx(np.mean([10 * np.log10(1 / 0.2**2), 10 * np.log10(1 / 0.9**2)]))

@@ -26,7 +26,7 @@ def test_initial_nu_is_the_scene_value_and_stays_in_bounds(tiny_scene):
     # user's initial guess outside the bounds is clipped; not learning nu keeps the scene's value
     _, rig2 = _rig(tiny_scene, nu_init=0.45)
     assert np.allclose(Physics.init(rig2).nu_object(rig2).numpy(), 0.4, atol=1e-3)
-    _, rig3 = _rig(tiny_scene, learn_nu=False)
+    _, rig3 = _rig(tiny_scene, learn_nu=False, learn_human_E=False)
     ph3 = Physics.init(rig3)
     assert ph3.nu_logit is None and len(ph3.leaves()) == 2
     assert np.all(ph3.params(rig3).nu.numpy() == ds.meta["object"]["nu"])

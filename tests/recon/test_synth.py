@@ -92,14 +92,20 @@ def test_object_points_match_box_union_volume(name):
     assert np.array_equal(Rig(meta, TrainConfig()).Xo, X)
 
 
-def test_single_box_scenes_keep_the_old_sampling():
-    meta = Y.scene_meta(SynthConfig())
-    old = {k: v for k, v in meta["object"].items() if k != "boxes"}  # a scene.json written before the unions
-    lo, hi = S.object_box({"object": old})
+def test_single_box_scenes_sample_the_cell_centred_lattice():
+    """A scene.json written before the unions (object.min/max only) samples its box at the cell centres
+    lo + (i + 1/2) (hi - lo) / k, k = round((hi - lo) / h) per axis, cell volume prod((hi - lo) / k) (written
+    out here, not through the sampler).  Mutants caught: node-centred points, k rounded down, a wrong volume."""
+    lo, hi = np.array([0.1, -0.2, 0.0]), np.array([0.36, -0.04, 0.1])  # (hi - lo) / h not integers
+    old = {"min": lo.tolist(), "max": hi.tolist()}
     for h in (0.03, 0.015):
         X, vol = S.object_points({"object": old}, h)
-        X2, vol2 = S.lattice_box(lo, hi, h)
-        assert np.array_equal(X, X2) and vol == vol2
+        k = np.round((hi - lo) / h).astype(int)
+        step = (hi - lo) / k
+        assert vol == pytest.approx(np.prod(step), rel=1e-12) and len(X) == np.prod(k)
+        idx = (X - lo) / step - 0.5  # integer cell indices 0..k-1
+        assert np.allclose(idx, np.round(idx), atol=1e-9)
+        assert np.array_equal(np.round(idx).min(0), [0, 0, 0]) and np.array_equal(np.round(idx).max(0), k - 1)
 
 
 # ------------------------------------------------------------------------------------------- generated scenes
