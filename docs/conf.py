@@ -71,7 +71,6 @@ nb_output_stderr = "remove"  # progress logs are not part of a page; an exceptio
 autosummary_generate = False  # the pages list every name themselves (physar_api)
 autodoc_member_order = "bysource"
 autodoc_typehints = "signature"
-autodoc_default_options = {"show-inheritance": False}
 napoleon_google_docstring = True
 napoleon_numpy_docstring = False  # no docstring has NumPy sections; its parser would read "----" rules
 add_module_names = False

@@ -231,3 +231,75 @@ def test_make_docs_quick_build_and_screenshots():
     shots = shot.take_all(html)
     for path in shots.values():
         assert path.stat().st_size > 20_000, path  # a rendered page, not a blank one
+
+
+# --- the gallery pipeline on tiny examples (needs myst-nb and a Jupyter kernel) ----------------------------
+
+_EXAMPLE = '''"""A tiny example: one figure.
+
+Writes ``tiny.png``.
+"""
+
+# %%
+import os
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+
+OUT = Path(os.environ.get("PHYSAR_EXAMPLE_OUT", "example_out"))
+QUICK = os.environ.get("PHYSAR_EXAMPLE_QUICK") == "1"
+
+# %% [markdown]
+# ## A figure
+# Saved to a file and closed, as the examples do; |p - c(p)| stays text.
+
+# %%
+fig, ax = plt.subplots()
+ax.plot([0, 1], [0, 1])
+fig.savefig(OUT / "tiny.png")
+plt.close(fig)
+print("quick", QUICK)
+{extra}
+'''
+
+
+def _gallery_build(tmp_path: Path, extra: str):
+    """Build a site whose gallery is one tiny example, with docs/conf.py's settings; (status, html dir)."""
+    from sphinx.application import Sphinx
+
+    src = tmp_path / "src"
+    (tmp_path / "examples").mkdir()
+    (tmp_path / "examples" / "tiny.py").write_text(_EXAMPLE.format(extra=extra))
+    src.mkdir()
+    (src / "conf.py").write_text(f"exec(compile(open({str(DOCS / 'conf.py')!r}).read(), 'conf.py', 'exec'))\n"
+                                 "extensions = ['myst_nb', 'physar_gallery']\nhtml_static_path = []\n")
+    (src / "index.md").write_text("# t\n\n```{toctree}\n_generated/gallery/index\n```\n")
+    app = Sphinx(str(src), str(src), str(src / "_build" / "html"), str(tmp_path / "doctrees"), "html",
+                 status=None, warning=None, warningiserror=True, keep_going=True, freshenv=True)
+    try:
+        app.build()
+    except Exception as exc:  # myst-nb raises on a failing cell (nb_execution_raise_on_error)
+        return exc, src / "_build" / "html"
+    return app.statuscode, src / "_build" / "html"
+
+
+def test_gallery_shows_the_figure_an_example_saves(tmp_path):
+    """An example run as the site runs it (quick mode, its own output folder): its Markdown cells are pages
+    text, the figure it saved and closed is on the page. Mutant caught: figures not collected after a cell,
+    the quick flag not set, Markdown read as reStructuredText."""
+    pytest.importorskip("myst_nb", reason="the docs extra is not installed (make docs installs it)")
+    status, html = _gallery_build(tmp_path, "")
+    assert status == 0
+    page = (html / "_generated" / "gallery" / "tiny.html").read_text()
+    assert "<h1>A tiny example: one figure" in page and "<h2>A figure" in page
+    assert "|p - c(p)| stays text" in page
+    assert re.search(r'<img[^>]+src="[^"]+\.png"', page)
+    assert "quick True" in page
+
+
+@pytest.mark.slow  # a second kernel and build: keeps the fast tests under 30 s
+def test_a_failing_example_fails_the_build(tmp_path):
+    """Mutant caught: nb_execution_raise_on_error off (the page would show a traceback and the build pass)."""
+    pytest.importorskip("myst_nb", reason="the docs extra is not installed (make docs installs it)")
+    status, _ = _gallery_build(tmp_path, "raise RuntimeError('example broke')")
+    assert status != 0

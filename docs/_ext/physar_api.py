@@ -121,7 +121,8 @@ def api_page(package: str) -> str:
     modules = [n for n in names if isinstance(resolve(package, n), types.ModuleType)]
     objects = [n for n in names if n not in modules]
     if objects:
-        rst += [".. autosummary::", "   :nosignatures:", "", *(f"   {n}" for n in objects), ""]
+        listed = [n for n in objects if not _is_data(resolve(package, n))]  # a constant's docstring is its type's
+        rst += [".. autosummary::", "   :nosignatures:", "", *(f"   {n}" for n in listed), ""]
         for name in objects:
             rst += _entry(package, name, resolve(package, name))
     for name in modules:

@@ -77,8 +77,10 @@ def load_class(path: str) -> type[BaseModel]:
 
 
 def escape(text: str) -> str:
-    """Plain text made literal in MyST Markdown (a backslash before every markup character)."""
-    return _SPECIAL.sub(r"\\\1", " ".join(text.split()))
+    """Plain text made literal in MyST Markdown (a backslash before every markup character); `code` spans,
+    which the schemas' descriptions use for commands and keys, stay code."""
+    parts = re.split(r"(`[^`|]+`)", " ".join(text.split()))
+    return "".join(p if i % 2 else _SPECIAL.sub(r"\\\1", p) for i, p in enumerate(parts))
 
 
 def _model_in(annotation) -> tuple[type[BaseModel] | None, bool]:
