@@ -53,6 +53,7 @@ AMG_MIN_DOFS = 150_000
 
 
 def has_cholmod() -> bool:
+    """Whether the CHOLMOD sparse Cholesky solver (scikit-sparse) is available; else scipy's SuperLU."""
     return _cholmod is not None
 
 
