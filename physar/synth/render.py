@@ -1,24 +1,34 @@
 """A synthetic video of ANY AR project: its object deformed by a finer finite-element model, textured, lit and
-filmed by a handheld camera, with the project's markers and dots, a cluttered wall behind, sensor noise and
-occluders. Test data for the product pipeline, never part of it (it knows the truth).
+filmed by a handheld camera, with the project's markers, dots, plane image and levers, a cluttered wall behind,
+sensor noise and occluders. Test data for the product pipeline, never part of it (it knows the truth).
 
 Each frame (scenario time t):
 
 1. parameters p(t) from the scenario's schedule, displacement u = u_fine(p(t)) of :class:`FineTruth` (a mesh
-   ``refine`` times finer than the reduced model's: no inverse crime);
-2. the fine mesh's boundary triangles at X + u and the markers (rigid squares with a white quiet zone, placed as
-   the project declares them; a depth bias in the z-test keeps them above the face they are on), projected with the camera's lens model;
-3. a z-buffer rasteriser (:func:`rasterize`) gives per pixel the nearest front-facing triangle and its
-   perspective-correct barycentric coordinates b, so every surface pixel knows its REFERENCE point
-   X = Σ b_i X_i: the texture (tri-planar procedural noise), the dots (coverage
-   clip(0.5 + (r - |X - d|) / m, 0, 1), m = the triangle's metres per pixel: anti-aliased, sub-pixel exact)
-   and the marker images are functions of X, so they deform with the object;
+   ``refine`` times finer than the reduced model's: no inverse crime); u = 0 before ``[schedule] rest_until``;
+   a virtual object (``[model] visible = false``) is not drawn and has no FineTruth;
+2. one z-buffer (:func:`rasterize`) of: the fine mesh's boundary triangles at X + u; the markers (rigid
+   squares with a white quiet zone, as the project declares them; a depth bias keeps them above their face;
+   only before ``[schedule] markers_until``); the ``[registration.plane]`` image on its rectangle (a grid
+   whose UV puts image pixel j's centre at (j + 1/2) / px_per_m from the origin along u, v); each ``[[bar]]``
+   as a white box (the pivot = axis point + face axis, along zero turned by its rotation parameter, the
+   thickness behind its visible face); a ``[load_body]`` cylinder on the deformed surface at the load point;
+   all projected with the camera's lens model;
+3. per pixel the nearest front-facing triangle and its perspective-correct barycentric coordinates b, so
+   every surface pixel knows its REFERENCE point X = Σ b_i X_i: the texture (tri-planar procedural noise,
+   optional dark pores), the dots (coverage clip(0.5 + (r - |X - d|) / m, 0, 1), m = the triangle's metres per
+   pixel: anti-aliased, sub-pixel exact) and the marker images are functions of X, so they deform with the
+   object;
 4. Lambert shading I = albedo (a + (1 - a) max(0, n·l)) with n interpolated from the deformed vertex normals,
-   global brightness with flicker, vignetting, a Gaussian PSF, read and shot noise.
+   global brightness with flicker, vignetting, motion blur along the target's image motion, a Gaussian PSF,
+   read and shot noise.
 
-The wall is a textured plane behind the object, drawn by a homography. Outputs (:func:`render_project`):
-``video.mp4`` (H.264), ``truth.csv`` (per frame: time, every parameter's true value, camera pose, occluders),
-``scenario.json`` (the scenario with every default resolved) and ``camera.toml``.
+The wall is a textured plane (the project's plane when it has no image: the pipeline learns its texture; else
+perpendicular to the mean line of sight behind the target), drawn by intersecting every pixel's ray (lens
+distortion included) with it. The camera orbits and shakes, and turns away and back in ``[[camera.pan]]``
+events. Outputs (:func:`render_project`): ``video.mp4`` (H.264), ``truth.csv`` (per frame: time, every
+parameter's true value, camera pose, occluders, at_rest, markers drawn, pan yaw), ``scenario.json`` (the scenario
+with every default resolved) and ``camera.toml``.
 """
 from __future__ import annotations
 

@@ -186,7 +186,9 @@ def test_virtual_object_not_drawn_and_clip_written(lever, lever_visible, tmp_pat
         assert c in cols
     np.testing.assert_allclose(cols["theta_true"], Resolved(sc, lever).schedule["theta"].value(cols["time_s"]),
                                atol=1e-6)
-    a, _ = ProjectRenderer(lever, sc).render(4)
+    ra = ProjectRenderer(lever, sc)
+    assert ra.truth is None
+    a, _ = ra.render(4)
     rv = ProjectRenderer(lever_visible, sc)
     b, row = rv.render(4)
     diff = np.abs(a.astype(int) - b.astype(int)).max(2) > 30
