@@ -31,11 +31,11 @@ sys.path.insert(0, str(HERE / "_ext"))
 (HERE / "_build" / "gallery_extra").mkdir(parents=True, exist_ok=True)  # videos of the gallery (html_extra_path)
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-import physar  # noqa: E402
+import physar
 
 project = "physar"
 author = "the physar developers"
-copyright = "physar developers, MIT licence"  # noqa: A001 - Sphinx's name
+copyright = "physar developers, MIT licence"
 release = version = physar.__version__
 
 extensions = [
@@ -79,13 +79,13 @@ add_module_names = False
 # offline build cannot link (no intersphinx inventories are fetched).
 nitpicky = True
 nitpick_ignore_regex = [
-    (r"py:.*", r"(np|numpy|scipy|sp|torch|wp|warp|cv2|av|meshio|h5py|matplotlib|plt|pydantic|dask|distributed"
+    (r"py:.*", (r"(np|numpy|scipy|sp|torch|wp|warp|cv2|av|meshio|h5py|matplotlib|plt|pydantic|dask|distributed"
                r"|typing|collections|pathlib|os|io|dataclasses|concurrent|threading|enum|skfem|trimesh|PIL|annotated_types"
-               r"|types)(\..*)?"),
+               r"|types)(\..*)?")),
     (r"py:class", r"[-+]?[0-9.]+(e[-+]?[0-9]+)?"),  # values inside Literal[...] and Annotated[...] hints
-    (r"py:class", r"(Path|Callable|Iterator|Iterable|Sequence|Mapping|Any|Literal|Self|ndarray|NDArray|ArrayLike"
+    (r"py:class", (r"(Path|Callable|Iterator|Iterable|Sequence|Mapping|Any|Literal|Self|ndarray|NDArray|ArrayLike"
                   r"|Tensor|array|optional|callable|float|int|str|bool|dict|list|tuple|None|object|type"
-                  r"|function|np\.ndarray)"),
+                  r"|function|np\.ndarray)")),
 ]
 
 # --- HTML ---------------------------------------------------------------------------------------------

@@ -3,104 +3,24 @@
 The public API of physar is what each package lists in ``__all__`` (ARCHITECTURE.md: the rest is private).
 :func:`api_page` writes one page per package: its docstring, a summary table and an autodoc entry per name.
 Where ``__all__`` lists submodules (``physar.ar``, ``physar.recon``: their names are not imported by the
-package itself), the page documents each submodule's public members. :func:`missing_docstrings` returns
-the public names without a docstring; the build reports each one as a warning, so ``-W`` fails on it.
+package itself), the page documents each submodule's public members. The public names without a docstring
+(:func:`physar_public.missing_docstrings`) are reported as warnings, so ``-W`` fails on them.
 """
 
 from __future__ import annotations
 
 import importlib
 import inspect
-import pkgutil
 import re
 import sys
 import types
 from pathlib import Path
 
-from sphinx.pycode import ModuleAnalyzer
+from physar_formats import write_if_changed
+from physar_public import PACKAGES, _is_data, data_doc, missing_docstrings, public_names, resolve
 from sphinx.util import logging
 
-from physar_formats import write_if_changed
-
-PACKAGES = ("physar", "physar.geometry", "physar.fem", "physar.integrators", "physar.rom", "physar.assimilation",
-            "physar.vision", "physar.ar", "physar.synth", "physar.mpm", "physar.skinning", "physar.gaussians",
-            "physar.recon")
-
 logger = logging.getLogger(__name__)
-
-
-def public_names(package: str) -> list[str]:
-    """The ``__all__`` of a package (an error if it has none: every package states its public API)."""
-    module = importlib.import_module(package)
-    if not hasattr(module, "__all__"):
-        raise AttributeError(f"{package} has no __all__")
-    return list(module.__all__)
-
-
-def resolve(package: str, name: str):
-    """A public name of a package: its attribute, or the submodule of that name (imported on use)."""
-    pkg = importlib.import_module(package)
-    try:
-        return getattr(pkg, name)
-    except AttributeError:
-        return importlib.import_module(f"{package}.{name}")
-
-
-def _members(module: types.ModuleType) -> list[str]:
-    """Public names defined in a module that has no ``__all__`` (what autodoc's ``:members:`` shows)."""
-    names = getattr(module, "__all__", None)
-    if names is not None:
-        return list(names)
-    return [n for n, obj in vars(module).items() if not n.startswith("_")
-            and (inspect.isclass(obj) or inspect.isfunction(obj)) and obj.__module__ == module.__name__]
-
-
-def data_doc(package: str, name: str) -> str | None:
-    """The ``#:`` comment (or string after the assignment) documenting a constant of ``package``, looked up in
-    the submodule that defines it."""
-    pkg = importlib.import_module(package)
-    value = getattr(pkg, name)
-    candidates = [package] + [f"{package}.{m.name}" for m in pkgutil.iter_modules(getattr(pkg, "__path__", []))]
-    for modname in candidates:
-        try:
-            module = importlib.import_module(modname)
-        except ImportError:
-            continue
-        if getattr(module, name, object()) is not value:
-            continue
-        docs = ModuleAnalyzer.for_module(modname).find_attr_docs()
-        if ("", name) in docs:
-            return " ".join(" ".join(docs[("", name)]).split())
-    return None
-
-
-def _own_doc(obj) -> str | None:
-    if inspect.isclass(obj):
-        return obj.__dict__.get("__doc__")
-    return getattr(obj, "__doc__", None)
-
-
-def _is_data(obj) -> bool:
-    return not (inspect.isclass(obj) or inspect.isroutine(obj) or isinstance(obj, types.ModuleType) or callable(obj))
-
-
-def missing_docstrings(packages=PACKAGES) -> list[str]:
-    """Dotted names of the public API with no docstring (a constant: no ``#:`` comment where it is defined)."""
-    missing = []
-    for package in packages:
-        for name in public_names(package):
-            obj = resolve(package, name)
-            if isinstance(obj, types.ModuleType):
-                if not (obj.__doc__ or "").strip():
-                    missing.append(obj.__name__)
-                missing += [f"{obj.__name__}.{n}" for n in _members(obj)
-                            if not (_own_doc(getattr(obj, n)) or "").strip()]
-            elif _is_data(obj):
-                if name != "__version__" and not data_doc(package, name):
-                    missing.append(f"{package}.{name}")
-            elif not (_own_doc(obj) or "").strip():
-                missing.append(f"{package}.{name}")
-    return missing
 
 
 def _entry(package: str, name: str, obj) -> list[str]:
@@ -135,8 +55,8 @@ def api_page(package: str) -> str:
 def index_page(packages=PACKAGES) -> str:
     """The API index: one line per package, its docstring's first line."""
     lines = ["# API reference", "",
-             "The public API of each package is its `__all__`, documented here from the docstrings; anything "
-             "else is private and may change. Equations cite the seed papers' sections.", "",
+             ("The public API of each package is its `__all__`, documented here from the docstrings; anything "
+             "else is private and may change. Equations cite the seed papers' sections."), "",
              "| package | |", "|---|---|"]
     for package in packages:
         doc = (importlib.import_module(package).__doc__ or "").strip().split("\n\n")[0]

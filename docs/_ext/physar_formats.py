@@ -20,7 +20,6 @@ from pathlib import Path
 
 import annotated_types as at
 from pydantic import BaseModel
-from pydantic_core import PydanticUndefined
 
 
 @dataclass(frozen=True)
@@ -211,9 +210,9 @@ def format_page(fmt: Format, repo: Path | None = None) -> str:
     if fmt.intro:
         lines += [fmt.intro, ""]
     classes = ", ".join(f"`{path}`" for _, path in fmt.roots)
-    lines += [f"Generated from the schema {classes} at build time: the tables below are the validator's "
+    lines += [(f"Generated from the schema {classes} at build time: the tables below are the validator's "
               "fields. A key that is not listed is an error, and so is a value of the wrong type. A string "
-              "is never read as a number.", ""]
+              "is never read as a number."), ""]
     many_of: dict[str, bool] = {}
     for root, path in fmt.roots:
         for table, model, many, required in tables(root, load_class(path)):
@@ -258,9 +257,9 @@ def write_if_changed(path: Path, text: str) -> None:
 def index_page(formats=FORMATS) -> str:
     """The index of the format pages."""
     lines = ["# File formats", "",
-             "Every file physar reads is TOML validated by a pydantic schema; these pages are generated from "
+             ("Every file physar reads is TOML validated by a pydantic schema; these pages are generated from "
              "those schemas when the documentation is built. Units are SI unless a key's name or description "
-             "says otherwise.", "", "| file | read by |", "|---|---|"]
+             "says otherwise."), "", "| file | read by |", "|---|---|"]
     lines += [f"| [{f.title}]({f.name}.md) | `{f.command.replace('|', chr(92) + '|')}` |" for f in formats]
     lines += ["", "```{toctree}", ":hidden:", "", *(f.name for f in formats), "```", ""]
     return "\n".join(lines)

@@ -22,7 +22,6 @@ from pathlib import Path
 
 import jupytext
 import nbformat
-
 from physar_formats import write_if_changed
 
 GALLERY = "gallery"  # folder under _generated/ and under the HTML output
