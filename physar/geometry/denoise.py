@@ -475,16 +475,18 @@ def bilateral_normal_filter(
 
 
 def guided_denoise(
-    mesh: TriMesh, iterations: int | None = None, sigma_r: float | None = None, progress: Progress = None,
+    mesh: TriMesh, iterations: int | None = None, sigma_r: float = 0.35, discrepancy: float = 0.97,
+    progress: Progress = None,
 ) -> TriMesh:
-    """Guided normal filter + feature-weighted Taubin + vertex update, parameters from the mesh's own noise
-    level (:mod:`physar.geometry.normal_filter`); `iterations` = normal-filter iterations (default: auto)."""
+    """Bilateral normal filter + feature-weighted Taubin + vertex update (:mod:`physar.geometry.normal_filter`);
+    `iterations` = normal-filter iterations, by default chosen by the discrepancy principle from the mesh's
+    own noise estimate."""
     from physar.geometry.normal_filter import NormalFilterSettings, normal_filter_denoise
 
     if iterations is not None:
         _check_iter(iterations)
-    return normal_filter_denoise(mesh, NormalFilterSettings(sigma_r=sigma_r, normal_iterations=iterations),
-                                 progress=progress)
+    return normal_filter_denoise(mesh, NormalFilterSettings(sigma_r=sigma_r, normal_iterations=iterations,
+                                                            discrepancy=discrepancy), progress=progress)
 
 
 METHODS = {

@@ -1,32 +1,31 @@
-"""Two-stage feature-aware denoising: guided filtering of face normals, a feature-weighted Taubin
-smoothing of the positions (normal and tangential), then a vertex update that fits the filtered normals.
+"""Two-stage feature-aware denoising: bilateral filtering of face normals, a feature-weighted Taubin
+smoothing of the positions (normal and tangential), then a vertex update that fits the filtered normals; the
+amount of normal filtering is chosen by the discrepancy principle from the mesh's own noise estimate.
 
 Why a method beside AL/MSAL (seed 001 §3.2.1): AL moves a vertex only along its normal, so the tangential
 part of random-direction noise (the literature's protocol, :func:`physar.geometry.quality.add_noise`)
 stays and sharp edges stay jagged (issue 20 measurements: 1.4-1.8x a tuned Taubin or normal filter).
 
-Stage 1, joint bilateral filter of face normals (Zheng et al., IEEE TVCG 2011; guidance after Zhang et al.,
-"Guided mesh normal filtering", Pacific Graphics 2015), per face i over the faces j sharing a vertex with i::
+Stage 1, bilateral filter of face normals (Zheng, Fu, Au & Tai, IEEE TVCG 2011), per face i over the faces
+j sharing a vertex with i::
 
     n_i <- normalize( Σ_j A_j W_s(|c_i - c_j|) W_r(|g_i - g_j|) n_j ),
     W_s(x) = exp(-x² / 2σ_s²),   W_r(x) = exp(-x² / 2σ_r²)
 
-A_j face area, c_j centroid, σ_s = mean centroid distance of neighbouring faces. The range kernel compares
-*guidance* normals g: g_i is the area-weighted mean normal m_j of the most consistent patch containing face
-i (patch P_j = faces sharing a vertex with face j, j a neighbour of i, with the smallest H_j = max_{k∈P_j}
-|n_k - m_j|). A patch across a sharp edge is inconsistent, so faces next to an edge take their guidance
-from their own side and the edge is not blurred. The guidance is recomputed in every iteration.
+A_j face area, c_j centroid, σ_s = mean centroid distance of neighbouring faces, σ_r = 0.35, g = n (or, with
+``guided=True``, the mean normal of the most consistent neighbouring patch, after Zhang et al., "Guided mesh
+normal filtering", 2015: H_j = max_{k∈P_j} |n_k - m_j|; it measured worse here, so it is off by default).
 
 Stage 2, feature-weighted Taubin λ|μ smoothing (Taubin, SIGGRAPH 1995; λ = 0.5, μ = -0.53) of the positions,
-with edge weights from the filtered vertex normals ν_i (area-weighted averages of stage-1 normals)::
+with edge weights from the filtered vertex normals ν_i (area-weighted averages of the stage-1 normals)::
 
     x <- x + λ L x,  x <- x + μ L x,   (L x)_i = Σ_j w_ij (x_j - x_i) / Σ_j w_ij,
-    w_ij = exp(-|ν_i - ν_j|² / 2σ_w²)
+    w_ij = exp(-|ν_i - ν_j|² / 2σ_w²),  σ_w = 0.4
 
-It moves vertices tangentially too (it regularises the sampling the noise disturbed), and across a sharp
-edge the weights vanish, so the two sides are smoothed separately.
+It moves vertices tangentially too (it regularises the sampling the noise disturbed, which AL cannot), and
+across a sharp edge the weights vanish, so the two sides are smoothed separately.
 
-Stage 3, vertex update (Sun, Rosin, Martin & Langbein, IEEE TVCG 2007), ``vertex_iterations`` times::
+Stage 3, vertex update (Sun, Rosin, Martin & Langbein, IEEE TVCG 2007), 10 times::
 
     x_i <- x_i + (1/|F_i|) Σ_{f∋i} n_f n_fᵀ (c_f - x_i)
 
@@ -35,11 +34,15 @@ become flat and a vertex on an edge is pulled onto the intersection of the plane
 global offset along the vertex normals restores the enclosed volume of the input, δ = (V(q̂) - V(q)) / A(q),
 as in :func:`physar.geometry.denoise.al_iterate`.
 
-Scale-aware defaults (a user has no clean mesh to tune against): the noise is measured on the input with
-the seed's robust scale (:func:`physar.geometry.denoise.noise_scales`), ν = σ_e / ē with ē the mean edge
-length, and the number of normal-filter iterations grows with ν (:func:`auto_parameters`, where the
-constants come from). Everything is vectorised (scipy.sparse, np.bincount). Units: positions in metres;
-σ_r, σ_w dimensionless (distances between unit vectors).
+Automatic amount of filtering (a user has no clean mesh to tune against): Morozov's discrepancy principle,
+the classical parameter rule for the regularised inverse problem of seed 001 eq. (3.1): filter no further
+than the data's own noise. The normal component of i.i.d. vertex noise has a std σ_n that the seed's robust
+height scale measures, σ_e = 1.4826 median |h_ij - med_k h_ik| ≈ 0.63 σ_n (:data:`MAD_RATIO`, measured on
+planes and tori, not on the benchmark meshes). Stages 1-3 are evaluated at increasing stage-1 iteration
+counts k (:data:`CHECKPOINTS`), and the first k whose residual rms_i((q̂_i - x_i)·n_i) reaches
+``discrepancy`` · σ_e / 0.63 is kept (0.97 by default; at most ``max_normal_iterations``): fewer
+iterations leave noise, more remove shape. Everything is vectorised (scipy.sparse, np.bincount).
+Units: positions in metres; σ_r, σ_w dimensionless (distances between unit vectors).
 """
 
 from __future__ import annotations
@@ -55,44 +58,31 @@ from physar.geometry.mesh import TriMesh
 
 @dataclass(frozen=True)
 class NormalFilterSettings:
-    """Parameters of :func:`normal_filter_denoise`; ``None`` means the automatic, scale-aware choice."""
+    """Parameters of :func:`normal_filter_denoise` (module doc)."""
 
-    sigma_r: float | None = None  # stage 1: range kernel width on guidance normals (dimensionless)
-    normal_iterations: int | None = None  # stage 1 iterations
-    guided: bool = True  # False: plain bilateral normal filter (range kernel on the normals themselves)
-    smooth_iterations: int | None = None  # stage 2: feature-weighted Taubin λ|μ pairs
-    sigma_w: float | None = None  # stage 2: width of the feature weights on filtered vertex normals
-    vertex_iterations: int | None = None  # stage 3 iterations
+    sigma_r: float = 0.35  # stage 1: range kernel width (Zheng et al.'s default)
+    normal_iterations: int | None = None  # stage 1 iterations; None: discrepancy principle
+    guided: bool = False  # True: range kernel on guidance normals (Zhang et al. 2015)
+    smooth_iterations: int = 10  # stage 2: feature-weighted Taubin λ|μ pairs
+    sigma_w: float = 0.4  # stage 2: width of the feature weights on filtered vertex normals
+    vertex_iterations: int = 10  # stage 3 iterations
+    discrepancy: float = 0.97  # target residual / estimated noise std (normal component)
+    max_normal_iterations: int = 100
     preserve_volume: bool = True
 
 
-def noise_level(mesh: TriMesh) -> float:
-    """ν = σ_e / ē: the seed's robust noise scale of the input relative to its mean edge length."""
+# σ_e / σ_n for i.i.d. vertex noise (module doc); benchmarks/bench_denoise.py --calibrate measures it.
+MAD_RATIO = 0.63
+CHECKPOINTS = (1, 2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 25, 30, 40, 50, 65, 80, 100)
+
+
+def noise_scale(mesh: TriMesh) -> float:
+    """σ_e (m): the seed's robust scale of the one-ring heights of `mesh` (:func:`denoise.noise_scales`)."""
     from physar.geometry.denoise import SurfaceOps, scales_of
-    from physar.geometry.quality import mean_edge_length
 
     ops = SurfaceOps.from_mesh(mesh)
     n, _, _ = ops.geometry((mesh.points - mesh.points.mean(axis=0)).astype(np.float32))
-    sig_e, _ = scales_of(mesh.points, n.astype(np.float64), ops.edges)
-    return sig_e / mean_edge_length(mesh)
-
-
-SIGMA_R = 0.45
-SIGMA_W = 0.4
-SMOOTH_ITERATIONS = 40
-VERTEX_ITERATIONS = 10
-
-
-def auto_parameters(nu: float) -> dict:
-    """Settings for the measured noise level ν = σ_e / ē (the keys of :class:`NormalFilterSettings`).
-
-    Normal-filter iterations = clip(round(45 ν), 1, 12): 4 at ν ≈ 0.1 (random-direction noise of 0.3 ē),
-    3 at 0.2 ē, 1-2 at 0.1 ē. The constants were chosen once on development meshes (a noisy torus, the
-    pymeshlab bunny and a gmsh CAD part at 0.3 ē; benchmarks/RESULTS.md, issue 20) and are fixed for every
-    mesh; σ_r = 0.45 and σ_w = 0.4 are in the range of Zheng et al. and Zhang et al. (0.3-0.6).
-    """
-    return {"sigma_r": SIGMA_R, "normal_iterations": int(np.clip(np.round(45.0 * nu), 1, 12)),
-            "smooth_iterations": SMOOTH_ITERATIONS, "sigma_w": SIGMA_W, "vertex_iterations": VERTEX_ITERATIONS}
+    return scales_of(mesh.points, n.astype(np.float64), ops.edges)[0]
 
 
 def _face_graph(mesh: TriMesh) -> sparse.csr_matrix:
@@ -183,49 +173,65 @@ def taubin_weighted(q: np.ndarray, weights: sparse.csr_matrix, iterations: int, 
     return q
 
 
-def resolve(settings: NormalFilterSettings, nu: float) -> dict:
-    """The settings with every unset (None) entry replaced by :func:`auto_parameters` at noise level ν."""
-    auto = auto_parameters(nu)
-    out = {k: (auto[k] if getattr(settings, k) is None else getattr(settings, k)) for k in auto}
-    if not (np.isfinite(out["sigma_r"]) and out["sigma_r"] > 0 and np.isfinite(out["sigma_w"]) and out["sigma_w"] > 0):
-        raise PhysarError(f"sigma_r and sigma_w must be finite numbers > 0, got {out['sigma_r']}, {out['sigma_w']}")
-    for k in ("normal_iterations", "smooth_iterations", "vertex_iterations"):
-        v = out[k]
-        if isinstance(v, bool) or int(v) != v or not 0 <= v <= 100_000:
-            raise PhysarError(f"{k} must be an integer within 0..100000, got {v}")
-        out[k] = int(v)
-    return out
+def _check(st: NormalFilterSettings) -> None:
+    for name in ("sigma_r", "sigma_w", "discrepancy"):
+        v = getattr(st, name)
+        if not (np.isfinite(v) and v > 0):
+            raise PhysarError(f"{name} must be a finite number > 0, got {v}")
+    for name in ("normal_iterations", "smooth_iterations", "vertex_iterations", "max_normal_iterations"):
+        v = getattr(st, name)
+        if v is not None and (isinstance(v, bool) or int(v) != v or not 0 <= v <= 100_000):
+            raise PhysarError(f"{name} must be an integer within 0..100000, got {v}")
+
+
+def residual_normal_rms(q0: np.ndarray, q: np.ndarray, faces: np.ndarray) -> float:
+    """rms over vertices of (q0_i - q_i)·n_i, n_i the unit (area-weighted) vertex normals of q (m)."""
+    from physar.geometry.quality import vertex_normals_arrays
+
+    n = vertex_normals_arrays(q, faces)
+    return float(np.sqrt(np.mean(np.einsum("ij,ij->i", q0 - q, n) ** 2)))
 
 
 def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None = None,
                           progress=None) -> TriMesh:
-    """Denoise a triangle surface: guided normal filter, feature-weighted Taubin, vertex update (module doc).
+    """Denoise a triangle surface: bilateral normal filter, feature-weighted Taubin, vertex update (module doc).
 
-    Unset parameters in `settings` are chosen from the input's own noise level (:func:`auto_parameters`).
-    Returns a mesh with the same faces; `progress(k, q)` is called after each of the 3 stages.
+    With ``normal_iterations=None`` the stage-1 iteration count follows the discrepancy principle. Returns a
+    mesh with the same faces; `progress(k, q)` is called after each evaluated stage-1 iteration count k.
     """
     from physar.geometry.denoise import SurfaceOps, directed_edges
 
-    settings = settings or NormalFilterSettings()
+    st = settings or NormalFilterSettings()
+    _check(st)
     ops = SurfaceOps.from_mesh(mesh)  # validates the surface
-    p = resolve(settings, noise_level(mesh))
-    q = mesh.points.astype(float).copy()
-    origin = q.mean(axis=0)
-    _, v0, _ = ops.geometry((q - origin).astype(np.float32))
-    nf, area, cen = _face_geometry(q, mesh.faces)
-    nf = filter_normals(nf, area, cen, _face_graph(mesh), p["sigma_r"], p["normal_iterations"], settings.guided)
-    if progress is not None:
-        progress(0, q)
+    q0 = mesh.points.astype(float)
+    origin = q0.mean(axis=0)
+    _, v0, _ = ops.geometry((q0 - origin).astype(np.float32))
     src, dst = directed_edges(ops.edges)
-    q = taubin_weighted(q, feature_weights(mesh.faces, nf, area, src, dst, len(q), p["sigma_w"]),
-                        p["smooth_iterations"])
-    if progress is not None:
-        progress(1, q)
-    q = update_vertices(q, mesh.faces, nf, p["vertex_iterations"])
-    if settings.preserve_volume and v0 is not None:
+    ff = _face_graph(mesh)
+    nf, area, cen = _face_geometry(q0, mesh.faces)
+
+    def reconstruct(nfk: np.ndarray) -> np.ndarray:  # stages 2 and 3 for the filtered normals nfk
+        w = feature_weights(mesh.faces, nfk, area, src, dst, len(q0), st.sigma_w)
+        return update_vertices(taubin_weighted(q0, w, st.smooth_iterations), mesh.faces, nfk, st.vertex_iterations)
+
+    if st.normal_iterations is not None:
+        q = reconstruct(filter_normals(nf, area, cen, ff, st.sigma_r, st.normal_iterations, st.guided))
+        if progress is not None:
+            progress(st.normal_iterations, q)
+    else:
+        target = st.discrepancy * noise_scale(mesh) / MAD_RATIO
+        q, done = q0, 0
+        for k in [c for c in CHECKPOINTS if c <= st.max_normal_iterations] or [st.max_normal_iterations]:
+            nf = filter_normals(nf, area, cen, ff, st.sigma_r, k - done, st.guided)
+            done = k
+            q = reconstruct(nf)
+            if progress is not None:
+                progress(k, q)
+            if residual_normal_rms(q0, q, mesh.faces) >= target:
+                break
+    if st.preserve_volume and v0 is not None:
         n, vol, area_tot = ops.geometry((q - origin).astype(np.float32))
         if area_tot:
             q = q + ((v0 - vol) / area_tot) * n.astype(float)
-    if progress is not None:
-        progress(2, q)
     return mesh.with_points(q)
