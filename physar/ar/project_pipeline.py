@@ -112,6 +112,24 @@ class ProjectPipeline:
                                           None if pos is None else params[pos].get("path"), pos,
                                           None if pos is None else params[pos].get("load"), show)
 
+    @property
+    def pose_from(self) -> str:
+        """What gives the pose now (for the overlay's status line)."""
+        if self.registration.method == "markers" or self.registration.map is None:
+            return "markers"
+        return "plane features"
+
+    def _observed(self, n_obs: int, n_bars: int) -> str:
+        parts = []
+        if self.use_dots:
+            parts.append(f"{n_obs}/{len(self.dots)} dots")
+        elif self.features is not None:
+            total = len(self.features.points) if self.features.ready else 0
+            parts.append(f"{n_obs}/{total} features" if total else "collecting the reference")
+        if self.bars:
+            parts.append(f"{n_bars}/{len(self.bars)} bars")
+        return ", ".join(parts)
+
     # -- geometry ------------------------------------------------------------------------------------------
     def dot_positions(self, mu) -> np.ndarray:
         """Deformed dot positions (n, 3) [m] for the parameters mu."""
@@ -285,7 +303,7 @@ class ProjectPipeline:
         pe = self.registration.update(gray)
         t1 = time.perf_counter()
         st["markers_pose"] = (t1 - t0) * 1e3
-        status, rms, n_obs, draw_pose = "lost", float("nan"), 0, pe.pose
+        status, rms, n_obs, n_bars, draw_pose = "lost", float("nan"), 0, 0, pe.pose
         st["dots"] = st["assimilate"] = 0.0
         if pe.status == "measured":
             p = self.lo.size
@@ -311,7 +329,7 @@ class ProjectPipeline:
                 a, npx = b.measure(frame, pe.pose)
                 if np.isfinite(a):
                     mu[b.index], std[b.index] = a, b.bar.sigma
-                    n_obs += 1
+                    n_bars += 1
             if np.all(np.isfinite(mu)):
                 if self.filter is not None:
                     if self._fresh:
@@ -331,15 +349,13 @@ class ProjectPipeline:
         t3 = time.perf_counter()
         out = frame
         if draw and self.overlay is not None:
-            info = {"markers": pe.n_markers, "dots": n_obs,
-                    "dots_total": len(self.dots) if self.use_dots else
-                    (len(self.features.points) if self.features is not None and self.features.ready else 0)}
+            info = {"markers": pe.n_markers, "pose_from": self.pose_from, "observed": self._observed(n_obs, n_bars)}
             c = np.zeros(self.rom.n_modes) if self.at_rest else self.rom.coefficients(self.mu)[0]
             out = self.overlay.draw(frame, self.camera, draw_pose, c, self.mu, self.std,
                                     status if draw_pose is not None else "lost", info, self.names, self.units)
         t4 = time.perf_counter()
         st["overlay"] = (t4 - t3) * 1e3
-        return out, ProjectFrame(index, status, self.mu.copy(), self.std.copy(), rms, pe.n_markers, n_obs,
+        return out, ProjectFrame(index, status, self.mu.copy(), self.std.copy(), rms, pe.n_markers, n_obs + n_bars,
                                  (t4 - t0) * 1e3, st, (time.thread_time() - c0) * 1e3)
 
     # -- whole videos --------------------------------------------------------------------------------------

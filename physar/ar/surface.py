@@ -163,7 +163,7 @@ class SurfaceOverlay:
         sc = h / 720
         lines = []
         if status == "lost":
-            lines.append(("no pose: markers not found", (80, 80, 255)))
+            lines.append((f"no pose: {info.get('pose_from', 'markers')} not found", (80, 80, 255)))
         else:
             col = (255, 255, 255) if status == "tracking" else (150, 200, 255)
             for j in self.show:
@@ -173,8 +173,9 @@ class SurfaceOverlay:
                 lines.append((f"{names[j]} = {mu[j] * f:.4g} {sd}", col))
             if "field_max" in info:
                 lines.append((f"max {self.label} {info['field_max'] * self.scale:.3g} {self.unit}", (230, 230, 230)))
-        lines.append((f"{status}: {info.get('markers', 0)} markers, {info.get('dots', 0)}/"
-                      f"{info.get('dots_total', 0)} dots", (200, 200, 200)))
+        obs = info.get("observed", f"{info.get('dots', 0)}/{info.get('dots_total', 0)} dots")
+        lines.append((f"{status}: {info.get('markers', 0)} {info.get('pose_from', 'markers')}, {obs}",
+                      (200, 200, 200)))
         fs, lh = 0.62 * sc, int(28 * sc)
         x0, y0 = int(14 * sc), int(14 * sc)
         roi = img[y0:y0 + lh * len(lines) + int(14 * sc), x0:x0 + int(560 * sc)]
