@@ -300,6 +300,7 @@ class StaticResult:
 
 
 _EPS = float(np.finfo(float).eps)
+_FLOOR = 10.0  # round-off floor of |R_free|: _FLOOR ε ||diag K_ff|| h (10x the stall level measured)
 _LS_ETA = 0.5        # line search: accept α once |g(α)| <= η |g(0)|
 _LS_TRIALS = 10
 _FULL_STEP_GROWTH = 1e3  # the full Newton step is kept while |R| grows by at most this factor
@@ -418,7 +419,7 @@ def _newton(model, f, u, free, tol, max_iter, tangent: _Tangent, h: float) -> _A
     for _ in range(max_iter):
         K = model.tangent_stiffness(u)
         K_ff = K[free][:, free]
-        floor = 10.0 * _EPS * float(np.linalg.norm(K_ff.diagonal())) * h  # round-off of f_int [N]
+        floor = _FLOOR * _EPS * float(np.linalg.norm(K_ff.diagonal())) * h  # round-off of f_int [N]
         scale = max(fnorm, float(np.linalg.norm(f_int)))
         # inexact Newton (iterative solver only): |K Δu + R| <= η |R| with η = |R| / scale (keeps the
         # quadratic rate), at most 1e-2, and no smaller than needed to reach tol at this iteration
@@ -439,7 +440,7 @@ def _newton(model, f, u, free, tol, max_iter, tangent: _Tangent, h: float) -> _A
             return _Attempt(u, history, True)
     scale = max(fnorm, float(np.linalg.norm(f_int)))
     stalled = len(history) > 5 and min(history[-3:]) > 0.5 * min(history[:-3])
-    if stalled and rn <= 1e3 * floor:
+    if stalled and (rn <= 1e3 * floor or rn <= 1e-6 * scale):
         reason = (f"the residual stalled at {rn:.2e} N (relative {rn / scale:.1e}), at the round-off of the "
                   f"internal forces (about {floor:.1e} N), above tol = {tol:.0e}: raise tol")
     elif stalled:
