@@ -446,8 +446,29 @@ class ProjectRenderer:
         row = {"frame": k, "time_s": t, **{f"{n}_true": v for n, v in params.items()},
                **dict(zip(("rx", "ry", "rz"), pose.rvec.tolist())), **dict(zip(("tx", "ty", "tz"), pose.t.tolist())),
                "occluders": len(occ), "at_rest": int(rest), "markers": int(markers and len(self.m_tris) > 0),
-               "pan_deg": res.pan(t)}
+               "pan_deg": res.pan(t), "in_view": self._in_view(params, pose)}
         return out, row
+
+    def _in_view(self, params: dict, pose) -> float:
+        """Fraction of what the project observes (dots, the bars' corners, the features face's corners) that
+        lies inside the image in front of the camera: a judged frame needs it seen."""
+        dots = np.asarray(self.project.dots, float).reshape(-1, 3)
+        pts = [dots] if len(dots) else []
+        for bar in self.res.bars:
+            pts.append(bar_box(bar, params[bar.name], self.res.sc.bar.thickness * bar.width)[0])
+        f = self.project.config.features
+        if f is not None:
+            o, u, v = (np.asarray(a, float) for a in (f.origin, f.u, f.v))
+            u, v = u / np.linalg.norm(u), v / np.linalg.norm(v)
+            pts.append(np.array([o, o + f.size[0] * u, o + f.size[1] * v, o + f.size[0] * u + f.size[1] * v]))
+        if not pts:
+            return 1.0
+        X = np.vstack(pts)
+        z = pose.apply(X)[:, 2]
+        q = self.camera.project(X, pose)
+        W, H = self.camera.size
+        ok = (z > 1e-6) & (q[:, 0] >= 0) & (q[:, 0] < W) & (q[:, 1] >= 0) & (q[:, 1] < H)
+        return float(np.mean(ok))
 
     def _draw(self, img, parts, pose):
         """Rasterise the parts [(X (n, 3) world, tris (m, 3) outward-wound, depth bias [m], shader(tri, b) ->
@@ -664,7 +685,7 @@ def motion_blur(img: np.ndarray, blur_px: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------------- files
 def truth_header(names) -> list[str]:
     return ["frame", "time_s", *[f"{n}_true" for n in names], "rx", "ry", "rz", "tx", "ty", "tz", "occluders",
-            "at_rest", "markers", "pan_deg"]
+            "at_rest", "markers", "pan_deg", "in_view"]
 
 
 def render_project(project, scenario: Scenario, out_dir, progress: Callable[[int, int], None] | None = None,

@@ -45,7 +45,8 @@ def read_columns(path, what: str = "CSV file") -> dict:
 
 def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None = None, tol: float = 0.01,
           recovery: int = 5, source: str = "estimates") -> dict:
-    """Per parameter: judged frames (not at rest, no occluder, not recovering), frames within tol x range, max /
+    """Per parameter: judged frames (not at rest, no occluder, what is observed in view (truth column in_view),
+    not recovering after an occlusion or a look-away), frames within tol x range, max /
     mean / median |error|, and the recovery frames after each occlusion. ``ranges`` {name: (lo, hi)} (default:
     the span of the truth)."""
     names = [c[:-5] for c in truth if c.endswith("_true")]
@@ -56,6 +57,7 @@ def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None 
         raise ConfigError(f"{source}: no column {missing[0]}_est (the truth has parameters {', '.join(names)})")
     n = min(len(truth[f"{names[0]}_true"]), len(est[f"{names[0]}_est"]))
     occ = np.asarray(truth.get("occluders", np.zeros(n)), float)[:n] > 0
+    occ |= np.asarray(truth.get("in_view", np.ones(n)), float)[:n] < 0.5     # what is observed left the image
     after = np.zeros(n, bool)
     ends = np.flatnonzero(occ[:-1] & ~occ[1:]) + 1
     for e in ends:
