@@ -72,7 +72,7 @@ class NormalFilterSettings:
 
 
 # σ_e / σ_n for i.i.d. vertex noise (module doc); benchmarks/bench_denoise.py --calibrate measures it.
-MAD_RATIO = 0.63
+MAD_RATIO = 0.59
 CHECKPOINTS = (1, 2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 25, 30, 40, 50, 65, 80, 100)
 
 
@@ -211,12 +211,16 @@ def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None =
     ff = _face_graph(mesh)
     nf, area, cen = _face_geometry(q0, mesh.faces)
 
-    def reconstruct(nfk: np.ndarray) -> np.ndarray:  # stages 2 and 3 for the filtered normals nfk
+    def reconstruct(nfk: np.ndarray, k: int) -> np.ndarray:  # stages 2 and 3 after k stage-1 iterations
         w = feature_weights(mesh.faces, nfk, area, src, dst, len(q0), st.sigma_w)
-        return update_vertices(taubin_weighted(q0, w, st.smooth_iterations), mesh.faces, nfk, st.vertex_iterations)
+        q = taubin_weighted(q0, w, st.smooth_iterations)
+        n2, a2, c2 = _face_geometry(q, mesh.faces)  # stage 1 again, on the smoothed surface, ceil(k/2) times
+        n2 = filter_normals(n2, a2, c2, ff, st.sigma_r, (k + 1) // 2, st.guided)
+        return update_vertices(q, mesh.faces, n2, st.vertex_iterations)
 
     if st.normal_iterations is not None:
-        q = reconstruct(filter_normals(nf, area, cen, ff, st.sigma_r, st.normal_iterations, st.guided))
+        k = st.normal_iterations
+        q = reconstruct(filter_normals(nf, area, cen, ff, st.sigma_r, k, st.guided), k)
         if progress is not None:
             progress(st.normal_iterations, q)
     else:
@@ -225,7 +229,7 @@ def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None =
         for k in [c for c in CHECKPOINTS if c <= st.max_normal_iterations] or [st.max_normal_iterations]:
             nf = filter_normals(nf, area, cen, ff, st.sigma_r, k - done, st.guided)
             done = k
-            q = reconstruct(nf)
+            q = reconstruct(nf, k)
             if progress is not None:
                 progress(k, q)
             if residual_normal_rms(q0, q, mesh.faces) >= target:
