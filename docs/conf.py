@@ -94,5 +94,7 @@ html_title = f"physar {release}"
 html_static_path = ["_static"]
 html_extra_path = ["_build/gallery_extra"]
 mathjax_path = "mathjax/tex-chtml.js"  # local copy: no CDN
+# MathJax's context menu can switch on speech output, which loads the speech-rule engine from a CDN: off.
+mathjax3_config = {"options": {"enableMenu": False}}
 html_show_sourcelink = False
 suppress_warnings = ["myst.header"]  # README's heading levels are its own (e.g. ### under ##)

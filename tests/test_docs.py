@@ -104,6 +104,7 @@ def test_units_and_markup_of_a_row():
     assert F.unit_text("shake_mm", "") == "mm"
     assert F.unit_text("nu", "Poisson ratio") == ""
     assert F.escape("|u| * 2 [m]") == "\\|u\\| \\* 2 \\[m\\]"
+    assert F.escape("see :mod:`physar.mpm.colliders` and ``x``") == "see `physar.mpm.colliders` and `x`"
 
 
 def test_every_format_page_is_in_the_index():

@@ -77,8 +77,11 @@ def load_class(path: str) -> type[BaseModel]:
 
 def escape(text: str) -> str:
     """Plain text made literal in MyST Markdown (a backslash before every markup character); `code` spans,
-    which the schemas' descriptions use for commands and keys, stay code."""
-    parts = re.split(r"(`[^`|]+`)", " ".join(text.split()))
+    which the schemas' descriptions use for commands and keys, stay code, and so do reST roles
+    (``:mod:`x```) and literals of the docstrings."""
+    text = re.sub(r"(?::[a-z]+)+:`~?([^`]+)`", r"`\1`", " ".join(text.split()))  # reST roles and ``x`` -> `x`
+    text = re.sub(r"``([^`]+)``", r"`\1`", text)
+    parts = re.split(r"(`[^`|]+`)", text)
     return "".join(p if i % 2 else _SPECIAL.sub(r"\\\1", p) for i, p in enumerate(parts))
 
 
@@ -223,27 +226,35 @@ def format_page(fmt: Format, repo: Path | None = None) -> str:
             kind = "array of tables, repeatable" if many else ("table" if table else "")
             state = ("required" if required else "optional") if table else ""
             label = ", ".join(x for x in (kind, state) if x)
-            lines += [f"## `{name}`" if table else "## Top level", ""]
+            lines += [f"({_label(fmt, table)})=", f"## `{name}`" if table else "## Top level", ""]
             if label:
                 lines += [f"*{label}*", ""]
             if _doc(model):
                 lines += [escape(_doc(model)), ""]
-            lines += _field_table(model)
+            lines += _field_table(model, fmt, table)
     if fmt.example and repo is not None and (repo / fmt.example).exists():
         lines += ["## Example", "", f"`{fmt.example}`:", "", "```toml", (repo / fmt.example).read_text().rstrip(),
                   "```", ""]
     return "\n".join(lines)
 
 
-def _field_table(model: type[BaseModel]) -> list[str]:
+def _label(fmt: Format, table: str) -> str:
+    """The cross-reference target of a table's section: ``format-fem-fix.plane``."""
+    return f"format-{fmt.name}-{table or 'top'}"
+
+
+def _field_table(model: type[BaseModel], fmt: Format, table: str) -> list[str]:
     rows = ["| key | type | default | unit | constraints | description |", "|---|---|---|---|---|---|"]
     for key, field in model.model_fields.items():
         sub, many = _model_in(field.annotation)
-        kind = ("array of tables" if many else "table") + " (below)" if sub is not None else type_name(field.annotation)
         desc = field.description or ""
-        cells = [f"`{key}`", f"`{kind}`" if sub is None else kind, default_text(field),
-                 unit_text(key, desc), constraints_text(field), escape(desc)]
-        rows.append("| " + " | ".join(c.replace("|", "\\|") if i < 2 else c for i, c in enumerate(cells)) + " |")
+        if sub is None:
+            kind = "`" + type_name(field.annotation).replace("|", "\\|") + "`"
+        else:  # a link to the sub-table's section, described by its class docstring unless the field says more
+            kind = f"{{ref}}`{'array of tables' if many else 'table'} <{_label(fmt, f'{table}.{key}' if table else key)}>`"
+            desc = desc or _doc(sub).split(". ")[0].rstrip(".")
+        cells = [f"`{key}`", kind, default_text(field), unit_text(key, desc), constraints_text(field), escape(desc)]
+        rows.append("| " + " | ".join(cells) + " |")
     return rows + [""]
 
 
