@@ -85,13 +85,19 @@ def test_reaching_bones_by_point_to_box_distance():
 
 
 def test_rig_simulates_the_reaching_bones_of_its_clip(data):
-    """Given the clip's poses the rig adds every reaching bone to scene.json's list and records it in its meta
-    (a saved model rebuilds the same particles)."""
+    """Given the clip's poses the rig adds every reaching bone that stays in the MPM domain to scene.json's list
+    and records it in its meta (a saved model rebuilds the same particles).  Mutant caught: reaching bones
+    ignored by the rig, or added although they leave the domain."""
     cfg = TrainConfig(material_grid=(0, 0, 0))
     reach = S.reaching_bones(S.humanoid(data.meta["body"]["height"]), data.rotations, data.root_t,
                              S.object_boxes(data.meta), data.meta["sim"]["size"] / data.meta["sim"]["resolution"])
     rig = Rig(data.meta, cfg, poses=(data.rotations, data.root_t))
-    assert "forearm.R" in reach and set(reach) <= set(rig.meta["body"]["simulated_bones"])
+    assert "forearm.R" in reach and "forearm.R" in rig.meta["body"]["simulated_bones"]
+    # the right upper arm reaches within a cell of the pillow but its shoulder end (x = -0.20 m at rest) lies
+    # outside the MPM domain [origin_x, origin_x + size]: it stays kinematic (its particles would be clamped)
+    ox, size = data.meta["sim"]["origin"][0], data.meta["sim"]["size"]
+    assert "upperarm.R" in reach and not ox <= -0.20 * data.meta["body"]["height"] / 1.7 <= ox + size
+    assert "upperarm.R" not in rig.meta["body"]["simulated_bones"]
     again = Rig(rig.meta, cfg)
     assert np.array_equal(again.Xh, rig.Xh)
 
