@@ -207,7 +207,7 @@ def test_make_docs_quick_build_and_screenshots():
     pytest.importorskip("myst_nb", reason="the docs extra is not installed (make docs installs it)")
     html = DOCS / "_build" / "html"
     t0 = time.perf_counter()
-    run = subprocess.run([sys.executable, "-m", "sphinx", "-b", "html", "-W", "--keep-going", "-q", str(DOCS),
+    run = subprocess.run([sys.executable, "-m", "sphinx", "-b", "html", "-W", "--keep-going", "-q", "-E", str(DOCS),
                           str(html)], check=False, capture_output=True, text=True, timeout=1800, cwd=ROOT)
     assert run.returncode == 0, run.stderr[-5000:]
     print(f"docs build {time.perf_counter() - t0:.0f} s")
