@@ -83,12 +83,16 @@ def simulate(
     video: Path | None = typer.Option(None, "--video", help="MP4 of the deformed surface (H.264)"),  # noqa: B008 - typer idiom
     energy_csv: Path | None = typer.Option(None, "--energy", help="energy per step CSV (default: OUT with .csv)"),  # noqa: B008 - typer idiom
     fps: float = typer.Option(30.0, "--fps", help="video frame rate"),
+    plot: Path | None = typer.Option(None, "--plot", help="PNG of kinetic, elastic, potential (gravity, loads) and total energy against time"),  # noqa: B008 - typer idiom
+    energy_warn: float = typer.Option(0.05, "--energy-warn", help="warn when the total energy grows by more than this fraction of the largest energy term"),
     json_out: bool = typer.Option(False, "--json", help="print a run summary as JSON"),
 ) -> None:
     """Integrate M q'' = f_els + f_dmp + f_ext in time and write the trajectory, energies and a video.
 
     Ctrl-C or SIGTERM stops after the current step: the steps done so far are written (exit 130). A run
-    that diverges (non-finite or runaway state) writes the steps before it and exits 2 naming the step."""
+    that diverges (non-finite state, runaway displacement, or total energy grown by more than 90 % of the
+    largest energy term) writes the steps before it (and the --plot) and exits 2 naming the step. A total
+    energy growth above --energy-warn (default 5 %) of the largest energy term is one warning line."""
     from tqdm import tqdm
 
     from physar.errors import PhysarError
@@ -112,6 +116,10 @@ def simulate(
                       kind="energy CSV")
     if video is not None:
         check_destination(video, inputs=[config, out, csv_path], suffixes=[".mp4"], kind="video")
+    if plot is not None:
+        check_destination(plot, inputs=[config, out, csv_path, video], suffixes=[".png"], kind="energy plot")
+    if not (0 < energy_warn < float("inf")):
+        raise ConfigError(f"--energy-warn must be a finite fraction > 0, got {energy_warn}")
     cfg = load_dynamics_config(config)
     failure = None
     try:
@@ -129,11 +137,32 @@ def simulate(
         raise type(exc)(f"{config}: {exc}") from None
     write_xdmf(out, sim, traj)
     write_energy_csv(csv_path, traj)
+    if plot is not None:
+        from physar.integrators.analysis import plot_energies
+
+        plot_energies(plot, traj.energy, title=f"{cfg.dynamics.method}, h = {cfg.dynamics.h:g} s",
+                      potential_label="potential (gravity, loads" + (", ground)" if cfg.dynamics.ground else ")"))
     if failure is not None:
         raise type(failure)(f"{config}: {failure}; wrote steps 0-{traj.energy[-1]['step']} to {out} and "
-                            f"{csv_path}", traj) from None
+                            f"{csv_path}" + (f" and {plot}" if plot else ""), traj) from None
     summary = summarize(sim, traj)
     summary.update({"output": str(out), "energy_csv": str(csv_path), "interrupted": traj.interrupted})
+    from physar.integrators.analysis import energy_drift
+
+    drift = energy_drift(traj.energy)
+    summary["energy_growth"] = drift["growth"]
+    if plot is not None:
+        summary["plot"] = str(plot)
+    if drift["growth"] > energy_warn:
+        import warnings
+
+        from physar.errors import PhysarWarning
+
+        warnings.warn(PhysarWarning(
+            f"the total energy grew by {100 * drift['growth']:.1f} % of the largest energy term (at t = "
+            f"{drift['t_max_growth']:.4g} s; limit --energy-warn {100 * energy_warn:g} %): the integrator adds "
+            f"energy ({cfg.dynamics.method}, h = {cfg.dynamics.h:g} s); reduce h or use a dissipative method"),
+            stacklevel=1)
     if video is not None:
         from physar.integrators.render import write_video
 
@@ -146,7 +175,7 @@ def simulate(
         print_json(summary)
     else:
         log(("interrupted: " if traj.interrupted else "") + f"wrote {out}, {csv_path}"
-            + (f", {video}" if video else ""))
+            + (f", {video}" if video else "") + (f", {plot}" if plot else ""))
         log(f"energy {summary['energy_initial']:.6g} J -> {summary['energy_final']:.6g} J, "
             f"Newton iterations mean {summary['newton_iterations_mean']:.2f} (max {summary['newton_iterations_max']})")
     if traj.interrupted:

@@ -170,8 +170,23 @@ class SimulationDiverged(SolverError):
         self.trajectory = trajectory
 
 
-def _diverged(state: State, energy: dict, size: float) -> str | None:
-    """Why ``state`` is not a valid step (non-finite values, runaway displacement), or None."""
+# Energy runaway: the total energy E = kinetic + elastic + potential is conserved by the dynamics (constant
+# loads and gravity are in the potential) or lost to damping and contact. A growth E(t) - E(0) larger than
+# RUNAWAY_ENERGY times the largest energy term seen so far (max |kinetic|, |elastic|, |potential|) means
+# that most of the motion is energy the integrator made up: an explicit step past its stability limit, whose
+# energy grows geometrically well before a displacement runs away. Checked from step RUNAWAY_FROM on (a first
+# step from rest can be dominated by its O(h) start-up error). :func:`energy_growth` is that ratio.
+RUNAWAY_ENERGY = 0.9
+RUNAWAY_FROM = 10
+
+
+def energy_growth(total0: float, total: float, scale: float) -> float:
+    """(E(t) - E(0)) / scale, scale = the largest |kinetic|, |elastic|, |potential| up to t (0 if scale = 0)."""
+    return (total - total0) / scale if scale > 0 else 0.0
+
+
+def _diverged(state: State, energy: dict, size: float, growth: float = 0.0, step: int = 0) -> str | None:
+    """Why ``state`` is not a valid step (non-finite values, runaway displacement or energy), or None."""
     if not (np.all(np.isfinite(state.q)) and np.all(np.isfinite(state.v))):
         return "the solution is no longer finite"
     if not all(np.isfinite(v) for v in energy.values()):
@@ -179,6 +194,9 @@ def _diverged(state: State, energy: dict, size: float) -> str | None:
     umax = float(np.abs(state.q).max()) if state.q.size else 0.0
     if umax > RUNAWAY * size:
         return f"a displacement reached {umax:.3g} m, more than {RUNAWAY:g} times the body's size ({size:.3g} m)"
+    if step >= RUNAWAY_FROM and growth > RUNAWAY_ENERGY:
+        return (f"the total energy grew by {100 * growth:.0f} % of the largest energy term (runaway energy, "
+                f"limit {100 * RUNAWAY_ENERGY:.0f} %)")
     return None
 
 
@@ -187,8 +205,8 @@ def run_simulation(sim: Simulation, progress: Callable[[int, int], None] | None 
     """Integrate; record the energy at every step and the vertex fields at every output_every-th step.
 
     ``stop()`` is polled after every step: when it returns True the run ends there (``trajectory.
-    interrupted``). A step whose state is not finite, whose energy is not finite or whose displacement ran
-    away (``RUNAWAY``) raises :class:`SimulationDiverged` carrying the trajectory up to the step before it,
+    interrupted``). A step whose state is not finite, whose energy is not finite, whose displacement ran
+    away (``RUNAWAY``) or whose total energy ran away (``RUNAWAY_ENERGY``) raises :class:`SimulationDiverged` carrying the trajectory up to the step before it,
     with its last state recorded as a frame, so that what is written from it is valid.
     """
     d = sim.config.dynamics
@@ -210,12 +228,16 @@ def run_simulation(sim: Simulation, progress: Callable[[int, int], None] | None 
         if k % d.output_every == 0 or k == d.steps:
             frame(s)
 
-    record(0, state, model.energy(state.q, state.v))
+    e0 = model.energy(state.q, state.v)
+    record(0, state, e0)
+    scale = max(abs(e0["kinetic"]), abs(e0["elastic"]), abs(e0["potential"]))
     for k in range(1, d.steps + 1):
         prev, state = state, integ.step(model, state, d.h)
         with np.errstate(all="ignore"):
             e = model.energy(state.q, state.v)
-        why = _diverged(state, e, size)
+            scale = max(scale, abs(e["kinetic"]), abs(e["elastic"]), abs(e["potential"]))
+            growth = energy_growth(e0["total"], e["total"], scale)
+        why = _diverged(state, e, size, growth, k)
         if why is not None:
             if traj.times[-1] != prev.t:
                 frame(prev)
