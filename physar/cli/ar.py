@@ -25,17 +25,22 @@ def _bar(desc: str):
 
 
 def calibrate(
-    images: list[Path] = typer.Argument(..., help="ChArUco board images (PNG/JPG)"),  # noqa: B008 - typer idiom
+    images: list[Path] = typer.Argument(None, help="ChArUco board images (PNG/JPG)"),  # noqa: B008 - typer idiom
     output: Path = typer.Option(Path("camera.toml"), "--output", "-o", help="camera file to write"),  # noqa: B008 - typer idiom
     squares: str = typer.Option("7x5", help="board squares, COLSxROWS"),
     square: float = typer.Option(0.04, help="square side [m]"),
     marker: float = typer.Option(0.03, help="marker side [m]"),
     dictionary: str = typer.Option("DICT_5X5_100", help="ArUco dictionary of the board"),
     dist: int = typer.Option(5, help="distortion coefficients: 0, 2, 5 or 8"),
+    print_board: Path | None = typer.Option(None, "--print-board", help="write this board at true scale (.pdf "  # noqa: B008
+                                                                          "or .png, print at 100 %) and stop"),
+    dpi: float = typer.Option(300, help="--print-board: raster resolution [dots per inch]"),
     json_out: bool = typer.Option(False, "--json", help="print the result as JSON"),
 ) -> None:
-    """Calibrate a camera from ChArUco images; writes intrinsics + distortion as TOML."""
+    """Calibrate a camera from ChArUco images; writes intrinsics + distortion as TOML. With --print-board,
+    write the board to print instead."""
     from physar.errors import ConfigError
+    from physar.output import check_destination
     from physar.vision.calibration import CharucoSpec, calibrate_charuco
 
     try:
@@ -43,6 +48,21 @@ def calibrate(
     except ValueError:
         raise ConfigError(f"--squares must look like 7x5, got {squares!r}") from None
     spec = CharucoSpec(sx, sy, square, marker, dictionary)
+    if print_board is not None:
+        from physar.vision.printing import write_board_sheet
+
+        check_destination(print_board, suffixes=[".pdf", ".png"], kind="board sheet")
+        res = write_board_sheet(spec, print_board, dpi=dpi)
+        if json_out:
+            print_json({"board_file": str(res.get("path", print_board)), "squares": [sx, sy], "square_m": square,
+                        "marker_m": marker, "dictionary": dictionary})
+        else:
+            log(f"wrote the {squares} board ({square * 1e3:g} mm squares, {marker * 1e3:g} mm markers, {dictionary}) "
+                f"to {res.get('path', print_board)}: print at 100 % (no fit-to-page), then photograph it")
+        return
+    if not images:
+        raise ConfigError("give the board images to calibrate from (or --print-board FILE to print the board)")
+    check_destination(output, inputs=images, suffixes=[".toml"], kind="camera file")
     cam, info = calibrate_charuco(images, spec, dist_coeffs=dist, progress=_bar("calibrate"))
     cam.save(output, rms_px=info["rms_px"])
     res = {"camera_file": str(output), "fx": cam.fx, "fy": cam.fy, "cx": float(cam.K[0, 2]),
@@ -230,6 +250,10 @@ def ar_print_markers(
     from physar.vision.printing import write_marker_sheet
 
     cfg = parse_project(read_project_toml(project), str(project))
+    if not cfg.marker:
+        from physar.errors import ConfigError
+
+        raise ConfigError(f"{project}: the project has no [[marker]] tables to print")
     check_destination(output, inputs=[project], suffixes=[".pdf", ".png"], kind="marker sheet")
     res = write_marker_sheet([(m.dictionary, m.id, m.size) for m in cfg.marker], output, dpi=dpi)
     log(f"wrote {len(cfg.marker)} markers to {res.get('path', output)}: print at 100 % (no fit-to-page)")

@@ -114,8 +114,11 @@ def write_board_sheet(spec: CharucoSpec, path, dpi: float = 300, paper=None) -> 
     pw, ph = _page(paper, bw, bh + LABEL)
     W, H = _px(pw, dpi), _px(ph, dpi)
     img = np.full((H, W), 255, np.uint8)
-    bwp, bhp = _px(bw, dpi), _px(bh, dpi)
+    sq = _px(spec.square, dpi)                      # whole pixels per square: every square the same size
+    bwp, bhp = sq * spec.squares_x, sq * spec.squares_y
     board = spec.board().generateImage((bwp, bhp), marginSize=0, borderBits=1)
+    if board.shape != (bhp, bwp):
+        board = cv2.resize(board, (bwp, bhp), interpolation=cv2.INTER_NEAREST)
     x0, y0 = (W - bwp) // 2, (H - bhp - _px(LABEL, dpi)) // 2
     img[y0:y0 + bhp, x0:x0 + bwp] = board
     _label(img, f"ChArUco {spec.squares_x}x{spec.squares_y}  square {spec.square / MM:g} mm  marker "
