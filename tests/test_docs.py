@@ -221,6 +221,7 @@ def test_make_docs_quick_build_and_screenshots():
     for example in (ROOT / "examples").glob("*.py"):
         page = (html / "_generated" / "gallery" / f"{example.stem}.html").read_text()
         assert "<img" in page, f"{example.name}: no figure in its gallery page"
+        assert (html / "gallery_files" / example.stem / "thumbnail.png").stat().st_size > 0, example.name
     recon = (html / "_generated" / "gallery" / "recon_tiny.html").read_text()
     assert 'href="../../gallery_files/recon_tiny/recon_novel.mp4"' in recon
     assert (html / "gallery_files" / "recon_tiny" / "recon_novel.mp4").stat().st_size > 0
@@ -299,6 +300,9 @@ def test_gallery_shows_the_figure_an_example_saves(tmp_path):
     assert "|p - c(p)| stays text" in page
     assert re.search(r'<img[^>]+src="[^"]+\.png"', page)
     assert "quick True" in page
+    index = (html / "_generated" / "gallery" / "index.html").read_text()
+    assert 'src="../../gallery_files/tiny/thumbnail.png"' in index
+    assert (html / "gallery_files" / "tiny" / "thumbnail.png").read_bytes().startswith(b"\x89PNG")
 
 
 @pytest.mark.slow  # a second kernel and build: keeps the fast tests under 30 s

@@ -25,6 +25,7 @@ import nbformat
 from physar_formats import write_if_changed
 
 GALLERY = "gallery"  # folder under _generated/ and under the HTML output
+THUMB = "thumbnail.png"  # an example's first picture, beside its videos
 _seen: dict[Path, int] = {}
 _ctx: dict[str, Path | str] = {}
 
@@ -90,6 +91,7 @@ def start(out_dir: str, video_dir: str, video_href: str) -> None:
     Path(out_dir).mkdir(parents=True)
     _seen.clear()
     _ctx.update(out=Path(out_dir), videos=Path(video_dir), href=video_href)
+    (Path(video_dir) / THUMB).unlink(missing_ok=True)
 
 
 def _first_frame_png(path: Path) -> bytes:
@@ -113,27 +115,33 @@ def show_new() -> None:
         if _seen.get(path) == stamp or path.suffix.lower() not in (".png", ".mp4"):
             continue
         _seen[path] = stamp
+        videos = Path(_ctx["videos"])
+        videos.mkdir(parents=True, exist_ok=True)
         if path.suffix.lower() == ".png":
-            display(Image(filename=str(path)))
+            data = path.read_bytes()
+            display(Image(data=data))
         else:
-            videos = Path(_ctx["videos"])
-            videos.mkdir(parents=True, exist_ok=True)
             shutil.copy2(path, videos / path.name)
-            display(Image(data=_first_frame_png(path)))
+            data = _first_frame_png(path)
+            display(Image(data=data))
             href = html.escape(f"{_ctx['href']}/{path.name}")
             display(HTML(f'<p>First frame of <a href="{href}">{html.escape(path.name)}</a> (MP4).</p>'))
+        if not (videos / THUMB).exists():  # the example's first picture: its thumbnail in the gallery index
+            (videos / THUMB).write_bytes(data)
 
 
 def index_page(titles: dict[str, tuple[str, str]]) -> str:
-    """The gallery index: one row per example (title, summary)."""
+    """The gallery index: one row per example (its first picture, title, summary). The thumbnails are
+    written when the examples run and copied with the videos (html_extra_path)."""
     lines = ["# Gallery", "",
              "Each example in `examples/` runs top to bottom with `python examples/NAME.py` and opens as a notebook "
              "through jupytext; `tests/examples/` checks its numbers against independent references. The pages "
              "below are those scripts executed when the documentation was built"
              + (" (quick mode, `PHYSAR_EXAMPLE_QUICK=1`)." if quick() else "."), "",
-             "| example | what it shows |", "|---|---|"]
+             "| | example | what it shows |", "|---|---|---|"]
     for name, (title, summary) in titles.items():
-        lines.append(f"| [{title}]({name}.ipynb) | {summary.replace('|', chr(92) + '|')} |")
+        thumb = f'<img src="../../{GALLERY}_files/{name}/{THUMB}" alt="" style="width: 200px; max-width: none">'
+        lines.append(f"| {thumb} | [{title}]({name}.ipynb) | {summary.replace('|', chr(92) + '|')} |")
     lines += ["", "```{toctree}", ":hidden:", "", *titles, "```", ""]
     return "\n".join(lines)
 
