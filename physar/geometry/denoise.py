@@ -475,7 +475,7 @@ def bilateral_normal_filter(
 
 
 def guided_denoise(
-    mesh: TriMesh, iterations: int | None = None, sigma_r: float = 0.35, discrepancy: float = 0.97,
+    mesh: TriMesh, iterations: int | None = None, sigma_r: float = 0.35, discrepancy: float = 1.0,
     progress: Progress = None,
 ) -> TriMesh:
     """Bilateral normal filter + feature-weighted Taubin + vertex update (:mod:`physar.geometry.normal_filter`);

@@ -37,11 +37,15 @@ as in :func:`physar.geometry.denoise.al_iterate`.
 Automatic amount of filtering (a user has no clean mesh to tune against): Morozov's discrepancy principle,
 the classical parameter rule for the regularised inverse problem of seed 001 eq. (3.1): filter no further
 than the data's own noise. The normal component of i.i.d. vertex noise has a std σ_n that the seed's robust
-height scale measures, σ_e = 1.4826 median |h_ij - med_k h_ik| ≈ 0.63 σ_n (:data:`MAD_RATIO`, measured on
-planes and tori, not on the benchmark meshes). Stages 1-3 are evaluated at increasing stage-1 iteration
-counts k (:data:`CHECKPOINTS`), and the first k whose residual rms_i((q̂_i - x_i)·n_i) reaches
-``discrepancy`` · σ_e / 0.63 is kept (0.97 by default; at most ``max_normal_iterations``): fewer
-iterations leave noise, more remove shape. Everything is vectorised (scipy.sparse, np.bincount).
+height scale measures, σ_e = 1.4826 median |h_ij - med_k h_ik| ≈ 0.59 σ_n (:data:`MAD_RATIO`: 0.57-0.61 for
+random-direction noise on remeshed spheres, tori, boxes and cylinders; 0.60-0.65 for noise along the normals).
+Stages 1-3 are evaluated at increasing stage-1 iteration counts k (:data:`CHECKPOINTS`), and the first k whose
+residual rms_i((q̂_i - x_i)·n_i) reaches ``discrepancy`` · σ_e / 0.59 is kept (``discrepancy`` = 1, Morozov's
+own choice, which also gave the lowest geometric mean of error / best-k error over the calibration meshes
+(those four plus pymeshlab's cow, bone and airplane; `benchmarks/bench_denoise.py --calibrate`); at most
+``max_normal_iterations``): fewer iterations leave noise, more remove shape. Known limit: on coarse meshes
+with detail at the scale of an edge, σ_e includes shape, so the rule over-smooths (bone, airplane: 1.4-1.7x
+the best-k error at 0.2-0.3 ē). Everything is vectorised (scipy.sparse, np.bincount).
 Units: positions in metres; σ_r, σ_w dimensionless (distances between unit vectors).
 """
 
@@ -66,12 +70,12 @@ class NormalFilterSettings:
     smooth_iterations: int = 10  # stage 2: feature-weighted Taubin λ|μ pairs
     sigma_w: float = 0.4  # stage 2: width of the feature weights on filtered vertex normals
     vertex_iterations: int = 10  # stage 3 iterations
-    discrepancy: float = 0.97  # target residual / estimated noise std (normal component)
+    discrepancy: float = 1.0  # target residual / estimated noise std (normal component)
     max_normal_iterations: int = 100
     preserve_volume: bool = True
 
 
-# σ_e / σ_n for i.i.d. vertex noise (module doc); benchmarks/bench_denoise.py --calibrate measures it.
+# σ_e / σ_n for i.i.d. random-direction vertex noise (module doc); bench_denoise.py --calibrate measures it.
 MAD_RATIO = 0.59
 CHECKPOINTS = (1, 2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 25, 30, 40, 50, 65, 80, 100)
 
