@@ -1,24 +1,23 @@
-"""Benchmark: AL / MSAL mesh denoising (seed 001 §3.2.1) vs trimesh and pymeshlab smoothers.
+"""Benchmark: mesh denoising under the normal-filtering literature's protocol (issue 20).
 
-Meshes: pymeshlab's sample meshes shipped in its wheel (bunny, cow, bone), pymeshfix's Stanford bunny
-scan (holes closed by pymeshfix.clean_from_arrays; skipped if pymeshfix is not installed), and two
-CAD-like meshes with sharp convex and concave edges built here: a cube and an L-block (the lattice
-surface of a voxel set, every face split into two triangles: a regular grid) and a box, a cylinder and a
-triangular prism (60-degree edges) with irregular triangles from pymeshlab's isotropic remeshing. Gaussian noise along vertex normals with
-std = sigma * mean edge length (sigma = 0.1, 0.2, 0.3), seed 0.
+Protocol (Zheng et al. 2011, Zhang et al. 2015): Gaussian noise of std σ·ē (ē = mean edge length of the
+clean mesh) along a uniformly random direction per vertex (`add_noise(direction="random")`), σ = 0.1, 0.2,
+0.3, seed 0; error = mean angle between the face normals of the result and of the clean mesh (same faces),
+plus the mean vertex-to-surface distance to the clean mesh (/ē) and the volume change against the clean mesh.
 
-Every method runs at every iteration count of its grid; the count with the lowest mean face-normal angle
-error is reported ("best it", an oracle choice given to every method alike). Distances are exact
-vertex-to-surface distances to the clean mesh (trimesh.proximity), in units of the mean edge length ē.
-"Sharp-face error" (CAD meshes only) = mean normal error over faces touching a vertex whose clean
-incident face normals differ from its vertex normal by more than 15 degrees (i.e. faces next to an edge).
-"Best baseline" = the best of the trimesh / pymeshlab Taubin, Laplacian and HC filters (the issue's
-list); our own bilateral normal filtering (BNF, Zheng et al. 2011) and pymeshlab's two-step (normal
-filtering + vertex fitting) smoothing are reported as extra, feature-preserving references. "MSAL default"
-is MSAL at its fixed default of 8 iterations (no oracle choice); "MSAL feature mode" re-estimates the
-edge-stopping scale every step (``rescale=0.5``, `physar denoise --method msal-sharp`).
+Every peer runs over a small grid of its parameters and is reported at its best (an oracle choice that needs
+the clean mesh); physar's default `guided` runs once, with the parameters it picks from the noisy mesh alone.
+Peers: pymeshlab Taubin, HC Laplacian and two-step smoothing, MeshLib's normal filter (`meshlib`, Mumford-Shah
+denoising via normals; skipped if not installed), physar's own bilateral normal filter (BNF, Zheng 2011) and
+MSAL (seed 001 §3.2.1, tuned as a peer).
 
-Run:  .venv/bin/python benchmarks/bench_denoise.py [--quick] [--timing-only] [--quality-only]
+Meshes: a sharp CAD part built here with gmsh OpenCASCADE ("fandisk-like": block with filleted and chamfered
+edges, a V-groove, a through hole and a hollow boss; no fandisk file is installed) and the plate with a hole of
+physar.geometry.tetra; real scans shipped in installed packages: pymeshlab's Stanford bunny (range-scan
+reconstruction, 28k vertices) and its `rangemaps/face000.ply` (one raw range scan of a face, open, 85k).
+
+Run:  .venv/bin/python benchmarks/bench_denoise.py [--quick] [--timing-only] [--quality-only] [--sigmas 0.2 0.3]
+      .venv/bin/python benchmarks/bench_denoise.py --calibrate   (constants of normal_filter, other meshes)
 """
 
 from __future__ import annotations
@@ -34,6 +33,7 @@ import trimesh
 from physar.geometry import denoise as D
 from physar.geometry import quality as Q
 from physar.geometry.mesh import TriMesh
+from physar.geometry.tetra import _occ_surface, plate_with_hole_surface
 
 QUICK = "--quick" in sys.argv
 
@@ -49,224 +49,227 @@ def load_sample(name: str) -> TriMesh | None:
     return TriMesh(np.asarray(t.vertices), np.asarray(t.faces), name=name)
 
 
-def load_pymeshfix_bunny() -> TriMesh | None:
-    try:
-        import pymeshfix
-    except ImportError:
-        return None
-    p = Path(pymeshfix.__file__).parent / "examples" / "StanfordBunny.ply"
-    if not p.exists():
-        return None
-    t = trimesh.load(p, process=False)
-    v, f = pymeshfix.clean_from_arrays(np.asarray(t.vertices), np.asarray(t.faces))
-    return TriMesh(v, f, name="pymeshfix bunny")
+def fandisk_like(size: float = 0.025) -> TriMesh:
+    """Sharp CAD part (gmsh OCC): 1 x 0.6 x 0.4 block, two vertical edges filleted (r = 0.12), the top front
+    edge chamfered (0.08), a V-groove cut at 26° from the top, a through hole (r = 0.08) and a hollow boss."""
+
+    def build(occ):
+        e = 1e-6
+
+        def curves(x0, y0, z0, x1, y1, z1):
+            return [t for _, t in occ.getEntitiesInBoundingBox(x0 - e, y0 - e, z0 - e, x1 + e, y1 + e, z1 + e, 1)]
+
+        b = occ.addBox(0, 0, 0, 1.0, 0.6, 0.4)
+        occ.synchronize()
+        vol = occ.fillet([b], curves(1, 0.6, 0, 1, 0.6, 0.4) + curves(0, 0.6, 0, 0, 0.6, 0.4), [0.12])[0][1]
+        occ.synchronize()
+        cs = curves(0, 0, 0.4, 1, 0, 0.4)
+        top = [t for _, t in occ.getEntitiesInBoundingBox(-e, -e, 0.4 - e, 1 + e, 0.6 + e, 0.4 + e, 2)]
+        vol = occ.chamfer([vol], cs, top * len(cs), [0.08] * len(cs))[0][1]
+        hole = occ.addCylinder(0.3, 0.3, -0.1, 0, 0, 0.7, 0.08)
+        wedge = occ.addBox(0.6, -0.1, 0.28, 0.6, 0.9, 0.4)
+        occ.rotate([(3, wedge)], 0.6, 0, 0.28, 0, 1, 0, -0.45)
+        out, _ = occ.cut([(3, vol)], [(3, hole), (3, wedge)])
+        boss = occ.addCylinder(0.3, 0.3, 0.35, 0, 0, 0.15, 0.16)
+        ring = occ.addCylinder(0.3, 0.3, 0.3, 0, 0, 0.3, 0.08)
+        out2, _ = occ.cut([(3, boss)], [(3, ring)])
+        occ.fuse(out, out2)
+
+    return _occ_surface(build, size, "fandisk-like")
 
 
-def voxel_surface(occ: np.ndarray, h: float, name: str) -> TriMesh:
-    """Closed lattice surface of a voxel set (outward normals), each unit square split in two triangles."""
-    occ = np.pad(np.asarray(occ, bool), 1)
-    quads = []
-    eye = np.eye(3, dtype=np.int64)
-    for ax in range(3):
-        u, v = eye[(ax + 1) % 3], eye[(ax + 2) % 3]
-        for s in (1, -1):
-            nb = np.roll(occ, -s, axis=ax)
-            cells = np.argwhere(occ & ~nb)
-            base = cells + (eye[ax] if s > 0 else 0)
-            c = np.stack([base, base + u, base + u + v, base + v], axis=1)  # (k, 4, 3), ccw about +ax
-            quads.append(c if s > 0 else c[:, ::-1])
-    quads = np.concatenate(quads)
-    uniq, inv = np.unique(quads.reshape(-1, 3), axis=0, return_inverse=True)
-    ids = inv.reshape(-1, 4)
-    faces = np.concatenate([ids[:, [0, 1, 2]], ids[:, [0, 2, 3]]])
-    pts = uniq * h
-    return TriMesh(pts - pts.mean(axis=0), faces, name=name)
+def oriented(mesh: TriMesh) -> TriMesh:
+    """Consistently outward-wound copy (trimesh.repair.fix_normals): gmsh's OCC surfaces come with the
+    orientation of each CAD patch, which flips between patches (vertex normals would cancel there)."""
+    t = trimesh.Trimesh(mesh.points, mesh.faces, process=False)
+    trimesh.repair.fix_normals(t)
+    return TriMesh(np.asarray(t.vertices), np.asarray(t.faces), name=mesh.name)
 
 
-def remeshed(t: trimesh.Trimesh, length: float, name: str) -> TriMesh:
-    """Irregular CAD-like triangulation: pymeshlab isotropic remeshing (target edge `length`, features
-    above 30 degrees kept), so sharp edges are resolved by mesh edges but the triangles are not a grid."""
-    import pymeshlab
-
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(np.asarray(t.vertices, float), np.asarray(t.faces)))
-    ms.meshing_isotropic_explicit_remeshing(iterations=10, targetlen=pymeshlab.PureValue(length), featuredeg=30)
-    m = ms.current_mesh()
-    return TriMesh(m.vertex_matrix(), m.face_matrix(), name=name)
+def meshes() -> list[tuple[str, TriMesh | None]]:
+    out = [("fandisk-like CAD (gmsh)", oriented(fandisk_like()))]
+    if not QUICK:
+        out += [("plate with hole CAD (gmsh)", oriented(plate_with_hole_surface(0.2, 0.1, 0.03, 0.025, 0.006)))]
+    out += [("bunny scan (pymeshlab)", load_sample("bunny.obj"))]
+    if not QUICK:
+        out += [("face range scan (pymeshlab face000)", load_sample("rangemaps/face000.ply"))]
+    return out
 
 
-def prism() -> TriMesh:
-    """Triangular prism (60-degree edges along its axis, 90-degree edges at the caps), remeshed."""
-    tri = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, np.sqrt(3) / 2]]) - [0.5, np.sqrt(3) / 6]
-    pts = np.r_[np.c_[tri, np.zeros(3)], np.c_[tri, np.full(3, 0.8)]]
-    return remeshed(trimesh.convex.convex_hull(pts), 0.03, "prism (60° edges)")
-
-
-def cube(n: int = 25) -> TriMesh:
-    return voxel_surface(np.ones((n, n, n)), 1.0 / n, "cube")
-
-
-def lblock(n: int = 12) -> TriMesh:
-    occ = np.ones((2 * n, 2 * n, n))
-    occ[n:, n:, :] = 0
-    return voxel_surface(occ, 1.0 / n, "L-block")
-
-
-def sharp_faces(clean: TriMesh, deg: float = 15.0) -> np.ndarray:
-    fn = clean.face_normals()
-    vn = Q.vertex_normals(clean)
-    dots = np.einsum("fkd,fd->fk", vn[clean.faces], fn)  # corner: vertex normal . face normal
-    mind = np.full(clean.n_points, 1.0)
-    np.minimum.at(mind, clean.faces.ravel(), dots.ravel())
-    sharp_v = mind < np.cos(np.radians(deg))
-    return np.flatnonzero(sharp_v[clean.faces].any(axis=1))
-
-
-def tm(mesh: TriMesh) -> trimesh.Trimesh:
-    return trimesh.Trimesh(mesh.points.copy(), mesh.faces.copy(), process=False)
-
-
-def run_trimesh(fn, **kw):
-    def f(mesh, it):
-        t = tm(mesh)
-        fn(t, iterations=it, **kw)
-        return mesh.with_points(np.asarray(t.vertices))
-    return f
-
-
-def run_meshlab(filt, per_call_iters: bool):
-    def f(mesh, it):
+def _pml(filt: str, per_call: bool, **kw):
+    def f(mesh: TriMesh, it: int) -> TriMesh:
         import pymeshlab
 
         ms = pymeshlab.MeshSet()
         ms.add_mesh(pymeshlab.Mesh(mesh.points, mesh.faces))
-        if per_call_iters:
-            getattr(ms, filt)(stepsmoothnum=it)
+        if per_call:
+            getattr(ms, filt)(stepsmoothnum=it, **kw)
         else:
             for _ in range(it):
-                getattr(ms, filt)()
+                getattr(ms, filt)(**kw)
         return mesh.with_points(ms.current_mesh().vertex_matrix())
     return f
 
 
-OURS = {
-    "MSAL (physar: ξ=0.9, f=0.05, corrections)": (lambda m, it: D.msal(m, it), [1, 2, 3, 4, 6, 8, 10, 12, 16, 24, 32]),
-    "MSAL default (8 it, no oracle)": (lambda m, it: D.msal(m), [8]),
-    "MSAL feature mode (rescale=0.5)": (lambda m, it: D.msal(m, it, rescale=0.5), [2, 4, 8, 12, 16, 24, 32]),
-    "MSAL (seed form: ξ=0.5, f=1, no corrections)": (
-        lambda m, it: D.msal(m, it, xi=0.5, fidelity=1.0, shrink_correction=0.0, preserve_volume=False),
-        [1, 2, 3, 4, 6]),
-    "AL (physar: τ=0.5, corrections)": (lambda m, it: D.anisotropic_laplacian(m, it),
-                                        [1, 2, 3, 5, 8, 12, 16, 20, 30, 40, 60]),
-    "BNF (own, Zheng 2011, σr=0.35)": (lambda m, it: D.bilateral_normal_filter(m, it), [1, 2, 5, 10, 20, 40, 80]),
-    "two-step normal smoothing (pymeshlab defaults, extra)": (run_meshlab("apply_coord_two_steps_smoothing", True),
-                                                     [1, 2, 3, 5, 10]),
-}
-BASELINES = {
-    "Taubin (trimesh)": (run_trimesh(trimesh.smoothing.filter_taubin), [1, 2, 5, 10, 20, 50, 100, 200]),
-    "Laplacian (trimesh)": (run_trimesh(trimesh.smoothing.filter_laplacian), [1, 2, 3, 5, 10, 20]),
-    "HC/Humphrey (trimesh)": (run_trimesh(trimesh.smoothing.filter_humphrey), [1, 2, 5, 10, 20, 50, 100]),
-    "Taubin (pymeshlab)": (run_meshlab("apply_coord_taubin_smoothing", True), [1, 2, 5, 10, 20, 50, 100, 200]),
-    "Laplacian (pymeshlab)": (run_meshlab("apply_coord_laplacian_smoothing", True), [1, 2, 3, 5, 10]),
-    "HC (pymeshlab)": (run_meshlab("apply_coord_hc_laplacian_smoothing", False), [1, 2, 3, 5, 10, 20]),
-}
+def _meshlib(normal_iters: int, beta: float, gamma: float):
+    def f(mesh: TriMesh) -> TriMesh:
+        import meshlib.mrmeshnumpy as mn
+        import meshlib.mrmeshpy as mr
+
+        m = mn.meshFromFacesVerts(mesh.faces.astype(np.int32), mesh.points.astype(np.float32))
+        s = mr.DenoiseViaNormalsSettings()
+        s.normalIters, s.beta, s.gamma = normal_iters, beta, gamma
+        mr.meshDenoiseViaNormals(m, s)
+        v = np.asarray(mn.getNumpyVerts(m), float)
+        if v.shape != mesh.points.shape:
+            raise RuntimeError("MeshLib changed the vertex count")
+        return mesh.with_points(v)
+    return f
 
 
-def evaluate(clean: TriMesh, sigma: float, cad: bool, seed: int = 0) -> list[dict]:
-    noisy = Q.add_noise(clean, sigma, seed, "normal")
-    sf = sharp_faces(clean) if cad else np.zeros(0, dtype=int)
+def peers() -> dict[str, list[tuple[str, callable]]]:
+    """name -> [(parameter label, mesh -> mesh)]: each peer's grid."""
+    grid = {
+        "Taubin (pymeshlab)": [(f"{it} it", lambda m, it=it: _pml("apply_coord_taubin_smoothing", True)(m, it))
+                               for it in (1, 2, 5, 10, 20, 50, 100, 200)],
+        "HC Laplacian (pymeshlab)": [(f"{it} it", lambda m, it=it: _pml("apply_coord_hc_laplacian_smoothing",
+                                                                        False)(m, it)) for it in (1, 2, 3, 5, 10, 20)],
+        "two-step (pymeshlab)": [(f"{it} it, {th}°", lambda m, it=it, th=th: _pml(
+            "apply_coord_two_steps_smoothing", True, normalthr=th)(m, it)) for it in (1, 2, 3, 5, 10) for th in (20, 40, 60)],
+        "BNF (physar, Zheng 2011)": [(f"{it} it, σr {sr}", lambda m, it=it, sr=sr: D.bilateral_normal_filter(
+            m, it, sigma_r=sr)) for it in (2, 5, 10, 20, 40) for sr in (0.2, 0.35, 0.5)],
+        "MSAL (physar, seed 001)": [(f"{it} it, κ {k}", lambda m, it=it, k=k: D.msal(m, it, kappa=k))
+                                    for it in (4, 8, 16, 32) for k in (1.0, 1.5, 3.0)],
+    }
+    try:
+        import meshlib.mrmeshpy  # noqa: F401
+
+        grid["MeshLib normal filter"] = [(f"{ni} it, β {b}, γ {g}", _meshlib(ni, b, g))
+                                         for ni in (5, 10, 20) for b in (0.001, 0.01) for g in (5.0, 20.0)]
+    except ImportError:
+        print("meshlib not installed: MeshLib normal filter skipped", file=sys.stderr)
+    return grid
+
+
+def measure(out: TriMesh, clean: TriMesh, closed: bool) -> dict:
     ebar = Q.mean_edge_length(clean)
+    return {"ang": Q.normal_angle_error(out, clean),
+            "dist": float(Q.point_to_surface_distance(out.points, clean).mean()) / ebar,
+            "vol": Q.volume_change(out, clean) if closed else float("nan")}
 
-    def row(name, it, out):
-        d = Q.point_to_surface_distance(out.points, clean)
-        return {"method": name, "it": it, "ang": Q.normal_angle_error(out, clean),
-                "sharp": Q.normal_angle_error(out, clean, sf) if len(sf) else float("nan"),
-                "dist": float(d.mean()) / ebar, "vol": Q.volume_change(out, clean),
-                "baseline": name in BASELINES}
 
-    rows = [row("noisy input", 0, noisy)]
-    for name, (fn, grid) in {**OURS, **BASELINES}.items():
+def is_closed(mesh: TriMesh) -> bool:
+    e = np.sort(mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    return bool((np.unique(e, axis=0, return_counts=True)[1] == 2).all())
+
+
+def evaluate(clean: TriMesh, sigma: float, grid: dict) -> list[dict]:
+    noisy = Q.add_noise(clean, sigma, 0, "random")
+    closed = is_closed(clean)
+    rows = [{"method": "noisy input", "params": "", **measure(noisy, clean, closed), "s_per_vertex": 0.0}]
+    t0 = time.process_time()
+    out = D.denoise(noisy)
+    dt = time.process_time() - t0
+    rows.append({"method": "physar guided, automatic default", "params": "from the noisy mesh",
+                 **measure(out, clean, closed), "s_per_vertex": dt / clean.n_points})
+    for name, variants in grid.items():
         best = None
-        for it in grid:
+        for label, fn in variants:
+            t0 = time.process_time()
             try:
-                out = fn(noisy, it)
-            except Exception as exc:  # noqa: BLE001 - a peer filter missing in this pymeshlab version
-                print(f"  {name}: skipped ({exc})", file=sys.stderr)
-                break
+                out = fn(noisy)
+            except Exception as exc:  # noqa: BLE001 - a peer that fails on this mesh is reported, not fatal
+                print(f"  {name} {label}: failed ({exc})", file=sys.stderr)
+                continue
+            dt = time.process_time() - t0
             a = Q.normal_angle_error(out, clean)
             if best is None or a < best[0]:
-                best = (a, it, out)
+                best = (a, label, out, dt)
         if best is not None:
-            rows.append(row(name, best[1], best[2]))
+            rows.append({"method": name, "params": best[1], **measure(best[2], clean, closed),
+                         "s_per_vertex": best[3] / clean.n_points})
     return rows
 
 
-def meshes() -> list[tuple[str, TriMesh | None, bool]]:
-    out = [("bunny (pymeshlab)", load_sample("bunny.obj"), False)]
-    if not QUICK:
-        out += [("cow (pymeshlab)", load_sample("cow.obj"), False), ("bone (pymeshlab)", load_sample("bone.ply"), False),
-                ("bunny (pymeshfix)", load_pymeshfix_bunny(), False)]
-    out += [("cube (grid)", cube(), True)]
-    if not QUICK:
-        out += [("L-block (grid)", lblock(), True),
-                ("box (remeshed)", remeshed(trimesh.creation.box(extents=(1, 0.7, 0.5)), 0.03, "box"), True),
-                ("cylinder (remeshed)", remeshed(trimesh.creation.cylinder(radius=0.4, height=1, sections=96), 0.03,
-                                                 "cylinder"), True),
-                ("prism (remeshed)", prism(), True)]
-    return out
-
-
-def quality_tables() -> None:
-    sigmas = [0.2] if QUICK else [0.1, 0.2, 0.3]
-    summary = []
-    print("| mesh | verts | noise σ/ē | method | best it | normal err (deg) | sharp-face err (deg) | "
-          "mean dist / ē | volume change % |")
+def quality_tables(sigmas: list[float]) -> None:
+    grid = peers()
+    print("| mesh | vertices | σ/ē | method | best parameters | normal error (°) | mean dist / ē | volume change % | "
+          "CPU µs / vertex |")
     print("|---|---|---|---|---|---|---|---|---|")
-    for label, clean, cad in meshes():
+    summary = []
+    for label, clean in meshes():
         if clean is None:
-            print(f"| {label} | not available | | | | | | | |")
+            print(f"| {label} | not installed | | | | | | | |")
             continue
         for sigma in sigmas:
-            rows = evaluate(clean, sigma, cad)
+            rows = evaluate(clean, sigma, grid)
             for r in rows:
-                sharp = "–" if np.isnan(r["sharp"]) else f"{r['sharp']:.2f}"
-                print(f"| {label} | {clean.n_points} | {sigma} | {r['method']} | {r['it']} | {r['ang']:.2f} | "
-                      f"{sharp} | {r['dist']:.3f} | {100 * r['vol']:+.2f} |", flush=True)
-            base = [r for r in rows if r["baseline"]]
-            pick = lambda prefix, rows=rows: next(r for r in rows if r["method"].startswith(prefix))
-            summary.append((label, sigma, cad, pick("MSAL (physar"), pick("MSAL default"), pick("MSAL (seed"),
-                            pick("AL (physar"), pick("BNF"), pick("two-step"), base, pick("MSAL feature")))
-    print("\n| mesh | noise σ/ē | MSAL normal err / best baseline (MSAL default 8 it) | MSAL dist / best baseline | "
-          "AL normal err / best baseline | seed-form MSAL / best baseline | feature-mode MSAL / best baseline | "
-          "sharp-face err (deg): MSAL / feature-mode MSAL / AL / best baseline / BNF / two-step | MSAL volume change % |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    agg = {"ang": [], "dist": [], "sharp_win": 0, "sharp_win_f": 0, "n_cad": 0, "vol": [], "ang_f_cad": []}
-    for label, sigma, cad, ms, ms8, seed, al, bnf, two, base, fm in summary:
-        ba = min(b["ang"] for b in base)
-        bd = min(b["dist"] for b in base)
-        sharp = "–"
-        if cad:
-            bs = min(b["sharp"] for b in base)
-            sharp = (f"{ms['sharp']:.2f} / {fm['sharp']:.2f} / {al['sharp']:.2f} / {bs:.2f} / {bnf['sharp']:.2f} / "
-                     f"{two['sharp']:.2f}")
-            agg["n_cad"] += 1
-            agg["sharp_win"] += ms["sharp"] < bs
-            agg["sharp_win_f"] += fm["sharp"] < bs
-            agg["ang_f_cad"].append(fm["ang"] / ba)
-        agg["ang"].append(ms["ang"] / ba)
-        agg["dist"].append(ms["dist"] / bd)
-        agg["vol"].append(abs(ms["vol"]))
-        print(f"| {label} | {sigma} | {ms['ang'] / ba:.2f} ({ms8['ang'] / ba:.2f}) | {ms['dist'] / bd:.2f} | "
-              f"{al['ang'] / ba:.2f} | {seed['ang'] / ba:.2f} | {fm['ang'] / ba:.2f} | {sharp} | {100 * ms['vol']:+.2f} |", flush=True)
-    gm = lambda x: float(np.exp(np.mean(np.log(x))))
-    print(f"\nMSAL / best baseline, geometric mean over {len(agg['ang'])} cases: normal error {gm(agg['ang']):.2f} "
-          f"(worst {max(agg['ang']):.2f}), distance {gm(agg['dist']):.2f} (worst {max(agg['dist']):.2f}); "
-          f"sharp-face error below every baseline in {agg['sharp_win']}/{agg['n_cad']} CAD cases; "
-          f"max |volume change| {100 * max(agg['vol']):.2f} %")
-    if agg["n_cad"]:
-        print(f"feature-mode MSAL on the CAD meshes: normal error / best baseline {gm(agg['ang_f_cad']):.2f} "
-              f"(worst {max(agg['ang_f_cad']):.2f}); sharp-face error below every baseline in "
-              f"{agg['sharp_win_f']}/{agg['n_cad']} cases")
+                vol = "–" if np.isnan(r["vol"]) else f"{100 * r['vol']:+.2f}"
+                print(f"| {label} | {clean.n_points} | {sigma} | {r['method']} | {r['params']} | {r['ang']:.2f} | "
+                      f"{r['dist']:.3f} | {vol} | {1e6 * r['s_per_vertex']:.1f} |", flush=True)
+            ours = rows[1]
+            peer = min(rows[2:], key=lambda r: r["ang"])
+            summary.append((label, sigma, ours, peer))
+    print("\n| mesh | σ/ē | physar default: normal error (°) | best peer (its best parameters) | ratio | "
+          "default volume change % |")
+    print("|---|---|---|---|---|---|")
+    for label, sigma, ours, peer in summary:
+        vol = "–" if np.isnan(ours["vol"]) else f"{100 * ours['vol']:+.2f}"
+        print(f"| {label} | {sigma} | {ours['ang']:.2f} | {peer['ang']:.2f} {peer['method']} ({peer['params']}) | "
+              f"{ours['ang'] / peer['ang']:.2f} | {vol} |")
+
+
+def remeshed(points: np.ndarray, faces: np.ndarray, length: float, name: str) -> TriMesh:
+    """Irregular triangulation (pymeshlab isotropic remeshing, features above 30° kept), outward oriented."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(np.asarray(points, float), np.asarray(faces)))
+    ms.meshing_isotropic_explicit_remeshing(iterations=10, targetlen=pymeshlab.PureValue(length), featuredeg=30)
+    m = ms.current_mesh()
+    return oriented(TriMesh(m.vertex_matrix(), m.face_matrix(), name=name))
+
+
+def calibration_meshes() -> list[TriMesh]:
+    """Meshes for the constants of physar.geometry.normal_filter, none of them a benchmark mesh: a remeshed
+    sphere and torus (smooth), a remeshed box and cylinder (sharp 90° edges), and pymeshlab's cow, bone and
+    airplane (organic and man-made detail)."""
+    s = trimesh.creation.icosphere(5)
+    t = torus(120)
+    b = trimesh.creation.box(extents=(1, 0.7, 0.5))
+    c = trimesh.creation.cylinder(radius=0.4, height=1, sections=96)
+    return [remeshed(s.vertices, s.faces, 0.03, "sphere"), remeshed(t.points, t.faces, 0.03, "torus"),
+            remeshed(b.vertices, b.faces, 0.03, "box"), remeshed(c.vertices, c.faces, 0.03, "cylinder")] + [
+        m for m in (load_sample("cow.obj"), load_sample("bone.ply"), load_sample("airplane.obj")) if m is not None]
+
+
+def calibrate() -> None:
+    """MAD_RATIO = σ_e / σ_n on the calibration meshes (both noise conventions), then the discrepancy factor:
+    normal error of `guided` at each factor / the best over fixed stage-1 iteration counts (oracle)."""
+    from physar.geometry import normal_filter as NF
+
+    ms = calibration_meshes()
+    if "--detail-only" in sys.argv:
+        ms = ms[4:]
+    print("| mesh | noise | σ/ē | σ_e / σ_n (3 seeds) |\n|---|---|---|---|")
+    for m in ms:
+        for d in ("random", "normal"):
+            for sg in (0.1, 0.2, 0.3):
+                sn = sg * Q.mean_edge_length(m) / (np.sqrt(3) if d == "random" else 1.0)
+                r = np.mean([NF.noise_scale(Q.add_noise(m, sg, seed, d)) / sn for seed in range(3)])
+                print(f"| {m.name} | {d} | {sg} | {r:.3f} |")
+    factors = (0.9, 0.95, 1.0, 1.05, 1.1)
+    print("\n| mesh | σ/ē | oracle best (k) | " + " | ".join(f"factor {f}" for f in factors) + " |")
+    print("|---|---|---|" + "---|" * len(factors))
+    for m in ms:
+        for sg in (0.2, 0.3):
+            noisy = Q.add_noise(m, sg, 0, "random")
+            orc = min((Q.normal_angle_error(NF.normal_filter_denoise(noisy, NF.NormalFilterSettings(
+                normal_iterations=k)), m), k) for k in (1, 2, 3, 5, 8, 12, 20, 30, 50, 100))
+            errs = [Q.normal_angle_error(NF.normal_filter_denoise(noisy, NF.NormalFilterSettings(discrepancy=f)), m)
+                    for f in factors]
+            print(f"| {m.name} | {sg} | {orc[0]:.2f} ({orc[1]}) | " + " | ".join(f"{e:.2f}" for e in errs) + " |",
+                  flush=True)
 
 
 def torus(n: int) -> TriMesh:
@@ -279,50 +282,41 @@ def torus(n: int) -> TriMesh:
     b = (((i + 1) % n) * n + j).ravel()
     c = (((i + 1) % n) * n + (j + 1) % n).ravel()
     d = (i * n + (j + 1) % n).ravel()
-    faces = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
-    return TriMesh(pts.reshape(-1, 3), faces, name=f"torus{n}")
+    return TriMesh(pts.reshape(-1, 3), np.r_[np.c_[a, b, c], np.c_[a, c, d]], name=f"torus{n}")
 
 
 def timing_table() -> None:
-    """Seconds per iteration vs vertex count. Wall time and process CPU time are both given: the shared
-    2-core machine is often oversubscribed, and the kernels are single-threaded, so CPU time is what an
-    idle machine's wall time would be; the ratio to trimesh's Taubin (same process) is load-independent."""
-    sizes = [100, 316, 1000] if not QUICK else [100, 316]
+    """CPU seconds per vertex for one whole denoising call (defaults) vs vertex count (single-threaded)."""
+    sizes = [100, 316] if QUICK else [100, 316, 1000]
     load = os.getloadavg()
-    print(f"\nload average before timing (1/5/15 min): {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; "
-          f"{os.cpu_count()} CPUs")
-    print("\n| vertices (closed torus) | MSAL s/iter wall (CPU) | MSAL CPU µs per vertex per iter | MSAL setup s CPU | "
-          "AL s/iter CPU | Taubin (trimesh) s/iter CPU | MSAL / Taubin (CPU) |")
-    print("|---|---|---|---|---|---|---|")
+    print(f"\nload average before timing (1/5/15 min): {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; {os.cpu_count()} CPUs")
+    print("\n| vertices (torus) | guided default: CPU s (µs / vertex) | MSAL 8 it: CPU s | Taubin 20 it (pymeshlab): "
+          "CPU s | guided / Taubin |")
+    print("|---|---|---|---|---|")
     for n in sizes:
-        m = Q.add_noise(torus(n), 0.2, 0)
+        m = Q.add_noise(torus(n), 0.2, 0, "random")
         res = {}
-        for name, fn in [("msal", lambda p, m=m: D.msal(m, 5, progress=p)),
-                         ("al", lambda p, m=m: D.anisotropic_laplacian(m, 5, progress=p))]:
-            best = None
-            for _ in range(2):  # best of two runs (shared CPU)
-                stamps = []
-                c0 = time.process_time()
-                fn(lambda k, q: stamps.append((time.perf_counter(), time.process_time())))  # noqa: B023
-                st = np.array(stamps)
-                wall, cpu = np.diff(st, axis=0).mean(axis=0)  # excludes the one-off setup (edges, scales)
-                cand = (cpu, wall, st[0, 1] - c0)
-                best = cand if best is None or cand[0] < best[0] else best
-            res[name] = best
-        t = tm(m)
-        c1 = time.process_time()
-        trimesh.smoothing.filter_taubin(t, iterations=4)
-        tt = (time.process_time() - c1) / 4
-        ms = res["msal"]
-        print(f"| {n * n} | {ms[1]:.3f} ({ms[0]:.3f}) | {ms[0] / (n * n) * 1e6:.2f} | {ms[2]:.2f} | {res['al'][0]:.3f} | "
-              f"{tt:.3f} | {ms[0] / tt:.2f} |", flush=True)
+        for name, fn in [("guided", lambda m=m: D.denoise(m)), ("msal", lambda m=m: D.msal(m)),
+                         ("taubin", lambda m=m: _pml("apply_coord_taubin_smoothing", True)(m, 20))]:
+            t0 = time.process_time()
+            fn()
+            res[name] = time.process_time() - t0
+        print(f"| {n * n} | {res['guided']:.2f} ({1e6 * res['guided'] / n**2:.1f}) | {res['msal']:.2f} | "
+              f"{res['taubin']:.2f} | {res['guided'] / res['taubin']:.1f} |", flush=True)
     load = os.getloadavg()
     print(f"\nload average after timing: {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
 
 
 if __name__ == "__main__":
+    sig = [0.2] if QUICK else [0.1, 0.2, 0.3]
+    if "--sigmas" in sys.argv:
+        i = sys.argv.index("--sigmas") + 1
+        sig = [float(x) for x in sys.argv[i:] if not x.startswith("--")]
     print(f"# bench_denoise.py {time.strftime('%Y-%m-%d %H:%M')} {'(quick)' if QUICK else ''}")
+    if "--calibrate" in sys.argv:
+        calibrate()
+        sys.exit(0)
     if "--timing-only" not in sys.argv:
-        quality_tables()
+        quality_tables(sig)
     if "--quality-only" not in sys.argv:
         timing_table()
