@@ -6,7 +6,7 @@ clean mesh) along a uniformly random direction per vertex (`add_noise(direction=
 plus the mean vertex-to-surface distance to the clean mesh (/ē) and the volume change against the clean mesh.
 
 Every peer runs over a small grid of its parameters and is reported at its best (an oracle choice that needs
-the clean mesh); physar's default `guided` runs once, with the parameters it picks from the noisy mesh alone.
+the clean mesh); physar's default `two-stage` runs once, with the parameters it picks from the noisy mesh alone.
 Peers: pymeshlab Taubin, HC Laplacian and two-step smoothing, MeshLib's normal filter (`meshlib`, Mumford-Shah
 denoising via normals; skipped if not installed), physar's own bilateral normal filter (BNF, Zheng 2011) and
 MSAL (seed 001 §3.2.1, tuned as a peer).
@@ -170,7 +170,7 @@ def evaluate(clean: TriMesh, sigma: float, grid: dict) -> list[dict]:
     t0 = time.process_time()
     out = D.denoise(noisy)
     dt = time.process_time() - t0
-    rows.append({"method": "physar guided, automatic default", "params": "from the noisy mesh",
+    rows.append({"method": "physar two-stage, automatic default", "params": "from the noisy mesh",
                  **measure(out, clean, closed), "s_per_vertex": dt / clean.n_points})
     for name, variants in grid.items():
         best = None
@@ -245,7 +245,7 @@ def calibration_meshes() -> list[TriMesh]:
 
 def calibrate() -> None:
     """MAD_RATIO = σ_e / σ_n on the calibration meshes (both noise conventions), then the discrepancy factor:
-    normal error of `guided` at each factor / the best over fixed stage-1 iteration counts (oracle)."""
+    normal error of `two-stage` at each factor / the best over fixed stage-1 iteration counts (oracle)."""
     from physar.geometry import normal_filter as NF
 
     ms = calibration_meshes()
@@ -290,19 +290,19 @@ def timing_table() -> None:
     sizes = [100, 316] if QUICK else [100, 316, 1000]
     load = os.getloadavg()
     print(f"\nload average before timing (1/5/15 min): {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; {os.cpu_count()} CPUs")
-    print("\n| vertices (torus) | guided default: CPU s (µs / vertex) | MSAL 8 it: CPU s | Taubin 20 it (pymeshlab): "
-          "CPU s | guided / Taubin |")
+    print("\n| vertices (torus) | two-stage default: CPU s (µs / vertex) | MSAL 8 it: CPU s | Taubin 20 it (pymeshlab): "
+          "CPU s | two-stage / Taubin |")
     print("|---|---|---|---|---|")
     for n in sizes:
         m = Q.add_noise(torus(n), 0.2, 0, "random")
         res = {}
-        for name, fn in [("guided", lambda m=m: D.denoise(m)), ("msal", lambda m=m: D.msal(m)),
+        for name, fn in [("two-stage", lambda m=m: D.denoise(m)), ("msal", lambda m=m: D.msal(m)),
                          ("taubin", lambda m=m: _pml("apply_coord_taubin_smoothing", True)(m, 20))]:
             t0 = time.process_time()
             fn()
             res[name] = time.process_time() - t0
-        print(f"| {n * n} | {res['guided']:.2f} ({1e6 * res['guided'] / n**2:.1f}) | {res['msal']:.2f} | "
-              f"{res['taubin']:.2f} | {res['guided'] / res['taubin']:.1f} |", flush=True)
+        print(f"| {n * n} | {res['two-stage']:.2f} ({1e6 * res['two-stage'] / n**2:.1f}) | {res['msal']:.2f} | "
+              f"{res['taubin']:.2f} | {res['two-stage'] / res['taubin']:.1f} |", flush=True)
     load = os.getloadavg()
     print(f"\nload average after timing: {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
 

@@ -59,7 +59,7 @@ def _save(path: Path, mesh, pts) -> None:
 
 # CLI option -> keyword of each method (None: the option does not apply to that method)
 _PARAMS = {
-    "guided": {"sigma_r": "sigma_r"},
+    "two-stage": {"sigma_r": "sigma_r"},
     "al": {"kappa": "kappa", "fidelity": "lam", "tau": "tau"},
     "msal": {"kappa": "kappa", "xi": "xi", "fidelity": "fidelity", "rescale": "rescale"},
     "msal-sharp": {"kappa": "kappa", "xi": "xi", "fidelity": "fidelity", "rescale": "rescale"},
@@ -150,10 +150,10 @@ def register(app: typer.Typer) -> None:
         out: Annotated[Path, typer.Argument(help="output file (same kinds)")],
         method: str = typer.Option(
             None, "--method",
-            help="guided (default for meshes: guided normal filter + feature-weighted Taubin + vertex update, parameters "
-                 "from the mesh's own noise estimate) | al | msal (seed 001) | msal-sharp (MSAL, CAD feature "
+            help="two-stage (default for meshes: bilateral normal filter, feature-weighted Taubin, vertex update; the "
+                 "amount of filtering from the mesh's own noise estimate) | al | msal (seed 001) | msal-sharp (MSAL, CAD feature "
                  "mode) | laplacian | taubin | bnf; point clouds: msal (default) | al"),
-        iterations: int = typer.Option(None, "--iterations", help="iterations (default per method; guided: "
+        iterations: int = typer.Option(None, "--iterations", help="iterations (default per method; two-stage: "
                                                                   "normal-filter iterations, automatic)"),
         kappa: float = typer.Option(None, "--kappa", help="al/msal: edge-stopping width κ in units of the "
                                                           "robust noise scale (default 1.5)"),
@@ -163,7 +163,7 @@ def register(app: typer.Typer) -> None:
         tau: float = typer.Option(None, "--tau", help="al: step size τ (default 0.5)"),
         rescale: float = typer.Option(None, "--rescale", help="msal: sharp-edge rescale ρ in [0, 1] (edge-"
                                                               "stopping scale follows the remaining noise)"),
-        sigma_r: float = typer.Option(None, "--sigma-r", help="guided/bnf: range kernel width on normals"),
+        sigma_r: float = typer.Option(None, "--sigma-r", help="two-stage/bnf: range kernel width on normals"),
         reference: Annotated[Path | None, typer.Option(
             "--reference", help="clean mesh with the same faces: print the mean face-normal angle error, mean "
                                 "vertex distance, volume change")] = None,
@@ -173,7 +173,7 @@ def register(app: typer.Typer) -> None:
         k: int = typer.Option(10, "--k", help="neighbours for point clouds"),
         json_out: bool = typer.Option(False, "--json", help="print a JSON summary on stdout"),
     ) -> None:
-        """Denoise a surface mesh or point cloud (seed 001 §3.2.1 AL/MSAL, or the guided default)."""
+        """Denoise a surface mesh or point cloud (seed 001 §3.2.1 AL/MSAL, or the two-stage default)."""
         import sys
 
         import numpy as np
@@ -183,11 +183,11 @@ def register(app: typer.Typer) -> None:
         from physar.geometry.pointcloud import denoise_points
         from physar.output import check_destination
 
-        if method is None:  # guided for surfaces, msal for point clouds (the only ones they take)
+        if method is None:  # two-stage for surfaces, msal for point clouds (the only ones they take)
             from physar.geometry.pointcloud import read_ply
 
             cloud_in = inp.suffix.lower() == ".ply" and inp.is_file() and _is_cloud(inp, read_ply)
-            method = "msal" if cloud_in else "guided"
+            method = "msal" if cloud_in else "two-stage"
         if method not in METHODS:
             raise PhysarError(f"unknown denoising method {method!r}; choose one of {sorted(METHODS)}")
         if iterations is not None and not 1 <= iterations <= MAX_ITERATIONS:
@@ -213,8 +213,9 @@ def register(app: typer.Typer) -> None:
                 raise PhysarError(f"{inp}: point clouds support --method al or msal, got {method!r}")
             if k < 1:
                 raise PhysarError(f"--k must be >= 1 (neighbours per point), got {k}")
-            if {"rescale", "sigma_r"} & set(params):
-                raise PhysarError(f"{inp}: point clouds take --kappa, --xi, --fidelity, --tau only")
+            if {"rescale", "sigma_r", "lam"} & set(params):
+                raise PhysarError(f"{inp}: point clouds take --kappa and --tau (al) or --kappa, --xi and "
+                                  f"--fidelity (msal)")
         bar = tqdm(desc=f"{method} iterations", file=sys.stderr, disable=None if not json_out else True)
         prog = lambda i, q: bar.update(1)
         try:
@@ -224,10 +225,7 @@ def register(app: typer.Typer) -> None:
                 _save(out, res, None)
                 n = mesh.n_points
             else:
-                kw = {"lam" if k_ == "fidelity" and method == "al" else k_: v for k_, v in params.items()}
-                if method == "al":
-                    kw.pop("lam", None)  # the point-cloud AL has no fidelity term
-                q = denoise_points(pts, method, iterations, k=k, progress=prog, **kw)
+                q = denoise_points(pts, method, iterations, k=k, progress=prog, **params)
                 moved = np.linalg.norm(q - pts, axis=1)
                 _save(out, None, q)
                 n = len(pts)

@@ -474,7 +474,7 @@ def bilateral_normal_filter(
     return mesh.with_points(q)
 
 
-def guided_denoise(
+def two_stage_denoise(
     mesh: TriMesh, iterations: int | None = None, sigma_r: float = 0.35, discrepancy: float = 1.0,
     progress: Progress = None,
 ) -> TriMesh:
@@ -490,10 +490,10 @@ def guided_denoise(
 
 
 METHODS = {
-    "guided": guided_denoise, "al": anisotropic_laplacian, "msal": msal, "msal-sharp": msal_sharp,
+    "two-stage": two_stage_denoise, "al": anisotropic_laplacian, "msal": msal, "msal-sharp": msal_sharp,
     "laplacian": laplacian_smooth, "taubin": taubin_smooth, "bnf": bilateral_normal_filter,
 }
-DEFAULT_METHOD = "guided"
+DEFAULT_METHOD = "two-stage"
 
 
 def denoise(mesh: TriMesh, method: str = DEFAULT_METHOD, iterations: int | None = None, progress: Progress = None,

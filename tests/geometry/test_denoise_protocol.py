@@ -1,4 +1,4 @@
-"""The default denoiser (`guided`) on a sharp CAD-like mesh under the literature's protocol (issue 20).
+"""The default denoiser (`two-stage`) on a sharp CAD-like mesh under the literature's protocol (issue 20).
 
 Everything the verdict rests on is computed here, independently of physar: the noise (random unit direction
 per vertex, std 0.3 ē), the mean face-normal angle error against the clean copy, the enclosed volume, and
