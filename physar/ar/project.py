@@ -186,6 +186,8 @@ class FeaturesSection(_Strict):
     free_scale: Bool = Field(True, description="fit the displacement's amplitude as a nuisance (a stiffness "
                                                "error of the model does not bias the parameters)")
     rest_mm: Float = Field(1.0, ge=0, description="rms displacement below which the object is taken as at rest")
+    ends: Bool = Field(False, description="correct the features' coordinates along u by the face's two ends seen "
+                                          "against their surroundings (when the registration frame's pose is poor)")
 
     @model_validator(mode="after")
     def _check(self):
