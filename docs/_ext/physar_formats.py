@@ -51,8 +51,6 @@ FORMATS: tuple[Format, ...] = (
            (("", "physar.ar.project.ProjectConfig"),), "examples/ar/bracket/project.toml"),
     Format("synth_scenario", "Synthetic-clip scenario", "physar synth render project.toml --scenario S.toml",
            (("", "physar.synth.scenario.Scenario"),)),
-    Format("ar_scene", "Synthetic cantilever scene", "physar scene render SCENE.toml --out scene/",
-           (("", "physar.ar.scene.SceneSpec"),), "examples/scene_cantilever.toml"),
     Format("mpm_scene", "MPM scene", "physar mpm run SCENE.toml --out mpm_out/",
            (("", "physar.mpm.scene.Scene"),), "examples/mpm_two_blocks.toml"),
     Format("recon", "Reconstruction configuration", "physar recon synth|fit --config CONFIG.toml",

@@ -1,5 +1,4 @@
-"""AR layer (seed 000 §2.1, §5): synthetic scenes, video I/O, overlay and the frame loop."""
+"""AR layer (seed 000 §2.1, §5): the AR project file, frame sources, the one frame loop, the overlay, reports."""
 
-# Public API: these submodules (imported on use, not with the package). The scene modules (scene, foam,
-# seal) are synthetic test scenes, not API.
-__all__ = ["demo", "overlay", "pipeline", "project", "project_pipeline", "runner", "sources", "surface", "video"]
+# Public API: these submodules (imported on use, not with the package).
+__all__ = ["project", "project_pipeline", "runner", "sources", "surface", "video"]

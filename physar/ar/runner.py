@@ -1,16 +1,11 @@
-"""What every AR pipeline does around its per-frame step: :func:`run_video` (open the source, check its size,
+"""What the AR pipeline does around its per-frame step: :func:`run_video` (open the source, check its size,
 write the augmented video and the per-frame CSV progressively and atomically, stop cleanly on SIGINT/SIGTERM,
-time the frames) and :func:`run_scene_demo` (the
-render -> reduced model -> pipeline stages of the scene demos), with :func:`pipeline_stats` and
-:func:`write_report` for their report.json."""
+time the frames), and :func:`pipeline_stats` (the entries of its summary that a demo's report.json carries)."""
 from __future__ import annotations
 
 import contextlib
-import json
-import os
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -178,48 +173,6 @@ def _loop(process, camera, reader, source, out_video, out_csv, fps, crf, csv_hea
     return summary
 
 
-@dataclass
-class SceneDemo:
-    """What :func:`run_scene_demo` made: ``build``'s return value, the camera, the pipeline's summary and the
-    wall time of each stage."""
-
-    model: object
-    camera: object
-    summary: dict
-    timings_s: dict
-
-
-def run_scene_demo(out: Path, spec, progress: Callable[[str, int, int], None] | None, render: Callable,
-                   model_stage: str, build: Callable, pipeline: Callable, snapshot_at: float) -> SceneDemo:
-    """The stages of a scene demo in ``out``: ``render(spec, out, progress=...)`` (scene.mp4, truth.csv,
-    camera.toml), ``build(progress) -> model`` (builds and saves the reduced model; its progress stage is
-    called ``model_stage``), ``pipeline(model, camera)`` run on scene.mp4 -> augmented.mp4 and estimates.csv,
-    with augmented_frame.png the frame at ``snapshot_at`` of the clip. ``progress(stage, done, total)``."""
-    out.mkdir(parents=True, exist_ok=True)
-    cb = (lambda stage: (lambda k, n: progress(stage, k, n))) if progress else (lambda stage: None)
-    t0 = time.perf_counter()
-    render(spec, out, progress=cb("render scene"))
-    t1 = time.perf_counter()
-    model = build(cb(model_stage))
-    t2 = time.perf_counter()
-    from physar.vision.camera import Camera
-
-    cam = Camera.load(out / "camera.toml")
-    snap = {int(snapshot_at * spec.n_frames): out / "augmented_frame.png"}
-    summary = pipeline(model, cam).run(out / "scene.mp4", out / "augmented.mp4", out / "estimates.csv",
-                                       fps=spec.video.fps, progress=cb("AR pipeline"), snapshots=snap)
-    t3 = time.perf_counter()
-    return SceneDemo(model, cam, summary,
-                     {"render_scene": t1 - t0, "reduced_model": t2 - t1, "pipeline": t3 - t2})
-
-
 def pipeline_stats(summary: dict) -> dict:
     """The entries of a pipeline summary that a demo's report.json carries."""
     return {k: summary[k] for k in ("frames", "fps", "latency_ms_median", "latency_ms_p95", "stages_ms_median")}
-
-
-def write_report(out: Path, report: dict) -> None:
-    """``out``/report.json, atomically (numpy scalars as floats)."""
-    tmp = out / ".report.json.tmp"
-    tmp.write_text(json.dumps(report, indent=2, default=float))
-    os.replace(tmp, out / "report.json")

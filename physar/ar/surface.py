@@ -14,7 +14,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from physar.ar.overlay import turbo_lut
 from physar.fem import ElasticModel, LinearElastic
 from physar.fem.post import nodal_stress
 from physar.vision.camera import Camera, Pose
@@ -22,6 +21,12 @@ from physar.vision.camera import Camera, Pose
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 UNITS = {"von_mises": ("von Mises", "MPa", 1e-6), "u": ("|u|", "mm", 1e3), "ux": ("u_x", "mm", 1e3),
          "uy": ("u_y", "mm", 1e3), "uz": ("u_z", "mm", 1e3)}
+
+
+def turbo_lut(n: int = 64) -> np.ndarray:
+    """(n, 3) BGR uint8 colours of OpenCV's TURBO colormap."""
+    ramp = np.linspace(0, 255, n).astype(np.uint8).reshape(-1, 1)
+    return cv2.applyColorMap(ramp, cv2.COLORMAP_TURBO).reshape(n, 3)
 
 
 def surface_stress_modes(space, F, E: float, nu: float, nodes) -> np.ndarray:

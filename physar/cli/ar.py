@@ -1,4 +1,4 @@
-"""`physar calibrate`, `physar scene render|model`, `physar ar run`: the augmented-reality pipeline (seed 000)."""
+"""`physar calibrate`, `physar ar run|init|print-markers`: the augmented-reality pipeline (seed 000)."""
 
 from __future__ import annotations
 
@@ -75,84 +75,14 @@ def calibrate(
             f"{res['images_used']}/{res['images_total']} images; wrote {output}")
 
 
-def _scene_kind(path: Path) -> str:
-    """The scene's `name` (cantilever | foam | seal) from its TOML, with a one-line error if unreadable."""
-    from physar.ar.scene import read_scene_toml
-
-    return str(read_scene_toml(path).get("name", "cantilever"))
-
-
-def scene_render(
-    scene: Path = typer.Argument(..., help="scene TOML (examples/scene_cantilever.toml, scene_foam.toml, scene_seal.toml)"),  # noqa: B008 - typer idiom
-    out: Path = typer.Option(Path("scene_out"), "--out", "-o", help="output folder"),  # noqa: B008 - typer idiom
-    json_out: bool = typer.Option(False, "--json"),
-) -> None:
-    """Render a synthetic AR scene: scene.mp4 (H.264), truth.csv, camera.toml."""
-    kind = _scene_kind(scene)
-    if kind == "foam":
-        from physar.ar.foam import load_foam_scene, render_foam_scene
-
-        res = render_foam_scene(load_foam_scene(scene), out, progress=_bar("render"))
-    elif kind == "seal":
-        from physar.ar.seal import load_seal_scene, render_seal_scene
-
-        res = render_seal_scene(load_seal_scene(scene), out, progress=_bar("render"))
-    else:
-        from physar.ar.scene import load_scene, render_scene
-
-        res = render_scene(load_scene(scene), out, progress=_bar("render"))
-    if json_out:
-        print_json(res)
-    else:
-        log(f"rendered {res['frames']} frames {res['width']}x{res['height']} -> {res['video']}, {res['truth']}")
-
-
-def scene_model(
-    scene: Path = typer.Argument(..., help="scene TOML"),  # noqa: B008 - typer idiom
-    output: Path = typer.Option(Path("model.npz"), "--output", "-o", help="reduced model file to write"),  # noqa: B008 - typer idiom
-    json_out: bool = typer.Option(False, "--json"),
-) -> None:
-    """Build the reduced (PGD) model of a scene's object, with the AR object description, as .npz."""
-    kind = _scene_kind(scene)
-    if kind == "foam":
-        from physar.ar.foam import build_foam_model, load_foam_scene
-
-        rom, _, space, _ = build_foam_model(load_foam_scene(scene), progress=_bar("snapshots"))
-        rom.save(output, mesh=space.mesh)
-    elif kind == "seal":
-        from physar.ar.seal import build_seal_model, load_seal_scene
-
-        rom, vm, seal, _ = build_seal_model(load_seal_scene(scene), progress=_bar("snapshots"))
-        space = seal.space
-        rom.save(output, mesh=space.mesh)
-        vm_path = output.with_name(output.stem + "_von_mises.npz")
-        vm.save(vm_path, mesh=space.mesh)
-        log(f"von Mises model -> {vm_path}")
-    else:
-        from physar.ar.pipeline import build_scene_model
-        from physar.ar.scene import load_scene
-
-        rom, _obj, space, _info = build_scene_model(load_scene(scene))
-        rom.save(output, mesh=space.mesh)
-    res = {"model": str(output), "modes": rom.n_modes, "dofs": space.n_dofs, "parameters": rom.names}
-    if json_out:
-        print_json(res)
-    else:
-        log(f"{rom.n_modes} modes on {space.n_dofs} dofs -> {output}")
-
-
 def ar_run(
-    model: Path = typer.Argument(..., help="AR project file (.toml; `physar ar init`), or a reduced model .npz "  # noqa: B008 - typer idiom
-                                           "of `physar scene model` with --camera-file"),
+    project: Path = typer.Argument(..., help="AR project file (.toml; `physar ar init`)"),  # noqa: B008 - typer idiom
     source: str | None = typer.Argument(None, help="video file, camera index (0, 1, ...) or stream URL "
                                                     "(rtsp://, tcp://, udp://, http://...)"),
-    camera_file: Path | None = typer.Option(None, "--camera-file", help="camera TOML (with a .npz model; a "  # noqa: B008 - typer idiom
-                                                                         "project names its own)"),
     out: Path | None = typer.Option(None, "--out", "-o", help="augmented video (.mp4) to write"),  # noqa: B008 - typer idiom
     csv_out: Path | None = typer.Option(None, "--csv", help="per-frame estimates CSV"),  # noqa: B008 - typer idiom
     camera: int | None = typer.Option(None, "--camera", help="live camera index instead of a video file"),
-    field: str | None = typer.Option(None, help="overlay field: von_mises, u (a project also: ux, uy, uz); "
-                                                "default the project's"),
+    field: str | None = typer.Option(None, help="overlay field: von_mises, u, ux, uy, uz; default the project's"),
     max_frames: int | None = typer.Option(None, help="stop after this many frames"),
     preset: str = typer.Option("ultrafast", help="libx264 preset of the augmented video (ultrafast ... veryslow)"),
     crf: int = typer.Option(20, help="libx264 constant rate factor (quality; lower = better, 0-51)"),
@@ -161,6 +91,8 @@ def ar_run(
     """Run the AR pipeline on a video, a camera or a stream: markers -> pose -> dots -> assimilation -> overlay."""
     from physar.errors import ConfigError
 
+    if project.suffix.lower() != ".toml":
+        raise ConfigError(f"{project}: give an AR project file (physar ar init project.toml)")
     if (source is None) == (camera is None):
         raise ConfigError("give either a SOURCE (video file, camera index or URL) or --camera INDEX")
     presets = ("ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower", "veryslow")
@@ -169,11 +101,7 @@ def ar_run(
     if not 0 <= crf <= 51:
         raise ConfigError(f"--crf must be within 0..51, got {crf}")
     spec = source if source is not None else str(camera)
-    if model.suffix.lower() == ".toml":
-        summary = _run_project(model, spec, out, csv_out, field, max_frames, preset, crf, camera_file)
-    else:
-        summary = _run_scene_model(model, spec, camera_file, out, csv_out, field or "von_mises", max_frames,
-                                   preset, crf)
+    summary = _run_project(project, spec, out, csv_out, field, max_frames, preset, crf)
     summary.pop("results", None)
     if json_out:
         print_json(summary)
@@ -197,13 +125,11 @@ def _open(spec: str, cam, what: str):
     return src
 
 
-def _run_project(project_path, spec, out, csv_out, field, max_frames, preset, crf, camera_file):
+def _run_project(project_path, spec, out, csv_out, field, max_frames, preset, crf):
     from physar.ar.project import FIELDS, load_project
     from physar.ar.project_pipeline import ProjectPipeline
     from physar.errors import ConfigError
 
-    if camera_file is not None:
-        raise ConfigError("--camera-file goes with a .npz model; a project names its camera in [camera] file")
     if field is not None and field not in FIELDS:
         raise ConfigError(f"--field must be one of {', '.join(FIELDS)}, got {field!r}")
     from physar.output import check_destination
@@ -218,25 +144,6 @@ def _run_project(project_path, spec, out, csv_out, field, max_frames, preset, cr
     pipe = ProjectPipeline(project)
     return pipe.run(src, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf,
                     keep_results=False)  # running statistics only: bounded memory on a live source
-
-
-def _run_scene_model(model, spec, camera_file, out, csv_out, field, max_frames, preset, crf):
-    from physar.ar.pipeline import ARPipeline
-    from physar.errors import ConfigError
-    from physar.rom import SeparatedModel
-    from physar.vision.camera import Camera
-
-    if camera_file is None:
-        raise ConfigError("a .npz model needs --camera-file CAMERA.toml (or use an AR project file)")
-    if field not in ("von_mises", "u"):
-        raise ConfigError(f"--field must be von_mises or u, got {field!r}")
-    cam = Camera.load(camera_file)
-    if not Path(model).is_file():
-        raise ConfigError(f"{model}: reduced model file not found")
-    src = _open(spec, cam, str(camera_file))  # opened (first frame decoded) before the expensive setup
-    rom = SeparatedModel.load(model)
-    pipe = ARPipeline(rom, cam, field=field)
-    return pipe.run(src, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf)
 
 
 def ar_print_markers(
@@ -280,11 +187,6 @@ def ar_init(
 
 def register(app: typer.Typer) -> None:
     app.command("calibrate")(user_errors(calibrate))
-    scene = typer.Typer(help="Synthetic AR scenes (render video + truth, build the reduced model).",
-                        no_args_is_help=True)
-    scene.command("render")(user_errors(scene_render))
-    scene.command("model")(user_errors(scene_model))
-    app.add_typer(scene, name="scene")
     ar = typer.Typer(help="Augmented-reality pipeline.", no_args_is_help=True)
     ar.command("run")(user_errors(ar_run))
     ar.command("init")(user_errors(ar_init))

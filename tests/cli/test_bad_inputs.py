@@ -470,7 +470,7 @@ def test_assimilate_partial_mu0_cli(data):
 # ------------------------------------------------------------------------------------------------ one module
 # Files that still rename temporaries themselves; they belong to other owners (AR pipeline, reduced models)
 # and are listed in issue 21's report. Any other module must go through physar.output.
-NOT_YET = {"ar/foam.py", "ar/demo.py", "ar/runner.py", "ar/seal.py", "rom/separated.py"}
+NOT_YET = {"rom/separated.py"}
 
 
 def test_only_physar_output_renames_temporaries():
