@@ -1,0 +1,54 @@
+"""The seed's three scenes as project folders (examples/ar/cantilever, foam, seal), each rendered by the test-data
+renderer from a finer mesh and run by the one project pipeline (`physar demo --scene NAME`), against the seed's
+accuracy goals (seed 000 §5.1-§5.3; issue 16 "What must show it"). Minutes each (the foam's St.VK truth about
+ten), hence slow."""
+import json
+
+import pytest
+
+from physar.synth.demo import FILES, run_project_demo, scene_project
+
+pytestmark = pytest.mark.slow
+
+
+def _demo(name, tmp_path_factory):
+    out = tmp_path_factory.mktemp(name)
+    rep = run_project_demo(scene_project(name), out)
+    for f in FILES:
+        assert (out / f).stat().st_size > 0, f
+    assert json.loads((out / "report.json").read_text())["frames"] == rep["frames"]
+    return rep
+
+
+def test_cantilever_every_judged_frame_within_1pct_of_the_range(tmp_path_factory):
+    """Scene (a): every judged frame (no occluder in view, not among the 5 frames after one; the scenario keeps the load
+    beyond 20 % of the span) within 1 % of
+    the 0.5 m range, recovery within 5 frames after each occlusion (measured 2026-11-25: 330/331, mean 0.60 mm,
+    max 6.13 mm at the start of a move; see the assertion's message when it fails). Catches: a pose or dot
+    regression that loses the seed's 1 % goal, a filter lagging behind the moves, no recovery after the hand."""
+    s = _demo("cantilever", tmp_path_factory)["score"]["parameters"]["s"]
+    assert s["judged"] > 300
+    assert s["within"] == s["judged"], s
+    assert s["recovery_frames"] and all(r is not None and r <= 5 for r in s["recovery_frames"]), s
+
+
+def test_foam_mean_error_within_1_5_mm(tmp_path_factory):
+    """Scene (b), no fiducial after frame 0: mean |disk-position error| <= 1.5 mm over the judged frames (seed
+    §5.2: ~1.5 mm on its 797.5 mm beam; measured 2026-11-25: 1.15 mm mean, 4.78 mm max). Catches: the learned
+    wall plane or the natural features lost after frame 0 (no estimate), the nonlinear (St.VK) model replaced by
+    a linear one (errors of several mm at the seed's 15 N)."""
+    s = _demo("foam", tmp_path_factory)["score"]["parameters"]["s"]
+    assert s["judged"] > 250
+    assert s["mean_error"] <= 1.5e-3, s
+
+
+def test_seal_median_error_within_1_deg_and_recovery_within_5_frames(tmp_path_factory):
+    """Scene (c), the virtual boot seal on a real lever: median |lever-angle error| <= 1 deg over the judged
+    frames, back within 1 % of the range within 5 frames after the camera looked away (seed §5.3). Catches: the
+    plate registration lost after the look-away (no recovery), the bar's angle sign or zero direction wrong
+    (errors of tens of degrees)."""
+    rep = _demo("seal", tmp_path_factory)
+    s = rep["score"]["parameters"]["theta"]
+    assert s["judged"] > 100
+    assert s["median_error"] <= 1.0, s
+    assert s["recovery_frames"] and all(r is not None and r <= 5 for r in s["recovery_frames"]), s
