@@ -106,11 +106,38 @@ class ProjectPipeline:
             mat = rom.metadata.get("material_params") or {}
             ov = project.overlay
             material = (float(mat["E"]), float(mat["nu"])) if "E" in mat and "nu" in mat else None
-            fld = ov.field if (ov.field != "von_mises" or material is not None) else "u"
+            table = None
+            linear_modes = mat.get("model", "linear") == "linear" and not any(
+                p.get("kind") == "youngs_modulus" for p in params)
+            if ov.field == "von_mises" and not linear_modes:
+                table = self._stress_table()
+            fld = ov.field if (ov.field != "von_mises" or material is not None or table is not None) else "u"
             show = None if ov.show is None else [self.names.index(s) for s in ov.show]
             self.overlay = SurfaceOverlay(rom, fld, ov.range, ov.exaggeration, ov.alpha, material,
                                           None if pos is None else params[pos].get("path"), pos,
-                                          None if pos is None else params[pos].get("load"), show)
+                                          None if pos is None else params[pos].get("load"), show,
+                                          stress_table=table)
+
+    def _stress_table(self):
+        """Nodal von Mises stress at the surface vertices sampled over the parameter box with the model's own
+        material (nonlinear, or a Young's modulus region): see :func:`physar.ar.surface.sampled_stress`.
+        Needs the project's ``[model] config`` (the material and regions); None without it."""
+        from physar.ar.project import _file
+        from physar.ar.surface import sampled_stress
+        from physar.rom.config import build_parametric_problem, build_problem, load_rom_config
+
+        cfg = self.project.config
+        if cfg.model.config is None:
+            return None
+        conf = _file(cfg._base_dir, cfg.model.config)
+        rcfg = load_rom_config(conf)
+        problem = build_problem(rcfg)
+        if problem.space.n_dofs != self.rom.F.shape[1]:
+            return None
+        pp = build_parametric_problem(rcfg, problem, str(conf))
+        nodes = problem.space.mesh.boundary().node_map
+        has_e = any(k == "youngs_modulus" for k in pp.kinds)
+        return sampled_stress(self.rom, problem.model, nodes, pp.cell_scale if has_e else None)
 
     @property
     def pose_from(self) -> str:

@@ -40,6 +40,22 @@ def surface_stress_modes(space, F, E: float, nu: float, nodes) -> np.ndarray:
     return np.array([nodal_stress(em, Fi, nodes) for Fi in F])
 
 
+def sampled_stress(rom, model, nodes, cell_scale=None, points: int | None = None):
+    """(grids, values): the nodal von Mises stress [Pa] at the surface vertices ``nodes`` on a grid of the
+    parameter box, from the reduced model's displacement u(mu) and the FE ``model``'s own material (Cauchy
+    stress P Fᵀ / J, so a nonlinear material, a rigid rotation or a Young's modulus region, via
+    ``cell_scale(mu)``, are all right; :func:`physar.fem.post.nodal_stress`). The overlay interpolates it
+    multilinearly in mu; stress is not linear in the mode coefficients for these models."""
+    grids = [np.asarray(g, float) for g in getattr(rom, "grids", [])]
+    if points is not None or len(grids) != rom.n_params or np.prod([len(g) for g in grids]) > 4000:
+        n = points or {1: 33, 2: 9}.get(rom.n_params, 5)     # the model's own parameter grids when small enough
+        grids = [np.linspace(a, b, n) for a, b in rom.ranges]   # (a modulus grid is geometric there)
+    mus = np.stack(np.meshgrid(*grids, indexing="ij"), -1).reshape(-1, rom.n_params)
+    vals = np.array([von_mises(nodal_stress(model, rom.evaluate(m), nodes,
+                                            cell_scale=None if cell_scale is None else cell_scale(m))) for m in mus])
+    return grids, vals.reshape(*[len(g) for g in grids], -1)
+
+
 def von_mises(s: np.ndarray) -> np.ndarray:
     """sqrt(3/2 s:s) of stresses (..., 3, 3), s the deviatoric part."""
     dev = s - np.trace(s, axis1=-2, axis2=-1)[..., None, None] * np.eye(3) / 3
@@ -56,7 +72,7 @@ class SurfaceOverlay:
 
     def __init__(self, rom, field: str = "von_mises", vrange=None, exaggeration: float = 1.0, alpha: float = 0.65,
                  material: tuple[float, float] | None = None, load_path=None, load_param: int | None = None,
-                 load_dir=None, show=None, levels: int = 48):
+                 load_dir=None, show=None, levels: int = 48, stress_table=None):
         space = rom.space()
         surf = space.mesh.boundary()
         self.faces = surf.mesh.faces                       # (f, 3) into the surface vertices
@@ -66,7 +82,14 @@ class SurfaceOverlay:
         self.U = np.ascontiguousarray(F[:, nodes])           # (modes, v, 3)
         self.field, self.exag, self.alpha = field, exaggeration, alpha
         self.rom = rom
-        if field == "von_mises":
+        self.table = None
+        if field == "von_mises" and stress_table is not None:   # sampled over the parameters (any material)
+            from scipy.interpolate import RegularGridInterpolator
+
+            grids, vals = stress_table
+            self.table = RegularGridInterpolator(tuple(np.asarray(g, float) for g in grids), np.asarray(vals, float),
+                                                 bounds_error=False, fill_value=None)
+        elif field == "von_mises":
             if material is None:
                 raise ValueError("von Mises overlay needs the material (E, nu)")
             self.S = surface_stress_modes(space, rom.F, *material, nodes)
@@ -76,7 +99,7 @@ class SurfaceOverlay:
         if vrange is None:  # 98th percentile over a grid of the parameter box (a point load's contact stress
             grids = [np.linspace(a, b, 9 if rom.n_params < 3 else 5) for a, b in rom.ranges]  # would wash out the rest)
             mus = np.stack(np.meshgrid(*grids, indexing="ij"), -1).reshape(-1, rom.n_params)
-            top = max(float(np.percentile(np.abs(self.values(rom.coefficients(m)[0])), 98)) for m in mus) or 1.0
+            top = max(float(np.percentile(np.abs(self.values(rom.coefficients(m)[0], m)), 98)) for m in mus) or 1.0
             vrange = (0.0, top) if field in ("von_mises", "u") else (-top, top)
         self.vrange = (float(vrange[0]), float(vrange[1]))
         self.lut = turbo_lut(levels)
@@ -87,8 +110,12 @@ class SurfaceOverlay:
         self.show = list(range(rom.n_params)) if show is None else list(show)
         self._bar = None
 
-    def values(self, c: np.ndarray) -> np.ndarray:
-        """The field (SI units) at the surface vertices for mode coefficients c."""
+    def values(self, c: np.ndarray, mu=None) -> np.ndarray:
+        """The field (SI units) at the surface vertices for mode coefficients c (at parameters mu)."""
+        if self.table is not None:
+            lo = [g[0] for g in self.table.grid]
+            hi = [g[-1] for g in self.table.grid]
+            return self.table(np.clip(np.asarray(mu, float), lo, hi)[None])[0]
         if self.field == "von_mises":
             return von_mises(np.tensordot(c, self.S, 1))
         u = np.tensordot(c, self.U, 1)
@@ -107,14 +134,14 @@ class SurfaceOverlay:
              info: dict, names=(), units=()) -> np.ndarray:
         """Draw onto ``img`` (BGR, in place) and return it."""
         if pose is not None and status != "lost":
-            info = dict(info, field_max=float(self._surface(img, camera, pose, c)))
+            info = dict(info, field_max=float(self._surface(img, camera, pose, c, mu)))
             self._arrow(img, camera, pose, c, mu)
         self._hud(img, mu, std, status, info, names, units)
         return img
 
-    def _surface(self, img, camera, pose, c) -> float:
+    def _surface(self, img, camera, pose, c, mu=None) -> float:
         """Fill the deformed surface; returns the field's maximum (SI units)."""
-        v = self.values(c)
+        v = self.values(c, mu)
         X = self.X0 + self.exag * np.tensordot(c, self.U, 1)
         Xc = X @ pose.R.T + pose.t
         if np.any(Xc[:, 2] <= 1e-6):
