@@ -235,11 +235,11 @@ class ProjectConfig(_Strict):
 
     model: ModelSection
     camera: CameraSection
-    marker: list[MarkerSection] = []
+    marker: list[MarkerSection] = Field(default_factory=list)
     registration: RegistrationSection = RegistrationSection()
     dots: DotsSection | None = None
     features: FeaturesSection | None = None
-    bar: list[BarSection] = []
+    bar: list[BarSection] = Field(default_factory=list)
     overlay: OverlaySection = OverlaySection()
     tracking: TrackingSection = TrackingSection()
     name: Str | None = None

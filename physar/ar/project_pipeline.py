@@ -34,7 +34,6 @@ from physar.ar.runner import run_video
 from physar.assimilation.filters import IMMFilter
 from physar.vision.blobs import find_dots
 from physar.vision.camera import Pose
-from physar.vision.markers import MarkerTracker
 from physar.vision.observation import surface_observation_matrix
 
 STAGES = ("decode", "markers_pose", "dots", "assimilate", "overlay", "encode")
@@ -353,7 +352,7 @@ class ProjectPipeline:
                 st["dots"] = (time.perf_counter() - t1) * 1e3
             t2 = time.perf_counter()
             for b in self.bars:                      # a lever measured directly
-                a, npx = b.measure(frame, pe.pose)
+                a, _npx = b.measure(frame, pe.pose)
                 if np.isfinite(a):
                     mu[b.index], std[b.index] = a, b.bar.sigma
                     n_bars += 1

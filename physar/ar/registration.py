@@ -52,7 +52,7 @@ class Registration:
         o, eu, ev = (np.asarray(v, float) for v in (pl.origin, pl.u, pl.v))
         eu, ev = eu / np.linalg.norm(eu), ev / np.linalg.norm(ev)
         s = float(pl.px_per_m)
-        h, w = img.shape[:2]
+        w = img.shape[1]
         # the zoom the plane is seen at: from the distance given, else the plane filling 3/4 of the image width
         seen = cam.fx / pl.distance if pl.distance is not None else 0.75 * cam.size[0] / (w / s)
         z0 = seen / s

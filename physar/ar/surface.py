@@ -185,7 +185,7 @@ class SurfaceOverlay:
         span = float(np.linalg.norm(self.X0.max(0) - self.X0.min(0)))
         q = camera.project(np.array([base - d * 0.12 * span, base]), pose)
         if np.all(np.isfinite(q)):
-            a, b = (tuple(int(round(v)) for v in x) for x in q)
+            a, b = (tuple(round(v) for v in x.tolist()) for x in q)
             cv2.arrowedLine(img, a, b, (255, 255, 255), 4, cv2.LINE_AA, tipLength=0.25)
             cv2.arrowedLine(img, a, b, (0, 0, 200), 2, cv2.LINE_AA, tipLength=0.25)
 

@@ -9,8 +9,6 @@ their kinds taken from the build configuration in the metadata or, failing that,
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import zipfile
 from bisect import bisect_right
 
@@ -170,7 +168,7 @@ class SeparatedModel:
         return a
 
     def save(self, path, mesh=None, space=None):
-        """Write a .npz atomically (temp file + os.replace): format version, modes, grids, metadata
+        """Write a .npz atomically (:func:`physar.output.write_npz`): format version, modes, grids, metadata
         (JSON), and with ``mesh`` its SHA-256 checksum, with ``space`` (an FESpace) also the mesh
         arrays and element so that the file alone can be probed (`physar rom eval`, `assimilate`)."""
         meta = dict(self.metadata)
@@ -191,17 +189,9 @@ class SeparatedModel:
         for j, (x, g) in enumerate(zip(self.grids, self.G)):
             arrays[f"grid_{j}"] = x
             arrays[f"G_{j}"] = g
-        path = os.fspath(path)
-        d = os.path.dirname(os.path.abspath(path))
-        fd, tmp = tempfile.mkstemp(suffix=".npz", dir=d)
-        os.close(fd)
-        try:
-            np.savez(tmp, **arrays)
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.remove(tmp)
-            raise
+        from physar.output import write_npz
+
+        write_npz(path, **arrays)
 
     @classmethod
     def load(cls, path, mesh=None):

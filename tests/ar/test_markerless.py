@@ -6,8 +6,6 @@ truth is the scenario's schedule (a lever) or a finer FE mesh (a beam):
 * a soft beam without fiducials: the wall behind learned from the first frame (the only one with markers),
   the load position from the beam's own texture on its front face, after rest frames.
 """
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
