@@ -12,11 +12,14 @@ class IMMFilter:
     [lo, hi], per frame), Markov switching with probabilities ``switch`` = (P(dwell -> moving),
     P(moving -> dwell)). The measurement variance is the frame's own std² (floored at 2e-4 of the range),
     so an uncertain frame moves the estimate less; an innovation beyond ``jump_sigma`` standard deviations of
-    the moving model re-initialises the filter at the measurement. ``update(z, std)`` returns the filtered
+    the moving model re-initialises the filter at the measurement. P(dwell -> moving) = 0.2: on the
+    cantilever demo clip (411 frames, ten dwells) 0.05 lagged 1-2 frames at the start of a move (one frame
+    6.1 mm off the 0.5 m range, 330/331 within 1 %), 0.2 keeps every judged frame within 1 % (max 4.5 mm, mean
+    0.60 mm; without a filter 0.73 mm mean, max 3.8 mm). ``update(z, std)`` returns the filtered
     (mu, std); ``reset()`` makes the next measurement start the filter again."""
 
     def __init__(self, lo, hi, dwell_sigma: float = 1e-4, motion_accel: float = 5e-3,
-                 switch: tuple = (0.05, 0.1), jump_sigma: float = 4.0):
+                 switch: tuple = (0.2, 0.1), jump_sigma: float = 4.0):
         self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
         self.dwell_sigma, self.motion_accel, self.switch, self.jump_sigma = dwell_sigma, motion_accel, switch, \
             jump_sigma
