@@ -125,8 +125,9 @@ def guidance(nf: np.ndarray, area: np.ndarray, ff: sparse.csr_matrix) -> np.ndar
 
 
 def filter_normals(nf: np.ndarray, area: np.ndarray, cen: np.ndarray, ff: sparse.csr_matrix, sigma_r: float,
-                   iterations: int, guided: bool = True) -> np.ndarray:
-    """Stage 1: ``iterations`` joint bilateral filter passes over unit face normals (module doc)."""
+                   iterations: int, guided: bool = False) -> np.ndarray:
+    """Stage 1: ``iterations`` bilateral filter passes over unit face normals (joint, on guidance normals, with
+    ``guided``; module doc)."""
     rows = np.repeat(np.arange(ff.shape[0]), np.diff(ff.indptr))
     cols = ff.indices
     dc = cen[rows] - cen[cols]
@@ -143,7 +144,7 @@ def filter_normals(nf: np.ndarray, area: np.ndarray, cen: np.ndarray, ff: sparse
 
 
 def update_vertices(q: np.ndarray, faces: np.ndarray, nf: np.ndarray, iterations: int) -> np.ndarray:
-    """Stage 2: fit the vertices to the face normals nf (Sun et al. 2007, module doc)."""
+    """Stage 3: fit the vertices to the face normals nf (Sun et al. 2007, module doc)."""
     npts = len(q)
     idx = faces.ravel()
     val = np.maximum(np.bincount(idx, minlength=npts), 1).astype(float)
