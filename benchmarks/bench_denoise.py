@@ -251,6 +251,8 @@ def calibrate() -> None:
     ms = calibration_meshes()
     if "--detail-only" in sys.argv:
         ms = ms[4:]
+    if "--simple-only" in sys.argv:
+        ms = ms[:4]
     print("| mesh | noise | σ/ē | σ_e / σ_n (3 seeds) |\n|---|---|---|---|")
     for m in ms:
         for d in ("random", "normal"):

@@ -475,7 +475,7 @@ def bilateral_normal_filter(
 
 
 def two_stage_denoise(
-    mesh: TriMesh, iterations: int | None = None, sigma_r: float = 0.35, discrepancy: float = 1.0,
+    mesh: TriMesh, iterations: int | None = None, sigma_r: float = 0.35, discrepancy: float = 0.95,
     progress: Progress = None,
 ) -> TriMesh:
     """Bilateral normal filter + feature-weighted Taubin + vertex update (:mod:`physar.geometry.normal_filter`);

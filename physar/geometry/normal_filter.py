@@ -36,16 +36,18 @@ as in :func:`physar.geometry.denoise.al_iterate`.
 
 Automatic amount of filtering (a user has no clean mesh to tune against): Morozov's discrepancy principle,
 the classical parameter rule for the regularised inverse problem of seed 001 eq. (3.1): filter no further
-than the data's own noise. The normal component of i.i.d. vertex noise has a std σ_n that the seed's robust
-height scale measures, σ_e = 1.4826 median |h_ij - med_k h_ik| ≈ 0.59 σ_n (:data:`MAD_RATIO`: 0.57-0.61 for
-random-direction noise on remeshed spheres, tori, boxes and cylinders; 0.60-0.65 for noise along the normals).
-Stages 1-3 are evaluated at increasing stage-1 iteration counts k (:data:`CHECKPOINTS`), and the first k whose
-residual rms_i((q̂_i - x_i)·n_i) reaches ``discrepancy`` · σ_e / 0.59 is kept (``discrepancy`` = 1, Morozov's
-own choice, which also gave the lowest geometric mean of error / best-k error over the calibration meshes
-(those four plus pymeshlab's cow, bone and airplane; `benchmarks/bench_denoise.py --calibrate`); at most
-``max_normal_iterations``): fewer iterations leave noise, more remove shape. Known limit: on coarse meshes
-with detail at the scale of an edge, σ_e includes shape, so the rule over-smooths (bone, airplane: 1.4-1.7x
-the best-k error at 0.2-0.3 ē). Everything is vectorised (scipy.sparse, np.bincount).
+than the data's own noise. The std σ_n of the normal component of i.i.d. vertex noise is measured on the input by
+:func:`noise_scale` (one-ring heights minus a local quadric fit, so curvature is not counted as noise), σ_e ≈
+0.29 σ_n (:data:`MAD_RATIO`: 0.27-0.31 for random-direction noise on remeshed spheres, tori, boxes and
+cylinders, the value taken; 0.31-0.33 on pymeshlab's bone and airplane, 0.43-0.70 on its coarse cow; the
+seed's ring-median MAD gave 0.56-0.62 on the simple shapes but 0.62-1.43 on the detailed ones). Stages 1-3 are evaluated at increasing stage-1 iteration
+counts k (:data:`CHECKPOINTS`), and the first k whose residual rms_i((q̂_i - x_i)·n_i) reaches ``discrepancy``
+· σ_e / 0.29 is kept (at most ``max_normal_iterations``): fewer iterations leave noise, more remove shape.
+``discrepancy`` = 0.95 had the lowest geometric mean (1.155) and worst case (1.40) of error / best-k error
+over the calibration meshes (the four shapes plus pymeshlab's cow, bone and airplane; none is a benchmark mesh;
+`benchmarks/bench_denoise.py --calibrate`). Known limit: on meshes with detail at the scale of an edge the rule
+still over-smooths (bone, airplane: 1.2-1.4x the best-k error at 0.2-0.3 ē), as the discrepancy principle tends
+to. Everything is vectorised (scipy.sparse, np.bincount).
 Units: positions in metres; σ_r, σ_w dimensionless (distances between unit vectors).
 """
 
@@ -70,23 +72,54 @@ class NormalFilterSettings:
     smooth_iterations: int = 10  # stage 2: feature-weighted Taubin λ|μ pairs
     sigma_w: float = 0.4  # stage 2: width of the feature weights on filtered vertex normals
     vertex_iterations: int = 10  # stage 3 iterations
-    discrepancy: float = 1.0  # target residual / estimated noise std (normal component)
+    discrepancy: float = 0.95  # target residual / estimated noise std (normal component)
     max_normal_iterations: int = 100
     preserve_volume: bool = True
 
 
-# σ_e / σ_n for i.i.d. random-direction vertex noise (module doc); bench_denoise.py --calibrate measures it.
-MAD_RATIO = 0.59
+# σ_e / σ_n of :func:`noise_scale` for i.i.d. random-direction vertex noise; bench_denoise.py --calibrate.
+MAD_RATIO = 0.29
 CHECKPOINTS = (1, 2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 25, 30, 40, 50, 65, 80, 100)
 
 
 def noise_scale(mesh: TriMesh) -> float:
-    """σ_e (m): the seed's robust scale of the one-ring heights of `mesh` (:func:`denoise.noise_scales`)."""
-    from physar.geometry.denoise import SurfaceOps, scales_of
+    """σ_e (m): robust scale of the one-ring heights left after a local quadric fit (module doc).
+
+    Per vertex i with unit normal n_i and tangent axes (t1, t2): h_ij = (q_j - q_i)·n_i ≈ c_0 + a x² + b x y
+    + c y², (x, y) = ((q_j - q_i)·t1, (q_j - q_i)·t2) scaled by the ring's rms edge length, fitted by least
+    squares (batched 4 x 4 normal equations); σ_e = 1.4826 median |r_ij| over the residuals of vertices with at
+    least 6 neighbours (all vertices if there are none). c_0 absorbs the vertex's own noise and the quadric the
+    surface's curvature, so σ_e measures the neighbours' noise, not shape (the seed's ring-median MAD,
+    :func:`physar.geometry.denoise.noise_scales`, also picks up curvature that varies within a ring).
+    """
+    from physar.geometry.denoise import SurfaceOps, directed_edges
+    from physar.geometry.quality import vertex_normals_arrays
 
     ops = SurfaceOps.from_mesh(mesh)
-    n, _, _ = ops.geometry((mesh.points - mesh.points.mean(axis=0)).astype(np.float32))
-    return scales_of(mesh.points, n.astype(np.float64), ops.edges)[0]
+    src, dst = directed_edges(ops.edges)
+    q = mesh.points
+    npts = len(q)
+    n = vertex_normals_arrays(q, mesh.faces)
+    a = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = _unit(np.cross(n, a))
+    t2 = np.cross(n, t1)
+    d = q[dst] - q[src]
+    x, y, h = (np.einsum("ij,ij->i", d, b[src]) for b in (t1, t2, n))
+    deg = np.bincount(src, minlength=npts)
+    s = np.sqrt(np.bincount(src, weights=x * x + y * y, minlength=npts) / np.maximum(deg, 1))[src]
+    s = np.where(s > 0, s, 1.0)
+    phi = np.stack([np.ones_like(x), (x / s) ** 2, (x / s) * (y / s), (y / s) ** 2], axis=1)
+    lhs = np.empty((npts, 4, 4))
+    rhs = np.empty((npts, 4))
+    for u in range(4):  # the 4 x 4 normal equations of every vertex at once (loops over terms, not vertices)
+        rhs[:, u] = np.bincount(src, weights=phi[:, u] * h, minlength=npts)
+        for v in range(u, 4):
+            lhs[:, u, v] = lhs[:, v, u] = np.bincount(src, weights=phi[:, u] * phi[:, v], minlength=npts)
+    lhs += 1e-9 * np.eye(4)
+    beta = np.linalg.solve(lhs, rhs[..., None])[..., 0]
+    r = h - np.einsum("ij,ij->i", phi, beta[src])
+    use = deg[src] >= 6
+    return 1.4826 * float(np.median(np.abs(r[use] if use.any() else r)))
 
 
 def _face_graph(mesh: TriMesh) -> sparse.csr_matrix:
