@@ -28,8 +28,8 @@ def cantilever(tmp_path_factory):
 def test_cantilever_99pct_of_judged_frames_within_1pct_and_recovery(cantilever):
     """Scene (a): at least 99 % of the judged frames (no occluder in view, not among the 5 frames after one;
     the scenario keeps the load beyond 20 % of the span) within 1 % of the 0.5 m range, mean |error| <= 1 mm,
-    recovery within 5 frames after each occlusion (measured 2026-11-25: 330/331, mean 0.60 mm,
-    max 6.13 mm at the start of a move, recovery 1 frame). Catches: a pose or dot regression that loses the
+    recovery within 5 frames after each occlusion (measured 2026-11-25: 331/331 after commit f9581d3,
+    mean 0.60 mm, recovery 1 frame). Catches: a pose or dot regression that loses the
     seed's 1 % goal on more than a frame or two, a filter lagging behind the moves, no recovery after the hand."""
     s = cantilever
     assert s["judged"] > 300
@@ -37,12 +37,10 @@ def test_cantilever_99pct_of_judged_frames_within_1pct_and_recovery(cantilever):
     assert s["recovery_frames"] and all(r is not None and r <= 5 for r in s["recovery_frames"]), s
 
 
-@pytest.mark.xfail(strict=True, reason="issue 16 goal not met yet: 330/331 judged frames within 1 % on "
-                                       "2026-11-25 (one frame, 6.13 mm, at the start of a move)")
 def test_cantilever_every_judged_frame_within_1pct_of_the_range(cantilever):
-    """Scene (a), issue 16's goal for the seed scenes: EVERY judged frame within 1 % of the range. Strict xfail:
-    it reports XPASS (a failure) once the pipeline meets the goal, so that the marker is removed then. Catches
-    (once unmarked): a single frame beyond 5 mm, e.g. a filter that trails the start of a move."""
+    """Scene (a), issue 16's goal for the seed scenes: EVERY judged frame within 1 % of the range (331/331 since
+    the IMM filter's P(dwell -> moving) = 0.2, commit f9581d3; 330/331 before, one frame at 6.13 mm). Catches: a
+    single frame beyond 5 mm, e.g. a filter that trails the start of a move (the miss before f9581d3)."""
     assert cantilever["within"] == cantilever["judged"], cantilever
 
 
