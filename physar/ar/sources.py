@@ -208,7 +208,7 @@ def open_stream(url: str, *, convert: str = "opencv", live: bool = True, timeout
     frames = _frames_of(c, s, convert)
     holder: dict = {}
     if not is_url(url):
-        frames = _paced(frames, lambda: holder["src"]._stop.is_set())
+        frames = _paced(frames, lambda: "src" in holder and holder["src"]._stop.is_set())  # set once built
     src = LiveSource(frames, width=first.width, height=first.height, fps=fps, name=url, latest=live,
                      first=(*_to_bgr(first, convert), first.time), on_close=c.close)
     holder["src"] = src
