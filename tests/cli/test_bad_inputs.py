@@ -468,9 +468,9 @@ def test_assimilate_partial_mu0_cli(data):
 
 
 # ------------------------------------------------------------------------------------------------ one module
-# Files that still rename temporaries themselves; they belong to other owners (AR pipeline, reduced models)
-# and are listed in issue 21's report. Any other module must go through physar.output.
-NOT_YET = {"rom/separated.py"}
+# Files that still rename temporaries themselves: none left (the AR scene modules are gone, the reduced model
+# writes through physar.output.write_npz). Every module must go through physar.output.
+NOT_YET: set = set()
 
 
 def test_only_physar_output_renames_temporaries():
