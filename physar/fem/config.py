@@ -237,9 +237,13 @@ def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
     return box_mesh(section.box, section.cells)
 
 
-def build_problem(cfg: FemConfig, base_dir: Path | None = None) -> Problem:
+def build_problem(cfg: FemConfig, base_dir: Path | None = None, mesh=None) -> Problem:
+    """The FE problem of a configuration: mesh (``[mesh]``, or the given ``mesh``: e.g. a refined copy for a
+    check solve or a finer truth), material, supports with their values (a later [[fix]] overrides an
+    earlier one), loads, probes."""
     base_dir = base_dir or cfg._base_dir
-    mesh = build_mesh(cfg.mesh, base_dir)
+    if mesh is None:
+        mesh = build_mesh(cfg.mesh, base_dir)
     space = FESpace(mesh, cfg.fem.element)
     mat = cfg.material
     params = {k: v for k, v in mat.model_dump().items() if k not in ("model", "density") and v is not None}

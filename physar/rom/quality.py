@@ -38,10 +38,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from physar.errors import ConfigError
-from physar.fem import ElasticModel, FESpace, gravity_load, point_load, traction_load
 from physar.fem.config import Problem, build_mesh, build_problem
 from physar.fem.elements import p2_nodes
-from physar.fem.loads import select_nodes_mask
 from physar.fem.post import nodal_stress
 from physar.geometry import MeshTags, TetMesh
 from physar.geometry.mesh import row_keys
@@ -165,31 +163,11 @@ def _problems(cfg, refine: int, base: Path | None, source: str) -> tuple[Problem
 
 
 def _problem_on(cfg, mesh: TetMesh, coarse_model) -> Problem:
-    """:func:`physar.fem.config.build_problem` of ``cfg`` on another ``mesh`` (same material, [[fix]] with
-    their values, [[load]]); the rules are build_problem's (a later [[fix]] value overrides an earlier one)."""
-    space = FESpace(mesh, cfg.fem.element)
-    model = ElasticModel(space, coarse_model.material, coarse_model.density)
-    fixed, prescribed = [], np.zeros(space.n_dofs)
-    for i, f in enumerate(cfg.fix):
-        nodes = np.flatnonzero(select_nodes_mask(space, **f.selector(), what=f"[[fix]] #{i + 1}"))
-        if not len(nodes):
-            raise ConfigError(f"[[fix]] #{i + 1}: no node of the check mesh matches {f.describe()}")
-        for c in f.components:
-            dofs = 3 * nodes + "xyz".index(c)
-            fixed.append(dofs)
-            prescribed[dofs] = 0.0 if f.value is None else f.value["xyz".index(c)]
-    f_ext = np.zeros(space.n_dofs)
-    for ld in cfg.load:
-        if ld.type == "traction":
-            sel = ld.selector()
-            f_ext += traction_load(space, sel.pop("box"), ld.total, **sel)
-        elif ld.type == "point":
-            f_ext += point_load(space, ld.point, ld.total, ld.radius)
-        else:
-            f_ext += gravity_load(space, cfg.material.density, ld.g)
-    fixed = np.unique(np.concatenate(fixed or [np.zeros(0, np.int64)])).astype(np.int64)
-    return Problem(space, model, f_ext, fixed, np.zeros((0, 3)), cfg,
-                   prescribed if any(f.value is not None for f in cfg.fix) else None)
+    """:func:`physar.fem.config.build_problem` of ``cfg`` on another ``mesh`` (the check mesh)."""
+    try:
+        return build_problem(cfg, mesh=mesh)
+    except ConfigError as e:
+        raise ConfigError(f"on the check mesh: {e}") from None
 
 
 def _matching(coarse: np.ndarray, fine: np.ndarray, what: str) -> np.ndarray:

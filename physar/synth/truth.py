@@ -73,37 +73,14 @@ def refine_tets(mesh, times: int = 1):
 
 
 def _problem_on(mesh, cfg, source: str):
-    """The FE problem of a rom configuration on another (refined) ``mesh``: material, [[fix]] (with their
-    values) and [[load]] tables, as :func:`physar.fem.config.build_problem` builds them from ``[mesh]``."""
-    from physar.fem import ElasticModel, FESpace, gravity_load, make_material, point_load, traction_load
-    from physar.fem.config import Problem
-    from physar.fem.loads import select_nodes_mask
+    """The FE problem of a rom configuration on another (refined) ``mesh``
+    (:func:`physar.fem.config.build_problem` with that mesh)."""
+    from physar.fem.config import build_problem
 
-    space = FESpace(mesh, cfg.fem.element)
-    mat = cfg.material
-    params = {k: v for k, v in mat.model_dump().items() if k not in ("model", "density") and v is not None}
-    model = ElasticModel(space, make_material(mat.model, **params), density=mat.density)
-    fixed, prescribed = [], np.zeros(space.n_dofs)
-    for i, f in enumerate(cfg.fix):
-        mask = select_nodes_mask(space, **f.selector(), what=f"[[fix]] #{i + 1}")
-        if not mask.any():
-            raise ConfigError(f"{source}: [[fix]] #{i + 1}: no node of the refined truth mesh matches {f.describe()}")
-        nodes = np.flatnonzero(mask)
-        for c in f.components:
-            dofs = 3 * nodes + "xyz".index(c)
-            fixed.append(dofs)
-            prescribed[dofs] = 0.0 if f.value is None else f.value["xyz".index(c)]
-    f_ext = np.zeros(space.n_dofs)
-    for ld in cfg.load:
-        if ld.type == "traction":
-            sel = ld.selector()
-            f_ext += traction_load(space, sel.pop("box"), ld.total, **sel)
-        elif ld.type == "point":
-            f_ext += point_load(space, ld.point, ld.total, ld.radius)
-        else:
-            f_ext += gravity_load(space, mat.density, ld.g)
-    fixed = np.unique(np.concatenate(fixed or [np.zeros(0, np.int64)])).astype(np.int64)
-    return Problem(space, model, f_ext, fixed, np.zeros((0, 3)), cfg, prescribed)
+    try:
+        return build_problem(cfg, mesh=mesh)
+    except ConfigError as e:
+        raise ConfigError(f"{source}: on the refined truth mesh: {e}") from None
 
 
 class FineTruth:
