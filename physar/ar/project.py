@@ -490,6 +490,12 @@ points = [[0.1, 0.0, 0.0075], [0.2, 0.0, 0.0075], [0.3, 0.0, 0.0075]]
 diameter = 0.005           # [m]
 colour = [30, 70, 200]     # RGB of the printed dots
 
+# Nothing stuck on the object? (README "Markerless AR"; examples/ar/foam, examples/ar/seal)
+# [registration] method = "plane" + [registration.plane] origin, u, v and image + px_per_m: the pose from a
+#                textured plate (its design image), or no image: learned from the first frame the markers give
+# [features]     origin, u, v, size of a textured face of the object, tracked from the first frames (at rest)
+# [[bar]]        parameter, zero, length, width, face: a lever turned by a rotation parameter, seen by colour
+
 [overlay]
 field = "von_mises"        # von_mises | u | ux | uy | uz
 # range = [0, 100e6]       # colour range (Pa or m); default 0 .. the field's maximum
