@@ -34,7 +34,7 @@ def main(argv=None):
     base = load_scenario(args.project.parent / "scenario.toml", project)
     tot = {n: [0, 0] for n in names}
     worst = {n: 0.0 for n in names}
-    print("| seed | " + " | ".join(f"{n}: within / judged, max |error|" for n in names) + " | fps | load |")
+    print("| seed | " + " | ".join(f"{n}: within / judged, max abs error" for n in names) + " | fps | load |")
     print("|---|" + "---|" * len(names) + "---|---|")
     for seed in args.seeds:
         d = args.cache / f"{args.project.parent.name}_seed{seed}"
