@@ -26,7 +26,7 @@ def _bar(desc: str):
 
 def calibrate(
     images: list[Path] = typer.Argument(None, help="ChArUco board images (PNG/JPG)"),  # noqa: B008 - typer idiom
-    output: Path = typer.Option(Path("camera.toml"), "--output", "-o", help="camera file to write"),  # noqa: B008 - typer idiom
+    output: Path = typer.Option(Path("camera.toml"), "--out", "--output", "-o", help="camera file to write"),  # noqa: B008 - typer idiom
     squares: str = typer.Option("7x5", help="board squares, COLSxROWS"),
     square: float = typer.Option(0.04, help="square side [m]"),
     marker: float = typer.Option(0.03, help="marker side [m]"),
