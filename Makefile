@@ -24,6 +24,15 @@ $(STAMP): pyproject.toml
 	    echo "note: for the fast CHOLMOD solver run: sudo apt-get install libsuitesparse-dev libopenblas-dev && rm -f $(STAMP) && make env"; \
 	  fi; \
 	fi
+	@# Debian's chromium and its driver: the browser test of `physar ar serve` (tests/ar/test_live_browser.py)
+	@if ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver) >/dev/null \
+	      || echo "warning: could not install chromium; the browser test of physar ar serve will be skipped"; \
+	  else \
+	    echo "note: for the browser test of physar ar serve run: sudo apt-get install chromium chromium-driver"; \
+	  fi; \
+	fi
 	@if [ -e /usr/include/suitesparse/cholmod.h ]; then \
 	  $(PY) -m pip install -q -e '.[cholmod]' \
 	    || echo "warning: scikit-sparse did not build; physar will use the slower scipy solver"; \

@@ -117,6 +117,20 @@ class ProjectPipeline:
                                           None if pos is None else params[pos].get("load"), show,
                                           stress_table=table)
 
+    def reset(self) -> None:
+        """Forget the history (a new camera stream): the pose tracker, the filter, the texture reference,
+        the estimate (back to the box centre, std unknown); the next frame starts fresh (grid search)."""
+        self.registration.reset()
+        if self.filter is not None:
+            self.filter.reset()
+        if self.features is not None:
+            self.features.reset()
+        self.mu = (self.lo + self.hi) / 2
+        self.std = np.full(self.lo.size, np.nan)
+        self.at_rest = self.features is not None
+        self._fresh = True
+        self._res_hist = []
+
     def _stress_table(self):
         """Nodal von Mises stress at the surface vertices sampled over the parameter box with the model's own
         material (nonlinear, or a Young's modulus region): see :func:`physar.ar.surface.sampled_stress`.

@@ -277,6 +277,65 @@ def open_source(spec, *, width: int | None = None, height: int | None = None, co
     return VideoReader(spec, convert=convert)
 
 
+class PushSource:
+    """Frames pushed by another thread or an event loop (e.g. a web page's camera, :mod:`physar.ar.live`):
+    :meth:`push` puts an item in a one-slot "latest" buffer, replacing one not yet taken (counted in
+    ``dropped``), so a consumer slower than the pusher sees the newest item and nothing queues.
+
+    Items are whatever the pusher gives (the consumer decodes them); iteration yields them until
+    :meth:`close`. ``width``, ``height``, ``fps`` (nominal, for a recording) describe the frames expected;
+    ``last_time`` is the timestamp given with the item last yielded."""
+
+    live = True
+
+    def __init__(self, width: int, height: int, fps: float = 30.0, name: str = "pushed frames"):
+        self.width, self.height, self.fps, self.name = int(width), int(height), float(fps), name
+        self.frames_hint = 0
+        self.dropped = self.pushed = self.delivered = 0
+        self.last_time = None
+        self._slot = None
+        self._cond = threading.Condition()
+        self._closed = False
+
+    def push(self, item, timestamp: float | None = None) -> bool:
+        """Offer ``item`` (timestamp in s, default now); False once closed."""
+        with self._cond:
+            if self._closed:
+                return False
+            if self._slot is not None:
+                self.dropped += 1
+            self._slot = (item, time.time() if timestamp is None else float(timestamp))
+            self.pushed += 1
+            self._cond.notify_all()
+            return True
+
+    def __iter__(self):
+        while True:
+            with self._cond:
+                while self._slot is None and not self._closed:
+                    if stop_requested():
+                        return
+                    self._cond.wait(0.1)
+                if self._slot is None:
+                    return
+                item, t = self._slot
+                self._slot = None
+            self.last_time = t
+            self.delivered += 1
+            yield item
+
+    def close(self) -> None:
+        """End the iteration (an item not yet taken is discarded); pushes after this are refused."""
+        with self._cond:
+            self._closed = True
+            self._slot = None
+            self._cond.notify_all()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+
 def from_frames(frames, *, fps: float = 30.0, name: str = "frames", latest: bool = True) -> LiveSource:
     """A :class:`LiveSource` over an iterable of BGR frames or (BGR, timestamp s) pairs (e.g. a generator
     that produces faster than it is consumed); the size is the first frame's. Timestamps default to the

@@ -146,6 +146,77 @@ def _run_project(project_path, spec, out, csv_out, field, max_frames, preset, cr
                     keep_results=False)  # running statistics only: bounded memory on a live source
 
 
+def ar_serve(
+    project: Path = typer.Argument(..., help="AR project file (.toml; `physar ar init`)"),  # noqa: B008 - typer idiom
+    host: str = typer.Option("127.0.0.1", help="interface to listen on; another than loopback needs TLS "
+                                               "and prints a URL with an access token"),
+    port: int = typer.Option(8765, help="TCP port (0: any free one)"),
+    tls: tuple[str, str] = typer.Option(("", ""), "--tls", help="PEM certificate and key files",
+                                        metavar="CERT KEY", show_default=False),
+    self_signed: bool = typer.Option(False, "--self-signed", help="make a certificate for this run "
+                                                                  "(the browser asks to accept it once)"),
+    out: Path | None = typer.Option(None, "--out", "-o", help="record the augmented video (.mp4)"),  # noqa: B008
+    csv_out: Path | None = typer.Option(None, "--csv", help="record the per-frame estimates (.csv)"),  # noqa: B008
+    quality: int = typer.Option(80, help="JPEG quality of the augmented frames sent to the pages (1-100)"),
+    json_out: bool = typer.Option(False, "--json", help="print the session summary as JSON at the end"),
+) -> None:
+    """Serve live AR to a web browser: open the printed URL (a phone on the same network with --host 0.0.0.0
+    --self-signed), press "Start camera", see the object augmented. Ctrl-C ends; recordings are then complete."""
+    import sys
+
+    from physar.ar.live import is_loopback, self_signed_context, serve, tls_context
+    from physar.ar.project import load_project
+    from physar.errors import ConfigError
+    from physar.output import check_destination
+
+    if project.suffix.lower() != ".toml":
+        raise ConfigError(f"{project}: give an AR project file (physar ar init project.toml)")
+    if not 0 <= port <= 65535:
+        raise ConfigError(f"--port must be within 0..65535, got {port}")
+    if not 1 <= quality <= 100:
+        raise ConfigError(f"--quality must be within 1..100, got {quality}")
+    cert, key = (Path(tls[0]), Path(tls[1])) if tls[0] else (None, None)
+    if self_signed and cert is not None:
+        raise ConfigError("give either --tls CERT KEY or --self-signed, not both")
+    for path, suf, kind in ((out, [".mp4"], "augmented video"), (csv_out, [".csv"], "estimates CSV")):
+        if path is not None:
+            check_destination(path, inputs=[project], suffixes=suf, kind=kind)
+    ctx, fingerprint = None, None
+    if cert is not None:
+        ctx = tls_context(cert, key)
+    elif self_signed:
+        from physar.ar.live import lan_address
+
+        ctx, fingerprint = self_signed_context(["localhost", "127.0.0.1", lan_address()]
+                                               + ([host] if host not in ("0.0.0.0", "::") else []))
+    if not is_loopback(host) and ctx is None:
+        raise ConfigError(f"--host {host} lets other machines in: give --tls CERT KEY or --self-signed "
+                          "(a phone's browser opens its camera only on an https page)")
+    proj = load_project(project, progress=_bar("model"))
+
+    def ready(url):
+        log(f"serving {project} on {url}")
+        if fingerprint:
+            log(f"self-signed certificate, SHA-256 {fingerprint}")
+        if not is_loopback(host):
+            import segno
+
+            segno.make(url, error="l").terminal(out=sys.stderr, compact=True)
+        log("open it in a browser, press Start camera; Ctrl-C stops" + (" and finishes the recording"
+                                                                         if out or csv_out else ""))
+
+    summary = serve(proj, host=host, port=port, ssl_context=ctx, out_video=out, out_csv=csv_out,
+                    quality=quality, ready=ready)
+    if json_out:
+        print_json(summary)
+    elif summary.get("frames"):
+        log(f"{summary['frames']} frames at {summary['fps']:.1f} fps, {summary.get('dropped', 0)} dropped, median "
+            f"latency {summary['latency_ms_median']:.1f} ms" + (f"; wrote {out}" if out else "")
+            + (f" and {csv_out}" if csv_out else ""))
+    else:
+        log("no camera frame came; nothing recorded")
+
+
 def ar_print_markers(
     project: Path = typer.Argument(..., help="AR project file"),  # noqa: B008 - typer idiom
     output: Path = typer.Option(Path("markers.pdf"), "--out", "-o", help="sheet to write (.pdf or .png)"),  # noqa: B008 - typer idiom
@@ -190,5 +261,6 @@ def register(app: typer.Typer) -> None:
     ar = typer.Typer(help="Augmented-reality pipeline.", no_args_is_help=True)
     ar.command("run")(user_errors(ar_run))
     ar.command("init")(user_errors(ar_init))
+    ar.command("serve")(user_errors(ar_serve))
     ar.command("print-markers")(user_errors(ar_print_markers))
     app.add_typer(ar, name="ar")

@@ -1,0 +1,256 @@
+"""`physar ar serve` without a browser (issue 18): the access token and TLS off loopback, bounded messages, a
+WebSocket from another origin, two viewers, a camera that reconnects (the filter starts afresh), frames
+dropped rather than queued, bad frames answered with one message, the recording, and the CLI's refusals.
+The frames are the seed cantilever clip of the test-data renderer (tests/ar/conftest.py)."""
+import asyncio
+import json
+import struct
+import time
+
+import aiohttp
+import cv2
+import numpy as np
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from physar.ar.live import HEADER, LiveServer, LiveSession, self_signed_context, serve
+from physar.ar.project import load_project
+from physar.ar.project_pipeline import ProjectPipeline
+from physar.ar.video import VideoReader
+from physar.cli import ar as ar_cli
+from physar.errors import ConfigError
+from physar.synth.score import read_columns
+
+
+def _jpeg(frame, q=85) -> bytes:
+    return cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, q])[1].tobytes()
+
+
+def _msg(frame, seq) -> bytes:
+    return HEADER.pack(time.perf_counter() * 1e3, seq, 0) + _jpeg(frame)
+
+
+def _parse(data: bytes):
+    n = struct.unpack_from("<I", data)[0]
+    return json.loads(data[4:4 + n]), data[4 + n:]
+
+
+async def _start(project, host="127.0.0.1", ssl_context=None, token=None, max_message=None, **session_kw):
+    session = LiveSession(project, **session_kw)
+    server = LiveServer(session, token=token, max_message=max_message)
+    runner = await server.start(host, 0, ssl_context)
+    session.start()
+    return session, server, runner
+
+
+async def _stop(session, runner) -> dict:
+    await runner.cleanup()
+    return await asyncio.to_thread(session.stop)
+
+
+async def _frame_reply(ws, timeout=30.0):
+    """The next binary (frame) message, skipping text ones; -> (meta, jpeg)."""
+    while True:
+        m = await ws.receive(timeout)
+        if m.type == aiohttp.WSMsgType.BINARY:
+            return _parse(m.data)
+        assert m.type == aiohttp.WSMsgType.TEXT, m
+
+
+@pytest.fixture(scope="module")
+def project(live_clip):
+    return load_project(live_clip[0])
+
+
+def test_token_and_tls_off_loopback(project):
+    """Bound to every interface: without TLS the server refuses to start; with TLS, the page and the WebSocket
+    without the token, or with a wrong one, get 403, with it 200 (and the page carries a CSP with a nonce).
+    Mutants caught: a token checked on the page but not on the WebSocket, a prefix comparison, a wildcard bind
+    served over plain http."""
+    with pytest.raises(ConfigError, match="--tls CERT KEY or --self-signed"):
+        serve(project, host="0.0.0.0", port=0)
+    ctx, fp = self_signed_context(["localhost", "127.0.0.1"])
+    assert len(fp.split(":")) == 32
+    token = "t0k3n-for-the-test"
+
+    async def run():
+        session, server, runner = await _start(project, host="0.0.0.0", ssl_context=ctx, token=token)
+        base = f"https://127.0.0.1:{server.port}"
+        try:
+            async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as s:
+                for q in ("", "?token=", "?token=t0k3n", f"?token={token}x"):
+                    async with s.get(base + "/" + q) as r:
+                        assert r.status == 403, q
+                    with pytest.raises(aiohttp.WSServerHandshakeError) as e:
+                        await s.ws_connect(base + "/ws" + q)
+                    assert e.value.status == 403
+                async with s.get(f"{base}/?token={token}") as r:
+                    assert r.status == 200
+                    page = await r.text()
+                    assert "Start camera" in page and "__NONCE__" not in page
+                    assert "nonce-" in r.headers["Content-Security-Policy"]
+                async with s.get(f"{base}/../../etc/passwd?token={token}") as r:
+                    assert r.status == 404                 # two routes, no files
+                async with s.ws_connect(f"{base}/ws?token={token}") as ws:
+                    info = json.loads((await ws.receive(10)).data)
+                    assert info["type"] == "info" and (info["width"], info["height"]) == (640, 360)
+        finally:
+            await _stop(session, runner)
+
+    asyncio.run(run())
+
+
+def test_oversized_message_and_foreign_origin(project):
+    """A message over the bound closes that connection (code 1009) and frees its slot, others go on; a
+    WebSocket opened by a page of another origin is refused (403). Mutants caught: no size bound (the message
+    would be accepted), a peer kept after its connection dropped, no Origin check."""
+    async def run():
+        session, server, runner = await _start(project, max_message=50_000)
+        url = f"http://127.0.0.1:{server.port}/ws"
+        try:
+            async with aiohttp.ClientSession() as s:
+                with pytest.raises(aiohttp.WSServerHandshakeError) as e:
+                    await s.ws_connect(url, headers={"Origin": "http://evil.example"})
+                assert e.value.status == 403
+                async with s.ws_connect(url, headers={"Origin": f"http://127.0.0.1:{server.port}"}) as ok_ws:
+                    await ok_ws.receive(10)
+                    ws = await s.ws_connect(url)
+                    await ws.receive(10)
+                    assert len(server.peers) == 2
+                    await ws.send_bytes(b"\0" * 60_000)
+                    m = await ws.receive(10)
+                    assert m.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.CLOSING)
+                    assert ws.close_code == 1009
+                    for _ in range(50):
+                        if len(server.peers) == 1:
+                            break
+                        await asyncio.sleep(0.05)
+                    assert len(server.peers) == 1 and not ok_ws.closed
+        finally:
+            await _stop(session, runner)
+
+    asyncio.run(run())
+
+
+def test_two_viewers_reconnect_and_recording(project, live_clip, tmp_path):
+    """Camera A sends frames 0-14 (load at 420 mm) while a second page watches: both get every augmented frame
+    (a 640x360 JPEG and its estimate, within 1 % of the span of the finer-mesh truth after the first frame). A closes; camera B
+    connects and sends frame 30 (load at 200 mm): its estimate is exactly what a fresh pipeline gives on that
+    frame (the filter and the pose tracker were reset, not carried over from A). The recording has one CSV
+    row and one video frame per processed frame, and appears only when the session stops. Mutants caught: a
+    frame sent only to the camera page, the filter kept across cameras (the estimate would be pulled towards
+    420 mm), a recording written in place."""
+    _, clip, frames = live_clip
+    truth = read_columns(clip / "truth.csv")["s_true"]
+    out_v, out_c = tmp_path / "live.mp4", tmp_path / "live.csv"
+
+    async def run():
+        session, server, runner = await _start(project, out_video=out_v, out_csv=out_c)
+        url = f"http://127.0.0.1:{server.port}/ws"
+        viewer_got = []
+        try:
+            async with aiohttp.ClientSession() as s:
+                viewer = await s.ws_connect(url)
+                await viewer.receive(10)
+                cam = await s.ws_connect(url)
+                await cam.receive(10)
+                await cam.send_str(json.dumps({"type": "camera"}))
+                for k in range(15):
+                    await cam.send_bytes(_msg(frames[k], k + 1))
+                    meta, _jpg = await _frame_reply(cam)
+                    assert meta["seq"] == k + 1 and meta["status"] == "tracking"
+                    if k:   # the first frame is one fresh solve (measured 14.7 mm off at JPEG quality 85)
+                        assert abs(meta["mu"][0] - truth[k]) < 0.005, (k, meta["mu"], truth[k])
+                    vm, vj = await _frame_reply(viewer)
+                    viewer_got.append(vm["seq"])
+                    assert cv2.imdecode(np.frombuffer(vj, np.uint8), cv2.IMREAD_COLOR).shape == (360, 640, 3)
+                assert viewer_got == list(range(1, 16))
+                assert not out_v.exists() and not out_c.exists()          # written at the end, atomically
+                await cam.close()
+                cam_b = await s.ws_connect(url)
+                await cam_b.receive(10)
+                await cam_b.send_str(json.dumps({"type": "camera"}))
+                data = _msg(frames[30], 1)
+                await cam_b.send_bytes(data)
+                meta_b, _ = await _frame_reply(cam_b)
+                await cam_b.close()
+                await viewer.close()
+        finally:
+            summary = await _stop(session, runner)
+        return meta_b, data, summary
+
+    meta_b, data, summary = asyncio.run(run())
+    img = cv2.imdecode(np.frombuffer(data[HEADER.size:], np.uint8), cv2.IMREAD_COLOR)
+    _, fresh = ProjectPipeline(load_project(live_clip[0]), overlay=False).process(img, 0, draw=False)
+    assert abs(truth[30] - 0.2) < 1e-9
+    assert meta_b["mu"][0] == pytest.approx(float(fresh.mu[0]), abs=1e-9)
+    assert abs(meta_b["mu"][0] - 0.2) < 0.01          # one fresh solve, no filter history
+    assert summary["frames"] == 16
+    rows = read_columns(out_c)
+    assert len(rows["frame"]) == 16 and sum(1 for _ in VideoReader(out_v)) == 16
+
+
+def test_frames_dropped_not_queued_and_bad_frames(project, live_clip):
+    """A camera that sends 40 frames without waiting: each frame is either processed or dropped (none
+    waits in a queue), some are dropped, and the newest one is processed. A frame of the wrong size and bytes
+    that are no image get one error message naming the problem; the next good frame is answered. Mutants
+    caught: an unbounded queue (nothing dropped, every frame processed late), the oldest frame kept instead of
+    the newest, a bad frame that kills the session."""
+    _, _, frames = live_clip
+
+    async def run():
+        session, server, runner = await _start(project)
+        url = f"http://127.0.0.1:{server.port}/ws"
+        try:
+            async with aiohttp.ClientSession() as s, s.ws_connect(url) as cam:
+                await cam.receive(10)
+                await cam.send_str(json.dumps({"type": "camera"}))
+                msgs = [_msg(frames[k % len(frames)], k + 1) for k in range(40)]
+                for m in msgs:
+                    await cam.send_bytes(m)
+                seqs = []
+                while True:
+                    try:
+                        meta, _ = await _frame_reply(cam, timeout=3.0)
+                    except TimeoutError:
+                        break
+                    seqs.append(meta["seq"])
+                small = cv2.resize(frames[0], (320, 180))
+                await cam.send_bytes(HEADER.pack(0.0, 41, 0) + _jpeg(small))
+                err = json.loads((await cam.receive(30)).data)
+                await cam.send_bytes(HEADER.pack(0.0, 42, 0) + b"not an image at all")
+                err2 = json.loads((await cam.receive(30)).data)
+                await cam.send_bytes(_msg(frames[5], 43))
+                meta, _ = await _frame_reply(cam)
+        finally:
+            summary = await _stop(session, runner)
+        return seqs, err, err2, meta, summary, session.source
+
+    seqs, err, err2, meta, _summary, src = asyncio.run(run())
+    assert seqs and seqs[-1] == 40 and seqs == sorted(seqs)
+    assert src.dropped > 0 and len(seqs) + src.dropped == 40, (len(seqs), src.dropped)
+    assert err["type"] == "error" and err["seq"] == 41 and "320x180" in err["message"] and "640x360" in err["message"]
+    assert err2["type"] == "error" and "not a JPEG" in err2["message"]
+    assert meta["seq"] == 43 and meta["status"] == "tracking"
+
+
+def test_serve_cli_refusals(live_clip, tmp_path):
+    """One line and exit 2 for: a wildcard bind without TLS, a missing certificate file, both --tls and
+    --self-signed, a JPEG quality of 0, a recording with the wrong suffix; nothing written."""
+    app = typer.Typer()
+    ar_cli.register(app)
+    proj = str(live_clip[0])
+    cert = tmp_path / "c.pem"
+    cert.write_text("x")
+    cases = [(["--host", "0.0.0.0"], "--tls CERT KEY or --self-signed"),
+             (["--tls", str(tmp_path / "no.pem"), str(tmp_path / "no.key")], "no.pem: TLS certificate file not found"),
+             (["--tls", str(cert), str(cert), "--self-signed"], "not both"),
+             (["--quality", "0"], "--quality must be within 1..100, got 0"),
+             (["--out", str(tmp_path / "aug.avi")], "unknown augmented video suffix '.avi'")]
+    for args, text in cases:
+        r = CliRunner().invoke(app, ["ar", "serve", proj, "--port", "0", *args])
+        assert r.exit_code == 2, (args, r.output)
+        lines = [ln for ln in r.output.splitlines() if ln.strip()]
+        assert len(lines) == 1 and text in lines[0], (args, r.output)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.pem"]
