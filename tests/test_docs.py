@@ -51,6 +51,10 @@ def _schema_keys(model, root: str) -> set[str]:
             for sub in sub_models(prop):
                 if "properties" in sub:
                     walk(sub, f"{path}.{name}" if path else name)
+        if isinstance(node.get("additionalProperties"), dict):  # tables under names of the user's choice
+            for sub in sub_models(node["additionalProperties"]):
+                if "properties" in sub:
+                    walk(sub, f"{path}.NAME" if path else "NAME")
 
     walk(schema, root)
     return keys
@@ -103,6 +107,9 @@ def test_units_and_markup_of_a_row():
     assert F.unit_text("density", "kg/m^3") == "kg/m^3"
     assert F.unit_text("shake_mm", "") == "mm"
     assert F.unit_text("nu", "Poisson ratio") == ""
+    assert F.unit_text("nu", "Poisson ratio [-]") == "-"  # stated dimensionless
+    assert F.unit_text("path", "keyframes [t, x, y, z]: t [s], x, y, z [m]") == "s, m"
+    assert F.unit_text("fix", "a [[fix]] table of [registration.plane]") == ""
     assert F.escape("|u| * 2 [m]") == "\\|u\\| \\* 2 \\[m\\]"
     assert F.escape("see :mod:`physar.mpm.colliders` and ``x``") == "see `physar.mpm.colliders` and `x`"
 

@@ -60,9 +60,10 @@ FORMATS: tuple[Format, ...] = (
            "is read as one of them at the top level."),
 )
 
-# units as they are written in the schemas' descriptions
+# units as they are written in the schemas' descriptions; "-" marks a dimensionless quantity ("[-]")
 _UNITS = {"m", "mm", "cm", "m^2", "m^3", "kg/m^3", "Pa", "N", "N/m", "s", "1/s", "1/s^2", "1/m", "1/m^2",
-          "px", "px^2", "deg", "degrees", "rad", "Hz", "fps", "ms", "kg", "J"}
+          "m/s", "m/s^2", "px", "px^2", "1/px", "px/m", "deg", "degrees", "rad", "Hz", "fps", "ms", "kg", "J",
+          "DN", "sqrt(DN)", "-"}
 _SUFFIX_UNITS = {"_mm": "mm", "_deg": "deg", "_px": "px", "_ms": "ms", "_s": "s", "_hz": "Hz"}
 _SPECIAL = re.compile(r"([\\`*_\[\]{}<>()#+!|$~])")
 
@@ -166,8 +167,19 @@ def constraints_text(field) -> str:
 
 
 def unit_text(key: str, description: str) -> str:
-    """The SI (or stated) unit of a field, as its description or name gives it; ``""`` if none is stated."""
-    for pattern in (r"\[([^\]]+)\]", r"\(([^()]+)\)", r"^([^\s,;(]+)(?:$|[,;]|\s\()", r",\s*([^\s,;()]+)\s*$",
+    """The SI (or stated) unit of a field, as its description or name gives it; ``""`` if none is stated.
+
+    Units in brackets come first, all of them in order (``t [s], x, y, z [m]`` -> ``s, m``; ``[-]``: a
+    dimensionless quantity), then the other spellings the schemas use (``(m)``, a leading or a trailing ``, m``).
+    """
+    bracketed = []
+    for m in re.finditer(r"\[([^\[\]]+)\]", description):
+        unit = m.group(1).strip()
+        if unit in _UNITS and unit not in bracketed:
+            bracketed.append(unit)
+    if bracketed:
+        return ", ".join(bracketed)
+    for pattern in (r"\(([^()]+)\)", r"^([^\s,;(]+)(?:$|[,;]|\s\()", r",\s*([^\s,;()]+)\s*$",
                     r"^([A-Za-z/^0-9]+)\s"):
         for m in re.finditer(pattern, description):
             unit = m.group(1).strip()
@@ -184,16 +196,29 @@ def _doc(model: type[BaseModel]) -> str:
     return " ".join(doc.split()) if doc else ""
 
 
+def extra_table(model: type[BaseModel]) -> type[BaseModel] | None:
+    """The schema of the tables a model takes under names of the user's choice (``[schedule.NAME]``): the
+    value type of its ``__pydantic_extra__`` when it allows extra keys, else None."""
+    if model.model_config.get("extra") != "allow":
+        return None
+    args = typing.get_args(typing.get_type_hints(model).get("__pydantic_extra__"))
+    return _model_in(args[-1])[0] if args else None
+
+
 def tables(prefix: str, model: type[BaseModel], many: bool = False, required: bool = True):
     """Yield ``(heading, model, many, required)`` for the table of ``model`` and its sub-tables, depth first.
 
     The heading is the table's TOML name: ``[mesh]``, ``[[fix]]``, ``[[fix]].plane``; ``""`` is the top level.
+    Tables under names of the user's choice come last, as ``NAME`` (``[schedule].NAME``).
     """
     yield prefix, model, many, required
     for key, field in model.model_fields.items():
         sub, sub_many = _model_in(field.annotation)
         if sub is not None:
             yield from tables(f"{prefix}.{key}" if prefix else key, sub, sub_many, field.is_required())
+    extra = extra_table(model)
+    if extra is not None:
+        yield from tables(f"{prefix}.NAME" if prefix else "NAME", extra, False, False)
 
 
 def heading(path: str, many: bool) -> str:
@@ -268,7 +293,8 @@ def index_page(formats=FORMATS) -> str:
     lines = ["# File formats", "",
              ("Every file physar reads is TOML validated by a pydantic schema; these pages are generated from "
              "those schemas when the documentation is built. Units are SI unless a key's name or description "
-             "says otherwise."), "", "| file | read by |", "|---|---|"]
+             "says otherwise; `-` in the unit column marks a dimensionless number."),
+             "", "| file | read by |", "|---|---|"]
     lines += [f"| [{f.title}]({f.name}.md) | `{f.command.replace('|', chr(92) + '|')}` |" for f in formats]
     lines += ["", "```{toctree}", ":hidden:", "", *(f.name for f in formats), "```", ""]
     return "\n".join(lines)
