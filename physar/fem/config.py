@@ -46,9 +46,13 @@ class _Strict(BaseModel):
 
 
 class MeshSection(_Strict):
-    file: str | None = None
-    box: Vec3 | None = None
-    cells: tuple[int, int, int] | None = None
+    file: str | None = Field(None, description="mesh file, relative to the problem file: a volume mesh (VTU, "
+                                               "XDMF, Gmsh .msh, Medit .mesh; its tags are the regions) or a "
+                                               "closed surface (STL, OBJ, PLY, OFF) tetrahedralised at `size`")
+    box: Vec3 | None = Field(None, description="instead of a file: the box [0, L] x [0, W] x [0, H] given as "
+                                               "[L, W, H] [m]")
+    cells: tuple[int, int, int] | None = Field(None, description="hexahedra [nx, ny, nz] along the sides of "
+                                                                 "`box`, 6 tetrahedra each")
     size: float | None = Field(None, gt=0, description="element size [m] when tetrahedralising a surface file")
 
     @model_validator(mode="after")
@@ -63,9 +67,12 @@ class MeshSection(_Strict):
 
 
 class PlaneSelector(_Strict):
-    point: Vec3
-    normal: Vec3
-    tol: float | None = Field(None, ge=0, description="m; default 1e-9 of the mesh extent")
+    """The nodes (for a traction: the boundary faces with all three vertices) within ``tol`` of a plane."""
+
+    point: Vec3 = Field(..., description="a point of the plane [m]")
+    normal: Vec3 = Field(..., description="normal of the plane, any non-zero length [-]")
+    tol: float | None = Field(None, ge=0, description="distance from the plane within which nodes are selected [m]; "
+                                                     "default 1e-9 of the mesh extent")
 
     @model_validator(mode="after")
     def _normal(self):
@@ -77,11 +84,13 @@ class PlaneSelector(_Strict):
 class _Selector(_Strict):
     """Exactly one of box, region, points, plane selects the nodes/faces of a table."""
 
-    box: Box | None = None
+    box: Box | None = Field(None, description="nodes inside the closed box [[x0, y0, z0], [x1, y1, z1]] (for a "
+                                              "traction: boundary faces whose centroid is inside) [m]")
     region: str | int | None = Field(None, description="mesh tag (physical group) name or id")
-    points: list[Vec3] | None = Field(None, min_length=1, description="nodes within tol of these points")
-    tol: float | None = Field(None, ge=0, description="m, for points; default 1e-9 of the mesh extent")
-    plane: PlaneSelector | None = None
+    points: list[Vec3] | None = Field(None, min_length=1, description="nodes within tol of these points [m]")
+    tol: float | None = Field(None, ge=0, description="distance from `points` within which nodes are selected [m]; "
+                                                     "default 1e-9 of the mesh extent")
+    plane: PlaneSelector | None = Field(None, description="nodes within tol of a plane {point, normal, tol}")
 
     def _check_selector(self, required: bool = True):
         given = [k for k in ("box", "region", "points", "plane") if getattr(self, k) is not None]
@@ -111,16 +120,20 @@ class _Selector(_Strict):
 
 
 class MaterialSection(_Strict):
-    model: Literal["linear", "stvk", "neohookean", "neohookean_incompressible", "corotated"]
+    model: Literal["linear", "stvk", "neohookean", "neohookean_incompressible", "corotated"] = Field(
+        ..., description="constitutive law: linear (small strain), stvk (St Venant-Kirchhoff), neohookean, "
+                         "neohookean_incompressible (C1 and kappa, or E and nu; seed 000 §5.3), corotated")
     E: float | None = Field(None, description="Young's modulus [Pa]")
-    nu: float | None = Field(None, description="Poisson ratio")
-    C1: float | None = Field(None, description="neo-Hookean C1 [Pa]")
-    kappa: float | None = Field(None, description="bulk penalty [Pa]")
-    density: float = Field(0.0, ge=0, description="kg/m^3")
+    nu: float | None = Field(None, description="Poisson ratio [-]")
+    C1: float | None = Field(None, description="neo-Hookean constant C1 of W = C1 (Ī1 - 3) + ... (small strain: mu = 2 C1) [Pa]")
+    kappa: float | None = Field(None, description="bulk penalty of neohookean_incompressible [Pa]")
+    density: float = Field(0.0, ge=0, description="mass density [kg/m^3]; needed by a gravity load and by dynamics")
 
 
 class FixSection(_Selector):
-    components: list[Literal["x", "y", "z"]] = ["x", "y", "z"]
+    components: list[Literal["x", "y", "z"]] = Field(
+        ["x", "y", "z"], description="displacement components held (the others stay free: symmetry planes, "
+                                     "plane strain)")
     value: Vec3 | None = Field(None, description="prescribed displacement [m] (x, y, z); default 0")
 
     @model_validator(mode="after")
@@ -130,11 +143,14 @@ class FixSection(_Selector):
 
 
 class LoadSection(_Selector):
-    type: Literal["point", "traction", "gravity"]
-    total: Vec3 | None = None
-    point: Vec3 | None = None
-    radius: float | None = Field(None, gt=0)
-    g: Vec3 = (0.0, 0.0, -9.81)
+    type: Literal["point", "traction", "gravity"] = Field(
+        ..., description="traction: `total` spread uniformly over the selected boundary faces; point: `total` "
+                         "spread over the boundary within `radius` of `point` by a smooth bump kernel (a "
+                         "regularised Dirac, seed 000 §5.1); gravity: [material] density times `g`")
+    total: Vec3 | None = Field(None, description="total force (x, y, z) of a traction or point load [N]")
+    point: Vec3 | None = Field(None, description="centre of a point load [m]")
+    radius: float | None = Field(None, gt=0, description="radius of the bump kernel of a point load [m]")
+    g: Vec3 = Field((0.0, 0.0, -9.81), description="gravitational acceleration of a gravity load [m/s^2]")
 
     @model_validator(mode="after")
     def _needed(self):
@@ -150,16 +166,18 @@ class LoadSection(_Selector):
 
 
 class ProbeSection(_Strict):
-    point: Vec3
+    point: Vec3 = Field(..., description="point where the displacement is interpolated and reported [m]")
 
 
 class FemSection(_Strict):
-    element: Literal["P1", "P2"] = "P2"
+    element: Literal["P1", "P2"] = Field("P2", description="Lagrange tetrahedra: P1 (linear; locks in "
+                                                           "bending) or P2 (quadratic; use it for beams)")
 
 
 class SolverSection(_Strict):
     steps: int = Field(1, ge=1, description="least number of load steps (more are taken where Newton needs them)")
-    tol: float = Field(1e-10, gt=0)
+    tol: float = Field(1e-10, gt=0, description="Newton stops at |residual| <= tol max(|load|, |internal "
+                                                "forces|) [-]")
     max_iter: int = Field(50, ge=1, description="Newton iterations per load step before it is cut back")
     linear: Literal["auto", "direct", "amg"] = Field(
         "auto", description="linear solver: direct (Cholesky), amg (CG + smoothed aggregation), auto (by size)")
@@ -168,13 +186,14 @@ class SolverSection(_Strict):
 class FemConfig(_Strict):
     """Top level of a `physar fem solve` file."""
 
-    mesh: MeshSection
-    material: MaterialSection
-    fix: list[FixSection] = []
-    load: list[LoadSection] = []
-    probe: list[ProbeSection] = []
-    fem: FemSection = FemSection()
-    solver: SolverSection = SolverSection()
+    mesh: MeshSection = Field(..., description="the body: a box or a mesh file")
+    material: MaterialSection = Field(..., description="the material law and its constants")
+    fix: list[FixSection] = Field([], description="supports: nodes held at zero or at a prescribed "
+                                                  "displacement (a later table overrides an earlier one)")
+    load: list[LoadSection] = Field([], description="loads, summed: traction, point or gravity")
+    probe: list[ProbeSection] = Field([], description="points where the displacement is reported")
+    fem: FemSection = Field(FemSection(), description="the finite element")
+    solver: SolverSection = Field(SolverSection(), description="load stepping, Newton and the linear solver")
     _base_dir: Path | None = PrivateAttr(default=None)  # folder of the file, for relative paths
 
 

@@ -53,39 +53,63 @@ Vec3 = tuple[float, float, float]
 
 
 class DampingSection(_Strict):
+    """Rayleigh damping D = alpha M + beta K(q), K the current tangent."""
+
     alpha: float = Field(0.0, ge=0, description="Rayleigh mass coefficient [1/s]")
     beta: float = Field(0.0, ge=0, description="Rayleigh stiffness coefficient [s]")
 
 
 class GroundSection(_Strict):
-    z: float = 0.0
+    """A penalty ground plane: f_z = stiffness max(z - node z, 0) on every node below it."""
+
+    z: float = Field(0.0, description="height of the ground plane [m]")
     stiffness: float = Field(1e5, gt=0, description="penalty stiffness [N/m] per node")
 
 
 class NewtonSection(_Strict):
-    tol: float = Field(1e-9, gt=0)
-    max_iter: int = Field(25, ge=1)
-    linear_solver: Literal["direct", "pcg"] = "direct"
-    linear_rtol: float = Field(1e-8, gt=0, lt=1)
-    tangent: Literal["exact", "warped"] = "exact"
+    tol: float = Field(1e-9, gt=0, description="relative residual of a step's equations (or relative Newton "
+                                               "update of the velocity) at which Newton stops [-]")
+    max_iter: int = Field(25, ge=1, description="Newton iterations per step")
+    linear_solver: Literal["direct", "pcg"] = Field(
+        "direct", description="direct (CHOLMOD, symbolic analysis reused) or pcg (CG preconditioned by a reused "
+                              "Cholesky factor in the rotated frame; large meshes)")
+    linear_rtol: float = Field(1e-8, gt=0, lt=1, description="relative residual of CG (pcg only) [-]")
+    tangent: Literal["exact", "warped"] = Field(
+        "exact", description="co-rotated P1 only: exact tangent K(q), or warped R K0 Rᵀ (SPD, SOFA-style)")
 
 
 class DynamicsSection(_Strict):
-    method: Literal["symplectic_euler", "be", "si", "midpoint", "genalpha", "theta", "trbdf2"]
+    method: Literal["symplectic_euler", "be", "si", "midpoint", "genalpha", "theta", "trbdf2"] = Field(
+        ..., description="time integrator (seed 001 §2): symplectic_euler (explicit), be (backward Euler), si "
+                         "(semi-implicit: one Newton iteration of be), midpoint (implicit), genalpha "
+                         "(generalized-alpha, knob r), theta (trapezoid/BDF2 blend, knob theta), trbdf2")
     h: float = Field(..., gt=0, description="time step [s]")
-    steps: int = Field(..., ge=1)
-    r: float | None = Field(None, ge=0, le=1)
-    theta: float | None = Field(None, ge=0, le=1)
-    mass: Literal["lumped", "consistent"] = "lumped"
-    gravity: Vec3 | None = None
-    initial: Literal["rest", "static"] = "rest"
-    initial_velocity: Vec3 = (0.0, 0.0, 0.0)
-    kernel: Literal["auto", "fem", "corotated-p1"] = "auto"
-    backend: Literal["numpy", "warp"] = "numpy"
-    output_every: int = Field(1, ge=1)
-    damping: DampingSection = DampingSection()
-    ground: GroundSection | None = None
-    newton: NewtonSection = NewtonSection()
+    steps: int = Field(..., ge=1, description="number of time steps")
+    r: float | None = Field(None, ge=0, le=1, description="genalpha only: spectral radius at infinity rho_inf "
+                                                          "(seed Eq. 2.11-2.12), 0 = most damping, 1 = none; "
+                                                          "default 0.5 [-]")
+    theta: float | None = Field(None, ge=0, le=1, description="theta only (seed Eq. 2.15): 0 = trapezoid, 1 = "
+                                                              "BDF2; default 0.5 [-]")
+    mass: Literal["lumped", "consistent"] = Field("lumped", description="mass matrix: lumped (diagonal) or "
+                                                                        "consistent")
+    gravity: Vec3 | None = Field(None, description="gravitational acceleration, applied as M g [m/s^2] "
+                                                   "(default none)")
+    initial: Literal["rest", "static"] = Field(
+        "rest", description="rest: start undeformed (pinned nodes at their [[fix]] value); static: start from the static solution under the [[load]]s, "
+                            "which are released at t = 0")
+    initial_velocity: Vec3 = Field((0.0, 0.0, 0.0), description="initial velocity of every free node [m/s]")
+    kernel: Literal["auto", "fem", "corotated-p1"] = Field(
+        "auto", description="elastic forces: fem (physar.fem assembly, any material and element), corotated-p1 "
+                            "(fast kernel: P1 and the corotated material only), auto (corotated-p1 where it "
+                            "applies)")
+    backend: Literal["numpy", "warp"] = Field(
+        "numpy", description="co-rotated P1 kernel: numpy, or warp (NVIDIA Warp CPU kernels; faster on large "
+                             "meshes)")
+    output_every: int = Field(1, ge=1, description="write every k-th step to the XDMF and the video")
+    damping: DampingSection = Field(DampingSection(), description="Rayleigh damping (default none)")
+    ground: GroundSection | None = Field(None, description="a penalty ground plane (default none)")
+    newton: NewtonSection = Field(NewtonSection(), description="Newton iterations and linear solves of the "
+                                                               "implicit methods")
 
     @model_validator(mode="after")
     def _knobs(self):
@@ -99,7 +123,7 @@ class DynamicsSection(_Strict):
 class DynamicsConfig(FemConfig):
     """A `physar simulate` file: every FemConfig table plus [dynamics]."""
 
-    dynamics: DynamicsSection
+    dynamics: DynamicsSection = Field(..., description="time integration")
 
 
 def load_dynamics_config(path: str | Path) -> DynamicsConfig:

@@ -87,22 +87,40 @@ _UNITS = {"displacement": ("m",), "rotation": ("deg", "rad"), "youngs_modulus": 
 
 
 class ParameterSection(_Strict):
-    name: str = Field(..., min_length=1)
-    kind: Kind
-    path: list[Vec3] | None = Field(None, min_length=2, description="polyline [[x0,y0,z0],[x1,y1,z1],...] (m)")
+    """One parameter of the reduced model (1 to 3 in all); its kind says which of the other keys it takes."""
+
+    name: str = Field(..., min_length=1, description="name of the parameter (distinct): `rom eval` takes NAME=VALUE, "
+                                                     "the AR overlay and a scenario's [schedule.NAME] use it")
+    kind: Kind = Field(..., description="load_position (arc length s along `path` of a point load), "
+                                        "load_magnitude (|load| of that load), load_offset (offset of its point "
+                                        "along `direction`), displacement (translation of a region along "
+                                        "`direction`), rotation (rigid turn of a region about `axis`), "
+                                        "youngs_modulus (E of a region's cells); see `unit` for the units")
+    path: list[Vec3] | None = Field(None, min_length=2, description="load_position: the load's path, a "
+                                                                     "polyline [[x0,y0,z0],[x1,y1,z1],...] (m)")
     points: int = Field(60, description=f"grid points of the parameter, an integer 3..{MAX_POINTS}")
     load: Vec3 | None = Field(None, description="total force (N)")
-    radius: float | None = Field(None, gt=0, description="m")
-    range: tuple[float, float] | None = None
-    direction: Vec3 | None = Field(None, description="offset direction (load_offset), translation (displacement)")
-    unit: str | None = None
-    axis: Vec3 | None = Field(None, description="rotation axis (right hand)")
+    radius: float | None = Field(None, gt=0, description="radius of the point load's bump kernel (as a fem "
+                                                         "point load), m")
+    range: tuple[float, float] | None = Field(
+        None, description="[low, high] in the parameter's unit: N for load_magnitude, m for load_offset and "
+                          "displacement, deg or rad for rotation, Pa for youngs_modulus (load_position spans "
+                          "its path)")
+    direction: Vec3 | None = Field(None, description="offset direction (load_offset), translation (displacement); "
+                                                     "normalised [-]")
+    unit: str | None = Field(None, description="unit of the parameter (default by kind: m, N, m, m, deg, Pa); a "
+                                               "rotation is in \"deg\" or \"rad\", a displacement in \"m\", "
+                                               "a Young's modulus in \"Pa\"")
+    axis: Vec3 | None = Field(None, description="rotation axis (right hand), normalised [-]")
     point: Vec3 | None = Field(None, description="a point of the rotation axis (m)")
-    box: Box | None = None
+    box: Box | None = Field(None, description="displacement, rotation: nodes inside the box [[x0, y0, z0], "
+                                              "[x1, y1, z1]]; youngs_modulus: cells whose centroid is inside [m]")
     region: str | int | None = Field(None, description="mesh tag (physical group) name or id")
     at: list[Vec3] | None = Field(None, min_length=1, description="nodes within tol of these points (m)")
-    tol: float | None = Field(None, ge=0, description="m, for at; default 1e-9 of the mesh extent")
-    plane: PlaneSelector | None = None
+    tol: float | None = Field(None, ge=0, description="distance from `at` within which nodes are selected [m]; "
+                                                     "default 1e-9 of the mesh extent")
+    plane: PlaneSelector | None = Field(None, description="displacement, rotation: nodes within tol of a "
+                                                          "plane {point, normal, tol}")
 
     @field_validator("points", mode="before")
     @classmethod
@@ -185,12 +203,12 @@ class ParameterSection(_Strict):
 class RomSection(_Strict):
     method: Literal["pgd", "pgd_nonintrusive", "pod"] | None = Field(
         None, description="default: pgd for a linear material, else pgd_nonintrusive")
-    max_modes: int = Field(20, ge=1)
+    max_modes: int = Field(20, ge=1, description="most modes of the separated representation")
     tol: float = Field(1e-4, gt=0, description="PGD: relative mode amplitude; POD: energy; "
-                                                "non-intrusive: relative error at new samples")
+                                                "non-intrusive: relative error at new samples [-]")
     check_points: int = Field(5, ge=0, description="random full solves for the error estimate (pgd)")
-    check_tol: float | None = Field(None, gt=0, description="pgd: also stop once the error estimate at the "
-                                                             "check points is <= check_tol")
+    check_tol: float | None = Field(None, gt=0, description="pgd: also stop once the relative error estimate at "
+                                                             "the check points is <= check_tol [-]")
     max_points: int = Field(65, ge=3, le=MAX_POINTS, strict=True, description="non-intrusive: max samples per "
                                                                                 "parameter")
     workers: int | None = Field(None, ge=1, description="non-intrusive: Dask LocalCluster workers")
@@ -206,8 +224,9 @@ class RomSection(_Strict):
 class RomConfig(FemConfig):
     """Top level of a `physar rom build` file: a FemConfig plus [[parameter]] and [rom]."""
 
-    parameter: list[ParameterSection] = Field(..., min_length=1)
-    rom: RomSection = RomSection()
+    parameter: list[ParameterSection] = Field(..., min_length=1, description="the parameters of the reduced "
+                                                                             "model (1 to 3)")
+    rom: RomSection = Field(RomSection(), description="the reduction method and its stopping rules")
 
     @model_validator(mode="after")
     def _parameters(self):
