@@ -63,8 +63,8 @@ class MarkerSection(_Strict):
     id: Int = Field(..., ge=0, description="ArUco id within the dictionary")
     size: Float = Field(..., gt=0, description="side length of the black square [m]")
     center: Vec3 = Field(..., description="centre of the marker in the object's frame [m]")
-    normal: Vec3 = Field(..., description="outward normal of the face the marker is stuck on")
-    up: Vec3 = Field(..., description="direction of the marker image's top edge (from its centre to the top)")
+    normal: Vec3 = Field(..., description="outward normal of the face the marker is stuck on [-]")
+    up: Vec3 = Field(..., description="direction of the marker image's top edge (from its centre to the top) [-]")
     dictionary: Str = Field("DICT_4X4_50", description="ArUco dictionary (one per project)")
 
     @model_validator(mode="after")
@@ -119,8 +119,9 @@ class PlaneSection(_Strict):
     view: a support plate, a printed poster, the wall behind the object (seed 000 §5.2, §5.3.2)."""
 
     origin: Vec3 = Field(..., description="object coordinates of the top-left corner of the plane's image [m]")
-    u: Vec3 = Field((1.0, 0.0, 0.0), description="direction of the image's rows (rightwards) in the object frame")
-    v: Vec3 = Field((0.0, 0.0, -1.0), description="direction of the image's columns (downwards)")
+    u: Vec3 = Field((1.0, 0.0, 0.0), description="direction of the image's rows (rightwards) in the object frame "
+                                                 "[-]")
+    v: Vec3 = Field((0.0, 0.0, -1.0), description="direction of the image's columns (downwards) [-]")
     image: Str | None = Field(None, description="reference image of the plane (its design file or a scan), "
                                                 "relative to the project; none: learned from the first frame "
                                                 "whose pose the markers give")
@@ -141,7 +142,7 @@ class PlaneSection(_Strict):
 class RegistrationSection(_Strict):
     method: Literal["markers", "plane"] = Field("markers", description="camera pose from the [[marker]] tables "
                                                 "in every frame, or from a textured plane ([registration.plane])")
-    plane: PlaneSection | None = None
+    plane: PlaneSection | None = Field(None, description="the textured plane (needed by method = \"plane\")")
 
     @model_validator(mode="after")
     def _check(self):
@@ -156,9 +157,9 @@ class BarSection(_Strict):
 
     parameter: Str = Field(..., description="name of a rotation parameter of the model")
     zero: Vec3 = Field(..., description="direction from the pivot along the bar at parameter 0 (perpendicular "
-                                        "to the rotation axis)")
+                                        "to the rotation axis) [-]")
     length: Float = Field(..., gt=0, description="from the pivot to the bar's tip [m]")
-    width: Float = Field(..., gt=0, description="[m]")
+    width: Float = Field(..., gt=0, description="width of the bar's visible face [m]")
     face: Float = Field(0.0, description="position of the bar's visible face along the rotation axis, from the "
                                          "axis point [m]")
     saturation_max: Int = Field(45, ge=0, le=255, description="the bar's colour: HSV saturation at most this")
@@ -172,8 +173,8 @@ class FeaturesSection(_Strict):
     observations (seed 000 §5.2)."""
 
     origin: Vec3 = Field(..., description="a corner of the face [m]")
-    u: Vec3 = Field(..., description="direction of the face's first side")
-    v: Vec3 = Field(..., description="direction of its second side (perpendicular to u)")
+    u: Vec3 = Field(..., description="direction of the face's first side [-]")
+    v: Vec3 = Field(..., description="direction of its second side (perpendicular to u) [-]")
     size: tuple[Float, Float] = Field(..., description="lengths of the two sides [m]")
     margin: Float | None = Field(None, ge=0, description="rectified band around the face [m] (default: a "
                                                          "quarter of the shorter side)")
@@ -206,10 +207,12 @@ class OverlaySection(_Strict):
     field: Literal["von_mises", "u", "ux", "uy", "uz"] = Field("von_mises", description="field drawn on the "
                                                                 "deformed surface: von Mises stress [Pa], |u| or "
                                                                 "a displacement component [m]")
-    range: tuple[Float, Float] | None = Field(None, description="colour range (SI units); default: 0 to the "
-                                                                "field's maximum over the parameter box")
-    exaggeration: Float = Field(1.0, gt=0, description="scale of the drawn displacement")
-    alpha: Float = Field(0.65, ge=0, le=1, description="opacity of the drawn surface")
+    range: tuple[Float, Float] | None = Field(None, description="colour range in the field's unit (Pa for "
+                                                                "von_mises, m for the displacements); default: 0 "
+                                                                "to the largest 98th percentile of the field over "
+                                                                "a grid of the parameter box")
+    exaggeration: Float = Field(1.0, gt=0, description="scale of the drawn displacement [-]")
+    alpha: Float = Field(0.65, ge=0, le=1, description="opacity of the drawn surface [-]")
     show: list[Str] | None = Field(None, description="parameters written as estimate ± std (default all)")
 
     @field_validator("range")
@@ -233,16 +236,22 @@ class TrackingSection(_Strict):
 class ProjectConfig(_Strict):
     """Top level of an AR project file."""
 
-    model: ModelSection
-    camera: CameraSection
-    marker: list[MarkerSection] = Field(default_factory=list)
-    registration: RegistrationSection = RegistrationSection()
-    dots: DotsSection | None = None
-    features: FeaturesSection | None = None
-    bar: list[BarSection] = Field(default_factory=list)
-    overlay: OverlaySection = OverlaySection()
-    tracking: TrackingSection = TrackingSection()
-    name: Str | None = None
+    model: ModelSection = Field(..., description="the reduced model of the object")
+    camera: CameraSection = Field(..., description="the calibrated camera")
+    marker: list[MarkerSection] = Field(default_factory=list, description="ArUco markers fixed in the object's "
+                                                                          "frame (one dictionary, distinct ids)")
+    registration: RegistrationSection = Field(RegistrationSection(), description="how the camera pose is found "
+                                                                                 "in each frame")
+    dots: DotsSection | None = Field(None, description="printed dots on the surface, observing the parameters "
+                                                       "(or [features] or [[bar]])")
+    features: FeaturesSection | None = Field(None, description="the object's own texture on a planar face, "
+                                                               "observing the parameters (not with [dots])")
+    bar: list[BarSection] = Field(default_factory=list, description="rigid bars turned by rotation parameters, "
+                                                                    "each measuring its parameter")
+    overlay: OverlaySection = Field(OverlaySection(), description="what is drawn over the video")
+    tracking: TrackingSection = Field(TrackingSection(), description="settings of the frame loop (the defaults "
+                                                                     "need no tuning)")
+    name: Str | None = Field(None, description="title of the project in plots (default: its folder's name)")
     _base_dir: Path = PrivateAttr(default=Path("."))
 
     @model_validator(mode="after")
