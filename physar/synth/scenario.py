@@ -67,16 +67,22 @@ def _rgb_ok(v):
 
 
 class VideoSection(_Strict):
-    width: Int | None = Field(None, ge=16, le=7680, description="px (default: the camera's)")
-    height: Int | None = Field(None, ge=16, le=4320, description="px (default: the camera's)")
-    fps: float = Field(30.0, gt=0, le=240)
-    duration: float = Field(8.0, gt=0, le=600, description="s")
+    width: Int | None = Field(None, ge=16, le=7680, description="frame width [px] (default: the camera's)")
+    height: Int | None = Field(None, ge=16, le=4320, description="frame height [px] (default: the camera's)")
+    fps: float = Field(30.0, gt=0, le=240, description="frame rate [fps]")
+    duration: float = Field(8.0, gt=0, le=600, description="length of the clip [s]")
     crf: Int = Field(18, ge=0, le=51, description="H.264 constant rate factor")
 
 
 class Schedule(_Strict):
-    keyframes: list[tuple[float, float]] = Field(..., min_length=1, description="[[t (s), value], ...]")
-    interp: Literal["smooth", "linear"] = "smooth"
+    """``[schedule.NAME]``: the value of the model parameter NAME over time (default: a sweep of the load
+    position over 90 % .. 10 % of its range with dwells, the other parameters at mid-range)."""
+
+    keyframes: list[tuple[float, float]] = Field(..., min_length=1, description="[[t, value], ...]: time in s "
+                                                 "(increasing), value in the parameter's unit; constant before the "
+                                                 "first and after the last")
+    interp: Literal["smooth", "linear"] = Field("smooth", description="between keyframes: smooth (smooth-step; "
+                                                                     "equal values make a dwell) or linear")
 
     @model_validator(mode="after")
     def _times(self):
@@ -102,8 +108,10 @@ class ScheduleSection(_Strict):
     """``[schedule]``: events of the clip, and one ``[schedule.NAME]`` table per model parameter."""
 
     model_config = ConfigDict(extra="allow")
-    rest_until: float = Field(0.0, ge=0, description="s: the object at rest (u = 0) before this time")
-    markers_until: float | None = Field(None, ge=0, description="s: markers drawn only before (default: always)")
+    rest_until: float = Field(0.0, ge=0, description="the object is at rest (u = 0, no load body; not scored) "
+                                                     "before this time [s]")
+    markers_until: float | None = Field(None, ge=0, description="the markers are drawn only before this time [s] "
+                                                                "(default: always)")
     __pydantic_extra__: dict[str, Schedule] = Field(init=False)
 
     @property
@@ -115,8 +123,8 @@ class ScheduleSection(_Strict):
 class Pan(_Strict):
     """The camera turns away by ``yaw`` about the vertical through its centre, holds, and turns back."""
 
-    start: float = Field(..., ge=0, description="s")
-    duration: float = Field(..., gt=0, description="s (turn away, hold, turn back)")
+    start: float = Field(..., ge=0, description="time the camera starts turning away [s]")
+    duration: float = Field(..., gt=0, description="length of the pan: turn away, hold, turn back [s]")
     yaw: float = Field(45.0, ge=-180, le=180, description="deg, right hand about up")
     ramp: float = Field(0.5, gt=0, description="s to turn away (and back), cosine profile")
 
@@ -132,39 +140,47 @@ class Pan(_Strict):
 
 class CameraSection(_Strict):
     target: Vec3 | None = Field(None, description="point looked at [m] (default: model bbox centre)")
-    distance: float | None = Field(None, gt=0, description="m (default: object and markers fill the view)")
+    distance: float | None = Field(None, gt=0, description="distance of the camera from the target [m] (default: "
+                                                          "object and markers fill the view)")
     azimuth: float | None = Field(None, description="deg, direction target -> camera in the xy plane from +x")
     elevation: float | None = Field(None, ge=-89, le=89, description="deg above the xy plane")
     orbit: tuple[float, float] = Field((8.0, 4.0), description="amplitudes of azimuth, elevation [deg]")
     period: float = Field(12.0, gt=0, description="orbit period [s]")
-    shake_mm: float = Field(1.0, ge=0)
-    shake_deg: float = Field(0.2, ge=0)
-    up: Vec3 = (0.0, 0.0, 1.0)
-    pan: list[Pan] = Field(default_factory=list)
+    shake_mm: float = Field(1.0, ge=0, description="amplitude of the handheld shake of the camera's position "
+                                                   "[mm]")
+    shake_deg: float = Field(0.2, ge=0, description="amplitude of the handheld shake of azimuth, elevation and "
+                                                    "roll [deg]")
+    up: Vec3 = Field((0.0, 0.0, 1.0), description="the vertical: azimuth and elevation are measured about it and "
+                                                  "the camera pans about it [-]")
+    pan: list[Pan] = Field(default_factory=list, description="events where the camera looks away and back")
 
 
 class LightingSection(_Strict):
-    ambient: float = Field(0.35, ge=0, le=1)
-    direction: Vec3 | None = Field(None, description="towards the light (default: from the camera side, above)")
-    brightness: float = Field(1.0, gt=0, le=4, description="global factor (0.4: dimmed light)")
-    flicker: float = Field(0.02, ge=0, le=0.5, description="relative amplitude")
-    vignetting: float = Field(0.2, ge=0, le=1)
+    ambient: float = Field(0.35, ge=0, le=1, description="ambient share a of the Lambert shading a + (1 - a) "
+                                                         "max(0, n·l) [-]")
+    direction: Vec3 | None = Field(None, description="towards the light (default: from the camera side, above) [-]")
+    brightness: float = Field(1.0, gt=0, le=4, description="global factor (0.4: dimmed light) [-]")
+    flicker: float = Field(0.02, ge=0, le=0.5, description="relative amplitude of a sinusoidal brightness "
+                                                           "flicker [-]")
+    vignetting: float = Field(0.2, ge=0, le=1, description="brightness lost at the image corners: gain 1 - "
+                                                           "vignetting r², r relative to the half diagonal [-]")
 
 
 class SensorSection(_Strict):
-    read_noise: float = Field(1.5, ge=0, description="std [DN]")
-    shot_noise: float = Field(0.25, ge=0, description="std = shot_noise * sqrt(intensity [DN])")
+    read_noise: float = Field(1.5, ge=0, description="std of the read noise [DN]")
+    shot_noise: float = Field(0.25, ge=0, description="std = shot_noise * sqrt(intensity in DN) [sqrt(DN)]")
     psf: float = Field(0.6, ge=0, le=5, description="Gaussian blur sigma [px]")
     motion_blur: float = Field(0.0, ge=0, le=1, description="shutter time as a fraction of the frame interval "
-                                                             "(blur along the target's image motion)")
+                                                             "(blur along the target's image motion) [-]")
 
 
 class TextureSection(_Strict):
-    base: RGB = (178, 172, 160)
-    contrast: float = Field(0.12, ge=0, le=1, description="relative std of the procedural noise")
+    base: RGB = Field((178, 172, 160), description="mean albedo of the object's surface, RGB 0-255")
+    contrast: float = Field(0.12, ge=0, le=1, description="relative std of the procedural noise [-]")
     feature: float | None = Field(None, gt=0, description="finest noise feature [m] (default 3 px at the target)")
-    octaves: Int = Field(4, ge=1, le=8)
-    pores: float = Field(0.0, ge=0, le=0.6, description="area fraction of dark pores (foam-like texture)")
+    octaves: Int = Field(4, ge=1, le=8, description="octaves of the band-limited noise, from `feature` up, "
+                                                    "each twice as coarse and twice as strong")
+    pores: float = Field(0.0, ge=0, le=0.6, description="area fraction of dark pores (foam-like texture) [-]")
     pore_size: float | None = Field(None, gt=0, description="pore diameter [m] (default 4 feature)")
 
     @model_validator(mode="after")
@@ -174,8 +190,8 @@ class TextureSection(_Strict):
 
 
 class BackgroundSection(_Strict):
-    base: RGB = (120, 128, 138)
-    contrast: float = Field(0.2, ge=0, le=1)
+    base: RGB = Field((120, 128, 138), description="mean colour of the wall behind the object, RGB 0-255")
+    contrast: float = Field(0.2, ge=0, le=1, description="relative std of the wall's procedural noise [-]")
     distance: float | None = Field(None, gt=0, description="wall behind the target [m] (default 2x object size)")
 
     @model_validator(mode="after")
@@ -185,8 +201,9 @@ class BackgroundSection(_Strict):
 
 
 class BarLook(_Strict):
-    colour: RGB = (236, 238, 240)
-    thickness: float = Field(0.3, gt=0, le=5, description="of the bar's width (the box behind its visible face)")
+    colour: RGB = Field((236, 238, 240), description="colour of the bars, RGB 0-255")
+    thickness: float = Field(0.3, gt=0, le=5, description="depth of the box behind the bar's visible face, as a "
+                                                          "fraction of the bar's width [-]")
 
     @model_validator(mode="after")
     def _rgb(self):
@@ -196,7 +213,7 @@ class BarLook(_Strict):
 
 class PlaneLook(_Strict):
     border: float = Field(0.0, ge=0, description="dark rim around the plane's image [m] (a plate's edge)")
-    border_colour: RGB = (45, 40, 40)
+    border_colour: RGB = Field((45, 40, 40), description="colour of the rim, RGB 0-255")
 
     @model_validator(mode="after")
     def _rgb(self):
@@ -208,9 +225,9 @@ class LoadBody(_Strict):
     """A cylinder standing on the loaded surface at the load point (the path point of the load_position
     parameter, plus its offset), axis along -load, drawn while the object is loaded (not at rest)."""
 
-    diameter: float = Field(..., gt=0, description="m")
-    thickness: float = Field(..., gt=0, description="m")
-    colour: RGB = (96, 90, 88)
+    diameter: float = Field(..., gt=0, description="diameter of the cylinder [m]")
+    thickness: float = Field(..., gt=0, description="height of the cylinder along its axis [m]")
+    colour: RGB = Field((96, 90, 88), description="colour of the body, RGB 0-255")
 
     @model_validator(mode="after")
     def _rgb(self):
@@ -219,12 +236,12 @@ class LoadBody(_Strict):
 
 
 class Occlusion(_Strict):
-    start: float = Field(..., ge=0, description="s")
-    frames: Int = Field(..., gt=0)
-    center: tuple[float, float] | None = Field(None, description="image fractions (u, v)")
+    start: float = Field(..., ge=0, description="time the occluder appears [s]")
+    frames: Int = Field(..., gt=0, description="number of frames the occluder stays")
+    center: tuple[float, float] | None = Field(None, description="centre of the blob in image fractions (u, v) [-]")
     point: Vec3 | None = Field(None, description="object point [m] the blob covers")
-    radius: float = Field(0.15, gt=0, le=2, description="fraction of the image height")
-    colour: RGB = (40, 38, 36)
+    radius: float = Field(0.15, gt=0, le=2, description="radius of the blob as a fraction of the image height [-]")
+    colour: RGB = Field((40, 38, 36), description="colour of the blob, RGB 0-255")
 
     @model_validator(mode="after")
     def _one(self):
@@ -241,19 +258,24 @@ class TruthSection(_Strict):
 class Scenario(_Strict):
     """Top level of a scenario file."""
 
-    seed: Int = 0
-    video: VideoSection = VideoSection()
-    schedule: ScheduleSection = ScheduleSection()
-    camera: CameraSection = CameraSection()
-    lighting: LightingSection = LightingSection()
-    sensor: SensorSection = SensorSection()
-    texture: TextureSection = TextureSection()
-    background: BackgroundSection = BackgroundSection()
-    bar: BarLook = BarLook()
-    plane: PlaneLook = PlaneLook()
-    load_body: LoadBody | None = None
-    occlusion: list[Occlusion] = Field(default_factory=list)
-    truth: TruthSection = TruthSection()
+    seed: Int = Field(0, description="seed of the clip's random draws (textures, camera shake, flicker, sensor "
+                                     "noise)")
+    video: VideoSection = Field(VideoSection(), description="frame size, rate, duration and encoding")
+    schedule: ScheduleSection = Field(ScheduleSection(), description="the parameters over time and the clip's "
+                                                                     "events")
+    camera: CameraSection = Field(CameraSection(), description="the camera's trajectory")
+    lighting: LightingSection = Field(LightingSection(), description="light direction, brightness, flicker, "
+                                                                     "vignetting")
+    sensor: SensorSection = Field(SensorSection(), description="sensor noise and blur")
+    texture: TextureSection = Field(TextureSection(), description="procedural texture of the object's surface")
+    background: BackgroundSection = Field(BackgroundSection(), description="the wall behind the object")
+    bar: BarLook = Field(BarLook(), description="look of the project's [[bar]] levers")
+    plane: PlaneLook = Field(PlaneLook(), description="look of the project's [registration.plane] with an image")
+    load_body: LoadBody | None = Field(None, description="a body drawn at the load point while loaded (default "
+                                                         "none)")
+    occlusion: list[Occlusion] = Field(default_factory=list, description="blobs hiding part of the image for a "
+                                                                        "few frames")
+    truth: TruthSection = Field(TruthSection(), description="refinement of the truth's finer mesh")
 
     @property
     def n_frames(self) -> int:
@@ -600,5 +622,16 @@ def _plane_axes(up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(up, e1)
 
 
-__all__ = ["BarGeometry", "PlaneGeometry", "Resolved", "Scenario", "Schedule", "bar_geometries", "plane_geometry", "check_scenario", "default_schedule", "load_scenario",
-           "parse_scenario"]
+__all__ = [
+    "BarGeometry",
+    "PlaneGeometry",
+    "Resolved",
+    "Scenario",
+    "Schedule",
+    "bar_geometries",
+    "check_scenario",
+    "default_schedule",
+    "load_scenario",
+    "parse_scenario",
+    "plane_geometry",
+]
