@@ -82,43 +82,59 @@ class Grid(_Strict):
 
 
 class Time(_Strict):
-    frame_dt: float = Field(1.0 / 30.0, gt=0, description="s")
-    substeps: int = Field(50, ge=1, le=100000)
-    frames: int = Field(30, ge=1, le=100000)
+    frame_dt: float = Field(1.0 / 30.0, gt=0, description="time between written frames [s]")
+    substeps: int = Field(50, ge=1, le=100000, description="MPM steps per frame (dt = frame_dt / substeps; raise "
+                                                          "it if a run diverges)")
+    frames: int = Field(30, ge=1, le=100000, description="number of frames simulated and written")
 
 
 class Gravity(_Strict):
-    g: Vec3 = (0.0, 0.0, -9.81)
+    g: Vec3 = Field((0.0, 0.0, -9.81), description="gravitational acceleration [m/s^2]")
 
 
 class Boundary(_Strict):
-    ground: Literal["sticky", "slip", "separate", "none"] = "slip"
-    walls: Literal["sticky", "slip", "separate", "none"] = "slip"
-    friction: float = Field(0.0, ge=0, description="Coulomb coefficient of the ground")
+    """Conditions on the faces of the domain: sticky (v = 0), slip (v.n = 0), separate (v.n >= 0: bodies may lift
+    off), none."""
+
+    ground: Literal["sticky", "slip", "separate", "none"] = Field("slip", description="condition on the face z = 0")
+    walls: Literal["sticky", "slip", "separate", "none"] = Field("slip", description="condition on the five other "
+                                                                                  "faces")
+    friction: float = Field(0.0, ge=0, description="Coulomb coefficient of the ground (slip / separate) [-]")
 
 
 class Body(_Strict):
-    shape: Literal["box", "sphere", "mesh"] = "box"
-    min: Vec3 | None = None
-    max: Vec3 | None = None
-    center: Vec3 | None = None
-    radius: float | None = Field(None, gt=0)
-    file: str | None = None
-    particles_per_cell: int = 8
-    material: str = "fixed_corotated"
+    """A body of particles: its shape, sampling, material and initial velocity."""
+
+    shape: Literal["box", "sphere", "mesh"] = Field("box", description="box (min, max), sphere (center, radius) or "
+                                                                       "mesh (file)")
+    min: Vec3 | None = Field(None, description="box: lowest corner [m]")
+    max: Vec3 | None = Field(None, description="box: highest corner [m]")
+    center: Vec3 | None = Field(None, description="sphere: centre [m]")
+    radius: float | None = Field(None, gt=0, description="sphere: radius [m]")
+    file: str | None = Field(None, description="mesh: a closed (watertight) surface mesh, relative to the scene "
+                                               "file; its inside is sampled")
+    particles_per_cell: int = Field(8, description="particles per grid cell, a cube n^3 (1, 8, 27, 64): a regular "
+                                                   "lattice of n^3 per cell")
+    material: str = Field("fixed_corotated", description="fixed_corotated, stvk, neohookean, hencky (elastic); "
+                                                         "von_mises or metal (Hencky + von Mises plasticity), "
+                                                         "drucker_prager or sand (Hencky + Drucker-Prager), snow "
+                                                         "(fixed_corotated + snow plasticity, Stomakhin et al. 2013)")
     E: float = Field(1.0e5, gt=0, description="Young's modulus, Pa")
-    nu: float = Field(0.3, gt=-1, lt=0.5)
-    density: float = Field(1000.0, gt=0, description="kg/m^3")
-    velocity: Vec3 = (0.0, 0.0, 0.0)
+    nu: float = Field(0.3, gt=-1, lt=0.5, description="Poisson ratio [-]")
+    density: float = Field(1000.0, gt=0, description="mass density [kg/m^3]")
+    velocity: Vec3 = Field((0.0, 0.0, 0.0), description="initial velocity [m/s]")
     velocity_gradient: tuple[Vec3, Vec3, Vec3] | None = Field(
-        None, description="initial v = velocity + G (x - centroid), 1/s (e.g. to start a vibration)")
+        None, description="initial v = velocity + G (x - centroid) [1/s] (e.g. to start a vibration)")
     yield_stress: float = Field(1.0e4, gt=0, description="von Mises yield stress, Pa")
     friction_angle: float = Field(30.0, gt=0, lt=90, description="Drucker-Prager friction angle, degrees")
-    theta_c: float = Field(2.5e-2, ge=0, lt=1)
-    theta_s: float = Field(7.5e-3, ge=0)
-    hardening: float = Field(10.0, ge=0)
-    fiber: Vec3 | None = Field(None, description="fibre direction a0 in the rest configuration (normalised)")
-    fiber_E: float = Field(0.0, ge=0, description="fibre modulus E_f, Pa (anisotropic I4 term)")
+    theta_c: float = Field(2.5e-2, ge=0, lt=1, description="snow: critical compression, singular values of F "
+                                                           "clamped at 1 - theta_c [-]")
+    theta_s: float = Field(7.5e-3, ge=0, description="snow: critical stretch, singular values of F clamped at 1 + "
+                                                     "theta_s [-]")
+    hardening: float = Field(10.0, ge=0, description="snow: hardening coefficient xi, Lamé parameters scaled by "
+                                                     "exp(xi (1 - J_p)) [-]")
+    fiber: Vec3 | None = Field(None, description="fibre direction a0 in the rest configuration (normalised) [-]")
+    fiber_E: float = Field(0.0, ge=0, description="fibre modulus E_f (anisotropic I4 term) [Pa]")
 
     @field_validator("material")
     @classmethod
@@ -155,17 +171,19 @@ class Body(_Strict):
 class ColliderSpec(_Strict):
     """A kinematic box or capsule (see :mod:`physar.mpm.colliders`)."""
 
-    shape: Literal["box", "capsule"] = "box"
-    center: Vec3 | None = Field(None, description="centre at t = 0, m (not with 'path')")
+    shape: Literal["box", "capsule"] = Field("box", description="box (size) or capsule (radius, length, axis)")
+    center: Vec3 | None = Field(None, description="centre at t = 0 [m] (not with 'path')")
     size: Vec3 | None = Field(None, description="box: full side lengths, m")
     radius: float | None = Field(None, gt=0, description="capsule radius, m")
     length: float = Field(0.0, ge=0, description="capsule: length of the axis segment (0 = sphere), m")
-    axis: Vec3 = (1.0, 0.0, 0.0)
-    velocity: Vec3 = Field((0.0, 0.0, 0.0), description="constant velocity, m/s (not with 'path')")
+    axis: Vec3 = Field((1.0, 0.0, 0.0), description="capsule: direction of the axis segment [-]")
+    velocity: Vec3 = Field((0.0, 0.0, 0.0), description="constant velocity [m/s] (not with 'path')")
     path: list[tuple[float, float, float, float]] | None = Field(
-        None, min_length=1, description="keyframes [t, x, y, z] of the centre (s, m), piecewise linear")
-    boundary: Literal["sticky", "slip", "separate"] = "separate"
-    friction: float = Field(0.0, ge=0, description="Coulomb coefficient (slip / separate)")
+        None, min_length=1, description="keyframes [t, x, y, z] of the centre, piecewise linear: t [s], x, y, z [m]")
+    boundary: Literal["sticky", "slip", "separate"] = Field(
+        "separate", description="condition on the grid nodes inside it, relative to its velocity: sticky (v = 0), "
+                                "slip (v.n = 0), separate (as slip where the node approaches it)")
+    friction: float = Field(0.0, ge=0, description="Coulomb coefficient (slip / separate) [-]")
 
     @model_validator(mode="after")
     def _fields(self):
@@ -195,12 +213,15 @@ class ColliderSpec(_Strict):
 
 
 class Scene(_Strict):
-    grid: Grid = Grid()
-    time: Time = Time()
-    gravity: Gravity = Gravity()
-    boundary: Boundary = Boundary()
-    body: list[Body] = Field(min_length=1)
-    collider: list[ColliderSpec] = Field(default_factory=list, max_length=int(MAX_COLLIDERS))
+    """Top level of a `physar mpm run` scene file."""
+
+    grid: Grid = Field(Grid(), description="the cubic domain and its background grid")
+    time: Time = Field(Time(), description="frames and MPM steps")
+    gravity: Gravity = Field(Gravity(), description="the gravitational acceleration")
+    boundary: Boundary = Field(Boundary(), description="conditions on the domain's faces")
+    body: list[Body] = Field(min_length=1, description="the bodies (at least one)")
+    collider: list[ColliderSpec] = Field(default_factory=list, max_length=int(MAX_COLLIDERS),
+                                         description=f"kinematic colliders (at most {MAX_COLLIDERS})")
 
 
 def _lattice(lo, hi, h):
