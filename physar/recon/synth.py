@@ -95,52 +95,55 @@ class SynthConfig(BaseModel):
         return refuse_coercion(value, cls.model_fields[info.field_name].annotation)
 
     image_size: int = Field(64, ge=16, le=1024, description="square image side, px")
-    fov_deg: float = Field(35.0, gt=5, lt=120)
+    fov_deg: float = Field(35.0, gt=5, lt=120, description="vertical field of view of the camera [deg]")
     object: Literal["pillow", "c_pillow", "bag"] = Field("pillow", description="pillow | c_pillow | bag")
     action: Literal["press", "squeeze", "lift"] = Field(
         "press", description="press (pillow, c_pillow) | squeeze (c_pillow) | lift (bag)")
     camera_distance: float = Field(0.75, gt=0.1, description="m, from the object centre")
-    camera_elevation_deg: float = Field(25.0, ge=-80, le=80)
-    camera_azimuth_deg: float = Field(10.0, ge=-180, le=180)
-    fps: float = Field(30.0, gt=0)
+    camera_elevation_deg: float = Field(25.0, ge=-80, le=80, description="camera elevation above the horizontal, "
+                                                                        "seen from the object centre [deg]")
+    camera_azimuth_deg: float = Field(10.0, ge=-180, le=180, description="camera azimuth about the vertical from "
+                                                                        "the -y side, towards +x [deg]")
+    fps: float = Field(30.0, gt=0, description="frame rate of the clips [fps]")
     frames: int = Field(20, ge=3, le=2000, description="frames of the dynamic clip")
     n_obs: int = Field(12, ge=2, description="observation frames (the rest is the prediction part)")
-    novel_frames: int = Field(16, ge=2, le=2000)
+    novel_frames: int = Field(16, ge=2, le=2000, description="frames of the novel-action clip")
     spin_frames: int = Field(10, ge=0, le=2000, description="frames of the spin clip (0: none)")
     spin_deg: float = Field(20.0, ge=0, le=180, description="yaw amplitude of the spin clip, degrees")
     height: float = Field(1.7, gt=0.5, lt=2.5, description="humanoid height, m")
     pillow_size: Vec3 = Field((0.24, 0.20, 0.12), description="pillow box (x along the forearm, y, z), m")
     c_pillow_size: Vec3 = Field((0.24, 0.15, 0.18), description="C pillow: length along the forearm (x), depth "
                                 "(y, spine at the back) and height (z), m")
-    c_thickness: float = Field(0.06, gt=0, description="C pillow: thickness of the prongs and the spine, m "
+    c_thickness: float = Field(0.06, gt=0, description="C pillow: thickness of the prongs and the spine [m] "
                                "(the gap between the prongs is height - 2 thickness)")
     bag_size: Vec3 = Field((0.21, 0.18, 0.12), description="bag body (x, y, z) below the handle, m")
     bag_wall: float = Field(0.03, gt=0, description="bag: shell and handle thickness, m")
     handle_length: float = Field(0.09, gt=0, description="bag: extent of the handle along the forearm (x), m")
     handle_hole: float = Field(0.12, gt=0, description="bag: clear height of the tunnel under the handle bar, m")
-    gap: float = Field(0.005, ge=0, description="initial gap forearm-object top (press, squeeze), m; for a "
+    gap: float = Field(0.005, ge=0, description="initial gap forearm-object top (press, squeeze) [m]; for a "
                        "lift the forearm starts centred in the handle's tunnel")
-    E_soft: float = Field(3.0e3, gt=0, description="Pa")
-    E_stiff: float = Field(1.2e4, gt=0, description="Pa")
-    fiber_E: float = Field(2.4e4, ge=0, description="fibre modulus E_f of the anisotropic term, Pa (0: isotropic)")
-    nu: float = Field(0.3, gt=-1, lt=0.5)
-    density: float = Field(200.0, gt=0, description="kg/m^3")
-    human_E: float = Field(1.0e4, gt=0, description="Pa")
-    human_density: float = Field(1000.0, gt=0)
-    kp: float = Field(3.0e3, ge=0, description="PD gain, 1/s^2 (mass-scaled)")
+    E_soft: float = Field(3.0e3, gt=0, description="Young's modulus of the object's soft part [Pa]")
+    E_stiff: float = Field(1.2e4, gt=0, description="Young's modulus of the object's stiff part [Pa]")
+    fiber_E: float = Field(2.4e4, ge=0, description="fibre modulus E_f of the anisotropic term [Pa] (0: isotropic)")
+    nu: float = Field(0.3, gt=-1, lt=0.5, description="Poisson ratio of the object [-]")
+    density: float = Field(200.0, gt=0, description="density of the object [kg/m^3]")
+    human_E: float = Field(1.0e4, gt=0, description="Young's modulus of the simulated forearm [Pa]")
+    human_density: float = Field(1000.0, gt=0, description="density of the simulated forearm [kg/m^3]")
+    kp: float = Field(3.0e3, ge=0, description="PD gain (mass-scaled) [1/s^2]")
     kd: float = Field(110.0, ge=0, description="PD gain, 1/s")
-    press_obs: float | None = Field(None, ge=0, description="forearm travel at the end of the observation part, "
-                                    "m (down for press/squeeze, up for lift); default per scene (ACTIONS)")
+    press_obs: float | None = Field(None, ge=0, description="forearm travel at the end of the observation part "
+                                    "[m] (down for press/squeeze, up for lift); default per scene (ACTIONS)")
     press_pred: float | None = Field(None, ge=0, description="forearm travel at the end of the dynamic clip, m")
     press_novel: float | None = Field(None, ge=0, description="novel (tilted) action: travel of the forearm's "
                                       "midpoint, m")
-    domain_size: float = Field(0.48, gt=0)
-    grid_resolution: int = Field(16, ge=4, le=256)
-    substeps: int = Field(32, ge=1)
-    gravity: float = Field(-9.81)
-    gt_particles_per_cell: int = Field(8, description="1, 8, 27 or 64")
+    domain_size: float = Field(0.48, gt=0, description="side of the cubic MPM domain around the object [m]")
+    grid_resolution: int = Field(16, ge=4, le=256, description="MPM grid cells per side of the domain")
+    substeps: int = Field(32, ge=1, description="MPM steps per frame")
+    gravity: float = Field(-9.81, description="vertical (z) gravitational acceleration [m/s^2]")
+    gt_particles_per_cell: int = Field(8, description="MPM particles per cell of the truth run: 1, 8, 27 or 64")
     body_spacing: float = Field(0.012, gt=0, description="spacing of the rendered body samples, m")
-    seed: int = 0
+    seed: int = Field(0, description="recorded in scene.json; the synthesis draws no random numbers, so it "
+                                     "changes nothing")
 
     @model_validator(mode="after")
     def _check(self):

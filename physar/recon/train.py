@@ -86,54 +86,66 @@ class TrainConfig(BaseModel):
 
     particles_per_cell: int = Field(1, description="object/body MPM particles per grid cell: 1, 8 or 27")
     body_spacing: float = Field(0.03, gt=0, description="spacing of the kinematic body Gaussians, m")
-    appearance_iters: int = Field(150, ge=0)
-    appearance_lr: float = Field(0.05, gt=0)
+    appearance_iters: int = Field(150, ge=0, description="Adam iterations of the canonical appearance fit on the "
+                                                         "spin clip (§4.1, Eq. 5)")
+    appearance_lr: float = Field(0.05, gt=0, description="Adam step of the appearance fit on colours, opacity "
+                                                         "logits and log scales (0.3 of it in the fine-tuning) [-]")
     finetune_iters: int = Field(60, ge=0, description="physics-aware fine-tuning on the spin clip (Eq. 4-5)")
     spin_stride: int = Field(1, ge=1, description="use every k-th spin frame")
     flow_iters: int = Field(30, ge=0, description="per frame (Eq. 9; also the 4DGS-like baseline)")
     flow_lr: float = Field(2e-3, gt=0, description="Adam step on positions, m")
     rigidity: float = Field(1.0e3, ge=0, description="4DGS-like baseline: weight of the edge-length term, 1/m^2")
     spflow_iters: int = Field(30, ge=0, description="per frame, structure-preserving 3-D flow (Eq. 9)")
-    lambda_of: float = Field(0.02, ge=0, description="Eq. 9 optical-flow (DIS) term, per px")
+    lambda_of: float = Field(0.02, ge=0, description="Eq. 9 optical-flow (DIS) term [1/px]")
     lambda_arap: float = Field(3.0e4, ge=0, description="Eq. 9 ARAP term, 1/m^2")
-    physics_iters: int = Field(40, ge=0)
-    physics_lr: float = Field(0.15, gt=0, description="Adam step on log E, the nu logits and omega logits")
+    physics_iters: int = Field(40, ge=0, description="Adam iterations of the physics stage (§4.2-4.4, Alg. 2)")
+    physics_lr: float = Field(0.15, gt=0, description="Adam step on log E, the nu logits and omega logits [-]")
     E_init: float = Field(6.0e3, gt=0, description="initial Young's modulus of the object, Pa")
-    E_min: float = Field(5.0e2, gt=0)
-    E_max: float = Field(3.0e4, gt=0, description="upper bound (keep the explicit MPM step stable)")
+    E_min: float = Field(5.0e2, gt=0, description="lower bound of the learned Young's moduli (object and body) "
+                                                  "[Pa]")
+    E_max: float = Field(3.0e4, gt=0, description="upper bound of the learned Young's moduli (keeps the explicit "
+                                                  "MPM step stable) [Pa]")
     learn_nu: bool = Field(True, description="learn a spatially varying Poisson ratio (seed 002 §4.3, App. B)")
-    nu_min: float = Field(0.2, gt=-1, lt=0.5, description="lower bound of the learned Poisson ratio (seed App. B)")
-    nu_max: float = Field(0.4, gt=-1, lt=0.5, description="upper bound of the learned Poisson ratio (seed App. B)")
-    nu_init: float | None = Field(None, gt=-1, lt=0.5, description="initial Poisson ratio of the object "
+    nu_min: float = Field(0.2, gt=-1, lt=0.5, description="lower bound of the learned Poisson ratio (seed App. B) [-]")
+    nu_max: float = Field(0.4, gt=-1, lt=0.5, description="upper bound of the learned Poisson ratio (seed App. B) [-]")
+    nu_init: float | None = Field(None, gt=-1, lt=0.5, description="initial Poisson ratio of the object [-] "
                                   "(default: the scene's object.nu, clipped to [nu_min, nu_max])")
     material_grid: tuple[int, int, int] = Field((4, 3, 2), description="voxel nodes of the log E field per "
                                                 "axis over the object box; (0, 0, 0): one value per particle")
-    omega_init: float = Field(1.0, gt=0, lt=2)
-    kp: float = Field(2.0e2, ge=0, description="PD gain of Eq. 6, 1/s^2 (mass-scaled; seed App. A.3: 2e2)")
-    kd: float = Field(2.0e1, ge=0, description="PD gain of Eq. 6, 1/s (mass-scaled; seed App. A.3: 2e1)")
+    omega_init: float = Field(1.0, gt=0, lt=2, description="initial LBS-impact factor omega of the actuated body "
+                                                           "particles (omega = 2 sigmoid(l), in (0, 2)) [-]")
+    kp: float = Field(2.0e2, ge=0, description="PD gain of Eq. 6 [1/s^2] (mass-scaled; seed App. A.3: 2e2)")
+    kd: float = Field(2.0e1, ge=0, description="PD gain of Eq. 6 [1/s] (mass-scaled; seed App. A.3: 2e1)")
     pd_hold: bool = Field(True, description="PD force evaluated once per frame and held over its substeps "
                           "(seed Alg. 2); false: recomputed every substep")
     surface_layer: float | None = Field(None, ge=0, description="omega = 0 on body particles within this depth "
-                                        "of the body surface (seed §4.2), m; default: half the particle spacing")
+                                        "of the body surface (seed §4.2) [m]; default: half the particle spacing")
     reach_margin: float | None = Field(None, ge=0, description="bones whose posed capsule comes this close to the "
-                                       "object are simulated and actuated, m; default: one grid cell")
+                                       "object are simulated and actuated [m]; default: one grid cell")
     learn_human_E: bool = Field(True, description="learn the Young's modulus of the simulated body particles")
     window_start: int = Field(3, ge=2, description="frames in the first training window (progressive)")
     window_grow_every: int = Field(4, ge=1, description="iterations between window extensions")
-    loss_balanced: bool = True
-    lambda_rgb: float = Field(1.0, ge=0)
-    lambda_mask: float = Field(1.0, ge=0)
+    loss_balanced: bool = Field(True, description="weight each frame's loss by its previous loss relative to the "
+                                                  "mean (progressive training)")
+    lambda_rgb: float = Field(1.0, ge=0, description="weight of the mean L1 colour loss (Eq. 10, also Eq. 5 and "
+                                                     "Eq. 9) [-]")
+    lambda_mask: float = Field(1.0, ge=0, description="weight of the mean L1 mask loss (Eq. 10, also Eq. 5 and "
+                                                      "Eq. 9) [-]")
     lambda_flow: float = Field(20.0, ge=0, description="3-D flow term of Eq. 10 (vs the Eq. 9 flow), 1/m")
-    lambda_omega: float = Field(1.0e-5, ge=0, description="Eq. 11 (per-pixel mean losses: keep it small)")
+    lambda_omega: float = Field(1.0e-5, ge=0, description="Eq. 11 weight of |omega| (per-pixel mean losses: keep "
+                                                          "it small) [-]")
     residual: bool = Field(False, description="neural residual laws E_theta, P_theta with latents (Eq. 8)")
     residual_plastic: bool = Field(True, description="with residual: the plastic residual P_theta too (Eq. 8)")
     latents: bool = Field(True, description="per-particle latents l_e, l_p of the residual laws (ablation: False)")
-    latent_dim: int = Field(16, ge=1)
-    net_lr: float = Field(1.0e-3, gt=0, description="Adam step of the residual network and the latents")
-    lambda_law: float = Field(1.0e-4, ge=0, description="Eq. 11, residual magnitude")
-    lambda_feat: float = Field(1.0e-4, ge=0, description="App. A, latent magnitude")
+    latent_dim: int = Field(16, ge=1, description="size of each particle's latents l_e, l_p (Eq. 8)")
+    net_lr: float = Field(1.0e-3, gt=0, description="Adam step of the residual network and the latents [-]")
+    lambda_law: float = Field(1.0e-4, ge=0, description="Eq. 11 weight of the residual magnitudes |E_theta| (a "
+                                                        "stress, Pa) and |P_theta| (dimensionless): loss per unit "
+                                                        "of each")
+    lambda_feat: float = Field(1.0e-4, ge=0, description="App. A weight of the latent magnitudes |l_e|, |l_p| [-]")
     checkpoint_every: int = Field(5, ge=1, description="physics iterations between checkpoints")
-    seed: int = 0
+    seed: int = Field(0, description="seed of torch's random draws (initial residual networks and latents, "
+                                     "the spin frames sampled by the appearance fit)")
 
 
 def load_train_config(path: str | Path | None, overrides: dict | None = None) -> TrainConfig:
