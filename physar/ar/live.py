@@ -358,8 +358,14 @@ class LiveServer:
 
     def _send_text(self, peer_id: int, msg: dict) -> None:
         p = self.peers.get(peer_id)
-        if p is not None and not p.ws.closed:
-            asyncio.ensure_future(p.ws.send_str(json.dumps(msg)))
+        if p is None or p.ws.closed:
+            return
+
+        async def send():
+            with contextlib.suppress(ConnectionError, RuntimeError):   # the page has just gone
+                await p.ws.send_str(json.dumps(msg))
+
+        asyncio.ensure_future(send())
 
     def _broadcast(self, meta: dict, jpeg: bytes) -> None:
         head = json.dumps(meta).encode()
