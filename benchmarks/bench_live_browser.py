@@ -8,7 +8,9 @@ camera frame (performance.now()) to the moment the augmented frame is drawn on i
 warm-up, over ``--seconds`` per size, at 640x360 and 1280x720 (the project camera's size; the fake camera
 delivers 30 fps, so 30 fps is the ceiling). CPU per frame: the server process (all its threads: decoding,
 the pipeline, the overlay, JPEG, the web server, the recording when asked) and the browser (every Chromium
-process), from /proc, over the measured frames.
+process), from /proc, over the measured frames. Both overlays: drawn by the server (the page shows augmented
+JPEG frames) and drawn by the page on its own video (``?overlay=page``: per frame the overlay's geometry;
+latency is then the age of the estimate drawn, from the grab of the frame it came from).
 
     .venv/bin/python benchmarks/bench_live_browser.py [--seconds 15] [--json out.json]
 """
@@ -83,7 +85,7 @@ def _chromium_pids() -> list[int]:
     return [int(p) for p in out]
 
 
-def measure(project_path: Path, y4m: Path, seconds: float, warmup: float = 4.0) -> dict:
+def measure(project_path: Path, y4m: Path, seconds: float, overlay: str = "server", warmup: float = 4.0) -> dict:
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
     from selenium.webdriver.common.by import By
@@ -106,7 +108,7 @@ def measure(project_path: Path, y4m: Path, seconds: float, warmup: float = 4.0) 
         opts.add_argument(a)
     driver = webdriver.Chrome(service=Service(shutil.which("chromedriver")), options=opts)
     try:
-        driver.get(urls[0])
+        driver.get(urls[0] + ("?overlay=page" if overlay == "page" else "?overlay=server"))
         while driver.execute_script("return window.physarLive.info") is None:
             time.sleep(0.1)
         driver.find_element(By.ID, "start").click()
@@ -141,10 +143,11 @@ def main() -> None:
         for quick in (True, False):
             proj, clip = _clip(work, quick)
             w, h = _y4m(clip / "video.mp4", work / f"cam{int(quick)}.y4m")
-            rows[f"{w}x{h}"] = measure(proj, work / f"cam{int(quick)}.y4m", args.seconds)
+            for overlay in ("server", "page"):
+                rows[f"{w}x{h} {overlay}"] = measure(proj, work / f"cam{int(quick)}.y4m", args.seconds, overlay)
     load1 = os.getloadavg()
     print(f"load average before {load0[0]:.2f}, after {load1[0]:.2f}")
-    print("| size | frames | fps | latency median [ms] | latency p95 [ms] | server CPU [ms/frame] "
+    print("| size, overlay drawn by | frames | fps | latency median [ms] | latency p95 [ms] | server CPU [ms/frame] "
           "| browser CPU [ms/frame] | server stages (median ms) |")
     print("|---|---|---|---|---|---|---|---|")
     for size, r in rows.items():

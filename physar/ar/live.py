@@ -9,8 +9,14 @@ most two frames unanswered. The server decodes them into a :class:`physar.ar.sou
 the project's one frame loop (:class:`physar.ar.project_pipeline.ProjectPipeline` through
 :func:`physar.ar.runner.run_video`, which also records the augmented MP4 and the estimates CSV progressively
 and atomically), and broadcasts each augmented frame to every page as one binary message: uint32 n, n bytes of
-JSON (frame, seq, stamp, camera, status, mu, std, residual, server latency), then the JPEG. Each page has a
-one-slot send buffer too, so a slow viewer skips frames instead of growing a queue.
+JSON (frame, seq, stamp, camera, status, mu, std, residual, server latency), then the JPEG. The camera page
+(and any page opened with ``?overlay=page``; ``?overlay=server`` keeps the JPEG frames) draws the overlay
+itself on its own live video instead (measured faster: RESULTS.md "Live AR in a browser"): it gets the surface triangles and
+the colour table once (in the first "info" message) and per frame the JSON plus the geometry of
+:meth:`physar.ar.surface.SurfaceOverlay.geometry` (float32 vertex pixels, uint32 visible faces far to near,
+uint8 colour levels: a few kB instead of a JPEG); the server then renders and encodes an augmented frame
+only when a page of the other kind is open or a recording is made. Each page has a one-slot send buffer,
+so a slow viewer skips frames instead of growing a queue.
 
 Sessions: one project, one filter; any number of viewers; the page that last pressed "Start camera" is the
 camera (the previous one is told and stops), and a new camera stream resets the filter and the pose tracker.
@@ -147,7 +153,8 @@ class LiveSession:
         self.source = PushSource(self.camera.width, self.camera.height, fps, name="the browser camera")
         self.quality = int(quality)
         self.out_video, self.out_csv, self.fps, self.crf, self.preset = out_video, out_csv, fps, crf, preset
-        self.publish = lambda meta, jpeg: None
+        self.publish = lambda meta, jpeg, geom: None
+        self.wants = lambda: (True, False)      # (augmented JPEG, overlay geometry) wanted by the pages
         self.notify = lambda peer, msg: None
         self.summary: dict | None = None
         self.error: str | None = None
@@ -160,7 +167,34 @@ class LiveSession:
         rom = self.pipe.rom
         return {"type": "info", "width": self.camera.width, "height": self.camera.height,
                 "names": list(rom.names), "units": list(rom.units), "ranges": [list(map(float, r)) for r in rom.ranges],
-                "field": self.project.overlay.field, "recording": bool(self.out_video or self.out_csv)}
+                "field": self.project.overlay.field, "recording": bool(self.out_video or self.out_csv),
+                "mesh": self._mesh()}
+
+    def _mesh(self) -> dict | None:
+        """What a page needs to draw the overlay itself: the surface triangles (vertex ids), the colour table
+        (RGB), the field's range, label and display unit, the opacity."""
+        ov = self.pipe.overlay
+        if ov is None:
+            return None
+        return {"faces": ov.faces.astype(int).ravel().tolist(), "n_vertices": len(ov.X0),
+                "lut": ov.lut[:, ::-1].astype(int).tolist(), "range": list(ov.vrange), "label": ov.label,
+                "unit": ov.unit, "scale": ov.scale, "alpha": ov.alpha}
+
+    def _geometry(self) -> tuple[dict | None, bytes]:
+        """The frame's overlay for a page that draws it: float32 vertex pixels (v, 2), uint32 visible face
+        ids far to near, uint8 colour levels; (None, b"") when there is nothing to draw."""
+        ov, pose = self.pipe.overlay, self.pipe.last_pose
+        if ov is None or pose is None or self.pipe.last_status == "lost":
+            return None, b""
+        mu = self.pipe.mu
+        p, ids, lev, vmax = ov.geometry(self.camera, pose, self.pipe.view_coefficients(), mu)
+        arrow = ov.arrow(self.camera, pose, mu)
+        meta = {"faces": 0 if ids is None else len(ids), "field_max": vmax,
+                "arrow": None if arrow is None else arrow.tolist()}
+        if ids is None:
+            return meta, b""
+        return meta, (np.asarray(p, np.float32).tobytes() + ids.astype(np.uint32).tobytes()
+                      + lev.astype(np.uint8).tobytes())
 
     def feed(self, peer: int, data: bytes) -> None:
         """A camera message (``HEADER`` + encoded image) from page ``peer``; the newest replaces one waiting."""
@@ -187,22 +221,31 @@ class LiveSession:
                 self.resets += 1
             self.pipe.reset()
             self._last_camera = peer
-        out, r = self.pipe.process(img, k, draw=True)
+        want_jpeg, want_geom = self.wants()
+        out, r = self.pipe.process(img, k, draw=draw or want_jpeg)
         t0 = time.perf_counter()
-        ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, self.quality])
+        jpeg = geom = None
+        if want_jpeg:
+            ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, self.quality])
+            jpeg = buf.tobytes() if ok else None
         r.stages_ms["jpeg"] = (time.perf_counter() - t0) * 1e3
         meta = {"type": "frame", "frame": k, "seq": seq, "stamp": stamp, "camera": peer, "status": r.status,
                 "mu": _finite(r.mu), "std": _finite(r.std), "residual_px": _finite([r.residual_px])[0],
-                "server_ms": (time.perf_counter() - t_in) * 1e3, "dropped": self.source.dropped}
-        if ok:
-            self.publish(meta, buf.tobytes())
+                "dropped": self.source.dropped}
+        if want_geom:
+            t1 = time.perf_counter()
+            gmeta, gbytes = self._geometry()
+            geom = (gmeta, gbytes)
+            r.stages_ms["geometry"] = (time.perf_counter() - t1) * 1e3
+        meta["server_ms"] = (time.perf_counter() - t_in) * 1e3
+        self.publish(meta, jpeg, geom)
         return out, r
 
     def _run(self):
         try:
             self.summary = run_video(self._step, self.camera, self.source, self.out_video, self.out_csv,
                                      self.fps, self.crf, self.pipe.csv_header(), self.pipe.csv_row, None, None,
-                                     None, (*STAGES, "jpeg"), preset=self.preset, convert="opencv",
+                                     None, (*STAGES, "jpeg", "geometry"), preset=self.preset, convert="opencv",
                                      frames=self._frames, time_io=True, cpu=True, keep_results=False,
                                      handle_signals=False)
         except PhysarError as e:   # no frame came: nothing recorded
@@ -225,6 +268,7 @@ class LiveSession:
 class _Peer:
     ws: object
     id: int
+    mode: str = "server"      # "server": augmented JPEG frames; "page": the overlay's geometry, drawn by the page
     pending: bytes | None = None
     wake: asyncio.Event = field(default_factory=asyncio.Event)
     skipped: int = 0
@@ -261,13 +305,17 @@ class LiveServer:
         self._loop = asyncio.get_running_loop()
         loop = self._loop
 
-        def publish(meta, jpeg):
-            loop.call_soon_threadsafe(self._broadcast, meta, jpeg)
+        def publish(meta, jpeg, geom):
+            loop.call_soon_threadsafe(self._broadcast, meta, jpeg, geom)
+
+        def wants():
+            modes = [p.mode for p in list(self.peers.values())]
+            return "server" in modes, "page" in modes
 
         def notify(peer, msg):
             loop.call_soon_threadsafe(self._send_text, peer, msg)
 
-        self.session.publish, self.session.notify = publish, notify
+        self.session.publish, self.session.notify, self.session.wants = publish, notify, wants
 
     def _authorised(self, request) -> bool:
         if self.token is None:
@@ -316,9 +364,13 @@ class LiveServer:
             return web.Response(status=403, text="physar: WebSocket from another origin refused\n")
         if len(self.peers) >= self.max_peers:
             return web.Response(status=503, text=f"physar: {self.max_peers} pages already connected\n")
-        ws = web.WebSocketResponse(max_msg_size=self.max_message, heartbeat=20.0)
+        mode = request.query.get("overlay", "server")
+        if mode not in ("server", "page"):
+            return web.Response(status=400, text=f"physar: overlay must be 'server' or 'page', got {mode[:40]!r}\n")
+        ws = web.WebSocketResponse(max_msg_size=self.max_message, heartbeat=20.0,
+                                   compress=False)   # deflate on JPEG: no gain, 1.8x the CPU (RESULTS.md)
         await ws.prepare(request)
-        peer = _Peer(ws, next(self._ids))
+        peer = _Peer(ws, next(self._ids), mode)
         self.peers[peer.id] = peer
         sender = asyncio.create_task(self._sender(peer))
         try:
@@ -353,6 +405,8 @@ class LiveServer:
                 self._send_text(old, {"type": "camera_taken", "by": peer.id})
         elif kind == "stop_camera" and self.camera_peer == peer.id:
             self.camera_peer = None
+        elif kind == "overlay" and cmd.get("mode") in ("server", "page"):   # what this page gets per frame
+            peer.mode = cmd["mode"]
         else:
             self._send_text(peer.id, {"type": "error", "message": f"unknown command {text[:80]!r}"})
 
@@ -367,13 +421,25 @@ class LiveServer:
 
         asyncio.ensure_future(send())
 
-    def _broadcast(self, meta: dict, jpeg: bytes) -> None:
+    @staticmethod
+    def _pack(meta: dict, body: bytes) -> bytes:
         head = json.dumps(meta).encode()
-        payload = struct.pack("<I", len(head)) + head + jpeg
+        return struct.pack("<I", len(head)) + head + body
+
+    def _broadcast(self, meta: dict, jpeg: bytes | None, geom) -> None:
+        """Each page gets what it draws: the augmented JPEG, or the overlay's geometry (meta["geometry"])."""
+        payloads = {}
+        if jpeg is not None:
+            payloads["server"] = self._pack(meta, jpeg)
+        if geom is not None:
+            payloads["page"] = self._pack({**meta, "geometry": geom[0]}, geom[1])
         for p in self.peers.values():
+            data = payloads.get(p.mode)
+            if data is None:
+                continue
             if p.pending is not None:
                 p.skipped += 1
-            p.pending = payload
+            p.pending = data
             p.wake.set()
 
     async def _sender(self, peer: _Peer) -> None:

@@ -100,6 +100,7 @@ class ProjectPipeline:
         self._fresh = True
         self._res_hist: list[float] = []
         self.overlay = None
+        self.last_pose, self.last_status = None, "lost"
         if overlay:
             pos = next((j for j, p in enumerate(params) if p.get("kind") == "load_position"), None)
             mat = rom.metadata.get("material_params") or {}
@@ -130,6 +131,10 @@ class ProjectPipeline:
         self.at_rest = self.features is not None
         self._fresh = True
         self._res_hist = []
+
+    def view_coefficients(self) -> np.ndarray:
+        """The mode coefficients the overlay draws: the estimate's, or zero while the object is at rest."""
+        return np.zeros(self.rom.n_modes) if self.at_rest else self.rom.coefficients(self.mu)[0]
 
     def _stress_table(self):
         """Nodal von Mises stress at the surface vertices sampled over the parameter box with the model's own
@@ -388,9 +393,10 @@ class ProjectPipeline:
             status = "hold" if pe.status == "predicted" else "lost"
         t3 = time.perf_counter()
         out = frame
+        self.last_pose, self.last_status = draw_pose, status      # what the frame's overlay is drawn with
         if draw and self.overlay is not None:
             info = {"markers": pe.n_markers, "pose_from": self.pose_from, "observed": self._observed(n_obs, n_bars)}
-            c = np.zeros(self.rom.n_modes) if self.at_rest else self.rom.coefficients(self.mu)[0]
+            c = self.view_coefficients()
             out = self.overlay.draw(frame, self.camera, draw_pose, c, self.mu, self.std,
                                     status if draw_pose is not None else "lost", info, self.names, self.units)
         t4 = time.perf_counter()

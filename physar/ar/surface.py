@@ -139,30 +139,40 @@ class SurfaceOverlay:
         self._hud(img, mu, std, status, info, names, units)
         return img
 
-    def _surface(self, img, camera, pose, c, mu=None) -> float:
-        """Fill the deformed surface; returns the field's maximum (SI units)."""
+    def geometry(self, camera: Camera, pose: Pose, c: np.ndarray, mu=None):
+        """What a frame's surface is drawn from: (p (v, 2) pixels of the deformed surface vertices, faces
+        ids (k,) into ``faces`` of those turned towards the camera sorted far to near, their colour levels (k,)
+        into the LUT, the field's maximum [SI]); the arrays are None when nothing is in front of the camera."""
         v = self.values(c, mu)
         X = self.X0 + self.exag * np.tensordot(c, self.U, 1)
         Xc = X @ pose.R.T + pose.t
         if np.any(Xc[:, 2] <= 1e-6):
-            return v.max()
+            return None, None, None, float(v.max())
         p = camera.project(X, pose)
         tri = self.faces
         n = np.cross(Xc[tri[:, 1]] - Xc[tri[:, 0]], Xc[tri[:, 2]] - Xc[tri[:, 0]])
         front = np.einsum("ij,ij->i", n, Xc[tri[:, 0]]) < 0      # outward normal towards the camera
-        tri = tri[front]
-        if not len(tri):
-            return v.max()
-        depth = Xc[tri, 2].mean(1)
-        tri = tri[np.argsort(-depth)]
+        ids = np.flatnonzero(front)
+        if not len(ids):
+            return None, None, None, float(v.max())
+        ids = ids[np.argsort(-Xc[tri[ids], 2].mean(1))]
         lo, hi = self.vrange
-        lev = np.clip(((v[tri].mean(1) - lo) / (hi - lo) * (self.levels - 1)).round(), 0, self.levels - 1).astype(int)
+        lev = np.clip(((v[tri[ids]].mean(1) - lo) / (hi - lo) * (self.levels - 1)).round(), 0,
+                      self.levels - 1).astype(int)
+        return p, ids, lev, float(v.max())
+
+    def _surface(self, img, camera, pose, c, mu=None) -> float:
+        """Fill the deformed surface; returns the field's maximum (SI units)."""
+        p, ids, lev, vmax = self.geometry(camera, pose, c, mu)
+        if ids is None:
+            return vmax
+        tri = self.faces[ids]
         h, w = img.shape[:2]
         pts = np.round(p[tri] * 16).astype(np.int32)             # 4 bits of sub-pixel precision
         lo_xy = np.clip(p[tri].reshape(-1, 2).min(0).astype(int) - 2, 0, [w, h])
         hi_xy = np.clip(np.ceil(p[tri].reshape(-1, 2).max(0)).astype(int) + 2, 0, [w, h])
         if np.any(hi_xy - lo_xy <= 0):
-            return v.max()
+            return vmax
         x0, y0 = lo_xy
         x1, y1 = hi_xy
         roi = img[y0:y1, x0:x1]
@@ -172,11 +182,12 @@ class SurfaceOverlay:
         for q, col in zip(pts - off, colours):
             cv2.fillConvexPoly(layer, q, col, cv2.LINE_8, 4)
         cv2.addWeighted(layer, self.alpha, roi, 1 - self.alpha, 0, dst=roi)
-        return v.max()
+        return vmax
 
-    def _arrow(self, img, camera, pose, c, mu):
+    def arrow(self, camera: Camera, pose: Pose, mu):
+        """(tail, tip) pixels of the arrow at the estimated load position, or None."""
         if self.load_path is None or self.load_param is None:
-            return
+            return None
         from physar.geometry import path_length, path_point
 
         s = float(np.clip(mu[self.load_param], 0.0, path_length(self.load_path)))
@@ -184,7 +195,11 @@ class SurfaceOverlay:
         d = self.load_dir if self.load_dir is not None else np.array([0, 0, -1.0])
         span = float(np.linalg.norm(self.X0.max(0) - self.X0.min(0)))
         q = camera.project(np.array([base - d * 0.12 * span, base]), pose)
-        if np.all(np.isfinite(q)):
+        return q if np.all(np.isfinite(q)) else None
+
+    def _arrow(self, img, camera, pose, c, mu):
+        q = self.arrow(camera, pose, mu)
+        if q is not None:
             a, b = (tuple(round(v) for v in x.tolist()) for x in q)
             cv2.arrowedLine(img, a, b, (255, 255, 255), 4, cv2.LINE_AA, tipLength=0.25)
             cv2.arrowedLine(img, a, b, (0, 0, 200), 2, cv2.LINE_AA, tipLength=0.25)

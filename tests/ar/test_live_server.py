@@ -254,3 +254,57 @@ def test_serve_cli_refusals(live_clip, tmp_path):
         lines = [ln for ln in r.output.splitlines() if ln.strip()]
         assert len(lines) == 1 and text in lines[0], (args, r.output)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.pem"]
+
+
+def test_page_overlay_geometry_matches_the_server_drawing(project, live_clip):
+    """A page in overlay=page mode gets the surface triangles and colour table once and per frame the vertex
+    pixels, the visible faces far to near and their colour levels; filled as the page fills them, they cover
+    the pixels the server's own drawing changes on the same frame (intersection over union > 0.8 away from the
+    text panel and the colour bar), and the colour levels index the table. Mutants caught: a wrong byte layout
+    (float64 pixels, uint16 ids), x and y swapped, face ids taken as vertex ids, levels outside the table."""
+    _, _, frames = live_clip
+
+    async def run():
+        session, server, runner = await _start(project)
+        base = f"http://127.0.0.1:{server.port}/ws"
+        try:
+            async with aiohttp.ClientSession() as s:
+                cam = await s.ws_connect(base + "?overlay=page")
+                info = json.loads((await cam.receive(10)).data)
+                jpg_peer = await s.ws_connect(base)
+                await jpg_peer.receive(10)
+                await cam.send_str(json.dumps({"type": "camera"}))
+                out = []
+                for k in (3, 25):
+                    await cam.send_bytes(_msg(frames[k], k))
+                    meta, body = await _frame_reply(cam)
+                    jm, jpg = await _frame_reply(jpg_peer)
+                    assert jm["seq"] == meta["seq"] == k
+                    out.append((meta, body, jpg))
+                with pytest.raises(aiohttp.WSServerHandshakeError) as e:
+                    await s.ws_connect(base + "?overlay=vr")
+                assert e.value.status == 400
+        finally:
+            await _stop(session, runner)
+        return info, out
+
+    info, out = asyncio.run(run())
+    mesh = info["mesh"]
+    faces = np.array(mesh["faces"]).reshape(-1, 3)
+    nv = mesh["n_vertices"]
+    assert faces.max() == nv - 1 and len(mesh["lut"]) == 48
+    for (meta, body, jpg), k in zip(out, (3, 25)):
+        g = meta["geometry"]
+        p = np.frombuffer(body, np.float32, 2 * nv).reshape(nv, 2)
+        ids = np.frombuffer(body, np.uint32, g["faces"], 8 * nv)
+        lev = np.frombuffer(body, np.uint8, g["faces"], 8 * nv + 4 * g["faces"])
+        assert len(body) == 8 * nv + 5 * g["faces"] and lev.max() < len(mesh["lut"])
+        mask = np.zeros((360, 640), np.uint8)
+        for f in faces[ids]:
+            cv2.fillConvexPoly(mask, np.round(p[f] * 16).astype(np.int32), 255, cv2.LINE_8, 4)
+        sent = cv2.imdecode(np.frombuffer(_jpeg(frames[k]), np.uint8), cv2.IMREAD_COLOR)
+        drawn = cv2.imdecode(np.frombuffer(jpg, np.uint8), cv2.IMREAD_COLOR)
+        diff = np.abs(cv2.blur(drawn, (3, 3)).astype(int) - cv2.blur(sent, (3, 3)).astype(int)).max(2) > 25
+        a, b = mask[100:, :560] > 0, diff[100:, :560]
+        iou = (a & b).sum() / max((a | b).sum(), 1)
+        assert a.sum() > 2000 and iou > 0.8, (k, a.sum(), b.sum(), iou)
