@@ -50,7 +50,7 @@ import numpy as np
 from pydantic import ConfigDict, Field, Strict, model_validator
 
 from physar.errors import ConfigError
-from physar.fem.config import _Strict  # extra keys forbidden, no bool/str -> number coercion
+from physar.fem.config import _Strict as _StrictBase  # extra keys forbidden, no bool/str -> number coercion
 
 Float = Annotated[float, Strict()]
 Int = Annotated[int, Strict()]
@@ -58,6 +58,17 @@ Vec3 = tuple[float, float, float]
 RGB = tuple[Int, Int, Int]
 
 
+class _Strict(_StrictBase):
+    """Every scenario table: unknown keys refused, no coercion, and no inf or nan anywhere (``distance = inf``
+    or ``fps = nan`` would otherwise pass the range checks and hang the renderer or write a NaN clip)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
+
+
+def _nonzero(v, what: str):
+    if v is not None and not math.hypot(*v) > 0:
+        raise ValueError(f"{what} must be a non-zero vector, got {list(v)}")
+    return v
 
 
 def _rgb_ok(v):
@@ -154,6 +165,11 @@ class CameraSection(_Strict):
                                                   "the camera pans about it [-]")
     pan: list[Pan] = Field(default_factory=list, description="events where the camera looks away and back")
 
+    @model_validator(mode="after")
+    def _up(self):
+        _nonzero(self.up, "up")
+        return self
+
 
 class LightingSection(_Strict):
     ambient: float = Field(0.35, ge=0, le=1, description="ambient share a of the Lambert shading a + (1 - a) "
@@ -164,6 +180,11 @@ class LightingSection(_Strict):
                                                            "flicker [-]")
     vignetting: float = Field(0.2, ge=0, le=1, description="brightness lost at the image corners: gain 1 - "
                                                            "vignetting r², r relative to the half diagonal [-]")
+
+    @model_validator(mode="after")
+    def _direction(self):
+        _nonzero(self.direction, "direction")
+        return self
 
 
 class SensorSection(_Strict):
@@ -294,10 +315,37 @@ def load_scenario(path, project=None) -> Scenario:
     from physar.fem.config import read_toml
 
     path = Path(path)
-    sc = parse_scenario(read_toml(path), str(path))
+    if path.is_dir():
+        raise ConfigError(f"{path}: scenario file is a folder; give the TOML file")
+    try:
+        data = read_toml(path)
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path}: not a scenario file: byte {e.object[e.start]:#04x} at offset {e.start} is not "
+                          "UTF-8 text (a binary file?)") from None
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read the scenario file ({e.strerror})") from None
+    sc = parse_scenario(data, str(path))
     if project is not None:
         check_scenario(sc, project, str(path))
     return sc
+
+
+def resolve(sc: Scenario, project, quick: bool = False, source: str = "scenario") -> Resolved:
+    """:class:`Resolved` with its ConfigErrors (a frame size of another aspect than the camera's, an odd one)
+    naming ``source`` (the scenario file, or the project whose defaults were used), and the camera's path
+    checked: an elevation plus its orbit and shake amplitudes reaching the vertical (the view parallel to
+    ``up``: no camera orientation) is refused before any frame is drawn."""
+    try:
+        res = Resolved(sc, project, quick=quick)
+    except ConfigError as e:
+        raise ConfigError(f"{source}: {e}") from None
+    c = sc.camera
+    reach = abs(res.elevation) + abs(c.orbit[1]) + c.shake_deg
+    if not reach < 89.0:
+        raise ConfigError(f"{source}: [camera] elevation {res.elevation:g} deg with orbit = {list(c.orbit)} and "
+                          f"shake_deg = {c.shake_deg:g} reaches {reach:g} deg, the vertical (up): keep |elevation| + "
+                          "|orbit[1]| + shake_deg below 89")
+    return res
 
 
 def check_scenario(sc: Scenario, project, source: str) -> None:
@@ -634,4 +682,5 @@ __all__ = [
     "load_scenario",
     "parse_scenario",
     "plane_geometry",
+    "resolve",
 ]
