@@ -58,6 +58,25 @@ async def _frame_reply(ws, timeout=30.0):
         assert m.type == aiohttp.WSMsgType.TEXT, m
 
 
+def _qr_in(text: str) -> str | None:
+    """The URL of the QR code drawn with block characters in ``text`` (2 modules per character cell, upper
+    and lower half; a block is light), read by OpenCV's QR detector."""
+    rows = [ln.rstrip("\n") for ln in text.splitlines() if ln and set(ln) <= set(" \u2580\u2584\u2588")]
+    if not rows:
+        return None
+    w = max(len(r) for r in rows)
+    light = {"\u2588": (1, 1), "\u2580": (1, 0), "\u2584": (0, 1), " ": (0, 0)}
+    img = np.zeros((2 * len(rows), w), np.uint8)
+    for i, r in enumerate(rows):
+        for j, ch in enumerate(r):
+            up, lo = light[ch]
+            img[2 * i, j], img[2 * i + 1, j] = 255 * up, 255 * lo
+    img = cv2.copyMakeBorder(img, 8, 8, 8, 8, cv2.BORDER_CONSTANT, value=255)
+    img = cv2.resize(img, None, fx=8, fy=8, interpolation=cv2.INTER_NEAREST)
+    data, _, _ = cv2.QRCodeDetector().detectAndDecode(img)
+    return data or None
+
+
 @pytest.fixture(scope="module")
 def project(live_clip):
     return load_project(live_clip[0])
@@ -308,3 +327,64 @@ def test_page_overlay_geometry_matches_the_server_drawing(project, live_clip):
         a, b = mask[100:, :560] > 0, diff[100:, :560]
         iou = (a & b).sum() / max((a | b).sum(), 1)
         assert a.sum() > 2000 and iou > 0.8, (k, a.sum(), b.sum(), iou)
+
+
+def test_serve_cli_self_signed_token_qr_and_sigint(live_clip, tmp_path):
+    """`physar ar serve --host 0.0.0.0 --self-signed --out --csv`: prints an https URL with a token, the
+    certificate's fingerprint and a QR code; the page needs that token; a camera's frames are recorded; SIGINT
+    ends it with exit 0, the MP4 and the CSV complete (one row and one frame per processed frame) and nothing
+    else in the folder. Mutants caught: a wildcard bind served without the token, a recording lost or left
+    as a temporary on Ctrl-C."""
+    import os
+    import re
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    _, _, frames = live_clip
+    out = tmp_path / "rec"
+    out.mkdir()
+    physar = Path(sys.executable).with_name("physar")
+    proc = subprocess.Popen([str(physar), "ar", "serve", str(live_clip[0]), "--host", "0.0.0.0", "--port", "0",
+                             "--self-signed", "--out", str(out / "live.mp4"), "--csv", str(out / "live.csv")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        lines, url = [], None
+        t0 = time.time()
+        while url is None and time.time() - t0 < 120:
+            line = proc.stderr.readline()
+            assert line, "".join(lines)
+            lines.append(line)
+            m = re.search(r"serving .* on (https://\S+)", line)
+            url = m.group(1) if m else None
+        assert url and re.search(r"\?token=[\w-]{16,}$", url), lines
+        port = int(re.search(r":(\d+)/", url).group(1))
+        base = f"https://127.0.0.1:{port}/"
+        token = url.split("?token=")[1]
+
+        async def client():
+            async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as s:
+                async with s.get(base) as r:
+                    assert r.status == 403
+                async with s.ws_connect(f"{base}ws?token={token}") as cam:
+                    await cam.receive(10)
+                    await cam.send_str(json.dumps({"type": "camera"}))
+                    for k in range(6):
+                        await cam.send_bytes(_msg(frames[k], k + 1))
+                        await _frame_reply(cam)
+
+        asyncio.run(client())
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = "".join(lines) + err
+    assert proc.returncode == 0, text
+    assert "SHA-256" in text, text
+    assert _qr_in(text) == url, text        # the QR code printed is the URL with its token
+    assert "Traceback" not in text and "6 frames" in text, text
+    assert sorted(p.name for p in out.iterdir()) == ["live.csv", "live.mp4"]
+    assert len(read_columns(out / "live.csv")["frame"]) == 6 and sum(1 for _ in VideoReader(out / "live.mp4")) == 6
