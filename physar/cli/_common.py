@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
+import os
 import sys
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import typer
 
-from physar.errors import PhysarError, PhysarWarning
+from physar.errors import ConfigError, PhysarError, PhysarWarning
 
 
 def _to_jsonable(obj: Any) -> Any:
@@ -61,3 +64,92 @@ def user_errors(fn: Callable) -> Callable:
                 raise typer.Exit(code=2) from None
 
     return wrapper
+
+
+# ------------------------------------------------------------------------------------------------ inputs
+#: a TOML input larger than this is refused before it is read (a video or a mesh given by mistake)
+MAX_TOML_BYTES = 64 * 2**20
+
+
+def check_input(path, what: str, *, folder: bool = False) -> Path:
+    """One ConfigError line when an input is missing, a folder where a file is expected, or a file where a
+    folder is expected (``folder=True``); returns it as a Path."""
+    if path is None or str(path) == "":
+        raise ConfigError(f"{what}: the path is empty")
+    p = Path(path)
+    if not p.exists():
+        raise ConfigError(f"{path}: {what} not found")
+    if folder and not p.is_dir():
+        raise ConfigError(f"{path}: {what} must be a folder, and this is a file")
+    if not folder and p.is_dir():
+        raise ConfigError(f"{path}: {what} is a folder; give the file")
+    return p
+
+
+def check_toml(path, what: str = "TOML file") -> Path | None:
+    """Refuse, in one ConfigError line naming the file, a TOML input that is a folder, unreadable, not UTF-8
+    text (a binary file) or larger than :data:`MAX_TOML_BYTES`, before a TOML reader meets it (it would raise
+    IsADirectoryError / UnicodeDecodeError). A missing file is left to the reader's own message; None passes."""
+    if path is None:
+        return None
+    p = Path(path)
+    if not p.exists():
+        return p
+    if p.is_dir():
+        raise ConfigError(f"{path}: {what} is a folder; give the TOML file")
+    try:
+        size = p.stat().st_size
+        if size > MAX_TOML_BYTES:
+            raise ConfigError(f"{path}: {size / 2**20:.0f} MiB is far too large for a {what} (TOML); is it the "
+                              "right file?")
+        p.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path}: not a {what}: byte {e.object[e.start]:#04x} at offset {e.start} is not UTF-8 "
+                          "text (a binary file?)") from None
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read the {what} ({e.strerror})") from None
+    return p
+
+
+# ------------------------------------------------------------------------------------------------ outputs
+def output_path(out: Path | None, positional: Path | None, usage: str) -> Path:
+    """The output of a command that used to take it as a positional argument: ``--out`` (``out``) or the
+    deprecated positional, not both (unless equal); one ConfigError line when neither is given. ``usage``
+    names the command and its arguments for the message (e.g. "physar noise IN --out OUT")."""
+    if out is not None and positional is not None and Path(out) != Path(positional):
+        raise ConfigError(f"two outputs given, {positional} (positional, deprecated) and --out {out}; give "
+                          f"--out only: {usage}")
+    p = out if out is not None else positional
+    if p is None:
+        raise ConfigError(f"missing the output: {usage}")
+    return Path(p)
+
+
+def warn_positional(positional: Path | None, out: Path | None, command: str) -> None:
+    """One ``warning:`` line when the output came as the deprecated positional argument (after success)."""
+    if positional is not None and out is None:
+        typer.echo(f"warning: the positional output of `physar {command}` is deprecated; write --out "
+                   f"{positional}", err=True)
+
+
+@contextlib.contextmanager
+def created_parents(path, what: str = "output folder") -> Iterator[None]:
+    """Create the missing parent folders of ``path`` (one ConfigError line when that fails); if the block
+    raises, remove the folders created here that are still empty (never one that existed before)."""
+    parent = Path(path).absolute().parent
+    made = []
+    anc = parent
+    while not anc.exists():
+        made.append(anc)
+        anc = anc.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot create the {what} ({e.strerror})") from None
+    try:
+        yield
+    except BaseException:
+        for d in made:  # deepest first
+            with contextlib.suppress(OSError):
+                os.rmdir(d)
+        raise

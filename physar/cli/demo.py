@@ -25,7 +25,7 @@ def _demo_files() -> frozenset:
 
 def demo(
     out: Path = typer.Option(Path("demo_out"), "--out", "-o", help="output folder"),  # noqa: B008 - typer idiom
-    scene: str = typer.Option("ar", "--scene", help="ar (augmented-reality cantilever, default), foam (seed §5.2: "
+    scene: str | None = typer.Option(None, "--scene", help="ar (augmented-reality cantilever, default), foam (seed §5.2: "
                                                     "foam beam, no fiducials), seal (seed §5.3: virtual boot seal), "
                                                     "bracket (an L-bracket from an STL surface) or cantilever "
                                                     "(static FEM example)"),
@@ -35,19 +35,38 @@ def demo(
     quick: bool = typer.Option(False, "--quick", help="half-size clip of at most 2 s (a fast check)"),
     json_out: bool = typer.Option(False, "--json", help="print the report as JSON on stdout"),
 ) -> None:
-    """Run a demo: a synthetic video of a seed scene in, augmented video + estimates + report out."""
+    """Run a demo: a synthetic video of a seed scene in, augmented video + estimates + report out.
+
+    Every input is checked before the work starts; the outputs are written into a hidden folder beside --out
+    that takes its place only when the demo is complete (Ctrl-C, SIGTERM or an error leave --out as it was:
+    exit 130 on a signal)."""
+    from physar.cli._common import check_toml, created_parents
     from physar.errors import ConfigError
-    from physar.output import check_folder
+    from physar.output import atomic_folder, check_folder
     from physar.synth.demo import SCENES
 
+    if project is not None and scene is not None:
+        raise ConfigError(f"give --scene or --project, not both (--scene {scene} --project {project})")
+    scene = scene if scene is not None else "ar"
     if project is None and scene not in (*SCENES, "cantilever"):
         raise ConfigError(f"--scene must be one of {', '.join(sorted({*SCENES, 'cantilever'}))}, got {scene!r}")
+    fem = project is None and scene == "cantilever"
+    if fem and scenario is not None:
+        raise ConfigError(f"--scenario {scenario}: --scene cantilever is the static FEM example, it renders no clip "
+                          "(a scenario applies to the AR scenes and to --project)")
+    check_toml(project, "project file")
+    check_toml(scenario, "scenario file")
     files = _demo_files()
-    check_folder(out, own=lambda name: name in files, kind="demo output folder")
-    if project is None and scene == "cantilever":
+
+    def own(name):
+        return name in files
+
+    check_folder(out, own=own, inputs=[project, scenario], kind="demo output folder")
+    if fem:
         from physar.fem.examples import run_cantilever_demo
 
-        report = run_cantilever_demo(out)
+        with created_parents(out, "demo output folder"), atomic_folder(out, own=own) as tmp:
+            report = run_cantilever_demo(tmp)
         if json_out:
             print_json(report)
         else:
@@ -68,7 +87,13 @@ def demo(
 
     path = project if project is not None else scene_project(scene)
     try:
-        report = run_project_demo(path, out, scenario, quick=quick, progress=progress)
+        with created_parents(out, "demo output folder"), atomic_folder(out, own=own) as tmp:
+            report = run_project_demo(path, tmp, scenario, quick=quick, progress=progress)
+    except KeyboardInterrupt:
+        for b in bars.values():
+            b.close()
+        log(f"interrupted: nothing written ({out} is as it was)")
+        raise typer.Exit(code=130) from None
     finally:
         for b in bars.values():
             b.close()

@@ -36,13 +36,14 @@ def scene_project(scene: str) -> Path:
 def run_project_demo(project_path, out, scenario_path=None, quick: bool = False,
                      progress: Callable[[str, int, int], None] | None = None, tol: float = 0.01) -> dict:
     """Render, run, score; writes :data:`FILES` into ``out`` and returns the report (also report.json).
-    ``scenario_path``: default ``scenario.toml`` beside the project (else the scenario's defaults)."""
+    ``scenario_path``: default ``scenario.toml`` beside the project (else the scenario's defaults). A signal
+    that stops the AR pipeline early raises KeyboardInterrupt (a partial run is not scored as a demo)."""
     from physar.ar.project import load_project
     from physar.ar.project_pipeline import ProjectPipeline
     from physar.ar.report import dwell_table, plot_estimates
     from physar.ar.runner import pipeline_stats
     from physar.synth.render import render_project
-    from physar.synth.scenario import Scenario, load_scenario
+    from physar.synth.scenario import Scenario, load_scenario, resolve
     from physar.synth.score import read_columns, score
 
     project_path, out = Path(project_path), Path(out)
@@ -53,7 +54,9 @@ def run_project_demo(project_path, out, scenario_path=None, quick: bool = False,
     if scenario_path is None and (project_path.parent / "scenario.toml").is_file():
         scenario_path = project_path.parent / "scenario.toml"
     scenario = load_scenario(scenario_path, project) if scenario_path is not None else Scenario()
-    info = render_project(project, scenario, out, progress=cb("render scene"), quick=quick)
+    resolved = resolve(scenario, project, quick=quick, source=str(scenario_path) if scenario_path is not None else
+                       f"{project_path} (the default scenario)")
+    info = render_project(project, resolved, out, progress=cb("render scene"), quick=quick)
     t2 = time.perf_counter()
     from physar.vision.camera import Camera
 
@@ -63,6 +66,8 @@ def run_project_demo(project_path, out, scenario_path=None, quick: bool = False,
     snap = {max(0, int(0.6 * (n or 1))): out / "augmented_frame.png"}
     summary = pipe.run(out / "video.mp4", out / "augmented.mp4", out / "estimates.csv", progress=cb("AR pipeline"),
                        snapshots=snap)
+    if summary.get("interrupted"):  # the pipeline stopped early on a signal: no partial demo is scored or kept
+        raise KeyboardInterrupt(summary.get("signal", "interrupted"))
     t3 = time.perf_counter()
     truth, est = read_columns(out / "truth.csv"), read_columns(out / "estimates.csv")
     names, units = list(project.rom.names), list(project.rom.units)

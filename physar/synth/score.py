@@ -43,15 +43,32 @@ def read_columns(path, what: str = "CSV file") -> dict:
     return cols
 
 
+def _numeric(cols: dict, source: str) -> None:
+    """Every column the score reads must be numbers ("nan" is one): a word in one of them is one ConfigError
+    naming the file, the column, the row and the value."""
+    for name, v in cols.items():
+        if name == "status" or np.asarray(v).dtype.kind in "fiu":
+            continue
+        if not (name.endswith(("_true", "_est")) or name in ("occluders", "in_view", "at_rest")):
+            continue
+        for i, x in enumerate(v):
+            try:
+                float(x)
+            except ValueError:
+                raise ConfigError(f"{source}: column {name}, row {i + 2}: {str(x)!r} is not a number") from None
+
+
 def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None = None, tol: float = 0.01,
-          recovery: int = 5, source: str = "estimates") -> dict:
+          recovery: int = 5, source: str = "estimates", truth_source: str = "truth file") -> dict:
     """Per parameter: judged frames (not at rest, no occluder, what is observed in view (truth column in_view),
     not recovering after an occlusion or a look-away), frames within tol x range, max /
     mean / median |error|, and the recovery frames after each occlusion. ``ranges`` {name: (lo, hi)} (default:
     the span of the truth)."""
     names = [c[:-5] for c in truth if c.endswith("_true")]
     if not names:
-        raise ConfigError("truth file has no <name>_true column")
+        raise ConfigError(f"{truth_source}: no <name>_true column (is it the truth.csv of `physar synth render`?)")
+    _numeric(truth, truth_source)
+    _numeric(est, source)
     missing = [n for n in names if f"{n}_est" not in est]
     if missing:
         raise ConfigError(f"{source}: no column {missing[0]}_est (the truth has parameters {', '.join(names)})")
