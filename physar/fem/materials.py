@@ -55,7 +55,13 @@ class Material:
 
 @dataclass(frozen=True)
 class LinearElastic(Material):
-    """Small-strain linear elasticity: W = mu eps:eps + lambda/2 tr(eps)^2, eps = sym(F - I)."""
+    r"""Small-strain linear elasticity, with the strain :math:`\varepsilon = \operatorname{sym}(F - I)`:
+
+    .. math::
+
+        W = \mu\, \varepsilon : \varepsilon + \frac{\lambda}{2} (\operatorname{tr} \varepsilon)^2, \qquad
+        \sigma = \lambda \operatorname{tr}(\varepsilon)\, I + 2 \mu\, \varepsilon.
+    """
 
     E: float
     nu: float
@@ -84,9 +90,12 @@ class LinearElastic(Material):
 
 @dataclass(frozen=True)
 class StVK(Material):
-    """Kirchhoff–Saint Venant (seed 000 §5.2): W = mu E:E + lambda/2 tr(E)^2, E = (FᵀF - I)/2.
+    r"""Kirchhoff–Saint Venant (seed 000 §5.2), with the strain :math:`E = \tfrac12 (F^\top F - I)`:
 
-    P = F S, S = lambda tr(E) I + 2 mu E.
+    .. math::
+
+        W = \mu\, E : E + \frac{\lambda}{2} (\operatorname{tr} E)^2, \qquad
+        P = F S, \quad S = \lambda \operatorname{tr}(E)\, I + 2 \mu E.
     """
 
     E: float
@@ -123,9 +132,12 @@ class StVK(Material):
 
 @dataclass(frozen=True)
 class NeoHookean(Material):
-    """Compressible neo-Hookean: W = mu/2 (I1 - 3) - mu ln J + lambda/2 (ln J)^2.
+    r"""Compressible neo-Hookean, with :math:`I_1 = \operatorname{tr}(F^\top F)` and :math:`J = \det F`:
 
-    P = mu F + (lambda ln J - mu) F^{-T}.
+    .. math::
+
+        W = \frac{\mu}{2} (I_1 - 3) - \mu \ln J + \frac{\lambda}{2} (\ln J)^2, \qquad
+        P = \mu F + (\lambda \ln J - \mu) F^{-\top}.
     """
 
     E: float
@@ -161,10 +173,15 @@ class NeoHookean(Material):
 
 @dataclass(frozen=True)
 class NeoHookeanIncompressible(Material):
-    """Nearly incompressible neo-Hookean (seed 000 §5.3): W = C1 (Ī1 - 3) + kappa/2 (J - 1)^2.
+    r"""Nearly incompressible neo-Hookean (seed 000 §5.3):
 
-    Ī1 = J^{-2/3} I1 is the isochoric first invariant; kappa [Pa] is the bulk penalty (kappa >> C1
-    approaches the incompressible law W = C1 (I1 - 3) of the seed). Small strain: mu = 2 C1.
+    .. math::
+
+        W = C_1 (\bar I_1 - 3) + \frac{\kappa}{2} (J - 1)^2, \qquad \bar I_1 = J^{-2/3} I_1,
+
+    with :math:`\bar I_1` the isochoric first invariant and :math:`\kappa` [Pa] the bulk penalty
+    (:math:`\kappa \gg C_1` approaches the incompressible law :math:`W = C_1 (I_1 - 3)` of the seed).
+    Small strain: :math:`\mu = 2 C_1`.
     """
 
     C1: float
@@ -244,10 +261,15 @@ def _hat(w):
 
 @dataclass(frozen=True)
 class Corotated(Material):
-    """Co-rotated linear elasticity: W = mu |S - I|^2 + lambda/2 (tr S - 3)^2 with F = R S (polar).
+    r"""Co-rotated linear elasticity, with the polar decomposition :math:`F = R S`:
 
-    P = 2 mu (F - R) + lambda (tr S - 3) R. The tangent is exact, including dR:
-    dR = R [w]x with (tr S I - S) w = axial(Rᵀ dF - dFᵀ R).
+    .. math::
+
+        W = \mu \lVert S - I \rVert^2 + \frac{\lambda}{2} (\operatorname{tr} S - 3)^2, \qquad
+        P = 2 \mu (F - R) + \lambda (\operatorname{tr} S - 3) R.
+
+    The tangent is exact, including :math:`dR = R [w]_\times` with
+    :math:`(\operatorname{tr}(S)\, I - S)\, w = \operatorname{axial}(R^\top dF - dF^\top R)`.
     """
 
     E: float
