@@ -10,6 +10,12 @@ rectangle on it (the stand-in for the AR overlay) and sends it back; the client 
   (``cv2.imdecode``), draws, re-encodes JPEG 80 and sends it back with the same header.
   ``ws-deflate``: the same, with the client offering permessage-deflate as browsers do (aiohttp's
   ``WebSocketResponse`` accepts it by default, ``compress=True``), so both sides deflate the JPEGs.
+* ``ws-fastapi``: the same client and frames against a FastAPI (Starlette) app served by uvicorn in the same
+  event loop (``uvicorn.Server.serve()``, default asyncio loop like ``ar serve``, not uvloop; ``http="auto"``,
+  ``lifespan="off"``, no access log). Its ``@app.websocket`` endpoint loops on ``websocket.receive()`` and does
+  the same server work as ``ws`` (the one ``process`` function). uvicorn's WebSocket implementation is
+  ``--uvicorn-ws`` (default ``auto``, which is ``websockets-sansio`` when ``websockets`` is installed), with
+  ``ws_per_message_deflate=False`` (the client offers no deflate anyway, as for ``ws``).
 * ``webrtc-vp8`` / ``webrtc-h264``: two aiortc ``RTCPeerConnection`` objects, offer and answer handed over
   directly (no signalling server, no STUN). A ``VideoStreamTrack`` on the client sends
   ``av.VideoFrame.from_ndarray(..., format="bgr24")`` frames (pts from the wall clock, time base 1/90000);
@@ -42,11 +48,27 @@ every 10th reply against the sent frame with the same rectangle drawn (two lossy
 With ``--repeat N`` every configuration runs N times, round robin, and the table gives the medians over the
 runs (the median latency's range in brackets; replies and losses summed).
 
-    .venv/bin/python benchmarks/bench_live_transport.py --repeat 3            # everything, ~7 min
+Server footprint (``--footprint``, for the WebSocket servers among ``--transports``: ``ws`` is aiohttp,
+``ws-fastapi`` FastAPI/uvicorn), each measured in fresh subprocesses, ``--repeat`` times, interleaved:
+
+* import time: a fresh interpreter imports ``asyncio, json, socket, ssl`` (which ``physar.ar.live`` imports
+  before the server stack), then the clock runs over importing ``aiohttp.web``; ``fastapi, uvicorn``; and
+  ``fastapi, uvicorn`` plus the modules uvicorn loads when it starts (its HTTP and WebSocket protocol
+  implementations, lifespan off). Median over ``--import-runs`` interpreters per repeat; also the number of
+  modules the import adds.
+* the server alone in its own process (this script with ``--serve-child``; it imports numpy and OpenCV first,
+  as ``physar.ar.live`` does): RSS (``VmRSS``) before the stack is imported, once it listens, after
+  ``--warmup`` + ``--frames`` closed-loop frames, and the peak (``VmHWM``); the server's own CPU ms per frame
+  (its ``process_time`` over the measured frames, asked for with a text message), and the round trip's
+  median latency and fps as seen by the client in this process.
+
+    .venv/bin/python benchmarks/bench_live_transport.py --repeat 3            # all but ws-fastapi, ~7 min
     .venv/bin/python benchmarks/bench_live_transport.py --sizes 640x360 --transports ws webrtc-vp8 \\
         --modes closed --frames 150 --json /tmp/transport.json
+    .venv/bin/python benchmarks/bench_live_transport.py --transports ws,ws-fastapi --repeat 3 --footprint
 
-Needs ``aiohttp`` and ``aiortc`` (``pip install aiohttp aiortc``).
+Needs ``aiohttp`` and ``aiortc`` (``pip install aiohttp aiortc``); ``ws-fastapi`` needs ``fastapi`` and
+``uvicorn[standard]``.
 """
 from __future__ import annotations
 
@@ -59,6 +81,8 @@ import math
 import os
 import platform
 import struct
+import subprocess
+import sys
 import time
 
 import cv2
@@ -69,7 +93,8 @@ BITS = 12  # index bits: frames 0..4095 per run
 JPEG = [cv2.IMWRITE_JPEG_QUALITY, 80]
 TIME_BASE = fractions.Fraction(1, 90000)
 POOL = 60  # distinct camera frames, a 2 s loop at 30 fps
-TRANSPORTS = ("ws", "ws-deflate", "webrtc-vp8", "webrtc-h264")
+TRANSPORTS = ("ws", "ws-deflate", "ws-fastapi", "webrtc-vp8", "webrtc-h264")
+STACKS = {"ws": "aiohttp", "ws-fastapi": "FastAPI/uvicorn"}  # the WebSocket servers of --footprint
 MODES = ("closed", "paced")
 PACED_WINDOW = 30
 
@@ -255,19 +280,75 @@ class Tally:
         return ref
 
 
-async def run_ws(tally: Tally, deflate: bool) -> dict:
-    from aiohttp import ClientSession, WSMsgType, web
+def process(data: bytes) -> bytes:
+    """The server's work on one message (both servers): decode the JPEG, draw, re-encode; the header kept."""
+    img = cv2.imdecode(np.frombuffer(data, np.uint8, offset=8), cv2.IMREAD_COLOR)
+    augment(img)
+    return data[:8] + cv2.imencode(".jpg", img, JPEG)[1].tobytes()
+
+
+def proc_status() -> dict:
+    """This process's RSS and peak RSS [kB] and CPU time [s] (the reply to a text message)."""
+    out = {"cpu_s": time.process_time()}
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith(("VmRSS:", "VmHWM:")):
+                    out[line[2:5].lower() + "_kb"] = int(line.split()[1])
+    except OSError:
+        pass
+    return out
+
+
+async def start_server(transport: str, uvicorn_ws: str = "auto") -> tuple[int, object, str]:
+    """Start the WebSocket server of ``transport`` on 127.0.0.1 (a free port): (port, async stop(), info)."""
+    if transport == "ws-fastapi":
+        import uvicorn
+        from fastapi import FastAPI, WebSocket
+
+        async def endpoint(ws):
+            await ws.accept()
+            while True:
+                msg = await ws.receive()
+                if msg["type"] == "websocket.disconnect":
+                    return
+                if msg.get("bytes") is not None:
+                    await ws.send_bytes(process(msg["bytes"]))
+                elif msg.get("text") is not None:
+                    await ws.send_text(json.dumps(proc_status()))
+
+        # FastAPI resolves string annotations in the function's module globals; this one is imported locally
+        endpoint.__annotations__["ws"] = WebSocket
+        app = FastAPI()
+        app.add_api_websocket_route("/ws", endpoint)
+        config = uvicorn.Config(app, host="127.0.0.1", port=0, ws=uvicorn_ws, ws_max_size=1 << 30,
+                                ws_per_message_deflate=False, lifespan="off", access_log=False,
+                                log_level="warning")
+        server = uvicorn.Server(config)
+        task = asyncio.ensure_future(server.serve())
+        while not server.started:
+            if task.done():
+                task.result()
+                raise RuntimeError("uvicorn did not start")
+            await asyncio.sleep(0.005)
+
+        async def stop():
+            server.should_exit = True
+            await task
+
+        port = server.servers[0].sockets[0].getsockname()[1]
+        return port, stop, f"uvicorn {config.ws_protocol_class.__name__}"
+
+    from aiohttp import WSMsgType, web
 
     async def handler(request):
         ws = web.WebSocketResponse(max_msg_size=0)  # compress=True (the default) accepts deflate if offered
         await ws.prepare(request)
         async for msg in ws:
-            if msg.type != WSMsgType.BINARY:
-                continue
-            img = cv2.imdecode(np.frombuffer(msg.data, np.uint8, offset=8), cv2.IMREAD_COLOR)
-            augment(img)
-            jpg = cv2.imencode(".jpg", img, JPEG)[1]
-            await ws.send_bytes(msg.data[:8] + jpg.tobytes())
+            if msg.type == WSMsgType.BINARY:
+                await ws.send_bytes(process(msg.data))
+            elif msg.type == WSMsgType.TEXT:
+                await ws.send_str(json.dumps(proc_status()))
         return ws
 
     app = web.Application()
@@ -275,7 +356,14 @@ async def run_ws(tally: Tally, deflate: bool) -> dict:
     runner = web.AppRunner(app, access_log=None)
     await runner.setup()
     await web.TCPSite(runner, "127.0.0.1", 0).start()
-    port = runner.addresses[0][1]
+    return runner.addresses[0][1], runner.cleanup, "aiohttp"
+
+
+async def run_ws(tally: Tally, transport: str, uvicorn_ws: str = "auto") -> dict:
+    from aiohttp import ClientSession, WSMsgType
+
+    deflate = transport == "ws-deflate"
+    port, stop, server_info = await start_server(transport, uvicorn_ws)
     bytes_up = bytes_down = down_frames = 0
 
     async def probe():
@@ -311,8 +399,9 @@ async def run_ws(tally: Tally, deflate: bool) -> dict:
 
                 await asyncio.gather(send(), receive())
     finally:
-        await runner.cleanup()
-    return {"codec": "JPEG q80" + (" + deflate" if deflate else "")}
+        await stop()
+    codec = "JPEG q80" + (" + deflate" if deflate else "")
+    return {"codec": codec + (f", {server_info}" if transport == "ws-fastapi" else "")}
 
 
 async def run_webrtc(tally: Tally, codec: str) -> dict:
@@ -430,7 +519,7 @@ async def run_one(transport: str, mode: str, frames: list[np.ndarray], args) -> 
     if rtc:
         coro = run_webrtc(tally, transport.split("-")[1])
     else:
-        coro = run_ws(tally, transport == "ws-deflate")
+        coro = run_ws(tally, transport, args.uvicorn_ws)
     try:
         info = await asyncio.wait_for(coro, args.timeout)
     except TimeoutError:
@@ -474,6 +563,137 @@ def table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+IMPORT_SETS = {"ws": ("aiohttp.web",), "ws-fastapi": ("fastapi", "uvicorn")}
+IMPORT_CHILD = """import asyncio, json, socket, ssl, sys, time
+before = len(sys.modules)
+t = time.perf_counter()
+for name in sys.argv[1:]:
+    __import__(name)
+print(json.dumps([time.perf_counter() - t, len(sys.modules) - before]))
+"""
+
+
+def import_time(modules: tuple[str, ...]) -> tuple[float, int]:
+    """Seconds to import ``modules`` in a fresh interpreter (after asyncio, json, socket, ssl), modules added."""
+    out = subprocess.run([sys.executable, "-c", IMPORT_CHILD, *modules], capture_output=True, text=True,
+                         check=True)
+    seconds, added = json.loads(out.stdout)
+    return seconds, added
+
+
+def serve_child(transport: str, uvicorn_ws: str) -> None:
+    """``--serve-child``: the server alone; one JSON line (port, RSS, start time) on stdout, then serve."""
+    base = proc_status()
+
+    async def main():
+        t = time.perf_counter()
+        port, _, info = await start_server(transport, uvicorn_ws)
+        start_s = time.perf_counter() - t
+        print(json.dumps({"port": port, "info": info, "start_s": start_s, "rss_base_kb": base.get("rss_kb"),
+                          "rss_start_kb": proc_status().get("rss_kb")}), flush=True)
+        await asyncio.Event().wait()  # until the parent kills this process
+
+    asyncio.run(main())
+
+
+async def footprint_run(transport: str, frames: list[np.ndarray], args) -> dict:
+    """The server of ``transport`` in its own process: RSS, its CPU per frame, the closed-loop round trip."""
+    from aiohttp import ClientSession, WSMsgType
+
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, os.path.abspath(__file__), "--serve-child", transport, "--uvicorn-ws", args.uvicorn_ws,
+        stdout=asyncio.subprocess.PIPE)
+    try:
+        ready = json.loads(await asyncio.wait_for(proc.stdout.readline(), 60))
+        async with ClientSession() as session:
+            url = f"http://127.0.0.1:{ready['port']}/ws"
+            async with session.ws_connect(url, max_msg_size=0, compress=0) as ws:
+                async def status() -> dict:
+                    await ws.send_str("status")
+                    msg = await ws.receive()
+                    assert msg.type == WSMsgType.TEXT, msg
+                    return json.loads(msg.data)
+
+                lat = []
+                for k in range(args.warmup + args.frames):
+                    if k == args.warmup:
+                        s0, t0 = await status(), time.perf_counter()
+                    t = time.perf_counter()
+                    await ws.send_bytes(struct.pack("<d", t) + cv2.imencode(".jpg", frames[k % len(frames)], JPEG)[1]
+                                        .tobytes())
+                    msg = await ws.receive()
+                    assert msg.type == WSMsgType.BINARY, msg
+                    cv2.imdecode(np.frombuffer(msg.data, np.uint8, offset=8), cv2.IMREAD_COLOR)
+                    lat.append(time.perf_counter() - t)
+                wall = time.perf_counter() - t0
+                s1 = await status()
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+        await proc.wait()
+    return {"transport": transport, "server": ready["info"], "start_ms": 1e3 * ready["start_s"],
+            "rss_base_mb": ready["rss_base_kb"] / 1024, "rss_start_mb": ready["rss_start_kb"] / 1024,
+            "rss_after_mb": s1["rss_kb"] / 1024, "rss_peak_mb": s1["hwm_kb"] / 1024,
+            "server_cpu_ms_per_frame": 1e3 * (s1["cpu_s"] - s0["cpu_s"]) / args.frames,
+            "latency_median_ms": 1e3 * float(np.median(lat[args.warmup:])), "fps": args.frames / wall}
+
+
+def footprint(transports: list[str], pools: dict, args) -> dict:
+    """Import times and the server-alone runs, ``--repeat`` times, the stacks interleaved."""
+    stacks = [t for t in transports if t in STACKS]
+    imports: dict[str, list] = {t: [] for t in stacks}
+    runs: list[dict] = []
+    for t in stacks:  # once untimed: the files into the page cache
+        import_time(IMPORT_SETS[t])
+    for rep in range(args.repeat):
+        for _ in range(args.import_runs):
+            for t in stacks:
+                imports[t].append(import_time(IMPORT_SETS[t]))
+        for wh, pool in pools.items():
+            for t in stacks:
+                r = asyncio.run(footprint_run(t, pool, args))
+                r.update(size=f"{wh[0]}×{wh[1]}", repeat=rep, load=loadavg())
+                runs.append(r)
+                print(footprint_table([r]).splitlines()[-1] + f"  (run {rep + 1}, load {r['load']})", flush=True)
+    import_rows = []
+    for t in stacks:
+        ms = np.array([s for s, _ in imports[t]]) * 1e3
+        import_rows.append({"transport": t, "modules": ", ".join(IMPORT_SETS[t]), "runs": len(ms),
+                            "import_median_ms": float(np.median(ms)), "import_min_ms": float(ms.min()),
+                            "import_max_ms": float(ms.max()), "modules_added": imports[t][0][1]})
+    rows = []
+    for wh in pools:
+        for t in stacks:
+            sel = [r for r in runs if r["transport"] == t and r["size"] == f"{wh[0]}×{wh[1]}"]
+            row = dict(sel[0])
+            for key, v in sel[0].items():
+                if isinstance(v, float):
+                    row[key] = float(np.median([r[key] for r in sel]))
+            row["repeats"] = len(sel)
+            rows.append(row)
+    return {"imports": import_rows, "rows": rows, "runs": runs}
+
+
+def import_table(rows: list[dict]) -> str:
+    out = ["| server | imports | import time median [ms] (min–max) | modules added |", "|---|---|---|---|"]
+    for r in rows:
+        out.append(f"| {STACKS[r['transport']]} | `{r['modules']}` | {r['import_median_ms']:.0f} "
+                   f"({r['import_min_ms']:.0f}–{r['import_max_ms']:.0f}) | {r['modules_added']} |")
+    return "\n".join(out)
+
+
+def footprint_table(rows: list[dict]) -> str:
+    head = ("| server | size | import + start to listening [ms] | RSS before stack / listening / after frames / "
+            "peak [MB] | server CPU [ms/frame] | latency median [ms] | fps |")
+    out = [head, "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        name = STACKS[r["transport"]] + (f" ({r['server'].split()[-1]})" if r["transport"] == "ws-fastapi" else "")
+        out.append(f"| {name} | {r['size']} | {r['start_ms']:.0f} | {r['rss_base_mb']:.1f} / "
+                   f"{r['rss_start_mb']:.1f} / {r['rss_after_mb']:.1f} / {r['rss_peak_mb']:.1f} "
+                   f"| {r['server_cpu_ms_per_frame']:.2f} | {r['latency_median_ms']:.1f} | {r['fps']:.1f} |")
+    return "\n".join(out)
+
+
 def loadavg() -> str:
     try:
         with open("/proc/loadavg") as f:
@@ -490,33 +710,60 @@ def cpu_model() -> str:
         return platform.processor() or platform.machine()
 
 
+def transport_list(text: str) -> list[str]:
+    """``--transports`` items: names, or comma-separated names (``ws,ws-fastapi``)."""
+    names = [t for t in text.split(",") if t]
+    for t in names:
+        if t not in TRANSPORTS:
+            raise argparse.ArgumentTypeError(f"unknown transport {t!r} (choose from {', '.join(TRANSPORTS)})")
+    return names
+
+
+def version(dist: str) -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return "n/a"
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", nargs="+", default=["640x360", "1280x720"])
-    ap.add_argument("--transports", nargs="+", choices=TRANSPORTS, default=list(TRANSPORTS))
+    ap.add_argument("--transports", nargs="+", type=transport_list,
+                    default=[[t for t in TRANSPORTS if t != "ws-fastapi"]],
+                    help=f"any of {', '.join(TRANSPORTS)}, space- or comma-separated (default: all but ws-fastapi)")
     ap.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
     ap.add_argument("--frames", type=int, default=300, help="measured frames per configuration")
     ap.add_argument("--warmup", type=int, default=30)
     ap.add_argument("--rate", type=float, default=30.0, help="camera rate of the paced mode [fps]")
     ap.add_argument("--webrtc-window", type=int, default=3,
                     help="frames in flight in the closed loop of WebRTC (aiortc needs 3, see above)")
+    ap.add_argument("--uvicorn-ws", default="auto", choices=("auto", "websockets", "websockets-sansio", "wsproto"),
+                    help="uvicorn's WebSocket implementation for ws-fastapi (auto: websockets-sansio if installed)")
+    ap.add_argument("--footprint", action="store_true",
+                    help="also measure import time, RSS and server CPU of the WebSocket servers (ws, ws-fastapi)")
+    ap.add_argument("--import-runs", type=int, default=5, help="fresh interpreters per stack and repeat")
     ap.add_argument("--repeat", type=int, default=1,
                     help="runs of every configuration (round robin); the table gives medians over them")
     ap.add_argument("--timeout", type=float, default=300.0, help="per configuration [s]")
     ap.add_argument("--json", type=str, default=None, help="also write the results here")
+    ap.add_argument("--serve-child", choices=tuple(STACKS), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.serve_child:
+        serve_child(args.serve_child, args.uvicorn_ws)
+        return
+    args.transports = list(dict.fromkeys(t for group in args.transports for t in group))
     if args.warmup + args.frames + 2 * PACED_WINDOW >= 1 << BITS:
         ap.error(f"warmup + frames must stay below {(1 << BITS) - 2 * PACED_WINDOW}")
-    import aiohttp
-    import aiortc
-    import av
 
+    dists = ["aiohttp", "aiortc", "av", "fastapi", "starlette", "uvicorn", "websockets"]
     meta = {"date": time.strftime("%Y-%m-%d %H:%M"), "cpu": cpu_model(), "cores": os.cpu_count(),
-            "python": platform.python_version(), "aiohttp": aiohttp.__version__, "aiortc": aiortc.__version__,
-            "av": av.__version__, "opencv": cv2.__version__, "load_before": loadavg()}
+            "python": platform.python_version(), **{d: version(d) for d in dists}, "opencv": cv2.__version__,
+            "load_before": loadavg()}
     print(f"{meta['date']}, {meta['cpu']}, {meta['cores']} cores, load before {meta['load_before']}, "
-          f"aiohttp {meta['aiohttp']}, aiortc {meta['aiortc']}, av {meta['av']}, opencv {meta['opencv']}",
-          flush=True)
+          + ", ".join(f"{d} {meta[d]}" for d in dists) + f", opencv {meta['opencv']}", flush=True)
     sizes = [tuple(int(v) for v in size.lower().split("x")) for size in args.sizes]
     pools = {wh: camera_frames(*wh) for wh in sizes}
     configs = [(wh, mode, transport) for wh in sizes for mode in args.modes for transport in args.transports
@@ -530,12 +777,19 @@ def main(argv=None):
             print(table([r]).splitlines()[-1] + f"  (run {rep + 1}, load {r['load']})", flush=True)
     rows = [combine([r for r in runs if (r["size"], r["mode"], r["transport"]) == (f"{w}×{h}", mode, transport)])
             for (w, h), mode, transport in configs]
+    meta["load_after_transports"] = loadavg()
+    foot = None
+    if args.footprint and any(t in STACKS for t in args.transports):
+        print("\nserver footprint", flush=True)
+        foot = footprint(args.transports, pools, args)
     meta["load_after"] = loadavg()
     print(f"\nload before {meta['load_before']}, after {meta['load_after']}\n")
     print(table(rows))
+    if foot:
+        print("\n" + import_table(foot["imports"]) + "\n\n" + footprint_table(foot["rows"]))
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"meta": meta, "rows": rows, "runs": runs}, f, indent=1)
+            json.dump({"meta": meta, "rows": rows, "runs": runs, "footprint": foot}, f, indent=1)
 
 
 if __name__ == "__main__":
