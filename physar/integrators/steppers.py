@@ -186,7 +186,8 @@ def _fixed_like(model, q, v):
 
 
 class SymplecticEuler(Integrator):
-    """v_n = v_{n-1} + h M⁻¹ f(q_{n-1}, v_{n-1}), q_n = q_{n-1} + h v_n (explicit, stable for hω < 2)."""
+    r"""Symplectic Euler, :math:`v_n = v_{n-1} + h M^{-1} f(q_{n-1}, v_{n-1})`, :math:`q_n = q_{n-1} + h v_n`
+    (explicit, stable for :math:`h\omega < 2`)."""
 
     name = "symplectic_euler"
     implicit = False
@@ -202,9 +203,13 @@ class SymplecticEuler(Integrator):
 
 
 class BackwardEuler(Integrator):
-    """Backward Euler, q_n = q_{n-1} + h v_n, M (v_n - v_{n-1}) = h f(q_n, v_n); full Newton.
+    r"""Backward Euler, :math:`q_n = q_{n-1} + h v_n`, :math:`M (v_n - v_{n-1}) = h f(q_n, v_n)`; full Newton.
 
-    On q'' + ω² q = 0: ρ = 1/√(1 + (hω)²), d = ln(1 + (hω)²)/h (seed Eq. 2.9).
+    On :math:`q'' + \omega^2 q = 0` (seed Eq. 2.9):
+
+    .. math::
+
+        \rho = \frac{1}{\sqrt{1 + (h\omega)^2}}, \qquad d = \frac{\ln\big(1 + (h\omega)^2\big)}{h}.
     """
 
     name = "be"
@@ -224,7 +229,9 @@ class SemiImplicit(BackwardEuler):
 
 
 class ImplicitMidpoint(Integrator):
-    """Implicit midpoint: v½ solves M v½ - (h/2) f(q_{n-1} + (h/2) v½, v½) = M v_{n-1}. ρ = 1, d = 0."""
+    r"""Implicit midpoint: :math:`v_{1/2}` solves
+    :math:`M v_{1/2} - \frac{h}{2} f\big(q_{n-1} + \frac{h}{2} v_{1/2},\, v_{1/2}\big) = M v_{n-1}`;
+    :math:`\rho = 1`, :math:`d = 0`."""
 
     name = "midpoint"
     order = 2
@@ -241,7 +248,13 @@ class ImplicitMidpoint(Integrator):
 
 
 def genalpha_coefficients(r: float) -> dict:
-    """Seed Eq. 2.12: α_m = (2r-1)/(r+1), α_f = r/(r+1), α = α_m - α_f, β = (1-α)²/4, γ = 1/2 - α."""
+    r"""The coefficients of generalized-α for the knob :math:`r` (seed Eq. 2.12):
+
+    .. math::
+
+        \alpha_m = \frac{2r - 1}{r + 1}, \quad \alpha_f = \frac{r}{r + 1}, \quad \alpha = \alpha_m - \alpha_f,
+        \quad \beta = \frac{(1 - \alpha)^2}{4}, \quad \gamma = \frac12 - \alpha.
+    """
     if not (0.0 <= r <= 1.0):
         raise ConfigError(f"generalized-alpha r (rho_inf) must be in [0, 1], got {r}")
     am = (2 * r - 1) / (r + 1)
@@ -251,9 +264,18 @@ def genalpha_coefficients(r: float) -> dict:
 
 
 class GeneralizedAlpha(Integrator):
-    """Generalized-α with the knob r = ρ∞ ∈ [0, 1] (seed Eq. 2.11-2.12); state (q, v, a_{n+α}).
+    r"""Generalized-α with the knob :math:`r = \rho_\infty \in [0, 1]` (seed Eq. 2.11-2.12); state
+    :math:`(q, v, a_{n+\alpha})`:
 
-    a_α at t0 is M⁻¹ f(q0, v0). ρ(T) → r as hω → ∞; r = 1 is the energy-conserving trapezoid rule.
+    .. math::
+
+        q_n &= q_{n-1} + h v_{n-1} + \tfrac{h^2}{2} \big((1 - 2\beta)\, a_{n-1+\alpha} + 2\beta\, a_{n+\alpha}\big), \\
+        v_n &= v_{n-1} + h \big((1 - \gamma)\, a_{n-1+\alpha} + \gamma\, a_{n+\alpha}\big), \\
+        (1 - \alpha_m) M a_{n+\alpha} + \alpha_m M a_{n-1+\alpha} &= (1 - \alpha_f) f_n + \alpha_f f_{n-1},
+
+    with the coefficients of :func:`genalpha_coefficients`. :math:`a_\alpha` at :math:`t_0` is
+    :math:`M^{-1} f(q_0, v_0)`. :math:`\rho(T) \to r` as :math:`h\omega \to \infty`; :math:`r = 1` is the
+    energy-conserving trapezoid rule.
     """
 
     name = "genalpha"
@@ -295,9 +317,17 @@ class GeneralizedAlpha(Integrator):
 
 
 class ThetaMethod(Integrator):
-    """Seed Eq. 2.15, trapezoid/BDF2 blend with θ ∈ [0, 1], second order for every θ.
+    r"""Seed Eq. 2.15, trapezoid/BDF2 blend with :math:`\theta \in [0, 1]`, second order for every θ.
 
-    State (q_n, v_n, q_{n-1}, v_{n-1}); the first step (no history) is one trapezoid step.
+    On :math:`u = (q, v)`, :math:`u' = b(u)`:
+
+    .. math::
+
+        u_n = u_{n-1} + (1 - \theta) \frac{h}{2} \big[b(u_{n-1}) + b(u_n)\big]
+        + \frac{\theta}{3} \big[u_{n-1} - u_{n-2} + 2 h\, b(u_n)\big],
+
+    :math:`\theta = 0` the trapezoid rule, :math:`\theta = 1` BDF2. State :math:`(q_n, v_n, q_{n-1}, v_{n-1})`;
+    the first step (no history) is one trapezoid step.
     """
 
     name = "theta"
@@ -327,7 +357,8 @@ class ThetaMethod(Integrator):
 
 
 class TRBDF2(Integrator):
-    """TR-BDF2 with γ = 2 - √2 (trapezoid to t + γh, then BDF2); L-stable: ρ → 0 as hω → ∞."""
+    r"""TR-BDF2 with :math:`\gamma = 2 - \sqrt{2}` (trapezoid to :math:`t + \gamma h`, then BDF2); L-stable:
+    :math:`\rho \to 0` as :math:`h\omega \to \infty`."""
 
     name = "trbdf2"
     order = 2
