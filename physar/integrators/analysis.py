@@ -18,7 +18,8 @@ from physar.output import check_destination, save_figure
 
 
 def amplification_matrix(integrator: Integrator, hw: float, omega: float = 1.0, zeta: float = 0.0) -> np.ndarray:
-    """T with x_n = T x_{n-1} for q'' + 2 zeta omega q' + omega² q = 0 and h = hw / omega."""
+    r""":math:`T` with :math:`x_n = T x_{n-1}` for :math:`q'' + 2 \zeta \omega q' + \omega^2 q = 0` (``zeta``,
+    ``omega``) and the step :math:`h` = ``hw`` / :math:`\omega`."""
     D = None if zeta == 0 else [[2 * zeta * omega]]
     model = LinearDynamics([[1.0]], [[omega * omega]], D)
     h = hw / omega
@@ -43,9 +44,11 @@ def spectral_radius(T: np.ndarray) -> float:
 
 
 def damping_curve(method: str, hw, r: float | None = None, theta: float | None = None) -> dict:
-    """{"hw", "rho", "d_over_omega"} for a method name (see make_integrator) at the given h·omega values.
+    r"""{"hw", "rho", "d_over_omega"} for a method name (see make_integrator) at the given h·omega values.
 
-    d/ω = -(2/(hω)) ln ρ. ρ = 0 (an L-stable method at hω = ∞) gives d/ω = inf.
+    .. math:: \frac{d}{\omega} = -\frac{2}{h\omega} \ln \rho
+
+    :math:`\rho = 0` (an L-stable method at :math:`h\omega = \infty`) gives :math:`d/\omega = \infty`.
     """
     integ = make_integrator(method, r=r, theta=theta)
     hw = np.atleast_1d(np.asarray(hw, dtype=float))
@@ -57,13 +60,13 @@ def damping_curve(method: str, hw, r: float | None = None, theta: float | None =
 
 # closed forms (independent references for the tests)
 def rho_backward_euler(hw):
-    """BE/SI on q'' + ω² q = 0: ρ = 1 / √(1 + (hω)²) (seed Eq. 2.8)."""
+    r"""BE/SI on :math:`q'' + \omega^2 q = 0`: :math:`\rho = 1 / \sqrt{1 + (h\omega)^2}` (seed Eq. 2.8)."""
     hw = np.asarray(hw, dtype=float)
     return 1.0 / np.sqrt(1.0 + hw * hw)
 
 
 def d_backward_euler(hw, h=1.0):
-    """d_BE = ln(1 + (hω)²) / h (seed Eq. 2.9)."""
+    r""":math:`d_\text{BE} = \ln\big(1 + (h\omega)^2\big) / h` (seed Eq. 2.9)."""
     return np.log1p(np.asarray(hw, dtype=float) ** 2) / h
 
 
