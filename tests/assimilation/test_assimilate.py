@@ -47,7 +47,7 @@ def setting():
 def test_exact_observations_one_parameter(setting, s):
     """Seed §5.1 (load position s, known magnitude): s within 0.1 % of the span."""
     roms, observe = setting
-    res = assimilate(roms["s"], observe(s), restart_residual=0.05)
+    res = assimilate(roms["s"], observe(s))
     assert abs(res.params[0] - s) < 1e-3 * L, res
 
 
@@ -57,7 +57,7 @@ def test_exact_observations_one_parameter(setting, s):
     "still has 0.11 % against a 60x6x6 reference"))])
 def test_exact_observations_position_and_magnitude(setting, s):
     roms, observe = setting
-    res = assimilate(roms["s,P"], observe(s), restart_residual=0.05)
+    res = assimilate(roms["s,P"], observe(s))
     assert abs(res.params[0] - s) < 1e-3 * L, res
     assert abs(res.params[1] - 1.0) < 0.05
 
@@ -72,7 +72,7 @@ def test_noisy_observations_one_parameter(setting, s):
     y = observe(s)
     for _ in range(25):
         yn = y + rng.normal(0, 0.01 * np.abs(y).max(), y.shape)
-        res = assimilate(roms["s"], yn, restart_residual=0.05)
+        res = assimilate(roms["s"], yn)
         assert abs(res.params[0] - s) < 1e-2 * L, (s, res.params)
         assert res.std[0] < 1e-2 * L
 
@@ -89,7 +89,7 @@ def test_noisy_observations_one_parameter_at_the_tip(setting):
         y = observe(s)
         e, d = [], []
         for _ in range(40):
-            res = assimilate(roms["s"], y + rng.normal(0, 0.01 * np.abs(y).max(), y.shape), restart_residual=0.05)
+            res = assimilate(roms["s"], y + rng.normal(0, 0.01 * np.abs(y).max(), y.shape))
             e.append(res.params[0] - s)
             d.append(res.std[0])
         errs.append(np.sqrt(np.mean(np.square(e))))
@@ -109,7 +109,7 @@ def test_noisy_observations_position_and_magnitude_uncertainty(setting):
         y = observe(s)
         for _ in range(10):
             yn = y + rng.normal(0, 0.01 * np.abs(y).max(), y.shape)
-            res = assimilate(roms["s,P"], yn, restart_residual=0.05)
+            res = assimilate(roms["s,P"], yn)
             z.append((res.params[0] - s) / res.std[0])
     z = np.abs(z)
     assert z.max() < 4 and 0.3 < np.sqrt(np.mean(z**2)) < 2.0, z
@@ -126,7 +126,7 @@ def test_noisy_observations(setting):
         y = observe(s)
         for _ in range(5):
             yn = y + rng.normal(0, 0.01 * np.abs(y).max(), y.shape)
-            res = assimilate(roms["s,P"], yn, restart_residual=0.05)
+            res = assimilate(roms["s,P"], yn)
             assert abs(res.params[0] - s) < 1e-2 * L, (s, res.params)
             assert res.std[0] < 1e-2 * L
 
@@ -139,7 +139,7 @@ def test_near_clamp_is_stable(setting):
     sig_far = 0.01 * np.abs(far).max()
     res_far = assimilate(rom, far + rng.normal(0, sig_far, far.shape))
     y = observe(0.03)
-    res = assimilate(rom, y + rng.normal(0, sig_far, y.shape), restart_residual=0.05)
+    res = assimilate(rom, y + rng.normal(0, sig_far, y.shape))
     assert np.all(np.isfinite(res.params)) and 0 <= res.params[0] <= L and 0.2 <= res.params[1] <= 3.0
     assert res.std[0] > 5 * res_far.std[0]
 
@@ -156,5 +156,5 @@ def test_exact_observations_one_parameter_finer_reference():
     rom.set_observation(matrix=observation_matrix(space, pts))
     for s in (0.15, 0.4, 0.63, 0.9):
         y = probe(fspace, fsolver.solve(point_load(fspace, [s, W / 2, H], LOAD, R)), pts).ravel()
-        res = assimilate(rom, y, restart_residual=0.05)
+        res = assimilate(rom, y)
         assert abs(res.params[0] - s) < 1e-3 * L, (s, res.params)
