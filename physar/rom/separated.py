@@ -31,12 +31,16 @@ class ReducedModelError(PhysarError, ValueError):
 
 
 class SeparatedModel:
-    """u(mu) = sum_i F_i prod_j G_i^j(mu_j) with F (n_modes, n_dof) and G^j (n_modes, n_grid_j).
+    r"""A separated representation, :math:`u(\mu) = \sum_i F_i \prod_j G_i^j(\mu_j)`, with F (n_modes, n_dof)
+    and :math:`G^j` (n_modes, n_grid_j).
 
-    The 1-D parameter modes are interpolated by cubic splines, so du/dmu_j (seed 000 §4,
-    sensitivities for the Gauss-Newton/LM update) is the exact derivative of the interpolant.
-    On interval k of the grid of parameter j, G_i^j(mu) = sum_d a_{k,d,i} t^(3-d), t = mu - x_k; the
-    coefficients a are precomputed once (shape (n_intervals, 4, n_modes)), so an evaluation is a
+    The 1-D parameter modes are interpolated by cubic splines, so :math:`\partial u / \partial \mu_j` (seed
+    000 §4, sensitivities for the Gauss-Newton/LM update) is the exact derivative of the interpolant. On
+    interval :math:`k` of the grid of parameter :math:`j`,
+
+    .. math:: G_i^j(\mu) = \sum_{d=0}^{3} a_{k,d,i}\, t^{3-d}, \qquad t = \mu - x_k;
+
+    the coefficients a are precomputed once (shape (n_intervals, 4, n_modes)), so an evaluation is a
     bisection and one (2, 4) x (4, n_modes) product (value and derivative) per parameter, in plain numpy.
     Outside the grid the end polynomials extrapolate (as scipy's CubicSpline does).
     """
@@ -87,7 +91,8 @@ class SeparatedModel:
         return mu
 
     def coefficients(self, mu):
-        """Mode coefficients c_i(mu) = prod_j G_i^j(mu_j) and dc_i/dmu_j, shapes (n,), (p, n)."""
+        r"""Mode coefficients :math:`c_i(\mu) = \prod_j G_i^j(\mu_j)` and their derivatives
+        :math:`\partial c_i / \partial \mu_j`, shapes (n,), (p, n)."""
         mu = self._check_mu(mu)
         return self._coeffs(mu.tolist())
 
