@@ -69,11 +69,14 @@ def rotmat_to_quat(r: torch.Tensor) -> torch.Tensor:
 
 
 def covariance(quats: torch.Tensor, scales: torch.Tensor, F: torch.Tensor | None = None) -> torch.Tensor:
-    """Covariance matrices (N, 3, 3), unit m^2: Sigma = F R S S^T R^T F^T (seed 002, Eq. 3).
+    r"""Covariance matrices (N, 3, 3), unit m^2 (seed 002, Eq. 3):
 
-    ``quats`` (N, 4) give R, ``scales`` (N, 3) are the standard deviations s (m, not log) along the
-    principal axes (S = diag(s)), ``F`` (N, 3, 3) is the deformation gradient of each particle (identity
-    when None, which gives the 3DGS covariance R S S^T R^T).
+    .. math:: \Sigma = F R S S^\top R^\top F^\top.
+
+    ``quats`` (N, 4) give :math:`R`, ``scales`` (N, 3) are the standard deviations :math:`s` (m, not log)
+    along the principal axes (:math:`S = \operatorname{diag}(s)`), ``F`` (N, 3, 3) is the deformation
+    gradient of each particle (identity when None, which gives the 3DGS covariance
+    :math:`R S S^\top R^\top`).
     """
     m = quat_to_rotmat(quats) * scales[..., None, :]  # R S
     if F is not None:
@@ -176,7 +179,7 @@ class Gaussians:
         return quat_to_rotmat(self.quats)
 
     def covariance(self, F: torch.Tensor | None = None) -> torch.Tensor:
-        """(N, 3, 3) covariances Sigma = F R S S^T R^T F^T, m^2 (seed 002, Eq. 3)."""
+        r"""(N, 3, 3) covariances :math:`\Sigma = F R S S^\top R^\top F^\top`, m^2 (seed 002, Eq. 3)."""
         return covariance(self.quats, self.scales, F)
 
     # ---- utilities ----------------------------------------------------------------------------------
@@ -205,8 +208,9 @@ class Gaussians:
         return Gaussians(**out)
 
     def transformed(self, rot: torch.Tensor, trans: torch.Tensor) -> Gaussians:
-        """Gaussians moved by per-Gaussian rigid motions (rot (N, 3, 3), trans (N, 3)):
-        mu' = rot mu + t, R' = rot R (the LBS update of seed 002, Eq. 1); scales, opacity, SH unchanged."""
+        r"""Gaussians moved by per-Gaussian rigid motions (rot (N, 3, 3), trans (N, 3)):
+        :math:`\mu' = \mathrm{rot}\, \mu + t`, :math:`R' = \mathrm{rot}\, R` (the LBS update of seed 002,
+        Eq. 1); scales, opacity, SH unchanged."""
         means = (rot @ self.means[..., None])[..., 0] + trans
         quats = rotmat_to_quat(rot @ self.rotations)
         return replace(self, means=means, quats=quats)
