@@ -17,8 +17,8 @@ Weights = torch.Tensor | tuple[torch.Tensor, torch.Tensor]
 
 
 def blend_transforms(weights: Weights, bone_transforms: torch.Tensor) -> torch.Tensor:
-    """A^i = sum_k W_k^i B_k, (N, 4, 4). ``weights`` is dense (N, B) or sparse (indices (N, m), w (N, m));
-    ``bone_transforms`` (B, 4, 4)."""
+    r"""The blended transforms :math:`A^i = \sum_k W_k^i B_k`, (N, 4, 4). ``weights`` is dense (N, B) or
+    sparse (indices (N, m), w (N, m)); ``bone_transforms`` (B, 4, 4)."""
     if isinstance(weights, tuple):
         idx, w = weights
         if idx.shape != w.shape:
@@ -33,7 +33,10 @@ def blend_transforms(weights: Weights, bone_transforms: torch.Tensor) -> torch.T
 
 def lbs(points: torch.Tensor, weights: Weights, bone_transforms: torch.Tensor,
         rotations: torch.Tensor | None = None):
-    """Skin points (N, 3) (m) and optionally per-point rotations (N, 3, 3) by Eq. 1.
+    r"""Skin points (N, 3) (m) and optionally per-point rotations (N, 3, 3) by Eq. 1 (seed 002):
+
+    .. math:: A^i = \sum_k W_k^i B_k, \qquad \mu_\text{lbs}^i = A_\text{rot}^i \mu^i + A_t^i, \qquad
+              R_\text{lbs}^i = A_\text{rot}^i R^i.
 
     Returns (mu_lbs (N, 3), R_lbs (N, 3, 3) or None, A (N, 4, 4)).
     """
@@ -44,8 +47,9 @@ def lbs(points: torch.Tensor, weights: Weights, bone_transforms: torch.Tensor,
 
 
 def lbs_gaussians(g, weights: Weights, bone_transforms: torch.Tensor):
-    """Skinned copy of Gaussians ``g`` (means moved by Eq. 1) and the per-Gaussian A_rot (N, 3, 3) to pass
-    as ``F`` to the renderer so that Sigma = A_rot R S S^T R^T A_rot^T."""
+    r"""Skinned copy of Gaussians ``g`` (means moved by Eq. 1) and the per-Gaussian :math:`A_\text{rot}`
+    (N, 3, 3) to pass as ``F`` to the renderer so that
+    :math:`\Sigma = A_\text{rot} R S S^\top R^\top A_\text{rot}^\top`."""
     mu, _, A = lbs(g.means, weights, bone_transforms)
     return g.replace(means=mu), A[:, :3, :3]
 

@@ -107,7 +107,8 @@ class Skeleton:
             raise PhysarError(f"Skeleton: no bone named {name!r}; bones are {self.names}") from None
 
     def rest_local(self) -> torch.Tensor:
-        """(B, 4, 4) rest transforms relative to the parent: L_k = (G_parent^rest)^-1 G_k^rest."""
+        r"""(B, 4, 4) rest transforms relative to the parent:
+        :math:`L_k = (G_{\mathrm{parent}(k)}^\text{rest})^{-1} G_k^\text{rest}`."""
         par = self.parents.clamp_min(0)
         inv_par = invert_rigid(self.rest_global[par])
         loc = inv_par @ self.rest_global
@@ -126,5 +127,6 @@ class Skeleton:
         return glob
 
     def bone_transforms(self, posed_global: torch.Tensor) -> torch.Tensor:
-        """Skinning transforms B_k = G_k(theta) (G_k^rest)^-1 in SE(3) (seed 002, Eq. 1), (..., B, 4, 4)."""
+        r"""Skinning transforms :math:`B_k = G_k(\theta)\, (G_k^\text{rest})^{-1}` in SE(3) (seed 002, Eq. 1),
+        (..., B, 4, 4)."""
         return posed_global @ invert_rigid(self.rest_global.to(posed_global.dtype))
