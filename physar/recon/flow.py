@@ -1,17 +1,23 @@
-"""Structure-preserving 3-D flow of seed 002 §4.4 (Eq. 9): the losses of the per-frame position optimisation.
+r"""Structure-preserving 3-D flow of seed 002 §4.4 (Eq. 9): the losses of the per-frame position optimisation.
 
-    L_SP-Flow = lambda_rgb L_rgb + lambda_flow L_flow + lambda_arap L_arap                     (Eq. 9)
+.. math::
 
-* L_rgb: the image loss of the rendered frame (in :mod:`physar.recon.train`).
-* L_flow (:func:`flow_loss`): 2-D optical flow between consecutive observed frames, computed by OpenCV's DIS
-  (Kroeger et al. 2016; RAFT weights are not reachable offline), compared with the image motion of the
-  particles visible in frame n-1:  mean_i |pi(x'_n,i) - pi(x'_{n-1},i) - u(pi(x'_{n-1},i))|_1  (px), u sampled
-  bilinearly; visibility = the particle is no deeper than the rendered (alpha-normalised) depth + a tolerance
-  and the pixel is covered.
-* L_arap (:func:`arap_energy`): as-rigid-as-possible energy (Sorkine & Alexa 2007) with respect to the rest
-  (canonical) lattice, E = mean over edges (i, j) of |(x_i - x_j) - R_i (X_i - X_j)|^2 (m^2), R_i the rotation
-  of the polar decomposition of S_i = sum_j (x_i - x_j)(X_i - X_j)^T (the optimal local rotation).  R_i is
-  held fixed when differentiating, which gives the exact gradient at the optimal rotations (envelope theorem).
+    L_\text{SP-Flow} = \lambda_\text{rgb} L_\text{rgb} + \lambda_\text{flow} L_\text{flow}
+    + \lambda_\text{arap} L_\text{arap} \qquad \text{(Eq. 9)}
+
+* :math:`L_\text{rgb}`: the image loss of the rendered frame (in :mod:`physar.recon.train`).
+* :math:`L_\text{flow}` (:func:`flow_loss`): 2-D optical flow :math:`u` between consecutive observed frames,
+  computed by OpenCV's DIS (Kroeger et al. 2016; RAFT weights are not reachable offline), compared with the
+  image motion of the particles visible in frame n-1,
+  :math:`\operatorname{mean}_i \lVert \pi(x'_{n,i}) - \pi(x'_{n-1,i}) - u(\pi(x'_{n-1,i})) \rVert_1` (px), u
+  sampled bilinearly; visibility = the particle is no deeper than the rendered (alpha-normalised) depth + a
+  tolerance and the pixel is covered.
+* :math:`L_\text{arap}` (:func:`arap_energy`): as-rigid-as-possible energy (Sorkine & Alexa 2007) with respect
+  to the rest (canonical) lattice,
+  :math:`E = \operatorname{mean}_{(i, j)} \lVert (x_i - x_j) - R_i (X_i - X_j) \rVert^2` (m^2) over the edges,
+  :math:`R_i` the rotation of the polar decomposition of :math:`S_i = \sum_j (x_i - x_j)(X_i - X_j)^\top` (the
+  optimal local rotation). :math:`R_i` is held fixed when differentiating, which gives the exact gradient at
+  the optimal rotations (envelope theorem).
 """
 
 from __future__ import annotations
@@ -83,7 +89,9 @@ def visible(uv: torch.Tensor, z: torch.Tensor, depth: torch.Tensor, alpha: torch
 
 
 def flow_loss(x_prev: torch.Tensor, x_new: torch.Tensor, flow: torch.Tensor, vis: torch.Tensor, K, R, t):
-    """L_flow of Eq. 9 (px): mean |pi(x_new) - pi(x_prev) - u(pi(x_prev))|_1 over the visible particles."""
+    r""":math:`L_\text{flow}` of Eq. 9 (px):
+    :math:`\operatorname{mean} \lVert \pi(x_\text{new}) - \pi(x_\text{prev}) - u(\pi(x_\text{prev})) \rVert_1`
+    over the visible particles."""
     if not bool(vis.any()):
         return torch.zeros((), dtype=x_new.dtype)
     uv0, _ = project(x_prev[vis], K, R, t)
