@@ -579,7 +579,9 @@ class MPMState:
 
 @dataclass
 class Control:
-    """PD actuation of seed Eq. (6)-(7): gate omega (N,), references x_ref, v_ref (N, 3), gains kp, kd.
+    r"""PD actuation of seed Eq. (6)-(7): gate omega (N,), references x_ref, v_ref (N, 3), gains kp, kd,
+
+    .. math:: f_\text{ex} = m\, \omega \big[k_p (x_\text{ref} - x) + k_d (v_\text{ref} - v)\big].
 
     ``hold=True`` (seed Alg. 2): :meth:`MPMSolver.simulate_frame` evaluates f_ex once from the state at the
     start of the frame and applies it at every substep; ``False``: recomputed from each substep's state
