@@ -1,25 +1,42 @@
-"""Real-time data assimilation on a SeparatedModel (seed 000 §2.2, §4).
+r"""Real-time data assimilation on a SeparatedModel (seed 000 §2.2, §4).
 
-Solves mu* = argmin 1/2 ||u_obs - C u(mu)||^2 + 1/2 alpha ||mu - mu_prior||^2 (seed Eq. 2 with an
-optional Tikhonov term) by Levenberg-Marquardt with the analytic sensitivities du/dmu_j (seed §4),
-inside parameter bounds, and reports the Gauss-Newton covariance sigma^2 (J^T J + alpha I)^-1 with
-sigma^2 = ||r||^2 / max(m - p, 1).
+Solves (seed Eq. 2 with an optional Tikhonov term)
 
-Fast path (the online loop): with u(mu) = F^T c(mu) and the thin QR C F^T = Q R precomputed by
-``SeparatedModel.set_observation``, ||y - C F^T c||^2 = ||z - R c||^2 + ||(I - Q Q^T) y||^2 with
-z = Q^T y, so each LM iteration works on k <= n_modes numbers whatever the number of observations,
-and J = -R dc/dmu. The mode coefficients c(mu), dc/dmu come from precomputed piecewise-cubic
-coefficients (no scipy objects in the loop).
+.. math::
 
-Multi-start only when the fit is bad by a statistical test (issue 19): u(mu) stays in span(C F^T) for
-every mu, so with y = C u_true + noise the part of the residual a restart can change is the in-span
-residual e = z - R c (k = dimension of the span, k - p degrees of freedom at the optimum) and the part
-orthogonal to the span, ||(I - Q Q^T) y||^2 (m - k degrees of freedom), is noise (plus model error)
-whatever mu is. With a known noise sigma the test is chi-square, ||e||^2 / sigma^2 > chi2_{1-a}(k - p);
-without it sigma^2 is estimated from the orthogonal part, which a wrong minimum does not inflate, and
-the test is the exact F test (||e||^2 / (k - p)) / sigma_hat^2 > F_{1-a}(k - p, m - k). ``model_error``
-(relative) adds (model_error ||y||)^2 / m to sigma^2 so that noise-free data with the small bias of the
-reduced model (discretisation, truncation) do not fail the test; this makes the test conservative.
+    \mu^\star = \arg\min_\mu \tfrac12 \lVert u_\text{obs} - C u(\mu) \rVert^2
+    + \tfrac12 \alpha \lVert \mu - \mu_\text{prior} \rVert^2
+
+by Levenberg-Marquardt with the analytic sensitivities :math:`\partial u / \partial \mu_j` (seed §4), inside
+parameter bounds, and reports the Gauss-Newton covariance :math:`\sigma^2 (J^\top J + \alpha I)^{-1}` with
+:math:`\sigma^2 = \lVert r \rVert^2 / \max(m - p, 1)`.
+
+Fast path (the online loop): with :math:`u(\mu) = F^\top c(\mu)` and the thin QR :math:`C F^\top = Q R`
+precomputed by ``SeparatedModel.set_observation``,
+
+.. math::
+
+    \lVert y - C F^\top c \rVert^2 = \lVert z - R c \rVert^2 + \lVert (I - Q Q^\top) y \rVert^2,
+    \qquad z = Q^\top y,
+
+so each LM iteration works on :math:`k \le` n_modes numbers whatever the number of observations, and
+:math:`J = -R\, \partial c / \partial \mu`. The mode coefficients :math:`c(\mu)`,
+:math:`\partial c / \partial \mu` come from precomputed piecewise-cubic coefficients (no scipy objects in the
+loop).
+
+Multi-start only when the fit is bad by a statistical test (issue 19): :math:`u(\mu)` stays in
+:math:`\operatorname{span}(C F^\top)` for every :math:`\mu`, so with
+:math:`y = C u_\text{true} + \text{noise}` the part of the residual a restart can change is the in-span
+residual :math:`e = z - R c` (:math:`k` = dimension of the span, :math:`k - p` degrees of freedom at the
+optimum) and the part orthogonal to the span,
+:math:`\lVert (I - Q Q^\top) y \rVert^2` (:math:`m - k` degrees of freedom), is noise (plus model error)
+whatever :math:`\mu` is. With a known noise :math:`\sigma` the test is chi-square,
+:math:`\lVert e \rVert^2 / \sigma^2 > \chi^2_{1-a}(k - p)`; without it :math:`\sigma^2` is estimated from the
+orthogonal part, which a wrong minimum does not inflate, and the test is the exact F test
+:math:`(\lVert e \rVert^2 / (k - p)) / \hat\sigma^2 > F_{1-a}(k - p, m - k)`. ``model_error`` (relative) adds
+:math:`(\mathtt{model\_error}\, \lVert y \rVert)^2 / m` to :math:`\sigma^2` so that noise-free data with the
+small bias of the reduced model (discretisation, truncation) do not fail the test; this makes the test
+conservative.
 """
 from __future__ import annotations
 
