@@ -269,7 +269,8 @@ class GeneralizedAlpha(Integrator):
 
     .. math::
 
-        q_n &= q_{n-1} + h v_{n-1} + \tfrac{h^2}{2} \big((1 - 2\beta)\, a_{n-1+\alpha} + 2\beta\, a_{n+\alpha}\big), \\
+        q_n &= q_{n-1} + h v_{n-1} + \tfrac{h^2}{2} \big((1 - 2\beta)\, a_{n-1+\alpha}
+               + 2\beta\, a_{n+\alpha}\big), \\
         v_n &= v_{n-1} + h \big((1 - \gamma)\, a_{n-1+\alpha} + \gamma\, a_{n+\alpha}\big), \\
         (1 - \alpha_m) M a_{n+\alpha} + \alpha_m M a_{n-1+\alpha} &= (1 - \alpha_f) f_n + \alpha_f f_{n-1},
 
@@ -326,8 +327,8 @@ class ThetaMethod(Integrator):
         u_n = u_{n-1} + (1 - \theta) \frac{h}{2} \big[b(u_{n-1}) + b(u_n)\big]
         + \frac{\theta}{3} \big[u_{n-1} - u_{n-2} + 2 h\, b(u_n)\big],
 
-    :math:`\theta = 0` the trapezoid rule, :math:`\theta = 1` BDF2. State :math:`(q_n, v_n, q_{n-1}, v_{n-1})`;
-    the first step (no history) is one trapezoid step.
+    :math:`\theta = 0` the trapezoid rule, :math:`\theta = 1` BDF2. State
+    :math:`(q_n, v_n, q_{n-1}, v_{n-1})`; the first step (no history) is one trapezoid step.
     """
 
     name = "theta"
