@@ -51,14 +51,16 @@ demo: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/bench_fem.py
 
-# the documentation site into docs/_build/html (examples run in quick mode; warnings are errors)
+# the documentation site into docs/_build/html (examples run in quick mode; warnings are errors; -E reads every
+# page afresh, so an up-to-date page cannot hide its warnings). tests/test_docs_site.py runs this same build in
+# `make test` (about a minute on 2 cores) and screenshots it: docs/_build/screenshots.
 DOCS_STAMP := $(VENV)/.physar-docs-installed
 $(DOCS_STAMP): $(STAMP) pyproject.toml
 	$(PY) -m pip install -q -e '.[docs]'
 	touch $(DOCS_STAMP)
 
 docs: $(DOCS_STAMP)
-	$(VENV)/bin/sphinx-build -b html -W --keep-going -q docs docs/_build/html
+	$(VENV)/bin/sphinx-build -b html -W --keep-going -q -E docs docs/_build/html
 	@echo "docs: docs/_build/html/index.html"
 
 clean:

@@ -6,7 +6,8 @@ Why these tools (see also docs/README.md):
   docstrings (contract, equation, SI units, shapes), autosummary makes the tables and napoleon reads the
   Google sections some docstrings have (``Attributes:``). The docstrings are reStructuredText written as
   plain text: ``|u|`` and ``x**2`` are escaped before parsing (physar_api.plain_text_markup), so they show
-  as written.
+  as written; equations marked up as math (``:math:``, ``.. math::``, pyMOR's convention) are rendered by
+  MathJax.
 * myst-nb (with myst-parser and jupytext): the README and benchmarks/RESULTS.md are Markdown, and the
   examples are jupytext percent scripts whose text cells are Markdown. myst-nb executes them as notebooks
   and renders that Markdown as written; sphinx-gallery would read the text cells as reStructuredText

@@ -78,7 +78,8 @@ _LITERAL = re.compile(r"(``.+?``|:[a-z:]+:`[^`]*`|`[^`]*`_?)")
 def plain_text_markup(lines: list[str]) -> list[str]:
     """Escape the characters that physar's docstrings use as plain-text notation and reStructuredText reads
     as markup: ``|`` (norms, ``|u|``: a substitution reference) and ``*`` (``x**2``, ``a * b``: emphasis),
-    outside literals, roles, literal blocks (after ``::``), grid tables and bullets (a leading ``* ``)."""
+    outside literals, roles (``:math:`...```), literal blocks (after ``::``), directives and their content
+    (``.. math::``), grid tables and bullets (a leading ``* ``)."""
     out, literal_indent, in_table = [], None, False
     for line in lines:
         indent = len(line) - len(line.lstrip())
@@ -90,6 +91,10 @@ def plain_text_markup(lines: list[str]) -> list[str]:
         in_table = stripped.startswith(("+-", "+=")) or (in_table and stripped.startswith("|"))
         if in_table or stripped.startswith(">>>"):
             out.append(line)
+            continue
+        if stripped.startswith(".. "):  # a directive (.. math::, .. note::): its own markup, content kept
+            out.append(line)
+            literal_indent = indent
             continue
         head = line[:indent]
         if stripped.startswith("* "):
@@ -166,7 +171,26 @@ def _generate(app) -> None:
         logger.warning(f"public name without a docstring: {name}", type="physar", subtype="docstring")
 
 
+# A summary line of the API tables is a docstring's first sentence; "(seed Eq. 2.9)" is not a sentence's end.
+SUMMARY_ABBREVIATIONS = ("Eq.", "Eqs.", "Fig.", "Alg.", "App.", "Sec.", "Ref.")
+
+
+def summary_line(extract):
+    """autosummary's ``extract_summary`` with a first paragraph that leads into an equation (``...:``) ending
+    in a full stop, not ``:.``."""
+    def summary(doc, document):
+        return re.sub(r"\s*[:;,]\.?$", ".", extract(doc, document))
+    summary.physar = True
+    return summary
+
+
 def setup(app):
+    from sphinx.ext import autosummary
+
+    known = autosummary.WELL_KNOWN_ABBREVIATIONS
+    autosummary.WELL_KNOWN_ABBREVIATIONS = (*known, *(a for a in SUMMARY_ABBREVIATIONS if a not in known))
+    if not getattr(autosummary.extract_summary, "physar", False):
+        autosummary.extract_summary = summary_line(autosummary.extract_summary)
     app.connect("builder-inited", _generate)
     app.connect("autodoc-process-docstring", _process_docstring, priority=400)  # before napoleon
     app.connect("missing-reference", _existing_private_target)
