@@ -249,7 +249,7 @@ QUICK = os.environ.get("PHYSAR_EXAMPLE_QUICK") == "1"
 
 # %% [markdown]
 # ## A figure
-# Saved to a file and closed, as the examples do; |p - c(p)| stays text.
+# Saved to a file and closed, as the examples do; |p - c(p)| stays text, $\\rho = 1/\\sqrt{{1 + (h\\omega)^2}}$ is math.
 
 # %%
 fig, ax = plt.subplots()
@@ -281,13 +281,14 @@ def _gallery_build(tmp_path: Path, extra: str):
 def test_gallery_shows_the_figure_an_example_saves(tmp_path):
     """An example run as the site runs it (quick mode, its own output folder): its Markdown cells are pages
     text, the figure it saved and closed is on the page. Mutant caught: figures not collected after a cell,
-    the quick flag not set, Markdown read as reStructuredText."""
+    the quick flag not set, Markdown read as reStructuredText, ``$...$`` not read as math."""
     pytest.importorskip("myst_nb", reason="the docs extra is not installed (make docs installs it)")
     status, html = _gallery_build(tmp_path, "")
     assert status == 0
     page = (html / "_generated" / "gallery" / "tiny.html").read_text()
     assert "<h1>A tiny example: one figure" in page and "<h2>A figure" in page
     assert "|p - c(p)| stays text" in page
+    assert re.search(r'class="math[^"]*">\\\(\\rho = 1/\\sqrt\{1 \+ \(h\\omega\)\^2\}\\\)', page)  # MyST dollarmath
     assert re.search(r'<img[^>]+src="[^"]+\.png"', page)
     assert "quick True" in page
     index = (html / "_generated" / "gallery" / "index.html").read_text()
