@@ -51,12 +51,16 @@ def measured_rho(method, hw, **knob):
 
 # %% [markdown]
 # ## Closed forms
-# For the mode λ = iω of (2.2), z = hλ = i hω:
-# * BE and SI (one Newton step of BE is exact on a linear problem): ρ = |1/(1 - z)| = 1/√(1 + (hω)²) (Eq. 2.8);
-# * implicit midpoint: ρ = |(1 + z/2)/(1 - z/2)| = 1, no damping;
-# * TR-BDF2 (γ = 2 - √2): R(z) = [R_TR(γz) - (1-γ)²] / [γ(2-γ)(1 - (1-γ)z/(2-γ))], R_TR(w) = (1 + w/2)/(1 - w/2);
-# * θ method (Eq. 2.15) on u' = λu: the largest root of μ²(1 - cz) - μ(1 + (1-θ)z/2 + θ/3) + θ/3 = 0,
-#   c = (1-θ)/2 + 2θ/3;
+# For the mode $\lambda = i\omega$ of (2.2), $z = h\lambda = i h\omega$:
+# * BE and SI (one Newton step of BE is exact on a linear problem):
+#   $\rho = \left|\frac{1}{1 - z}\right| = \frac{1}{\sqrt{1 + (h\omega)^2}}$ (Eq. 2.8);
+# * implicit midpoint: $\rho = \left|\frac{1 + z/2}{1 - z/2}\right| = 1$, no damping;
+# * TR-BDF2 ($\gamma = 2 - \sqrt{2}$):
+#   $R(z) = \frac{R_{TR}(\gamma z) - (1-\gamma)^2}{\gamma(2-\gamma)\left(1 - \frac{(1-\gamma)z}{2-\gamma}\right)}$,
+#   $R_{TR}(w) = \frac{1 + w/2}{1 - w/2}$;
+# * θ method (Eq. 2.15) on $u' = \lambda u$: the largest root of
+#   $\mu^2(1 - cz) - \mu\left(1 + \frac{(1-\theta)z}{2} + \frac{\theta}{3}\right) + \frac{\theta}{3} = 0$,
+#   $c = \frac{1-\theta}{2} + \frac{2\theta}{3}$;
 # * generalized-α: the spectral radius of the seed's 3×3 matrix T of Eq. 2.14 with the coefficients (2.12).
 # (`physar damping` and `physar.integrators.damping_curve` get ρ from the steppers' amplification matrix.)
 
