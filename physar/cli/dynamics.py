@@ -23,8 +23,8 @@ def _parse_hw(hw: list[str] | None, extra: list[str]) -> list[float]:
                 x = float(part)
             except ValueError:
                 raise ConfigError(f"--hw: {part!r} is not a number") from None
-            if not x > 0:
-                raise ConfigError(f"--hw values must be > 0, got {x}")
+            if not 0 < x < float("inf"):
+                raise ConfigError(f"--hw values must be finite and > 0, got {x}")
             vals.append(x)
     return vals
 
@@ -95,6 +95,7 @@ def simulate(
     energy growth above --energy-warn (default 5 %) of the largest energy term is one warning line."""
     from tqdm import tqdm
 
+    from physar.cli._common import check_toml
     from physar.errors import PhysarError
     from physar.integrators.config import (
         SimulationDiverged,
@@ -108,6 +109,7 @@ def simulate(
     from physar.integrators.render import check_fps
     from physar.output import check_destination, signal_guard
 
+    check_toml(config, "problem file")
     check_fps(fps, "--fps")
     csv_path = energy_csv or out.with_suffix(".csv")
     check_destination(out, inputs=[config], suffixes=[".xdmf"], kind="trajectory")

@@ -21,10 +21,12 @@ def solve(
     """Solve a static problem and write the deformed fields."""
     from tqdm import tqdm
 
+    from physar.cli._common import check_toml
     from physar.fem.config import run_config
     from physar.geometry import write_mesh
     from physar.geometry.io import check_mesh_destination
 
+    check_toml(config, "problem file")
     check_mesh_destination(out, inputs=[config], kind="result mesh")
     bar = None
 

@@ -26,9 +26,11 @@ def run(
     (exit 130)."""
     from tqdm import tqdm
 
+    from physar.cli._common import check_toml
     from physar.mpm.runner import check_run_folder, run_scene
     from physar.output import signal_guard
 
+    check_toml(scene, "scene file")
     check_run_folder(out, inputs=[scene])
     bar = None
 
@@ -60,12 +62,19 @@ def run(
 def identify(
     scene: Path = typer.Argument(..., help="scene file (TOML); its E values are the initial guesses"),  # noqa: B008 - typer idiom
     target: Path = typer.Option(..., "--target", "-t", help="folder of frame_NNNN.ply (from `physar mpm run`)"),  # noqa: B008 - typer idiom
-    iterations: int = typer.Option(20, "--iterations", min=1, help="L-BFGS iterations"),
+    iterations: int = typer.Option(20, "--iterations", help="L-BFGS iterations (>= 1)"),
     fit_nu: bool = typer.Option(False, "--fit-nu", help="also fit Poisson's ratio per body"),
     json_out: bool = typer.Option(False, "--json", help="print the identified parameters as JSON"),
 ) -> None:
     """Recover per-body Young's moduli (and nu) from a target particle trajectory."""
+    from physar.cli._common import check_input, check_toml
+    from physar.errors import ConfigError
     from physar.mpm.runner import identify_scene
+
+    if iterations < 1:
+        raise ConfigError(f"--iterations must be >= 1, got {iterations}")
+    check_toml(scene, "scene file")
+    check_input(target, "--target folder of frame_NNNN.ply", folder=True)
 
     def progress(evaluation: int, loss: float) -> None:
         if not json_out:

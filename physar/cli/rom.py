@@ -49,7 +49,7 @@ def _parse_params(model, items: list[str], flag: str = "--param", partial: bool 
 def build(
     config: Path = typer.Argument(..., help="FEM problem file (TOML) with [[parameter]] tables and [rom]"),  # noqa: B008 - typer idiom
     out: Path = typer.Option(..., "--out", "-o", help="reduced model file (.npz)"),  # noqa: B008 - typer idiom
-    workers: int | None = typer.Option(None, "--workers", min=1,
+    workers: int | None = typer.Option(None, "--workers",
                                           help="non-intrusive: start a Dask LocalCluster with N workers"),
     scheduler: str | None = typer.Option(None, "--scheduler", help="non-intrusive: Dask scheduler address"),
     json_out: bool = typer.Option(False, "--json", help="print a summary as JSON on stdout"),
@@ -57,10 +57,14 @@ def build(
     """Build a reduced model offline (PGD, non-intrusive PGD or POD) and save it."""
     from tqdm import tqdm
 
+    from physar.cli._common import check_toml
     from physar.errors import PhysarError
     from physar.output import check_destination
     from physar.rom.config import build_rom, load_rom_config
 
+    if workers is not None and workers < 1:
+        raise PhysarError(f"--workers must be >= 1, got {workers}")
+    check_toml(config, "rom build file")
     check_destination(out, inputs=[config], suffixes=[".npz"], kind="reduced model")
     cfg = load_rom_config(config)
     bar = tqdm(desc=f"rom build ({cfg.rom.method})", file=sys.stderr, unit="mode" if cfg.rom.method == "pgd" else "solve")
@@ -126,13 +130,18 @@ def info(
     model_file: Path = typer.Argument(..., help="reduced model (.npz)"),  # noqa: B008 - typer idiom
     check: Path | None = typer.Option(None, "--check", help="the model's `rom build` file: also report its "  # noqa: B008 - typer idiom
                                       "discretisation error against full solves on a twice finer mesh"),
-    check_points: int = typer.Option(3, "--check-points", min=1, max=100, help="parameter points of --check"),
+    check_points: int = typer.Option(3, "--check-points", help="parameter points of --check (1-100)"),
     json_out: bool = typer.Option(False, "--json", help="print as JSON on stdout"),
 ) -> None:
     """Describe a reduced model: method, modes, parameters (kind, range, unit), mesh, error estimates; with
     --check CONFIG its error of displacement and von Mises stress against a finer check solve."""
+    from physar.cli._common import check_toml
+    from physar.errors import ConfigError
     from physar.rom import SeparatedModel
 
+    if not 1 <= check_points <= 100:
+        raise ConfigError(f"--check-points must be within 1..100, got {check_points}")
+    check_toml(check, "rom build file (--check)")
     rom = SeparatedModel.load(model_file)
     d = _info(rom)
     if check is not None:
@@ -253,7 +262,7 @@ def assimilate_cmd(
     model_file: Path = typer.Argument(..., help="reduced model (.npz) with its mesh (from `physar rom build`)"),  # noqa: B008 - typer idiom
     observations: Path = typer.Argument(..., help="CSV with header x,y,z,ux,uy,uz (m)"),  # noqa: B008 - typer idiom
     mu0: list[str] = typer.Option([], "--mu0", help="start NAME=VALUE (default: centre of the ranges)"),  # noqa: B008 - typer idiom
-    alpha: float = typer.Option(0.0, "--alpha", min=0.0, help="Tikhonov weight towards --mu0"),
+    alpha: float = typer.Option(0.0, "--alpha", help="Tikhonov weight towards --mu0 (>= 0)"),
     restart: float = typer.Option(0.05, "--restart-residual",
                                   help="multi-start when ||r||/||u_obs|| stays above this"),
     json_out: bool = typer.Option(False, "--json", help="print results as JSON on stdout"),
@@ -263,6 +272,8 @@ def assimilate_cmd(
     from physar.errors import PhysarError
     from physar.rom import SeparatedModel
 
+    if not (alpha >= 0 and np.isfinite(alpha)):
+        raise PhysarError(f"--alpha must be a finite number >= 0, got {alpha}")
     rom = SeparatedModel.load(model_file)
     pts, disp = read_observations(observations)
     try:
