@@ -8,8 +8,10 @@ from typing import Annotated
 import numpy as np
 import typer
 
-from physar.cli._common import log, print_json, user_errors
+from physar.cli._common import log, output_path, print_json, user_errors, warn_positional
 from physar.errors import PhysarError
+
+DEPRECATED = "(deprecated: give it as --out; still accepted)"
 
 
 def _load(path: Path):
@@ -147,7 +149,10 @@ def register(app: typer.Typer) -> None:
     @user_errors
     def denoise_cmd(
         inp: Annotated[Path, typer.Argument(help="input mesh (PLY/OBJ/STL/OFF) or PLY point cloud")],
-        out: Annotated[Path, typer.Argument(help="output file (same kinds)")],
+        out_arg: Annotated[Path | None, typer.Argument(metavar="OUT", show_default=False,
+                                                       help="output file " + DEPRECATED)] = None,
+        out_opt: Annotated[Path | None, typer.Option("--out", "-o", show_default=False,
+                                                     help="output file (same kinds as the input)")] = None,
         method: str = typer.Option(
             None, "--method",
             help="two-stage (default for meshes: bilateral normal filter, feature-weighted Taubin, vertex update; the "
@@ -168,7 +173,7 @@ def register(app: typer.Typer) -> None:
             "--reference", help="clean mesh with the same faces: print the mean face-normal angle error, mean "
                                 "vertex distance, volume change")] = None,
         render: Annotated[Path | None, typer.Option(
-            "--render", help="before/after shaded picture (PNG; default: OUT with suffix .png)")] = None,
+            "--render", help="before/after shaded picture (PNG; default: --out with suffix .png)")] = None,
         no_render: bool = typer.Option(False, "--no-render", help="write no picture"),
         k: int = typer.Option(10, "--k", help="neighbours for point clouds"),
         json_out: bool = typer.Option(False, "--json", help="print a JSON summary on stdout"),
@@ -183,6 +188,7 @@ def register(app: typer.Typer) -> None:
         from physar.geometry.pointcloud import denoise_points
         from physar.output import check_destination
 
+        out = output_path(out_opt, out_arg, "physar denoise IN --out OUT")
         if method is None:  # two-stage for surfaces, msal for point clouds (the only ones they take)
             from physar.geometry.pointcloud import read_ply
 
@@ -240,6 +246,7 @@ def register(app: typer.Typer) -> None:
             summary["picture"] = str(png)
         if json_out:
             print_json(summary)
+            warn_positional(out_arg, out_opt, "denoise")
             return
         log(f"wrote {out}: {n} points, mean displacement {moved.mean():.3g} m")
         if ref is not None:
@@ -250,12 +257,16 @@ def register(app: typer.Typer) -> None:
                 f"{100 * r['volume_change_before']:+.2f} -> {100 * r['volume_change']:+.2f} %")
         if "picture" in summary:
             log(f"wrote {png} (before / after)")
+        warn_positional(out_arg, out_opt, "denoise")
 
     @app.command("noise")
     @user_errors
     def noise_cmd(
         inp: Annotated[Path, typer.Argument(help="input surface mesh")],
-        out: Annotated[Path, typer.Argument(help="output surface mesh")],
+        out_arg: Annotated[Path | None, typer.Argument(metavar="OUT", show_default=False,
+                                                       help="output surface mesh " + DEPRECATED)] = None,
+        out_opt: Annotated[Path | None, typer.Option("--out", "-o", show_default=False,
+                                                     help="output surface mesh (PLY/OBJ/STL/OFF)")] = None,
         sigma: float = typer.Option(0.2, "--sigma", help="noise std s as a fraction of the mean edge length ē"),
         seed: int = typer.Option(0, "--seed", help="random seed (an integer >= 0)"),
         direction: str = typer.Option(
@@ -273,6 +284,7 @@ def register(app: typer.Typer) -> None:
         """
         from physar.geometry.quality import add_noise, mean_edge_length
 
+        out = output_path(out_opt, out_arg, "physar noise IN --out OUT")
         if seed < 0:
             raise PhysarError(f"--seed must be an integer >= 0, got {seed}")
         _check_out(out, inp, cloud=False)
@@ -287,3 +299,4 @@ def register(app: typer.Typer) -> None:
             print_json(summary)
         else:
             log(f"wrote {out} (noise std {summary['sigma_m']:.3g} m)")
+        warn_positional(out_arg, out_opt, "noise")

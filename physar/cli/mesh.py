@@ -36,16 +36,22 @@ def box(
 @user_errors
 def convert(
     src: Path = typer.Argument(..., help="input mesh"),  # noqa: B008 - typer idiom
-    dst: Path = typer.Argument(..., help="output mesh; format from the suffix"),  # noqa: B008 - typer idiom
+    dst_arg: Path | None = typer.Argument(None, metavar="OUT", show_default=False,  # noqa: B008 - typer idiom
+                                          help="output mesh (deprecated: give it as --out; still accepted)"),
+    dst_opt: Path | None = typer.Option(None, "--out", "-o", show_default=False,  # noqa: B008 - typer idiom
+                                        help="output mesh; format from the suffix"),
 ) -> None:
     """Convert a tetrahedral or triangle mesh between formats (validated on the way)."""
+    from physar.cli._common import output_path, warn_positional
     from physar.geometry.io import SURFACE_FORMATS, VOLUME_FORMATS
     from physar.output import check_destination
 
+    dst = output_path(dst_opt, dst_arg, "physar mesh convert IN --out OUT")
     check_destination(dst, inputs=[src], suffixes=sorted(VOLUME_FORMATS | SURFACE_FORMATS), kind="mesh")
     m = read_mesh(src)
     write_mesh(dst, m)
     log(f"wrote {dst}")
+    warn_positional(dst_arg, dst_opt, "mesh convert")
 
 
 def register(app: typer.Typer) -> None:

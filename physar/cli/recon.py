@@ -37,14 +37,20 @@ def _close(bars) -> None:
 @recon_app.command("synth")
 @user_errors
 def synth(
-    out: Path = typer.Argument(..., help="DATA_DIR to write: new, empty or a previous scene (replaced when done)"),  # noqa: B008 - typer idiom
-    config: Path | None = typer.Option(None, "--config", "-c", help="TOML with a [synth] table"),  # noqa: B008 - typer idiom
+    out_arg: Path | None = typer.Argument(None, metavar="DATA_DIR", show_default=False,  # noqa: B008 - typer idiom
+                                          help="(deprecated: give it as --out; still accepted)"),
+    out_opt: Path | None = typer.Option(None, "--out", "-o", show_default=False,  # noqa: B008 - typer idiom
+                                        help="DATA_DIR to write: new, empty or a previous scene (replaced when done)"),
+    config: Path | None = typer.Option(None, "--config", "-c", help="TOML with a \\[synth] table"),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json", help="print a summary as JSON"),
 ) -> None:
     """Generate a synthetic scene (fine MPM ground truth, heterogeneous and anisotropic): the humanoid presses a
     pillow, squeezes a C-shaped pillow or lifts a bag (see examples/recon_pillow|cpillow|bag.toml)."""
+    from physar.cli._common import check_toml, output_path, warn_positional
     from physar.recon.synth import check_data_dir, generate, load_synth_config
 
+    out = output_path(out_opt, out_arg, "physar recon synth --out DATA_DIR [-c CONFIG]")
+    check_toml(config, "recon configuration")
     check_data_dir(out, inputs=[config])
     cfg = load_synth_config(config)
     progress, bars = _bars(json_out or None)
@@ -56,6 +62,7 @@ def synth(
                "image_size": cfg.image_size}
     print_json(summary) if json_out else log(f"scene -> {out} ({cfg.object} + {cfg.action}, {cfg.frames} frames, {cfg.n_obs} observed, "
                                              f"{cfg.novel_frames} novel-action frames)")
+    warn_positional(out_arg, out_opt, "recon synth")
 
 
 @recon_app.command("fit")
@@ -63,7 +70,7 @@ def synth(
 def fit_cmd(
     data_dir: Path = typer.Argument(..., help="DATA_DIR (scene.json, rgb/, mask/, poses.npz)"),  # noqa: B008 - typer idiom
     out: Path = typer.Option(..., "--out", "-o", help="RUN_DIR: model.npz, gaussians.ply, report.json, preview.mp4"),  # noqa: B008 - typer idiom
-    config: Path | None = typer.Option(None, "--config", "-c", help="TOML with a [train] table"),  # noqa: B008 - typer idiom
+    config: Path | None = typer.Option(None, "--config", "-c", help="TOML with a \\[train] table"),  # noqa: B008 - typer idiom
     restart: bool = typer.Option(False, "--restart", help="ignore RUN_DIR/checkpoint.pt"),
     reuse: Path | None = typer.Option(None, "--reuse", help="take stages 1-2 (canonical Gaussians, flows) "  # noqa: B008 - typer idiom
                                          "from this RUN_DIR: physics-only variants such as ablations"),
@@ -71,9 +78,11 @@ def fit_cmd(
 ) -> None:
     """Fit canonical Gaussians (spin clip), per-frame flows and the physical parameters (resumes from
     RUN_DIR/checkpoint.pt)."""
+    from physar.cli._common import check_toml
     from physar.output import check_folder
     from physar.recon.train import fit, load_train_config
 
+    check_toml(config, "recon configuration")
     check_folder(out, inputs=[data_dir, reuse], kind="RUN_DIR")
     cfg = load_train_config(config)
     progress, bars = _bars(json_out or None)

@@ -159,7 +159,7 @@ OUTPUT_CASES = {
     "mesh-box-out-is-folder": (lambda w, d: _box(w / "adir"), "existing folder"),
     "mesh-box-unknown-suffix": (lambda w, d: _box(w / "b.foo"), "'.foo'"),
     "mesh-box-surface-suffix": (lambda w, d: _box(w / "b.stl"), "'.stl'"),
-    "mesh-convert-same-file": (lambda w, d: ["mesh", "convert", d / "beam.vtu", d / "x" / ".." / "beam.vtu"],
+    "mesh-convert-same-file": (lambda w, d: ["mesh", "convert", d / "beam.vtu", "-o", d / "x" / ".." / "beam.vtu"],
                                "same file as the input"),
     # damping --plot
     "damping-plot-folder": (lambda w, d: ["damping", "--plot", w / "adir"], "existing folder"),
@@ -174,17 +174,17 @@ OUTPUT_CASES = {
     "simulate-video-suffix": (lambda w, d: ["simulate", d / "drop.toml", "-o", w / "t.xdmf", "--video",
                                             w / "v.avi"], "'.avi'"),
     # noise / denoise
-    "noise-out-is-input": (lambda w, d: ["noise", d / "surf.ply", d / "surf.ply"], "same file as the input"),
-    "noise-out-folder": (lambda w, d: ["noise", d / "surf.ply", w / "adir"], "existing folder"),
-    "noise-unknown-suffix": (lambda w, d: ["noise", d / "surf.ply", w / "n.foo"], "'.foo'"),
-    "denoise-parent-is-file": (lambda w, d: ["denoise", d / "surf.ply", w / "afile" / "n.ply"], "is a file"),
-    "denoise-cloud-as-obj": (lambda w, d: ["denoise", d / "cloud.ply", w / "c.obj"], "'.obj'"),
+    "noise-out-is-input": (lambda w, d: ["noise", d / "surf.ply", "-o", d / "surf.ply"], "same file as the input"),
+    "noise-out-folder": (lambda w, d: ["noise", d / "surf.ply", "-o", w / "adir"], "existing folder"),
+    "noise-unknown-suffix": (lambda w, d: ["noise", d / "surf.ply", "-o", w / "n.foo"], "'.foo'"),
+    "denoise-parent-is-file": (lambda w, d: ["denoise", d / "surf.ply", "-o", w / "afile" / "n.ply"], "is a file"),
+    "denoise-cloud-as-obj": (lambda w, d: ["denoise", d / "cloud.ply", "-o", w / "c.obj"], "'.obj'"),
     # mpm run: an output folder holding a user's file is refused, not mixed with frames
     "mpm-foreign-folder": (lambda w, d: ["mpm", "run", d / "scene.toml", "-o", w / "user"], "notes.txt"),
     "mpm-out-is-file": (lambda w, d: ["mpm", "run", d / "scene.toml", "-o", w / "afile"], "existing file"),
     # recon: synth never deletes the user's files; fit never writes into the DATA_DIR
-    "recon-synth-foreign-folder": (lambda w, d: ["recon", "synth", w / "user"], "notes.txt"),
-    "recon-synth-out-is-file": (lambda w, d: ["recon", "synth", w / "afile"], "existing file"),
+    "recon-synth-foreign-folder": (lambda w, d: ["recon", "synth", "-o", w / "user"], "notes.txt"),
+    "recon-synth-out-is-file": (lambda w, d: ["recon", "synth", "-o", w / "afile"], "existing file"),
     "recon-fit-into-data-dir": (lambda w, d: ["recon", "fit", d / "scene", "-o", d / "scene"], "same as the input"),
     "recon-fit-out-is-file": (lambda w, d: ["recon", "fit", d / "scene", "-o", w / "afile"], "existing file"),
     "recon-predict-suffix": (lambda w, d: ["recon", "predict", w / "run", "-p", d / "scene" / "poses.npz", "-o",
@@ -218,20 +218,20 @@ def test_unwritable_folder_refused(ws, data, monkeypatch):
     for argv in (["fem", "solve", data / "cantilever.toml", "-o", ro / "r.vtu"],
                  ["mpm", "run", data / "scene.toml", "-o", ro / "out"],
                  ["simulate", data / "drop.toml", "-o", ro / "t.xdmf"],
-                 ["recon", "synth", ro / "data"]):
+                 ["recon", "synth", "-o", ro / "data"]):
         assert_refused(invoke(*argv), "not writable", before, ws)
 
 
 # ------------------------------------------------------------------------------------------------ bad values
 VALUE_CASES = {
     # mutant: --seed passed to numpy unchecked (ValueError traceback "expected non-negative integer")
-    "noise-negative-seed": (lambda w, d: ["noise", d / "surf.ply", w / "n.ply", "--seed", -1], "--seed"),
+    "noise-negative-seed": (lambda w, d: ["noise", d / "surf.ply", "-o", w / "n.ply", "--seed", -1], "--seed"),
     # mutant: sigma compared with < 0 only (nan passes and writes a NaN mesh)
-    "noise-nan-sigma": (lambda w, d: ["noise", d / "surf.ply", w / "n.ply", "--sigma", "nan"], "nan"),
+    "noise-nan-sigma": (lambda w, d: ["noise", d / "surf.ply", "-o", w / "n.ply", "--sigma", "nan"], "nan"),
     # mutant: k = 0 reaches the k-NN graph (IndexError traceback)
-    "denoise-cloud-k0": (lambda w, d: ["denoise", d / "cloud.ply", w / "c.ply", "--k", 0], "--k"),
+    "denoise-cloud-k0": (lambda w, d: ["denoise", d / "cloud.ply", "-o", w / "c.ply", "--k", 0], "--k"),
     # mutant: no iteration cap (np.full(1e9) allocates 7.45 GiB, or the loop runs for hours)
-    "denoise-1e9-iterations": (lambda w, d: ["denoise", d / "surf.ply", w / "n.ply", "--iterations", 10**9],
+    "denoise-1e9-iterations": (lambda w, d: ["denoise", d / "surf.ply", "-o", w / "n.ply", "--iterations", 10**9],
                                "1000000000"),
     # mutant: --fps unchecked (nan: traceback after the trajectory is written; 0 silently becomes 1)
     "simulate-fps-nan": (lambda w, d: ["simulate", d / "drop.toml", "-o", w / "t.xdmf", "--fps", "nan"], "nan"),
@@ -349,13 +349,13 @@ def test_recon_synth_replaces_only_its_own_previous_scene(ws, data):
     (old / "rgb" / "0099.png").write_bytes(b"stale")
     cfg = ws / "tiny.toml"
     cfg.write_text((EXAMPLES / "recon_tiny.toml").read_text())
-    r = invoke("recon", "synth", old, "-c", cfg)
+    r = invoke("recon", "synth", "-o", old, "-c", cfg)
     assert r.exit_code == 0, r.output
     assert not (old / "rgb" / "0099.png").exists() and json.loads((old / "scene.json").read_text())["n_obs"] == 3
     assert sorted(p.name for p in ws.iterdir()) == sorted(["afile", "adir", "user", "in.toml", "scene", "tiny.toml"])
     (old / "mine.txt").write_text("mine")
     before = snapshot(ws)
-    assert_refused(invoke("recon", "synth", old, "-c", cfg), "mine.txt", before, ws)
+    assert_refused(invoke("recon", "synth", "-o", old, "-c", cfg), "mine.txt", before, ws)
 
 
 # ------------------------------------------------------------------------------------------------ divergence
@@ -556,7 +556,7 @@ def test_signal_during_recon_synth_leaves_nothing(tmp_path, sig):
     # written in place: the process dies with a hidden temporary folder (or a partial DATA_DIR) on disk
     cfg = tmp_path / "long.toml"
     cfg.write_text((EXAMPLES / "recon_tiny.toml").read_text().replace("frames = 5", "frames = 400"))
-    p = _spawn(["recon", "synth", tmp_path / "scene", "-c", cfg], tmp_path)
+    p = _spawn(["recon", "synth", "-o", tmp_path / "scene", "-c", cfg], tmp_path)
     deadline = time.time() + 120
     while not [f for f in tmp_path.iterdir() if f.name.startswith(".scene.")]:
         assert p.poll() is None and time.time() < deadline, p.communicate()
