@@ -42,7 +42,6 @@ import secrets
 import socket
 import ssl
 import struct
-import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -59,6 +58,7 @@ from physar.errors import ConfigError, PhysarError
 
 HEADER = struct.Struct("<dII")   # page capture time [ms], frame sequence number, flags (0)
 MAX_PEERS = 32
+MAX_TEXT = 4096                  # bytes of a page's command
 
 
 def is_loopback(host: str) -> bool:
@@ -124,12 +124,12 @@ def tls_context(cert: Path, key: Path) -> ssl.SSLContext:
     """A TLS server context from the user's PEM certificate and key; ConfigError naming the file otherwise."""
     for p, what in ((cert, "certificate"), (key, "key")):
         if not Path(p).is_file():
-            raise ConfigError(f"{p}: TLS {what} file not found")
+            raise ConfigError(f"{p}: TLS {what} file " + ("is a folder" if Path(p).is_dir() else "not found"))
     ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
-    try:
-        ctx.load_cert_chain(str(cert), str(key))
+    try:   # (an empty password: an encrypted key fails here instead of prompting on the terminal)
+        ctx.load_cert_chain(str(cert), str(key), password=b"")
     except (ssl.SSLError, OSError, ValueError) as e:
-        raise ConfigError(f"{cert} / {key}: not a PEM certificate and its key ({e})") from None
+        raise ConfigError(f"{cert} / {key}: not a PEM certificate and its unencrypted key ({e})") from None
     return ctx
 
 
@@ -159,7 +159,9 @@ class LiveSession:
         self.summary: dict | None = None
         self.error: str | None = None
         self.resets = 0
+        self.ready = threading.Event()          # set once the recording is open and frames are awaited
         self._last_camera = None
+        self.failed = False
         self._thread = threading.Thread(target=self._run, daemon=True, name="physar live session")
 
     def info(self) -> dict:
@@ -196,14 +198,17 @@ class LiveSession:
         return meta, (np.asarray(p, np.float32).tobytes() + ids.astype(np.uint32).tobytes()
                       + lev.astype(np.uint8).tobytes())
 
-    def feed(self, peer: int, data: bytes) -> None:
-        """A camera message (``HEADER`` + encoded image) from page ``peer``; the newest replaces one waiting."""
+    def feed(self, peer: int, data: bytes, stream: int = 0) -> None:
+        """A camera message (``HEADER`` + encoded image) from page ``peer`` in its camera stream ``stream`` (a
+        new stream resets the filter); the newest replaces one waiting."""
         stamp, seq, _flags = HEADER.unpack_from(data)
-        self.source.push((peer, stamp, seq, data[HEADER.size:]))
+        stamp = stamp if math.isfinite(stamp) else None
+        self.source.push(((peer, stream), stamp, seq, data[HEADER.size:]))
 
     def _frames(self, reader):
         w, h = self.camera.size
-        for peer, stamp, seq, blob in reader:
+        self.ready.set()                          # (run_video has opened the recording)
+        for (peer, stream), stamp, seq, blob in reader:
             img = cv2.imdecode(np.frombuffer(blob, np.uint8), cv2.IMREAD_COLOR)
             if img is None:
                 self.notify(peer, {"type": "error", "seq": seq, "message": "the frame is not a JPEG/PNG/WebP image"})
@@ -212,15 +217,16 @@ class LiveSession:
                 self.notify(peer, {"type": "error", "seq": seq, "message": f"the frame is {img.shape[1]}x"
                                    f"{img.shape[0]} but the project's camera is for {w}x{h}"})
                 continue
-            yield img, (peer, stamp, seq, time.perf_counter())
+            yield img, ((peer, stream), stamp, seq, time.perf_counter())
 
     def _step(self, k, item, draw):
-        img, (peer, stamp, seq, t_in) = item
-        if peer != self._last_camera:            # a new camera stream: start afresh
+        img, (stream, stamp, seq, t_in) = item
+        peer = stream[0]
+        if stream != self._last_camera:          # a new camera stream (another page, or Start again): afresh
             if self._last_camera is not None:
                 self.resets += 1
             self.pipe.reset()
-            self._last_camera = peer
+            self._last_camera = stream
         want_jpeg, want_geom = self.wants()
         out, r = self.pipe.process(img, k, draw=draw or want_jpeg)
         t0 = time.perf_counter()
@@ -248,11 +254,17 @@ class LiveSession:
                                      None, (*STAGES, "jpeg", "geometry"), preset=self.preset, convert="opencv",
                                      frames=self._frames, time_io=True, cpu=True, keep_results=False,
                                      handle_signals=False)
-        except PhysarError as e:   # no frame came: nothing recorded
+        except PhysarError as e:   # no frame came before the end (nothing recorded), or a failure
             self.summary, self.error = {"frames": 0}, str(e)
-        except Exception as e:  # noqa: BLE001 - reported to the pages and on stop, the server keeps serving
+            if not self.source.closed:
+                self.failed = True
+                self.notify(None, {"type": "error", "message": f"the server's session stopped: {self.error}"})
+        except Exception as e:  # noqa: BLE001 - reported to the pages; serve() then stops with the error
             self.summary, self.error = {"frames": 0}, f"{type(e).__name__}: {e}"
-            print(f"error: the live session stopped: {self.error}", file=sys.stderr)
+            self.failed = True
+            self.notify(None, {"type": "error", "message": f"the server's session stopped: {self.error}"})
+        finally:
+            self.ready.set()
 
     def start(self) -> None:
         self._thread.start()
@@ -260,7 +272,8 @@ class LiveSession:
     def stop(self, timeout: float = 60.0) -> dict:
         """End the session: the frame source closes, the recording (if any) is finished and renamed."""
         self.source.close()
-        self._thread.join(timeout)
+        if self._thread.ident is not None:      # (started)
+            self._thread.join(timeout)
         return self.summary or {"frames": 0}
 
 
@@ -283,11 +296,14 @@ class LiveServer:
     def __init__(self, session: LiveSession, *, token: str | None = None, max_message: int | None = None,
                  max_peers: int = MAX_PEERS):
         self.session, self.token, self.max_peers = session, token, int(max_peers)
+        self.hosts: set[str] | None = None      # Host headers accepted (loopback binds; set by start())
+        self.camera_stream = 0
         w, h = session.camera.size
         self.max_message = int(max_message or w * h * 3 + HEADER.size)
         self.peers: dict[int, _Peer] = {}
         self.camera_peer: int | None = None
         self._ids = itertools.count(1)
+        self._tasks: set = set()
         self._loop: asyncio.AbstractEventLoop | None = None
         self.page = resources.files("physar.ar").joinpath("live_page.html").read_text(encoding="utf-8")
 
@@ -306,14 +322,16 @@ class LiveServer:
         loop = self._loop
 
         def publish(meta, jpeg, geom):
-            loop.call_soon_threadsafe(self._broadcast, meta, jpeg, geom)
+            with contextlib.suppress(RuntimeError):      # the loop has closed: nobody to tell
+                loop.call_soon_threadsafe(self._broadcast, meta, jpeg, geom)
 
         def wants():
             modes = [p.mode for p in list(self.peers.values())]
             return "server" in modes, "page" in modes
 
-        def notify(peer, msg):
-            loop.call_soon_threadsafe(self._send_text, peer, msg)
+        def notify(peer, msg):                          # peer None: every page
+            with contextlib.suppress(RuntimeError):
+                loop.call_soon_threadsafe(self._send_text, peer, msg)
 
         self.session.publish, self.session.notify, self.session.wants = publish, notify, wants
 
@@ -336,6 +354,9 @@ class LiveServer:
 
         @web.middleware
         async def guard(request, handler):
+            if self.hosts is not None and request.host.lower() not in self.hosts:   # DNS rebinding
+                return web.Response(status=403, text="physar: unexpected Host header; open the URL printed "
+                                                     "when the server started\n")
             if not self._authorised(request):
                 return web.Response(status=403, text="physar: missing or wrong access token (use the URL "
                                                      "printed when the server started)\n")
@@ -377,10 +398,13 @@ class LiveServer:
             await ws.send_json({**self.session.info(), "you": peer.id, "max_message": self.max_message})
             async for msg in ws:
                 if msg.type == WSMsgType.TEXT:
+                    if len(msg.data) > MAX_TEXT:
+                        await ws.close(code=1009, message=b"command too long")
+                        break
                     self._command(peer, msg.data)
                 elif msg.type == WSMsgType.BINARY:
                     if peer.id == self.camera_peer and len(msg.data) > HEADER.size:
-                        self.session.feed(peer.id, msg.data)
+                        self.session.feed(peer.id, msg.data, self.camera_stream)
                 elif msg.type == WSMsgType.ERROR:
                     break
         finally:
@@ -398,9 +422,10 @@ class LiveServer:
         except ValueError:
             cmd = None
         kind = cmd.get("type") if isinstance(cmd, dict) else None
-        if kind == "camera":                         # this page becomes the camera
+        if kind == "camera":                         # this page becomes the camera: a new stream
             old = self.camera_peer
             self.camera_peer = peer.id
+            self.camera_stream += 1
             if old is not None and old != peer.id:
                 self._send_text(old, {"type": "camera_taken", "by": peer.id})
         elif kind == "stop_camera" and self.camera_peer == peer.id:
@@ -410,20 +435,24 @@ class LiveServer:
         else:
             self._send_text(peer.id, {"type": "error", "message": f"unknown command {text[:80]!r}"})
 
-    def _send_text(self, peer_id: int, msg: dict) -> None:
-        p = self.peers.get(peer_id)
-        if p is None or p.ws.closed:
-            return
+    def _send_text(self, peer_id: int | None, msg: dict) -> None:
+        """Send ``msg`` to page ``peer_id`` (None: to every page)."""
+        text = json.dumps(msg, allow_nan=False)
+        for p in ([self.peers.get(peer_id)] if peer_id is not None else list(self.peers.values())):
+            if p is None or p.ws.closed:
+                continue
 
-        async def send():
-            with contextlib.suppress(ConnectionError, RuntimeError):   # the page has just gone
-                await p.ws.send_str(json.dumps(msg))
+            async def send(p=p):
+                with contextlib.suppress(ConnectionError, RuntimeError):   # the page has just gone
+                    await p.ws.send_str(text)
 
-        asyncio.ensure_future(send())
+            task = asyncio.ensure_future(send())
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
 
     @staticmethod
     def _pack(meta: dict, body: bytes) -> bytes:
-        head = json.dumps(meta).encode()
+        head = json.dumps(meta, allow_nan=False).encode()
         return struct.pack("<I", len(head)) + head + body
 
     def _broadcast(self, meta: dict, jpeg: bytes | None, geom) -> None:
@@ -468,6 +497,8 @@ class LiveServer:
             await runner.cleanup()
             raise ConfigError(f"cannot listen on {host}:{port} ({e.strerror or e})") from None
         self.port = site._server.sockets[0].getsockname()[1] if port == 0 else port
+        if is_loopback(host):    # only this machine's names: a page of another site rebound to 127.0.0.1 is refused
+            self.hosts = {f"{h}:{self.port}" for h in ("127.0.0.1", "localhost", "[::1]", host.lower())}
         return runner
 
 
@@ -493,6 +524,10 @@ def serve(project, *, host: str = "127.0.0.1", port: int = 8765, ssl_context=Non
         token = token or secrets.token_urlsafe(16)
     session = LiveSession(project, out_video, out_csv, quality=quality)
     server = LiveServer(session, token=token, max_message=max_message)
+    session.start()                      # opens the recording first: a destination that fails stops here
+    session.ready.wait(60)
+    if session.failed:
+        raise PhysarError(f"cannot start the session: {session.error}")
 
     async def main():
         import signal
@@ -503,15 +538,17 @@ def serve(project, *, host: str = "127.0.0.1", port: int = 8765, ssl_context=Non
         if threading.current_thread() is threading.main_thread():
             for s in (signal.SIGINT, signal.SIGTERM):
                 loop.add_signal_handler(s, stop.set)
-        session.start()
         url = page_url(host, server.port, ssl_context is not None, token)
         if ready is not None:
             ready(url)
         try:
-            while not stop.is_set() and not (stop_event is not None and stop_event.is_set()):
-                with contextlib.suppress(asyncio.TimeoutError):
+            while not (stop.is_set() or session.failed or (stop_event is not None and stop_event.is_set())):
+                with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(stop.wait(), 0.2)
         finally:
+            session.source.close()       # no more frames; the frame in progress still reaches the pages
+            await asyncio.to_thread(session.stop)
+            await asyncio.sleep(0.05)
             for p in list(server.peers.values()):
                 with contextlib.suppress(Exception):
                     await p.ws.close()
@@ -524,7 +561,7 @@ def serve(project, *, host: str = "127.0.0.1", port: int = 8765, ssl_context=Non
     summary.pop("results", None)
     summary["resets"] = session.resets
     summary["dropped"] = session.source.dropped
-    if session.error and summary.get("frames", 0) == 0 and "no frames" not in session.error:
+    if session.failed:
         summary["error"] = session.error
     return summary
 

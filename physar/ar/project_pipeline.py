@@ -119,8 +119,9 @@ class ProjectPipeline:
                                           stress_table=table)
 
     def reset(self) -> None:
-        """Forget the history (a new camera stream): the pose tracker, the filter, the texture reference,
-        the estimate (back to the box centre, std unknown); the next frame starts fresh (grid search)."""
+        """Forget the history (a new camera stream): the pose tracker, the filter, the tracked texture points'
+        flow, the estimate (back to the box centre, std unknown); the next frame starts fresh (grid search).
+        The texture reference (the object at rest, in its own frame) is kept."""
         self.registration.reset()
         if self.filter is not None:
             self.filter.reset()

@@ -171,6 +171,8 @@ def ar_serve(
 
     if project.suffix.lower() != ".toml":
         raise ConfigError(f"{project}: give an AR project file (physar ar init project.toml)")
+    if not project.is_file():
+        raise ConfigError(f"{project}: AR project file not found" + (" (it is a folder)" if project.is_dir() else ""))
     if not 0 <= port <= 65535:
         raise ConfigError(f"--port must be within 0..65535, got {port}")
     if not 1 <= quality <= 100:
@@ -207,6 +209,9 @@ def ar_serve(
 
     summary = serve(proj, host=host, port=port, ssl_context=ctx, out_video=out, out_csv=csv_out,
                     quality=quality, ready=ready)
+    if summary.get("error"):
+        log(f"error: the live session stopped: {summary['error']}")
+        raise typer.Exit(code=1)
     if json_out:
         print_json(summary)
     elif summary.get("frames"):

@@ -5,6 +5,7 @@ The frames are the seed cantilever clip of the test-data renderer (tests/ar/conf
 import asyncio
 import json
 import struct
+import threading
 import time
 
 import aiohttp
@@ -19,7 +20,7 @@ from physar.ar.project import load_project
 from physar.ar.project_pipeline import ProjectPipeline
 from physar.ar.video import VideoReader
 from physar.cli import ar as ar_cli
-from physar.errors import ConfigError
+from physar.errors import ConfigError, PhysarError
 from physar.synth.score import read_columns
 
 
@@ -46,7 +47,7 @@ async def _start(project, host="127.0.0.1", ssl_context=None, token=None, max_me
 
 async def _stop(session, runner) -> dict:
     await runner.cleanup()
-    return await asyncio.to_thread(session.stop)
+    return {**await asyncio.to_thread(session.stop), "resets": session.resets}
 
 
 async def _frame_reply(ws, timeout=30.0):
@@ -87,8 +88,10 @@ def test_token_and_tls_off_loopback(project):
     without the token, or with a wrong one, get 403, with it 200 (and the page carries a CSP with a nonce).
     Mutants caught: a token checked on the page but not on the WebSocket, a prefix comparison, a wildcard bind
     served over plain http."""
+    done = threading.Event()
+    done.set()                      # (a server started by mistake would return at once instead of hanging)
     with pytest.raises(ConfigError, match="--tls CERT KEY or --self-signed"):
-        serve(project, host="0.0.0.0", port=0)
+        serve(project, host="0.0.0.0", port=0, stop_event=done)
     ctx, fp = self_signed_context(["localhost", "127.0.0.1"])
     assert len(fp.split(":")) == 32
     token = "t0k3n-for-the-test"
@@ -122,8 +125,10 @@ def test_token_and_tls_off_loopback(project):
 
 def test_oversized_message_and_foreign_origin(project):
     """A message over the bound closes that connection (code 1009) and frees its slot, others go on; a
-    WebSocket opened by a page of another origin is refused (403). Mutants caught: no size bound (the message
-    would be accepted), a peer kept after its connection dropped, no Origin check."""
+    WebSocket opened by a page of another origin is refused (403), and so is any request whose Host is not
+    this machine's loopback name (DNS rebinding: the page of another site resolved to 127.0.0.1). Mutants
+    caught: no size bound (the message would be accepted), a peer kept after its connection dropped, no Origin
+    check, no Host check."""
     async def run():
         session, server, runner = await _start(project, max_message=50_000)
         url = f"http://127.0.0.1:{server.port}/ws"
@@ -132,6 +137,14 @@ def test_oversized_message_and_foreign_origin(project):
                 with pytest.raises(aiohttp.WSServerHandshakeError) as e:
                     await s.ws_connect(url, headers={"Origin": "http://evil.example"})
                 assert e.value.status == 403
+                evil = f"evil.example:{server.port}"          # a site whose name was rebound to 127.0.0.1
+                async with s.get(url[:-3], headers={"Host": evil}) as r:
+                    assert r.status == 403
+                with pytest.raises(aiohttp.WSServerHandshakeError) as e:
+                    await s.ws_connect(url, headers={"Host": evil, "Origin": f"http://{evil}"})
+                assert e.value.status == 403
+                async with s.get(url[:-3], headers={"Host": f"localhost:{server.port}"}) as r:
+                    assert r.status == 200
                 async with s.ws_connect(url, headers={"Origin": f"http://127.0.0.1:{server.port}"}) as ok_ws:
                     await ok_ws.receive(10)
                     ws = await s.ws_connect(url)
@@ -155,11 +168,13 @@ def test_oversized_message_and_foreign_origin(project):
 def test_two_viewers_reconnect_and_recording(project, live_clip, tmp_path):
     """Camera A sends frames 0-14 (load at 420 mm) while a second page watches: both get every augmented frame
     (a 640x360 JPEG and its estimate, within 1 % of the span of the finer-mesh truth after the first frame). A closes; camera B
-    connects and sends frame 30 (load at 200 mm): its estimate is exactly what a fresh pipeline gives on that
-    frame (the filter and the pose tracker were reset, not carried over from A). The recording has one CSV
+    presses Start again (a new stream) and sends frame 35 with a capture time that is not a number: the reply is
+    valid JSON (time null) and its estimate is exactly what a fresh pipeline gives on that frame. A closes;
+    camera B connects and sends frame 30 (load at 200 mm): its estimate is again a fresh pipeline's (the
+    filter and the pose tracker were reset, not carried over). The recording has one CSV
     row and one video frame per processed frame, and appears only when the session stops. Mutants caught: a
     frame sent only to the camera page, the filter kept across cameras (the estimate would be pulled towards
-    420 mm), a recording written in place."""
+    420 mm), a reset only when the page changes, NaN written into the JSON, a recording written in place."""
     _, clip, frames = live_clip
     truth = read_columns(clip / "truth.csv")["s_true"]
     out_v, out_c = tmp_path / "live.mp4", tmp_path / "live.csv"
@@ -186,6 +201,15 @@ def test_two_viewers_reconnect_and_recording(project, live_clip, tmp_path):
                     assert cv2.imdecode(np.frombuffer(vj, np.uint8), cv2.IMREAD_COLOR).shape == (360, 640, 3)
                 assert viewer_got == list(range(1, 16))
                 assert not out_v.exists() and not out_c.exists()          # written at the end, atomically
+                await cam.send_str(json.dumps({"type": "camera"}))      # Stop, then Start again on this page
+                restart = HEADER.pack(float("nan"), 16, 0) + _jpeg(frames[35])   # (a page clock gone wrong)
+                await cam.send_bytes(restart)
+                m = await cam.receive(30)
+                while m.type != aiohttp.WSMsgType.BINARY:
+                    m = await cam.receive(30)
+                n = struct.unpack_from("<I", m.data)[0]
+                meta_a = json.loads(m.data[4:4 + n], parse_constant=lambda c: pytest.fail(f"{c} in JSON"))
+                await _frame_reply(viewer)
                 await cam.close()
                 cam_b = await s.ws_connect(url)
                 await cam_b.receive(10)
@@ -197,17 +221,21 @@ def test_two_viewers_reconnect_and_recording(project, live_clip, tmp_path):
                 await viewer.close()
         finally:
             summary = await _stop(session, runner)
-        return meta_b, data, summary
+        return meta_a, restart, meta_b, data, summary
 
-    meta_b, data, summary = asyncio.run(run())
+    meta_a, restart, meta_b, data, summary = asyncio.run(run())
+    assert meta_a["stamp"] is None and meta_a["seq"] == 16
+    img = cv2.imdecode(np.frombuffer(restart[HEADER.size:], np.uint8), cv2.IMREAD_COLOR)
+    _, fresh = ProjectPipeline(load_project(live_clip[0]), overlay=False).process(img, 0, draw=False)
+    assert meta_a["mu"][0] == pytest.approx(float(fresh.mu[0]), abs=1e-9)
     img = cv2.imdecode(np.frombuffer(data[HEADER.size:], np.uint8), cv2.IMREAD_COLOR)
     _, fresh = ProjectPipeline(load_project(live_clip[0]), overlay=False).process(img, 0, draw=False)
     assert abs(truth[30] - 0.2) < 1e-9
     assert meta_b["mu"][0] == pytest.approx(float(fresh.mu[0]), abs=1e-9)
     assert abs(meta_b["mu"][0] - 0.2) < 0.01          # one fresh solve, no filter history
-    assert summary["frames"] == 16
+    assert summary["frames"] == 17 and summary["resets"] == 2
     rows = read_columns(out_c)
-    assert len(rows["frame"]) == 16 and sum(1 for _ in VideoReader(out_v)) == 16
+    assert len(rows["frame"]) == 17 and sum(1 for _ in VideoReader(out_v)) == 17
 
 
 def test_frames_dropped_not_queued_and_bad_frames(project, live_clip):
@@ -256,7 +284,7 @@ def test_frames_dropped_not_queued_and_bad_frames(project, live_clip):
 
 def test_serve_cli_refusals(live_clip, tmp_path):
     """One line and exit 2 for: a wildcard bind without TLS, a missing certificate file, both --tls and
-    --self-signed, a JPEG quality of 0, a recording with the wrong suffix; nothing written."""
+    --self-signed, a JPEG quality of 0, a recording with the wrong suffix, a port in use; nothing written."""
     app = typer.Typer()
     ar_cli.register(app)
     proj = str(live_clip[0])
@@ -267,11 +295,18 @@ def test_serve_cli_refusals(live_clip, tmp_path):
              (["--tls", str(cert), str(cert), "--self-signed"], "not both"),
              (["--quality", "0"], "--quality must be within 1..100, got 0"),
              (["--out", str(tmp_path / "aug.avi")], "unknown augmented video suffix '.avi'")]
+    import socket
+
+    busy = socket.socket()
+    busy.bind(("127.0.0.1", 0))
+    busy.listen(1)
+    cases.append((["--port", str(busy.getsockname()[1])], f"cannot listen on 127.0.0.1:{busy.getsockname()[1]}"))
     for args, text in cases:
-        r = CliRunner().invoke(app, ["ar", "serve", proj, "--port", "0", *args])
+        r = CliRunner().invoke(app, ["ar", "serve", proj, *(["--port", "0"] if "--port" not in args else []), *args])
         assert r.exit_code == 2, (args, r.output)
         lines = [ln for ln in r.output.splitlines() if ln.strip()]
         assert len(lines) == 1 and text in lines[0], (args, r.output)
+    busy.close()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.pem"]
 
 
@@ -332,9 +367,9 @@ def test_page_overlay_geometry_matches_the_server_drawing(project, live_clip):
 def test_serve_cli_self_signed_token_qr_and_sigint(live_clip, tmp_path):
     """`physar ar serve --host 0.0.0.0 --self-signed --out --csv`: prints an https URL with a token, the
     certificate's fingerprint and a QR code; the page needs that token; a camera's frames are recorded; SIGINT
-    ends it with exit 0, the MP4 and the CSV complete (one row and one frame per processed frame) and nothing
+    while the camera is still sending ends it with exit 0, the MP4 and the CSV complete (one row and one frame per processed frame) and nothing
     else in the folder. Mutants caught: a wildcard bind served without the token, a recording lost or left
-    as a temporary on Ctrl-C."""
+    as a temporary on Ctrl-C (the event loop closed under a frame in progress)."""
     import os
     import re
     import signal
@@ -364,20 +399,39 @@ def test_serve_cli_self_signed_token_qr_and_sigint(live_clip, tmp_path):
         base = f"https://127.0.0.1:{port}/"
         token = url.split("?token=")[1]
 
-        async def client():
+        replies = []
+
+        async def client():       # streams until the server goes away: SIGINT comes with frames in flight
             async with aiohttp.ClientSession(connector=aiohttp.TCPConnector(ssl=False)) as s:
                 async with s.get(base) as r:
                     assert r.status == 403
                 async with s.ws_connect(f"{base}ws?token={token}") as cam:
                     await cam.receive(10)
                     await cam.send_str(json.dumps({"type": "camera"}))
-                    for k in range(6):
-                        await cam.send_bytes(_msg(frames[k], k + 1))
-                        await _frame_reply(cam)
+                    k = 0
+                    while True:
+                        try:
+                            await cam.send_bytes(_msg(frames[k % len(frames)], k + 1))
+                            m = await cam.receive(0.2)
+                        except (ConnectionError, RuntimeError):
+                            return
+                        except TimeoutError:
+                            m = None
+                        if m is not None and m.type == aiohttp.WSMsgType.BINARY:
+                            replies.append(k)
+                        elif m is not None and m.type != aiohttp.WSMsgType.TEXT:
+                            return
+                        k += 1
+                        await asyncio.sleep(0.02)
 
-        asyncio.run(client())
+        streamer = threading.Thread(target=lambda: asyncio.run(client()))
+        streamer.start()
+        t0 = time.time()
+        while len(replies) < 6 and time.time() - t0 < 60:
+            time.sleep(0.05)
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
+        streamer.join(30)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -385,6 +439,54 @@ def test_serve_cli_self_signed_token_qr_and_sigint(live_clip, tmp_path):
     assert proc.returncode == 0, text
     assert "SHA-256" in text, text
     assert _qr_in(text) == url, text        # the QR code printed is the URL with its token
-    assert "Traceback" not in text and "6 frames" in text, text
+    n = int(re.search(r"(\d+) frames at", text).group(1))
+    assert "Traceback" not in text and n >= 6, text
     assert sorted(p.name for p in out.iterdir()) == ["live.csv", "live.mp4"]
-    assert len(read_columns(out / "live.csv")["frame"]) == 6 and sum(1 for _ in VideoReader(out / "live.mp4")) == 6
+    assert len(read_columns(out / "live.csv")["frame"]) == n and sum(1 for _ in VideoReader(out / "live.mp4")) == n
+
+
+def test_a_failing_session_is_reported_not_hidden(project, live_clip, tmp_path, monkeypatch):
+    """A recording that cannot be opened stops serve() before it listens (one error naming the cause); a
+    session whose frame loop fails tells every page and ends serve() with the error in its summary instead of
+    serving a dead session. Mutants caught: the server listening with a dead session, the error swallowed."""
+    _, _, frames = live_clip
+    with pytest.raises(PhysarError, match="cannot start the session"):
+        serve(project, port=0, out_video="/proc/physar-cannot-write-here.mp4", ready=lambda u: pytest.fail(u))
+
+    calls = {"n": 0}
+    real = ProjectPipeline.process
+
+    def failing(self, frame, index, draw=True, gray=None):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise FloatingPointError("a bug in the frame loop")
+        return real(self, frame, index, draw, gray)
+
+    monkeypatch.setattr(ProjectPipeline, "process", failing)
+    urls, summary, got = [], {}, []
+    th = threading.Thread(target=lambda: summary.update(serve(project, port=0, ready=urls.append)))
+    th.start()
+    while not urls:
+        assert th.is_alive()
+        time.sleep(0.05)
+
+    async def client():
+        async with aiohttp.ClientSession() as s, s.ws_connect(urls[0] + "ws") as cam:
+            await cam.receive(10)
+            await cam.send_str(json.dumps({"type": "camera"}))
+            for k in range(3):
+                await cam.send_bytes(_msg(frames[k], k + 1))
+                while True:
+                    m = await cam.receive(30)
+                    if m.type == aiohttp.WSMsgType.TEXT:
+                        got.append(json.loads(m.data))
+                        return
+                    if m.type != aiohttp.WSMsgType.BINARY:
+                        return
+                    break
+
+    asyncio.run(client())
+    th.join(30)
+    assert not th.is_alive()
+    assert got and got[0]["type"] == "error" and "FloatingPointError: a bug in the frame loop" in got[0]["message"]
+    assert "a bug in the frame loop" in summary["error"]
