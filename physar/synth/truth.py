@@ -166,11 +166,17 @@ class FineTruth:
 
     def _linear(self, mu) -> np.ndarray:
         from physar.fem import LinearSolver
+        from physar.fem.solvers import available_memory, direct_memory_estimate
 
         pb = self.problem
         if self._solver is None or self._modulus:
-            self._solver = LinearSolver(pb.model_at(mu), pb.fixed)  # K factored once (per E value)
-            self._K = pb.model_at(mu).tangent_stiffness()
+            model = pb.model_at(mu)
+            self._K = model.tangent_stiffness()
+            # K factored once (per E value); CG with AMG instead when the factor would not fit in half the
+            # memory available (a fine [truth] refine of a large mesh: the factorisation would be killed)
+            free = self._K.shape[0] - len(np.unique(pb.fixed))
+            fits = direct_memory_estimate(free, self._K.nnz) <= 0.5 * available_memory()
+            self._solver = LinearSolver(model, pb.fixed, linear="direct" if fits else "amg")
         u_d = pb.prescribed(mu)
         f = pb.force(mu)
         if np.any(u_d):
