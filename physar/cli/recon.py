@@ -9,6 +9,7 @@ import typer
 
 from physar.cli._common import log, print_json, user_errors
 
+PREDICT_METHODS = ("physics", "lbs", "4dgs", "spflow")
 recon_app = typer.Typer(help="Physics-based dynamic Gaussians from a single video (PhysHO).", no_args_is_help=True)
 
 
@@ -115,6 +116,8 @@ def predict_cmd(
     from physar.recon.io import write_mp4
     from physar.recon.train import Reconstruction, _npz
 
+    if method not in PREDICT_METHODS:
+        raise ConfigError(f"--method {method!r} is unknown; use one of {', '.join(PREDICT_METHODS)}")
     model_file = run_dir / "model.npz" if run_dir.is_dir() else run_dir
     check_destination(out, inputs=[model_file, poses], suffixes=[".mp4"], kind="video")
     if frames_npz is not None:
@@ -125,10 +128,17 @@ def predict_cmd(
     p = _npz(poses)
     if "rotations" not in p:
         raise ConfigError(f"{poses}: missing array 'rotations' (F, B, 3, 3)")
+    for name in ("rotations", "root_translation"):
+        if name in p and np.asarray(p[name]).dtype.kind not in "fiu":
+            raise ConfigError(f"{poses}: array {name!r} holds {np.asarray(p[name]).dtype} values, not numbers")
     progress, bars = _bars(None)
     rot = p["rotations"]
     try:
         rgb, alpha = rec.predict(rot, p.get("root_translation", np.zeros((len(rot), 3))), method, progress)
+    except PhysarError as e:  # the library names the poses "poses": name the file
+        if str(e).startswith("poses: "):
+            raise type(e)(f"{poses}: {str(e)[len('poses: '):]}") from None
+        raise
     finally:
         _close(bars)
     if not write_mp4(out, (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), rec.rig.meta["fps"]):

@@ -14,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -363,3 +364,43 @@ def test_recon_synth_out_option(ws):
     assert_refused(invoke("recon", "synth"), "missing the output: physar recon synth --out DATA_DIR", before, ws)
     assert_refused(invoke("recon", "synth", ws / "a", "--out", ws / "b"), "two outputs given", before, ws)
     assert_refused(invoke("recon", "synth", "--out", ws / "user"), "notes.txt", before, ws)
+
+
+# ------------------------------------------------------------------------------------------------ recon predict
+@pytest.fixture(scope="module")
+def recon_run(tmp_path_factory):
+    """A tiny recon scene and a model fitted on it (examples/recon_tiny.toml, a few seconds)."""
+    d = tmp_path_factory.mktemp("recon")
+    cfg = EXAMPLES / "recon_tiny.toml"
+    r = invoke("recon", "synth", "-o", d / "scene", "-c", cfg)
+    assert r.exit_code == 0, r.output
+    r = invoke("recon", "fit", d / "scene", "-o", d / "run", "-c", cfg)
+    assert r.exit_code == 0, r.output
+    return d / "run"
+
+
+def _poses(ws, name, **arrays):
+    np.savez(ws / name, **arrays)
+    return ws / name
+
+
+PREDICT_CASES = {
+    # mutant: a non-numeric rotations array handed to the renderer (numpy UFuncTypeError traceback)
+    "words": (lambda w: ["-p", _poses(w, "p.npz", rotations=np.array(["a", "b"]))],
+              "p.npz: array 'rotations' holds <U1 values, not numbers"),
+    # mutant: the library's shape error printed with its label "poses" instead of the file's name
+    "shape": (lambda w: ["-p", _poses(w, "p.npz", rotations=np.zeros((3, 2, 3, 3)))],
+              "p.npz: 'rotations' must have shape (F >= 2, 12, 3, 3), got (3, 2, 3, 3)"),
+    # mutant: --method left to the library (its message names no option, after the model is loaded)
+    "method": (lambda w: ["-p", _poses(w, "p.npz", rotations=np.zeros((3, 12, 3, 3))),
+                          "--method", "bogus"], "--method 'bogus' is unknown"),
+}
+
+
+@pytest.mark.parametrize("case", list(PREDICT_CASES))
+def test_recon_predict_bad_poses_one_line(case, ws, recon_run):
+    """Each row of PREDICT_CASES names the wrong implementation it catches (its comment); nothing is written."""
+    args, needle = PREDICT_CASES[case]
+    argv = args(ws)
+    before = snapshot(ws)
+    assert_refused(invoke("recon", "predict", recon_run, *argv, "-o", ws / "v.mp4"), needle, before, ws)
