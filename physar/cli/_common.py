@@ -132,6 +132,20 @@ def warn_positional(positional: Path | None, out: Path | None, command: str) -> 
                    f"{positional}", err=True)
 
 
+def whole_folder(out, example: str = "a new folder") -> Path:
+    """The normalised absolute path of an output folder that is written whole (``physar.output.atomic_folder``:
+    a complete new folder takes its place). ``.`` or ``..`` (the current folder or one above it) is refused in
+    one ConfigError line before any work: replacing it would leave the shell in a deleted folder (and
+    ``atomic_folder`` cannot name a temporary after ``.``)."""
+    p = Path(os.path.abspath(out))
+    cwd = Path(os.path.abspath(os.getcwd()))
+    if p == cwd or p in cwd.parents:
+        where = "the current folder" if p == cwd else "a folder above the current one"
+        raise ConfigError(f"{out}: --out is {where}; it is replaced as a whole when the output is complete, so "
+                          f"give {example}")
+    return p
+
+
 @contextlib.contextmanager
 def created_parents(path, what: str = "output folder") -> Iterator[None]:
     """Create the missing parent folders of ``path`` (one ConfigError line when that fails); if the block

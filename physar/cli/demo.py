@@ -40,7 +40,7 @@ def demo(
     Every input is checked before the work starts; the outputs are written into a hidden folder beside --out
     that takes its place only when the demo is complete (Ctrl-C, SIGTERM or an error leave --out as it was:
     exit 130 on a signal)."""
-    from physar.cli._common import check_toml, created_parents
+    from physar.cli._common import check_toml, created_parents, whole_folder
     from physar.errors import ConfigError
     from physar.output import atomic_folder, check_folder
     from physar.synth.demo import SCENES
@@ -61,11 +61,12 @@ def demo(
     def own(name):
         return name in files
 
+    dest = whole_folder(out, "a new folder such as demo_out/")
     check_folder(out, own=own, inputs=[project, scenario], kind="demo output folder")
     if fem:
         from physar.fem.examples import run_cantilever_demo
 
-        with created_parents(out, "demo output folder"), atomic_folder(out, own=own) as tmp:
+        with created_parents(dest, "demo output folder"), atomic_folder(dest, own=own) as tmp:
             report = run_cantilever_demo(tmp)
         if json_out:
             print_json(report)
@@ -87,7 +88,7 @@ def demo(
 
     path = project if project is not None else scene_project(scene)
     try:
-        with created_parents(out, "demo output folder"), atomic_folder(out, own=own) as tmp:
+        with created_parents(dest, "demo output folder"), atomic_folder(dest, own=own) as tmp:
             report = run_project_demo(path, tmp, scenario, quick=quick, progress=progress)
     except KeyboardInterrupt:
         for b in bars.values():

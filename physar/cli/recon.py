@@ -47,11 +47,12 @@ def synth(
 ) -> None:
     """Generate a synthetic scene (fine MPM ground truth, heterogeneous and anisotropic): the humanoid presses a
     pillow, squeezes a C-shaped pillow or lifts a bag (see examples/recon_pillow|cpillow|bag.toml)."""
-    from physar.cli._common import check_toml, output_path, warn_positional
+    from physar.cli._common import check_toml, output_path, warn_positional, whole_folder
     from physar.recon.synth import check_data_dir, generate, load_synth_config
 
     out = output_path(out_opt, out_arg, "physar recon synth --out DATA_DIR [-c CONFIG]")
     check_toml(config, "recon configuration")
+    whole_folder(out, "a new folder such as data/")
     check_data_dir(out, inputs=[config])
     cfg = load_synth_config(config)
     progress, bars = _bars(json_out or None)

@@ -57,7 +57,7 @@ def render(
     Every input is checked before the first frame; the clip is written into a hidden folder beside --out that
     takes its place only when complete (Ctrl-C or an error leave --out as it was; exit 130 on a signal)."""
     from physar.ar.project import load_project
-    from physar.cli._common import check_toml, created_parents
+    from physar.cli._common import check_toml, created_parents, whole_folder
     from physar.cli.ar import _bar as bar
     from physar.output import atomic_folder
     from physar.synth import Scenario, load_scenario, render_project
@@ -65,13 +65,14 @@ def render(
 
     check_toml(project, "project file")
     check_toml(scenario, "scenario file")
+    dest = whole_folder(out, "a new folder such as clip/")
     _check_clip_folder(out, [project, scenario])
     proj = load_project(project, progress=bar("model"))
     sc = load_scenario(scenario, proj) if scenario is not None else Scenario()
     res = resolve(sc, proj, quick=quick, source=str(scenario) if scenario is not None else
                   f"{project} (the default scenario)")
     try:
-        with created_parents(out), atomic_folder(out, own=_own) as tmp:
+        with created_parents(dest), atomic_folder(dest, own=_own) as tmp:
             info = _moved(render_project(proj, res, tmp, progress=bar("render"), quick=quick), tmp, out)
     except KeyboardInterrupt:
         log(f"interrupted: nothing written ({out} is as it was)")

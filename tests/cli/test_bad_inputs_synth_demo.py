@@ -404,3 +404,23 @@ def test_recon_predict_bad_poses_one_line(case, ws, recon_run):
     argv = args(ws)
     before = snapshot(ws)
     assert_refused(invoke("recon", "predict", recon_run, *argv, "-o", ws / "v.mp4"), needle, before, ws)
+
+
+# ------------------------------------------------------------------------------------------------ --out .
+WHOLE = {  # commands whose output folder is replaced as a whole when complete
+    "synth-render": lambda p: ["synth", "render", p],
+    "demo": lambda p: ["demo", "--scene", "cantilever"],
+    "recon-synth": lambda p: ["recon", "synth", "-c", EXAMPLES / "recon_tiny.toml"],
+}
+
+
+@pytest.mark.parametrize("out", [".", "..", "../sub"])
+@pytest.mark.parametrize("cmd", list(WHOLE))
+def test_output_folder_is_not_the_current_one(cmd, out, ws, project, monkeypatch):
+    """Mutant caught: ``--out .`` handed to physar.output.atomic_folder as given (its temporary is named
+    '..xxxx' inside the folder, which is then refused as a foreign file after all the work; or the current
+    folder is replaced, leaving the shell in a deleted folder)."""
+    (ws / "sub").mkdir()
+    monkeypatch.chdir(ws / "sub")
+    before = snapshot(ws)
+    assert_refused(invoke(*WHOLE[cmd](project), "--out", out), f"{out}: --out is ", before, ws)
