@@ -230,6 +230,9 @@ def atomic_folder(path, *, own: Callable[[str], bool] | None = None) -> Iterator
     interrupts included, the temporary folder is removed and ``path`` is left as it was.
     """
     path = Path(path)
+    if path.name in ("", ".", "..") or Path.cwd().resolve().is_relative_to(path.resolve()):
+        raise ConfigError(f"{path}: give a folder of its own for the output (it is replaced whole), not the "
+                          "current folder or one above it")
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
     os.chmod(tmp, 0o777 & ~_umask())

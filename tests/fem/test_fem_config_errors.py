@@ -45,3 +45,29 @@ def test_key_errors_name_the_key():
     assert _error({**BASE, "solver": {"stpes": 2}}) == ("beam.toml: unknown key 'stpes' in [solver] "
                                                         "(allowed: steps, tol, max_iter, linear)")
     assert _error({"mesh": BASE["mesh"]}) == "beam.toml: missing key 'material' in [top level]"
+
+
+def test_read_toml_folder_binary_and_unreadable(tmp_path):
+    """Every TOML a file points to (a project's [model] config, a scenario...) is read by read_toml: a folder,
+    a binary file or an unreadable file is one ConfigError line naming it, not a traceback (issue 21).
+    Mutant caught: read_text without the checks (IsADirectoryError / UnicodeDecodeError escape)."""
+    import os
+
+    from physar.errors import ConfigError
+    from physar.fem.config import read_toml
+
+    d = tmp_path / "rom.toml"
+    d.mkdir()
+    b = tmp_path / "bin.toml"
+    b.write_bytes(b"\x89PNG\r\n\x1a\n\x00\xff\xfe")
+    u = tmp_path / "locked.toml"
+    u.write_text("a = 1\n")
+    os.chmod(u, 0)
+    cases = [(d, "is a folder"), (b, "not a TOML file (byte")]
+    if os.geteuid() != 0:      # root reads anything
+        cases.append((u, "cannot read"))
+    for path, text in cases:
+        with pytest.raises(ConfigError) as e:
+            read_toml(path)
+        msg = str(e.value)
+        assert str(path) in msg and text in msg and "\n" not in msg
