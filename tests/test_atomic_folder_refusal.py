@@ -16,9 +16,8 @@ def test_atomic_folder_refuses_the_working_folder_and_above(tmp_path, monkeypatc
     monkeypatch.chdir(work)
     path = {"SUB/..": "sub/..", "ABOVE": str(tmp_path)}.get(target, target)
     before = sorted(p.name for p in tmp_path.rglob("*"))
-    with pytest.raises(ConfigError, match="not the current folder or one above it"):
-        with atomic_folder(path):
-            pytest.fail("no folder to fill must be given")
+    with pytest.raises(ConfigError, match="not the current folder or one above it"), atomic_folder(path):
+        pytest.fail("no folder to fill must be given")
     assert sorted(p.name for p in tmp_path.rglob("*")) == before
 
 
