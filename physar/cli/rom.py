@@ -263,8 +263,15 @@ def assimilate_cmd(
     observations: Path = typer.Argument(..., help="CSV with header x,y,z,ux,uy,uz (m)"),  # noqa: B008 - typer idiom
     mu0: list[str] = typer.Option([], "--mu0", help="start NAME=VALUE (default: centre of the ranges)"),  # noqa: B008 - typer idiom
     alpha: float = typer.Option(0.0, "--alpha", help="Tikhonov weight towards --mu0 (>= 0)"),
-    restart: float = typer.Option(0.05, "--restart-residual",
-                                  help="multi-start when ||r||/||u_obs|| stays above this"),
+    noise: float | None = typer.Option(None, "--noise", help="std of the observation noise [m] if known "
+                                                            "(default: estimated from the residual)"),
+    false_alarm: float = typer.Option(1e-3, "--false-alarm", help="false-alarm rate of the test that decides "
+                                                                  "a multi-start (0: never)"),
+    model_error: float = typer.Option(0.01, "--model-error", help="relative error of the model on the "
+                                                                  "observations, added to the noise [-]"),
+    restart: float | None = typer.Option(None, "--restart-residual",
+                                         help="deprecated: multi-start when ||r||/||u_obs|| stays above this "
+                                              "(instead of the statistical test)"),
     json_out: bool = typer.Option(False, "--json", help="print results as JSON on stdout"),
 ) -> None:
     """Estimate the model parameters from observed displacements (Levenberg-Marquardt on the ROM)."""
@@ -274,6 +281,14 @@ def assimilate_cmd(
 
     if not (alpha >= 0 and np.isfinite(alpha)):
         raise PhysarError(f"--alpha must be a finite number >= 0, got {alpha}")
+    for flag, v in (("--noise", noise), ("--model-error", model_error), ("--restart-residual", restart)):
+        if v is not None and not (v >= 0 and np.isfinite(v)):
+            raise PhysarError(f"{flag} must be a finite number >= 0, got {v}")
+    if not 0 <= false_alarm < 1:
+        raise PhysarError(f"--false-alarm must be within [0, 1), got {false_alarm}")
+    if restart is not None:
+        log("warning: --restart-residual is deprecated: the multi-start is decided by a statistical test "
+             "(--false-alarm, --noise, --model-error)")
     rom = SeparatedModel.load(model_file)
     pts, disp = read_observations(observations)
     try:
@@ -282,11 +297,17 @@ def assimilate_cmd(
         raise type(exc)(f"{observations}: {exc}") from None
     rom.set_observation(matrix=C)
     start = _parse_params(rom, mu0, "--mu0", partial=True) if mu0 else None
-    res = assimilate(rom, disp.ravel(), mu0=start, alpha=alpha, restart_residual=restart)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)    # (said once above)
+        res = assimilate(rom, disp.ravel(), mu0=start, alpha=alpha, restart_residual=restart,
+                         false_alarm=false_alarm, noise=noise, model_error=model_error)
     out = {"params": dict(zip(rom.names, res.params.tolist())), "std": dict(zip(rom.names, res.std.tolist())),
            "residual": res.residual, "iterations": res.iterations, "time_us": res.time_us,
            "relative_residual": res.residual / max(float(np.linalg.norm(disp)), 1e-300),
-           "observations": len(pts), "units": dict(zip(rom.names, rom.units))}
+           "observations": len(pts), "units": dict(zip(rom.names, rom.units)),
+           "restarted": bool(res.restarted), "fit_ratio": float(res.fit_ratio) if np.isfinite(res.fit_ratio) else None}
     if json_out:
         print_json(out)
     else:

@@ -246,7 +246,12 @@ VALUE_CASES = {
     "assimilate-binary-csv": (lambda w, d: ["assimilate", d / "rom.npz", w / "bin.csv"], "not a text CSV"),
     # mutant: --restart-residual nan accepted (the comparison with nan is always False: no restart, silently)
     "assimilate-nan-restart": (lambda w, d: ["assimilate", d / "rom.npz", d / "obs.csv", "--restart-residual",
-                                             "nan"], "restart_residual"),
+                                             "nan"], "--restart-residual must be a finite number >= 0, got nan"),
+    # mutant: --noise nan or --false-alarm 1 accepted (no test / always restart, silently)
+    "assimilate-nan-noise": (lambda w, d: ["assimilate", d / "rom.npz", d / "obs.csv", "--noise", "nan"],
+                             "--noise must be a finite number >= 0, got nan"),
+    "assimilate-false-alarm-1": (lambda w, d: ["assimilate", d / "rom.npz", d / "obs.csv", "--false-alarm", "1"],
+                                 "--false-alarm must be within [0, 1), got 1.0"),
 }
 
 

@@ -104,7 +104,7 @@ def test_rom_assimilation(run_example):
     pts, disp = read_observations(out / "observations.csv")
     assert pts.shape == (90, 3)
     model.set_observation(matrix=observation_matrix(model.space(), pts))
-    est = assimilate(model, disp.ravel(), restart_residual=0.05)
+    est = assimilate(model, disp.ravel())
     assert abs(est.params[0] - results[-1]["s_true"]) < 0.01 * L
     png = mpimg.imread(out / "estimate_vs_truth.png")
     assert png.ndim == 3 and min(png.shape[:2]) > 300 and png.std() > 0.01
