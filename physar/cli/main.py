@@ -40,10 +40,32 @@ for _name in TOPICS:
 
 
 def main() -> None:  # console-script entry point
+    """Run the CLI. A usage error (a missing argument, an option value of the wrong type, an unknown option)
+    is one line naming the command, exit 2, like every other bad input."""
+    import sys
+
     from physar.output import sigterm_as_interrupt
 
+    try:
+        from typer._click import exceptions as cx   # (typer's own click; private, so optional)
+    except ImportError:  # pragma: no cover - another typer: its boxed usage messages
+        cx = None
     with sigterm_as_interrupt():  # SIGTERM unwinds like Ctrl-C: no temporary is left behind
-        app()
+        if cx is None:  # pragma: no cover
+            app()
+            return
+        try:
+            rv = app(standalone_mode=False, prog_name="physar")
+        except cx.NoArgsIsHelpError:      # a group without its command: the help was printed
+            sys.exit(2)
+        except cx.UsageError as e:
+            cmd = e.ctx.command_path if e.ctx is not None else "physar"
+            typer.echo(f"error: {cmd}: {e.format_message()} (see {cmd} --help)", err=True)
+            sys.exit(2)
+        except typer.Abort:
+            typer.echo("Aborted!", err=True)
+            sys.exit(1)
+    sys.exit(rv if isinstance(rv, int) else 0)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -383,17 +383,18 @@ def test_serve_cli_self_signed_token_qr_and_sigint(live_clip, tmp_path):
     physar = Path(sys.executable).with_name("physar")
     proc = subprocess.Popen([str(physar), "ar", "serve", str(live_clip[0]), "--host", "0.0.0.0", "--port", "0",
                              "--self-signed", "--out", str(out / "live.mp4"), "--csv", str(out / "live.csv")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    lines = []
+    reader = threading.Thread(target=lambda: lines.extend(iter(proc.stderr.readline, "")), daemon=True)
+    reader.start()        # (one reader of the pipe: readline's buffer and communicate() would split it)
     try:
-        lines, url = [], None
+        url = None
         t0 = time.time()
-        while url is None and time.time() - t0 < 120:
-            line = proc.stderr.readline()
-            assert line, "".join(lines)
-            lines.append(line)
-            m = re.search(r"serving .* on (https://\S+)", line)
+        while url is None and time.time() - t0 < 120 and (proc.poll() is None or reader.is_alive()):
+            m = re.search(r"serving .* on (https://\S+)", "".join(lines))
             url = m.group(1) if m else None
+            time.sleep(0.05)
         assert url and re.search(r"\?token=[\w-]{16,}$", url), lines
         port = int(re.search(r":(\d+)/", url).group(1))
         base = f"https://127.0.0.1:{port}/"
@@ -430,12 +431,13 @@ def test_serve_cli_self_signed_token_qr_and_sigint(live_clip, tmp_path):
         while len(replies) < 6 and time.time() - t0 < 60:
             time.sleep(0.05)
         proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
+        proc.wait(60)
+        reader.join(30)
         streamer.join(30)
     finally:
         if proc.poll() is None:
             proc.kill()
-    text = "".join(lines) + err
+    text = "".join(lines)
     assert proc.returncode == 0, text
     assert "SHA-256" in text, text
     assert _qr_in(text) == url, text        # the QR code printed is the URL with its token
