@@ -47,7 +47,7 @@ def main() -> None:  # console-script entry point
     from physar.output import sigterm_as_interrupt
 
     try:
-        from typer._click import exceptions as cx   # (typer's own click; private, so optional)
+        from typer._click import exceptions as cx  # (typer's own click; private, so optional)
     except ImportError:  # pragma: no cover - another typer: its boxed usage messages
         cx = None
     with sigterm_as_interrupt():  # SIGTERM unwinds like Ctrl-C: no temporary is left behind
