@@ -209,6 +209,16 @@ class RomSection(_Strict):
     check_points: int = Field(5, ge=0, description="random full solves for the error estimate (pgd)")
     check_tol: float | None = Field(None, gt=0, description="pgd: also stop once the relative error estimate at "
                                                              "the check points is <= check_tol [-]")
+    update: bool = Field(True, description="pgd: after each new mode re-solve the parameter functions of all "
+                                           "modes on the spatial modes found so far (the update step)")
+    residual_tol: float | None = Field(None, gt=0, description="pgd: also stop once the relative residual of the "
+                                                               "parametric problem, estimated on the grid as the "
+                                                               "relative L2 displacement error it causes, is <= "
+                                                               "residual_tol; default tol [-]")
+    group_parameters: bool = Field(False, description="pgd, a moving load with a load_offset: separate space from "
+                                                      "(s, t) taken together, u = sum F_i(x) A_i(s, t) with A_i on "
+                                                      "the grid (stored as its SVD terms; max_modes counts the "
+                                                      "F_i), instead of one function per parameter")
     max_points: int = Field(65, ge=3, le=MAX_POINTS, strict=True, description="non-intrusive: max samples per "
                                                                                 "parameter")
     workers: int | None = Field(None, ge=1, description="non-intrusive: Dask LocalCluster workers")
@@ -330,7 +340,8 @@ def _build_moving_load(cfg, problem, progress, source, workers, scheduler):
         rom, info = build_moving_load_pgd(model, fixed, pos.path, points=pos.points, load=pos.load,
                                           radius=pos.radius, max_modes=r.max_modes, tol=r.tol,
                                           n_check=r.check_points, check_tol=r.check_tol,
-                                          progress=progress, **extra)
+                                          update=r.update, residual_tol=r.residual_tol,
+                                          group_parameters=r.group_parameters, progress=progress, **extra)
     else:
         from physar.rom.pod import build_moving_load_pod
 
@@ -365,9 +376,14 @@ def _build_parametric(cfg, problem, progress, workers, scheduler):
     if r.method == "pgd":
         from physar.rom.elastic import build_parametric_pgd
 
+        if r.group_parameters:
+            raise ConfigError("[rom] group_parameters applies to a moving load with a load_offset alone (no "
+                              "other parameter kind, no [[load]], no [[fix]] value)")
+
         grids = [parameter_grid(p, problem, j) for j, p in enumerate(cfg.parameter)]
         rom, info = build_parametric_pgd(problem, grids, names, units, max_modes=r.max_modes, tol=r.tol,
-                                         n_check=r.check_points, check_tol=r.check_tol, progress=progress)
+                                         n_check=r.check_points, check_tol=r.check_tol, progress=progress,
+                                         update=r.update, residual_tol=r.residual_tol)
     else:
         from physar.rom.nonintrusive import nonintrusive_pgd
 

@@ -29,48 +29,59 @@ def load_path_matrix(space, path, points, load, radius):
 
 @blas_single_threaded
 def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radius=0.04,
-                          max_modes=20, tol=1e-4, svd_tol=1e-10, magnitude_range=None, n_check=0,
+                          max_modes=20, tol=1e-4, svd_tol=None, magnitude_range=None, n_check=0,
                           progress=None, seed=0, offset_range=None, offset_dir=None, offset_points=13,
-                          check_tol=None):
+                          check_tol=None, update=True, residual_tol=None, group_parameters=False):
     """PGD model u(x, s) of K u = f(x; s) with u = 0 on `fixed` (linear elastic `model`).
 
-    The load is written as a separated sum f(x; s) = sum_k f_k(x) g_k(s) by a truncated SVD
-    of the sampled load matrix (relative singular value tolerance `svd_tol`).
+    The load enters as its samples at the grid points (the sparse point loads; with ``svd_tol`` a float,
+    as a separated sum f(x; s) = sum_k f_k(x) g_k(s) by a truncated SVD of the sampled load matrix at that
+    relative singular value tolerance: the moving point load has full rank, so the SVD only costs time).
     With ``magnitude_range=(P_lo, P_hi)`` (N) a second parameter "P", the load magnitude, is added:
     u(x; s, P) = sum_i F_i(x) G_i(s) P / |load| (exact, linear elasticity).
     Stopping (seed §3): relative mode amplitude < `tol` (info["amplitudes"]); with ``n_check > 0`` an
     error estimate against full solves at `n_check` random positions s, computed after every mode
     (info["check_errors"]; info["check_error"] the final one: max over the check points of
     ||u_PGD - u_FE|| / max ||u_FE||, L2 over the dofs), and with ``check_tol`` the enrichment also stops
-    once that estimate is <= check_tol. ``progress(mode, max_modes)``.
+    once that estimate is <= check_tol. ``progress(mode, max_modes)``. ``update`` (default): the update
+    step of :func:`physar.rom.pgd.pgd_linear` after each mode (the parameter functions of all modes
+    re-solved on the current spatial modes); ``residual_tol`` (default ``tol``): stop once the relative
+    residual estimated on the grid is <= it (info["residuals"], one per mode; info["solves"]: solves with
+    K in the build, the ``n_check`` full solves included).
 
     With ``offset_range=(t_lo, t_hi)`` (m) and ``offset_dir`` d the load point is path(s) + t d (position on
     a surface patch, two parameters s and t; on a bent polyline d stays fixed, it does not turn with the path): the load is sampled on the (points x offset_points) tensor
     grid and the two-parameter PGD :func:`physar.rom.pgd.pgd_linear_tensor` is run (the check points
-    are then random (s, t)).
+    are then random (s, t)); ``group_parameters`` is its ``grouped`` (space separated from (s, t) together,
+    ``max_modes`` then counts spatial modes).
     """
     if offset_range is not None:
         return _build_patch_load_pgd(model, fixed, path, points, load, radius, max_modes, tol,
                                      magnitude_range, n_check, progress, seed, offset_range, offset_dir,
-                                     offset_points, check_tol)
+                                     offset_points, check_tol, update, residual_tol, group_parameters)
     if not model.linear:
         raise ConfigError("intrusive PGD needs a linear material; use method='pgd_nonintrusive'")
     space = model.space
     s, B = load_path_matrix(space, path, points, load, radius)
-    U, S, Vt = np.linalg.svd(B, full_matrices=False)
-    r = max(1, int(np.sum(S > svd_tol * S[0])))
     free = np.setdiff1d(np.arange(space.n_dofs), fixed)
+    if svd_tol is None:
+        f, g, r = B[free].T, None, None
+    else:
+        U, S, Vt = np.linalg.svd(B, full_matrices=False)
+        r = max(1, int(np.sum(S > svd_tol * S[0])))
+        f, g = (U[free, :r] * S[:r]).T, Vt[:r]
     K = model.tangent_stiffness()[free][:, free].tocsr()
     fac = factorize(K)
-    f = (U[free, :r] * S[:r]).T
     check = None
     if n_check:
         length = float(s[-1])
         checks = np.random.default_rng(seed).uniform(0, length, int(n_check))
         Fc = np.stack([point_load(space, x, load, radius)[free] for x in path_point(path, checks)], 1)
         check = _checker(fac.solve(Fc).reshape(len(free), -1), checks[:, None])
-    red, info = pgd_linear(K, f, Vt[:r], s, max_modes=max_modes, tol=tol, solve=fac.solve,
-                           name="s", unit="m", progress=progress, check=check, check_tol=check_tol)
+    red, info = pgd_linear(K, f, g, s, max_modes=max_modes, tol=tol, solve=fac.solve,
+                           name="s", unit="m", progress=progress, check=check, check_tol=check_tol,
+                           update=update, residual_tol=residual_tol)
+    info["solves"] += int(n_check)
     if n_check:
         info["check_error"] = info["check_errors"][-1]
         info["check_points"] = checks
@@ -90,8 +101,9 @@ def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radi
     out = SeparatedModel(F, grids, G, names, units,
                          {"kind": "load_position", "path": np.asarray(path, float).tolist(),
                           "load": list(map(float, load)), "radius": float(radius),
-                          "material": type(model.material).__name__, "svd_rank": r})
-    info["svd_rank"] = r
+                          "material": type(model.material).__name__})
+    if r is not None:
+        out.metadata["svd_rank"] = info["svd_rank"] = r
     return out, info
 
 
@@ -106,7 +118,8 @@ def _checker(Uc, mus):
 
 
 def _build_patch_load_pgd(model, fixed, path, points, load, radius, max_modes, tol, magnitude_range, n_check,
-                          progress, seed, offset_range, offset_dir, offset_points, check_tol=None):
+                          progress, seed, offset_range, offset_dir, offset_points, check_tol=None, update=True,
+                          residual_tol=None, group_parameters=False):
     import scipy.sparse as sp
 
     from physar.rom.pgd import pgd_linear_tensor
@@ -138,7 +151,9 @@ def _build_patch_load_pgd(model, fixed, path, points, load, radius, max_modes, t
         check = _checker(fac.solve(Fc).reshape(len(free), -1), checks)
     red, info = pgd_linear_tensor(K, B, [s, t], max_modes=max_modes, tol=tol, solve=fac.solve,
                                   names=["s", "t"], units=["m", "m"], progress=progress, check=check,
-                                  check_tol=check_tol)
+                                  check_tol=check_tol, residual_tol=residual_tol, grouped=group_parameters,
+                                  update=(True if group_parameters else None) if update else 0)
+    info["solves"] += int(n_check)
     if n_check:
         info["check_error"] = info["check_errors"][-1]
         info["check_points"] = checks
@@ -188,7 +203,7 @@ def _with_prescribed(problem, lifts, grids, red, names, units):
 
 @blas_single_threaded
 def build_parametric_pgd(problem, grids, names, units, max_modes=40, tol=1e-4, n_check=0, check_tol=None,
-                         progress=None, seed=0, update=2):
+                         progress=None, seed=0, update=True, residual_tol=None):
     """Intrusive PGD of a linear :class:`physar.rom.problem.ParametricProblem` (any of its parameter kinds).
 
     With u = u_D(mu) + u_0(mu), u_D the prescribed displacements (u_fix and each region's
@@ -200,7 +215,8 @@ def build_parametric_pgd(problem, grids, names, units, max_modes=40, tol=1e-4, n
     :func:`physar.rom.pgd.pgd_affine` on the tensor ``grids``. ``n_check`` random full solves
     (``problem(mu)``) give info["check_errors"] (max over the points of ||u_ROM - u_FE|| / max ||u_FE||,
     after each mode) and info["check_error"]; ``check_tol`` also stops the enrichment (as
-    :func:`build_moving_load_pgd`). Returns (SeparatedModel, info).
+    :func:`build_moving_load_pgd`); ``update`` (True: the default sweeps of pgd_affine, False: none, an
+    integer: that many) and ``residual_tol`` as there. Returns (SeparatedModel, info).
     """
     from physar.rom.pgd import SeparatedTerm, pgd_affine
 
@@ -232,8 +248,11 @@ def build_parametric_pgd(problem, grids, names, units, max_modes=40, tol=1e-4, n
     red = None
     if loads and len(free):
         Kf = [SeparatedTerm(K[free][:, free].tocsr(), (), alpha) for K, alpha in ops]
+        sweeps = None if update is True else int(update)
         red, pinfo = pgd_affine(Kf, loads, grids, max_modes=max_modes, tol=tol, names=names, units=units,
-                                progress=progress, check=check, check_tol=check_tol, update=update)
+                                progress=progress, check=check, check_tol=check_tol, update=sweeps,
+                                residual_tol=residual_tol)
+        pinfo["solves"] += int(n_check)
         info.update(pinfo)
     elif check is not None:
         info["check_errors"] = [check(None)]
