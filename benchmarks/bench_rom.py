@@ -5,8 +5,9 @@ Linear P2 cantilever 1 x 0.1 x 0.1 m (40x4x4 cells, 19,683 dofs, E = 1e7 Pa, nu 
 load of 1 N (radius 0.08 m) moving along the top centre line (seed 000 §5.1); 30 observed points on
 the side face y = 0, exact observations from full FE solves.
 
-Run: .venv/bin/python benchmarks/bench_rom.py [--sections online,full,restart,restart2,pod,patch,dask] [--cells 40,4,4]
-[--truth-cells 60,6,6]
+Run: .venv/bin/python benchmarks/bench_rom.py [--sections online,full,restart,restart2,pod,patch,dask,update,
+updatebuild] [--cells 40,4,4] [--truth-cells 60,6,6]  (update, updatebuild: PGD with/without the update step vs
+POD on the example files, issue 19; they need neither the online model nor --cells)
 """
 import argparse
 import datetime
@@ -256,13 +257,19 @@ def restart_rules(pts, rom, truth_cells=(60, 6, 6), levels=(0.0, 0.01, 0.03), wa
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--sections", default="online,full,restart,restart2,pod,patch,dask")
+    ap.add_argument("--sections", default="online,full,restart,restart2,pod,patch,dask,update,updatebuild")
     ap.add_argument("--cells", default="40,4,4", help="ROM/FOM mesh cells nx,ny,nz")
     ap.add_argument("--truth-cells", default="60,6,6", help="finer mesh of the restart section's observations")
     args = ap.parse_args()
     sections = args.sections.split(",")
     print(f"bench_rom.py {datetime.date.today()}, load average {os.getloadavg()[0]:.2f} "
           f"on {os.cpu_count()} CPUs\n")
+    if "update" in sections:
+        pgd_update()
+    if "updatebuild" in sections:
+        pgd_update_builds()
+    if not set(sections) & {"online", "full", "restart", "restart2", "pod", "patch", "dask"}:
+        return
     print("| quantity | value |\n|---|---|")
     space, model, fixed, pts = setup(tuple(int(c) for c in args.cells.split(",")))
     rom, _, C = online(space, model, fixed, pts)
@@ -301,7 +308,9 @@ def two_span_restart(pts):
 
 def pod_vs_pgd(space, model, fixed, rom):
     """Relative L2 error max_s ||u_rom(s) - u_FE(s)|| / max_s ||u_FE(s)|| at 50 random s, both ROMs
-    on the same 101-point grid of load positions; PGD truncated after n enrichments, POD with n modes."""
+    on the same 101-point grid of load positions; PGD truncated after n enrichments, POD with n modes.
+    (The final model truncated: with the update step, the default since issue 19, not the model a build
+    of n modes gives; the ``update`` section measures that.)"""
     from physar.rom.pod import build_moving_load_pod
 
     t0 = time.perf_counter()
@@ -327,7 +336,8 @@ def pod_vs_pgd(space, model, fixed, rom):
 def patch_pgd_vs_pod():
     """Two parameters: the load point on a 1 x 0.2 m patch of the top face (s along the beam, lateral
     offset t), plate 1 x 0.3 x 0.1 m, P2 16x5x2; intrusive PGD and POD on the same 41 x 11 grid, error
-    max over 30 random (s, t) of ||u_rom - u_FE|| / max ||u_FE||."""
+    max over 30 random (s, t) of ||u_rom - u_FE|| / max ||u_FE||. (PGD truncated as in :func:`pod_vs_pgd`;
+    see the ``update`` section for the n-term builds.)"""
     from physar.rom.pod import pod_from_snapshots
 
     Wp = 0.3
@@ -410,6 +420,242 @@ def dask_speedup():
     rom, info = build_moving_load_nonintrusive(model, fixed, PATH, load=(0, 0, -60.0), radius=0.1, tol=2e-3)
     row(f"non-intrusive PGD build, St.VK beam, serial ({info['n_solves']} solves, {rom.n_modes} modes)",
         f"{time.perf_counter() - t:.1f} s, error estimate {info['error_estimate']:.1e}")
+
+
+UPDATE_TARGETS = {"cantilever": (1e-3, 1e-4, 3e-5), "cantilever40": (1e-3, 1e-4, 3e-5), "patch": (3e-3, 1e-3, 5e-4)}
+
+
+def _update_case(name):
+    """Problem, common setup and off-grid reference of a case of :func:`pgd_update`."""
+    from physar.fem import factorize
+    from physar.fem.config import build_problem
+    from physar.geometry.path import path_length, path_point
+    from physar.rom.config import load_rom_config
+
+    root = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "examples")
+    cfg = load_rom_config(os.path.join(root, "rom_patch.toml" if name == "patch" else "rom_cantilever.toml"))
+    if name == "cantilever40":
+        cfg.mesh.cells = [40, 4, 4]
+    problem = build_problem(cfg)
+    space, model, fixed = problem.space, problem.model, problem.fixed
+    pos = cfg.parameter[0]
+    off = next((p for p in cfg.parameter if p.kind == "load_offset"), None)
+    path = np.asarray(pos.path, float)
+    free = np.setdiff1d(np.arange(space.n_dofs), fixed)
+    t = time.perf_counter()
+    K = model.tangent_stiffness()[free][:, free].tocsr()
+    fac = factorize(K)
+    grids = [np.linspace(0.0, path_length(path), pos.points)]
+    e = np.zeros(3)
+    if off is not None:
+        grids.append(np.linspace(*off.range, off.points))
+        e = np.asarray(off.direction, float) / np.linalg.norm(off.direction)
+
+    def load(mu):
+        x = path_point(path, mu[0]) + (mu[1] * e if len(mu) > 1 else 0.0)
+        return point_load(space, x, pos.load, pos.radius)[free]
+
+    mesh_grid = np.stack(np.meshgrid(*grids, indexing="ij"), -1).reshape(-1, len(grids))
+    B = np.stack([load(m) for m in mesh_grid], 1)
+    setup_s = time.perf_counter() - t
+    rng = np.random.default_rng(11)
+    mus = rng.uniform([g[0] for g in grids], [g[-1] for g in grids], (40, len(grids)))
+    Uc = fac.solve(np.stack([load(m) for m in mus], 1))
+    scale = np.linalg.norm(Uc, axis=0).max()
+
+    def err(rom):
+        return max(np.linalg.norm(rom.evaluate(m) - Uc[:, k]) for k, m in enumerate(mus)) / scale
+
+    return space, K, fac, grids, B, setup_s, err
+
+
+def _pgd_curve(K, fac, grids, B, err, max_modes, repeat=2, **options):
+    """Per spatial mode of a PGD build: (spatial modes, separated terms, time since the start, solves with K so
+    far, error); the time of the error evaluations excluded, the best of ``repeat`` builds (the shared
+    machine), the solves and errors of every build the same."""
+    from physar.rom.pgd import pgd_linear, pgd_linear_tensor
+
+    best = None
+    for _ in range(repeat):
+        count, rows, spent, t0 = [0], [], [0.0], [0.0]
+
+        def solve(b, count=count):
+            count[0] += 1 if np.ndim(b) == 1 else b.shape[1]
+            return fac.solve(b)
+
+        def check(rom, count=count, rows=rows, spent=spent, t0=t0):
+            t = time.perf_counter()
+            rows.append([len(rows) + 1, rom.n_modes, t - t0[0] - spent[0], count[0], err(rom)])
+            spent[0] += time.perf_counter() - t
+            return rows[-1][-1]
+
+        t0[0] = time.perf_counter()
+        if len(grids) == 1:
+            pgd_linear(K, B.T, None, grids[0], max_modes=max_modes, tol=0.0, residual_tol=0.0, solve=solve,
+                       check=check, **options)
+        else:
+            pgd_linear_tensor(K, B, grids, max_modes=max_modes, tol=0.0, residual_tol=0.0, solve=solve,
+                              check=check, **options)
+        if best is not None:
+            for r, q in zip(rows, best):
+                r[2] = min(r[2], q[2])
+        best = rows
+    return best
+
+
+def _pod_curve(fac, grids, B, err, modes, repeat=3):
+    """POD of the grid snapshots (one BLAS thread, as the PGD builds; best of ``repeat``): (time of the block
+    solve + SVDs at the largest mode count, solves, and per mode count (modes, separated terms, error))."""
+    from physar.rom._threads import single_blas_thread
+    from physar.rom.pod import pod_from_snapshots
+
+    shape = [g.size for g in grids]
+    names = ["s", "t"][:len(grids)]
+    cost = np.inf
+    with single_blas_thread():
+        for _ in range(repeat):
+            t = time.perf_counter()
+            U = fac.solve(B)
+            pod_from_snapshots(U.reshape(-1, *shape), grids, names, max_modes=max(modes), tol=0.0)
+            cost = min(cost, time.perf_counter() - t)
+        rows = []
+        for n in modes:
+            pod, _ = pod_from_snapshots(U.reshape(-1, *shape), grids, names, max_modes=n, tol=0.0)
+            rows.append((n, pod.n_modes, err(pod)))
+    return cost, B.shape[1], rows
+
+
+def pgd_update(cases=("cantilever", "cantilever40", "patch")):
+    """PGD with and without the update step vs POD (issue 19, item 3), on examples/rom_cantilever.toml (P2
+    30x3x3, 8,967 dofs, s on 101 points; ``cantilever40``: the same on the P2 40x4x4 mesh of the other
+    sections, 19,683 dofs) and examples/rom_patch.toml (P2 16x5x2, 5,445 dofs, (s, t) on 41 x 11).
+
+    Per mode: the n-mode model as the build has it after n modes (the update changes the parameter
+    functions of the earlier modes: the final model truncated to n modes is not it), the build time so far,
+    the solves with K so far (F-steps and the residual probes) and the error max_k ||u_rom(mu_k) -
+    u_FE(mu_k)|| / max_k ||u_FE(mu_k)|| at 40 random parameters off the grid (full FE solves, same mesh). The
+    time is the common setup (K, its factorisation, the load samples: in every column) plus the method's own
+    work, best of 2 builds; a ``check`` callback records the error, its time excluded. "Without update" is
+    the previous algorithm (fixed point from G = 1 / random G to 1e-6, no probes). "Grouped" (patch): space
+    separated from (s, t) together, ``pgd_linear_tensor(grouped=True)``; its modes are spatial modes, each
+    up to 11 separated terms (in brackets). POD: the grid snapshots in one block solve + the SVD (+ the SVD
+    of each coefficient table with two parameters, terms in brackets), best of 3: its cost does not depend
+    on the mode count. Then the first mode count that reaches each target error, and its cost."""
+    for name in cases:
+        space, K, fac, grids, B, setup_s, err = _update_case(name)
+        M = 40 if len(grids) > 1 else 20
+        load0 = os.getloadavg()[0]
+        runs = {"PGD without update": _pgd_curve(K, fac, grids, B, err, M, update=False, probes=0),
+                "PGD with update": _pgd_curve(K, fac, grids, B, err, M)}
+        if len(grids) > 1:
+            runs["PGD grouped (s, t), with update"] = _pgd_curve(K, fac, grids, B, err, 20, grouped=True)
+        modes = (1, 2, 4, 6, 8, 10, 12, 16, 20) if len(grids) == 1 else (2, 3, 4, 5, 6, 8, 10, 12, 15, 20)
+        pod_s, pod_solves, pod = _pod_curve(fac, grids, B, err, modes)
+        load1 = os.getloadavg()[0]
+        print(f"\n{name}: {space.n_dofs} dofs, grid {' x '.join(str(g.size) for g in grids)}, setup (K, factorisation, "
+              f"load samples) {setup_s:.2f} s in every time below; POD {pod_s + setup_s:.2f} s, {pod_solves} solves "
+              f"(load average {load0:.2f} -> {load1:.2f})\n")
+        print("| modes | " + " | ".join(f"{k}: time / solves / error" for k in runs) + " | POD error (terms) |\n|"
+              + "---|" * (len(runs) + 2))
+        show = sorted(set(modes) | ({30, 40} if len(grids) > 1 else set()))
+        for n in show:
+            cells = []
+            for rows in runs.values():
+                r = next((r for r in rows if r[0] == n), None)
+                terms = f" ({r[1]})" if r is not None and r[1] != r[0] else ""
+                cells.append("-" if r is None else f"{r[2] + setup_s:.2f} s / {r[3]} / {r[4]:.2e}{terms}")
+            p = next((r for r in pod if r[0] == n), None)
+            cells.append("-" if p is None else f"{p[2]:.2e} ({p[1]})")
+            print(f"| {n} | " + " | ".join(cells) + " |", flush=True)
+        print("\n| target error | " + " | ".join(f"{k}: modes (terms) / time / solves" for k in runs)
+              + " | POD: modes (terms) / time / solves |\n|" + "---|" * (len(runs) + 2))
+        for target in UPDATE_TARGETS[name]:
+            cells = []
+            for rows in runs.values():
+                r = next((r for r in rows if r[4] <= target), None)
+                cells.append("not reached" if r is None else f"{r[0]} ({r[1]}) / {r[2] + setup_s:.2f} s / {r[3]}")
+            p = next((r for r in pod if r[2] <= target), None)
+            cells.append("not reached" if p is None else f"{p[0]} ({p[1]}) / {pod_s + setup_s:.2f} s / {pod_solves}")
+            print(f"| {target:.0e} | " + " | ".join(cells) + " |", flush=True)
+
+
+def pgd_update_builds(refine=2, points=3):
+    """The user's build (``physar rom build`` of examples/rom_cantilever.toml and examples/rom_patch.toml with
+    their own [rom] settings: max_modes, tol, check_points) with the update step (the default), without it,
+    grouped (patch), with the [rom] defaults (tol 1e-4, max_modes 20), and POD, and each model against the full FE model on a mesh ``refine`` x finer at ``points`` parameter
+    points (:func:`physar.rom.quality.discretisation_error`, displacement, relative L2 over all dofs, max
+    over the points) and against full solves on the model's mesh at 40 random points off the grid (as in
+    :func:`pgd_update`). Times end to end (mesh, K, loads, factorisation, solves, check solves)."""
+    from physar.fem.config import build_problem
+    from physar.geometry.path import path_length, path_point
+    from physar.rom.config import build_rom, load_rom_config
+    from physar.rom.pod import pod_from_snapshots
+    from physar.rom.quality import check_points, discretisation_error
+    from physar.rom.separated import SeparatedModel
+
+    root = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "examples")
+    print("\n| example | method | build | modes (terms) | solves | check error (builder) | error, 40 off-grid "
+          "points | error vs P2 mesh x2 | residual estimate |\n|---|---|---|---|---|---|---|---|---|")
+    for fname in ("rom_cantilever.toml", "rom_patch.toml"):
+        cfg0 = load_rom_config(os.path.join(root, fname))
+        problem = build_problem(cfg0)
+        space, fixed = problem.space, problem.fixed
+        pos = cfg0.parameter[0]
+        path = np.asarray(pos.path, float)
+        off = next((p for p in cfg0.parameter if p.kind == "load_offset"), None)
+        e = np.zeros(3) if off is None else np.asarray(off.direction, float) / np.linalg.norm(off.direction)
+        P = np.linalg.norm(pos.load)
+
+        def load(mu, space=space, path=path, e=e, off=off, pos=pos):
+            return point_load(space, path_point(path, mu[0]) + (mu[-1] * e if off is not None else 0.0), pos.load,
+                              pos.radius)
+
+        solver = LinearSolver(problem.model, fixed)
+        ranges = [(0.0, path_length(path))] + ([tuple(off.range)] if off is not None else [])
+        mus = np.random.default_rng(12).uniform(*np.array(ranges).T, (40, len(ranges)))
+        Uc = solver.solve(np.stack([load(m) for m in mus], 1))
+        scale = np.linalg.norm(Uc, axis=0).max()
+
+        def full_mu(m, names, P=P):  # the model's parameter order: (s, P) or (s, t)
+            return [m[0], P] if names[-1] == "P" else list(m)
+
+        fine_mus = check_points(ranges, points)
+        fine_pts = np.array([full_mu(m, [p.name for p in cfg0.parameter]) for m in fine_mus])
+        variants = [("PGD with update", {"method": "pgd"}), ("PGD without update", {"method": "pgd", "update": False})]
+        if off is not None:
+            variants.append(("PGD grouped (s, t)", {"method": "pgd", "group_parameters": True}))
+        variants.append((f"PGD{' grouped' if off is not None else ''}, [rom] defaults tol 1e-4, max_modes 20",
+                         {"method": "pgd", "tol": 1e-4, "max_modes": 20, "group_parameters": off is not None}))
+        variants.append(("POD", {"method": "pod"}))
+        for label, upd in variants:
+            cfg = load_rom_config(os.path.join(root, fname))
+            cfg.rom = cfg.rom.model_copy(update=upd)
+            t = time.perf_counter()
+            if label == "POD" and off is not None:  # no POD for a load offset in `rom build`: the same steps here
+                pr = build_problem(cfg)
+                grid = [np.linspace(0.0, path_length(path), pos.points), np.linspace(*off.range, off.points)]
+                Bq = np.stack([point_load(pr.space, path_point(path, a) + b * e, pos.load, pos.radius)
+                               for a in grid[0] for b in grid[1]], 1)
+                U = LinearSolver(pr.model, pr.fixed).solve(Bq)
+                rom, _ = pod_from_snapshots(U.reshape(-1, *[g.size for g in grid]), grid, ["s", "t"], ["m", "m"],
+                                            max_modes=cfg.rom.max_modes, tol=cfg.rom.tol)
+                rom = SeparatedModel(rom.F, rom.grids, rom.G, ["s", "t"], ["m", "m"], rom.metadata,
+                                     kinds=["load_position", "load_offset"])
+                info = {"solves": Bq.shape[1]}
+            else:
+                rom, _, info = build_rom(cfg)
+                info.setdefault("solves", pos.points)
+            build_s = time.perf_counter() - t
+            off_grid = max(np.linalg.norm(rom.evaluate(full_mu(m, rom.names)) - Uc[:, k])
+                           for k, m in enumerate(mus)) / scale
+            fine = discretisation_error(cfg, rom, fine_pts, refine=refine)
+            terms = rom.n_modes
+            spatial = len(np.unique(rom.F.round(12), axis=0))
+            res = info.get("residuals")
+            print(f"| {fname} | {label} | {build_s:.2f} s | {spatial} ({terms}) | {info['solves']} | "
+                  f"{info.get('check_error', float('nan')):.2e} | {off_grid:.2e} | "
+                  f"{np.max(fine.displacement_l2):.2e} | {res[-1] if res else float('nan'):.1e} |", flush=True)
+    print(f"\n(load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs)")
 
 
 if __name__ == "__main__":
