@@ -204,8 +204,9 @@ class RomSection(_Strict):
     method: Literal["pgd", "pgd_nonintrusive", "pod"] | None = Field(
         None, description="default: pgd for a linear material, else pgd_nonintrusive")
     max_modes: int = Field(20, ge=1, description="most modes of the separated representation")
-    tol: float = Field(1e-4, gt=0, description="PGD: relative mode amplitude; POD: energy; "
-                                                "non-intrusive: relative error at new samples [-]")
+    tol: float = Field(1e-4, gt=0, description="PGD: relative L2 error on the grid (residual estimate) and "
+                                                "the last mode's relative change; POD: discarded energy (the "
+                                                "same measure); non-intrusive: relative error at new samples [-]")
     check_points: int = Field(5, ge=0, description="random full solves for the error estimate (pgd)")
     check_tol: float | None = Field(None, gt=0, description="pgd: also stop once the relative error estimate at "
                                                              "the check points is <= check_tol [-]")
