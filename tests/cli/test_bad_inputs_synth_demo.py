@@ -16,6 +16,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_bad_inputs import (  # (tests/cli is on sys.path: the same checks)
+    _stderr_lines,
+    assert_refused,
+    snapshot,
+)
 from typer.testing import CliRunner
 
 from physar.cli.main import app
@@ -26,35 +31,8 @@ runner = CliRunner()
 CLIP = ("video.mp4", "truth.csv", "camera.toml", "scenario.json")
 
 
-def snapshot(root: Path) -> dict:
-    """Every file and folder under root (hidden ones included) with its size, mtime and mode."""
-    out = {}
-    for dirpath, dirnames, filenames in os.walk(root):
-        for name in dirnames + filenames:
-            p = Path(dirpath) / name
-            st = p.lstat()
-            out[str(p.relative_to(root))] = (st.st_size if p.is_file() else 0, st.st_mtime_ns, st.st_mode)
-    return out
-
-
-def _stderr_lines(r) -> list[str]:
-    # progress bars are off without a terminal; the Warp CUDA notice is printed once per process by `import warp`
-    return [ln for ln in r.stderr.splitlines() if ln.strip() and not ln.startswith("Warp CUDA warning")]
-
-
 def invoke(*args):
     return runner.invoke(app, [str(a) for a in args])
-
-
-def assert_refused(r, needle: str, before: dict, root: Path):
-    """Exit 2, one ``error:`` line containing ``needle``, no traceback, ``root`` unchanged."""
-    lines = _stderr_lines(r)
-    assert r.exit_code == 2, (r.exit_code, r.output, r.exception)
-    assert r.exception is None or isinstance(r.exception, SystemExit), repr(r.exception)
-    assert "Traceback" not in r.output
-    assert len(lines) == 1 and lines[0].startswith("error: "), lines
-    assert needle in lines[0], (needle, lines[0])
-    assert snapshot(root) == before, "files created, changed or deleted"
 
 
 @pytest.fixture(scope="module")
