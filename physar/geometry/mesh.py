@@ -22,7 +22,7 @@ TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int6
 
 
 def tet_signed_volumes(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """Signed volume of each tetrahedron, det[x1-x0, x2-x0, x3-x0] / 6 (m^3)."""
+    r"""Signed volume of each tetrahedron, :math:`\det[x_1 - x_0, x_2 - x_0, x_3 - x_0] / 6` (m^3)."""
     x = points[cells[:, :4]]
     d = x[:, 1:4] - x[:, 0:1]
     return np.linalg.det(d) / 6.0
@@ -156,7 +156,8 @@ class TriMesh:
         return len(self.faces)
 
     def face_normals(self, normalize: bool = True) -> np.ndarray:
-        """Right-hand face normals (x1 - x0) x (x2 - x0); unit length if `normalize`, else 2 * area."""
+        r"""Right-hand face normals :math:`(x_1 - x_0) \times (x_2 - x_0)`; unit length if `normalize`, else
+        :math:`2\, \mathrm{area}`."""
         x = self.points[self.faces]
         n = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])
         if normalize:

@@ -217,11 +217,12 @@ def l_bracket_surface(length: float = 0.1, height: float = 0.1, depth: float = 0
 
 
 def tet_quality(mesh: TetMesh) -> dict[str, np.ndarray]:
-    """Per-element quality: ``min_dihedral`` (degrees) and ``radius_ratio`` = 3 r_in / R_circ.
+    r"""Per-element quality: ``min_dihedral`` (degrees) and ``radius_ratio`` =
+    :math:`3 r_\text{in} / R_\text{circ}`.
 
-    Dihedral angle at edge (i, j): pi minus the angle between the outward normals of the two faces that
-    share it. r_in = 3 V / (sum of face areas); R_circ from the circumcentre solve of the 3x3 system
-    2 (x_k - x_0) . c = |x_k|^2 - |x_0|^2.
+    Dihedral angle at edge :math:`(i, j)`: :math:`\pi` minus the angle between the outward normals of the two
+    faces that share it. :math:`r_\text{in} = 3 V / (\text{sum of face areas})`; :math:`R_\text{circ}` from
+    the circumcentre solve of the 3x3 system :math:`2 (x_k - x_0) \cdot c = |x_k|^2 - |x_0|^2`.
     """
     x = mesh.points[mesh.cells]  # (m, 4, 3)
     from physar.geometry.mesh import TET_FACES
