@@ -1,6 +1,7 @@
 """FEM layer: P1/P2 tetrahedra, hyperelastic materials, assembly, loads, static solvers.
 
-Everything is vectorised over elements (numpy); the dof of node a, component i is 3 a + i.
+Everything is vectorised over elements (numpy); the dof of node :math:`a`, component :math:`i` is
+:math:`3a + i`.
 """
 
 from physar.fem.assembly import CSRPattern, ElasticModel

@@ -102,7 +102,8 @@ class ElasticModel:
         return self.space.n_dofs
 
     def deformation_gradient(self, u: np.ndarray, sl: slice = slice(None)) -> np.ndarray:
-        """F = I + Σ_a u_a ⊗ dN_a/dX at each quadrature point: (m, q, 3, 3)."""
+        r""":math:`F = I + \sum_a u_a \otimes \partial N_a / \partial X` at each quadrature point:
+        (m, q, 3, 3)."""
         G, _ = self._quad
         ue = np.asarray(u).reshape(-1, 3)[self.space.cells[sl]]  # (m, nen, 3)
         return np.eye(3) + np.einsum("mai,mqaj->mqij", ue, G[sl], optimize=True)
@@ -120,7 +121,8 @@ class ElasticModel:
 
     # -- energy, force, tangent ---------------------------------------------------------------------
     def energy(self, u: np.ndarray) -> float:
-        """Stored energy Π_int(u) = Σ_q w det J W(F) [J]; +inf if an element is inverted (J <= 0)."""
+        r"""Stored energy :math:`\Pi_\text{int}(u) = \sum_q w \det J\, W(F)` [J]; +inf if an element is
+        inverted (:math:`J \le 0`)."""
         u = self._check_u(u)
         _, wdet = self._quad
         total = 0.0
@@ -156,7 +158,8 @@ class ElasticModel:
         return Ke.transpose(0, 1, 2, 4, 3).reshape(m, 3 * nen, 3 * nen)
 
     def tangent_stiffness(self, u: np.ndarray | None = None) -> sp.csr_matrix:
-        """K(u) = d f_int / du (CSR, n_dofs x n_dofs); cached for linear materials."""
+        r""":math:`K(u) = \mathrm{d} f_\text{int} / \mathrm{d} u` (CSR, n_dofs x n_dofs); cached for linear
+        materials."""
         if u is None:
             u = np.zeros(self.n_dofs)
         u = self._check_u(u)
@@ -175,7 +178,8 @@ class ElasticModel:
 
     # -- mass --------------------------------------------------------------------------------------
     def mass_matrix(self, lumped: bool = False) -> sp.csr_matrix:
-        """Consistent mass M_ab = ∫ rho N_a N_b dV (x I3), or its HRZ-lumped diagonal [kg]."""
+        r"""Consistent mass :math:`M_{ab} = \int \rho N_a N_b \,\mathrm{d}V` (:math:`\times I_3`), or its
+        HRZ-lumped diagonal [kg]."""
         if self.density <= 0:
             raise ConfigError("the model has no density; set density > 0 to build a mass matrix")
         L, w = tet_quadrature(MASS_DEGREE[self.space.element])
@@ -193,7 +197,7 @@ class ElasticModel:
         return assemble_coo(self.space.cell_dofs, Mfull, self.n_dofs)
 
     def volume_integrals(self) -> np.ndarray:
-        """∫ N_a dV per node (n_nodes,) [m^3]: consistent weights for body forces."""
+        r""":math:`\int N_a \,\mathrm{d}V` per node (n_nodes,) [m^3]: consistent weights for body forces."""
         L, w = tet_quadrature(MASS_DEGREE[self.space.element])
         N = shape_functions(self.space.element, L)
         _, detJ = self.space.jacobians

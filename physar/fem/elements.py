@@ -77,7 +77,8 @@ def p2_nodes(mesh: TetMesh) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True, eq=False)
 class FESpace:
-    """Vector-valued Lagrange space on a tet mesh; dof of node a, component i is 3 a + i.
+    """Vector-valued Lagrange space on a tet mesh; dof of node :math:`a`, component :math:`i` is
+    :math:`3a + i`.
 
     Attributes: `nodes` (n_nodes, 3) [m] (P2: mesh points first, then edge midpoints), `cells`
     (m, nen) node indices, `element` in {"P1", "P2"}.
@@ -123,7 +124,8 @@ class FESpace:
         return np.linalg.inv(J), np.linalg.det(J)
 
     def gradients(self, L: np.ndarray) -> np.ndarray:
-        """Physical shape-function gradients dN_a/dX_J at barycentric points L: (m, q, nen, 3)."""
+        r"""Physical shape-function gradients :math:`\partial N_a / \partial X_J` at barycentric points L:
+        (m, q, nen, 3)."""
         Jinv, _ = self.jacobians
         dref = shape_gradients_ref(self.element, L)  # (q, nen, 3)
         return np.einsum("qak,mkj->mqaj", dref, Jinv, optimize=True)

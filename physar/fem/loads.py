@@ -164,8 +164,8 @@ def select_faces(space: FESpace, box=None, region=None, points=None, plane=None,
 def traction_load(space: FESpace, box: Sequence[Sequence[float]] | None = None,
                   total: Sequence[float] | None = None, *, region=None, points=None, plane=None,
                   tol=None) -> np.ndarray:
-    """Uniform traction t = total / area on the boundary faces picked by :func:`select_faces` (e.g. whose
-    centroids lie in `box`)."""
+    r"""Uniform traction :math:`t = \mathtt{total} / \mathrm{area}` on the boundary faces picked by
+    :func:`select_faces` (e.g. whose centroids lie in `box`)."""
     if total is None:
         raise ConfigError("traction load needs total = [Fx, Fy, Fz]")
     surf = _surface(space)
@@ -183,7 +183,8 @@ def traction_load(space: FESpace, box: Sequence[Sequence[float]] | None = None,
 
 
 def bump(d: np.ndarray, radius: float) -> np.ndarray:
-    """Smooth compact kernel (1 - (d/r)^2)^2 for d < r, else 0 (C1 in d; regularised Dirac)."""
+    r"""Smooth compact kernel :math:`(1 - (d/r)^2)^2` for :math:`d < r`, else 0 (:math:`C^1` in :math:`d`;
+    regularised Dirac)."""
     s = np.clip(1.0 - (d / radius) ** 2, 0.0, None)
     return s * s
 
@@ -191,9 +192,10 @@ def bump(d: np.ndarray, radius: float) -> np.ndarray:
 def point_load(
     space: FESpace, point: Sequence[float], total: Sequence[float], radius: float, degree: int = 6
 ) -> np.ndarray:
-    """A force `total` [N] spread over the boundary within `radius` [m] of `point` (regularised Dirac).
+    r"""A force `total` [N] spread over the boundary within `radius` [m] of `point` (regularised Dirac).
 
-    The traction is t(x) = total * k(|x - p|) / ∫_Γ k dA with the bump kernel k of :func:`bump`, so the
+    The traction is :math:`t(x) = \mathtt{total}\, k(\lvert x - p \rvert) / \int_\Gamma k \,\mathrm{d}A`
+    with the bump kernel :math:`k` of :func:`bump`, so the
     nodal forces sum exactly to `total` and vary smoothly as the point moves (seed 000 §5.1).
     """
     if not (radius > 0 and np.isfinite(radius)):
@@ -219,7 +221,8 @@ def point_load(
 
 
 def gravity_load(space: FESpace, density: float, g: Sequence[float]) -> np.ndarray:
-    """Body force rho g [N/m^3] integrated consistently: f_a = ∫ rho g N_a dV."""
+    r"""Body force :math:`\rho g` [N/m^3] integrated consistently:
+    :math:`f_a = \int \rho g N_a \,\mathrm{d}V`."""
     from physar.fem.assembly import ElasticModel  # local: avoids a cycle at import time
     from physar.fem.materials import LinearElastic
 

@@ -21,7 +21,7 @@ _DIL_DJK = np.einsum("il,jk->ijkl", I3, I3)
 
 
 def lame(E: float, nu: float) -> tuple[float, float]:
-    """Lamé constants (lambda, mu) [Pa] from Young's modulus E [Pa] and Poisson ratio nu."""
+    r"""Lamé constants :math:`(\lambda, \mu)` [Pa] from Young's modulus E [Pa] and Poisson ratio nu."""
     if not (np.isfinite(E) and E > 0):
         raise ConfigError(f"Young's modulus E must be positive, got {E}")
     if not (-1.0 < nu < 0.5):
@@ -228,9 +228,11 @@ class NeoHookeanIncompressible(Material):
 
 
 def polar(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Polar decomposition F = R S with R a proper rotation (det R = +1), vectorised via SVD.
+    r"""Polar decomposition :math:`F = R S` with :math:`R` a proper rotation (:math:`\det R = +1`),
+    vectorised via SVD.
 
-    For det F < 0 the sign of the smallest singular value is flipped so that R stays a rotation.
+    For :math:`\det F < 0` the sign of the smallest singular value is flipped so that :math:`R` stays a
+    rotation.
     """
     U, s, Vt = np.linalg.svd(F)
     d = np.sign(np.linalg.det(U @ Vt))
@@ -325,9 +327,10 @@ MATERIALS = {
 
 
 def make_material(name: str, **params) -> Material:
-    """Material by name: linear | stvk | neohookean | neohookean_incompressible | corotated.
+    r"""Material by name: linear | stvk | neohookean | neohookean_incompressible | corotated.
 
-    `neohookean_incompressible` takes C1 and kappa, or E and nu (C1 = mu/2, kappa = bulk modulus).
+    `neohookean_incompressible` takes C1 and kappa, or E and nu (:math:`C_1 = \mu/2`, :math:`\kappa` = bulk
+    modulus).
     """
     if name not in MATERIALS:
         raise ConfigError(f"unknown material {name!r}; choose one of {', '.join(MATERIALS)}")

@@ -48,7 +48,8 @@ def probe(space: FESpace, u: np.ndarray, point: Sequence[float] | np.ndarray) ->
 
 
 def cauchy_stress(model, u: np.ndarray) -> np.ndarray:
-    """Cauchy stress sigma = P Fᵀ / J (small-strain sigma for the linear material) averaged over each element's quadrature points: (m, 3, 3) [Pa]."""
+    r"""Cauchy stress :math:`\sigma = P F^\top / J` (small-strain :math:`\sigma` for the linear material)
+    averaged over each element's quadrature points: (m, 3, 3) [Pa]."""
     sig = _cauchy(model.material, model.deformation_gradient(u))
     _, wdet = model._quad
     return np.einsum("mq,mqij->mij", wdet, sig) / wdet.sum(axis=1)[:, None, None]
@@ -109,7 +110,8 @@ def nodal_stress(model, u: np.ndarray, vertices: np.ndarray | None = None,
 
 
 def von_mises(model, u: np.ndarray) -> np.ndarray:
-    """Per-element von Mises stress sqrt(3/2 s:s), s = deviatoric Cauchy stress [Pa]."""
+    r"""Per-element von Mises stress :math:`\sqrt{\tfrac32\, s : s}`, :math:`s` = deviatoric Cauchy stress
+    [Pa]."""
     sig = cauchy_stress(model, u)
     s = sig - np.trace(sig, axis1=1, axis2=2)[:, None, None] * np.eye(3) / 3
     return np.sqrt(1.5 * np.einsum("mij,mij->m", s, s))

@@ -4,10 +4,16 @@ from __future__ import annotations
 
 
 def timoshenko_cantilever_tip(P: float, L: float, b: float, h: float, E: float, nu: float) -> float:
-    """Tip deflection [m] of a cantilever of length L, width b, height h under an end shear load P [N].
+    r"""Tip deflection [m] of a cantilever of length L, width b, height h under an end shear load P [N].
 
-    Timoshenko beam: delta = P L^3 / (3 E I) + P L / (k G A), I = b h^3 / 12, A = b h,
-    G = E / (2 (1 + nu)), shear coefficient k = 10 (1 + nu) / (12 + 11 nu) (Cowper 1966, rectangle).
+    Timoshenko beam:
+
+    .. math::
+
+        \delta = \frac{P L^3}{3 E I} + \frac{P L}{k G A}, \quad I = \frac{b h^3}{12}, \quad A = b h, \quad
+        G = \frac{E}{2 (1 + \nu)},
+
+    shear coefficient :math:`k = 10 (1 + \nu) / (12 + 11 \nu)` (Cowper 1966, rectangle).
     """
     I = b * h**3 / 12.0
     A = b * h

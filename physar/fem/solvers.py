@@ -103,7 +103,8 @@ def factorize(A: sp.spmatrix, method: str = "auto") -> Factor:
 
 
 def rigid_body_modes(nodes: np.ndarray) -> np.ndarray:
-    """The six rigid-body modes (3 translations, 3 small rotations ω × (x - x̄)) as columns (n_dofs, 6)."""
+    r"""The six rigid-body modes (3 translations, 3 small rotations :math:`\omega \times (x - \bar x)`) as
+    columns (n_dofs, 6)."""
     x = nodes - nodes.mean(axis=0)
     n = len(nodes)
     R = np.zeros((n, 3, 6))
@@ -242,7 +243,8 @@ def _node_triples(free: np.ndarray) -> bool:
 
 
 class LinearSolver:
-    """K u = f with u = 0 on `fixed` for a linear model: set up once, re-solved for many loads.
+    """:math:`K u = f` with :math:`u = 0` on `fixed` for a linear model: set up once, re-solved for many
+    loads.
 
     `linear`: 'direct' (default: one factorisation, each further load one back-substitution), 'amg' (CG
     with AMG to relative residual `rtol` per load) or 'auto' (see :func:`choose_linear`). `method` is the
@@ -281,11 +283,11 @@ def solve_linear(model, f_ext: np.ndarray, fixed: np.ndarray, linear: str = "dir
 
 @dataclass
 class StaticResult:
-    """Result of a static solve: displacement and Newton history per accepted load step.
+    r"""Result of a static solve: displacement and Newton history per accepted load step.
 
-    `load_factors`: λ at the end of each accepted step; `rejected_steps` / `rejected_iterations`: load steps
-    cut back by the step control and the Newton iterations they cost; `linear_solver`: 'direct' or 'amg';
-    `cg_iterations`: CG iterations of each AMG solve.
+    `load_factors`: :math:`\lambda` at the end of each accepted step; `rejected_steps` /
+    `rejected_iterations`: load steps cut back by the step control and the Newton iterations they cost;
+    `linear_solver`: 'direct' or 'amg'; `cg_iterations`: CG iterations of each AMG solve.
     """
 
     u: np.ndarray
@@ -491,15 +493,21 @@ def solve_static(
     prescribed: np.ndarray | None = None,
     linear: str = "auto",
 ) -> StaticResult:
-    """Static equilibrium f_int(u) = f_ext on the free dofs, u = u_D on `fixed` (Newton, line search,
-    automatic load steps; see the module docstring).
+    r"""Static equilibrium :math:`f_\text{int}(u) = f_\text{ext}` on the free dofs, :math:`u = u_D` on `fixed`
+    (Newton, line search, automatic load steps; see the module docstring).
 
-    `prescribed` (shape (n_dofs,), only its entries at `fixed` are used; default 0) gives u_D, the
-    Dirichlet values, e.g. a rigid rotation of a clamped lever. Load factor λ runs from 0 to 1 in
-    increments of at most 1/`steps` (cut back on failure, grown on easy steps); each step applies
-    λ f_ext and λ u_D. Convergence: |R_free| <= tol · max(λ |f_ext|, |f_int(u)|, tiny), or the round-off
-    floor once Newton stagnates. For a linear model one solve. `linear`: 'auto' | 'direct' | 'amg' (the
-    linear solver, see :func:`choose_linear`). `progress(step, steps)` is called as λ passes k / steps.
+    `prescribed` (shape (n_dofs,), only its entries at `fixed` are used; default 0) gives :math:`u_D`, the
+    Dirichlet values, e.g. a rigid rotation of a clamped lever. Load factor :math:`\lambda` runs from 0 to 1
+    in increments of at most 1/`steps` (cut back on failure, grown on easy steps); each step applies
+    :math:`\lambda f_\text{ext}` and :math:`\lambda u_D`. Convergence:
+
+    .. math::
+
+        |R_\text{free}| \le \mathtt{tol} \cdot \max(\lambda |f_\text{ext}|, |f_\text{int}(u)|, \mathtt{tiny}),
+
+    or the round-off floor once Newton stagnates. For a linear model one solve. `linear`: 'auto' | 'direct' |
+    'amg' (the linear solver, see :func:`choose_linear`). `progress(step, steps)` is called as :math:`\lambda`
+    passes k / steps.
     Raises SolverError naming the cause if even a small load increment does not converge.
     """
     f_ext = np.asarray(f_ext, dtype=float)
