@@ -1,4 +1,6 @@
-"""Time integrators for elastodynamics M q'' = f_els(q) + f_dmp(q, v) + f_ext (seed 001 §2).
+r"""Time integrators for elastodynamics (seed 001 §2).
+
+.. math:: M q'' = f_\text{els}(q) + f_\text{dmp}(q, v) + f_\text{ext}
 
 Models (:mod:`physar.integrators.model`), steppers sharing one Newton/sparse-solve machinery
 (:mod:`physar.integrators.steppers`), and the artificial-damping analysis

@@ -44,7 +44,8 @@ def spectral_radius(T: np.ndarray) -> float:
 
 
 def damping_curve(method: str, hw, r: float | None = None, theta: float | None = None) -> dict:
-    r"""{"hw", "rho", "d_over_omega"} for a method name (see make_integrator) at the given h·omega values.
+    r"""{"hw", "rho", "d_over_omega"} for a method name (see make_integrator) at the given :math:`h\omega`
+    values.
 
     .. math:: \frac{d}{\omega} = -\frac{2}{h\omega} \ln \rho
 

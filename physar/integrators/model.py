@@ -61,7 +61,7 @@ class DynamicsModel:
 
     # -- shared ---------------------------------------------------------------------------------
     def system_matrix(self, lin: Linearization, cm: float, cd: float, ck: float) -> sp.csr_matrix:
-        """cm M + cd D + ck K on the free dofs."""
+        r""":math:`\mathtt{cm}\, M + \mathtt{cd}\, D + \mathtt{ck}\, K` on the free dofs."""
         A = cm * self.mass_ff
         if lin.K is not None and ck != 0:
             A = A + ck * lin.K
@@ -102,7 +102,8 @@ def restrict(A: sp.spmatrix, free: np.ndarray) -> sp.csr_matrix:
 
 
 class LinearDynamics(DynamicsModel):
-    """M q'' + D q' + K q = f_ext with constant matrices (seed §2.1); all dofs free unless `fixed` given."""
+    r""":math:`M q'' + D q' + K q = f_\text{ext}` with constant matrices (seed §2.1); all dofs free unless
+    `fixed` given."""
 
     linear = True
 
@@ -144,7 +145,8 @@ class LinearDynamics(DynamicsModel):
 # elastic force kernels
 # ---------------------------------------------------------------------------------------------------
 class FemKernel:
-    """Any physar.fem ElasticModel: f_int, exact tangent K(u), energy (assembled by physar.fem)."""
+    r"""Any physar.fem ElasticModel: :math:`f_\text{int}`, exact tangent :math:`K(u)`, energy (assembled by
+    physar.fem)."""
 
     name = "fem"
 
@@ -226,11 +228,17 @@ def fast_polar(F: np.ndarray, tol: float = 1e-13, max_iter: int = 12) -> tuple[n
 
 
 class CorotatedP1Kernel:
-    """Co-rotated linear P1 tetrahedra, vectorised (one polar decomposition per element).
+    r"""Co-rotated linear P1 tetrahedra, vectorised (one polar decomposition per element).
 
-    F = I + Σ_a u_a ⊗ G_a = R S;  f_a = V P G_a with P = 2 mu (F - R) + lambda tr(S - I) R (this is
-    exactly physar.fem's Corotated stress on P1). Tangent: 'exact' (with the dR terms, quadratic Newton)
-    or 'warped' K_e = R K0_e Rᵀ (stiffness warping, dR dropped, always SPD), K0_e = V Bᵀ C B. Energy W = mu |S - I|² + lambda/2 tr(S - I)².
+    .. math::
+
+        F = I + \sum_a u_a \otimes G_a = R S; \qquad f_a = V P G_a \quad \text{with} \quad
+        P = 2 \mu (F - R) + \lambda \operatorname{tr}(S - I)\, R
+
+    (this is exactly physar.fem's Corotated stress on P1). Tangent: 'exact' (with the :math:`dR` terms,
+    quadratic Newton) or 'warped' :math:`K_e = R K^0_e R^\top` (stiffness warping, :math:`dR` dropped, always
+    SPD), :math:`K^0_e = V B^\top C B`. Energy
+    :math:`W = \mu \lvert S - I \rvert^2 + \frac{\lambda}{2} \operatorname{tr}(S - I)^2`.
 
     `backend` 'numpy' (vectorised numpy) or 'warp' (NVIDIA Warp CPU kernels for F, the polar
     decomposition, the forces, the warped element matrices summed straight into the CSR data, the
@@ -327,7 +335,8 @@ class CorotatedP1Kernel:
         return self._scatter(self._nodal(P))
 
     def rotations(self, u) -> np.ndarray:
-        """Element rotations R (m, 3, 3) of the polar decomposition F(u) = R S (cached for the last u)."""
+        """Element rotations :math:`R` (m, 3, 3) of the polar decomposition :math:`F(u) = R S` (cached for the
+        last u)."""
         last = self._last_R
         if last is not None and np.array_equal(last[0], u):
             return last[1]
@@ -440,7 +449,8 @@ class CorotatedP1Kernel:
         return self._scatter(fe), self._wk.warped_assemble(name).copy()
 
     def tangent_matvec(self, u, v):
-        """Warped tangent times v, matrix-free: Σ_e blockdiag(R) K0_e blockdiag(R)ᵀ v_e."""
+        r"""Warped tangent times :math:`v`, matrix-free:
+        :math:`\sum_e \operatorname{blockdiag}(R)\, K^0_e \operatorname{blockdiag}(R)^\top v_e`."""
         if self._wk is not None:
             self._sync_warp(u)
             return self._wk.warped_matvec(v)
@@ -482,7 +492,8 @@ def make_kernel(elastic: ElasticModel, kernel: str = "auto", tangent: str = "exa
 
 @dataclass(frozen=True)
 class Ground:
-    """Penalty ground plane z = z0 [m] with stiffness k [N/m per node]: f_z = k max(z0 - z, 0)."""
+    r"""Penalty ground plane :math:`z = z_0` [m] with stiffness :math:`k` [N/m per node]:
+    :math:`f_z = k \max(z_0 - z, 0)`."""
 
     z0: float = 0.0
     stiffness: float = 1e5
@@ -493,13 +504,18 @@ class Ground:
 
 
 class SolidModel(DynamicsModel):
-    """An elastic body (physar.fem) as a dynamics model (seed Eq. 2.1).
+    r"""An elastic body (physar.fem) as a dynamics model (seed Eq. 2.1).
 
-    f(q, v) = -f_int(q) - D(q) v + M g + f_ext + f_ground(q), D = alpha M + beta K_D(q), with K_D the
-    tangent K(q) (physar.fem kernel) or the warped stiffness R K0 Rᵀ (co-rotated P1 kernel, SPD); the
-    Newton matrix uses the stiffness tangent in place of K_D and neglects dK_D/dq v.
+    .. math::
+
+        f(q, v) = -f_\text{int}(q) - D(q)\, v + M g + f_\text{ext} + f_\text{ground}(q), \qquad
+        D = \alpha M + \beta K_D(q),
+
+    with :math:`K_D` the tangent :math:`K(q)` (physar.fem kernel) or the warped stiffness :math:`R K^0 R^\top`
+    (co-rotated P1 kernel, SPD); the Newton matrix uses the stiffness tangent in place of :math:`K_D` and
+    neglects :math:`(\mathrm{d}K_D / \mathrm{d}q)\, v`.
     Parameters: `fixed` pinned dofs held at `q_fixed` (default 0), `mass` 'lumped' | 'consistent',
-    `rayleigh` = (alpha [1/s], beta [s]), `gravity` (3,) [m/s²], `f_ext` (n,) [N] constant,
+    `rayleigh` = (:math:`\alpha` [1/s], :math:`\beta` [s]), `gravity` (3,) [m/s²], `f_ext` (n,) [N] constant,
     `ground` a :class:`Ground` or None, `kernel`, `tangent` and `backend` see :func:`make_kernel`.
     """
 
@@ -610,8 +626,9 @@ class SolidModel(DynamicsModel):
         return lin
 
     def system_matrix(self, lin, cm, cd, ck):
-        """cm M + cd (alpha M + beta K_el) + ck K on the free dofs, summed on the fixed pattern's data
-        (every call returns the same indptr/indices, so CHOLMOD's symbolic analysis is reused)."""
+        r""":math:`\mathtt{cm}\, M + \mathtt{cd}\, (\alpha M + \beta K_\text{el}) + \mathtt{ck}\, K` on the
+        free dofs, summed on the fixed pattern's data (every call returns the same indptr/indices, so
+        CHOLMOD's symbolic analysis is reused)."""
         fp, Kt, Kd = lin.data
         data = (cm + cd * self.alpha) * self._mass_data
         if ck:
@@ -628,7 +645,8 @@ class SolidModel(DynamicsModel):
         return BlockRotation(self.kernel.node_rotations(q), self.free, self.n_dofs)
 
     def energy(self, q, v):
-        """Kinetic ½vᵀMv, elastic W(q), potential -f_extᵀq (gravity, loads) + ½ k pen² (ground) [J]."""
+        r"""Kinetic :math:`\tfrac12 v^\top M v`, elastic :math:`W(q)`, potential :math:`-f_\text{ext}^\top q`
+        (gravity, loads) + :math:`\tfrac12 k\, \mathrm{pen}^2` (ground) [J]."""
         kin = self.kinetic(v)
         el = self.kernel.energy(q)
         pot = -float(self.f_ext @ q)

@@ -43,9 +43,10 @@ from physar.integrators.model import DynamicsModel
 
 @dataclass
 class State:
-    """Time t [s], displacement q [m], velocity v [m/s] and the method's memory.
+    r"""Time t [s], displacement q [m], velocity v [m/s] and the method's memory.
 
-    `a`: generalized-α's a_{n+α} [m/s²]; `q_prev`, `v_prev`: the θ method's previous step; `f`: the
+    `a`: generalized-α's :math:`a_{n+\alpha}` [m/s²]; `q_prev`, `v_prev`: the :math:`\theta` method's previous
+    step; `f`: the
     total force at (q, v) when known (a cache, never part of the method's state).
     """
 
@@ -67,16 +68,16 @@ class StepStats:
 
 
 class Integrator:
-    """Base class. `init(model, q0, v0)` -> State; `step(model, state, h)` -> new State.
+    r"""Base class. `init(model, q0, v0)` -> State; `step(model, state, h)` -> new State.
 
     Newton settings: `tol` (relative residual of (S), or relative Newton update of v), `max_iter`.
     Linear solves: `linear_solver` 'direct' (CHOLMOD, symbolic analysis reused) or 'pcg' (CG to relative
     residual `linear_rtol` with a reused Cholesky factor in the model's rotated frame, see
     :class:`physar.integrators.linalg.SparseSolver`; `warm_start`: CG of a stage's first Newton iteration
-    starts from that stage's previous update Δv (pays off in slow, quasi-static motion; on an oscillating
-    beam at hω ≈ 0.3 it saves < 0.1 CG iteration per step, hence off by default), `linear_threads`
-    BLAS/OpenMP threads during CG). `pack`/`unpack` map the method's state to a flat vector (used by the
-    amplification-matrix analysis).
+    starts from that stage's previous update :math:`\Delta v` (pays off in slow, quasi-static motion; on an
+    oscillating beam at :math:`h\omega \approx 0.3` it saves < 0.1 CG iteration per step, hence off by
+    default), `linear_threads` BLAS/OpenMP threads during CG). `pack`/`unpack` map the method's state to a
+    flat vector (used by the amplification-matrix analysis).
     """
 
     name = "integrator"
@@ -222,7 +223,8 @@ class BackwardEuler(Integrator):
 
 
 class SemiImplicit(BackwardEuler):
-    """Semi-implicit Euler: one Newton iteration of backward Euler from (q_{n-1}, v_{n-1}) (seed §2)."""
+    """Semi-implicit Euler: one Newton iteration of backward Euler from :math:`(q_{n-1}, v_{n-1})`
+    (seed §2)."""
 
     name = "si"
     newton_iters = 1
@@ -318,7 +320,8 @@ class GeneralizedAlpha(Integrator):
 
 
 class ThetaMethod(Integrator):
-    r"""Seed Eq. 2.15, trapezoid/BDF2 blend with :math:`\theta \in [0, 1]`, second order for every θ.
+    r"""Seed Eq. 2.15, trapezoid/BDF2 blend with :math:`\theta \in [0, 1]`, second order for every
+    :math:`\theta`.
 
     On :math:`u = (q, v)`, :math:`u' = b(u)`:
 
