@@ -32,28 +32,31 @@ def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radi
                           max_modes=20, tol=1e-4, svd_tol=None, magnitude_range=None, n_check=0,
                           progress=None, seed=0, offset_range=None, offset_dir=None, offset_points=13,
                           check_tol=None, update=True, residual_tol=None, group_parameters=False):
-    """PGD model u(x, s) of K u = f(x; s) with u = 0 on `fixed` (linear elastic `model`).
+    r"""PGD model :math:`u(x, s)` of :math:`K u = f(x; s)` with :math:`u = 0` on `fixed` (linear elastic
+    `model`).
 
     The load enters as its samples at the grid points (the sparse point loads; with ``svd_tol`` a float,
-    as a separated sum f(x; s) = sum_k f_k(x) g_k(s) by a truncated SVD of the sampled load matrix at that
-    relative singular value tolerance: the moving point load has full rank, so the SVD only costs time).
-    With ``magnitude_range=(P_lo, P_hi)`` (N) a second parameter "P", the load magnitude, is added:
-    u(x; s, P) = sum_i F_i(x) G_i(s) P / |load| (exact, linear elasticity).
-    Stopping (seed §3): relative mode amplitude < `tol` (info["amplitudes"]); with ``n_check > 0`` an
-    error estimate against full solves at `n_check` random positions s, computed after every mode
+    as a separated sum :math:`f(x; s) = \sum_k f_k(x)\, g_k(s)` by a truncated SVD of the sampled load matrix
+    at that relative singular value tolerance: the moving point load has full rank, so the SVD only costs
+    time). With ``magnitude_range=(P_lo, P_hi)`` (N) a second parameter "P", the load magnitude, is added:
+    :math:`u(x; s, P) = \sum_i F_i(x)\, G_i(s)\, P / \lvert \mathtt{load} \rvert` (exact, linear elasticity).
+    Stopping (seed §3): relative mode amplitude < `tol` (info["amplitudes"]); with ``n_check > 0`` an error
+    estimate against full solves at `n_check` random positions s, computed after every mode
     (info["check_errors"]; info["check_error"] the final one: max over the check points of
-    ||u_PGD - u_FE|| / max ||u_FE||, L2 over the dofs), and with ``check_tol`` the enrichment also stops
-    once that estimate is <= check_tol. ``progress(mode, max_modes)``. ``update`` (default): the update
-    step of :func:`physar.rom.pgd.pgd_linear` after each mode (the parameter functions of all modes
-    re-solved on the current spatial modes); ``residual_tol`` (default ``tol``): stop once the relative
-    residual estimated on the grid is <= it (info["residuals"], one per mode; info["solves"]: solves with
-    K in the build, the ``n_check`` full solves included).
+    :math:`\lVert u_\text{PGD} - u_\text{FE} \rVert / \max \lVert u_\text{FE} \rVert`, L2 over the dofs), and
+    with ``check_tol`` the enrichment also stops once that estimate is <= check_tol.
+    ``progress(mode, max_modes)``. ``update`` (default): the update step of :func:`physar.rom.pgd.pgd_linear`
+    after each mode (the parameter functions of all modes re-solved on the current spatial modes);
+    ``residual_tol`` (default ``tol``): stop once the relative residual estimated on the grid is <= it
+    (info["residuals"], one per mode; info["solves"]: solves with K in the build, the ``n_check`` full solves
+    included).
 
-    With ``offset_range=(t_lo, t_hi)`` (m) and ``offset_dir`` d the load point is path(s) + t d (position on
-    a surface patch, two parameters s and t; on a bent polyline d stays fixed, it does not turn with the path): the load is sampled on the (points x offset_points) tensor
-    grid and the two-parameter PGD :func:`physar.rom.pgd.pgd_linear_tensor` is run (the check points
-    are then random (s, t)); ``group_parameters`` is its ``grouped`` (space separated from (s, t) together,
-    ``max_modes`` then counts spatial modes).
+    With ``offset_range=(t_lo, t_hi)`` (m) and ``offset_dir`` :math:`d` the load point is
+    :math:`\mathrm{path}(s) + t\, d` (position on a surface patch, two parameters :math:`s` and :math:`t`; on
+    a bent polyline :math:`d` stays fixed, it does not turn with the path): the load is sampled on the (points
+    x offset_points) tensor grid and the two-parameter PGD :func:`physar.rom.pgd.pgd_linear_tensor` is run
+    (the check points are then random (s, t)); ``group_parameters`` is its ``grouped`` (space separated from
+    (s, t) together, ``max_modes`` then counts spatial modes).
     """
     if offset_range is not None:
         return _build_patch_load_pgd(model, fixed, path, points, load, radius, max_modes, tol,

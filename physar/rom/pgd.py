@@ -90,53 +90,63 @@ def _gram_solve(M, b):
 def pgd_linear(K, f, g, grid, max_modes=20, tol=1e-4, max_fp=50, fp_tol=None, solve=None,
                name="mu", unit="", progress=None, check=None, check_tol=None, update=True, residual_tol=None,
                probes=PROBES, seed=0, start=None):
-    """Build a SeparatedModel for K u = sum_k f[k] g[k](mu) (f: (r, n), g: (r, n_grid) on grid); with
-    ``g`` None, f (n_grid, n) is the load at each grid point (g = I: no separation of the load needed).
+    r"""Build a SeparatedModel for :math:`K u = \sum_k f_k\, g_k(\mu)` (f: (r, n), g: (r, n_grid) on grid);
+    with ``g`` None, f (n_grid, n) is the load at each grid point (:math:`g = I`: no separation of the load
+    needed).
 
     Greedy enrichment with the alternating fixed point of the module docstring (seed 000 §3). With
-    ``update`` (default), each new term is followed by the update step: the spatial modes F_1..F_n
-    fixed, the parameter functions of *all* terms are re-solved jointly, the Galerkin projection of the
-    parametric problem on span{F_i} at every grid point q,
+    ``update`` (default), each new term is followed by the update step: the spatial modes
+    :math:`F_1, \dots, F_n` fixed, the parameter functions of *all* terms are re-solved jointly, the Galerkin
+    projection of the parametric problem on :math:`\operatorname{span}\{F_i\}` at every grid point :math:`q`,
 
-      sum_k (F_i.K F_k) G_k(q) = F_i.f(mu_q),   i = 1..n   (one n x n system, every q at once),
+    .. math::
 
-    so the model is the best one in span{F_i} in the energy norm at each grid point, whatever the
-    directions F_i: the fixed point of a new term only has to find a good direction and stops at the loose
-    ``fp_tol`` = FP_TOL_UPDATE (1e-6 without the update, the old algorithm). Here K does not depend on
-    mu, and then the last G-step of the fixed point already is this projection (a new F solved from a
-    residual orthogonal to span{F_1..F_n-1} is K-orthogonal to it), so the update changes the model by
-    rounding only (tests/rom/test_pgd_update.py) and is kept as the guarantee; what makes the build
-    cheaper than before is the early stop it allows. Where K depends on mu (:func:`pgd_affine`) the update
-    changes the model (15 terms of the (s, E) cantilever: error 1.5e-3 with it, 1.4e-2 without).
+        \sum_k (F_i \cdot K F_k)\, G_k(q) = F_i \cdot f(\mu_q), \qquad i = 1, \dots, n
 
-    Each new term's fixed point starts from the previous term's G (scaled to max |G| = 1) plus
-    START_NOISE times standard normal noise (``start`` = "previous", the default with the update; "ones":
-    G = 1, the old start and the default without it; "random": standard normal): the next term is most
-    like the previous one, and the noise keeps every symmetry class in the start (from the previous G
-    alone the fixed point of a symmetric problem stays in that term's class and finds the dominant
-    direction late: on the 1-D Laplacian of tests/rom/test_pgd_generic.py the residual after 4 terms was
-    1.25e-1 instead of 2.4e-2). The fixed point then takes 2-3 iterations per term instead of ~28 on the
-    cantilever, for the same error per mode.
+    (one :math:`n \times n` system, every :math:`q` at once), so the model is the best one in
+    :math:`\operatorname{span}\{F_i\}` in the energy norm at each grid point, whatever the directions
+    :math:`F_i`: the fixed point of a new term only has to find a good direction and stops at the loose
+    ``fp_tol`` = FP_TOL_UPDATE (1e-6 without the update, the old algorithm). Here :math:`K` does not depend
+    on :math:`\mu`, and then the last G-step of the fixed point already is this projection (a new
+    :math:`F` solved from a residual orthogonal to :math:`\operatorname{span}\{F_1, \dots, F_{n-1}\}` is
+    :math:`K`-orthogonal to it), so the update changes the model by rounding only
+    (tests/rom/test_pgd_update.py) and is kept as the guarantee; what makes the build cheaper than before is
+    the early stop it allows. Where :math:`K` depends on :math:`\mu` (:func:`pgd_affine`) the update changes
+    the model (15 terms of the (s, E) cantilever: error 1.5e-3 with it, 1.4e-2 without).
 
-    Stopping: at ``max_modes``; when the relative residual of the parametric problem on the grid is
-    <= ``residual_tol`` (default: ``tol``); when the relative mode amplitude ||u_n - u_{n-1}|| / ||u_1||
-    (L2 over the grid: without the update ||F_n|| ||G_n||_w / (||F_1|| ||G_1||_w) as before, with it the
-    change the new term made to the whole model; the new term's own G before the update means little once
-    its fixed point is stopped early) is < ``tol``; with ``check``, when
-    check(model) <= ``check_tol``. The residual r(mu) = f(mu) - K u_n(mu) is measured by the
-    displacement error it causes, ||K^-1 r(mu)|| = ||u(mu) - u_n(mu)|| (the Euclidean norm of r itself
-    weighs the stiff, high-frequency part and overstates the error by orders of magnitude), relative to
-    ||K^-1 f(mu)|| = ||u(mu)||, over the grid with the trapezoidal weights w, and estimated with
-    ``probes`` fixed random combinations z_k = sqrt(w) xi_k (xi_k standard normal) of the grid points:
+    Each new term's fixed point starts from the previous term's :math:`G` (scaled to :math:`\max |G| = 1`)
+    plus START_NOISE times standard normal noise (``start`` = "previous", the default with the update; "ones":
+    :math:`G = 1`, the old start and the default without it; "random": standard normal): the next term is most
+    like the previous one, and the noise keeps every symmetry class in the start (from the previous :math:`G`
+    alone the fixed point of a symmetric problem stays in that term's class and finds the dominant direction
+    late: on the 1-D Laplacian of tests/rom/test_pgd_generic.py the residual after 4 terms was 1.25e-1 instead
+    of 2.4e-2). The fixed point then takes 2-3 iterations per term instead of ~28 on the cantilever, for the
+    same error per mode.
 
-      rho_n^2 = sum_k ||K^-1 R_n z_k||^2 / sum_k ||K^-1 F z_k||^2,   R_n z = F z - K U_n z,
+    Stopping: at ``max_modes``; when the relative residual of the parametric problem on the grid is <=
+    ``residual_tol`` (default: ``tol``); when the relative mode amplitude
+    :math:`\lVert u_n - u_{n-1} \rVert / \lVert u_1 \rVert` (L2 over the grid: without the update
+    :math:`\lVert F_n \rVert \lVert G_n \rVert_w / (\lVert F_1 \rVert \lVert G_1 \rVert_w)` as before, with it
+    the change the new term made to the whole model; the new term's own :math:`G` before the update means
+    little once its fixed point is stopped early) is < ``tol``; with ``check``, when check(model) <=
+    ``check_tol``. The residual :math:`r(\mu) = f(\mu) - K u_n(\mu)` is measured by the displacement error it
+    causes, :math:`\lVert K^{-1} r(\mu) \rVert = \lVert u(\mu) - u_n(\mu) \rVert` (the Euclidean norm of
+    :math:`r` itself weighs the stiff, high-frequency part and overstates the error by orders of magnitude),
+    relative to :math:`\lVert K^{-1} f(\mu) \rVert = \lVert u(\mu) \rVert`, over the grid with the trapezoidal
+    weights :math:`w`, and estimated with ``probes`` fixed random combinations :math:`z_k = \sqrt{w}\, \xi_k`
+    (:math:`\xi_k` standard normal) of the grid points:
 
-    (F, U_n, R_n: the load, the model and the residual as (n, n_grid) tables), whose expectation is
-    sum_q w_q ||u(mu_q) - u_n(mu_q)||^2 / sum_q w_q ||u(mu_q)||^2: the measure of POD's discarded energy,
-    so ``tol`` means the same for both. K^-1 F z_k are ``probes`` solves made once; each later estimate,
-    K^-1 R_n z_k = K^-1 F z_k - U_n z_k, costs no solve (info["residuals"], one per term). It is an
-    error on the grid: between grid points the cubic interpolation of G adds its own (off-grid check
-    points, ``check``, see both).
+    .. math::
+
+        \rho_n^2 = \frac{\sum_k \lVert K^{-1} R_n z_k \rVert^2}{\sum_k \lVert K^{-1} F z_k \rVert^2}, \qquad
+        R_n z = F z - K U_n z,
+
+    (:math:`F, U_n, R_n`: the load, the model and the residual as (n, n_grid) tables), whose expectation is
+    :math:`\sum_q w_q \lVert u(\mu_q) - u_n(\mu_q) \rVert^2 / \sum_q w_q \lVert u(\mu_q) \rVert^2`: the
+    measure of POD's discarded energy, so ``tol`` means the same for both. :math:`K^{-1} F z_k` are ``probes``
+    solves made once; each later estimate, :math:`K^{-1} R_n z_k = K^{-1} F z_k - U_n z_k`, costs no solve
+    (info["residuals"], one per term). It is an error on the grid: between grid points the cubic interpolation
+    of :math:`G` adds its own (off-grid check points, ``check``, see both).
 
     Returns (model, info) with info["amplitudes"], info["residuals"], info["fixed_point_iterations"],
     info["solves"] (solves with K: fixed point and probes). ``progress(n, max_modes)`` after each mode.
@@ -278,25 +288,27 @@ def _pgd_linear(K, f, g, grids, max_modes, tol, max_fp, fp_tol, solve, names, un
 
 def pgd_linear_tensor(K, B, grids, max_modes=40, tol=1e-4, max_fp=50, fp_tol=None, solve=None,
                       names=None, units=None, progress=None, check=None, check_tol=None, grouped=False, **options):
-    """Intrusive PGD for K u = f(x; mu_1, .., mu_p) with p >= 1 parameters on tensor grids (seed 000 §3).
+    r"""Intrusive PGD for :math:`K u = f(x; \mu_1, \dots, \mu_p)` with :math:`p \ge 1` parameters on tensor
+    grids (seed 000 §3).
 
     The load is given by its samples on the tensor grid: ``B`` (n, N) (dense or sparse), column q the
     load at grid node q (C order over ``grids``). ``solve(b)`` solves with K (default: a factorisation of
     K). Two forms of the separated representation:
 
-    * ``grouped`` False (default): u = sum_i F_i(x) prod_j G_i^j(mu_j), one function per parameter and
-      term (seed eq. 3): :func:`pgd_affine` with one operator term K and one load term B over every
-      parameter (see there for the fixed point and the update step). With p > 1 the greedy sum of rank-one
-      terms converges more slowly than the optimal (POD) basis, and the update step does not change that:
-      on the patch of benchmarks/bench_rom.py 40 terms reach 3-6e-4 where 10 POD modes reach 4e-4
+    * ``grouped`` False (default): :math:`u = \sum_i F_i(x) \prod_j G_i^j(\mu_j)`, one function per parameter
+      and term (seed eq. 3): :func:`pgd_affine` with one operator term :math:`K` and one load term :math:`B`
+      over every parameter (see there for the fixed point and the update step). With :math:`p > 1` the greedy
+      sum of rank-one terms converges more slowly than the optimal (POD) basis, and the update step does not
+      change that: on the patch of benchmarks/bench_rom.py 40 terms reach 3-6e-4 where 10 POD modes reach 4e-4
       (RESULTS.md "PGD with the update step").
-    * ``grouped`` True (p <= 2): space separated from the parameters taken together, u = sum_i F_i(x)
-      A_i(mu) with A_i on the tensor grid: :func:`pgd_linear` on the N grid points with the product of the
-      trapezoidal weights, its update step the Galerkin projection on span{F_i} at every grid point (one
-      n x n system for all), its residual estimate over the whole grid. The tables A_i are then written
-      as separated terms by their SVD, the smallest terms of all modes dropped while they add at most
-      SEPARATION_SHARE of the residual estimate (:func:`_grouped_model`; info["spatial_modes"] counts the
-      F_i, the model's n_modes the terms). On the patch: 10 spatial modes (26 terms) reach 4.7e-4, 10 POD
+    * ``grouped`` True (:math:`p \le 2`): space separated from the parameters taken together,
+      :math:`u = \sum_i F_i(x)\, A_i(\mu)` with :math:`A_i` on the tensor grid: :func:`pgd_linear` on the N
+      grid points with the product of the trapezoidal weights, its update step the Galerkin projection on
+      :math:`\operatorname{span}\{F_i\}` at every grid point (one :math:`n \times n` system for all), its
+      residual estimate over the whole grid. The tables :math:`A_i` are then written as separated terms by
+      their SVD, the smallest terms of all modes dropped while they add at most SEPARATION_SHARE of the
+      residual estimate (:func:`_grouped_model`; info["spatial_modes"] counts the :math:`F_i`, the model's
+      n_modes the terms). On the patch: 10 spatial modes (26 terms) reach 4.7e-4, 10 POD
       modes (110 terms) 4.1e-4, with 35 solves instead of the 451 snapshots.
 
     ``max_modes`` counts terms (spatial modes with ``grouped``). Returns (model, info) with

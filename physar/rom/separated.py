@@ -122,17 +122,17 @@ class SeparatedModel:
         return c, dc
 
     def evaluate(self, mu, observed=False):
-        """u(mu) on all DOFs (or the observed DOFs set by :meth:`set_observation`)."""
+        r""":math:`u(\mu)` on all DOFs (or the observed DOFs set by :meth:`set_observation`)."""
         c, _ = self.coefficients(mu)
         return c @ (self._F_obs() if observed else self.F)
 
     def sensitivities(self, mu, observed=False):
-        """du/dmu_j, shape (p, n_dof) (seed 000 §4)."""
+        r""":math:`\partial u / \partial \mu_j`, shape (p, n_dof) (seed 000 §4)."""
         _, dc = self.coefficients(mu)
         return dc @ (self._F_obs() if observed else self.F)
 
     def set_observation(self, dofs=None, matrix=None):
-        """Precompute C F^T for an observation operator: DOF indices or a (m, n_dof) matrix."""
+        r"""Precompute :math:`C F^\top` for an observation operator: DOF indices or a (m, n_dof) matrix."""
         if matrix is not None:
             self._obs = np.asarray((matrix @ self.F.T).T)
         else:
@@ -147,7 +147,8 @@ class SeparatedModel:
 
     @property
     def observation_qr(self):
-        """(Q^T, R) of the thin QR of the observed spatial modes (C F^T), set by set_observation."""
+        r""":math:`(Q^\top, R)` of the thin QR of the observed spatial modes (:math:`C F^\top`), set by
+        set_observation."""
         if self._obs_qr is None:
             raise PhysarError("no observation set: call set_observation() first")
         return self._obs_qr
@@ -166,7 +167,8 @@ class SeparatedModel:
                               self.metadata, self.kinds)
 
     def mode_amplitudes(self):
-        """||F_i|| prod_j ||G_i^j||_inf, the amplitude of each mode (decreasing for a good PGD)."""
+        r""":math:`\lVert F_i \rVert \prod_j \lVert G_i^j \rVert_\infty`, the amplitude of each mode
+        (decreasing for a good PGD)."""
         a = np.linalg.norm(self.F, axis=1)
         for g in self.G:
             a = a * np.abs(g).max(axis=1)
