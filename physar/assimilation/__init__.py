@@ -265,7 +265,7 @@ def _start(model, mu0, lo, hi) -> np.ndarray:
 def assimilate(model, observed, mu0=None, bounds=None, alpha=0.0, prior=None, max_iter=50,
                tol=1e-10, restart_residual=None, n_starts=7, *, false_alarm=1e-3, noise=None,
                model_error=0.01):
-    """Estimate the parameters from observed displacements (model.set_observation must match).
+    r"""Estimate the parameters from observed displacements (model.set_observation must match).
 
     ``mu0``: the start, all parameters (an array) or some of them (a mapping name -> value over
     ``model.names``; the others start at the centre of their range).
@@ -278,10 +278,10 @@ def assimilate(model, observed, mu0=None, bounds=None, alpha=0.0, prior=None, ma
     the test needs ``noise``). ``model_error``: relative error of the model on the observations, added
     to the noise (default 0.01). ``result.fit_ratio`` > 1 says the returned fit still fails the test.
 
-    ``restart_residual`` (deprecated): the previous rule, multi-start when ||r|| / ||u_obs|| stays above
-    it; it fired on about half the frames at 1 % noise (issue 19). When given it decides the restart
-    (with a DeprecationWarning) and ``fit_ratio`` is still reported.
-    ``alpha``, ``restart_residual``, ``noise`` and ``model_error`` must be finite and >= 0.
+    ``restart_residual`` (deprecated): the previous rule, multi-start when
+    :math:`\lVert r \rVert / \lVert u_\text{obs} \rVert` stays above it; it fired on about half the frames at
+    1 % noise (issue 19). When given it decides the restart (with a DeprecationWarning) and ``fit_ratio`` is
+    still reported. ``alpha``, ``restart_residual``, ``noise`` and ``model_error`` must be finite and >= 0.
     """
     t0 = time.perf_counter()
     y = np.asarray(observed, float).ravel()
@@ -404,7 +404,8 @@ class Assimilator:
 
 
 def observation_matrix(space, points):
-    """Sparse C (3 p, n_dofs) with C u = displacements interpolated at reference `points` (m), row 3k+i."""
+    """Sparse :math:`C` (3 p, n_dofs) with :math:`C u` = displacements interpolated at reference `points` (m),
+    row :math:`3k + i`."""
     import scipy.sparse as sp
 
     from physar.fem import locate, shape_functions
