@@ -58,14 +58,16 @@ class CharucoSpec:
                                       aruco_dictionary(self.dictionary))
 
     def image(self, px_per_square: int = 80) -> np.ndarray:
-        """The board as a grey image, pixel (i, j) covering board point ((j+.5)/s, (i+.5)/s) (s px per m)."""
+        """The board as a grey image, pixel (i, j) covering board point :math:`((j+.5)/s, (i+.5)/s)`
+        (:math:`s` px per m)."""
         w, h = self.squares_x * px_per_square, self.squares_y * px_per_square
         return self.board().generateImage((w, h), marginSize=0, borderBits=1)
 
 
 def render_plane(camera: Camera, pose: Pose, texture: np.ndarray, px_per_m: float,
                  background: float | tuple = 128, supersample: int = 1) -> np.ndarray:
-    """Image of a textured plane z = 0 (texture pixel (i, j) at plane point ((j+.5)/s, (i+.5)/s), s = px_per_m).
+    """Image of a textured plane :math:`z = 0` (texture pixel (i, j) at plane point
+    :math:`((j+.5)/s, (i+.5)/s)`, :math:`s` = px_per_m).
 
     Each image pixel is undistorted to a ray, intersected with the plane and looked up in the texture
     (bilinear), so lens distortion is rendered exactly. ``supersample`` > 1 renders that many times

@@ -29,7 +29,7 @@ def mat3(X: np.ndarray, M: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Pose:
-    """Rigid transform world -> camera: x_c = R x_w + t (R (3, 3) rotation, t (3,) in m)."""
+    """Rigid transform world -> camera: :math:`x_c = R x_w + t` (R (3, 3) rotation, t (3,) in m)."""
 
     R: np.ndarray
     t: np.ndarray
@@ -65,22 +65,25 @@ class Pose:
 
     @property
     def center(self) -> np.ndarray:
-        """Camera centre in world coordinates, c = -R^T t (m)."""
+        r"""Camera centre in world coordinates, :math:`c = -R^\top t` (m)."""
         return -self.R.T @ self.t
 
     def inverse(self) -> Pose:
         return Pose(self.R.T, -self.R.T @ self.t)
 
     def compose(self, other: Pose) -> Pose:
-        """self ∘ other: first `other`, then `self`."""
+        r""":math:`\mathrm{self} \circ \mathrm{other}`: first `other`, then `self`."""
         return Pose(self.R @ other.R, self.R @ other.t + self.t)
 
     def apply(self, X) -> np.ndarray:
         return mat3(np.asarray(X, float).reshape(-1, 3), self.R) + self.t
 
     def angle_to(self, other: Pose) -> float:
-        """Rotation angle of Q = R_self^T R_other in degrees: atan2(sin, cos) with sin = |vee(Q - Q^T)| / 2 and
-        cos = (tr Q - 1) / 2 (accurate near 0 and near 180 degrees, unlike acos of the trace alone)."""
+        r"""Rotation angle of :math:`Q = R_\text{self}^\top R_\text{other}` in degrees:
+        :math:`\operatorname{atan2}(\sin, \cos)` with
+        :math:`\sin = \lvert \operatorname{vee}(Q - Q^\top) \rvert / 2` and
+        :math:`\cos = (\operatorname{tr} Q - 1) / 2` (accurate near 0 and near 180 degrees, unlike acos of the
+        trace alone)."""
         Q = self.R.T @ other.R
         s = 0.5 * math.sqrt((Q[2, 1] - Q[1, 2]) ** 2 + (Q[0, 2] - Q[2, 0]) ** 2 + (Q[1, 0] - Q[0, 1]) ** 2)
         return math.degrees(math.atan2(s, (np.trace(Q) - 1.0) / 2.0))
@@ -156,7 +159,7 @@ class Camera:
 
     # --- geometry ---------------------------------------------------------------------------------
     def project(self, X, pose: Pose) -> np.ndarray:
-        """Pixels (n, 2) of world points X (n, 3): p = distort(K [R|t] X)."""
+        r"""Pixels (n, 2) of world points X (n, 3): :math:`p = \operatorname{distort}(K [R|t] X)`."""
         X = np.asarray(X, float).reshape(-1, 3)
         if not np.any(self.dist):
             Xc = mat3(X, pose.R) + pose.t
@@ -176,9 +179,12 @@ class Camera:
                                        (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-10)).reshape(-1, 2)
 
     def backproject_to_plane(self, pixels, pose: Pose, point, normal) -> np.ndarray:
-        """World points (n, 3) where the rays of `pixels` meet the plane n·(x - x0) = 0 (m).
+        r"""World points (n, 3) where the rays of `pixels` meet the plane :math:`n \cdot (x - x_0) = 0` (m).
 
-        x = c + λ d with c = -R^T t, d = R^T [x_n, y_n, 1], λ = n·(x0 - c) / n·d.
+        .. math::
+
+            x = c + \lambda d \quad \text{with} \quad c = -R^\top t, \quad d = R^\top [x_n, y_n, 1], \quad
+            \lambda = \frac{n \cdot (x_0 - c)}{n \cdot d}.
         """
         xn = self.normalized(pixels)
         d = mat3(np.column_stack([xn, np.ones(len(xn))]), pose.R.T)  # R^T d_c, row-wise

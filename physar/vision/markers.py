@@ -38,9 +38,10 @@ class MarkerBoard:
 
     @classmethod
     def on_plane(cls, ids, centres_uv, size, origin, axis_u, axis_v, dictionary="DICT_4X4_50"):
-        """Square markers of side `size` [m] centred at plane coordinates `centres_uv` (m, 2).
+        r"""Square markers of side `size` [m] centred at plane coordinates `centres_uv` (m, 2).
 
-        The plane is origin + a axis_u + b axis_v; axis_u points right and axis_v down in the marker image.
+        The plane is :math:`\mathtt{origin} + a\, \mathtt{axis\_u} + b\, \mathtt{axis\_v}`; axis_u points
+        right and axis_v down in the marker image.
         """
         o, eu, ev = (np.asarray(v, float) for v in (origin, axis_u, axis_v))
         h = size / 2
@@ -113,12 +114,12 @@ class MarkerTracker:
     is held the predicted regions are searched in every frame, the full frame every ``full_search_every``.
 
     ``track``: follow the markers between detections instead of detecting them in every frame: the corners
-    predicted by the pose filter are refined by ``cv2.cornerSubPix`` (the same refinement, window and
-    stopping rule the detector applies to its corners, so the same corners to ~0.002 px on scene (a)), and a
-    marker is accepted only if every corner moved less than ``track_px`` from its prediction and the
-    marker's (n+2)² cells sampled through the homography of the refined corners reproduce its dictionary
-    bits (every white cell brighter than every black cell, see :meth:`_verify`). A marker that fails (occluded,
-    the prediction off after a hold) falls back to ArUco detection in its region of interest, and every
+    predicted by the pose filter are refined by ``cv2.cornerSubPix`` (the same refinement, window and stopping
+    rule the detector applies to its corners, so the same corners to ~0.002 px on scene (a)), and a marker is
+    accepted only if every corner moved less than ``track_px`` from its prediction and the marker's
+    :math:`(n+2)^2` cells sampled through the homography of the refined corners reproduce its dictionary bits
+    (every white cell brighter than every black cell, see :meth:`_verify`). A marker that fails (occluded, the
+    prediction off after a hold) falls back to ArUco detection in its region of interest, and every
     ``redetect_every`` frames (0: never) all markers are detected again.
     """
 

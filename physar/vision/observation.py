@@ -53,7 +53,8 @@ def closest_on_triangles(points, tri) -> tuple[np.ndarray, np.ndarray, np.ndarra
 
 def surface_observation_matrix(space, points, components: Sequence[int] = (0, 1, 2), tol: float = 1e-6,
                                faces: np.ndarray | None = None) -> sp.csr_matrix:
-    """Sparse C (p·nc, n_dofs): C u = components of u at reference surface `points` (p, 3) [m].
+    """Sparse :math:`C` (p·nc, n_dofs): :math:`C u` = components of :math:`u` at reference surface `points`
+    (p, 3) [m].
 
     ``faces``: restrict the search to these boundary faces (indices into ``space.mesh.boundary()``).
     Points farther than ``tol`` (m) from the surface raise a PhysarError.
