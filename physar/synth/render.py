@@ -50,14 +50,15 @@ MARKER_BIAS = 5e-4  # m: depth bias of marker pixels in the z-test (a marker win
 
 # ----------------------------------------------------------------------------------------------- rasteriser
 def rasterize(xy: np.ndarray, z: np.ndarray, tris: np.ndarray, width: int, height: int, front=None, bias=None):
-    """Z-buffer rasterisation of triangles with a pinhole's perspective-correct interpolation.
+    r"""Z-buffer rasterisation of triangles with a pinhole's perspective-correct interpolation.
 
     ``xy`` (n, 2) pixel coordinates of the vertices (pixel centres at integers), ``z`` (n,) their depths [m]
     (> 0 in front of the camera), ``tris`` (m, 3) vertex indices, ``front`` (m,) bool mask of triangles drawn
-    (default: all), ``bias`` (m,) depth offsets [m] added in the z-test only (decals). A pixel p is inside a triangle when its three edge functions are >= 0; its screen-space
-    barycentrics β give the perspective-correct b_i = (β_i / z_i) / Σ_j β_j / z_j and the depth
-    1 / Σ_j β_j / z_j; the nearest triangle wins. Returns (pix (N,) flat pixel indices, tri (N,), b (N, 3)),
-    one entry per covered pixel."""
+    (default: all), ``bias`` (m,) depth offsets [m] added in the z-test only (decals). A pixel :math:`p` is
+    inside a triangle when its three edge functions are >= 0; its screen-space barycentrics :math:`\beta` give
+    the perspective-correct :math:`b_i = (\beta_i / z_i) / \sum_j \beta_j / z_j` and the depth
+    :math:`1 / \sum_j \beta_j / z_j`; the nearest triangle wins. Returns (pix (N,) flat pixel indices, tri
+    (N,), b (N, 3)), one entry per covered pixel."""
     tris = np.asarray(tris, np.int64)
     keep = np.all(z[tris] > 1e-6, axis=1)
     if front is not None:
@@ -383,7 +384,8 @@ class ProjectRenderer:
 
     # ---------------------------------------------------------------------------------------------- frames
     def deformed(self, params: dict, at_rest: bool = False) -> np.ndarray:
-        """Deformed vertex positions X + u (n, 3) [m] of the fine truth at the parameter values (X at rest)."""
+        """Deformed vertex positions :math:`X + u` (n, 3) [m] of the fine truth at the parameter values
+        (:math:`X` at rest)."""
         if at_rest or not self.visible:
             return self.X
         u = self.truth.solve(params).reshape(-1, 3)[: self.n_vert]

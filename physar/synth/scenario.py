@@ -591,7 +591,7 @@ class Resolved:
         return {n: float(self.schedule[n].value(t)) for n in self.project.rom.names}
 
     def at_rest(self, t: float) -> bool:
-        """The object is undeformed (u = 0, unloaded) before [schedule] rest_until."""
+        """The object is undeformed (:math:`u = 0`, unloaded) before [schedule] rest_until."""
         return t < self.sc.schedule.rest_until
 
     def markers_on(self, t: float) -> bool:
@@ -604,9 +604,9 @@ class Resolved:
         return float(sum(p.angle(t) for p in self.sc.camera.pan))
 
     def pose(self, t: float):
-        """World -> camera Pose at time t: orbit around the target plus a handheld shake (a seeded sum of
-        sinusoids of amplitude shake_mm / shake_deg), turned by the pan yaw a about the vertical (up) through
-        the camera centre c: R = R_base R_up(a), t = -R c."""
+        r"""World -> camera Pose at time t: orbit around the target plus a handheld shake (a seeded sum of
+        sinusoids of amplitude shake_mm / shake_deg), turned by the pan yaw :math:`a` about the vertical (up)
+        through the camera centre :math:`c`: :math:`R = R_\text{base} R_\text{up}(a)`, :math:`t = -R c`."""
         from physar.vision.camera import Pose
 
         c = self.sc.camera

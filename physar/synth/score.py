@@ -60,10 +60,10 @@ def _numeric(cols: dict, source: str) -> None:
 
 def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None = None, tol: float = 0.01,
           recovery: int = 5, source: str = "estimates", truth_source: str = "truth file") -> dict:
-    """Per parameter: judged frames (not at rest, no occluder, what is observed in view (truth column in_view),
-    not recovering after an occlusion or a look-away), frames within tol x range, max /
-    mean / median |error|, and the recovery frames after each occlusion. ``ranges`` {name: (lo, hi)} (default:
-    the span of the truth)."""
+    r"""Per parameter: judged frames (not at rest, no occluder, what is observed in view (truth column
+    in_view), not recovering after an occlusion or a look-away), frames within
+    :math:`\mathtt{tol} \times \mathrm{range}`, max / mean / median |error|, and the recovery frames after
+    each occlusion. ``ranges`` {name: (lo, hi)} (default: the span of the truth)."""
     names = [c[:-5] for c in truth if c.endswith("_true")]
     if not names:
         raise ConfigError(f"{truth_source}: no <name>_true column (is it the truth.csv of `physar synth render`?)")
