@@ -375,21 +375,22 @@ def plastic_kernel(
 # ----------------------------------------------------------------------------------------------- objects
 @dataclass
 class MPMModel:
-    """Static description of an MPM scene (SI units).
+    r"""Static description of an MPM scene (SI units).
 
-    ``size`` (m) is the side of the simulated cube [0, size]^3, ``resolution`` the number of grid cells per
-    side (dx = size / resolution), ``dt`` the substep (s) and ``substeps`` the substeps per frame.  Per-particle
-    arrays: ``mass`` (kg), ``volume`` (m^3), ``E`` (Pa), ``nu``, ``elastic``/``plastic`` codes of
-    :mod:`physar.mpm.constitutive`, ``plastic_params`` (N, 4), ``body`` (index of the body it came from).
-    ``walls`` maps each of x_min … z_max to none | sticky | slip | separate and ``friction`` to a Coulomb
-    coefficient (used for slip/separate walls).
+    ``size`` (m) is the side of the simulated cube :math:`[0, \mathrm{size}]^3`, ``resolution`` the number of
+    grid cells per side (:math:`dx = \mathrm{size} / \mathrm{resolution}`), ``dt`` the substep (s) and
+    ``substeps`` the substeps per frame. Per-particle arrays: ``mass`` (kg), ``volume`` (m^3), ``E`` (Pa),
+    ``nu``, ``elastic``/``plastic`` codes of :mod:`physar.mpm.constitutive`, ``plastic_params`` (N, 4),
+    ``body`` (index of the body it came from). ``walls`` maps each of x_min … z_max to none | sticky | slip |
+    separate and ``friction`` to a Coulomb coefficient (used for slip/separate walls).
 
     Optional anisotropy (physar's choice of an anisotropic ground-truth law on top of the expert laws of seed
-    002 §3.2; a standard fibre-reinforced I4 model, Holzapfel-style): ``fiber`` (N, 3) is the fibre direction
-    a0 of each particle in the rest configuration (normalised here; a zero row = no fibre) and ``fiber_E``
-    (N,) >= 0 the fibre modulus E_f (Pa).  The strain energy per unit rest volume gains
-    Psi_f = (E_f / 8)(I4 - 1)^2 with I4 = |F a0|^2, i.e. the Kirchhoff stress gains
-    tau_f = (E_f / 2)(I4 - 1)(F a0)(F a0)^T, and the small-strain uniaxial stiffness along a0 grows by E_f.
+    002 §3.2; a standard fibre-reinforced :math:`I_4` model, Holzapfel-style): ``fiber`` (N, 3) is the fibre
+    direction :math:`a_0` of each particle in the rest configuration (normalised here; a zero row = no fibre)
+    and ``fiber_E`` (N,) >= 0 the fibre modulus :math:`E_f` (Pa).  The strain energy per unit rest volume
+    gains :math:`\Psi_f = (E_f / 8)(I_4 - 1)^2` with :math:`I_4 = |F a_0|^2`, i.e. the Kirchhoff stress gains
+    :math:`\tau_f = (E_f / 2)(I_4 - 1)(F a_0)(F a_0)^\top`, and the small-strain uniaxial stiffness along
+    :math:`a_0` grows by :math:`E_f`.
     ``None`` (default) = zeros = isotropic.
     """
 
@@ -494,15 +495,18 @@ class MPMModel:
 
     @property
     def clamp_range(self) -> tuple[float, float]:
-        """Particles are kept in [lo, hi]^3 so that their 3x3x3 stencil stays on the grid."""
+        r"""Particles are kept in :math:`[\mathrm{lo}, \mathrm{hi}]^3` so that their 3x3x3 stencil stays on
+        the grid."""
         return self.origin + self.dx, self.origin + (self.n_grid - 2) * self.dx
 
     def active_box(self, x: np.ndarray) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
-        """Lower corner and shape (global node indices) of the box of grid nodes that particles at x (N, 3) touch.
+        r"""Lower corner and shape (global node indices) of the box of grid nodes that particles at x (N, 3)
+        touch.
 
-        The 3x3x3 stencil of a particle starts at floor((x - origin) / dx - 1/2) (clamped to the grid); one node
-        of margin on each side makes the box independent of rounding.  Only this box is allocated / updated
-        (the grid phase costs O(box) instead of O(resolution^3)).
+        The 3x3x3 stencil of a particle starts at :math:`\lfloor (x - \mathrm{origin}) / dx - 1/2 \rfloor`
+        (clamped to the grid); one node of margin on each side makes the box independent of rounding.  Only
+        this box is allocated / updated (the grid phase costs :math:`O(\mathrm{box})` instead of
+        :math:`O(\mathrm{resolution}^3)`).
         """
         g = np.floor((np.asarray(x) - self.origin) / self.dx - 0.5)
         gmin, gmax = g.min(axis=0), g.max(axis=0)
@@ -539,7 +543,7 @@ class MPMModel:
         return self._wp
 
     def state(self, x: np.ndarray, v: np.ndarray | None = None) -> MPMState:
-        """A state at positions x (N, 3) with velocities v, C = 0, F = I, J_p = 1."""
+        """A state at positions x (N, 3) with velocities v, :math:`C = 0`, :math:`F = I`, :math:`J_p = 1`."""
         n = self.n_particles
         x = np.asarray(x, dtype=np.float64).reshape(n, 3)
         v = np.zeros((n, 3)) if v is None else np.broadcast_to(np.asarray(v, dtype=np.float64), (n, 3))
@@ -548,7 +552,8 @@ class MPMModel:
 
 @dataclass
 class MPMState:
-    """Per-particle state s = {x (m), v (m/s), C (1/s), F (-)} of Alg. 1, plus the plastic Jacobian J_p.
+    r"""Per-particle state :math:`s = \{x\ (\mathrm{m}), v\ (\mathrm{m/s}), C\ (1/\mathrm{s}), F\ (-)\}` of
+    Alg. 1, plus the plastic Jacobian :math:`J_p`.
 
     Fields are Warp arrays: ``state.numpy()`` returns copies, while ``state.x.numpy()`` is a view of the buffer
     that the next step overwrites (copy it to keep a frame)."""
@@ -583,9 +588,9 @@ class Control:
 
     .. math:: f_\text{ex} = m\, \omega \big[k_p (x_\text{ref} - x) + k_d (v_\text{ref} - v)\big].
 
-    ``hold=True`` (seed Alg. 2): :meth:`MPMSolver.simulate_frame` evaluates f_ex once from the state at the
-    start of the frame and applies it at every substep; ``False``: recomputed from each substep's state
-    (:mod:`physar.mpm.actuation` gives the stability bound of the held force)."""
+    ``hold=True`` (seed Alg. 2): :meth:`MPMSolver.simulate_frame` evaluates :math:`f_\text{ex}` once from the
+    state at the start of the frame and applies it at every substep; ``False``: recomputed from each substep's
+    state (:mod:`physar.mpm.actuation` gives the stability bound of the held force)."""
 
     omega: np.ndarray
     x_ref: np.ndarray
@@ -595,7 +600,8 @@ class Control:
     hold: bool = True
 
     def held_force(self, model: MPMModel, x: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """f_ex (N, 3) of Eq. (6)-(7) at positions x and velocities v (N, 3) (Alg. 2, lines 2-4)."""
+        r""":math:`f_\text{ex}` (N, 3) of Eq. (6)-(7) at positions x and velocities v (N, 3) (Alg. 2,
+        lines 2-4)."""
         return held_force(model.mass, np.asarray(self.omega, dtype=np.float64), x, v,
                           np.asarray(self.x_ref, dtype=np.float64), np.asarray(self.v_ref, dtype=np.float64),
                           self.kp, self.kd)
@@ -626,11 +632,12 @@ class MPMSolver:
 
     def step(self, state_in: MPMState, state_out: MPMState, control: Control | None = None, dt: float | None = None,
              t: float | None = None, force: np.ndarray | None = None):
-        """One substep of Alg. 1 from ``state_in`` into ``state_out`` (the two must not alias).
+        r"""One substep of Alg. 1 from ``state_in`` into ``state_out`` (the two must not alias).
 
         ``t`` (s) is the time at the start of the substep (default: ``self.time``, which every step advances).
-        ``force`` (N, 3), N: an external force f_ex applied as is (the held PD force of Alg. 2); ``control``
-        adds the PD force evaluated on ``state_in`` (a one-substep frame; :meth:`simulate_frame` holds it).
+        ``force`` (N, 3), N: an external force :math:`f_\text{ex}` applied as is (the held PD force of
+        Alg. 2); ``control`` adds the PD force evaluated on ``state_in`` (a one-substep frame;
+        :meth:`simulate_frame` holds it).
         """
         m = self.model
         a = m.warp_arrays()
@@ -670,10 +677,10 @@ class MPMSolver:
 
     def simulate_frame(self, state: MPMState, scratch: MPMState, control: Control | None = None,
                        check: bool = True) -> tuple[MPMState, MPMState]:
-        """T = ``model.substeps`` substeps; returns (new state, scratch) — the two buffers swap roles.
+        """:math:`T` = ``model.substeps`` substeps; returns (new state, scratch) — the two buffers swap roles.
 
-        With ``control.hold`` the PD force is evaluated once on ``state`` and held over the T substeps (seed 002
-        Alg. 2, lines 2-4); otherwise it is recomputed at every substep."""
+        With ``control.hold`` the PD force is evaluated once on ``state`` and held over the :math:`T` substeps
+        (seed 002 Alg. 2, lines 2-4); otherwise it is recomputed at every substep."""
         a, b = state, scratch
         force, ctrl = None, control
         if control is not None and control.hold:
@@ -735,10 +742,11 @@ def elastic_energy_density(F: np.ndarray, E: np.ndarray, nu: np.ndarray, elastic
 
 
 def diagnostics(model: MPMModel, st: dict) -> dict:
-    """Centre of mass (m), linear momentum (kg m/s), APIC angular momentum (kg m^2/s) and energies (J).
+    r"""Centre of mass (m), linear momentum (kg m/s), APIC angular momentum (kg m^2/s) and energies (J).
 
-    The angular momentum includes the affine part, L = sum_p m_p [x_p x v_p + (dx^2/4) eps : C_p^T], which is
-    what APIC conserves exactly (Jiang et al. 2015).
+    The angular momentum includes the affine part,
+    :math:`L = \sum_p m_p \big[x_p \times v_p + (dx^2/4)\, \varepsilon : C_p^\top\big]`, which is what APIC
+    conserves exactly (Jiang et al. 2015).
     """
     m = model.mass
     x, v, C, F = st["x"], st["v"], st["C"], st["F"]
