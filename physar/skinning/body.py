@@ -25,10 +25,17 @@ CACHE_FORMAT = 1
 
 def winding_number(points: torch.Tensor, vertices: torch.Tensor, faces: torch.Tensor,
                    chunk: int = 256) -> torch.Tensor:
-    """Generalised winding number (N,) of a triangle mesh at points (N, 3) (Jacobson et al. 2013):
-    w(p) = sum_f Omega_f(p) / (4 pi), with the solid angle of triangle (a, b, c) seen from p
-    Omega = 2 atan2(a.(b x c), |a||b||c| + (a.b)|c| + (b.c)|a| + (c.a)|b|) (Van Oosterom-Strackee),
-    a, b, c relative to p. ~1 inside a closed outward-oriented mesh, ~0 outside; robust to small holes."""
+    r"""Generalised winding number (N,) of a triangle mesh at points (N, 3) (Jacobson et al. 2013):
+    :math:`w(p) = \sum_f \Omega_f(p) / (4 \pi)`, with the solid angle of triangle :math:`(a, b, c)` seen from
+    :math:`p`
+
+    .. math::
+
+        \Omega = 2 \operatorname{atan2}\big(a \cdot (b \times c),\;
+        |a| |b| |c| + (a \cdot b) |c| + (b \cdot c) |a| + (c \cdot a) |b|\big)
+
+    (Van Oosterom-Strackee), :math:`a, b, c` relative to :math:`p`. ~1 inside a closed outward-oriented mesh,
+    ~0 outside; robust to small holes."""
     tri = vertices[faces]  # (F, 3, 3)
     out = []
     for s in range(0, points.shape[0], chunk):
@@ -54,7 +61,7 @@ class BodyModel:
     source: str = ""
 
     def inside(self, points: torch.Tensor) -> torch.Tensor:
-        """(N,) bool: |winding number| > 1/2 (rest pose), orientation-agnostic."""
+        r"""(N,) bool: :math:`|\text{winding number}| > 1/2` (rest pose), orientation-agnostic."""
         w = winding_number(points.to(self.vertices.dtype), self.vertices, self.faces)
         return w.abs() > 0.5
 
@@ -67,7 +74,7 @@ class BodyModel:
         return self.weight_indices[nn], self.weight_values[nn].to(points.dtype)
 
     def skin_vertices(self, bone_transforms: torch.Tensor) -> torch.Tensor:
-        """Posed vertices (V, 3) for bone transforms B_k (B, 4, 4) by Eq. 1."""
+        """Posed vertices (V, 3) for bone transforms :math:`B_k` (B, 4, 4) by Eq. 1."""
         return lbs(self.vertices, (self.weight_indices, self.weight_values), bone_transforms)[0]
 
 
@@ -134,10 +141,12 @@ def load_anny(cache: str | os.PathLike | None = None, rebuild: bool = False) -> 
 
 
 def load_smpl_npz(path: str | os.PathLike) -> BodyModel:
-    """Rest template of an SMPL-family model from a user-supplied ``.npz`` (keys ``v_template``, ``f``,
+    r"""Rest template of an SMPL-family model from a user-supplied ``.npz`` (keys ``v_template``, ``f``,
     ``weights``, ``kintree_table``, ``J_regressor``; as in the SMPL-X npz release). Shape and pose
-    blend shapes are ignored (betas = 0, no pose correctives); joints J = J_regressor v_template and bone
-    rest frames [I J_k; 0 1] as in SMPL's LBS. The ``.pkl`` releases need pickle and are not read."""
+    blend shapes are ignored (betas = 0, no pose correctives); joints
+    :math:`J = J_\text{regressor}\, v_\text{template}` and bone rest frames
+    :math:`\begin{bmatrix} I & J_k \\ 0 & 1 \end{bmatrix}` as in SMPL's LBS. The ``.pkl`` releases need
+    pickle and are not read."""
     path = Path(path)
     if path.suffix.lower() == ".pkl":
         raise PhysarError(f"{path}: SMPL .pkl files need pickle; convert to .npz (e.g. with smplx's tools)")

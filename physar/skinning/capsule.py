@@ -18,7 +18,7 @@ from physar.skinning.skeleton import Skeleton, rigid
 
 
 def segment_distance(points: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Distances (N, B) from points (N, 3) to segments [a_k, b_k] ((B, 3) each), m."""
+    """Distances (N, B) from points (N, 3) to segments :math:`[a_k, b_k]` ((B, 3) each), m."""
     ab = b - a  # (B, 3)
     ap = points[:, None, :] - a[None]  # (N, B, 3)
     denom = torch.clamp_min((ab * ab).sum(-1), 1e-30)
@@ -48,13 +48,14 @@ class CapsuleBody:
         return self.radii > 0
 
     def signed_distance(self, points: torch.Tensor) -> torch.Tensor:
-        """min_k (d_k(x) - r_k) over bones with volume (m): < 0 inside the body; exact outside."""
+        r""":math:`\min_k (d_k(x) - r_k)` over bones with volume (m): < 0 inside the body; exact outside."""
         act = self._active()
         d = segment_distance(points, self.heads[act].to(points.dtype), self.tails[act].to(points.dtype))
         return (d - self.radii[act].to(points.dtype)).min(-1).values
 
     def inside(self, points: torch.Tensor) -> torch.Tensor:
-        """(N,) bool: point strictly inside the union of capsules (rest pose) — the omega gating mask."""
+        r"""(N,) bool: point strictly inside the union of capsules (rest pose) — the :math:`\omega` gating
+        mask."""
         return self.signed_distance(points) < 0
 
     def skinning_weights(self, points: torch.Tensor) -> torch.Tensor:
@@ -88,7 +89,7 @@ class CapsuleBody:
 
 
 def procedural_humanoid(height: float = 1.7, dtype: torch.dtype = torch.float32) -> CapsuleBody:
-    """A 12-bone capsule humanoid standing on z = 0, facing -y, height ``height`` (m).
+    """A 12-bone capsule humanoid standing on :math:`z = 0`, facing :math:`-y`, height ``height`` (m).
 
     Bones: root (no volume), pelvis, spine, head, upper/lower arms and legs (left and right). Bone
     frames have identity rotation at the rest pose and sit at the bone heads (the joints).

@@ -25,14 +25,15 @@ def rigid(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
 
 
 def invert_rigid(T: torch.Tensor) -> torch.Tensor:
-    """Inverse of rigid transforms (..., 4, 4): [R^T, -R^T t]."""
+    r"""Inverse of rigid transforms (..., 4, 4): :math:`[R^\top, -R^\top t]`."""
     Rt = T[..., :3, :3].transpose(-1, -2)
     return rigid(Rt, -(Rt @ T[..., :3, 3:4])[..., 0])
 
 
 def axis_angle_to_matrix(aa: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices (..., 3, 3) from axis-angle vectors (..., 3) (angle = norm, rad), Rodrigues'
-    formula R = I + sin(a) K + (1 - cos(a)) K^2 with a Taylor branch near a = 0 (differentiable)."""
+    r"""Rotation matrices (..., 3, 3) from axis-angle vectors (..., 3) (angle = norm, rad), Rodrigues'
+    formula :math:`R = I + \sin(a) K + (1 - \cos(a)) K^2` with a Taylor branch near :math:`a = 0`
+    (differentiable)."""
     a2 = (aa * aa).sum(-1, keepdim=True)[..., None]
     small = a2 < 1e-12
     a2s = torch.where(small, torch.ones_like(a2), a2)
@@ -60,8 +61,9 @@ def hierarchy_levels(parents: torch.Tensor) -> list[torch.Tensor]:
 
 def forward_kinematics(parents: torch.Tensor, local: torch.Tensor,
                        levels: list[torch.Tensor] | None = None) -> torch.Tensor:
-    """Global bone frames (..., B, 4, 4): G_k = G_parent(k) L_k, G_root = L_root, from local transforms
-    L (..., B, 4, 4) relative to the parent frame. Vectorised over bones of equal depth."""
+    r"""Global bone frames (..., B, 4, 4): :math:`G_k = G_{\mathrm{parent}(k)} L_k`,
+    :math:`G_\text{root} = L_\text{root}`, from local transforms :math:`L` (..., B, 4, 4) relative to the
+    parent frame. Vectorised over bones of equal depth."""
     levels = hierarchy_levels(parents) if levels is None else levels
     glob = local.clone()
     for idx in levels[1:] if levels else []:
@@ -72,11 +74,11 @@ def forward_kinematics(parents: torch.Tensor, local: torch.Tensor,
 
 @dataclass
 class Skeleton:
-    """Bone hierarchy with rest-pose frames.
+    r"""Bone hierarchy with rest-pose frames.
 
     Attributes:
         parents: (B,) long, parent index (-1 for a root), parents[k] < k.
-        rest_global: (B, 4, 4) rest-pose bone frames G_k^rest (world <- bone), m.
+        rest_global: (B, 4, 4) rest-pose bone frames :math:`G_k^\text{rest}` (world <- bone), m.
         names: bone names.
     """
 
@@ -115,9 +117,10 @@ class Skeleton:
         return torch.where((self.parents < 0)[:, None, None], self.rest_global, loc)
 
     def pose(self, rotations: torch.Tensor, root_translation: torch.Tensor | None = None) -> torch.Tensor:
-        """Posed global bone frames (..., B, 4, 4) for local joint rotations (..., B, 3, 3) applied in each
-        bone's rest frame (L_k(theta) = L_k^rest [R_k 0; 0 1]) and a translation (..., 3) (m, world) of
-        the roots."""
+        r"""Posed global bone frames (..., B, 4, 4) for local joint rotations (..., B, 3, 3) applied in each
+        bone's rest frame
+        (:math:`L_k(\theta) = L_k^\text{rest} \begin{bmatrix} R_k & 0 \\ 0 & 1 \end{bmatrix}`) and a
+        translation (..., 3) (m, world) of the roots."""
         loc = self.rest_local().to(rotations.dtype) @ rigid(rotations, torch.zeros_like(rotations[..., 0]))
         glob = forward_kinematics(self.parents, loc, self._levels)
         if root_translation is not None:
