@@ -62,7 +62,7 @@ class Camera:
 
     @property
     def center(self) -> torch.Tensor:
-        """Camera centre in world coordinates, m: C = -R^T t."""
+        r"""Camera centre in world coordinates, m: :math:`C = -R^\top t`."""
         return -self.R.T @ self.t
 
     @property
@@ -71,7 +71,7 @@ class Camera:
 
     @property
     def viewmat(self) -> torch.Tensor:
-        """(4, 4) world-to-camera matrix [R t; 0 1]."""
+        r"""(4, 4) world-to-camera matrix :math:`\begin{bmatrix} R & t \\ 0 & 1 \end{bmatrix}`."""
         m = torch.eye(4, dtype=self.R.dtype)
         m[:3, :3] = self.R
         m[:3, 3] = self.t

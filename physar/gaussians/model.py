@@ -86,15 +86,16 @@ def covariance(quats: torch.Tensor, scales: torch.Tensor, F: torch.Tensor | None
 
 @dataclass
 class Gaussians:
-    """3-D Gaussians as torch tensors (unit m), in the 3DGS parameterisation.
+    r"""3-D Gaussians as torch tensors (unit m), in the 3DGS parameterisation.
 
     Attributes:
-        means: (N, 3) centres mu_i, m.
+        means: (N, 3) centres :math:`\mu_i`, m.
         quats: (N, 4) rotations as quaternions (w, x, y, z); need not be normalised.
         log_scales: (N, 3) log of the standard deviations along the principal axes (log m).
-        opacity_logits: (N,) logit of the peak opacity eta_i.
-        sh: (N, K, 3) SH coefficients per colour channel, K = (degree+1)^2 in {1, 4, 9, 16};
-            sh[:, 0] is the DC term (f_dc in the PLY file), sh[:, 1:] the rest (f_rest).
+        opacity_logits: (N,) logit of the peak opacity :math:`\eta_i`.
+        sh: (N, K, 3) SH coefficients per colour channel,
+            :math:`K = (\mathrm{degree} + 1)^2 \in \{1, 4, 9, 16\}`; sh[:, 0] is the DC term (f_dc in the PLY
+            file), sh[:, 1:] the rest (f_rest).
     """
 
     means: torch.Tensor
@@ -170,12 +171,12 @@ class Gaussians:
 
     @property
     def opacities(self) -> torch.Tensor:
-        """(N,) peak opacities eta in (0, 1)."""
+        r"""(N,) peak opacities :math:`\eta \in (0, 1)`."""
         return torch.sigmoid(self.opacity_logits)
 
     @property
     def rotations(self) -> torch.Tensor:
-        """(N, 3, 3) rotation matrices R."""
+        """(N, 3, 3) rotation matrices :math:`R`."""
         return quat_to_rotmat(self.quats)
 
     def covariance(self, F: torch.Tensor | None = None) -> torch.Tensor:

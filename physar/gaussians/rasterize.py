@@ -247,12 +247,12 @@ def render(g: Gaussians, cam: Camera, *, F: torch.Tensor | None = None, cov3d: t
            colors: torch.Tensor | None = None, background: torch.Tensor | None = None,
            backend: str = "auto", tile_size: int = 4, eps2d: float = 0.3, near: float = 0.01,
            pixel_chunk: int | None = None, max_elements: float = 2e8) -> RenderResult:
-    """Render Gaussians ``g`` seen by ``cam``: RGB, alpha mask and expected depth (m).
+    r"""Render Gaussians ``g`` seen by ``cam``: RGB, alpha mask and expected depth (m).
 
-    ``F`` (N, 3, 3): deformation gradients, giving Sigma = F R S S^T R^T F^T (seed 002, Eq. 3);
-    ``cov3d`` (N, 3, 3) overrides the covariance; ``colors`` (N, 3) overrides the SH colour (otherwise
+    ``F`` (N, 3, 3): deformation gradients, giving :math:`\Sigma = F R S S^\top R^\top F^\top` (seed 002,
+    Eq. 3); ``cov3d`` (N, 3, 3) overrides the covariance; ``colors`` (N, 3) overrides the SH colour (otherwise
     SH evaluated in the direction camera centre -> mean). ``eps2d`` (px^2) is the 3DGS screen-space
-    low-pass filter (0.3); ``near`` (m) culls Gaussians with p_z <= near.
+    low-pass filter (0.3); ``near`` (m) culls Gaussians with :math:`p_z \le \mathtt{near}`.
     ``backend``: "torch" (tiles, CPU/any device), "dense" (naive reference), "gsplat" (CUDA, untested
     here), "auto" (gsplat when the tensors are on CUDA and gsplat imports, torch otherwise).
     ``max_elements``: memory guard of the tile backend (pairs x tile pixels), see :func:`rasterize_tiles`.

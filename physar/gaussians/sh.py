@@ -39,9 +39,9 @@ def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
 
 
 def eval_sh(sh: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
-    """RGB (N, 3) from SH coefficients ``sh`` (N, K, 3) at view directions ``dirs`` (N, 3, need not be unit).
+    r"""RGB (N, 3) from SH coefficients ``sh`` (N, K, 3) at view directions ``dirs`` (N, 3, need not be unit).
 
-    rgb = max(sum_k Y_k(d) sh[:, k] + 0.5, 0) (3DGS convention).
+    :math:`\mathrm{rgb} = \max\big(\sum_k Y_k(d)\, \mathtt{sh}[:, k] + 0.5, 0\big)` (3DGS convention).
     """
     k = sh.shape[1]
     degree = {1: 0, 4: 1, 9: 2, 16: 3}[k]
