@@ -1,17 +1,23 @@
-"""Deformation gradients of the physics-aware fine-tuning of seed 002 §4.1 (Eq. 4-5).
+r"""Deformation gradients of the physics-aware fine-tuning of seed 002 §4.1 (Eq. 4-5).
 
 The canonical Gaussians are learned on the spin clip with fixed skinning; before the dynamic stage their
-appearance is fine-tuned under the deformation gradients that the simulator itself would produce.  For each
-frame n of the spin clip the particles are put at their LBS means x_n with the central-difference velocities
-v_n = (x_{n+1} - x_{n-1}) / (2 dt)  (Eq. 4), and Alg. 1 is run with the stress fixed to sigma = 0 and the
-plasticity F = F_trial, i.e. one frame of ``substeps`` MLS-MPM substeps (quadratic B-splines, APIC) of::
+appearance is fine-tuned under the deformation gradients that the simulator itself would produce. For each
+frame :math:`n` of the spin clip the particles are put at their LBS means :math:`x_n` with the
+central-difference velocities :math:`v_n = (x_{n+1} - x_{n-1}) / (2\, dt)` (Eq. 4), and Alg. 1 is run with the
+stress fixed to :math:`\sigma = 0` and the plasticity :math:`F = F_\text{trial}`, i.e. one frame of
+``substeps`` MLS-MPM substeps (quadratic B-splines, APIC) of:
 
-    P2G:  m_i = sum_p w_ip m_p,   m_i v_i = sum_p w_ip m_p (v_p + C_p (x_i - x_p))
-    G2P:  v_p = sum_i w_ip v_i,   C_p = 4 / dx^2 sum_i w_ip v_i (x_i - x_p)^T
-          F_p <- (I + dt C_p) F_p,   x_p <- x_p + dt v_p
+.. math::
 
-with no force (sigma = 0, no gravity).  F is carried over from frame to frame; x, v are reset to the LBS
-values at every frame.  The grid is a dense box around the particles (no walls), so any pose can be used.
+    \text{P2G:} \quad & m_i = \sum_p w_{ip} m_p, \qquad
+        m_i v_i = \sum_p w_{ip} m_p \big(v_p + C_p (x_i - x_p)\big) \\
+    \text{G2P:} \quad & v_p = \sum_i w_{ip} v_i, \qquad
+        C_p = \frac{4}{dx^2} \sum_i w_{ip} v_i (x_i - x_p)^\top \\
+    & F_p \leftarrow (I + dt\, C_p) F_p, \qquad x_p \leftarrow x_p + dt\, v_p
+
+with no force (:math:`\sigma = 0`, no gravity). :math:`F` is carried over from frame to frame; :math:`x, v`
+are reset to the LBS values at every frame. The grid is a dense box around the particles (no walls), so any
+pose can be used.
 """
 
 from __future__ import annotations
@@ -50,9 +56,9 @@ def _p2g2p(x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, mass: torch.Tensor
 
 def zero_stress_deformation(x: np.ndarray | torch.Tensor, dt: float, substeps: int, dx: float,
                             mass: np.ndarray | None = None) -> torch.Tensor:
-    """Deformation gradients F (F, N, 3, 3) of particles following the trajectories ``x`` (F, N, 3) (m),
-    frames ``dt`` (s) apart, by Alg. 1 with sigma = 0 (module docstring); F_0 = I.  ``dx`` is the grid
-    spacing (m), ``mass`` (N,) the particle masses (default 1)."""
+    r"""Deformation gradients :math:`F` (F, N, 3, 3) of particles following the trajectories ``x`` (F, N, 3)
+    (m), frames ``dt`` (s) apart, by Alg. 1 with :math:`\sigma = 0` (module docstring); :math:`F_0 = I`.
+    ``dx`` is the grid spacing (m), ``mass`` (N,) the particle masses (default 1)."""
     if isinstance(x, np.ndarray) and not x.flags.writeable:
         x = np.array(x, dtype=np.float64)  # a read-only view (e.g. broadcast): torch needs writable memory
     x = torch.as_tensor(x, dtype=torch.float64)

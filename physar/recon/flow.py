@@ -8,10 +8,10 @@ r"""Structure-preserving 3-D flow of seed 002 §4.4 (Eq. 9): the losses of the p
 * :math:`L_\text{rgb}`: the image loss of the rendered frame (in :mod:`physar.recon.train`).
 * :math:`L_\text{flow}` (:func:`flow_loss`): 2-D optical flow :math:`u` between consecutive observed frames,
   computed by OpenCV's DIS (Kroeger et al. 2016; RAFT weights are not reachable offline), compared with the
-  image motion of the particles visible in frame n-1,
-  :math:`\operatorname{mean}_i \lVert \pi(x'_{n,i}) - \pi(x'_{n-1,i}) - u(\pi(x'_{n-1,i})) \rVert_1` (px), u
-  sampled bilinearly; visibility = the particle is no deeper than the rendered (alpha-normalised) depth + a
-  tolerance and the pixel is covered.
+  image motion of the particles visible in frame :math:`n-1`,
+  :math:`\operatorname{mean}_i \lVert \pi(x'_{n,i}) - \pi(x'_{n-1,i}) - u(\pi(x'_{n-1,i})) \rVert_1` (px),
+  :math:`u` sampled bilinearly; visibility = the particle is no deeper than the rendered (alpha-normalised)
+  depth + a tolerance and the pixel is covered.
 * :math:`L_\text{arap}` (:func:`arap_energy`): as-rigid-as-possible energy (Sorkine & Alexa 2007) with respect
   to the rest (canonical) lattice,
   :math:`E = \operatorname{mean}_{(i, j)} \lVert (x_i - x_j) - R_i (X_i - X_j) \rVert^2` (m^2) over the edges,
@@ -30,9 +30,9 @@ from physar.errors import PhysarError
 
 
 def dis_flow(img0: np.ndarray, img1: np.ndarray, preset: str = "medium") -> np.ndarray:
-    """Dense optical flow (H, W, 2) (px, (dx, dy)) from img0 to img1 (RGB float in [0, 1] or uint8) by DIS.
+    r"""Dense optical flow (H, W, 2) (px, (dx, dy)) from img0 to img1 (RGB float in [0, 1] or uint8) by DIS.
 
-    Flow is sampled at pixel centres: img1(p + u(p)) ~ img0(p)."""
+    Flow is sampled at pixel centres: :math:`\mathrm{img1}(p + u(p)) \approx \mathrm{img0}(p)`."""
     presets = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
                "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
     if preset not in presets:
@@ -56,7 +56,8 @@ def dis_flow(img0: np.ndarray, img1: np.ndarray, preset: str = "medium") -> np.n
 
 
 def project(x: torch.Tensor, K: torch.Tensor, R: torch.Tensor, t: torch.Tensor):
-    """Pixel coordinates (N, 2) (pixel centres at i + 0.5) and camera depths (N,) of world points x (N, 3)."""
+    """Pixel coordinates (N, 2) (pixel centres at :math:`i + 0.5`) and camera depths (N,) of world points x
+    (N, 3)."""
     p = x @ R.T + t
     z = p[:, 2]
     uv = torch.stack([K[0, 0] * p[:, 0] / z + K[0, 2], K[1, 1] * p[:, 1] / z + K[1, 2]], 1)
@@ -64,8 +65,8 @@ def project(x: torch.Tensor, K: torch.Tensor, R: torch.Tensor, t: torch.Tensor):
 
 
 def sample_bilinear(img: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
-    """Values (N, C) of an (H, W, C) image at continuous pixel coordinates uv (N, 2) (centres at i + 0.5),
-    clamped at the border."""
+    """Values (N, C) of an (H, W, C) image at continuous pixel coordinates uv (N, 2) (centres at
+    :math:`i + 0.5`), clamped at the border."""
     H, W = img.shape[:2]
     u = (uv[:, 0] - 0.5).clamp(0, W - 1)
     v = (uv[:, 1] - 0.5).clamp(0, H - 1)
@@ -101,7 +102,7 @@ def flow_loss(x_prev: torch.Tensor, x_new: torch.Tensor, flow: torch.Tensor, vis
 
 
 def polar_rotation(S: torch.Tensor) -> torch.Tensor:
-    """Rotation part (det +1) of the polar decomposition of S (..., 3, 3)."""
+    r"""Rotation part (:math:`\det = +1`) of the polar decomposition of :math:`S` (..., 3, 3)."""
     U, _, Vh = torch.linalg.svd(S)
     d = torch.sign(torch.linalg.det(U @ Vh))
     D = torch.ones(*S.shape[:-2], 3, dtype=S.dtype)

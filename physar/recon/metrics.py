@@ -1,11 +1,14 @@
-"""Image metrics of seed 002 §5.2: PSNR, SSIM, mask IoU (and LPIPS when its weights are available).
+r"""Image metrics of seed 002 §5.2: PSNR, SSIM, mask IoU (and LPIPS when its weights are available).
 
-* PSNR = 10 log10(MAX^2 / MSE), MAX = 1 (images in [0, 1]); +inf for identical images.
-* SSIM: Wang, Bovik, Sheikh, Simoncelli (2004), Gaussian window sigma = 1.5 (truncated at 3.5 sigma),
-  K1 = 0.01, K2 = 0.03, L = 1, averaged over pixels (valid region, no padding) and channels.  Own numpy/scipy
-  implementation (scikit-image is not a dependency here); same constants as ``skimage.metrics.
+* :math:`\mathrm{PSNR} = 10 \log_{10}(\mathrm{MAX}^2 / \mathrm{MSE})`, :math:`\mathrm{MAX} = 1` (images in
+  [0, 1]); +inf for identical images.
+* SSIM: Wang, Bovik, Sheikh, Simoncelli (2004), Gaussian window :math:`\sigma = 1.5` (truncated at
+  :math:`3.5 \sigma`), :math:`K_1 = 0.01`, :math:`K_2 = 0.03`, :math:`L = 1`, averaged over pixels (valid
+  region, no padding) and channels. Own numpy/scipy implementation (scikit-image is not a dependency here);
+  same constants as ``skimage.metrics.
   structural_similarity(..., gaussian_weights=True, sigma=1.5, use_sample_covariance=False)``.
-* IoU = |A and B| / |A or B| of boolean masks (1 when both are empty); rendered alpha is thresholded at 0.5.
+* :math:`\mathrm{IoU} = |A \cap B| / |A \cup B|` of boolean masks (1 when both are empty); rendered alpha is
+  thresholded at 0.5.
 * LPIPS needs the backbone (AlexNet/VGG) weights, which are not reachable offline: :func:`lpips` raises
   a clear error when they are missing instead of reporting a number.
 """
@@ -62,9 +65,10 @@ def iou(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def lpips_model():
-    """A callable LPIPS distance d(a, b) on (H, W, 3) images in [0, 1] (AlexNet backbone), when the ``lpips``
-    package and its backbone weights are installed; otherwise a PhysarError that says why (the ``lpips``
-    wheel ships only the linear heads, the AlexNet/VGG weights come from torchvision's download cache)."""
+    """A callable LPIPS distance :math:`d(a, b)` on (H, W, 3) images in [0, 1] (AlexNet backbone), when the
+    ``lpips`` package and its backbone weights are installed; otherwise a PhysarError that says why (the
+    ``lpips`` wheel ships only the linear heads, the AlexNet/VGG weights come from torchvision's download
+    cache)."""
     try:
         import lpips as _lp
     except ImportError:

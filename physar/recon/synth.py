@@ -1,4 +1,4 @@
-"""Synthetic benchmark scenes for the reconstruction pipeline (issue 8 part 4, seed 002 §5.1).
+r"""Synthetic benchmark scenes for the reconstruction pipeline (issue 8 part 4, seed 002 §5.1).
 
 The procedural humanoid acts on a soft object with its right forearm.  Scenes (``object`` + ``action``):
 
@@ -22,14 +22,15 @@ Ground truth:
 * material: fixed-corotated elasticity with a heterogeneous Young's modulus (``E_soft``/``E_stiff``: pillow =
   soft half x < centre, stiff half; C = stiff spine, soft prongs; bag = stiff shell (``bag_wall`` thick) and
   handle, soft filling), Poisson ratio ``nu``, density ``density``, plus an anisotropic fibre term
-  Psi_f = (E_f/8)(|F a0|^2 - 1)^2 (:class:`physar.mpm.MPMModel` ``fiber``/``fiber_E``; small-strain stiffness
-  along a0 grows by E_f = ``fiber_E``) with directions a0: pillow along x; C tangent to its centreline (y in the
-  prongs, z in the spine); bag vertical in the shell and the handle's posts, along y in its bar, none in the
-  filling.  The reconstruction learns an isotropic E field only (the fibres are what it must absorb);
+  :math:`\Psi_f = (E_f/8)(|F a_0|^2 - 1)^2` (:class:`physar.mpm.MPMModel` ``fiber``/``fiber_E``; small-strain
+  stiffness along :math:`a_0` grows by :math:`E_f` = ``fiber_E``) with directions :math:`a_0`: pillow along x;
+  C tangent to its centreline (y in the prongs, z in the spine); bag vertical in the shell and the handle's
+  posts, along y in its bar, none in the filling. The reconstruction learns an isotropic E field only (the
+  fibres are what it must absorb);
 * dynamics: MLS-MPM (:class:`physar.mpm.MPMSolver`) on a FINER particle set (``gt_particles_per_cell``,
   default 8 per cell) than the reconstruction uses, with gravity; the forearm is a set of MPM particles
-  actuated by the gated PD controller (Eq. 6-7, omega = 1 inside the forearm, 0 on the object) towards its
-  LBS trajectory; the rest of the body follows LBS kinematically;
+  actuated by the gated PD controller (Eq. 6-7, :math:`\omega = 1` inside the forearm, 0 on the object)
+  towards its LBS trajectory; the rest of the body follows LBS kinematically;
 * images: the z-buffered sphere renderer of :mod:`physar.recon.pointrender` (not the Gaussian rasteriser),
   one static camera, ``fps`` frames per second, foreground masks.
 

@@ -1,34 +1,45 @@
-"""Training pipeline of seed 002 §4 (PhysHO), reduced to what runs on a small CPU, and its baselines.
+r"""Training pipeline of seed 002 §4 (PhysHO), reduced to what runs on a small CPU, and its baselines.
 
 Stages (``fit``):
 
 1. **appearance** (§4.1, Eq. 5): Gaussians = MPM particles of the object and of the simulated body part,
    plus LBS-driven Gaussians of the rest of the body.  Canonical Gaussians: their colours (SH degree 0),
-   opacities and scales are fitted on the **spin clip** (``spin/``) with fixed skinning (F = the LBS
-   rotation blend, object at rest), L_RGB = |I - I*|_1 (+ a mask term); then the **physics-aware fine-tuning**
-   renders the spin clip with the deformation gradients of Alg. 1 run with sigma = 0 on the central-difference
-   velocities (Eq. 4, :mod:`physar.recon.canonical`) and refits the same parameters (Eq. 5).  Without a spin
-   clip, frame 0 of the dynamic clip is used.  The canonical geometry (object boxes, body model, poses) is read
-   from ``scene.json``/``poses.npz`` (the synthetic scenes give it).
+   opacities and scales are fitted on the **spin clip** (``spin/``) with fixed skinning (:math:`F` = the LBS
+   rotation blend, object at rest), :math:`L_\text{RGB} = |I - I^*|_1` (+ a mask term); then the
+   **physics-aware fine-tuning** renders the spin clip with the deformation gradients of Alg. 1 run with
+   :math:`\sigma = 0` on the central-difference velocities (Eq. 4, :mod:`physar.recon.canonical`) and refits
+   the same parameters (Eq. 5).  Without a spin clip, frame 0 of the dynamic clip is used.  The canonical
+   geometry (object boxes, body model, poses) is read from ``scene.json``/``poses.npz`` (the synthetic scenes
+   give it).
 2. **flow**: (a) the **4DGS-like baseline**: per-frame object positions optimised with RGB + mask losses and
-   an edge-length rigidity term (F from a least-squares fit to lattice neighbours enters Eq. 3); it cannot
-   predict (it holds the last observed frame).  (b) the **structure-preserving 3-D flow** of §4.4, Eq. 9
-   (:mod:`physar.recon.flow`): per-frame positions x'_n optimised with RGB + mask, OpenCV-DIS optical flow
-   between consecutive observed frames, and ARAP w.r.t. the rest lattice; x'_n supervises stage 3.
-3. **physics** (§4.2-4.4, Eq. 6-11, Alg. 2): per-particle Young's modulus E of the object (log-parameterised),
-   its Poisson ratio nu (nu_min + (nu_max - nu_min) sigmoid(z), bounds 0.2-0.4 of seed App. B), the Young's
-   modulus of the simulated body particles and the LBS-impact factor omega of the simulated body particles
-   (omega = g_i 2 sigmoid(l_i), g_i = 1 inside the body deeper than the surface layer ``surface_layer``, 0
-   on that layer and on the object: object particles are never actuated) are learned through the
-   differentiable MPM (:mod:`physar.mpm.torch_bridge`; the PD force of Eq. 6-7 held over each frame's
-   substeps as in Alg. 2, gains ``kp``/``kd``) and the rasteriser with
-   L_E2E = lambda_rgb |I - I*|_1 + lambda_mask |A - M|_1 + lambda_3Dflow |x_{n+1} - x'_{n+1}|_1   (Eq. 10)
-   + R (Eq. 11 and R_feat of App. A, :func:`physics_regulariser`); with ``residual`` the residual laws
-   E_theta and P_theta of Eq. 8 (latents l_e, l_p), truncated by Eq. 12 at inference.  Simulated bones: those
-   of ``scene.json`` and every bone whose posed capsule reaches the object (both hands when both touch it,
-   :func:`physar.recon.scene.reaching_bones`); log E and the nu logits live on a coarse voxel grid interpolated trilinearly to the particles (the
-   "material space" of seed App. C.3) unless ``material_grid`` is 0; progressive (the frame window grows every ``window_grow_every`` iterations) and loss-balanced
-   (each frame's loss is weighted by its previous loss relative to the mean).
+   an edge-length rigidity term (:math:`F` from a least-squares fit to lattice neighbours enters Eq. 3); it
+   cannot predict (it holds the last observed frame).  (b) the **structure-preserving 3-D flow** of §4.4,
+   Eq. 9 (:mod:`physar.recon.flow`): per-frame positions :math:`x'_n` optimised with RGB + mask, OpenCV-DIS
+   optical flow between consecutive observed frames, and ARAP w.r.t. the rest lattice; :math:`x'_n`
+   supervises stage 3.
+3. **physics** (§4.2-4.4, Eq. 6-11, Alg. 2): per-particle Young's modulus :math:`E` of the object
+   (log-parameterised), its Poisson ratio :math:`\nu`
+   (:math:`\nu_\text{min} + (\nu_\text{max} - \nu_\text{min}) \operatorname{sigmoid}(z)`, bounds 0.2-0.4 of
+   seed App. B), the Young's modulus of the simulated body particles and the LBS-impact factor :math:`\omega`
+   of the simulated body particles (:math:`\omega = g_i\, 2 \operatorname{sigmoid}(l_i)`, :math:`g_i = 1`
+   inside the body deeper than the surface layer ``surface_layer``, 0 on that layer and on the object: object
+   particles are never actuated) are learned through the differentiable MPM (:mod:`physar.mpm.torch_bridge`;
+   the PD force of Eq. 6-7 held over each frame's substeps as in Alg. 2, gains ``kp``/``kd``) and the
+   rasteriser with
+
+   .. math::
+
+       L_\text{E2E} = \lambda_\text{rgb} |I - I^*|_1 + \lambda_\text{mask} |A - M|_1
+       + \lambda_\text{3Dflow} |x_{n+1} - x'_{n+1}|_1 \quad \text{(Eq. 10)} \quad + R
+
+   (:math:`R`: Eq. 11 and :math:`R_\text{feat}` of App. A, :func:`physics_regulariser`); with ``residual``
+   the residual laws :math:`E_\theta` and :math:`P_\theta` of Eq. 8 (latents :math:`l_e, l_p`), truncated by
+   Eq. 12 at inference.  Simulated bones: those of ``scene.json`` and every bone whose posed capsule reaches
+   the object (both hands when both touch it, :func:`physar.recon.scene.reaching_bones`); :math:`\log E` and
+   the :math:`\nu` logits live on a coarse voxel grid interpolated trilinearly to the particles (the
+   "material space" of seed App. C.3) unless ``material_grid`` is 0; progressive (the frame window grows
+   every ``window_grow_every`` iterations) and loss-balanced (each frame's loss is weighted by its previous
+   loss relative to the mean).
 
 Baselines in the same harness: ``lbs`` (kinematic: the body follows LBS, the object never moves) and
 ``4dgs`` (stage 2's per-frame positions).  Prediction (``predict``) runs the learned simulator on any pose
@@ -329,7 +340,9 @@ class Rig:
         return {"ref": t(ref), "vref": t(vref), "A_h": t(Ah), "xb": t(xb), "A_b": t(Ab), "frames": len(ref)}
 
     def deformation_from_neighbours(self, x: torch.Tensor) -> torch.Tensor:
-        """Least-squares F_i = (sum_j dx_ij dX_ij^T) (sum_j dX_ij dX_ij^T)^-1 over lattice neighbours j."""
+        r"""Least-squares
+        :math:`F_i = \big(\sum_j dx_{ij}\, dX_{ij}^\top\big) \big(\sum_j dX_{ij}\, dX_{ij}^\top\big)^{-1}`
+        over lattice neighbours :math:`j`."""
         X = torch.as_tensor(self.Xo)
         i, j = self.pairs[:, 0], self.pairs[:, 1]
         dX, dx = X[j] - X[i], x[j] - x[i]
@@ -405,8 +418,8 @@ def image_loss(res, rgb_gt: torch.Tensor, mask_gt: torch.Tensor, cfg: TrainConfi
 # ----------------------------------------------------------------------------------------------- physics
 @dataclass
 class Physics:
-    """Learned physical parameters: log E of the object (No,), omega logits of the body (Nh,), optional
-    neural residual with latents."""
+    r"""Learned physical parameters: :math:`\log E` of the object (No,), :math:`\omega` logits of the body
+    (Nh,), optional neural residual with latents."""
 
     log_E: torch.Tensor
     omega_logit: torch.Tensor
@@ -444,7 +457,8 @@ class Physics:
         return cls(le, ol, nets, l_e, nl, leh, l_p)
 
     def material_leaves(self) -> list:
-        """log E, the omega logits, the nu logits and log E of the body (the physics_lr group)."""
+        r""":math:`\log E`, the :math:`\omega` logits, the :math:`\nu` logits and :math:`\log E` of the body
+        (the physics_lr group)."""
         return [t for t in (self.log_E, self.omega_logit, self.nu_logit, self.log_E_human) if t is not None]
 
     def leaves(self):
@@ -458,19 +472,22 @@ class Physics:
         return rig.E_human if self.log_E_human is None else torch.exp(self.log_E_human)
 
     def E_object(self, rig: Rig) -> torch.Tensor:
-        """Young's modulus of the object particles (No,), Pa: exp of the (interpolated) log E field."""
+        r"""Young's modulus of the object particles (No,), Pa: :math:`\exp` of the (interpolated)
+        :math:`\log E` field."""
         return torch.exp(self.log_E if rig.material_W is None else rig.material_W @ self.log_E)
 
     def nu_object(self, rig: Rig) -> torch.Tensor:
-        """Poisson ratio of the object particles (No,): nu_min + (nu_max - nu_min) sigmoid of the (interpolated)
-        logit field, or the scene's value when nu is not learned."""
+        r"""Poisson ratio of the object particles (No,):
+        :math:`\nu_\text{min} + (\nu_\text{max} - \nu_\text{min}) \operatorname{sigmoid}` of the
+        (interpolated) logit field, or the scene's value when :math:`\nu` is not learned."""
         if self.nu_logit is None:
             return rig.nu[:rig.no]
         z = self.nu_logit if rig.material_W is None else rig.material_W @ self.nu_logit
         return rig.cfg.nu_min + (rig.cfg.nu_max - rig.cfg.nu_min) * torch.sigmoid(z)
 
     def omega(self, rig: Rig) -> torch.Tensor:
-        """Full omega (No + Nh,): 0 on the object, gate * 2 sigmoid(l) on the body (Eq. 7)."""
+        r"""Full :math:`\omega` (No + Nh,): 0 on the object,
+        :math:`\mathrm{gate} \cdot 2 \operatorname{sigmoid}(l)` on the body (Eq. 7)."""
         return torch.cat([torch.zeros(rig.no, dtype=torch.float64), rig.gate * 2 * torch.sigmoid(self.omega_logit)])
 
     def params(self, rig: Rig) -> tb.Params:
@@ -832,9 +849,10 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
 
 
 def physics_regulariser(phys: Physics, rig: Rig, F: torch.Tensor) -> torch.Tensor:
-    """R of seed Eq. 11 (+ R_feat of App. A) through :func:`physar.mpm.neural.regulariser`, with the weights of
-    the configuration: the residuals evaluated at the deformation gradients F (No + Nh, 3, 3) of the last
-    simulated frame (physar's choice: F also stands for F_trial, which lives inside a substep), omega of all
+    r""":math:`R` of seed Eq. 11 (+ :math:`R_\text{feat}` of App. A) through
+    :func:`physar.mpm.neural.regulariser`, with the weights of the configuration: the residuals evaluated at
+    the deformation gradients :math:`F` (No + Nh, 3, 3) of the last simulated frame (physar's choice:
+    :math:`F` also stands for :math:`F_\text{trial}`, which lives inside a substep), :math:`\omega` of all
     particles."""
     from physar.mpm.neural import regulariser
 
@@ -1049,10 +1067,11 @@ def object_3d_errors(recon: Reconstruction, ds: Dataset) -> dict:
 
 
 def material_error(recon: Reconstruction, truth: dict) -> dict:
-    """Learned vs true E at the reconstruction's particles (nearest fine particle): mean |log10 ratio|
-    for the learned field and the initial guess, and the means over the soft/stiff parts (the two values of
-    a two-valued truth: pillow halves, C prongs/spine, bag filling/shell).  The reconstruction's law is
-    isotropic: the truth's fibre modulus (``fiber_E``, when stored) is reported, not compared."""
+    r"""Learned vs true E at the reconstruction's particles (nearest fine particle):
+    :math:`\operatorname{mean} |\log_{10} \text{ratio}|` for the learned field and the initial guess, and the
+    means over the soft/stiff parts (the two values of a two-valued truth: pillow halves, C prongs/spine, bag
+    filling/shell). The reconstruction's law is isotropic: the truth's fibre modulus (``fiber_E``, when
+    stored) is reported, not compared."""
     rig = recon.rig
     idx = cKDTree(truth["rest_positions"]).query(rig.Xo)[1]
     Et = truth["E"][idx]
