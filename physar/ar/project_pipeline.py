@@ -1,5 +1,5 @@
-"""The frame loop of any AR project (seed 000 §2.1, §4, §5): markers -> camera pose -> printed dots ->
-parameters mu* of the reduced model by Levenberg-Marquardt on the image -> overlay -> encode.
+r"""The frame loop of any AR project (seed 000 §2.1, §4, §5): markers -> camera pose -> printed dots ->
+parameters :math:`\mu^*` of the reduced model by Levenberg-Marquardt on the image -> overlay -> encode.
 
 Nothing here knows the object's shape: the project gives the reduced model (its mesh and modes), the
 markers' corners and the dots' positions in the object's frame. Each frame:
@@ -9,14 +9,21 @@ markers' corners and the dots' positions in the object's frame. Each frame:
    reduced model at the previous estimate, dots on faces turned away from the camera are skipped, and the
    search is brightness-invariant (:func:`physar.vision.blobs.find_dots`);
 3. the parameters and the camera pose are refined together (Gauss-Newton with step halving, bounds by
-   clipping) on theta = (6 small world-motion pose parameters, mu):
-   ||(P(X_c; pose) - c*) / sigma_c||² + ||(P(x_i + u_i(mu); pose) - d*_i) / sigma_d||², with X_c the seen
-   marker corners, c* their pixels, x_i the dots' reference positions, u_i(mu) = Σ_m c_m(mu) C_i F_m the
-   reduced model at the dots (C: the surface observation operator), d*_i the dots' pixels; a pose error
-   moves the points as X -> c + exp(δθ)(X - c) + δt before the pose (c: the markers' centre). The
-   covariance of mu is the inverse Gauss-Newton matrix scaled by max(1, chi²/dof). On a fresh start (first
-   frame, after a loss) or when the residual is far above the recent ones, the parameter box is searched on
-   a grid first (the cost is not convex in a load position);
+   clipping) on :math:`\theta` = (6 small world-motion pose parameters, :math:`\mu`):
+
+   .. math::
+
+       \lVert (P(X_c; \mathrm{pose}) - c^*) / \sigma_c \rVert^2
+       + \lVert (P(x_i + u_i(\mu); \mathrm{pose}) - d^*_i) / \sigma_d \rVert^2,
+
+   with :math:`X_c` the seen marker corners, :math:`c^*` their pixels, :math:`x_i` the dots' reference
+   positions, :math:`u_i(\mu) = \sum_m c_m(\mu)\, C_i F_m` the reduced model at the dots (:math:`C`: the
+   surface observation operator), :math:`d^*_i` the dots' pixels; a pose error moves the points as
+   :math:`X \to c + \exp(\delta\theta)(X - c) + \delta t` before the pose (:math:`c`: the markers' centre).
+   The covariance of :math:`\mu` is the inverse Gauss-Newton matrix scaled by
+   :math:`\max(1, \chi^2/\mathrm{dof})`. On a fresh start (first frame, after a loss) or when the residual is
+   far above the recent ones, the parameter box is searched on a grid first (the cost is not convex in a load
+   position);
 4. an interacting multiple model filter (:class:`physar.assimilation.filters.IMMFilter`) smooths the
    estimate with each frame's std;
 5. the overlay (:class:`physar.ar.surface.SurfaceOverlay`) draws the deformed surface coloured by the field.

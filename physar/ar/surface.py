@@ -1,13 +1,14 @@
-"""The overlay of any object (seed 000 §5.1, Fig. 7): the reduced model's deformed surface drawn on the
+r"""The overlay of any object (seed 000 §5.1, Fig. 7): the reduced model's deformed surface drawn on the
 video, coloured by a field (von Mises stress, |u| or a displacement component) with a colour bar, an
 arrow at the estimated load and the estimates ± std.
 
-The fields are linear in the mode coefficients c(mu): u = Σ c_i F_i and σ = Σ c_i σ(F_i), so the per-mode
-displacements and stresses at the surface vertices are precomputed (stress evaluated at each element's own
-vertices and averaged there, :func:`physar.fem.post.nodal_stress`: element means read low where the stress
-varies across an element, as in bending; README "What you can trust") and a frame costs a few small matrix
-products (von Mises = sqrt(3/2 s:s), s the deviatoric part of σ). The surface is drawn by the painter's
-algorithm: faces turned away from the camera are culled, the others filled far to near.
+The fields are linear in the mode coefficients :math:`c(\mu)`: :math:`u = \sum c_i F_i` and
+:math:`\sigma = \sum c_i \sigma(F_i)`, so the per-mode displacements and stresses at the surface vertices are
+precomputed (stress evaluated at each element's own vertices and averaged there,
+:func:`physar.fem.post.nodal_stress`: element means read low where the stress varies across an element, as in
+bending; README "What you can trust") and a frame costs a few small matrix products (von Mises
+:math:`= \sqrt{\tfrac32\, s : s}`, :math:`s` the deviatoric part of :math:`\sigma`). The surface is drawn by
+the painter's algorithm: faces turned away from the camera are culled, the others filled far to near.
 """
 from __future__ import annotations
 
@@ -30,12 +31,14 @@ def turbo_lut(n: int = 64) -> np.ndarray:
 
 
 def surface_stress_modes(space, F, E: float, nu: float, nodes) -> np.ndarray:
-    """Cauchy stress (n_modes, len(nodes), 3, 3) [Pa] of each displacement mode (rows of F, (n_modes, n_dofs))
-    at the mesh vertices ``nodes``, linear elasticity with (E [Pa], nu).
+    r"""Cauchy stress (n_modes, len(nodes), 3, 3) [Pa] of each displacement mode (rows of F, (n_modes,
+    n_dofs)) at the mesh vertices ``nodes``, linear elasticity with (E [Pa], nu).
 
-    Recovered by :func:`physar.fem.post.nodal_stress`: σ = λ tr(ε) I + 2 μ ε with ε evaluated at each element's
-    own vertices from the shape-function gradients there, averaged over the elements sharing a vertex
-    (weights: element volumes). Only the elements touching ``nodes`` are evaluated."""
+    Recovered by :func:`physar.fem.post.nodal_stress`:
+    :math:`\sigma = \lambda \operatorname{tr}(\varepsilon)\, I + 2 \mu\, \varepsilon` with :math:`\varepsilon`
+    evaluated at each element's own vertices from the shape-function gradients there, averaged over the
+    elements sharing a vertex (weights: element volumes). Only the elements touching ``nodes`` are
+    evaluated."""
     em = ElasticModel(space, LinearElastic(E, nu))
     return np.array([nodal_stress(em, Fi, nodes) for Fi in F])
 
@@ -57,7 +60,7 @@ def sampled_stress(rom, model, nodes, cell_scale=None, points: int | None = None
 
 
 def von_mises(s: np.ndarray) -> np.ndarray:
-    """sqrt(3/2 s:s) of stresses (..., 3, 3), s the deviatoric part."""
+    r""":math:`\sqrt{\tfrac32\, s : s}` of stresses (..., 3, 3), :math:`s` the deviatoric part."""
     dev = s - np.trace(s, axis1=-2, axis2=-1)[..., None, None] * np.eye(3) / 3
     return np.sqrt(1.5 * np.einsum("...ij,...ij->...", dev, dev))
 
