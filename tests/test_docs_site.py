@@ -44,16 +44,23 @@ BUILD_TIMEOUT_S = 600
 
 # public objects whose docstrings state a seed equation, and must show it as math (`:math:` / `.. math::`)
 MATH_DOCSTRINGS = {
-    "physar.fem": ["LinearElastic", "StVK", "NeoHookean", "NeoHookeanIncompressible", "Corotated"],
+    "physar.geometry": ["tet_quality"],
+    "physar.fem": ["LinearElastic", "StVK", "NeoHookean", "NeoHookeanIncompressible", "Corotated", "point_load",
+                   "gravity_load", "von_mises", "timoshenko_cantilever_tip"],
     "physar.integrators": ["SymplecticEuler", "BackwardEuler", "ImplicitMidpoint", "GeneralizedAlpha",
                            "ThetaMethod", "TRBDF2", "genalpha_coefficients", "rho_backward_euler",
-                           "d_backward_euler", "damping_curve"],
-    "physar.rom": ["SeparatedModel"],
-    "physar.gaussians": ["covariance"],
-    "physar.skinning": ["lbs", "blend_transforms"],
-    "physar.mpm": ["Control"],
+                           "d_backward_euler", "damping_curve", "LinearDynamics", "SolidModel",
+                           "CorotatedP1Kernel"],
+    "physar.rom": ["SeparatedModel", "pgd_linear", "pgd_linear_tensor"],
+    "physar.assimilation": ["observation_matrix"],
+    "physar.vision": ["Pose", "surface_observation_matrix"],
+    "physar.synth": ["rasterize"],
+    "physar.gaussians": ["covariance", "eval_sh", "render"],
+    "physar.skinning": ["lbs", "blend_transforms", "winding_number", "axis_angle_to_matrix"],
+    "physar.mpm": ["Control", "MPMModel", "diagnostics"],
 }
-MATH_MODULES = ["physar.assimilation", "physar.recon.flow"]  # module docstrings shown in the reference
+MATH_MODULES = ["physar.assimilation", "physar.recon.flow", "physar.recon.canonical", "physar.recon.metrics",
+                "physar.recon.train", "physar.ar.project_pipeline", "physar.ar.surface"]  # shown in the reference
 
 
 def _noise_free(stderr: str) -> str:
