@@ -306,6 +306,7 @@ _FLOOR = 10.0  # round-off floor of |R_free|: _FLOOR ε ||diag K_ff|| h (10x the
 _LS_ETA = 0.5        # line search: accept α once |g(α)| <= η |g(0)|
 _LS_TRIALS = 10
 _FULL_STEP_GROWTH = 1e3  # the full Newton step is kept while |R| grows by at most this factor
+_WANDER = 1e6         # ... until |R| is this many times the best so far: then back to the best, monotone
 _EASY_ITERATIONS = 5  # a load step converged within max(this, max_iter / 2) iterations doubles the next increment
 _CUT = 0.25           # a failed load step is retried with this fraction of its increment
 _MIN_INCREMENT = 1e-3  # ... down to this fraction of the largest increment 1/steps
@@ -345,12 +346,12 @@ class _Tangent:
         return x
 
 
-def _line_search(model, f, u, du, free, r, rn):
+def _line_search(model, f, u, du, free, r, rn, growth: float = None):
     """Step length α along the Newton direction Δu: (u, f_int, r, |r_free|) at u + α Δu, or a reason string.
 
     The full step α = 1 is kept unless it inverts elements (non-finite forces) or multiplies |R_free| by
-    more than 1e3 (non-monotone: on the elastica cases this takes 16-33 iterations where an exact line
-    search on Π crawls for 25-39, and pure Newton fails at α = 10 with neo-Hookean). Then, for a descent
+    more than ``growth`` (default 1e3; non-monotone: on the elastica cases this takes 16-33 iterations where
+    an exact line search on Π crawls for 25-39, and pure Newton fails at α = 10 with neo-Hookean). Then, for a descent
     direction of Π (g(0) = Δu·R(u) < 0) α makes g(α) = Δu·R(u + α Δu) = dΠ/dα small,
     |g(α)| <= η |g(0)|, by regula falsi on g with bisection where a trial inverts elements (non-finite
     forces); the full step is kept when g(1) is still negative. Otherwise (tangent not positive definite)
@@ -363,7 +364,7 @@ def _line_search(model, f, u, du, free, r, rn):
 
     ut, fi, rt = trial(1.0)
     rnt = float(np.linalg.norm(rt[free]))
-    if np.isfinite(rnt) and rnt <= _FULL_STEP_GROWTH * rn:
+    if np.isfinite(rnt) and rnt <= (_FULL_STEP_GROWTH if growth is None else growth) * rn:
         return ut, fi, rt, rnt
     g0 = float(du[free] @ r[free])
     if not g0 < 0:
@@ -418,6 +419,7 @@ def _newton(model, f, u, free, tol, max_iter, tangent: _Tangent, h: float) -> _A
     if rn <= tol * max(fnorm, float(np.linalg.norm(f_int))):
         return _Attempt(u, history, True)
     floor = 0.0
+    best, growth = (rn, u, f_int, r), None
     for _ in range(max_iter):
         K = model.tangent_stiffness(u)
         K_ff = K[free][:, free]
@@ -431,7 +433,7 @@ def _newton(model, f, u, free, tol, max_iter, tangent: _Tangent, h: float) -> _A
             du[free] = -tangent.solve(K_ff, r[free], u, rtol=eta)
         except SolverError as exc:
             return _Attempt(u, history, False, str(exc))
-        step = _line_search(model, f, u, du, free, r, rn)
+        step = _line_search(model, f, u, du, free, r, rn, growth)
         if isinstance(step, str):
             return _Attempt(u, history, False, step)
         u, f_int, r, rn = step
@@ -440,6 +442,13 @@ def _newton(model, f, u, free, tol, max_iter, tangent: _Tangent, h: float) -> _A
             return _Attempt(u, history, True)
         if rn <= floor and rn > 0.5 * history[-2]:  # stagnating at the round-off of f_int
             return _Attempt(u, history, True)
+        if rn < best[0]:
+            best = (rn, u, f_int, r)
+        elif growth is None and rn > _WANDER * best[0]:
+            # watchdog: the non-monotone full steps have wandered far from the best point (|R| 1e9 times it on
+            # the nearly incompressible seal, at most 5e3 on the elastica): back there, monotone from now on
+            rn, u, f_int, r = best
+            growth = 1.0
     scale = max(fnorm, float(np.linalg.norm(f_int)))
     stalled = len(history) > 5 and min(history[-3:]) > 0.5 * min(history[:-3])
     if stalled and (rn <= 1e3 * floor or rn <= 1e-6 * scale):

@@ -216,16 +216,28 @@ class ParametricProblem:
         """Predictor of a load/Dirichlet increment: the tangent at the last equilibrium u,
         K_ff(u) du_f = (f - f_int(u) - K(u) du_d)_f with du_d the increment of the prescribed values (Newton
         from the raw jump of the prescribed nodes alone starts from badly distorted elements next to them)."""
-        from physar.fem.solvers import factorize
+        from physar.fem.solvers import factorize, has_cholmod
 
         free = self.free
         du = np.zeros_like(u)
         du[self.fixed] = u_d[self.fixed] - u[self.fixed]
         K = model.tangent_stiffness(u)
         r = f - model.internal_force(u) - K @ du
+        try:   # Cholesky only: an indefinite tangent (past a limit point) gives no predictor
+            du[free] = factorize(K[free][:, free], method="cholmod" if has_cholmod() else "auto").solve(r[free])
+        except (SolverError, ArithmeticError, ValueError, RuntimeError):
+            return u
+        # keep the predictor only where it starts Newton closer to equilibrium than the raw jump of the
+        # prescribed nodes does (an LU of an indefinite tangent, or a step that inverts elements, does not)
+        jump = u.copy()
+        jump[self.fixed] = u_d[self.fixed]
         try:
-            du[free] = factorize(K[free][:, free]).solve(r[free])
-        except Exception:          # an indefinite tangent (past a limit point): no predictor
+            with np.errstate(all="ignore"):
+                r_pred = np.linalg.norm((f - model.internal_force(u + du))[free])
+                r_jump = np.linalg.norm((f - model.internal_force(jump))[free])
+        except (SolverError, ArithmeticError, ValueError, RuntimeError):
+            return u
+        if not np.isfinite(r_pred) or (np.isfinite(r_jump) and r_pred > r_jump):
             return u
         return u + du
 
