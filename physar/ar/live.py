@@ -284,7 +284,6 @@ class _Peer:
     mode: str = "server"      # "server": augmented JPEG frames; "page": the overlay's geometry, drawn by the page
     pending: bytes | None = None
     wake: asyncio.Event = field(default_factory=asyncio.Event)
-    skipped: int = 0
 
 
 class LiveServer:
@@ -466,9 +465,7 @@ class LiveServer:
             data = payloads.get(p.mode)
             if data is None:
                 continue
-            if p.pending is not None:
-                p.skipped += 1
-            p.pending = data
+            p.pending = data                 # (replaces a frame this page has not been sent yet)
             p.wake.set()
 
     async def _sender(self, peer: _Peer) -> None:
