@@ -214,6 +214,9 @@ class OverlaySection(_Strict):
     exaggeration: Float = Field(1.0, gt=0, description="scale of the drawn displacement [-]")
     alpha: Float = Field(0.65, ge=0, le=1, description="opacity of the drawn surface [-]")
     show: list[Str] | None = Field(None, description="parameters written as estimate ± std (default all)")
+    faces: Int = Field(3000, ge=0, description="most triangles drawn [-]: a finer model surface is drawn as an "
+                                               "even coarser triangulation carrying the model's field "
+                                               "(drawing costs about 2 µs per triangle); 0: the model's own")
 
     @field_validator("range")
     @classmethod
@@ -510,6 +513,7 @@ field = "von_mises"        # von_mises | u | ux | uy | uz
 # range = [0, 100e6]       # colour range (Pa or m); default 0 .. the field's maximum
 exaggeration = 1.0
 # show = ["s"]             # parameters written as estimate ± std (default all)
+# faces = 3000             # most triangles drawn (a finer model surface is drawn coarser); 0: all
 
 [tracking]                 # optional; the defaults need no tuning
 # dot_sigma_px = 0.3
@@ -517,4 +521,4 @@ exaggeration = 1.0
 '''
 
 
-__all__ = ["TEMPLATE", "ARProject", "ProjectConfig", "load_model", "load_project"]
+__all__ = ["ARProject", "ProjectConfig", "load_model", "load_project"]  # TEMPLATE: `physar ar init`

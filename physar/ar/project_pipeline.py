@@ -48,6 +48,22 @@ STAGES = ("decode", "markers_pose", "dots", "assimilate", "overlay", "encode")
 
 @dataclass
 class ProjectFrame:
+    """What :meth:`ProjectPipeline.process` reports for one frame (a CSV row of :meth:`ProjectPipeline.run`).
+
+    Attributes:
+        frame: index of the frame.
+        status: "tracking" (parameters updated), "hold" (pose known, parameters held), "lost" (no pose), or,
+            with markerless features, "reference" (the reference view being taken) and "rest".
+        mu: (p,) current estimate of the project's parameters, in their units.
+        std: (p,) its standard deviation.
+        residual_px: RMS reprojection residual of the frame's fit (nan where none was made).
+        n_markers: markers found.
+        n_dots: observations used: dots (or tracked feature points) and directly measured levers.
+        latency_ms: wall time of the frame, ms.
+        stages_ms: wall time per stage (``markers_pose``, ``dots``, ``assimilate``, ``overlay``), ms.
+        cpu_ms: CPU time of the processing thread, ms.
+    """
+
     frame: int
     status: str            # tracking | hold | lost
     mu: np.ndarray
@@ -123,7 +139,7 @@ class ProjectPipeline:
             self.overlay = SurfaceOverlay(rom, fld, ov.range, ov.exaggeration, ov.alpha, material,
                                           None if pos is None else params[pos].get("path"), pos,
                                           None if pos is None else params[pos].get("load"), show,
-                                          stress_table=table)
+                                          stress_table=table, max_faces=ov.faces)
 
     def reset(self) -> None:
         """Forget the history (a new camera stream): the pose tracker, the filter, the tracked texture points'
@@ -203,16 +219,34 @@ class ProjectPipeline:
         c = self.centre
         return Pose(pose.R @ E, pose.R @ (c - E @ c + th[3:6]) + pose.t)
 
-    def _residual(self, pose, th, Xc, img_c, px, valid, sc, sd):
+    def _residuals(self, pose, TH, Xc, img_c, px, valid, sc, sd) -> np.ndarray:
+        """Weighted residuals (k, m) of k vectors TH (k, 6 + p) = (pose increment, mu) at once (the frame's
+        residual and the finite-difference Jacobian's columns in one pass): marker corners / sc, then dots
+        / sd, pixels of the dots' deformed positions under the increment's pose (:meth:`_pose_of`)."""
+        TH = np.atleast_2d(TH)
         p = self.lo.size
-        P = self._pose_of(pose, th)
-        c = self.rom._coeffs(np.clip(th[6:6 + p], self.lo, self.hi).tolist())[0]
-        w = self.dots[valid] + np.tensordot(c, self.Fd[:, valid], 1)
+        E = np.array([cv2.Rodrigues(np.asarray(t[:3], float).reshape(3, 1))[0] for t in TH])   # (k, 3, 3)
+        R = pose.R @ E
+        c0 = self.centre
+        t = (c0 - E @ c0 + TH[:, 3:6]) @ pose.R.T + pose.t                                     # (k, 3)
+        coeffs: dict = {}                   # the pose columns share the frame's mu: c(mu) once per distinct mu
+        C = np.array([coeffs[m] if m in coeffs else coeffs.setdefault(m, self.rom._coeffs(list(m))[0])
+                      for m in map(tuple, np.clip(TH[:, 6:6 + p], self.lo, self.hi).tolist())])   # (k, modes)
+        W = self.dots[valid][None] + np.einsum("km,mnd->knd", C, self.Fd[:, valid])
+        if Xc is not None:
+            W = np.concatenate([np.broadcast_to(Xc, (len(TH),) + Xc.shape), W], 1)
+        if np.any(self.camera.dist):
+            q = np.array([self.camera.project(Wi, Pose(Ri, ti)) for Wi, Ri, ti in zip(W, R, t)])
+        else:
+            Xcam = np.einsum("kij,knj->kni", R, W) + t[:, None]
+            uv = Xcam[..., :2] / Xcam[..., 2:3]
+            K = self.camera.K
+            q = uv[..., :1] * K[:2, 0] + uv[..., 1:] * K[:2, 1] + K[:2, 2]
+        nc = 0 if Xc is None else len(Xc)
+        rd = ((q[:, nc:] - px[valid]) / sd).reshape(len(TH), -1)
         if Xc is None:
-            q = self.camera.project(w, P)
-            return ((q - px[valid]) / sd).ravel()
-        q = self.camera.project(np.vstack([Xc, w]), P)
-        return np.concatenate([((q[:len(Xc)] - img_c) / sc).ravel(), ((q[len(Xc):] - px[valid]) / sd).ravel()])
+            return rd
+        return np.concatenate([((q[:, :nc] - img_c) / sc).reshape(len(TH), -1), rd], 1)
 
     def _grid_start(self, pose, px, valid) -> np.ndarray:
         """The grid point of the parameter box with the smallest dot reprojection error (pose fixed)."""
@@ -258,18 +292,15 @@ class ProjectPipeline:
         steps = np.r_[np.full(6, 1e-6), 1e-6 * rng]
 
         def res(t):
-            return self._residual(pe.pose, t, Xc, img_c, px, valid, sc, sd)
+            return self._residuals(pe.pose, t, Xc, img_c, px, valid, sc, sd)[0]
 
         def jac(t, r):
-            J = np.empty((r.size, free.size))
-            for j, k in enumerate(free):
-                e = t.copy()
-                h = steps[k]
-                if k >= 6 and e[k] + h > self.hi[k - 6]:   # at the upper bound: a backward difference (a forward
-                    h = -h                                  # one would be clipped to zero and freeze it there)
-                e[k] += h
-                J[:, j] = (res(e) - r) / h
-            return J
+            h = steps[free].copy()
+            upper = (free >= 6) & (t[free] + h > np.r_[np.full(6, np.inf), self.hi][free])
+            h[upper] = -h[upper]          # at the upper bound: a backward difference (a forward one would be
+            E = np.tile(t, (free.size, 1))  # clipped to zero and freeze the parameter there)
+            E[np.arange(free.size), free] += h
+            return ((self._residuals(pe.pose, E, Xc, img_c, px, valid, sc, sd) - r) / h[:, None]).T
 
         r = res(th)
         cost = r @ r

@@ -9,6 +9,13 @@ precomputed (stress evaluated at each element's own vertices and averaged there,
 bending; README "What you can trust") and a frame costs a few small matrix products (von Mises
 :math:`= \sqrt{\tfrac32\, s : s}`, :math:`s` the deviatoric part of :math:`\sigma`). The surface is drawn by
 the painter's algorithm: faces turned away from the camera are culled, the others filled far to near.
+
+Drawing costs about 1.8 µs per visible face (one polygon fill each), so a model meshed finely for accuracy
+(11k surface triangles: 11 ms at 1280×720) would cost the frame rate. Above ``max_faces`` the surface drawn is
+therefore a coarser, even triangulation of the model's surface (:func:`display_surface`,
+:func:`physar.geometry.remesh.remesh_surface`) whose vertices carry the model's fields interpolated linearly
+from the closest point of the model's surface (:math:`v_d = W v`, W the barycentric weights): the shape and
+the colours are the model's, at the drawn triangles' resolution; the reported maximum is the model surface's.
 """
 from __future__ import annotations
 
@@ -65,24 +72,81 @@ def von_mises(s: np.ndarray) -> np.ndarray:
     return np.sqrt(1.5 * np.einsum("...ij,...ij->...", dev, dev))
 
 
+def display_surface(X: np.ndarray, faces: np.ndarray, max_faces: int, angle: float = 40.0):
+    """(points (d, 3), faces (g, 3), W (d, v) sparse) of an even triangulation with about ``max_faces``
+    triangles of the surface (X (v, 3), faces), or None when it has no more than ``max_faces`` already.
+
+    W holds the barycentric weights of each new vertex's closest point on the surface (exact point-triangle
+    distance among the 12 triangles with the nearest centroids): a field v at the surface's vertices is
+    W v at the new ones. New triangles are wound like the surface triangle closest to their centroid, so
+    outward normals stay outward. Sharp edges (dihedral above ``angle`` degrees) are kept."""
+    import scipy.sparse as sp
+    from scipy.spatial import cKDTree
+
+    from physar.geometry import TriMesh
+    from physar.geometry.remesh import remesh_surface, size_for_faces
+    from physar.vision.observation import closest_on_triangles
+
+    faces = np.asarray(faces, np.int64)
+    if max_faces <= 0 or len(faces) <= max_faces:
+        return None
+    surf = TriMesh(np.asarray(X, float), faces, name="model surface")
+    h = size_for_faces(surf, max_faces)
+    new = remesh_surface(surf, h, angle)
+    for _ in range(3):                  # patch borders and thin sides take more triangles than the area says
+        if new.n_faces <= 1.1 * max_faces:
+            break
+        h *= np.sqrt(new.n_faces / max_faces)
+        new = remesh_surface(surf, h, angle)
+    if new.n_faces >= 0.9 * len(faces):                 # no real saving (thin parts need their triangles)
+        return None
+    tri = surf.points[faces]
+    tree = cKDTree(tri.mean(1))
+    k = min(12, len(faces))
+
+    def closest(q):
+        _, cand = tree.query(q, k=k)
+        cand = cand.reshape(len(q), k)
+        f, lam, _ = closest_on_triangles(q, tri[cand])
+        return cand[np.arange(len(q)), f], lam
+
+    fid, lam = closest(new.points)
+    W = sp.csr_matrix((lam.ravel(), (np.repeat(np.arange(new.n_points), 3), faces[fid].ravel())),
+                      shape=(new.n_points, len(X)))
+    g = new.faces.copy()
+    near, _ = closest(new.points[g].mean(1))
+    flip = np.einsum("ij,ij->i", new.face_normals(), surf.face_normals()[near]) < 0
+    g[flip] = g[flip][:, ::-1]
+    return new.points, g, W
+
+
 class SurfaceOverlay:
     """Draws a reduced model's deformed boundary surface for one frame.
 
     ``field``: von_mises | u | ux | uy | uz; ``vrange``: colour range in SI units (default 0 to the 98th
     percentile of the field's maximum over a grid of the parameter box); ``exaggeration`` scales the drawn
     displacement; ``alpha`` the surface's opacity; ``load_path``: (k, 3) polyline of the load position
-    parameter (index ``load_param``), for the arrow; ``show``: indices of the parameters written."""
+    parameter (index ``load_param``), for the arrow; ``show``: indices of the parameters written;
+    ``max_faces``: above this many surface triangles, a coarser even triangulation is drawn
+    (:func:`display_surface`; 0: always the model's own surface)."""
 
     def __init__(self, rom, field: str = "von_mises", vrange=None, exaggeration: float = 1.0, alpha: float = 0.65,
                  material: tuple[float, float] | None = None, load_path=None, load_param: int | None = None,
-                 load_dir=None, show=None, levels: int = 48, stress_table=None):
+                 load_dir=None, show=None, levels: int = 48, stress_table=None, max_faces: int = 3000):
         space = rom.space()
         surf = space.mesh.boundary()
-        self.faces = surf.mesh.faces                       # (f, 3) into the surface vertices
-        self.X0 = surf.mesh.points                          # (v, 3) reference positions
+        self.faces = surf.mesh.faces                       # (f, 3) into the drawn surface's vertices
+        self.X0 = surf.mesh.points                          # (v, 3) reference positions of the drawn surface
         nodes = surf.node_map                               # volume vertex ids (P2: vertices come first)
         F = rom.F.reshape(rom.n_modes, -1, 3)
         self.U = np.ascontiguousarray(F[:, nodes])           # (modes, v, 3)
+        self.X_model = self.X0                              # the model's surface vertices (where values() are)
+        self.W = None                                      # model surface vertex field -> drawn vertices
+        disp = display_surface(self.X0, self.faces, max_faces)
+        if disp is not None:
+            self.X0, self.faces, self.W = disp
+            self._U_model = self.U
+            self.U = np.ascontiguousarray(np.stack([self.W @ u for u in self.U]))
         self.field, self.exag, self.alpha = field, exaggeration, alpha
         self.rom = rom
         self.table = None
@@ -106,6 +170,7 @@ class SurfaceOverlay:
             vrange = (0.0, top) if field in ("von_mises", "u") else (-top, top)
         self.vrange = (float(vrange[0]), float(vrange[1]))
         self.lut = turbo_lut(levels)
+        self._colours = [tuple(int(x) for x in col) for col in self.lut]
         self.levels = levels
         self.load_path = None if load_path is None else np.asarray(load_path, float)
         self.load_param = load_param
@@ -114,14 +179,14 @@ class SurfaceOverlay:
         self._bar = None
 
     def values(self, c: np.ndarray, mu=None) -> np.ndarray:
-        """The field (SI units) at the surface vertices for mode coefficients c (at parameters mu)."""
+        """The field (SI units) at the model's surface vertices for mode coefficients c (at parameters mu)."""
         if self.table is not None:
             lo = [g[0] for g in self.table.grid]
             hi = [g[-1] for g in self.table.grid]
             return self.table(np.clip(np.asarray(mu, float), lo, hi)[None])[0]
         if self.field == "von_mises":
             return von_mises(np.tensordot(c, self.S, 1))
-        u = np.tensordot(c, self.U, 1)
+        u = np.tensordot(c, self.U if self.W is None else self._U_model, 1)
         if self.field == "u":
             return np.linalg.norm(u, axis=1)
         return u[:, "xyz".index(self.field[1])]
@@ -146,23 +211,24 @@ class SurfaceOverlay:
         """What a frame's surface is drawn from: (p (v, 2) pixels of the deformed surface vertices, faces
         ids (k,) into ``faces`` of those turned towards the camera sorted far to near, their colour levels (k,)
         into the LUT, the field's maximum [SI]); the arrays are None when nothing is in front of the camera."""
-        v = self.values(c, mu)
+        vm = self.values(c, mu)
+        v = vm if self.W is None else self.W @ vm
         X = self.X0 + self.exag * np.tensordot(c, self.U, 1)
         Xc = X @ pose.R.T + pose.t
         if np.any(Xc[:, 2] <= 1e-6):
-            return None, None, None, float(v.max())
+            return None, None, None, float(vm.max())
         p = camera.project(X, pose)
         tri = self.faces
         n = np.cross(Xc[tri[:, 1]] - Xc[tri[:, 0]], Xc[tri[:, 2]] - Xc[tri[:, 0]])
         front = np.einsum("ij,ij->i", n, Xc[tri[:, 0]]) < 0      # outward normal towards the camera
         ids = np.flatnonzero(front)
         if not len(ids):
-            return None, None, None, float(v.max())
+            return None, None, None, float(vm.max())
         ids = ids[np.argsort(-Xc[tri[ids], 2].mean(1))]
         lo, hi = self.vrange
         lev = np.clip(((v[tri[ids]].mean(1) - lo) / (hi - lo) * (self.levels - 1)).round(), 0,
                       self.levels - 1).astype(int)
-        return p, ids, lev, float(v.max())
+        return p, ids, lev, float(vm.max())
 
     def _surface(self, img, camera, pose, c, mu=None) -> float:
         """Fill the deformed surface; returns the field's maximum (SI units)."""
@@ -181,9 +247,9 @@ class SurfaceOverlay:
         roi = img[y0:y1, x0:x1]
         layer = roi.copy()
         off = np.array([x0, y0]) * 16
-        colours = self.lut[lev].tolist()
-        for q, col in zip(pts - off, colours):
-            cv2.fillConvexPoly(layer, q, col, cv2.LINE_8, 4)
+        colours = self._colours
+        for q, k in zip(pts - off, lev.tolist()):
+            cv2.fillConvexPoly(layer, q, colours[k], cv2.LINE_8, 4)
         cv2.addWeighted(layer, self.alpha, roi, 1 - self.alpha, 0, dst=roi)
         return vmax
 
@@ -248,4 +314,4 @@ class SurfaceOverlay:
                         0.45 * sc, (255, 255, 255), 1, cv2.LINE_AA)
 
 
-__all__ = ["SurfaceOverlay", "surface_stress_modes", "von_mises"]
+__all__ = ["SurfaceOverlay", "display_surface", "surface_stress_modes", "von_mises"]

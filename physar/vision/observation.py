@@ -20,10 +20,12 @@ from physar.fem.elements import shape_functions
 def closest_on_triangles(points, tri) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For points (p, 3) and triangles (f, 3, 3): index of the closest triangle, barycentrics (p, 3), distance.
 
-    Exact point-triangle distance (projection clamped to the triangle by testing the 3 edges).
+    Exact point-triangle distance (projection clamped to the triangle by testing the 3 edges). ``tri`` may
+    also be (p, k, 3, 3), k candidate triangles per point (the index returned is then into its k).
     """
     P = np.asarray(points, float)[:, None, :]  # (p, 1, 3)
-    A, B, C = tri[None, :, 0], tri[None, :, 1], tri[None, :, 2]
+    tri = np.asarray(tri, float)
+    A, B, C = (tri[..., i, :] if tri.ndim == 4 else tri[None, :, i] for i in range(3))
     e0, e1 = B - A, C - A
     v = P - A
     d00, d01, d11 = (e0 * e0).sum(-1), (e0 * e1).sum(-1), (e1 * e1).sum(-1)

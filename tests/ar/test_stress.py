@@ -47,7 +47,7 @@ def drawn(tmp_path_factory):
     rom.save(path, space=space)
     rom = SeparatedModel.load(path)
     ov = SurfaceOverlay(rom, "von_mises", material=(E, NU))
-    return ov.X0, {s: ov.values(rom.coefficients([s])[0]) for s in POSITIONS}
+    return ov.X_model, {s: ov.values(rom.coefficients([s])[0]) for s in POSITIONS}
 
 
 def _zone(X, s):
