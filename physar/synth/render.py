@@ -163,7 +163,7 @@ class ProjectRenderer:
         self.project = project
         sc = self.res.sc
         self.visible = self.res.visible
-        self.truth = (truth or FineTruth(project, refine=sc.truth.refine)) if self.visible else None
+        self.truth = (truth or FineTruth(project, refine=sc.truth.refine, mesh_size=sc.truth.mesh_size)) if self.visible else None
         self.camera = self.res.camera
         self.rng = np.random.default_rng(sc.seed)
         if self.visible:

@@ -32,7 +32,7 @@ interp = "smooth"   # "smooth" (smooth-step between keyframes; equal values = a 
 [load_body]    # a body drawn at the load point while loaded (a lead disk): diameter, thickness [m], colour
 [[occlusion]]  # start [s], frames, center = [u, v] (image fractions) or point = [x, y, z] (m), radius
                # (fraction of the image height), colour = RGB
-[truth]        # refine = 2 (times finer than the model mesh)
+[truth]        # refine = 2 (times finer than the model mesh); mesh_size = 0.0035 (m: remesh a surface first)
 ```
 
 A model with ``[model] visible = false`` (a virtual object) is not drawn and has no finer truth: the truth of its
@@ -274,6 +274,10 @@ class Occlusion(_Strict):
 
 class TruthSection(_Strict):
     refine: Int = Field(2, ge=2, le=8, description="times finer than the model mesh")
+    mesh_size: Float | None = Field(None, gt=0, description="for a model meshed from a surface file: mesh the "
+                                                            "surface again at this element size [m] before "
+                                                            "refining (a truth mesh independent of the model's); "
+                                                            "default: refine the model's own mesh")
 
 
 class Scenario(_Strict):

@@ -3,7 +3,9 @@
 The FE problem is rebuilt from the project's ``physar rom build`` configuration (``[model] config``): the
 same material, supports, constant loads and ``[[parameter]]`` definitions, on a mesh ``refine`` times finer
 (``[mesh] box``: cells multiplied by ``refine``; a mesh file or a tetrahedralised surface: every
-tetrahedron split into 8, ``log2(refine)`` times, with its region tags carried over). The parameters act
+tetrahedron split into 8, ``log2(refine)`` times, with its region tags carried over). A surface file can
+first be tetrahedralised again at another size (``mesh_size``), so that the truth's mesh is not a
+subdivision of the model's. The parameters act
 exactly as in the reduced model's build (:class:`physar.rom.problem.ParametricProblem`, from
 :func:`physar.rom.config.build_parametric_problem`): a load at ``path_point(path, s) + t * direction`` with the
 total ``load * P / |load|``, a prescribed translation d e of a region, the finite rigid rotation
@@ -88,8 +90,10 @@ class FineTruth:
     (its :class:`physar.rom.problem.ParametricProblem`), ``solve(params)`` -> u (n_dofs,) [m] for a dict
     {parameter name: value}, cached per distinct parameter vector; ``solves`` counts the distinct solves."""
 
-    def __init__(self, project, refine: int = 2, cache: int = 64):
-        """``project``: an ARProject (its ``[model] config``) or the path of a ``physar rom build`` file."""
+    def __init__(self, project, refine: int = 2, cache: int = 64, mesh_size: float | None = None):
+        """``project``: an ARProject (its ``[model] config``) or the path of a ``physar rom build`` file.
+        ``mesh_size`` [m]: for a model meshed from a surface file, tetrahedralise that surface again at this
+        size before refining (a truth mesh independent of the model's, not a subdivision of it)."""
         from physar.fem.config import build_mesh, build_problem
         from physar.rom.config import build_parametric_problem, load_rom_config
 
@@ -109,6 +113,14 @@ class FineTruth:
         if refine < 1:
             raise ConfigError(f"{path}: truth refinement must be >= 1, got {refine}")
         base = path.resolve().parent
+        if mesh_size is not None:
+            if not (np.isfinite(mesh_size) and mesh_size > 0):
+                raise ConfigError(f"{path}: truth mesh_size must be a positive length in m, got {mesh_size}")
+            if cfg.mesh.file is None or Path(cfg.mesh.file).suffix.lower() not in (".stl", ".obj", ".ply", ".off"):
+                raise ConfigError(f"{path}: [mesh]: a truth mesh_size needs a model meshed from a surface file "
+                                  "(STL, OBJ, PLY, OFF); a box or volume mesh is refined as it is")
+            cfg = cfg.model_copy(deep=True)
+            cfg.mesh.size = float(mesh_size)
         try:
             if cfg.mesh.box is not None:
                 fine = cfg.model_copy(deep=True)
