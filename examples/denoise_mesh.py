@@ -17,9 +17,17 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from physar.geometry import TriMesh, read_mesh, write_mesh
-from physar.geometry.denoise import anisotropic_laplacian, msal, taubin_smooth
-from physar.geometry.quality import add_noise, mean_edge_length, vertex_normals
+from physar.geometry import (
+    TriMesh,
+    add_noise,
+    anisotropic_laplacian,
+    mean_edge_length,
+    msal,
+    read_mesh,
+    taubin_smooth,
+    vertex_normals,
+    write_mesh,
+)
 
 QUICK = os.environ.get("PHYSAR_EXAMPLE_QUICK") == "1"
 OUT = Path(os.environ.get("PHYSAR_EXAMPLE_OUT", "example_out"))

@@ -123,3 +123,6 @@ def _coercion(value, ann) -> str | None:
     if ann is bool and not isinstance(value, bool):
         return f"expected true or false, got {value!r}"
     return None
+
+
+__all__ = ["ConfigError", "MeshError", "PhysarError", "PhysarWarning", "SolverError"]

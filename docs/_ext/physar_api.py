@@ -56,7 +56,8 @@ def index_page(packages=PACKAGES) -> str:
     """The API index: one line per package, its docstring's first line."""
     lines = ["# API reference", "",
              ("The public API of each package is its `__all__`, documented here from the docstrings; anything "
-             "else is private and may change. Equations cite the seed papers' sections."), "",
+             "else is private and may change ([Public API and stability](../../api_policy.md)). Equations cite "
+             "the seed papers' sections."), "",
              "| package | |", "|---|---|"]
     for package in packages:
         doc = (importlib.import_module(package).__doc__ or "").strip().split("\n\n")[0]

@@ -1,5 +1,8 @@
 """The public API of physar (each package's ``__all__``) and the check that every public name has a docstring.
 
+The rule (docs/api_policy.md): a name in the ``__all__`` of a package of :data:`PACKAGES`, or of a submodule
+such a package lists in its ``__all__``, is public and documented; everything else is private.
+
 No Sphinx here: ``tests/test_docs.py`` runs :func:`missing_docstrings` in ``make test``'s environment, and
 the docs build (``physar_api``) reports each miss as a warning, an error under ``-W``.
 """
@@ -32,6 +35,24 @@ def resolve(package: str, name: str):
         return getattr(pkg, name)
     except AttributeError:
         return importlib.import_module(f"{package}.{name}")
+
+
+def submodules(package: str) -> list[str]:
+    """The dotted names of the submodules a package lists in its ``__all__`` (``physar.ar``, ``physar.recon``):
+    each documents, and keeps stable, what its own ``__all__`` names."""
+    return [resolve(package, n).__name__ for n in public_names(package)
+            if isinstance(resolve(package, n), types.ModuleType)]
+
+
+def public_api() -> dict[str, list[str]]:
+    """Every public module of physar (the packages of :data:`PACKAGES` and the submodules they list) and the
+    names it exports: its ``__all__``. A module missing from this map is private, whole."""
+    api = {}
+    for package in PACKAGES:
+        api[package] = public_names(package)
+        for module in submodules(package):
+            api[module] = public_names(module)
+    return api
 
 
 def _members(module: types.ModuleType) -> list[str]:
@@ -76,8 +97,13 @@ def _comment_above(source: str, name: str) -> str | None:
 
 
 def _own_doc(obj) -> str | None:
+    """The docstring written for ``obj``: a class's own (not inherited), and not the signature that
+    ``@dataclass`` and ``namedtuple`` put there when none was written (``Name(field: type, ...)``)."""
     if inspect.isclass(obj):
-        return obj.__dict__.get("__doc__")
+        doc = obj.__dict__.get("__doc__")
+        if doc and re.fullmatch(rf"{re.escape(obj.__name__)}\(.*\)", doc.strip(), re.DOTALL):
+            return None
+        return doc
     return getattr(obj, "__doc__", None)
 
 
@@ -94,8 +120,11 @@ def missing_docstrings(packages=PACKAGES) -> list[str]:
             if isinstance(obj, types.ModuleType):
                 if not (obj.__doc__ or "").strip():
                     missing.append(obj.__name__)
-                missing += [f"{obj.__name__}.{n}" for n in _members(obj)
-                            if not (_own_doc(getattr(obj, n)) or "").strip()]
+                for n in _members(obj):
+                    member = getattr(obj, n)
+                    documented = data_doc(obj.__name__, n) if _is_data(member) else (_own_doc(member) or "").strip()
+                    if not documented:
+                        missing.append(f"{obj.__name__}.{n}")
             elif _is_data(obj):
                 if name != "__version__" and not data_doc(package, name):
                     missing.append(f"{package}.{name}")

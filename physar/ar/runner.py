@@ -176,3 +176,6 @@ def _loop(process, camera, reader, source, out_video, out_csv, fps, crf, csv_hea
 def pipeline_stats(summary: dict) -> dict:
     """The entries of a pipeline summary that a demo's report.json carries."""
     return {k: summary[k] for k in ("frames", "fps", "latency_ms_median", "latency_ms_p95", "stages_ms_median")}
+
+
+__all__ = ["run_video"]

@@ -354,3 +354,6 @@ def from_frames(frames, *, fps: float = 30.0, name: str = "frames", latest: bool
         raise PhysarError(f"{name}: no frames") from None
     h, w = first[0].shape[:2]
     return LiveSource(gen, width=w, height=h, fps=fps, name=name, latest=latest, first=first)
+
+
+__all__ = ["LiveSource", "PushSource", "from_frames", "open_camera", "open_source", "open_stream"]

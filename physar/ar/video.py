@@ -327,3 +327,6 @@ class CameraSource:
 
     def close(self):
         self._cap.release()
+
+
+__all__ = ["CameraSource", "VideoReader", "VideoWriter"]

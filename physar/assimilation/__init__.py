@@ -54,6 +54,20 @@ from physar.errors import PhysarError
 
 @dataclass
 class AssimilationResult:
+    r"""The outcome of one estimate (:func:`assimilate`, :meth:`Assimilator.step`).
+
+    Attributes:
+        params: (p,) estimate :math:`\mu^\star`, in the parameters' units.
+        residual: :math:`\lVert u_\text{obs} - C u(\mu^\star) \rVert`, m.
+        iterations: Levenberg-Marquardt iterations, those of the multi-start included.
+        std: (p,) standard deviation of each parameter, the square roots of the diagonal of ``covariance``.
+        covariance: (p, p) Gauss-Newton covariance :math:`\sigma^2 (J^\top J + \alpha I)^{-1}`.
+        time_us: wall time of the estimate, µs.
+        restarted: whether the coarse multi-start was run.
+        fit_ratio: fit test of the estimate, statistic / critical value at the false-alarm rate (> 1: a fit
+            worse than noise and model error explain); nan where no test was made.
+    """
+
     params: np.ndarray     # estimate, parameter units
     residual: float        # ||u_obs - C u(mu)|| (m)
     iterations: int

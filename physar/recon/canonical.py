@@ -85,3 +85,6 @@ def zero_stress_deformation(x: np.ndarray | torch.Tensor, dt: float, substeps: i
             xp = xp + ds * vp
         out.append(F.clone())
     return torch.stack(out)
+
+
+__all__ = ["zero_stress_deformation"]

@@ -122,3 +122,6 @@ def arap_energy(x: torch.Tensor, X: torch.Tensor, pairs: torch.Tensor) -> torch.
     r_i = dx - (Rm[i] @ dX[:, :, None])[..., 0]
     r_j = dx - (Rm[j] @ dX[:, :, None])[..., 0]
     return 0.5 * ((r_i**2).sum(1) + (r_j**2).sum(1)).mean()
+
+
+__all__ = ["arap_energy", "dis_flow", "flow_loss", "polar_rotation"]

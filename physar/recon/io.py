@@ -53,3 +53,6 @@ def read_pngs(folder: Path, n: int, gray: bool = False) -> np.ndarray:
             raise ConfigError(f"'{p}' is not a readable image")
         out.append(img if gray else cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
     return np.stack(out).astype(np.float32) / 255.0
+
+
+__all__ = ["read_pngs", "write_mp4"]

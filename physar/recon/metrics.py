@@ -124,3 +124,6 @@ def large_deformation_frames(displacement: np.ndarray, frames, fraction: float =
         return []
     thr = fraction * max(float(d[f]) for f in frames)
     return [f for f in frames if d[f] >= thr and d[f] > 0]
+
+
+__all__ = ["iou", "large_deformation_frames", "lpips", "lpips_model", "psnr", "sequence_metrics", "ssim"]

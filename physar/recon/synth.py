@@ -485,3 +485,6 @@ def generate(out_dir: str | Path, cfg: SynthConfig | None = None,
         np.savez(tmp / "truth.npz", **truth)
         write_mp4(tmp / "video.mp4", preview, cfg.fps)
     return out
+
+
+__all__ = ["SynthConfig", "generate", "load_synth_config"]

@@ -1097,3 +1097,7 @@ def _preview(recon: Reconstruction, ds: Dataset, path: Path) -> bool:
         cols.append(recon.predict(ds.rotations, ds.root_t, m)[0])
     frames = np.concatenate(cols, axis=2)
     return write_mp4(path, (np.clip(frames, 0, 1) * 255 + 0.5).astype(np.uint8), ds.meta["fps"])
+
+
+__all__ = ["Appearance", "Dataset", "Physics", "Reconstruction", "Rig", "TrainConfig", "evaluate", "fit",
+           "load_dataset", "load_train_config", "render_scene"]

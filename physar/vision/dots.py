@@ -23,6 +23,15 @@ from physar.vision.camera import Camera, Pose
 
 @dataclass
 class DotObservation:
+    r"""The dots of one frame (:meth:`DotTracker.update`).
+
+    Attributes:
+        pixels: (n, 2) refined image positions (NaN where not seen), px.
+        valid: (n,) bool, the dot was seen.
+        world: (n, 3) positions back-projected onto the object's plane (NaN where not seen), m.
+        displacement: (n, 3) ``world`` minus the reference positions, :math:`u^* = x - X_\mathrm{ref}`, m.
+    """
+
     pixels: np.ndarray        # (n, 2) refined image positions (NaN where not seen)
     valid: np.ndarray         # (n,) bool
     world: np.ndarray         # (n, 3) back-projected positions [m] (NaN where not seen)

@@ -62,6 +62,20 @@ class MarkerBoard:
 
 @dataclass
 class PoseEstimate:
+    """The camera pose of one frame (:meth:`MarkerTracker.update`).
+
+    Attributes:
+        pose: the filtered camera pose (world -> camera), or None while no pose is known.
+        status: "measured", "predicted" (held by the constant-velocity filter under occlusion) or "lost".
+        n_markers: markers found in the frame.
+        reprojection_px: RMS reprojection error of the measured pose, px (nan unless measured).
+        ids: ids of the markers the pose was measured from.
+        image_corners: (4k, 2) refined image corners of those markers, four per marker in ``ids``' order,
+            px; None unless measured.
+        full_search: whether the whole frame was searched (no predicted pose).
+        rotation_std: (3,) standard deviation of the pose's rotation about the world axes, rad.
+    """
+
     pose: Pose | None
     status: str  # "measured", "predicted" (held under occlusion) or "lost"
     n_markers: int = 0
