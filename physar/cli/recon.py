@@ -169,6 +169,120 @@ def eval_cmd(
     print_json(report) if json_out else _print_table(report)
 
 
+def _floats(text: str | None, n: int | None, option: str) -> tuple | None:
+    from physar.errors import ConfigError
+
+    if text is None:
+        return None
+    try:
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise ConfigError(f"{option} must be comma-separated numbers, got {text!r}") from None
+    if n is not None and len(v) != n:
+        raise ConfigError(f"{option} needs {n} comma-separated numbers, got {text!r}")
+    return v
+
+
+@recon_app.command("import")
+@user_errors
+def import_cmd(
+    video: Path = typer.Argument(..., help="the video (any format PyAV reads)"),  # noqa: B008 - typer idiom
+    out: Path = typer.Option(..., "--out", "-o", help="DATA_DIR to write (new, empty or a previous import)"),  # noqa: B008
+    masks: Path = typer.Option(..., "--masks", help="folder of label PNGs, one per frame (0 = background)"),  # noqa: B008
+    poses: Path = typer.Option(..., "--poses", help="SMPL/SMPL-X parameters (.npz without pickles, or .json): "  # noqa: B008
+                               "global_orient, body_pose (axis-angle), betas, transl, camera coordinates"),
+    object_mesh: Path | None = typer.Option(None, "--object-mesh", help="closed surface mesh of the object "  # noqa: B008
+                                            "(metres, camera coordinates)"),
+    camera: Path | None = typer.Option(None, "--camera", help="camera TOML from `physar calibrate`"),  # noqa: B008
+    focal_px: float | None = typer.Option(None, "--focal-px", help="focal length [px of the video] (no --camera)"),
+    focal_35mm: float | None = typer.Option(None, "--focal-35mm", help="35 mm-equivalent focal length [mm] "
+                                            "(EXIF FocalLengthIn35mmFilm; no --camera)"),
+    up: str = typer.Option("0,-1,0", "--up", help="up vector in camera coordinates (x right, y down, z forward)"),
+    size: str | None = typer.Option(None, "--size", help="output size: N (longer side, px) or WxH"),
+    fps: float | None = typer.Option(None, "--fps", help="output frame rate (default: the video's)"),
+    spin_frames: int = typer.Option(0, "--spin-frames", help="the first N output frames are the spin clip"),
+    n_obs: int | None = typer.Option(None, "--n-obs", help="observed frames of the dynamic clip (default 3/4)"),
+    person_labels: str = typer.Option("1", "--person-labels", help="label values of the person, e.g. 1 or 1,3"),
+    object_labels: str = typer.Option("2", "--object-labels", help="label values of the object"),
+    ignore_labels: str | None = typer.Option(None, "--ignore-labels", help="label values taken as background"),
+    height: float = typer.Option(1.7, "--height", help="the person's height [m] (the recon body's size)"),
+    pelvis_offset: str = typer.Option("0,0,0", "--pelvis-offset", help="SMPL template pelvis J0 [m] added to "
+                                      "transl (0 when transl is the pelvis position)"),
+    background: str = typer.Option("0.3,0.3,0.35", "--background", help="RGB in [0, 1] put outside the masks"),
+    domain_size: float | None = typer.Option(None, "--domain-size", help="MPM domain side [m] (default twice "
+                                             "the object's largest extent)"),
+    grid_resolution: int = typer.Option(16, "--grid-resolution", help="MPM cells per side (also the voxel size)"),
+    density: float = typer.Option(200.0, "--density", help="object density [kg/m^3]"),
+    nu: float = typer.Option(0.3, "--nu", help="object Poisson ratio"),
+    json_out: bool = typer.Option(False, "--json", help="print a summary as JSON"),
+) -> None:
+    """Import a video of a person acting on a soft object (label masks, SMPL poses, a camera, an up vector and the
+    object's mesh) into a DATA_DIR for `physar recon fit` (formats: physar/recon/importer.py, README)."""
+    from physar.cli._common import check_input, whole_folder
+    from physar.errors import ConfigError
+    from physar.recon.importer import ImportOptions, Intrinsics, import_video
+
+    check_input(video, "video")
+    check_input(masks, "masks folder", folder=True)
+    check_input(poses, "pose file")
+    if object_mesh is not None:
+        check_input(object_mesh, "object mesh")
+    whole_folder(out, "a new folder such as data/")
+    labels = lambda t, o: tuple(int(v) for v in _floats(t, None, o)) if t else ()  # noqa: E731
+    for t, o in ((person_labels, "--person-labels"), (object_labels, "--object-labels"), (ignore_labels, "--ignore-labels")):
+        if t and any(v != int(v) or v < 0 for v in _floats(t, None, o)):
+            raise ConfigError(f"{o} must be non-negative integers, got {t!r}")
+    intr = None
+    if camera is not None:
+        from physar.vision.camera import Camera
+
+        if focal_px is not None or focal_35mm is not None:
+            raise ConfigError("give either --camera or --focal-px/--focal-35mm, not both")
+        check_input(camera, "camera file")
+        c = Camera.load(camera)
+        intr = Intrinsics(c.fx, c.fy, float(c.K[0, 2]), float(c.K[1, 2]), c.width, c.height, tuple(c.dist.tolist()))
+    elif focal_px is None and focal_35mm is None:
+        raise ConfigError("give the camera: --camera TOML (physar calibrate), --focal-px or --focal-35mm")
+    opts = ImportOptions(size=size, fps=fps, spin_frames=spin_frames, n_obs=n_obs,
+                         person_labels=labels(person_labels, "--person-labels"),
+                         object_labels=labels(object_labels, "--object-labels"),
+                         ignore_labels=labels(ignore_labels, "--ignore-labels"), up=_floats(up, 3, "--up"),
+                         height=height, pelvis_offset=_floats(pelvis_offset, 3, "--pelvis-offset"),
+                         background=_floats(background, 3, "--background"), domain_size=domain_size,
+                         grid_resolution=grid_resolution, density=density, nu=nu)
+    summary = import_video(video, out, masks=masks, poses=poses, intrinsics=intr, focal_px=focal_px,
+                           focal_35mm=focal_35mm, object_mesh=object_mesh, opts=opts)
+    print_json(summary) if json_out else log(
+        f"scene -> {out} ({summary['frames']} frames, {summary['n_obs']} observed, {summary['spin_frames']} spin, "
+        f"{summary['size'][0]}x{summary['size'][1]} px at {summary['fps']:g} fps; object {summary['object_boxes']} "
+        f"boxes, {summary['object_volume_m3'] * 1e3:.2f} L); check it with `physar recon check {out}`")
+
+
+@recon_app.command("check")
+@user_errors
+def check_cmd(
+    data_dir: Path = typer.Argument(..., help="DATA_DIR to check"),  # noqa: B008 - typer idiom
+    max_jump_deg: float = typer.Option(30.0, "--max-jump-deg", help="pose jitter: largest joint turn per frame"),
+    json_out: bool = typer.Option(False, "--json", help="print the findings as JSON"),
+) -> None:
+    """Report what is missing or inconsistent in a DATA_DIR (frame counts, mask coverage, pose jitter, camera vs
+    image size); exit 2 with one line per problem."""
+    from physar.recon.importer import check_dataset
+
+    info = check_dataset(data_dir, max_jump_deg=max_jump_deg)
+    if json_out:
+        print_json(info)
+    else:
+        for name, c in info["clips"].items():
+            log(f"{name}: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in c.items()))
+    if info["problems"]:
+        for p in info["problems"]:
+            typer.echo(f"error: {p}", err=True)
+        raise typer.Exit(code=2)
+    if not json_out:
+        log(f"{data_dir}: no problem found")
+
+
 def _print_table(report: dict) -> None:
     log("method   subset        PSNR    SSIM    IoU   (frames)")
     for m, res in report["methods"].items():

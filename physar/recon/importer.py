@@ -1,0 +1,708 @@
+r"""Real-data front end of the reconstruction (issue 17 part 1, seed 002 §5.1-5.2): ``physar recon import``
+turns a user's video, segmentation masks, a camera, an up vector, a pose file and an object mesh into a
+DATA_DIR in the format ``physar recon fit`` reads (:func:`physar.recon.train.load_dataset`), and ``physar recon
+check`` reports what is missing or inconsistent in a DATA_DIR.
+
+Inputs and conventions
+----------------------
+
+* **Frames**: any video PyAV decodes. Frame :math:`k` of the output (rate ``fps``) is source frame
+  :math:`i_k = \operatorname{round}(k\, f_\text{src} / f)` (all frames when ``fps`` is not given), resized to
+  ``size`` (area averaging when shrinking). The background (outside the masks) is replaced by the constant
+  ``background`` colour that the Gaussian renderer composites over.
+* **Masks**: a folder of PNGs, one per frame in name order (one per *source* frame, or one per output frame),
+  single-channel label images as video segmenters write them (DAVIS / XMem / Cutie / SAM 2: palette or grey
+  PNGs, 0 = background, one integer id per tracked object). ``person_labels`` and ``object_labels`` name the
+  ids of the person and of the object (default 1 and 2); ``ignore_labels`` are treated as background; any other
+  value is refused. The DATA_DIR mask is the foreground :math:`M = [\ell \in P \cup O]`, resized by area
+  averaging and thresholded at 1/2.
+* **Camera**: intrinsics in OpenCV's pixel-centre convention (pixel :math:`(0, 0)` centred at :math:`(0, 0)`)
+  for the source size :math:`W \times H` — from a ``physar calibrate`` TOML or from a focal length in pixels or
+  a 35 mm-equivalent focal length :math:`f_{35}` (EXIF ``FocalLengthIn35mmFilm``, defined by the diagonal
+  angle of view: :math:`f_\text{px} = f_{35} \sqrt{W^2 + H^2} / \sqrt{36^2 + 24^2}`, principal point at the
+  image centre). With distortion the frames and masks are undistorted first (same K). Rescaled to
+  :math:`W' \times H'` in the renderer's convention (pixel centres at :math:`i + 1/2`):
+
+  .. math::
+
+      f_x' = f_x \frac{W'}{W}, \quad c_x' = (c_x + \tfrac12) \frac{W'}{W}, \quad
+      f_y' = f_y \frac{H'}{H}, \quad c_y' = (c_y + \tfrac12) \frac{H'}{H}.
+
+  The camera is static (one camera for all clips, as in the synthetic scenes).
+* **Up**: a vector :math:`u` in camera coordinates (OpenCV: x right, y down, z forward; an upright camera has
+  :math:`u = (0, -1, 0)`), e.g. from the phone's accelerometer or a level. No marker board is read (skipped:
+  give the vector). The world frame: :math:`e_z = u/|u|`, :math:`e_x` = the camera's x made orthogonal to it,
+  :math:`e_y = e_z \times e_x`; its origin on the object's support (lowest point along :math:`u`) below the
+  centre of the object's bounding box; gravity :math:`-9.81\, e_z`. World :math:`\to` camera:
+  :math:`p_C = R p_W + t`, :math:`R = [e_x\ e_y\ e_z]`.
+* **Poses**: SMPL / SMPL-X parameter sequences as pose estimators write them, ``.npz`` (read with
+  ``allow_pickle=False``: pickled objects are refused, never executed) or JSON (a table of arrays, or a list of
+  per-frame tables): ``global_orient`` (F, 3) axis-angle (or (F, 3, 3) matrices), ``body_pose`` (F, 63 | 69),
+  (F, 21 | 23, 3) or matrices (F, 21 | 23, 3, 3), ``transl`` (F, 3) m, ``betas`` (checked, not used: the body's
+  size is ``height``); AMASS-style ``poses`` (F, >= 66) and ``trans`` are accepted too. The body is in camera
+  coordinates: a point of SMPL's canonical frame (y up, facing +z, x = the body's left) is posed as
+  :math:`G_0 (x - J_0) + J_0 + \text{transl}`; :math:`J_0` (the pelvis joint of the template for the user's
+  betas) is ``pelvis_offset`` (default 0: ``transl`` is the pelvis position).
+* **Retargeting** onto the recon body (the capsule humanoid of :func:`physar.skinning.procedural_humanoid`: z up,
+  facing -y, the same T rest pose as SMPL): SMPL's global joint rotations
+  :math:`G_j = G_{\mathrm{parent}(j)} \exp([\theta_j]_\times)` (Rodrigues) are mapped by name
+  (:data:`RETARGET`: bone :math:`\leftarrow` SMPL joint) into world bone rotations
+  :math:`G^K_k = R^\top G_{s(k)} M^\top` with :math:`M` the change of canonical axes (SMPL :math:`\to` capsule:
+  :math:`x \to x`, :math:`y \to z`, :math:`z \to -y`, :data:`SMPL_TO_BODY`); the local rotations are
+  :math:`L_k = (G^K_{\mathrm{parent}(k)})^\top G^K_k`, and the root translation puts the capsule's root joint
+  :math:`h_\text{root}` on the pelvis: :math:`\tau = R^\top (J_0 + \text{transl} - t) - h_\text{root}`.
+  Intermediate SMPL joints (spine1-2, neck, collars) enter through the composed global rotations; wrists,
+  hands, feet and the face are dropped (the capsule figure has none).
+* **Object**: a closed surface mesh (any format trimesh or meshio reads), vertices in metres in camera
+  coordinates (a scan registered to the camera), voxelised on the MPM grid (cell :math:`\Delta x =
+  \text{size}/\text{resolution}`) by the generalised winding number (inside: :math:`w > 1/2`) and written as
+  the union of boxes (x-runs of voxels) that ``scene.json`` ``object.boxes`` holds, so that the recon's lattice
+  at :math:`\Delta x / k` samples it exactly. The visual hull from the spin clip's masks is not built: with the
+  one static camera of this format the spin clip shows the object from one view only, and a hull needs per-frame
+  camera poses of views around the object (not part of the format yet); give the mesh.
+
+The first ``spin_frames`` output frames form the spin clip (the person turning next to the object at rest,
+seed §5.1); the rest is the dynamic clip, of which the first ``n_obs`` are observed. No novel clip, no truth.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import zipfile
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from physar.errors import ConfigError
+from physar.output import atomic_folder, check_folder, own_names
+from physar.recon import scene as S
+from physar.skinning import axis_angle_to_matrix, winding_number
+
+#: SMPL joint names (index = joint id; SMPL-X shares the first 22)
+SMPL_JOINTS = ["pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2", "left_ankle",
+               "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar", "right_collar", "head",
+               "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist",
+               "left_hand", "right_hand"]
+SMPL_PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21]
+#: recon body bone <- SMPL joint whose global rotation it takes
+RETARGET = {"root": "pelvis", "pelvis": "pelvis", "spine": "spine3", "head": "head",
+            "upperarm.L": "left_shoulder", "forearm.L": "left_elbow",
+            "upperarm.R": "right_shoulder", "forearm.R": "right_elbow",
+            "thigh.L": "left_hip", "shin.L": "left_knee", "thigh.R": "right_hip", "shin.R": "right_knee"}
+#: SMPL canonical axes -> capsule canonical axes (x -> x, y (up) -> z, z (forward) -> -y)
+SMPL_TO_BODY = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+N_MAPPED = 1 + max(SMPL_JOINTS.index(j) for j in RETARGET.values())  # joints 0..19 are needed
+
+DATA_DIR_FILES = own_names(r"scene\.json", r"(spin_)?poses\.npz", r"rgb", r"mask", r"spin")
+
+
+# ----------------------------------------------------------------------------------------------- camera
+@dataclass
+class Intrinsics:
+    """Pinhole intrinsics of the source video in OpenCV's pixel-centre convention, px; distortion (OpenCV
+    order)."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    dist: tuple = ()
+
+    @classmethod
+    def from_focal(cls, width: int, height: int, focal_px: float | None = None,
+                   focal_35mm: float | None = None) -> Intrinsics:
+        r"""Square pixels, principal point at the centre :math:`((W-1)/2, (H-1)/2)`; focal length in px or
+        35 mm-equivalent (mm, diagonal: :math:`f = f_{35} \sqrt{W^2+H^2} / 43.27`)."""
+        if (focal_px is None) == (focal_35mm is None):
+            raise ConfigError("give the focal length once: --focal-px or --focal-35mm (or --camera TOML)")
+        f = focal_px if focal_px is not None else focal_35mm * math.hypot(width, height) / math.hypot(36.0, 24.0)
+        if not (math.isfinite(f) and f > 0):
+            raise ConfigError(f"focal length must be a positive number, got {f}")
+        return cls(f, f, (width - 1) / 2, (height - 1) / 2, width, height)
+
+    def scene_camera(self, width: int, height: int, R: np.ndarray, t: np.ndarray) -> dict:
+        """scene.json camera for images resized to ``width`` x ``height`` (module docstring)."""
+        sx, sy = width / self.width, height / self.height
+        return {"fx": self.fx * sx, "fy": self.fy * sy, "cx": (self.cx + 0.5) * sx, "cy": (self.cy + 0.5) * sy,
+                "width": int(width), "height": int(height), "R": np.asarray(R).tolist(), "t": np.asarray(t).tolist()}
+
+
+def world_rotation(up) -> np.ndarray:
+    """World -> camera rotation R = [e_x e_y e_z] (columns in camera coordinates) for an up vector ``up``."""
+    u = np.asarray(up, dtype=np.float64).reshape(-1)
+    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) < 1e-9:
+        raise ConfigError(f"--up must be three numbers, not all zero (camera coordinates), got {np.asarray(up).tolist()}")
+    ez = u / np.linalg.norm(u)
+    ref = np.array([1.0, 0.0, 0.0]) if abs(ez[0]) < 0.9 else np.array([0.0, 0.0, 1.0])
+    ex = ref - ez * (ref @ ez)
+    ex /= np.linalg.norm(ex)
+    return np.stack([ex, np.cross(ez, ex), ez], axis=1)
+
+
+# ----------------------------------------------------------------------------------------------- video
+def source_indices(n_src: int, src_fps: float, fps: float | None) -> np.ndarray:
+    r"""Source frames of the output frames: :math:`i_k = \operatorname{round}(k f_\text{src}/f) < n_\text{src}`."""
+    if fps is None or abs(fps - src_fps) < 1e-9 * src_fps:
+        return np.arange(n_src)
+    k = np.arange(int(math.floor((n_src - 1) * fps / src_fps + 1e-9)) + 1)
+    return np.minimum(np.round(k * src_fps / fps).astype(np.int64), n_src - 1)
+
+
+def read_video(path: str | Path) -> tuple[list[np.ndarray], float]:
+    """All frames (RGB uint8) of a video PyAV decodes and its frame rate."""
+    import av
+
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: video not found")
+    try:
+        with av.open(str(path)) as c:
+            if not c.streams.video:
+                raise ConfigError(f"{path}: holds no video stream")
+            st = c.streams.video[0]
+            rate = st.average_rate or st.guessed_rate or st.base_rate
+            frames = [f.to_ndarray(format="rgb24") for f in c.decode(st)]
+    except av.FFmpegError as e:
+        raise ConfigError(f"{path}: not a video PyAV can read ({' '.join(str(e).split())[:100]})") from None
+    if not frames:
+        raise ConfigError(f"{path}: the video has no frame")
+    if rate is None or float(rate) <= 0:
+        raise ConfigError(f"{path}: the video has no frame rate")
+    return frames, float(rate)
+
+
+def parse_size(size: str | None, width: int, height: int) -> tuple[int, int]:
+    """Output size from ``WxH``, ``N`` (longer side N px, aspect kept) or None (source size)."""
+    if size is None:
+        return width, height
+    try:
+        if "x" in size.lower():
+            w, h = (int(v) for v in size.lower().split("x"))
+        else:
+            n = int(size)
+            s = n / max(width, height)
+            w, h = max(1, round(width * s)), max(1, round(height * s))
+    except ValueError:
+        raise ConfigError(f"--size must be N (longer side, px) or WxH, got {size!r}") from None
+    if not (8 <= w <= 8192 and 8 <= h <= 8192):
+        raise ConfigError(f"--size {size}: {w}x{h} px is outside 8..8192")
+    return w, h
+
+
+def _resize(img: np.ndarray, w: int, h: int) -> np.ndarray:
+    if img.shape[1] == w and img.shape[0] == h:
+        return img
+    shrink = w < img.shape[1] or h < img.shape[0]
+    return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+
+
+# ----------------------------------------------------------------------------------------------- masks
+def read_label_png(path: Path) -> np.ndarray:
+    """Integer labels (H, W) of a palette or grey PNG (palette indices, not colours)."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            if im.mode in ("P", "L", "I", "I;16", "1"):
+                return np.asarray(im).astype(np.int64)
+            raise ConfigError(f"{path}: mask mode {im.mode} is not a label image (give single-channel PNGs: palette "
+                              "or grey, one integer id per pixel)")
+    except (UnidentifiedImageError, OSError):
+        raise ConfigError(f"{path}: not a readable PNG") from None
+
+
+def read_masks(folder: str | Path, person_labels, object_labels, ignore_labels=()) -> tuple[list[Path], list]:
+    """Foreground masks (float32 (H, W) in {0, 1}) of the label PNGs of ``folder`` in name order; one error line
+    for a label value that is neither background (0), ignored, person nor object."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ConfigError(f"{folder}: masks folder not found")
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png")
+    if not files:
+        raise ConfigError(f"{folder}: no PNG masks in the folder")
+    fg_labels = set(person_labels) | set(object_labels)
+    known = fg_labels | {0} | set(ignore_labels)
+    out = []
+    for p in files:
+        lab = read_label_png(p)
+        vals = np.unique(lab)
+        bad = [int(v) for v in vals if int(v) not in known]
+        if bad:
+            raise ConfigError(f"{p}: label value {bad[0]} is neither background (0), person "
+                              f"{sorted(person_labels)} nor object {sorted(object_labels)} (set --person-labels, "
+                              "--object-labels or --ignore-labels)")
+        out.append(np.isin(lab, sorted(fg_labels)).astype(np.float32))
+    return files, out
+
+
+# ----------------------------------------------------------------------------------------------- poses
+def _load_pose_file(path: Path) -> dict:
+    if not path.is_file():
+        raise ConfigError(f"{path}: pose file not found")
+    if path.suffix.lower() == ".json":
+        try:
+            raw = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise ConfigError(f"{path}: invalid JSON ({' '.join(str(e).split())[:100]})") from None
+        if isinstance(raw, list):  # one table per frame
+            if not raw or not all(isinstance(r, dict) for r in raw):
+                raise ConfigError(f"{path}: a JSON list must hold one table per frame")
+            raw = {k: [r.get(k) for r in raw] for k in raw[0]}
+        if not isinstance(raw, dict):
+            raise ConfigError(f"{path}: the JSON must be a table of arrays or a list of per-frame tables")
+        out = {}
+        for k, v in raw.items():
+            try:
+                a = np.asarray(v, dtype=np.float64)
+            except (TypeError, ValueError):
+                if k in ("global_orient", "body_pose", "transl", "betas", "poses", "trans"):
+                    raise ConfigError(f"{path}: field '{k}' is not an array of numbers") from None
+                continue
+            out[k] = a
+        return out
+    try:
+        with np.load(path, allow_pickle=False) as d:
+            if not isinstance(d, np.lib.npyio.NpzFile):
+                raise ConfigError(f"{path}: a single .npy array, not an .npz of named arrays")
+            out = {}
+            for k in d.files:
+                try:
+                    out[k] = d[k]
+                except ValueError as e:
+                    if "pickle" in str(e):
+                        raise ConfigError(f"{path}: field '{k}' holds pickled Python objects (refused: never "
+                                          "unpickled); save plain numeric arrays") from None
+                    raise
+            return out
+    except ConfigError:
+        raise
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+        raise ConfigError(f"{path}: not a readable .npz or .json pose file ({' '.join(str(e).split())[:100]})") from None
+
+
+def _rotations(a: np.ndarray, n_joints: int | None, path: Path, field: str) -> np.ndarray:
+    """(F, J, 3, 3) rotations from axis-angle (F, 3J) / (F, J, 3) or matrices (F, J, 3, 3) / (F, 3, 3)."""
+    a = np.asarray(a)
+    if a.dtype.kind not in "fiu":
+        raise ConfigError(f"{path}: field '{field}' holds {a.dtype} values, not numbers")
+    a = a.astype(np.float64)
+    if not np.all(np.isfinite(a)):
+        raise ConfigError(f"{path}: field '{field}' holds non-finite values")
+    F = a.shape[0] if a.ndim else 0
+    if a.ndim >= 3 and a.shape[-2:] == (3, 3):
+        m = a.reshape(F, -1, 3, 3)
+    elif a.ndim == 2 and a.shape[1] % 3 == 0:
+        m = axis_angle_to_matrix(torch.as_tensor(a.reshape(F, -1, 3))).numpy()
+    elif a.ndim == 3 and a.shape[2] == 3:
+        m = axis_angle_to_matrix(torch.as_tensor(a)).numpy()
+    else:
+        raise ConfigError(f"{path}: field '{field}' has shape {a.shape}; expected axis-angle (F, 3J) or (F, J, 3) "
+                          "or rotation matrices (F, J, 3, 3)")
+    if n_joints is not None and m.shape[1] < n_joints:
+        raise ConfigError(f"{path}: field '{field}' has {m.shape[1]} joints per frame, needs >= {n_joints}")
+    return m
+
+
+def load_smpl(path: str | Path) -> dict:
+    """SMPL / SMPL-X parameters of a pose file (module docstring): "rotations" (F, 24, 3, 3) local joint
+    rotations (joints past SMPL-X's 21 body joints set to identity) and "transl" (F, 3)."""
+    path = Path(path)
+    d = _load_pose_file(path)
+    if "global_orient" not in d and "poses" in d:  # AMASS layout
+        p = np.asarray(d["poses"])
+        if p.ndim != 2 or p.shape[1] < 3 * N_MAPPED:
+            raise ConfigError(f"{path}: field 'poses' must be (F, >= {3 * N_MAPPED}) axis-angle, got {p.shape}")
+        d["global_orient"], d["body_pose"] = p[:, :3], p[:, 3:]
+    if "transl" not in d and "trans" in d:
+        d["transl"] = d["trans"]
+    for k in ("global_orient", "body_pose", "transl"):
+        if k not in d:
+            raise ConfigError(f"{path}: missing field '{k}' (SMPL parameters: global_orient, body_pose, betas, transl)")
+    g = _rotations(d["global_orient"], 1, path, "global_orient")[:, :1]
+    b = _rotations(d["body_pose"], N_MAPPED - 1, path, "body_pose")
+    F = len(g)
+    t = np.asarray(d["transl"])
+    if t.dtype.kind not in "fiu" or t.size != 3 * F or t.ndim < 2 or len(t) != F:
+        raise ConfigError(f"{path}: field 'transl' must be ({F}, 3) numbers, got {t.shape} {t.dtype}")
+    t = t.reshape(F, 3).astype(np.float64)
+    if not np.all(np.isfinite(t)):
+        raise ConfigError(f"{path}: field 'transl' holds non-finite values")
+    if len(b) != F:
+        raise ConfigError(f"{path}: field 'body_pose' has {len(b)} frames, global_orient {F}")
+    if "betas" in d:
+        be = np.asarray(d["betas"])
+        if be.dtype.kind not in "fiu" or not np.all(np.isfinite(be.astype(np.float64))):
+            raise ConfigError(f"{path}: field 'betas' must hold finite numbers")
+    R = np.tile(np.eye(3), (F, len(SMPL_JOINTS), 1, 1))
+    R[:, :1] = g
+    nb = min(b.shape[1], len(SMPL_JOINTS) - 1)
+    R[:, 1:1 + nb] = b[:, :nb]
+    if nb < len(SMPL_JOINTS) - 1 and b.shape[1] != 21:  # SMPL-X has 21 body joints; hands are not used
+        raise ConfigError(f"{path}: field 'body_pose' has {b.shape[1]} joints (SMPL: 23, SMPL-X: 21)")
+    return {"rotations": R, "transl": t}
+
+
+def smpl_global_rotations(local: np.ndarray) -> np.ndarray:
+    r"""Global joint rotations :math:`G_j = G_{\mathrm{parent}(j)} L_j` (F, 24, 3, 3) of SMPL's tree."""
+    G = np.empty_like(local)
+    for j, p in enumerate(SMPL_PARENTS):
+        G[:, j] = local[:, j] if p < 0 else G[:, p] @ local[:, j]
+    return G
+
+
+def retarget(smpl: dict, body, R: np.ndarray, t: np.ndarray, pelvis_offset=(0.0, 0.0, 0.0)) -> dict:
+    """Local rotations (F, B, 3, 3) and root translations (F, 3) of the recon body for SMPL parameters in camera
+    coordinates and the world -> camera pose (R, t) (module docstring)."""
+    G = smpl_global_rotations(smpl["rotations"])
+    sk = body.skeleton
+    F = len(G)
+    Gk = np.empty((F, sk.n_bones, 3, 3))
+    for k, name in enumerate(sk.names):
+        if name not in RETARGET:
+            raise ConfigError(f"the recon body's bone {name!r} has no SMPL joint in the retarget map")
+        Gk[:, k] = R.T @ G[:, SMPL_JOINTS.index(RETARGET[name])] @ SMPL_TO_BODY.T
+    L = np.empty_like(Gk)
+    for k, p in enumerate(sk.parents.tolist()):
+        L[:, k] = Gk[:, k] if p < 0 else np.swapaxes(Gk[:, p], -1, -2) @ Gk[:, k]
+    iroot = next(k for k, p in enumerate(sk.parents.tolist()) if p < 0)
+    head = body.heads[iroot].double().numpy()
+    pelvis_c = smpl["transl"] + np.asarray(pelvis_offset, dtype=np.float64)
+    root_t = (pelvis_c - t) @ R - head  # R^T (p - t) - h, row-wise
+    return {"rotations": L, "root_translation": root_t}
+
+
+# ----------------------------------------------------------------------------------------------- object
+def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (V, 3) and triangles (T, 3) of a surface mesh file (trimesh, else meshio)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: object mesh not found")
+    try:
+        import trimesh
+
+        m = trimesh.load(str(path), force="mesh", process=False)
+        V, T = np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+    except Exception:  # noqa: BLE001 - any reader failure: try meshio, then one line
+        try:
+            import meshio
+
+            m = meshio.read(str(path))
+            V = np.asarray(m.points, dtype=np.float64)[:, :3]
+            tri = [c.data for c in m.cells if c.type == "triangle"]
+            T = np.concatenate(tri).astype(np.int64) if tri else np.zeros((0, 3), np.int64)
+        except Exception as e:  # noqa: BLE001
+            raise ConfigError(f"{path}: not a mesh trimesh or meshio can read ({' '.join(str(e).split())[:80]})") from None
+    if len(T) == 0 or len(V) < 4:
+        raise ConfigError(f"{path}: the mesh has no triangle")
+    if not np.all(np.isfinite(V)):
+        raise ConfigError(f"{path}: the mesh has non-finite vertices")
+    return V, T
+
+
+def voxel_boxes(V: np.ndarray, T: np.ndarray, cell: float, lo: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The inside of a closed mesh (winding number > 1/2 at voxel centres) on the grid ``lo + cell * (i, j, k)``,
+    as the union of boxes [(min, max), ...] made of x-runs of inside voxels."""
+    hi = V.max(0)
+    n = np.maximum(1, np.ceil((hi - lo) / cell - 1e-9).astype(int))
+    axes = [lo[i] + (np.arange(n[i]) + 0.5) * cell for i in range(3)]
+    P = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    w = winding_number(torch.as_tensor(P), torch.as_tensor(V), torch.as_tensor(T)).numpy()
+    inside = (np.abs(w) > 0.5).reshape(*n)
+    boxes = []
+    for j in range(n[1]):
+        for k in range(n[2]):
+            row = np.r_[False, inside[:, j, k], False].astype(np.int8)
+            d = np.diff(row)
+            for a, b in zip(np.nonzero(d == 1)[0], np.nonzero(d == -1)[0]):
+                boxes.append((lo + cell * np.array([a, j, k]), lo + cell * np.array([b, j + 1, k + 1])))
+    return boxes
+
+
+# ----------------------------------------------------------------------------------------------- import
+@dataclass
+class ImportOptions:
+    """Settings of :func:`import_video` (SI units; see the module docstring)."""
+
+    size: str | None = None
+    fps: float | None = None
+    spin_frames: int = 0
+    n_obs: int | None = None
+    person_labels: tuple = (1,)
+    object_labels: tuple = (2,)
+    ignore_labels: tuple = ()
+    up: tuple = (0.0, -1.0, 0.0)
+    height: float = 1.7
+    pelvis_offset: tuple = (0.0, 0.0, 0.0)
+    background: tuple = (0.3, 0.3, 0.35)
+    domain_size: float | None = None
+    grid_resolution: int = 16
+    substeps: int = 32
+    density: float = 200.0
+    nu: float = 0.3
+    floor: str = "sticky"
+    body_E: float = 1.0e4
+    body_density: float = 1000.0
+
+
+def _count_match(n: int, n_src: int, idx: np.ndarray, what: str, where, video) -> np.ndarray:
+    """Which of ``n`` per-frame entries feed the output frames: one per source frame (select ``idx``) or one per
+    output frame."""
+    if n == n_src:
+        return idx
+    if n == len(idx):
+        return np.arange(n)
+    raise ConfigError(f"{where}: {n} {what} for {n_src} video frames ({video}, {len(idx)} after resampling): "
+                      "frame count mismatch")
+
+
+def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, poses: str | Path,
+                 intrinsics: Intrinsics | None = None, focal_px: float | None = None, focal_35mm: float | None = None,
+                 object_mesh: str | Path | None = None, opts: ImportOptions | None = None) -> dict:
+    """Write a DATA_DIR for ``physar recon fit`` from a video, label masks, a pose file, a camera and an object
+    mesh (module docstring). Everything is read and checked before anything is written; the folder appears
+    whole (:func:`physar.output.atomic_folder`). Returns a summary."""
+    o = opts or ImportOptions()
+    out = check_folder(out_dir, own=DATA_DIR_FILES, inputs=[video, masks, poses, object_mesh], kind="DATA_DIR")
+    if o.floor not in ("sticky", "slip", "separate"):
+        raise ConfigError(f"--floor {o.floor!r}: use sticky, slip or separate")
+    for name, v in (("height", o.height), ("density", o.density), ("grid_resolution", o.grid_resolution),
+                    ("substeps", o.substeps), ("body_E", o.body_E), ("body_density", o.body_density)):
+        if not (math.isfinite(v) and v > 0):
+            raise ConfigError(f"--{name.replace('_', '-')} must be positive, got {v}")
+    if not -1 < o.nu < 0.5:
+        raise ConfigError(f"--nu must be in (-1, 0.5), got {o.nu}")
+    if object_mesh is None:
+        raise ConfigError("--object-mesh is required: the visual hull needs per-frame camera poses of views around "
+                          "the object, which a one-camera DATA_DIR does not have (see `physar recon import --help`)")
+    # ---- read everything
+    frames, src_fps = read_video(video)
+    H0, W0 = frames[0].shape[:2]
+    if o.fps is not None and not (math.isfinite(o.fps) and 0 < o.fps <= src_fps * (1 + 1e-9)):
+        raise ConfigError(f"--fps {o.fps} must be in (0, {src_fps:g}] (the video's rate; frames are not invented)")
+    fps = src_fps if o.fps is None else float(o.fps)
+    idx = source_indices(len(frames), src_fps, o.fps)
+    W, H = parse_size(o.size, W0, H0)
+    cam = intrinsics or Intrinsics.from_focal(W0, H0, focal_px, focal_35mm)
+    if abs(cam.width / cam.height - W0 / H0) > 0.01 * W0 / H0:
+        raise ConfigError(f"camera: calibrated for {cam.width}x{cam.height} px, the video is {W0}x{H0} (another "
+                          "aspect ratio): calibrate at the video's size")
+    s0 = W0 / cam.width  # a calibration at another size of the same aspect: rescale to the video's
+    cam = Intrinsics(cam.fx * s0, cam.fy * s0, (cam.cx + 0.5) * s0 - 0.5, (cam.cy + 0.5) * s0 - 0.5, W0, H0, cam.dist)
+    mfiles, mlist = read_masks(masks, o.person_labels, o.object_labels, o.ignore_labels)
+    midx = _count_match(len(mlist), len(frames), idx, "mask PNGs", masks, video)
+    for p, m in zip(mfiles, mlist):
+        if m.shape != (H0, W0) and abs(m.shape[1] / m.shape[0] - W0 / H0) > 0.01 * W0 / H0:
+            raise ConfigError(f"{p}: mask size {m.shape[1]}x{m.shape[0]} px does not match the video's {W0}x{H0} px")
+    smpl = load_smpl(poses)
+    pidx = _count_match(len(smpl["transl"]), len(frames), idx, "poses", poses, video)
+    n_out = len(idx)
+    if o.spin_frames < 0 or (o.spin_frames and o.spin_frames < 2) or n_out - o.spin_frames < 3:
+        raise ConfigError(f"--spin-frames {o.spin_frames}: needs 0 or >= 2 and leaves {n_out - o.spin_frames} of "
+                          f"{n_out} frames for the dynamic clip (needs >= 3)")
+    n_dyn = n_out - o.spin_frames
+    n_obs = o.n_obs if o.n_obs is not None else min(n_dyn - 1, max(2, round(0.75 * n_dyn)))
+    if not 2 <= n_obs <= n_dyn - 1:
+        raise ConfigError(f"--n-obs {n_obs} must be in [2, {n_dyn - 1}] (dynamic clip of {n_dyn} frames)")
+    V, T = read_mesh(object_mesh)
+    # ---- world frame, object, domain
+    R = world_rotation(o.up)
+    Vw = V @ R  # rows: R^T v, the rotated camera frame (world axes, camera origin)
+    lo, hi = Vw.min(0), Vw.max(0)
+    org = np.array([0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), lo[2]])
+    t = R @ org  # p_C = R (p_W + org) = R p_W + t
+    Vw = Vw - org
+    ext = hi - lo
+    size = float(o.domain_size) if o.domain_size is not None else float(2 * ext.max())
+    if not (math.isfinite(size) and size > 1.05 * ext[:2].max() and size > 1.05 * ext[2]):
+        raise ConfigError(f"--domain-size {size} m must exceed the object's extent {np.round(ext, 3).tolist()} m")
+    cell = size / o.grid_resolution
+    boxes = voxel_boxes(Vw, T, cell, np.array([-ext[0] / 2, -ext[1] / 2, 0.0]))
+    if not boxes:
+        raise ConfigError(f"{object_mesh}: no voxel of {cell:.3f} m lies inside the mesh (is it closed, in metres?)")
+    blo = np.min([b[0] for b in boxes], axis=0)
+    bhi = np.max([b[1] for b in boxes], axis=0)
+    body = S.humanoid(o.height)
+    pose = retarget(smpl, body, R, t, o.pelvis_offset)
+    rot, root_t = pose["rotations"][pidx], pose["root_translation"][pidx]
+    meta = {
+        "format_version": S.FORMAT_VERSION, "kind": "physar.recon imported scene",
+        "fps": fps, "frames": n_dyn, "n_obs": int(n_obs), "novel_frames": 0,
+        "camera": cam.scene_camera(W, H, R, t), "background": [float(c) for c in o.background],
+        "body": {"kind": "procedural_humanoid", "height": float(o.height), "simulated_bones": [],
+                 "E": float(o.body_E), "density": float(o.body_density)},
+        "object": {"shape": "box_union", "kind": "mesh", "action": "unknown", "min": blo.tolist(), "max": bhi.tolist(),
+                   "boxes": [[a.tolist(), b.tolist()] for a, b in boxes], "parts": ["object"],
+                   "density": float(o.density), "nu": float(o.nu), "material": "fixed_corotated"},
+        "sim": {"size": size, "resolution": int(o.grid_resolution), "substeps": int(o.substeps),
+                "origin": [-size / 2, -size / 2, 0.0], "gravity": [0.0, 0.0, -9.81],
+                "walls": {**{k: "slip" for k in ("x_min", "x_max", "y_min", "y_max", "z_max")}, "z_min": o.floor},
+                "kp": 3.0e3, "kd": 110.0},
+        "import": {"video": str(video), "source_fps": src_fps, "source_frames": len(frames),
+                   "source_size": [W0, H0], "source_indices": idx.tolist(), "masks": str(masks), "poses": str(poses),
+                   "object_mesh": str(object_mesh), "up_camera": [float(v) for v in o.up],
+                   "spin_frames": int(o.spin_frames)},
+    }
+    # ---- images
+    dist = np.asarray(cam.dist, dtype=np.float64)
+    K0 = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1.0]])
+    maps = (cv2.initUndistortRectifyMap(K0, dist, None, K0, (W0, H0), cv2.CV_32FC1)
+            if dist.size and np.any(dist != 0) else None)
+    bg = np.asarray(o.background, dtype=np.float32)
+    rgbs, fgs = [], []
+    for k in range(n_out):
+        img = frames[idx[k]][:H0, :W0]
+        m = mlist[midx[k]]
+        if m.shape != (H0, W0):
+            m = cv2.resize(m, (W0, H0), interpolation=cv2.INTER_NEAREST)
+        if maps is not None:
+            img = cv2.remap(img, *maps, cv2.INTER_LINEAR)
+            m = cv2.remap(m, *maps, cv2.INTER_NEAREST)
+        fg = (_resize(m, W, H) >= 0.5).astype(np.float32)
+        rgb = _resize(img.astype(np.float32) / 255.0, W, H)
+        rgb = np.where(fg[..., None] > 0, rgb, bg)
+        rgbs.append((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8))
+        fgs.append((fg * 255).astype(np.uint8))
+    sp = o.spin_frames
+    with atomic_folder(out, own=DATA_DIR_FILES) as tmp:
+        (tmp / "scene.json").write_text(json.dumps(meta, indent=1))
+        clips = [("", slice(sp, n_out), "poses.npz")] + ([("spin", slice(0, sp), "spin_poses.npz")] if sp else [])
+        for sub, sl, pname in clips:
+            np.savez(tmp / pname, rotations=rot[sl], root_translation=root_t[sl])
+            d = tmp / sub if sub else tmp
+            (d / "rgb").mkdir(parents=True)
+            (d / "mask").mkdir(parents=True)
+            for f, k in enumerate(range(n_out)[sl]):
+                cv2.imwrite(str(d / "rgb" / f"{f:04d}.png"), cv2.cvtColor(rgbs[k], cv2.COLOR_RGB2BGR))
+                cv2.imwrite(str(d / "mask" / f"{f:04d}.png"), fgs[k])
+    return {"data_dir": str(out), "frames": n_dyn, "spin_frames": sp, "n_obs": int(n_obs), "fps": fps,
+            "size": [W, H], "object_boxes": len(boxes), "object_volume_m3": float(sum(np.prod(b - a) for a, b in boxes))}
+
+
+# ----------------------------------------------------------------------------------------------- check
+def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage: float = 0.001,
+                  max_coverage: float = 0.99) -> dict:
+    r"""Problems of a DATA_DIR, one line each (empty list: fine), and what was found: missing files; frame counts of
+    rgb/, mask/ and the poses of each clip; per-frame mask coverage outside [``min_coverage``, ``max_coverage``];
+    pose jitter (a bone's local rotation turning by more than ``max_jump_deg`` between frames:
+    :math:`\arccos((\operatorname{tr}(L_{f}^\top L_{f+1}) - 1)/2)`); camera intrinsics against the image size
+    (size equal, principal point inside, :math:`0.1 W < f_x < 20 W`); whether a bone reaches the object."""
+    root = Path(data_dir)
+    problems: list[str] = []
+    info: dict = {"data_dir": str(root), "clips": {}}
+    sj = root / "scene.json"
+    if not root.is_dir():
+        return {**info, "problems": [f"{root}: not a folder"]}
+    if not sj.is_file():
+        return {**info, "problems": [f"{sj}: missing (not a recon DATA_DIR)"]}
+    try:
+        meta = json.loads(sj.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        return {**info, "problems": [f"{sj}: invalid JSON ({' '.join(str(e).split())[:80]})"]}
+    miss = [k for k in ("camera", "sim", "body", "object", "n_obs", "fps") if k not in meta]
+    if miss:
+        return {**info, "problems": [f"{sj}: missing field '{k}'" for k in miss]}
+    cam = meta["camera"]
+    try:
+        body = S.humanoid(float(meta["body"]["height"]))
+    except (KeyError, TypeError, ValueError):
+        return {**info, "problems": [f"{sj}: body.height missing or not a number"]}
+    nb = body.skeleton.n_bones
+    all_rot = []
+    for name, sub, pname in (("dynamic", "", "poses.npz"), ("spin", "spin", "spin_poses.npz"),
+                             ("novel", "novel", "novel_poses.npz")):
+        d = root / sub if sub else root
+        pfile = root / pname
+        if name != "dynamic" and not pfile.exists() and not d.exists():
+            continue
+        c = info["clips"][name] = {}
+        rot = None
+        if not pfile.is_file():
+            problems.append(f"{pfile}: missing")
+        else:
+            try:
+                with np.load(pfile, allow_pickle=False) as z:
+                    arr = {k: z[k] for k in z.files}
+                rot, rt = S.check_poses(arr, nb, str(pfile))
+                c["poses"] = len(rot)
+                all_rot.append((rot, rt))
+            except (ConfigError, ValueError, OSError, zipfile.BadZipFile) as e:
+                problems.append(f"{pfile}: {e}" if str(pfile) not in str(e) else str(e))
+        for kind in ("rgb", "mask"):
+            folder = d / kind
+            files = sorted(folder.glob("*.png")) if folder.is_dir() else []
+            c[kind] = len(files)
+            if not folder.is_dir():
+                problems.append(f"{folder}: missing")
+                continue
+            expect = [f"{f:04d}.png" for f in range(len(files))]
+            if [p.name for p in files] != expect:
+                problems.append(f"{folder}: frames must be 0000.png, 0001.png, ... without gaps")
+            cover = []
+            for p in files:
+                img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE if kind == "mask" else cv2.IMREAD_COLOR)
+                if img is None:
+                    problems.append(f"{p}: not a readable image")
+                    continue
+                if (img.shape[1], img.shape[0]) != (cam.get("width"), cam.get("height")):
+                    problems.append(f"{p}: image size {img.shape[1]}x{img.shape[0]} px, camera.width/height "
+                                    f"{cam.get('width')}x{cam.get('height')} in {sj.name}")
+                if kind == "mask":
+                    cv_ = float((img >= 128).mean())
+                    cover.append(cv_)
+                    if cv_ < min_coverage:
+                        problems.append(f"{p}: mask coverage {cv_:.4f}: empty (below {min_coverage})")
+                    elif cv_ > max_coverage:
+                        problems.append(f"{p}: mask coverage {cv_:.4f}: full (above {max_coverage})")
+            if kind == "mask" and cover:
+                c["mask_coverage_min"], c["mask_coverage_max"] = min(cover), max(cover)
+        counts = {k: c[k] for k in ("rgb", "mask", "poses") if k in c}
+        if len(set(counts.values())) > 1:
+            problems.append(f"{d}: frame counts differ: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+        if rot is not None and len(rot) > 1:
+            tr = np.einsum("fbij,fbij->fb", rot[:-1], rot[1:])  # tr(L_f^T L_{f+1})
+            ang = np.degrees(np.arccos(np.clip((tr - 1) / 2, -1, 1)))
+            c["max_joint_step_deg"] = float(ang.max())
+            for f, b in zip(*np.nonzero(ang > max_jump_deg)):
+                problems.append(f"{pfile}: pose jitter: bone {body.skeleton.names[b]} turns {ang[f, b]:.1f} deg "
+                                f"between frames {f} and {f + 1} (above {max_jump_deg:g})")
+    if "dynamic" in info["clips"] and "poses" in info["clips"]["dynamic"]:
+        n = info["clips"]["dynamic"]["poses"]
+        if not isinstance(meta["n_obs"], int) or not 2 <= meta["n_obs"] <= n:
+            problems.append(f"{sj}: n_obs = {meta['n_obs']} must be in [2, {n}]")
+    try:
+        fx, fy, cx, cy = (float(cam[k]) for k in ("fx", "fy", "cx", "cy"))
+        W, H = int(cam["width"]), int(cam["height"])
+        if not (0 <= cx <= W and 0 <= cy <= H):
+            problems.append(f"{sj}: camera principal point ({cx:g}, {cy:g}) lies outside the {W}x{H} image")
+        if not (0.1 * W < fx < 20 * W and 0.1 * H < fy < 20 * H):
+            problems.append(f"{sj}: camera focal length fx {fx:g}, fy {fy:g} px is implausible for a {W}x{H} "
+                            "image (field of view outside 3..160 deg)")
+        Rm = np.asarray(cam["R"], dtype=np.float64)
+        if Rm.shape != (3, 3) or np.abs(Rm.T @ Rm - np.eye(3)).max() > 1e-6:
+            problems.append(f"{sj}: camera.R is not a rotation matrix")
+    except (KeyError, TypeError, ValueError):
+        problems.append(f"{sj}: camera needs fx, fy, cx, cy, width, height, R, t")
+    if all_rot:
+        try:
+            boxes = S.object_boxes(meta)
+            rot, rt = all_rot[0]
+            dx = meta["sim"]["size"] / meta["sim"]["resolution"]
+            reach = S.reaching_bones(body, rot, rt, boxes, dx)
+            info["reaching_bones"] = reach
+            if not reach and not meta["body"].get("simulated_bones"):
+                problems.append(f"{sj}: no bone of the body comes within {dx:.3f} m of the object in the dynamic clip "
+                                "(poses, camera or object placement wrong?)")
+        except (ConfigError, KeyError, TypeError, ValueError) as e:
+            problems.append(f"{sj}: object/sim: {e}")
+    info["problems"] = problems
+    return info
+
+
+__all__ = ["Intrinsics", "ImportOptions", "check_dataset", "import_video", "load_smpl", "retarget"]
