@@ -68,13 +68,15 @@ def vertex_normals_arrays(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def add_noise(
     mesh: TriMesh, sigma: float = 0.2, seed: int = 0, direction: str = "normal"
 ) -> TriMesh:
-    """Seeded Gaussian noise of standard deviation s = ``sigma * mean_edge_length`` (m).
+    r"""Seeded Gaussian noise of standard deviation :math:`s = \mathtt{sigma} \cdot \bar e` (m), with
+    :math:`\bar e` the mean edge length.
 
     ``direction="random"`` is the convention of the mesh normal-filtering literature (e.g. Sun et al.,
     IEEE TVCG 2007; Zheng et al., IEEE TVCG 2011; Zhang et al., IEEE TVCG 2015): each vertex moves by
-    d_i = s · t_i · u_i with t_i ~ N(0, 1) and u_i a unit vector drawn uniformly on the sphere, so that
-    E|d_i|² = s² and the displacement covariance is isotropic, Cov(d) = (s²/3) I (trace s²).
-    ``direction="normal"`` moves each vertex along its unit vertex normal by s · t_i (Cov = s² n nᵀ).
+    :math:`d_i = s\, t_i\, u_i` with :math:`t_i \sim N(0, 1)` and :math:`u_i` a unit vector drawn uniformly on
+    the sphere, so that :math:`E \lVert d_i \rVert^2 = s^2` and the displacement covariance is isotropic,
+    :math:`\operatorname{Cov}(d) = \tfrac{s^2}{3} I` (trace :math:`s^2`). ``direction="normal"`` moves each
+    vertex along its unit vertex normal by :math:`s\, t_i` (:math:`\operatorname{Cov} = s^2 n n^\top`).
     """
     if not 0 <= sigma < np.inf:
         raise MeshError(f"noise sigma must be a finite number >= 0, got {sigma}")
