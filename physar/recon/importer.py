@@ -615,6 +615,7 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
         return {**info, "problems": [f"{sj}: body.height missing or not a number"]}
     nb = body.skeleton.n_bones
     all_rot = []
+    off: dict[str, list] = {}  # image size -> files whose size is not the camera's
     for name, sub, pname in (("dynamic", "", "poses.npz"), ("spin", "spin", "spin_poses.npz"),
                              ("novel", "novel", "novel_poses.npz")):
         d = root / sub if sub else root
@@ -651,8 +652,7 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
                     problems.append(f"{p}: not a readable image")
                     continue
                 if (img.shape[1], img.shape[0]) != (cam.get("width"), cam.get("height")):
-                    problems.append(f"{p}: image size {img.shape[1]}x{img.shape[0]} px, camera.width/height "
-                                    f"{cam.get('width')}x{cam.get('height')} in {sj.name}")
+                    off.setdefault(f"{img.shape[1]}x{img.shape[0]}", []).append(p)
                 if kind == "mask":
                     cv_ = float((img >= 128).mean())
                     cover.append(cv_)
@@ -672,6 +672,9 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
             for f, b in zip(*np.nonzero(ang > max_jump_deg)):
                 problems.append(f"{pfile}: pose jitter: bone {body.skeleton.names[b]} turns {ang[f, b]:.1f} deg "
                                 f"between frames {f} and {f + 1} (above {max_jump_deg:g})")
+    for wh, files in off.items():
+        problems.append(f"{sj}: camera.width/height {cam.get('width')}x{cam.get('height')} px, but {len(files)} "
+                        f"images are {wh} px (first: {files[0]})")
     if "dynamic" in info["clips"] and "poses" in info["clips"]["dynamic"]:
         n = info["clips"]["dynamic"]["poses"]
         if not isinstance(meta["n_obs"], int) or not 2 <= meta["n_obs"] <= n:

@@ -1,0 +1,328 @@
+"""`physar recon import` / `recon check` (issue 17 part 1): a tiny synthetic scene written out in a user's formats
+(an MP4 through PyAV at twice the size and twice the frame rate, palette label PNGs as video segmenters write them,
+an SMPL pose npz in camera coordinates, a `physar calibrate` camera TOML, the object as an OBJ mesh in camera
+coordinates) is imported, checked, fitted and predicted; the imported frames, masks, camera, poses and object are
+compared with the generator's originals. Bad inputs: one line naming the file and field, exit 2, nothing written.
+
+The SMPL writer here is the test's own: SMPL's joint table (names, parents) and canonical axes (y up, facing +z,
+x = the body's left) written out from the SMPL definition, SMPL locals :math:`L_j = G_{p(j)}^\\top G_j` turned
+into axis-angle by scipy (a peer library), not by physar.
+"""
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+import typer
+from scipy.spatial.transform import Rotation
+from typer.testing import CliRunner
+
+from physar.cli.recon import register
+from physar.mpm.io import mp4_encoder
+from physar.recon import importer as I
+from physar.recon.io import read_pngs, write_mp4
+from physar.recon.scene import object_points
+from physar.skinning import procedural_humanoid
+
+PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21]
+# SMPL joint -> the capsule bone whose world rotation it carries (pelvis = root; spine1..3, neck and collars =
+# spine; wrists/hands = forearms; ankles/feet = shins)
+OWNER = ["root", "thigh.L", "thigh.R", "spine", "shin.L", "shin.R", "spine", "shin.L", "shin.R", "spine", "shin.L",
+         "shin.R", "spine", "spine", "spine", "head", "upperarm.L", "upperarm.R", "forearm.L", "forearm.R",
+         "forearm.L", "forearm.R", "forearm.L", "forearm.R"]
+# SMPL canonical axes -> capsule canonical axes: x (left) -> x (left, +x), y (up) -> z, z (forward) -> -y
+AXES = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+pytestmark = pytest.mark.skipif(mp4_encoder() is None, reason="PyAV has no MP4 encoder")
+
+
+def app():
+    a = typer.Typer()
+    register(a)
+    return a
+
+
+def cli(*args):
+    return CliRunner().invoke(app(), [str(a) for a in args])
+
+
+def err_lines(r) -> list[str]:
+    return [ln for ln in r.stderr.splitlines() if ln.strip() and not ln.startswith("Warp CUDA warning")]
+
+
+def smpl_from_capsule(body, rot, root_t, R, t) -> dict:
+    """SMPL parameters (camera coordinates) of capsule poses (world; world -> camera p_C = R p_W + t)."""
+    G = body.skeleton.pose(torch.as_tensor(rot), torch.as_tensor(root_t)).numpy()
+    names = body.skeleton.names
+    Gs = np.stack([R @ G[:, names.index(o), :3, :3] @ AXES for o in OWNER], 1)  # x_C = G_s x_smpl
+    L = np.stack([Gs[:, j] if p < 0 else np.swapaxes(Gs[:, p], -1, -2) @ Gs[:, j] for j, p in enumerate(PARENTS)], 1)
+    aa = Rotation.from_matrix(L.reshape(-1, 3, 3)).as_rotvec().reshape(len(L), 24, 3)
+    return {"global_orient": aa[:, 0], "body_pose": aa[:, 1:].reshape(len(L), 69),
+            "betas": np.zeros((len(L), 10)), "transl": G[:, 0, :3, 3] @ R.T + t}
+
+
+def joints_camera(body, rot, root_t, R, t) -> np.ndarray:
+    """Posed bone heads and tails (F, 2B, 3) in camera coordinates."""
+    G = body.skeleton.pose(torch.as_tensor(rot), torch.as_tensor(root_t)).numpy()
+    d = (body.tails - body.heads).numpy()
+    tails = np.einsum("fbij,bj->fbi", G[..., :3, :3], d) + G[..., :3, 3]
+    return np.concatenate([G[..., :3, 3], tails], 1) @ R.T + t
+
+
+def label_png(path: Path, labels: np.ndarray) -> None:
+    from PIL import Image
+
+    im = Image.fromarray(labels.astype(np.uint8), mode="P")
+    im.putpalette([0, 0, 0, 200, 50, 50, 50, 200, 50] + [0] * 759)
+    im.save(path)
+
+
+@pytest.fixture(scope="module")
+def user(tiny_scene, tmp_path_factory):
+    """The tiny scene's spin + dynamic clips as a user's files: video at 64 px and 60 fps (each 32 px frame
+    upscaled x2 and shown twice), masks (person = 1 above row 16 of the original, object = 2 below) and poses per
+    video frame."""
+    d = tmp_path_factory.mktemp("user")
+    meta = json.loads((tiny_scene / "scene.json").read_text())
+    c = meta["camera"]
+    R, t = np.array(c["R"]), np.array(c["t"])
+    body = procedural_humanoid(meta["body"]["height"], dtype=torch.float64)
+    ns, nd = 4, 5
+    rgb = np.concatenate([read_pngs(tiny_scene / "spin" / "rgb", ns), read_pngs(tiny_scene / "rgb", nd)])
+    mask = np.concatenate([read_pngs(tiny_scene / "spin" / "mask", ns, True), read_pngs(tiny_scene / "mask", nd, True)])
+    sp, dy = np.load(tiny_scene / "spin_poses.npz"), np.load(tiny_scene / "poses.npz")
+    rot = np.concatenate([sp["rotations"], dy["rotations"]])
+    rt = np.concatenate([sp["root_translation"], dy["root_translation"]])
+    up2 = lambda a: np.repeat(np.repeat(a, 2, 0), 2, 1)  # noqa: E731
+    assert write_mp4(d / "clip.mp4", [up2((f * 255 + 0.5).astype(np.uint8)) for f in rgb for _ in range(2)], 60.0)
+    (d / "masks").mkdir()
+    for i, m in enumerate(mask):
+        lab = (m > 0.5).astype(np.uint8)
+        lab[16:][lab[16:] > 0] = 2
+        for r in range(2):
+            label_png(d / "masks" / f"frame_{2 * i + r:05d}.png", up2(lab))
+    s = smpl_from_capsule(body, rot, rt, R, t)
+    np.savez(d / "smpl.npz", **{k: np.repeat(v, 2, 0) for k, v in s.items()})
+    K = [[2 * c["fx"], 0.0, 2 * c["cx"] - 0.5], [0.0, 2 * c["fy"], 2 * c["cy"] - 0.5], [0.0, 0.0, 1.0]]
+    (d / "camera.toml").write_text(f"[camera]\nwidth = 64\nheight = 64\nmatrix = {K!r}\n"
+                                   "distortion = [0.0, 0.0, 0.0, 0.0, 0.0]\n")
+    import trimesh
+
+    parts = []
+    for lo, hi in meta["object"]["boxes"]:
+        lo, hi = np.array(lo), np.array(hi)
+        b = trimesh.creation.box(extents=hi - lo)
+        b.apply_translation((lo + hi) / 2)
+        b.vertices = np.asarray(b.vertices) @ R.T + t
+        parts.append(b)
+    trimesh.util.concatenate(parts).export(d / "object.obj")
+    up = ",".join(repr(float(v)) for v in R[:, 2])  # world +z in camera coordinates
+    args = ["recon", "import", d / "clip.mp4", "--masks", d / "masks", "--poses", d / "smpl.npz", "--camera",
+            d / "camera.toml", f"--up={up}", "--object-mesh", d / "object.obj", "--size", "32", "--fps", "30",
+            "--spin-frames", ns, "--n-obs", 3, "--domain-size", 0.48]
+    return {"dir": d, "meta": meta, "body": body, "rgb": rgb, "mask": mask > 0.5, "rot": rot, "rt": rt, "R": R, "t": t,
+            "args": args, "ns": ns}
+
+
+@pytest.fixture(scope="module")
+def imported(user):
+    out = user["dir"] / "data"
+    r = cli(*user["args"], "--out", out)
+    assert r.exit_code == 0, (r.output, r.exception)
+    return out
+
+
+def _clips(d: Path, kind: str, ns: int, nd: int, gray=False) -> np.ndarray:
+    return np.concatenate([read_pngs(d / "spin" / kind, ns, gray), read_pngs(d / kind, nd, gray)])
+
+
+def test_frames_and_masks_match_the_originals(user, imported):
+    """Frames: PSNR against the generator's images >= 29 dB each (measured 31.9-34.7 dB through H.264); a frame
+    off by one in the 60 -> 30 fps resampling scores 17.5-26.5 dB, a transposed or flipped image 16-19 dB.
+    Masks: IoU 1 (nearest x2 labels, area-averaged back); the person label alone, or the object alone, as the
+    foreground would fail."""
+    img = _clips(imported, "rgb", user["ns"], 5)
+    psnr = [10 * np.log10(1 / np.mean((a - b) ** 2)) for a, b in zip(img, user["rgb"])]
+    assert min(psnr) > 29.0, psnr
+    m = _clips(imported, "mask", user["ns"], 5, gray=True) > 0.5
+    iou = [(a & b).sum() / (a | b).sum() for a, b in zip(m, user["mask"])]
+    assert min(iou) > 0.999, iou
+
+
+def test_camera_rescaled_in_closed_form(user, imported):
+    """fx' = fx W'/W and cx' = (cx + 1/2) W'/W from the 64 px OpenCV calibration give back the generator's
+    32 px camera (pixel centres at i + 1/2): a rescale without the half-pixel shift is off by 0.25 px."""
+    cam = json.loads((imported / "scene.json").read_text())["camera"]
+    c0 = user["meta"]["camera"]
+    for k in ("fx", "fy", "cx", "cy"):
+        assert cam[k] == pytest.approx(c0[k], abs=1e-9), k
+    assert (cam["width"], cam["height"]) == (32, 32)
+
+
+def test_imported_poses_reproduce_the_source_joints(user, imported):
+    """Forward kinematics of the retargeted poses puts every bone head and tail where the generator's poses put it
+    (camera coordinates; 1e-6 m). Mutants caught: axis-angle read as its transpose (the spin's yaw turns the other
+    way: cm errors), left/right shoulders swapped in the map, SMPL's canonical axes taken as the capsule's."""
+    meta = json.loads((imported / "scene.json").read_text())
+    c = meta["camera"]
+    sp, dy = np.load(imported / "spin_poses.npz"), np.load(imported / "poses.npz")
+    rot = np.concatenate([sp["rotations"], dy["rotations"]])
+    rt = np.concatenate([sp["root_translation"], dy["root_translation"]])
+    got = joints_camera(user["body"], rot, rt, np.array(c["R"]), np.array(c["t"]))
+    want = joints_camera(user["body"], user["rot"], user["rt"], user["R"], user["t"])
+    assert np.abs(got - want).max() < 1e-6
+
+
+def test_retarget_random_poses(tmp_path):
+    """Random rotations on every bone (pelvis local = identity: SMPL's pelvis carries the root), random camera:
+    SMPL npz written here -> :func:`load_smpl` -> :func:`retarget` reproduces the bone heads and tails (1e-9 m).
+    Same mutants as above; a JSON file (list of per-frame tables) gives the same poses."""
+    rng = np.random.default_rng(3)
+    body = procedural_humanoid(1.6, dtype=torch.float64)
+    F, B = 4, body.skeleton.n_bones
+    rot = Rotation.from_rotvec(rng.normal(0, 0.7, (F * B, 3))).as_matrix().reshape(F, B, 3, 3)
+    rot[:, body.skeleton.index("pelvis")] = np.eye(3)
+    rt = rng.normal(0, 0.3, (F, 3))
+    Rc = Rotation.from_rotvec(rng.normal(0, 1.0, 3)).as_matrix()
+    tc = rng.normal(0, 1.0, 3)
+    s = smpl_from_capsule(body, rot, rt, Rc, tc)
+    np.savez(tmp_path / "p.npz", **s)
+    (tmp_path / "p.json").write_text(json.dumps([{k: v[f].tolist() for k, v in s.items()} for f in range(F)]))
+    want = joints_camera(body, rot, rt, Rc, tc)
+    Rw = I.world_rotation(rng.normal(size=3))  # any world frame: compared in camera coordinates
+    tw = rng.normal(size=3)
+    for name in ("p.npz", "p.json"):
+        p = I.retarget(I.load_smpl(tmp_path / name), body, Rw, tw)
+        got = joints_camera(body, p["rotations"], p["root_translation"], Rw, tw)
+        assert np.abs(got - want).max() < 1e-9, name
+
+
+def test_object_from_the_mesh(user, imported):
+    """The voxelised mesh, sampled as ``recon fit`` samples it, lies in the true box (the generator's, mapped
+    through both cameras): >= 90 % of its particles inside, volume within one voxel layer of 0.24 x 0.20 x
+    0.12 m. A mesh read in the wrong frame (no camera -> world) or with swapped axes lands elsewhere."""
+    meta = json.loads((imported / "scene.json").read_text())
+    c = meta["camera"]
+    X, vol = object_points(meta, 0.015)
+    Xc = X @ np.array(c["R"]).T + np.array(c["t"])
+    Xs = (Xc - user["t"]) @ user["R"]  # generator world
+    lo, hi = (np.array(v) for v in user["meta"]["object"]["boxes"][0])
+    inside = np.all((Xs >= lo - 1e-9) & (Xs <= hi + 1e-9), axis=1)
+    assert inside.mean() > 0.9, inside.mean()
+    true = float(np.prod(hi - lo))
+    layer = 0.03 * 2 * ((hi - lo)[0] * (hi - lo)[1] + (hi - lo)[1] * (hi - lo)[2] + (hi - lo)[0] * (hi - lo)[2])
+    assert abs(len(X) * vol - true) < 0.5 * layer, (len(X) * vol, true)
+
+
+def test_check_passes_and_fit_predict_run(user, imported, tmp_path):
+    """`recon check` exits 0 on the import; `recon fit` (tiny settings) + `recon predict` run on it. The fit's
+    reconstruction PSNR beats an empty render (the background colour everywhere) by >= 3 dB."""
+    r = cli("recon", "check", imported, "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["problems"] == []
+    cfg = tmp_path / "t.toml"
+    cfg.write_text("[train]\npd_hold = false\nkp = 3000.0\nkd = 110.0\nsurface_layer = 0.0\nappearance_iters = 20\n"
+                   "finetune_iters = 5\nflow_iters = 3\nspflow_iters = 3\nphysics_iters = 3\nwindow_start = 3\n"
+                   "material_grid = [0, 0, 0]\nlambda_flow = 0.0\n")
+    r = cli("recon", "fit", imported, "--out", tmp_path / "run", "-c", cfg, "--json")
+    assert r.exit_code == 0, (r.output, r.exception)
+    rep = json.loads(r.stdout)
+    rgb = read_pngs(imported / "rgb", 5)
+    bg = np.asarray(json.loads((imported / "scene.json").read_text())["background"])
+    empty = np.mean([10 * np.log10(1 / np.mean((f - bg) ** 2)) for f in rgb[1:3]])
+    assert rep["methods"]["physics"]["recon"]["psnr"] > empty + 3.0, (rep["methods"]["physics"]["recon"], empty)
+    r = cli("recon", "predict", tmp_path / "run", "--poses", imported / "poses.npz", "--out", tmp_path / "p.mp4")
+    assert r.exit_code == 0, (r.output, r.exception)
+    import av
+
+    with av.open(str(tmp_path / "p.mp4")) as v:
+        assert sum(1 for _ in v.decode(video=0)) == 5
+
+
+def _copy(src: Path, dst: Path) -> Path:
+    import shutil
+
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_check_reports_problems(imported, tmp_path):
+    """One line per problem, exit 2: a mask removed (frame counts), an empty mask (coverage), a 90 deg jump of
+    the forearm (jitter), the camera's width off the images' (camera vs image size)."""
+    d = _copy(imported, tmp_path / "d")
+    (d / "mask" / "0004.png").unlink()
+    cv2.imwrite(str(d / "spin" / "mask" / "0001.png"), np.zeros((32, 32), np.uint8))
+    p = dict(np.load(d / "poses.npz"))
+    p["rotations"][2, 7] = Rotation.from_rotvec([0, 0, np.pi / 2]).as_matrix()
+    np.savez(d / "poses.npz", **p)
+    meta = json.loads((d / "scene.json").read_text())
+    meta["camera"]["width"] = 48
+    (d / "scene.json").write_text(json.dumps(meta))
+    r = cli("recon", "check", d)
+    lines = [ln for ln in err_lines(r) if ln.startswith("error: ")]  # after the per-clip summary lines
+    assert r.exit_code == 2
+    assert len(lines) == 5, lines
+    assert any("frame counts differ: rgb 5, mask 4, poses 5" in ln for ln in lines), lines
+    assert any("spin/mask/0001.png: mask coverage 0.0000: empty" in ln for ln in lines), lines
+    assert sum("pose jitter: bone forearm.R" in ln for ln in lines) == 2, lines  # into and out of frame 2
+    assert any("camera.width/height 48x32 px, but 17 images are 32x32 px" in ln for ln in lines), lines
+
+
+def _snapshot(root: Path) -> dict:
+    return {str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns) for p in root.rglob("*")}
+
+
+class _Touch:  # unpickling this would create the marker file
+    def __init__(self, path):
+        self.path = path
+
+    def __reduce__(self):
+        return (Path.touch, (Path(self.path),))
+
+
+def _refused(user, tmp_path, replace: dict, needle: str):
+    args = list(user["args"])
+    for k, v in replace.items():
+        args[args.index(k) + 1] = v
+    before = _snapshot(tmp_path)
+    r = cli(*args, "--out", tmp_path / "out")
+    lines = err_lines(r)
+    assert r.exit_code == 2, (r.output, r.exception)
+    assert len(lines) == 1 and lines[0].startswith("error: ") and needle in lines[0], lines
+    assert not (tmp_path / "out").exists() and _snapshot(tmp_path) == before
+
+
+def test_bad_inputs_refused(user, tmp_path):
+    """Missing masks folder; a pose npz holding a pickled object (refused, never unpickled: the marker file it
+    would create stays absent); a masks folder one PNG short (frame count mismatch); a label value the options do
+    not name. Each: one line naming the file and the field or value, exit 2, nothing written."""
+    d = user["dir"]
+    _refused(user, tmp_path, {"--masks": tmp_path / "nomasks"}, "nomasks: masks folder not found")
+    marker = tmp_path / "pwned"
+    s = dict(np.load(d / "smpl.npz"))
+    s["betas"] = np.array([_Touch(str(marker))], dtype=object)
+    with open(tmp_path / "evil.npz", "wb") as f:
+        np.savez(f, **s)
+    _refused(user, tmp_path, {"--poses": tmp_path / "evil.npz"}, "evil.npz: field 'betas' holds pickled Python objects")
+    assert not marker.exists()
+    short = _copy(d / "masks", tmp_path / "short")
+    sorted(short.iterdir())[-1].unlink()
+    _refused(user, tmp_path, {"--masks": short}, "short: 17 mask PNGs for 18 video frames")
+    odd = _copy(d / "masks", tmp_path / "odd")
+    lab = np.zeros((64, 64), np.uint8)
+    lab[3, 5] = 7
+    label_png(odd / "frame_00003.png", lab)
+    _refused(user, tmp_path, {"--masks": odd}, "frame_00003.png: label value 7 is neither background (0), person [1]")
+
+
+def test_pickle_marker_would_fire(tmp_path):
+    """The evil pose file above is real: loading it with pickles allowed creates the marker (so its absence there
+    means it was never unpickled)."""
+    marker = tmp_path / "fired"
+    np.savez(tmp_path / "e.npz", betas=np.array([_Touch(str(marker))], dtype=object))
+    with np.load(tmp_path / "e.npz", allow_pickle=True) as z:
+        z["betas"]
+    assert marker.exists()
