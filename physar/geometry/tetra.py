@@ -161,26 +161,68 @@ def _occ_surface(build: Callable, size: float, name: str) -> TriMesh:
         gmsh.option.setNumber("Mesh.MeshSizeMin", float(size) / 4)
         gmsh.model.mesh.generate(2)
         tags, xyz, _ = gmsh.model.mesh.getNodes()
-        faces = []
+        faces, patch = [], []
         for dim, tag in gmsh.model.getBoundary(gmsh.model.getEntities(3), oriented=True):
             _, nt = gmsh.model.mesh.getElementsByType(2, abs(tag))
-            f = np.asarray(nt, np.int64).reshape(-1, 3)
-            faces.append(f[:, ::-1] if tag < 0 else f)
+            faces.append(np.asarray(nt, np.int64).reshape(-1, 3))
+            patch.append(np.full(len(faces[-1]), len(patch)))
     tags = np.asarray(tags, np.int64)
     lookup = np.full(int(tags.max()) + 1, -1, np.int64)
     lookup[tags] = np.arange(len(tags))
     faces = lookup[np.concatenate(faces)]
     used, faces = np.unique(faces, return_inverse=True)
     pts = np.asarray(xyz, float).reshape(-1, 3)[used]
-    mesh = TriMesh(pts, faces.reshape(-1, 3), name=name)
-    if _signed_volume(mesh) < 0:  # gmsh's surface orientation is per patch: make it outward
-        mesh = TriMesh(pts, mesh.faces[:, ::-1], name=name)
-    return mesh
+    faces = _orient_patches(pts, faces.reshape(-1, 3), np.concatenate(patch), name)
+    return TriMesh(pts, faces, name=name)
 
 
-def _signed_volume(mesh: TriMesh) -> float:
-    x = mesh.points[mesh.faces]
-    return float(np.einsum("fi,fi->f", x[:, 0], np.cross(x[:, 1], x[:, 2])).sum() / 6.0)
+def _orient_patches(pts: np.ndarray, faces: np.ndarray, patch: np.ndarray, name: str) -> np.ndarray:
+    """Wind every patch (a CAD face, meshed consistently by gmsh, but with the orientation of its underlying
+    surface, which the OCC boolean results do not keep consistent) like its neighbours, then each closed
+    connected part outward (positive signed volume Σ_f x_0·(x_1 × x_2)/6).
+
+    Two patches sharing an edge agree when the edge runs in opposite directions in their triangles; the
+    flips follow by a breadth-first walk over the patch graph. An edge with other than two triangles, or
+    patches that no flips can make agree (a non-orientable surface), is refused in one line."""
+    npatch = int(patch.max()) + 1 if len(patch) else 0
+    half = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)  # directed half-edges, 3 per face
+    hp = np.repeat(patch, 3)
+    _, inv, cnt = np.unique(np.sort(half, axis=1), axis=0, return_inverse=True, return_counts=True)
+    if (cnt != 2).any():
+        raise MeshError(f"{name}: the CAD surface is not closed and manifold ({int((cnt != 2).sum())} edges "
+                        f"with other than two triangles)")
+    order = np.argsort(inv.ravel(), kind="stable")
+    a, b = order[0::2], order[1::2]  # the two half-edges of each edge
+    same = half[a, 0] == half[b, 0]  # same direction: the two sides need opposite flips
+    pa, pb = hp[a], hp[b]
+    if (same & (pa == pb)).any():
+        raise MeshError(f"{name}: a CAD patch of the surface is not consistently triangulated")
+    cross = pa != pb
+    links = np.unique(np.c_[pa[cross], pb[cross], same[cross]], axis=0)
+    nbrs: list[list[tuple[int, bool]]] = [[] for _ in range(npatch)]
+    for p, q, sm in links:
+        nbrs[p].append((q, bool(sm)))
+        nbrs[q].append((p, bool(sm)))
+    flip = np.full(npatch, -1)
+    comp = np.full(npatch, -1)
+    for start in range(npatch):
+        if flip[start] >= 0:
+            continue
+        flip[start], comp[start], stack = 0, start, [start]
+        while stack:
+            p = stack.pop()
+            for q, sm in nbrs[p]:
+                want = flip[p] ^ int(sm)
+                if flip[q] < 0:
+                    flip[q], comp[q] = want, start
+                    stack.append(q)
+                elif flip[q] != want:
+                    raise MeshError(f"{name}: the CAD surface cannot be oriented consistently")
+    out = np.where(flip[patch][:, None] == 1, faces[:, ::-1], faces)
+    x = pts[out]
+    vol6 = np.einsum("fi,fi->f", x[:, 0], np.cross(x[:, 1], x[:, 2]))
+    comp_vol = np.bincount(comp[patch], weights=vol6, minlength=npatch)
+    return np.where((comp_vol[comp[patch]] < 0)[:, None], out[:, ::-1], out)
 
 
 def plate_with_hole_surface(length: float = 0.2, width: float = 0.1, thickness: float = 0.01,
