@@ -74,6 +74,23 @@ def refine_tets(mesh, times: int = 1):
     return mesh
 
 
+# memory of the truth per entry of its element stiffness matrices ((3 n)^2 for n nodes per tetrahedron): the
+# COO triplets (value and two indices, 24 B) and their CSR copies; measured peak 38.5 kB per P2 tetrahedron
+# (900 entries) building the stiffness of the cantilever and foam examples refined 4x
+_TRUTH_BYTES_PER_ENTRY = 43
+
+
+def _check_truth_memory(n_tets: int, element: str, source, refine: int) -> None:
+    """Refuse (ConfigError, one line) a truth of ``n_tets`` tetrahedra whose stiffness assembly would need more
+    memory than is available: about ``_TRUTH_BYTES_PER_ENTRY`` (3 n)^2 bytes per tetrahedron, n = 4 (P1) or
+    10 (P2) nodes; checked before the refined mesh is made."""
+    from physar.output import check_memory
+
+    nodes = 10 if element == "P2" else 4
+    check_memory(_TRUTH_BYTES_PER_ENTRY * (3 * nodes) ** 2 * n_tets,
+                 f"{source}: the truth mesh at [truth] refine = {refine} ({n_tets:,} {element} tetrahedra)")
+
+
 def _problem_on(mesh, cfg, source: str):
     """The FE problem of a rom configuration on another (refined) ``mesh``
     (:func:`physar.fem.config.build_problem` with that mesh)."""
@@ -125,13 +142,16 @@ class FineTruth:
             if cfg.mesh.box is not None:
                 fine = cfg.model_copy(deep=True)
                 fine.mesh.cells = tuple(int(c) * refine for c in cfg.mesh.cells)
+                _check_truth_memory(6 * math.prod(fine.mesh.cells), cfg.fem.element, path, refine)
                 problem = build_problem(fine, base)
             else:
                 times = round(np.log2(refine))
                 if 2 ** times != refine:
                     raise ConfigError(f"[mesh] file: the truth refinement of a mesh file splits each tet into 8 "
                                       f"(refine = 2, 4, 8, ...), got {refine}")
-                problem = _problem_on(refine_tets(build_mesh(cfg.mesh, base), times), cfg, str(path))
+                coarse = build_mesh(cfg.mesh, base)
+                _check_truth_memory(coarse.n_cells * 8 ** times, cfg.fem.element, path, refine)
+                problem = _problem_on(refine_tets(coarse, times), cfg, str(path))
             self.problem = build_parametric_problem(cfg, problem, str(path))
         except ConfigError as exc:
             msg = str(exc)
