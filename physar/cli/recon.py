@@ -228,7 +228,7 @@ def import_cmd(
     if object_mesh is not None:
         check_input(object_mesh, "object mesh")
     whole_folder(out, "a new folder such as data/")
-    labels = lambda t, o: tuple(int(v) for v in _floats(t, None, o)) if t else ()  # noqa: E731
+    labels = lambda t, o: tuple(int(v) for v in _floats(t, None, o)) if t else ()
     for t, o in ((person_labels, "--person-labels"), (object_labels, "--object-labels"), (ignore_labels, "--ignore-labels")):
         if t and any(v != int(v) or v < 0 for v in _floats(t, None, o)):
             raise ConfigError(f"{o} must be non-negative integers, got {t!r}")

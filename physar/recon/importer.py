@@ -3,8 +3,7 @@ turns a user's video, segmentation masks, a camera, an up vector, a pose file an
 DATA_DIR in the format ``physar recon fit`` reads (:func:`physar.recon.train.load_dataset`), and ``physar recon
 check`` reports what is missing or inconsistent in a DATA_DIR.
 
-Inputs and conventions
-----------------------
+Inputs and conventions:
 
 * **Frames**: any video PyAV decodes. Frame :math:`k` of the output (rate ``fps``) is source frame
   :math:`i_k = \operatorname{round}(k\, f_\text{src} / f)` (all frames when ``fps`` is not given), resized to
@@ -46,9 +45,9 @@ Inputs and conventions
 * **Retargeting** onto the recon body (the capsule humanoid of :func:`physar.skinning.procedural_humanoid`: z up,
   facing -y, the same T rest pose as SMPL): SMPL's global joint rotations
   :math:`G_j = G_{\mathrm{parent}(j)} \exp([\theta_j]_\times)` (Rodrigues) are mapped by name
-  (:data:`RETARGET`: bone :math:`\leftarrow` SMPL joint) into world bone rotations
+  (``RETARGET``: bone :math:`\leftarrow` SMPL joint) into world bone rotations
   :math:`G^K_k = R^\top G_{s(k)} M^\top` with :math:`M` the change of canonical axes (SMPL :math:`\to` capsule:
-  :math:`x \to x`, :math:`y \to z`, :math:`z \to -y`, :data:`SMPL_TO_BODY`); the local rotations are
+  :math:`x \to x`, :math:`y \to z`, :math:`z \to -y`, ``SMPL_TO_BODY``); the local rotations are
   :math:`L_k = (G^K_{\mathrm{parent}(k)})^\top G^K_k`, and the root translation puts the capsule's root joint
   :math:`h_\text{root}` on the pelvis: :math:`\tau = R^\top (J_0 + \text{transl} - t) - h_\text{root}`.
   Intermediate SMPL joints (spine1-2, neck, collars) enter through the composed global rotations; wrists,
@@ -151,31 +150,47 @@ def source_indices(n_src: int, src_fps: float, fps: float | None) -> np.ndarray:
     r"""Source frames of the output frames: :math:`i_k = \operatorname{round}(k f_\text{src}/f) < n_\text{src}`."""
     if fps is None or abs(fps - src_fps) < 1e-9 * src_fps:
         return np.arange(n_src)
-    k = np.arange(int(math.floor((n_src - 1) * fps / src_fps + 1e-9)) + 1)
+    k = np.arange(math.floor((n_src - 1) * fps / src_fps + 1e-9) + 1)
     return np.minimum(np.round(k * src_fps / fps).astype(np.int64), n_src - 1)
 
 
-def read_video(path: str | Path) -> tuple[list[np.ndarray], float]:
-    """All frames (RGB uint8) of a video PyAV decodes and its frame rate."""
+def read_video(path: str | Path, fps: float | None = None, prepare=None) -> tuple[list, float, int, tuple[int, int]]:
+    """Decode a video PyAV reads, keeping only the source frames that the output rate ``fps`` uses
+    (:func:`source_indices`), each passed through ``prepare(W, H)(frame)`` (built on the first frame; default:
+    unchanged RGB uint8), so that memory holds the output frames, not the whole video. Returns (kept frames,
+    source frame rate, source frame count, source size (W, H))."""
     import av
 
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: video not found")
+    kept, n, conv, size = [], 0, None, None
     try:
         with av.open(str(path)) as c:
             if not c.streams.video:
                 raise ConfigError(f"{path}: holds no video stream")
             st = c.streams.video[0]
             rate = st.average_rate or st.guessed_rate or st.base_rate
-            frames = [f.to_ndarray(format="rgb24") for f in c.decode(st)]
+            if rate is None or float(rate) <= 0:
+                raise ConfigError(f"{path}: the video has no frame rate")
+            rate = float(rate)
+            if fps is not None and not (math.isfinite(fps) and 0 < fps <= rate * (1 + 1e-9)):
+                raise ConfigError(f"--fps {fps} must be in (0, {rate:g}] (the video's rate; frames are not invented)")
+            r = 1.0 if fps is None else rate / fps
+            for frame in c.decode(st):
+                img = frame.to_ndarray(format="rgb24")
+                if conv is None:
+                    size = (img.shape[1], img.shape[0])
+                    conv = prepare(*size) if prepare is not None else (lambda x: x)
+                k = round(n / r)
+                if any(round(j * r) == n for j in (k - 1, k, k + 1) if j >= 0):
+                    kept.append(conv(img))
+                n += 1
     except av.FFmpegError as e:
         raise ConfigError(f"{path}: not a video PyAV can read ({' '.join(str(e).split())[:100]})") from None
-    if not frames:
+    if not n:
         raise ConfigError(f"{path}: the video has no frame")
-    if rate is None or float(rate) <= 0:
-        raise ConfigError(f"{path}: the video has no frame rate")
-    return frames, float(rate)
+    return kept, rate, n, size
 
 
 def parse_size(size: str | None, width: int, height: int) -> tuple[int, int]:
@@ -218,9 +233,12 @@ def read_label_png(path: Path) -> np.ndarray:
         raise ConfigError(f"{path}: not a readable PNG") from None
 
 
-def read_masks(folder: str | Path, person_labels, object_labels, ignore_labels=()) -> tuple[list[Path], list]:
-    """Foreground masks (float32 (H, W) in {0, 1}) of the label PNGs of ``folder`` in name order; one error line
-    for a label value that is neither background (0), ignored, person nor object."""
+def read_masks(folder: str | Path, person_labels, object_labels, ignore_labels=(), keep=None,
+               prepare=None) -> tuple[list[Path], dict]:
+    r"""Label PNGs of ``folder`` in name order, each checked (one error line for a label value that is neither
+    background (0), ignored, person nor object); the foreground masks :math:`[\ell \in P \cup O]` (float32
+    (H, W) in {0, 1}, through ``prepare`` when given) of the files whose index ``keep(i, n)`` accepts (all by
+    default), by index."""
     folder = Path(folder)
     if not folder.is_dir():
         raise ConfigError(f"{folder}: masks folder not found")
@@ -229,8 +247,8 @@ def read_masks(folder: str | Path, person_labels, object_labels, ignore_labels=(
         raise ConfigError(f"{folder}: no PNG masks in the folder")
     fg_labels = set(person_labels) | set(object_labels)
     known = fg_labels | {0} | set(ignore_labels)
-    out = []
-    for p in files:
+    out = {}
+    for i, p in enumerate(files):
         lab = read_label_png(p)
         vals = np.unique(lab)
         bad = [int(v) for v in vals if int(v) not in known]
@@ -238,7 +256,9 @@ def read_masks(folder: str | Path, person_labels, object_labels, ignore_labels=(
             raise ConfigError(f"{p}: label value {bad[0]} is neither background (0), person "
                               f"{sorted(person_labels)} nor object {sorted(object_labels)} (set --person-labels, "
                               "--object-labels or --ignore-labels)")
-        out.append(np.isin(lab, sorted(fg_labels)).astype(np.float32))
+        if keep is None or keep(i, len(files)):
+            m = np.isin(lab, sorted(fg_labels)).astype(np.float32)
+            out[i] = prepare(p, m) if prepare is not None else m
     return files, out
 
 
@@ -467,7 +487,7 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
                  object_mesh: str | Path | None = None, opts: ImportOptions | None = None) -> dict:
     """Write a DATA_DIR for ``physar recon fit`` from a video, label masks, a pose file, a camera and an object
     mesh (module docstring). Everything is read and checked before anything is written; the folder appears
-    whole (:func:`physar.output.atomic_folder`). Returns a summary."""
+    whole (``physar.output.atomic_folder``). Returns a summary."""
     o = opts or ImportOptions()
     out = check_folder(out_dir, own=DATA_DIR_FILES, inputs=[video, masks, poses, object_mesh], kind="DATA_DIR")
     if o.floor not in ("sticky", "slip", "separate"):
@@ -481,27 +501,53 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
     if object_mesh is None:
         raise ConfigError("--object-mesh is required: the visual hull needs per-frame camera poses of views around "
                           "the object, which a one-camera DATA_DIR does not have (see `physar recon import --help`)")
-    # ---- read everything
-    frames, src_fps = read_video(video)
-    H0, W0 = frames[0].shape[:2]
-    if o.fps is not None and not (math.isfinite(o.fps) and 0 < o.fps <= src_fps * (1 + 1e-9)):
-        raise ConfigError(f"--fps {o.fps} must be in (0, {src_fps:g}] (the video's rate; frames are not invented)")
+    # ---- read everything (frames and masks kept at the output size only)
+    geo = {}
+
+    def prepare_frames(W0: int, H0: int):
+        cam = intrinsics or Intrinsics.from_focal(W0, H0, focal_px, focal_35mm)
+        if abs(cam.width / cam.height - W0 / H0) > 0.01 * W0 / H0:
+            raise ConfigError(f"camera: calibrated for {cam.width}x{cam.height} px, the video is {W0}x{H0} (another "
+                              "aspect ratio): calibrate at the video's size")
+        s0 = W0 / cam.width  # a calibration at another size of the same aspect: rescale to the video's
+        cam = Intrinsics(cam.fx * s0, cam.fy * s0, (cam.cx + 0.5) * s0 - 0.5, (cam.cy + 0.5) * s0 - 0.5, W0, H0,
+                         cam.dist)
+        W, H = parse_size(o.size, W0, H0)
+        dist = np.asarray(cam.dist, dtype=np.float64)
+        K0 = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1.0]])
+        maps = (cv2.initUndistortRectifyMap(K0, dist, None, K0, (W0, H0), cv2.CV_32FC1)
+                if dist.size and np.any(dist != 0) else None)
+        geo.update(cam=cam, W=W, H=H, W0=W0, H0=H0, maps=maps)
+
+        def conv(img):
+            if maps is not None:
+                img = cv2.remap(img, *maps, cv2.INTER_LINEAR)
+            return _resize(img.astype(np.float32) / 255.0, W, H)
+
+        return conv
+
+    frames, src_fps, n_src, _ = read_video(video, o.fps, prepare_frames)
     fps = src_fps if o.fps is None else float(o.fps)
-    idx = source_indices(len(frames), src_fps, o.fps)
-    W, H = parse_size(o.size, W0, H0)
-    cam = intrinsics or Intrinsics.from_focal(W0, H0, focal_px, focal_35mm)
-    if abs(cam.width / cam.height - W0 / H0) > 0.01 * W0 / H0:
-        raise ConfigError(f"camera: calibrated for {cam.width}x{cam.height} px, the video is {W0}x{H0} (another "
-                          "aspect ratio): calibrate at the video's size")
-    s0 = W0 / cam.width  # a calibration at another size of the same aspect: rescale to the video's
-    cam = Intrinsics(cam.fx * s0, cam.fy * s0, (cam.cx + 0.5) * s0 - 0.5, (cam.cy + 0.5) * s0 - 0.5, W0, H0, cam.dist)
-    mfiles, mlist = read_masks(masks, o.person_labels, o.object_labels, o.ignore_labels)
-    midx = _count_match(len(mlist), len(frames), idx, "mask PNGs", masks, video)
-    for p, m in zip(mfiles, mlist):
-        if m.shape != (H0, W0) and abs(m.shape[1] / m.shape[0] - W0 / H0) > 0.01 * W0 / H0:
-            raise ConfigError(f"{p}: mask size {m.shape[1]}x{m.shape[0]} px does not match the video's {W0}x{H0} px")
+    idx = source_indices(n_src, src_fps, o.fps)
+    assert len(frames) == len(idx)
+    cam, W, H, W0, H0, maps = (geo[k] for k in ("cam", "W", "H", "W0", "H0", "maps"))
+
+    def prepare_mask(p: Path, m: np.ndarray) -> np.ndarray:
+        if m.shape != (H0, W0):
+            if abs(m.shape[1] / m.shape[0] - W0 / H0) > 0.01 * W0 / H0:
+                raise ConfigError(f"{p}: mask size {m.shape[1]}x{m.shape[0]} px does not match the video's "
+                                  f"{W0}x{H0} px")
+            m = cv2.resize(m, (W0, H0), interpolation=cv2.INTER_NEAREST)
+        if maps is not None:
+            m = cv2.remap(m, *maps, cv2.INTER_NEAREST)
+        return (_resize(m, W, H) >= 0.5).astype(np.float32)
+
+    wanted = set(idx.tolist())
+    mfiles, mdict = read_masks(masks, o.person_labels, o.object_labels, o.ignore_labels,
+                               keep=lambda i, n: n != n_src or i in wanted, prepare=prepare_mask)
+    midx = _count_match(len(mfiles), n_src, idx, "mask PNGs", masks, video)
     smpl = load_smpl(poses)
-    pidx = _count_match(len(smpl["transl"]), len(frames), idx, "poses", poses, video)
+    pidx = _count_match(len(smpl["transl"]), n_src, idx, "poses", poses, video)
     n_out = len(idx)
     if o.spin_frames < 0 or (o.spin_frames and o.spin_frames < 2) or n_out - o.spin_frames < 3:
         raise ConfigError(f"--spin-frames {o.spin_frames}: needs 0 or >= 2 and leaves {n_out - o.spin_frames} of "
@@ -544,29 +590,17 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
                 "origin": [-size / 2, -size / 2, 0.0], "gravity": [0.0, 0.0, -9.81],
                 "walls": {**{k: "slip" for k in ("x_min", "x_max", "y_min", "y_max", "z_max")}, "z_min": o.floor},
                 "kp": 3.0e3, "kd": 110.0},
-        "import": {"video": str(video), "source_fps": src_fps, "source_frames": len(frames),
+        "import": {"video": str(video), "source_fps": src_fps, "source_frames": n_src,
                    "source_size": [W0, H0], "source_indices": idx.tolist(), "masks": str(masks), "poses": str(poses),
                    "object_mesh": str(object_mesh), "up_camera": [float(v) for v in o.up],
                    "spin_frames": int(o.spin_frames)},
     }
-    # ---- images
-    dist = np.asarray(cam.dist, dtype=np.float64)
-    K0 = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1.0]])
-    maps = (cv2.initUndistortRectifyMap(K0, dist, None, K0, (W0, H0), cv2.CV_32FC1)
-            if dist.size and np.any(dist != 0) else None)
+    # ---- images: the background outside the masks set to the renderer's constant colour
     bg = np.asarray(o.background, dtype=np.float32)
     rgbs, fgs = [], []
     for k in range(n_out):
-        img = frames[idx[k]][:H0, :W0]
-        m = mlist[midx[k]]
-        if m.shape != (H0, W0):
-            m = cv2.resize(m, (W0, H0), interpolation=cv2.INTER_NEAREST)
-        if maps is not None:
-            img = cv2.remap(img, *maps, cv2.INTER_LINEAR)
-            m = cv2.remap(m, *maps, cv2.INTER_NEAREST)
-        fg = (_resize(m, W, H) >= 0.5).astype(np.float32)
-        rgb = _resize(img.astype(np.float32) / 255.0, W, H)
-        rgb = np.where(fg[..., None] > 0, rgb, bg)
+        fg = mdict[midx[k]]
+        rgb = np.where(fg[..., None] > 0, frames[k], bg)
         rgbs.append((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8))
         fgs.append((fg * 255).astype(np.uint8))
     sp = o.spin_frames
@@ -708,4 +742,4 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
     return info
 
 
-__all__ = ["Intrinsics", "ImportOptions", "check_dataset", "import_video", "load_smpl", "retarget"]
+__all__ = ["ImportOptions", "Intrinsics", "check_dataset", "import_video", "load_smpl", "retarget"]
