@@ -29,8 +29,9 @@ Inputs and conventions:
 
   The camera is static (one camera for all clips, as in the synthetic scenes).
 * **Up**: a vector :math:`u` in camera coordinates (OpenCV: x right, y down, z forward; an upright camera has
-  :math:`u = (0, -1, 0)`), e.g. from the phone's accelerometer or a level. No marker board is read (skipped:
-  give the vector). The world frame: :math:`e_z = u/|u|`, :math:`e_x` = the camera's x made orthogonal to it,
+  :math:`u = (0, -1, 0)`, the default: seed §5.1 records with a static camera whose vertical axis is aligned
+  with gravity), e.g. from the phone's accelerometer or a level. No marker board is read (skipped: give the
+  vector). The world frame: :math:`e_z = u/|u|`, :math:`e_x` = the camera's x made orthogonal to it,
   :math:`e_y = e_z \times e_x`; its origin on the object's support (lowest point along :math:`u`) below the
   centre of the object's bounding box; gravity :math:`-9.81\, e_z`. World :math:`\to` camera:
   :math:`p_C = R p_W + t`, :math:`R = [e_x\ e_y\ e_z]`.

@@ -179,7 +179,8 @@ def test_imported_poses_reproduce_the_source_joints(user, imported):
 def test_retarget_random_poses(tmp_path):
     """Random rotations on every bone (pelvis local = identity: SMPL's pelvis carries the root), random camera:
     SMPL npz written here -> :func:`load_smpl` -> :func:`retarget` reproduces the bone heads and tails (1e-9 m).
-    Same mutants as above; a JSON file (list of per-frame tables) gives the same poses."""
+    Same mutants as above; a JSON file (list of per-frame tables), SMPL-X's 21-joint body_pose and rotation
+    matrices give the same poses."""
     rng = np.random.default_rng(3)
     body = procedural_humanoid(1.6, dtype=torch.float64)
     F, B = 4, body.skeleton.n_bones
@@ -191,10 +192,14 @@ def test_retarget_random_poses(tmp_path):
     s = smpl_from_capsule(body, rot, rt, Rc, tc)
     np.savez(tmp_path / "p.npz", **s)
     (tmp_path / "p.json").write_text(json.dumps([{k: v[f].tolist() for k, v in s.items()} for f in range(F)]))
+    np.savez(tmp_path / "x.npz", **{**s, "body_pose": s["body_pose"][:, :63]})  # SMPL-X: 21 body joints
+    mats = lambda a: Rotation.from_rotvec(a.reshape(-1, 3)).as_matrix().reshape(F, -1, 3, 3)
+    np.savez(tmp_path / "m.npz", global_orient=mats(s["global_orient"]), body_pose=mats(s["body_pose"]),
+             transl=s["transl"])  # rotation matrices (F, 1, 3, 3), (F, 23, 3, 3), as 4DHumans writes them
     want = joints_camera(body, rot, rt, Rc, tc)
     Rw = I.world_rotation(rng.normal(size=3))  # any world frame: compared in camera coordinates
     tw = rng.normal(size=3)
-    for name in ("p.npz", "p.json"):
+    for name in ("p.npz", "p.json", "x.npz", "m.npz"):
         p = I.retarget(I.load_smpl(tmp_path / name), body, Rw, tw)
         got = joints_camera(body, p["rotations"], p["root_translation"], Rw, tw)
         assert np.abs(got - want).max() < 1e-9, name
