@@ -8,22 +8,35 @@ in reverse, with fresh allocations per launch.  Without neural residuals the who
 * two fused kernels per substep: stress + P2G (tau = tau(F, E, nu) + fibre term tau_f(F, a0, E_f) of
   :func:`physar.mpm.constitutive.fiber_stress` inside the scatter) and G2P + return map
   (F = P((I + dt C) F) inside the gather); the grid update is the shared ``grid_update_kernel``;
-* forward: substeps run without storing anything but the states at segment boundaries (every k ~ sqrt(T)
-  substeps);
-* backward: per segment (last first) the k substeps are recomputed with their states and grids stored, then
-  reversed by launching Warp's generated adjoint kernels directly (``wp.launch(..., adjoint=True)``); the grid
-  adjoints live only on the particles' node box; memory is O((T / k + k) N), cost 2 forward + 1 adjoint sweep;
-* both CPU cores: each per-particle launch is split into two halves run concurrently (Warp's CPU kernels run
-  outside the GIL); the P2G halves scatter into separate grids that are summed, the G2P adjoint halves into
-  separate grid adjoints that are summed.
+* forward: the last K substeps of the frame keep their states and grids, as many as a memory budget allows
+  (``FusedFrame.keep_bytes``, over all frames alive in the graph); the first T - K store only the states at
+  segment boundaries (every k ~ sqrt(T - K) substeps);
+* backward: the kept substeps are reversed directly; then per segment (last first) the k substeps are
+  recomputed with their states and grids stored and reversed; memory is O((K + (T - K) / k + k) N), cost
+  (2 - K / T) forward + 1 adjoint sweep;
+* the reverse of a substep, per particle (issue 19: hand-written where Warp's generated adjoint of the
+  27-node loops was 3-4x slower than the forward): the return map and position update by Warp's adjoints of
+  small per-particle kernels (:func:`trial_plastic_kernel`, :func:`advect_kernel`; by hand in
+  :func:`g2p_gather_adjoint_kernel` when there is no collider and no plastic law), the APIC gather by hand
+  (a scatter of the grid velocity adjoints), the grid update by Warp, the MLS-MPM scatter by hand as a gather
+  of the grid adjoints (no atomics), the stress and external force by Warp's adjoint of
+  :func:`stress_force_kernel`;
+* both CPU cores: each per-particle launch can be split into two halves run concurrently (Warp's CPU kernels
+  run outside the GIL); the P2G halves scatter into separate grids that are summed, the G2P adjoint halves into
+  separate grid adjoints that are summed.  By default one or two threads are chosen per sweep from measured
+  wall times (:class:`ThreadChooser`): under load two threads can be slower than one.
 
-Gradients are the same as the generic path (same kernels, same functions); see tests/mpm/test_fused.py.
+Gradients equal the generic Warp-tape path's to round-off and central differences; see tests/mpm/test_fused.py
+and tests/mpm/test_fused_paths.py.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import threading
+import time
+import weakref
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -32,7 +45,19 @@ import warp as wp
 
 from physar.mpm.actuation import pd_force
 from physar.mpm.constitutive import hardening_factor, kirchhoff_stress_fiber
-from physar.mpm.model import MPMModel, g2p_particle, grid_update_kernel, p2g_particle, plastic_update
+from physar.mpm.model import (
+    MPMModel,
+    _base,
+    _frac,
+    _weights,
+    advect_particle,
+    g2p_particle,
+    grid_update_kernel,
+    p2g_particle,
+    plastic_update,
+)
+
+_f = wp.float64
 
 _POOL: ThreadPoolExecutor | None = None
 MIN_PARTICLES_PER_THREAD = 2048
@@ -127,6 +152,233 @@ def g2p_fused_kernel(
     Jp_out[p] = J
 
 
+@wp.func
+def _dweights(fx: wp.vec3d) -> wp.mat33d:
+    """d w_r / d fx of :func:`physar.mpm.model._weights` (row r, per axis): fx - 3/2, -2 (fx - 1), fx - 1/2."""
+    return wp.matrix_from_rows(fx - wp.vec3d(_f(1.5), _f(1.5), _f(1.5)),
+                               _f(-2.0) * (fx - wp.vec3d(_f(1.0), _f(1.0), _f(1.0))),
+                               fx - wp.vec3d(_f(0.5), _f(0.5), _f(0.5)))
+
+
+@wp.kernel
+def trial_plastic_kernel(
+    nC: wp.array(dtype=wp.mat33d),
+    F: wp.array(dtype=wp.mat33d),
+    Jp: wp.array(dtype=wp.float64),
+    E: wp.array(dtype=wp.float64),
+    nu: wp.array(dtype=wp.float64),
+    plastic: wp.array(dtype=wp.int32),
+    pp: wp.array(dtype=wp.vec4d),
+    dt: wp.float64,
+    p0: wp.int32,
+    F_out: wp.array(dtype=wp.mat33d),
+    Jp_out: wp.array(dtype=wp.float64),
+):
+    """Step 5 alone (the tail of :func:`g2p_fused_kernel`): F = P((I + dt C_new) F); launched in reverse only."""
+    p = wp.tid() + p0
+    Ft = (wp.identity(n=3, dtype=wp.float64) + dt * nC[p]) * F[p]
+    Fn, J = plastic_update(Ft, Jp[p], E[p], nu[p], plastic[p], pp[p])
+    F_out[p] = Fn
+    Jp_out[p] = J
+
+
+@wp.kernel
+def advect_kernel(
+    x: wp.array(dtype=wp.vec3d),
+    nv: wp.array(dtype=wp.vec3d),
+    dt: wp.float64,
+    x_lo: wp.float64,
+    x_hi: wp.float64,
+    nc: wp.int32,
+    ckind: wp.array(dtype=wp.int32),
+    ccenter: wp.array(dtype=wp.vec3d),
+    cvel: wp.array(dtype=wp.vec3d),
+    csize: wp.array(dtype=wp.vec3d),
+    caxis: wp.array(dtype=wp.vec3d),
+    p0: wp.int32,
+    x_out: wp.array(dtype=wp.vec3d),
+):
+    """The position update of step 4 alone (collider projection, clamp); launched in reverse only."""
+    p = wp.tid() + p0
+    x_out[p] = advect_particle(x[p], nv[p], dt, x_lo, x_hi, nc, ckind, ccenter, cvel, csize, caxis)
+
+
+@wp.kernel
+def stress_force_kernel(
+    x: wp.array(dtype=wp.vec3d),
+    v: wp.array(dtype=wp.vec3d),
+    F: wp.array(dtype=wp.mat33d),
+    Jp: wp.array(dtype=wp.float64),
+    E: wp.array(dtype=wp.float64),
+    nu: wp.array(dtype=wp.float64),
+    elastic: wp.array(dtype=wp.int32),
+    plastic: wp.array(dtype=wp.int32),
+    pp: wp.array(dtype=wp.vec4d),
+    fiber: wp.array(dtype=wp.vec3d),
+    fiber_E: wp.array(dtype=wp.float64),
+    mass: wp.array(dtype=wp.float64),
+    omega: wp.array(dtype=wp.float64),
+    x_ref: wp.array(dtype=wp.vec3d),
+    v_ref: wp.array(dtype=wp.vec3d),
+    f_hold: wp.array(dtype=wp.vec3d),
+    kp: wp.float64,
+    kd: wp.float64,
+    p0: wp.int32,
+    tau_out: wp.array(dtype=wp.mat33d),
+    f_out: wp.array(dtype=wp.vec3d),
+):
+    """Step 1 and the external force of :func:`p2g_fused_kernel` alone; launched in reverse only."""
+    p = wp.tid() + p0
+    h = hardening_factor(Jp[p], plastic[p], pp[p])
+    tau_out[p] = kirchhoff_stress_fiber(F[p], E[p], nu[p], elastic[p], h, fiber[p], fiber_E[p])
+    f_out[p] = f_hold[p] + pd_force(mass[p], omega[p], x[p], v[p], x_ref[p], v_ref[p], kp, kd)
+
+
+@wp.kernel
+def g2p_gather_adjoint_kernel(
+    grid_v: wp.array3d(dtype=wp.vec3d),
+    x: wp.array(dtype=wp.vec3d),
+    adj_nv: wp.array(dtype=wp.vec3d),
+    adj_nC: wp.array(dtype=wp.mat33d),
+    origin: wp.float64,
+    dx: wp.float64,
+    nmax: wp.int32,
+    off: wp.vec3i,
+    p0: wp.int32,
+    tail: wp.int32,
+    nv: wp.array(dtype=wp.vec3d),
+    nC: wp.array(dtype=wp.mat33d),
+    F: wp.array(dtype=wp.mat33d),
+    dt: wp.float64,
+    x_lo: wp.float64,
+    x_hi: wp.float64,
+    adj_xo: wp.array(dtype=wp.vec3d),
+    adj_Fo: wp.array(dtype=wp.mat33d),
+    adj_Jpo: wp.array(dtype=wp.float64),
+    adj_x: wp.array(dtype=wp.vec3d),
+    adj_gv: wp.array3d(dtype=wp.vec3d),
+    adj_F: wp.array(dtype=wp.mat33d),
+    adj_Jp: wp.array(dtype=wp.float64),
+):
+    """Reverse of the APIC gather (:func:`physar.mpm.model.g2p_gather`), written out by hand.
+
+    With K = 4/dx^2, fx = (x - origin)/dx - base, dpos_i = (i - fx) dx and given adj_nv = dL/dv_p,
+    adj_nC = dL/dC_p:  dL/dv_i += w_ip (adj_nv + K adj_nC dpos_i)  (scattered into adj_gv), and
+    dL/dx_p += (1/dx) sum_i [ (grad w_ip) v_i . (adj_nv + K adj_nC dpos_i) - w_ip dx K adj_nC^T v_i ].
+
+    ``tail`` = 1 (no colliders, no plastic law): the rest of the substep's reverse is done here as well, for
+    x_new = clamp(x + dt v_p) and F_new = (I + dt C_p) F, J_p,new = J_p (adj_nv, adj_nC are then the adjoints of the
+    stored v_p, C_p only; the clamp passes the adjoint where lo <= x <= hi, as Warp's ``clamp`` does);
+    ``tail`` = 0: adj_nv, adj_nC are the totals (the tail was reversed by Warp's adjoints of
+    :func:`advect_kernel` and :func:`trial_plastic_kernel`)."""
+    p = wp.tid() + p0
+    xp = x[p]
+    inv_dx = _f(1.0) / dx
+    b = _base(xp, origin, inv_dx, nmax)
+    fx = _frac(xp, origin, inv_dx, b)
+    W = _weights(fx)
+    D = _dweights(fx)
+    anv = adj_nv[p]
+    aCp = adj_nC[p]
+    axp = wp.vec3d()
+    if tail == 1:
+        xu = xp + dt * nv[p]
+        ax = adj_xo[p]
+        for d in range(3):
+            if xu[d] < x_lo or xu[d] > x_hi:
+                ax[d] = _f(0.0)
+        anv = anv + dt * ax
+        axp = ax
+        aFt = adj_Fo[p]
+        Fp = F[p]
+        aCp = aCp + dt * (aFt * wp.transpose(Fp))
+        adj_F[p] = adj_F[p] + wp.transpose(wp.identity(n=3, dtype=wp.float64) + dt * nC[p]) * aFt
+        adj_Jp[p] = adj_Jp[p] + adj_Jpo[p]
+    aC = (_f(4.0) * inv_dx * inv_dx) * aCp
+    aCt = wp.transpose(aC)
+    afx = wp.vec3d()
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                ii = b[0] + wp.int32(i) - off[0]
+                jj = b[1] + wp.int32(j) - off[1]
+                kk = b[2] + wp.int32(k) - off[2]
+                dpos = (wp.vec3d(wp.float64(i), wp.float64(j), wp.float64(k)) - fx) * dx
+                wgt = W[i, 0] * W[j, 1] * W[k, 2]
+                gw = wp.vec3d(D[i, 0] * W[j, 1] * W[k, 2], W[i, 0] * D[j, 1] * W[k, 2], W[i, 0] * W[j, 1] * D[k, 2])
+                gv = grid_v[ii, jj, kk]
+                a = anv + aC * dpos
+                wp.atomic_add(adj_gv, ii, jj, kk, wgt * a)
+                afx = afx + wp.dot(gv, a) * gw - (wgt * dx) * (aCt * gv)
+    adj_x[p] = adj_x[p] + axp + inv_dx * afx
+
+
+@wp.kernel
+def p2g_scatter_adjoint_kernel(
+    x: wp.array(dtype=wp.vec3d),
+    v: wp.array(dtype=wp.vec3d),
+    C: wp.array(dtype=wp.mat33d),
+    tau: wp.array(dtype=wp.mat33d),
+    f: wp.array(dtype=wp.vec3d),
+    mass: wp.array(dtype=wp.float64),
+    vol: wp.array(dtype=wp.float64),
+    adj_mv: wp.array3d(dtype=wp.vec3d),
+    adj_m: wp.array3d(dtype=wp.float64),
+    origin: wp.float64,
+    dx: wp.float64,
+    dt: wp.float64,
+    nmax: wp.int32,
+    off: wp.vec3i,
+    p0: wp.int32,
+    adj_x: wp.array(dtype=wp.vec3d),
+    adj_v: wp.array(dtype=wp.vec3d),
+    adj_C: wp.array(dtype=wp.mat33d),
+    adj_tau: wp.array(dtype=wp.mat33d),
+    adj_f: wp.array(dtype=wp.vec3d),
+):
+    """Reverse of the MLS-MPM scatter (:func:`physar.mpm.model.p2g_particle`) as a gather, written out by hand.
+
+    Forward: (mv)_i += w_ip (mom + A dpos_i), m_i += w_ip m_p with mom = m_p v_p + dt f_p and
+    A = -dt V_p K tau_p + m_p C_p (K = 4/dx^2).  Given dL/d(mv)_i, dL/dm_i: a_mom = sum_i w_ip dL/d(mv)_i,
+    a_A = sum_i w_ip dL/d(mv)_i dpos_i^T, dL/dfx = sum_i (grad w_ip)[dL/d(mv)_i . (mom + A dpos_i) + dL/dm_i m_p]
+    - w_ip dx A^T dL/d(mv)_i; then dL/dx_p += dL/dfx / dx, dL/dv_p += m_p a_mom, dL/dC_p += m_p a_A,
+    dL/dtau_p = -dt V_p K a_A, dL/df_p = dt a_mom (the last two are written, not accumulated)."""
+    p = wp.tid() + p0
+    xp = x[p]
+    m = mass[p]
+    inv_dx = _f(1.0) / dx
+    b = _base(xp, origin, inv_dx, nmax)
+    fx = _frac(xp, origin, inv_dx, b)
+    W = _weights(fx)
+    D = _dweights(fx)
+    K = _f(4.0) * inv_dx * inv_dx
+    A = (-dt * vol[p] * K) * tau[p] + m * C[p]
+    At = wp.transpose(A)
+    mom = m * v[p] + dt * f[p]
+    a_mom = wp.vec3d()
+    a_A = wp.mat33d()
+    afx = wp.vec3d()
+    for i in range(3):
+        for j in range(3):
+            for k in range(3):
+                ii = b[0] + wp.int32(i) - off[0]
+                jj = b[1] + wp.int32(j) - off[1]
+                kk = b[2] + wp.int32(k) - off[2]
+                dpos = (wp.vec3d(wp.float64(i), wp.float64(j), wp.float64(k)) - fx) * dx
+                wgt = W[i, 0] * W[j, 1] * W[k, 2]
+                gw = wp.vec3d(D[i, 0] * W[j, 1] * W[k, 2], W[i, 0] * D[j, 1] * W[k, 2], W[i, 0] * W[j, 1] * D[k, 2])
+                amv = adj_mv[ii, jj, kk]
+                u = At * amv
+                a_mom = a_mom + wgt * amv
+                a_A = a_A + wgt * wp.outer(amv, dpos)
+                afx = afx + (wp.dot(amv, mom) + wp.dot(u, dpos) + adj_m[ii, jj, kk] * m) * gw - (wgt * dx) * u
+    adj_x[p] = adj_x[p] + inv_dx * afx
+    adj_v[p] = adj_v[p] + m * a_mom
+    adj_C[p] = adj_C[p] + m * a_A
+    adj_tau[p] = (-dt * vol[p] * K) * a_A
+    adj_f[p] = dt * a_mom
+
+
 @wp.kernel
 def add_grid_kernel(a_mv: wp.array3d(dtype=wp.vec3d), a_m: wp.array3d(dtype=wp.float64),
                     b_mv: wp.array3d(dtype=wp.vec3d), b_m: wp.array3d(dtype=wp.float64)):
@@ -144,29 +396,123 @@ def add_vec_grid_kernel(a: wp.array3d(dtype=wp.vec3d), b: wp.array3d(dtype=wp.ve
 _STATE = (("x", wp.vec3d), ("v", wp.vec3d), ("C", wp.mat33d), ("F", wp.mat33d), ("Jp", wp.float64))
 
 
-def _alloc_state(n: int) -> list:
-    return [wp.zeros(n, dtype=t) for _, t in _STATE]
+def _alloc_state(n: int, zero: bool = True) -> list:
+    return [(wp.zeros if zero else wp.empty)(n, dtype=t) for _, t in _STATE]
+
+
+def _usable_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def _default_keep_bytes() -> int:
+    """min(512 MiB, 1/8 of the memory available now)."""
+    cap = 1 << 29
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return min(cap, int(line.split()[1]) * 1024 // 8)
+    except OSError:
+        pass
+    return cap // 4
+
+
+class ThreadChooser:
+    """Picks 1 or 2 threads per sweep from the wall time of the sweeps already run (per process).
+
+    Two threads split every per-particle launch in halves and join after each; on a loaded machine one half can
+    wait for a core while the other is done, and two threads then run slower than one (issue 19).  So each
+    kind of sweep (``"fwd"``: a forward substep, ``"adj"``: a reverse substep) keeps an exponential mean
+    (weight 0.3) of its seconds per substep for 1 and for 2 threads, per particle-count octave; the first
+    call of each mode is not counted (kernel loading), the two modes alternate until each has two samples,
+    then the faster is used and the other is tried again every ``probe_every`` calls, so that a change of
+    the machine's load is followed."""
+
+    def __init__(self, probe_every: int = 8):
+        self.probe_every = probe_every
+        self._lock = threading.Lock()
+        self.est: dict = {}  # (kind, octave, mode) -> [mean seconds, samples, calls]
+
+    def pick(self, kind: str, n: int) -> int:
+        key = (kind, int(n).bit_length())
+        with self._lock:
+            st = [self.est.setdefault((*key, mode), [0.0, 0, 0]) for mode in (1, 2)]
+            if st[0][1] < 2 or st[1][1] < 2:
+                mode = 1 if st[0][2] <= st[1][2] else 2
+            else:
+                best = 1 if st[0][0] <= st[1][0] else 2
+                total = st[0][2] + st[1][2]
+                mode = 3 - best if total % self.probe_every == 0 else best
+            st[mode - 1][2] += 1
+            return mode
+
+    def record(self, kind: str, n: int, mode: int, seconds: float):
+        with self._lock:
+            e = self.est[(kind, int(n).bit_length(), mode)]
+            if e[2] <= 1:  # first call of this mode: kernel loading, not counted
+                return
+            e[0] = seconds if e[1] == 0 else 0.7 * e[0] + 0.3 * seconds
+            e[1] += 1
+
+
+CHOOSER = ThreadChooser()
 
 
 class FusedFrame:
     """Forward and reverse sweeps of one frame of ``model.substeps`` substeps (see module docstring).
 
-    ``threads``: 1 or 2 (default: 2 if the machine has 2 cores and the model at least 2 x 2048 particles).
+    ``threads``: 1, 2, or None (default): 1 on a single usable core or below 2 x 2048 particles, else chosen per
+    sweep by :class:`ThreadChooser` from measured wall times (so two threads are used only while they are
+    faster).  ``keep_bytes``: memory (bytes, over all frames alive in the graph) that the forward may use to
+    keep the states and grids of a frame's last K substeps so that the backward does not run them again
+    (default :func:`_default_keep_bytes`: min(512 MiB, 1/8 of the available memory); 0 = pure checkpointing);
+    the first T - K substeps are checkpointed every ceil(sqrt(T - K)) substeps and recomputed in the backward.
     """
 
-    def __init__(self, model: MPMModel, threads: int | None = None):
+    def __init__(self, model: MPMModel, threads: int | None = None, keep_bytes: int | None = None):
         self.model = model
         n = model.n_particles
-        if threads is None:
-            threads = 2 if (os.cpu_count() or 1) >= 2 and n >= 2 * MIN_PARTICLES_PER_THREAD else 1
-        self.threads = max(1, min(2, int(threads)))
+        if threads is None and (_usable_cores() < 2 or n < 2 * MIN_PARTICLES_PER_THREAD):
+            threads = 1
+        self.threads = None if threads is None else max(1, min(2, int(threads)))
         h = n // 2
-        self.parts = [(0, n)] if self.threads == 1 else [(0, h), (h, n - h)]
-        T = model.substeps
-        self.seg = max(1, math.ceil(math.sqrt(T)))
+        self._parts = {1: [(0, n)], 2: [(0, h), (h, n - h)]}
+        # reverse of the G2P tail by hand when no particle has a plastic law (F_new = F_trial, J_p constant)
+        self.simple_tail = not bool(np.any(np.asarray(model.plastic) != 0))
+        self.keep_bytes = _default_keep_bytes() if keep_bytes is None else int(keep_bytes)
+        self._held = 0
+        self._held_lock = threading.Lock()
+
+    # -- memory kept for the backward
+    def reserve(self, T: int) -> tuple[int, int]:
+        """(K, bytes): how many of a frame's T substeps the forward may keep (states: 200 bytes per particle,
+        grids: 88 bytes per node of the last box seen), within what is left of ``keep_bytes``; reserved."""
+        per = self.model.n_particles * 200 + 88 * getattr(self, "_last_box", 0)
+        with self._held_lock:
+            K = min(T, (self.keep_bytes - self._held) // per - 1)
+            if K < 1:
+                return 0, 0
+            nbytes = (K + 1) * per
+            self._held += nbytes
+            return int(K), int(nbytes)
+
+    def release(self, nbytes: int):
+        with self._held_lock:
+            self._held -= nbytes
 
     # -- helpers
-    def _par(self, fns):
+    def _mode(self, kind: str) -> int:
+        return self.threads if self.threads is not None else CHOOSER.pick(kind, self.model.n_particles)
+
+    def _timed(self, kind: str, mode: int, t0: float):
+        if self.threads is None:
+            CHOOSER.record(kind, self.model.n_particles, mode, time.perf_counter() - t0)
+
+    @staticmethod
+    def _par(fns):
         """Run the callables concurrently (the first on this thread)."""
         if len(fns) == 1:
             fns[0]()
@@ -184,18 +530,27 @@ class FusedFrame:
 
     # -- one substep forward; returns what the reverse sweep needs
     def substep(self, s_in: list, s_out: list, P: dict, t: float, keep: bool = False, box=None):
-        """One substep s_in -> s_out.  ``box`` (corner, shape) is the active node box of s_in when already known
-        (the backward recompute reuses the boxes of the forward sweep: same states, no host round trip)."""
+        """One substep s_in -> s_out.  ``box`` (corner, shape, threads) is the active node box of s_in and the
+        thread count when already known (the backward recompute reuses those of the forward sweep: same states,
+        same summation order, no host round trip).  Returns that triple, or with ``keep`` what the reverse
+        sweep needs."""
+        t_start = time.perf_counter()
         m, a, lo, hi, nmax = self._consts()
         x, v, C, F, Jp = s_in
-        corner, shape = box if box is not None else m.active_box(x.numpy())
+        if box is not None:
+            corner, shape, mode = box
+        else:
+            corner, shape = m.active_box(x.numpy())
+            mode = self._mode("fwd")
+        self._last_box = shape[0] * shape[1] * shape[2]
+        parts = self._parts[mode]
         off = wp.vec3i(*corner)
-        grids = [(wp.zeros(shape, dtype=wp.vec3d), wp.zeros(shape, dtype=wp.float64)) for _ in self.parts]
+        grids = [(wp.zeros(shape, dtype=wp.vec3d), wp.zeros(shape, dtype=wp.float64)) for _ in parts]
         col = a["colliders"].at(t, m.dt)
         cin = col.inputs()
 
         def p2g(k):
-            p0, cnt = self.parts[k]
+            p0, cnt = parts[k]
             return lambda: wp.launch(
                 p2g_fused_kernel, cnt,
                 inputs=[x, v, C, F, Jp, P["E"], P["nu"], a["elastic"], a["plastic"], a["pp"], a["fiber"],
@@ -203,7 +558,7 @@ class FusedFrame:
                         P["kp"], P["kd"], m.origin, m.dx, m.dt, nmax, off, p0],
                 outputs=list(grids[k]))
 
-        self._par([p2g(k) for k in range(len(self.parts))])
+        self._par([p2g(k) for k in range(len(parts))])
         mv, gm = grids[0]
         for k in range(1, len(grids)):
             wp.launch(add_grid_kernel, shape, inputs=[mv, gm, grids[k][0], grids[k][1]])
@@ -213,36 +568,70 @@ class FusedFrame:
         wp.launch(grid_update_kernel, shape, inputs=g_in, outputs=[gv])
 
         def g2p(k):
-            p0, cnt = self.parts[k]
+            p0, cnt = parts[k]
             return lambda: wp.launch(
                 g2p_fused_kernel, cnt,
                 inputs=[gv, x, F, Jp, P["E"], P["nu"], a["plastic"], a["pp"], m.origin, m.dx, m.dt, nmax, lo, hi,
                         off, cin[0], cin[1], cin[4], cin[5], cin[6], cin[7], p0],
                 outputs=list(s_out))
 
-        self._par([g2p(k) for k in range(len(self.parts))])
+        self._par([g2p(k) for k in range(len(parts))])
+        if box is None:
+            self._timed("fwd", mode, t_start)
         if keep:
             return {"shape": shape, "off": off, "grids": grids, "gv": gv, "g_in": g_in, "t": t}
-        return corner, shape
+        return corner, shape, mode
+
+    def _scratch(self) -> dict:
+        if getattr(self, "_scr", None) is None:
+            n = self.model.n_particles
+            self._scr = {"tau": wp.zeros(n, dtype=wp.mat33d), "f": wp.zeros(n, dtype=wp.vec3d),
+                         "adj_tau": wp.zeros(n, dtype=wp.mat33d), "adj_f": wp.zeros(n, dtype=wp.vec3d),
+                         "x": wp.zeros(n, dtype=wp.vec3d), "F": wp.zeros(n, dtype=wp.mat33d),
+                         "Jp": wp.zeros(n, dtype=wp.float64)}
+        return self._scr
 
     def adjoint_substep(self, s_in: list, s_out: list, adj_in: list, adj_out: list, P: dict, adjP: dict, rec: dict):
-        """Accumulate into adj_in (state s) and adjP the adjoints given adj_out (state s + 1)."""
+        """Accumulate into adj_in (state s) and adjP the adjoints given adj_out (state s + 1); adj_out's v and C
+        entries are overwritten (they become the total adjoints of the gathered v_p, C_p).
+
+        Per particle range, in reverse order of the substep: return map (Warp's adjoint of
+        :func:`trial_plastic_kernel`), position update (of :func:`advect_kernel`), the APIC gather
+        (:func:`g2p_gather_adjoint_kernel`, by hand), the grid update (Warp), the scatter
+        (:func:`p2g_scatter_adjoint_kernel`, by hand: a gather of the grid adjoints, no atomics) and the stress
+        and external force (Warp's adjoint of :func:`stress_force_kernel`)."""
+        t_start = time.perf_counter()
+        mode = self._mode("adj")
+        parts = self._parts[mode]
         m, a, lo, hi, nmax = self._consts()
         x, v, C, F, Jp = s_in
         shape, off, gv = rec["shape"], rec["off"], rec["gv"]
         col = a["colliders"].at(rec["t"], m.dt)
         cin = col.inputs()
-        adj_gvs = [wp.zeros(shape, dtype=wp.vec3d) for _ in self.parts]
+        scr = self._scratch()
+        tail = self.simple_tail and cin[0] == 0
+        adj_gvs = [wp.zeros(shape, dtype=wp.vec3d) for _ in parts]
 
         def g2p_adj(k):
-            p0, cnt = self.parts[k]
-            ins = [gv, x, F, Jp, P["E"], P["nu"], a["plastic"], a["pp"], m.origin, m.dx, m.dt, nmax, lo, hi,
-                   off, cin[0], cin[1], cin[4], cin[5], cin[6], cin[7], p0]
-            adj_ins = _adj(ins, {0: adj_gvs[k], 1: adj_in[0], 2: adj_in[3], 3: adj_in[4], 4: adjP["E"], 5: adjP["nu"]})
-            return lambda: wp.launch(g2p_fused_kernel, cnt, inputs=ins, outputs=list(s_out), adj_inputs=adj_ins,
-                                     adj_outputs=list(adj_out), adjoint=True)
+            p0, cnt = parts[k]
+            pl_in = [s_out[2], F, Jp, P["E"], P["nu"], a["plastic"], a["pp"], m.dt, p0]
+            pl_adj = _adj(pl_in, {0: adj_out[2], 1: adj_in[3], 2: adj_in[4], 3: adjP["E"], 4: adjP["nu"]})
+            ad_in = [x, s_out[1], m.dt, lo, hi, cin[0], cin[1], cin[4], cin[5], cin[6], cin[7], p0]
+            ad_adj = _adj(ad_in, {0: adj_in[0], 1: adj_out[1]})
 
-        self._par([g2p_adj(k) for k in range(len(self.parts))])
+            def run():
+                if not tail:
+                    wp.launch(trial_plastic_kernel, cnt, inputs=pl_in, outputs=[scr["F"], scr["Jp"]],
+                              adj_inputs=pl_adj, adj_outputs=[adj_out[3], adj_out[4]], adjoint=True)
+                    wp.launch(advect_kernel, cnt, inputs=ad_in, outputs=[scr["x"]], adj_inputs=ad_adj,
+                              adj_outputs=[adj_out[0]], adjoint=True)
+                wp.launch(g2p_gather_adjoint_kernel, cnt,
+                          inputs=[gv, x, adj_out[1], adj_out[2], m.origin, m.dx, nmax, off, p0, int(tail), s_out[1],
+                                  s_out[2], F, m.dt, lo, hi, adj_out[0], adj_out[3], adj_out[4]],
+                          outputs=[adj_in[0], adj_gvs[k], adj_in[3], adj_in[4]])
+            return run
+
+        self._par([g2p_adj(k) for k in range(len(parts))])
         adj_gv = adj_gvs[0]
         for k in range(1, len(adj_gvs)):
             wp.launch(add_vec_grid_kernel, shape, inputs=[adj_gv, adj_gvs[k]])
@@ -254,18 +643,25 @@ class FusedFrame:
                   adjoint=True)
 
         def p2g_adj(k):
-            p0, cnt = self.parts[k]
-            ins = [x, v, C, F, Jp, P["E"], P["nu"], a["elastic"], a["plastic"], a["pp"], a["fiber"], P["fiber_E"],
-                   a["mass"], a["volume"], P["omega"], P["x_ref"], P["v_ref"], P["f_hold"], P["kp"], P["kd"],
-                   m.origin, m.dx, m.dt, nmax, off, p0]
-            adj_ins = _adj(ins, {0: adj_in[0], 1: adj_in[1], 2: adj_in[2], 3: adj_in[3], 4: adj_in[4], 5: adjP["E"],
-                                 6: adjP["nu"], 11: adjP["fiber_E"], 14: adjP["omega"], 15: adjP["x_ref"],
-                                 16: adjP["v_ref"], 17: adjP["f_hold"]})
-            # the forward summed the halves' grids: every half sees the adjoint of the sum
-            return lambda: wp.launch(p2g_fused_kernel, cnt, inputs=ins, outputs=list(rec["grids"][k]),
-                                     adj_inputs=adj_ins, adj_outputs=[adj_mv, adj_m], adjoint=True)
+            p0, cnt = parts[k]
+            sf_in = [x, v, F, Jp, P["E"], P["nu"], a["elastic"], a["plastic"], a["pp"], a["fiber"], P["fiber_E"],
+                     a["mass"], P["omega"], P["x_ref"], P["v_ref"], P["f_hold"], P["kp"], P["kd"], p0]
+            sf_adj = _adj(sf_in, {0: adj_in[0], 1: adj_in[1], 2: adj_in[3], 3: adj_in[4], 4: adjP["E"],
+                                  5: adjP["nu"], 10: adjP["fiber_E"], 12: adjP["omega"], 13: adjP["x_ref"],
+                                  14: adjP["v_ref"], 15: adjP["f_hold"]})
 
-        self._par([p2g_adj(k) for k in range(len(self.parts))])
+            def run():
+                wp.launch(stress_force_kernel, cnt, inputs=sf_in, outputs=[scr["tau"], scr["f"]])
+                wp.launch(p2g_scatter_adjoint_kernel, cnt,
+                          inputs=[x, v, C, scr["tau"], scr["f"], a["mass"], a["volume"], adj_mv, adj_m, m.origin,
+                                  m.dx, m.dt, nmax, off, p0],
+                          outputs=[adj_in[0], adj_in[1], adj_in[2], scr["adj_tau"], scr["adj_f"]])
+                wp.launch(stress_force_kernel, cnt, inputs=sf_in, outputs=[scr["tau"], scr["f"]], adj_inputs=sf_adj,
+                          adj_outputs=[scr["adj_tau"], scr["adj_f"]], adjoint=True)
+            return run
+
+        self._par([p2g_adj(k) for k in range(len(parts))])
+        self._timed("adj", mode, t_start)
 
 
 def _adj(inputs: list, given: dict) -> list:
@@ -286,6 +682,19 @@ def _wp(t: torch.Tensor, dtype):
     return wp.from_torch(t.detach().contiguous(), dtype=dtype)
 
 
+class _Kept:
+    """The states and grids of a frame kept by the forward for the backward; their bytes count against the
+    runner's ``keep_bytes`` until the backward has used them or the graph is dropped."""
+
+    def __init__(self, runner, nbytes: int, states: list, recs: list, start: int):
+        self.states, self.recs, self.start = states, recs, start
+        self._fin = weakref.finalize(self, runner.release, nbytes)
+
+    def release(self):
+        self.states = self.recs = None
+        self._fin()
+
+
 class FusedFrameFunction(torch.autograd.Function):
     """(x, v, C, F, Jp, E, nu, omega, x_ref, v_ref, f_hold, fiber_E) at the start of a frame -> state at its end.
 
@@ -302,15 +711,33 @@ class FusedFrameFunction(torch.autograd.Function):
              "x_ref": _wp(x_ref, wp.vec3d), "v_ref": _wp(v_ref, wp.vec3d), "f_hold": _wp(f_hold, wp.vec3d),
              "fiber_E": _wp(fiber_E, wp.float64), "kp": float(kp), "kd": float(kd)}
         cur = [wp.array(t.detach().contiguous().numpy(), dtype=d) for t, (_, d) in zip((x, v, C, F, Jp), _STATE)]
-        nxt = _alloc_state(n)
+        ctx.runner, ctx.t0, ctx.kp, ctx.kd = runner, t0, kp, kd
+        ctx.kept, ctx.kept_released = None, False
+        # the last K substeps keep their states and grids (as many as runner.keep_bytes allows): the backward
+        # runs those substeps only in reverse; the first T - K are checkpointed every ceil(sqrt(T - K))
+        # substeps and recomputed segment by segment
+        K, nbytes = runner.reserve(T) if any(ctx.needs_input_grad[4:]) else (0, 0)
+        tail0 = T - K
+        seg = max(1, math.ceil(math.sqrt(tail0)))
+        nxt = _alloc_state(n, zero=False)
         bounds = {0: [a.numpy().copy() for a in cur]}
         boxes = []
-        for s in range(T):
+        for s in range(tail0):
             boxes.append(runner.substep(cur, nxt, P, t0 + s * m.dt))
             cur, nxt = nxt, cur
-            if (s + 1) % runner.seg == 0 and s + 1 < T:
+            if (s + 1) % seg == 0 and s + 1 < tail0:
                 bounds[s + 1] = [a.numpy().copy() for a in cur]
-        ctx.runner, ctx.t0, ctx.bounds, ctx.boxes, ctx.kp, ctx.kd = runner, t0, bounds, boxes, kp, kd
+        if K > 0:
+            states, recs = [cur], []
+            for s in range(tail0, T):
+                out = _alloc_state(n, zero=False)
+                recs.append(runner.substep(states[-1], out, P, t0 + s * m.dt, keep=True))
+                states.append(out)
+            ctx.kept = _Kept(runner, nbytes, states, recs, tail0)
+            cur = states[-1]
+            if tail0 == 0:
+                bounds = {}
+        ctx.bounds, ctx.boxes = bounds, boxes
         ctx.save_for_backward(E, nu, omega, x_ref, v_ref, f_hold, fiber_E)
         return tuple(torch.from_numpy(a.numpy().copy()) for a in cur)
 
@@ -330,21 +757,30 @@ class FusedFrameFunction(torch.autograd.Function):
         adj_next = [wp.array(np.ascontiguousarray(g.detach().numpy() if g is not None else np.zeros(sh)), dtype=d)
                     for g, (_, d), sh in zip(grads, _STATE, [(n, 3), (n, 3), (n, 3, 3), (n, 3, 3), (n,)])]
         adj_cur = _alloc_state(n)
+        if ctx.kept is None and ctx.kept_released:
+            raise RuntimeError("this MPM frame kept its last substeps for one backward pass, which has run: "
+                               "back-propagating it again (retain_graph) needs FusedFrame(model, keep_bytes=0)")
         starts = sorted(ctx.bounds)
-        for si in reversed(range(len(starts))):
-            s0 = starts[si]
-            s1 = starts[si + 1] if si + 1 < len(starts) else T
-            states = [[wp.array(a, dtype=d) for a, (_, d) in zip(ctx.bounds[s0], _STATE)]]
-            recs = []
-            for s in range(s0, s1):
-                out = _alloc_state(n)
-                recs.append(runner.substep(states[-1], out, P, ctx.t0 + s * m.dt, keep=True, box=ctx.boxes[s]))
-                states.append(out)
+        end = T if ctx.kept is None else ctx.kept.start
+        segments = [(s0, starts[i + 1] if i + 1 < len(starts) else end, None, None) for i, s0 in enumerate(starts)]
+        if ctx.kept is not None:
+            segments.append((ctx.kept.start, T, ctx.kept.states, ctx.kept.recs))
+        for s0, s1, states, recs in reversed(segments):
+            if states is None:
+                states = [[wp.array(a, dtype=d) for a, (_, d) in zip(ctx.bounds[s0], _STATE)]]
+                recs = []
+                for s in range(s0, s1):
+                    out = _alloc_state(n, zero=False)
+                    recs.append(runner.substep(states[-1], out, P, ctx.t0 + s * m.dt, keep=True, box=ctx.boxes[s]))
+                    states.append(out)
             for j in reversed(range(s1 - s0)):
                 for a in adj_cur:
                     a.zero_()
                 runner.adjoint_substep(states[j], states[j + 1], adj_cur, adj_next, P, adjP, recs[j])
                 adj_cur, adj_next = adj_next, adj_cur
+        if ctx.kept is not None:
+            ctx.kept.release()
+            ctx.kept, ctx.kept_released = None, True
         to_t = lambda a: torch.from_numpy(a.numpy().copy())
         g_state = [to_t(a) for a in adj_next]
         g_par = [to_t(adjP[k]) for k in ("E", "nu", "omega", "x_ref", "v_ref", "f_hold", "fiber_E")]

@@ -279,6 +279,15 @@ def g2p_particle(
     caxis: wp.array(dtype=wp.vec3d),
 ):
     """Gather one particle (step 4): new v, C and position (collider projection, clamp to the padded grid)."""
+    nv, nC = g2p_gather(grid_v, xp, origin, dx, nmax, off)
+    xc = advect_particle(xp, nv, dt, x_lo, x_hi, nc, ckind, ccenter, cvel, csize, caxis)
+    return nv, nC, xc
+
+
+@wp.func
+def g2p_gather(grid_v: wp.array3d(dtype=wp.vec3d), xp: wp.vec3d, origin: wp.float64, dx: wp.float64,
+               nmax: wp.int32, off: wp.vec3i):
+    """APIC gather of step 4: v_p = sum_i w_ip v_i, C_p = 4/dx^2 sum_i w_ip v_i (x_i - x_p)^T."""
     inv_dx = _f(1.0) / dx
     b = _base(xp, origin, inv_dx, nmax)
     fx = _frac(xp, origin, inv_dx, b)
@@ -296,6 +305,24 @@ def g2p_particle(
                 gv = grid_v[ii, jj, kk]
                 nv = nv + wgt * gv
                 nC = nC + (_f(4.0) * inv_dx * inv_dx * wgt) * wp.outer(gv, dpos)
+    return nv, nC
+
+
+@wp.func
+def advect_particle(
+    xp: wp.vec3d,
+    nv: wp.vec3d,
+    dt: wp.float64,
+    x_lo: wp.float64,
+    x_hi: wp.float64,
+    nc: wp.int32,
+    ckind: wp.array(dtype=wp.int32),
+    ccenter: wp.array(dtype=wp.vec3d),
+    cvel: wp.array(dtype=wp.vec3d),
+    csize: wp.array(dtype=wp.vec3d),
+    caxis: wp.array(dtype=wp.vec3d),
+) -> wp.vec3d:
+    """x_p + dt v_p, projected out of the colliders and clamped to the padded grid (end of step 4)."""
     xn = xp + dt * nv
     if nc > 0:  # a particle that ends inside a collider (at its end-of-substep position) is put back on its surface
         for c in range(MAX_COLLIDERS):
@@ -304,8 +331,7 @@ def g2p_particle(
                 sd = collider_sdf(xn, ckind[c], ccenter[c] + dt * cvel[c], csize[c], caxis[c])
             if sd[0] < _f(0.0):
                 xn = xn - sd[0] * wp.vec3d(sd[1], sd[2], sd[3])
-    xc = wp.vec3d(wp.clamp(xn[0], x_lo, x_hi), wp.clamp(xn[1], x_lo, x_hi), wp.clamp(xn[2], x_lo, x_hi))
-    return nv, nC, xc
+    return wp.vec3d(wp.clamp(xn[0], x_lo, x_hi), wp.clamp(xn[1], x_lo, x_hi), wp.clamp(xn[2], x_lo, x_hi))
 
 
 @wp.kernel
@@ -508,8 +534,10 @@ class MPMModel:
         this box is allocated / updated (the grid phase costs :math:`O(\mathrm{box})` instead of
         :math:`O(\mathrm{resolution}^3)`).
         """
-        g = np.floor((np.asarray(x) - self.origin) / self.dx - 0.5)
-        gmin, gmax = g.min(axis=0), g.max(axis=0)
+        x = np.asarray(x)
+        # the map x -> floor((x - origin) / dx - 1/2) is monotone (also in floating point): apply it to the extremes
+        gmin = np.floor((x.min(axis=0) - self.origin) / self.dx - 0.5)
+        gmax = np.floor((x.max(axis=0) - self.origin) / self.dx - 0.5)
         if not (np.all(np.isfinite(gmin)) and np.all(np.isfinite(gmax))):
             raise SolverError("MPM simulation diverged (non-finite particle positions): reduce the substep "
                               "(more time.substeps) or the stiffness")
