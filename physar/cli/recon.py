@@ -193,6 +193,9 @@ def import_cmd(
                                "global_orient, body_pose (axis-angle), betas, transl, camera coordinates"),
     object_mesh: Path | None = typer.Option(None, "--object-mesh", help="closed surface mesh of the object "  # noqa: B008
                                             "(metres, camera coordinates)"),
+    spin_cameras: Path | None = typer.Option(None, "--spin-cameras", help="instead of --object-mesh: camera poses "  # noqa: B008
+                                             "of the spin frames (R (S, 3, 3), t (S, 3); .npz or .json) for a "
+                                             "visual hull of the object"),
     camera: Path | None = typer.Option(None, "--camera", help="camera TOML from `physar calibrate`"),  # noqa: B008
     focal_px: float | None = typer.Option(None, "--focal-px", help="focal length [px of the video] (no --camera)"),
     focal_35mm: float | None = typer.Option(None, "--focal-35mm", help="35 mm-equivalent focal length [mm] "
@@ -227,6 +230,8 @@ def import_cmd(
     check_input(poses, "pose file")
     if object_mesh is not None:
         check_input(object_mesh, "object mesh")
+    if spin_cameras is not None:
+        check_input(spin_cameras, "spin cameras file")
     whole_folder(out, "a new folder such as data/")
     labels = lambda t, o: tuple(int(v) for v in _floats(t, None, o)) if t else ()
     for t, o in ((person_labels, "--person-labels"), (object_labels, "--object-labels"), (ignore_labels, "--ignore-labels")):
@@ -251,10 +256,10 @@ def import_cmd(
                          background=_floats(background, 3, "--background"), domain_size=domain_size,
                          grid_resolution=grid_resolution, density=density, nu=nu)
     summary = import_video(video, out, masks=masks, poses=poses, intrinsics=intr, focal_px=focal_px,
-                           focal_35mm=focal_35mm, object_mesh=object_mesh, opts=opts)
+                           focal_35mm=focal_35mm, object_mesh=object_mesh, spin_cameras=spin_cameras, opts=opts)
     print_json(summary) if json_out else log(
         f"scene -> {out} ({summary['frames']} frames, {summary['n_obs']} observed, {summary['spin_frames']} spin, "
-        f"{summary['size'][0]}x{summary['size'][1]} px at {summary['fps']:g} fps; object {summary['object_boxes']} "
+        f"{summary['size'][0]}x{summary['size'][1]} px at {summary['fps']:g} fps; object ({summary['object']}) {summary['object_boxes']} "
         f"boxes, {summary['object_volume_m3'] * 1e3:.2f} L); check it with `physar recon check {out}`")
 
 

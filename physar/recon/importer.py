@@ -53,13 +53,17 @@ Inputs and conventions:
   :math:`h_\text{root}` on the pelvis: :math:`\tau = R^\top (J_0 + \text{transl} - t) - h_\text{root}`.
   Intermediate SMPL joints (spine1-2, neck, collars) enter through the composed global rotations; wrists,
   hands, feet and the face are dropped (the capsule figure has none).
-* **Object**: a closed surface mesh (any format trimesh or meshio reads), vertices in metres in camera
-  coordinates (a scan registered to the camera), voxelised on the MPM grid (cell :math:`\Delta x =
-  \text{size}/\text{resolution}`) by the generalised winding number (inside: :math:`w > 1/2`) and written as
-  the union of boxes (x-runs of voxels) that ``scene.json`` ``object.boxes`` holds, so that the recon's lattice
-  at :math:`\Delta x / k` samples it exactly. The visual hull from the spin clip's masks is not built: with the
-  one static camera of this format the spin clip shows the object from one view only, and a hull needs per-frame
-  camera poses of views around the object (not part of the format yet); give the mesh.
+* **Object**: either a closed surface mesh (any format trimesh or meshio reads), vertices in metres in camera
+  coordinates (a scan registered to the camera), voxelised by the generalised winding number (inside:
+  :math:`w > 1/2`); or the visual hull carved from the spin clip's object masks (:func:`carve_hull`), which needs
+  the camera pose of every spin frame (``spin_cameras``: ``R`` (S, 3, 3), ``t`` (S, 3), :math:`p_i = R_i p_C +
+  t_i` from the reference camera's coordinates, e.g. from a structure-from-motion run or a marker board; same
+  intrinsics): with one static camera, as in seed §5.1, the spin clip shows the object from one side only and
+  no hull can be carved, so give the mesh. Either way the object is voxelised on the MPM grid (cell
+  :math:`\Delta x = \text{size}/\text{resolution}`) and written as the union of boxes (x-runs of voxels) that
+  ``scene.json`` ``object.boxes`` holds, so that the recon's lattice at :math:`\Delta x / k` samples it exactly.
+  A moving camera's spin frames are used for the hull only and left out of the DATA_DIR (``recon fit`` assumes
+  one static camera); its appearance stage then starts from the first dynamic frame.
 
 The first ``spin_frames`` output frames form the spin clip (the person turning next to the object at rest,
 seed §5.1); the rest is the dynamic clip, of which the first ``n_obs`` are observed. No novel clip, no truth.
@@ -239,7 +243,7 @@ def read_masks(folder: str | Path, person_labels, object_labels, ignore_labels=(
     r"""Label PNGs of ``folder`` in name order, each checked (one error line for a label value that is neither
     background (0), ignored, person nor object); the foreground masks :math:`[\ell \in P \cup O]` (float32
     (H, W) in {0, 1}, through ``prepare`` when given) of the files whose index ``keep(i, n)`` accepts (all by
-    default), by index."""
+    default), by index, with the object's own masks: {i: (foreground, object)}."""
     folder = Path(folder)
     if not folder.is_dir():
         raise ConfigError(f"{folder}: masks folder not found")
@@ -259,14 +263,15 @@ def read_masks(folder: str | Path, person_labels, object_labels, ignore_labels=(
                               "--object-labels or --ignore-labels)")
         if keep is None or keep(i, len(files)):
             m = np.isin(lab, sorted(fg_labels)).astype(np.float32)
-            out[i] = prepare(p, m) if prepare is not None else m
+            mo = np.isin(lab, sorted(object_labels)).astype(np.float32)
+            out[i] = (prepare(p, m), prepare(p, mo)) if prepare is not None else (m, mo)
     return files, out
 
 
 # ----------------------------------------------------------------------------------------------- poses
-def _load_pose_file(path: Path) -> dict:
+def _load_pose_file(path: Path, what: str = "pose file") -> dict:
     if not path.is_file():
-        raise ConfigError(f"{path}: pose file not found")
+        raise ConfigError(f"{path}: {what} not found")
     if path.suffix.lower() == ".json":
         try:
             raw = json.loads(path.read_text())
@@ -283,7 +288,7 @@ def _load_pose_file(path: Path) -> dict:
             try:
                 a = np.asarray(v, dtype=np.float64)
             except (TypeError, ValueError):
-                if k in ("global_orient", "body_pose", "transl", "betas", "poses", "trans"):
+                if k in ("global_orient", "body_pose", "transl", "betas", "poses", "trans", "R", "t"):
                     raise ConfigError(f"{path}: field '{k}' is not an array of numbers") from None
                 continue
             out[k] = a
@@ -305,7 +310,7 @@ def _load_pose_file(path: Path) -> dict:
     except ConfigError:
         raise
     except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:
-        raise ConfigError(f"{path}: not a readable .npz or .json pose file ({' '.join(str(e).split())[:100]})") from None
+        raise ConfigError(f"{path}: not a readable .npz or .json file ({' '.join(str(e).split())[:100]})") from None
 
 
 def _rotations(a: np.ndarray, n_joints: int | None, path: Path, field: str) -> np.ndarray:
@@ -427,23 +432,90 @@ def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return V, T
 
 
-def voxel_boxes(V: np.ndarray, T: np.ndarray, cell: float, lo: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The inside of a closed mesh (winding number > 1/2 at voxel centres) on the grid ``lo + cell * (i, j, k)``,
-    as the union of boxes [(min, max), ...] made of x-runs of inside voxels."""
-    hi = V.max(0)
-    n = np.maximum(1, np.ceil((hi - lo) / cell - 1e-9).astype(int))
-    axes = [lo[i] + (np.arange(n[i]) + 0.5) * cell for i in range(3)]
-    P = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    w = winding_number(torch.as_tensor(P), torch.as_tensor(V), torch.as_tensor(T)).numpy()
-    inside = (np.abs(w) > 0.5).reshape(*n)
+def runs_to_boxes(inside: np.ndarray, lo: np.ndarray, cell: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Occupied voxels (nx, ny, nz) of the grid ``lo + cell * (i, j, k)`` as the union of boxes [(min, max), ...]
+    made of their x-runs."""
     boxes = []
-    for j in range(n[1]):
-        for k in range(n[2]):
-            row = np.r_[False, inside[:, j, k], False].astype(np.int8)
-            d = np.diff(row)
+    _, ny, nz = inside.shape
+    for j in range(ny):
+        for k in range(nz):
+            d = np.diff(np.r_[False, inside[:, j, k], False].astype(np.int8))
             for a, b in zip(np.nonzero(d == 1)[0], np.nonzero(d == -1)[0]):
                 boxes.append((lo + cell * np.array([a, j, k]), lo + cell * np.array([b, j + 1, k + 1])))
     return boxes
+
+
+def _grid(lo: np.ndarray, hi: np.ndarray, cell: float) -> tuple[np.ndarray, tuple]:
+    n = tuple(np.maximum(1, np.ceil((hi - lo) / cell - 1e-9).astype(int)).tolist())
+    axes = [lo[i] + (np.arange(n[i]) + 0.5) * cell for i in range(3)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3), n
+
+
+def voxel_boxes(V: np.ndarray, T: np.ndarray, cell: float, lo: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The inside of a closed mesh (winding number > 1/2 at voxel centres) on the grid ``lo + cell * (i, j, k)``
+    up to the mesh's bounding box, as boxes (:func:`runs_to_boxes`)."""
+    P, n = _grid(lo, V.max(0), cell)
+    w = winding_number(torch.as_tensor(P), torch.as_tensor(V), torch.as_tensor(T)).numpy()
+    return runs_to_boxes((np.abs(w) > 0.5).reshape(n), lo, cell)
+
+
+def carve_hull(views, R: np.ndarray, cell: float | None = None, far: float = 5.0, n_coarse: int = 40,
+               resolution: int = 16) -> tuple[np.ndarray, np.ndarray, float]:
+    r"""Visual hull of an object seen in several views, on a grid of the rotated frame :math:`q` (world axes,
+    reference-camera origin: :math:`p_C = R q`).
+
+    ``views``: [(K (3, 3) OpenCV px, :math:`R_i`, :math:`t_i`, mask (H, W) bool), ...] with view coordinates
+    :math:`p_i = R_i p_C + t_i`; the object must be whole inside every view. A voxel is kept when its centre
+    projects inside every image onto the mask: :math:`H = \bigcap_i \{q : \pi_i(q) \in M_i\}`. Coarse to fine:
+    ``n_coarse`` cells per axis over view 0's frustum up to ``far`` m (masks dilated by a coarse voxel's
+    projected radius), twice, then the final ``cell`` (default: twice the hull's largest extent / ``resolution``,
+    the importer's MPM cell) over the coarse hull's box. Returns (occupancy (nx, ny, nz), grid origin, cell)."""
+    def keep(Q: np.ndarray, radius: float) -> np.ndarray:
+        pc = Q @ R.T
+        ok = np.ones(len(Q), dtype=bool)
+        for K, Ri, ti, m in views:
+            p = pc @ np.asarray(Ri).T + np.asarray(ti)
+            z = np.maximum(p[:, 2], 1e-9)
+            if radius > 0:
+                rpx = int(min(64, math.ceil(K[0, 0] * radius / max(float(z[p[:, 2] > 0].min()) if np.any(p[:, 2] > 0)
+                                                                     else 1.0, 1e-3))))
+                m = cv2.dilate(m.astype(np.uint8), np.ones((2 * rpx + 1, 2 * rpx + 1), np.uint8)) > 0 if rpx else m
+            u = np.round(K[0, 0] * p[:, 0] / z + K[0, 2]).astype(np.int64)
+            v = np.round(K[1, 1] * p[:, 1] / z + K[1, 2]).astype(np.int64)
+            H, W = m.shape
+            vis = (p[:, 2] > 1e-6) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+            ok &= vis
+            ok[ok] &= m[v[ok], u[ok]]
+        return ok
+
+    K0, R0, t0, m0 = views[0]
+    H, W = m0.shape
+    corners = []
+    for d in (0.05, far):
+        for u, v in ((-0.5, -0.5), (W - 0.5, -0.5), (-0.5, H - 0.5), (W - 0.5, H - 0.5)):
+            corners.append([(u - K0[0, 2]) / K0[0, 0] * d, (v - K0[1, 2]) / K0[1, 1] * d, d])
+    pc = (np.asarray(corners) - t0) @ np.asarray(R0)  # view 0 -> reference camera
+    q = pc @ R
+    lo, hi = q.min(0), q.max(0)
+    for _ in range(2):
+        c = float((hi - lo).max() / n_coarse)
+        P, n = _grid(lo, hi, c)
+        ok = keep(P, 0.87 * c)
+        if not ok.any():
+            raise ConfigError("visual hull: no point lies inside every view's object mask (wrong spin cameras, or "
+                              "the object leaves a view?)")
+        z0 = (P[ok] @ R.T @ np.asarray(R0).T + t0)[:, 2]
+        if z0.max() > 0.9 * far:
+            raise ConfigError("visual hull: the views do not bound the object in depth (the spin cameras must look "
+                              "at it from different directions)")
+        lo, hi = P[ok].min(0) - c, P[ok].max(0) + c
+    if cell is None:
+        cell = float(2 * (hi - lo - 2 * c).max() / resolution)
+    P, n = _grid(lo, hi, cell)
+    occ = keep(P, 0.0).reshape(n)
+    if not occ.any():
+        raise ConfigError(f"visual hull: no voxel of {cell:.3f} m lies inside every view's object mask")
+    return occ, lo, cell
 
 
 # ----------------------------------------------------------------------------------------------- import
@@ -472,6 +544,25 @@ class ImportOptions:
     body_density: float = 1000.0
 
 
+def _load_cameras(path: str | Path, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-view camera poses of the spin clip: ``R`` (n, 3, 3) and ``t`` (n, 3), :math:`p_i = R_i p_C + t_i` from
+    the reference (dynamic-clip) camera's coordinates, m; .npz (no pickles) or JSON."""
+    path = Path(path)
+    d = _load_pose_file(path, "spin cameras file")
+    for k, shape in (("R", (n, 3, 3)), ("t", (n, 3))):
+        if k not in d:
+            raise ConfigError(f"{path}: missing field '{k}' {shape} (spin cameras: p_i = R_i p + t_i)")
+        a = np.asarray(d[k])
+        if a.dtype.kind not in "fiu" or a.shape != shape or not np.all(np.isfinite(a)):
+            raise ConfigError(f"{path}: field '{k}' must be {shape} finite numbers (one per spin frame), got "
+                              f"{a.shape} {a.dtype}")
+    Rs = np.asarray(d["R"], dtype=np.float64)
+    err = np.abs(np.swapaxes(Rs, -1, -2) @ Rs - np.eye(3)).max(axis=(1, 2))
+    if err.max() > 1e-4 or np.any(np.linalg.det(Rs) < 0):
+        raise ConfigError(f"{path}: field 'R' [{int(err.argmax())}] is not a rotation matrix")
+    return Rs, np.asarray(d["t"], dtype=np.float64)
+
+
 def _count_match(n: int, n_src: int, idx: np.ndarray, what: str, where, video) -> np.ndarray:
     """Which of ``n`` per-frame entries feed the output frames: one per source frame (select ``idx``) or one per
     output frame."""
@@ -485,12 +576,14 @@ def _count_match(n: int, n_src: int, idx: np.ndarray, what: str, where, video) -
 
 def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, poses: str | Path,
                  intrinsics: Intrinsics | None = None, focal_px: float | None = None, focal_35mm: float | None = None,
-                 object_mesh: str | Path | None = None, opts: ImportOptions | None = None) -> dict:
+                 object_mesh: str | Path | None = None, spin_cameras: str | Path | None = None,
+                 opts: ImportOptions | None = None) -> dict:
     """Write a DATA_DIR for ``physar recon fit`` from a video, label masks, a pose file, a camera and an object
     mesh (module docstring). Everything is read and checked before anything is written; the folder appears
     whole (``physar.output.atomic_folder``). Returns a summary."""
     o = opts or ImportOptions()
-    out = check_folder(out_dir, own=DATA_DIR_FILES, inputs=[video, masks, poses, object_mesh], kind="DATA_DIR")
+    out = check_folder(out_dir, own=DATA_DIR_FILES, inputs=[video, masks, poses, object_mesh, spin_cameras],
+                       kind="DATA_DIR")
     if o.floor not in ("sticky", "slip", "separate"):
         raise ConfigError(f"--floor {o.floor!r}: use sticky, slip or separate")
     for name, v in (("height", o.height), ("density", o.density), ("grid_resolution", o.grid_resolution),
@@ -499,9 +592,12 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
             raise ConfigError(f"--{name.replace('_', '-')} must be positive, got {v}")
     if not -1 < o.nu < 0.5:
         raise ConfigError(f"--nu must be in (-1, 0.5), got {o.nu}")
-    if object_mesh is None:
-        raise ConfigError("--object-mesh is required: the visual hull needs per-frame camera poses of views around "
-                          "the object, which a one-camera DATA_DIR does not have (see `physar recon import --help`)")
+    if (object_mesh is None) == (spin_cameras is None):
+        raise ConfigError("give the object's geometry once: --object-mesh FILE, or --spin-cameras FILE (the spin "
+                          "frames' camera poses) for a visual hull carved from the spin clip's object masks")
+    if spin_cameras is not None and o.spin_frames < 2:
+        raise ConfigError("--spin-cameras needs the spin clip: --spin-frames N (N >= 2 views of the object)")
+    spin_cams = _load_cameras(spin_cameras, o.spin_frames) if spin_cameras is not None else None
     # ---- read everything (frames and masks kept at the output size only)
     geo = {}
 
@@ -557,22 +653,35 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
     n_obs = o.n_obs if o.n_obs is not None else min(n_dyn - 1, max(2, round(0.75 * n_dyn)))
     if not 2 <= n_obs <= n_dyn - 1:
         raise ConfigError(f"--n-obs {n_obs} must be in [2, {n_dyn - 1}] (dynamic clip of {n_dyn} frames)")
-    V, T = read_mesh(object_mesh)
-    # ---- world frame, object, domain
+    # ---- world frame, object, domain (q: the rotated camera frame, world axes and camera origin, p_C = R q)
     R = world_rotation(o.up)
-    Vw = V @ R  # rows: R^T v, the rotated camera frame (world axes, camera origin)
-    lo, hi = Vw.min(0), Vw.max(0)
-    org = np.array([0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), lo[2]])
-    t = R @ org  # p_C = R (p_W + org) = R p_W + t
-    Vw = Vw - org
+    if spin_cams is None:
+        V, T = read_mesh(object_mesh)
+        Vw = V @ R  # rows: q = R^T v
+        lo, hi = Vw.min(0), Vw.max(0)
+        ext = hi - lo
+        size = float(o.domain_size) if o.domain_size is not None else float(2 * ext.max())
+        cell = size / o.grid_resolution
+        boxes = voxel_boxes(Vw, T, cell, lo)
+        if not boxes:
+            raise ConfigError(f"{object_mesh}: no voxel of {cell:.3f} m lies inside the mesh (is it closed, in metres?)")
+    else:
+        sx, sy = W / W0, H / H0
+        Kout = np.array([[cam.fx * sx, 0, (cam.cx + 0.5) * sx - 0.5], [0, cam.fy * sy, (cam.cy + 0.5) * sy - 0.5],
+                         [0, 0, 1.0]])  # OpenCV convention at the output size
+        views = [(Kout, Ri, ti, mdict[midx[k]][1] > 0) for k, (Ri, ti) in enumerate(zip(*spin_cams))]
+        cell0 = None if o.domain_size is None else float(o.domain_size) / o.grid_resolution
+        occ, glo, cell = carve_hull(views, R, cell0, resolution=o.grid_resolution)
+        boxes = runs_to_boxes(occ, glo, cell)
+        size = cell * o.grid_resolution
+    lo = np.min([b[0] for b in boxes], axis=0)
+    hi = np.max([b[1] for b in boxes], axis=0)
     ext = hi - lo
-    size = float(o.domain_size) if o.domain_size is not None else float(2 * ext.max())
     if not (math.isfinite(size) and size > 1.05 * ext[:2].max() and size > 1.05 * ext[2]):
         raise ConfigError(f"--domain-size {size} m must exceed the object's extent {np.round(ext, 3).tolist()} m")
-    cell = size / o.grid_resolution
-    boxes = voxel_boxes(Vw, T, cell, np.array([-ext[0] / 2, -ext[1] / 2, 0.0]))
-    if not boxes:
-        raise ConfigError(f"{object_mesh}: no voxel of {cell:.3f} m lies inside the mesh (is it closed, in metres?)")
+    org = np.array([0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), lo[2]])
+    t = R @ org  # p_C = R (p_W + org) = R p_W + t
+    boxes = [(a - org, b - org) for a, b in boxes]
     blo = np.min([b[0] for b in boxes], axis=0)
     bhi = np.max([b[1] for b in boxes], axis=0)
     body = S.humanoid(o.height)
@@ -584,7 +693,7 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
         "camera": cam.scene_camera(W, H, R, t), "background": [float(c) for c in o.background],
         "body": {"kind": "procedural_humanoid", "height": float(o.height), "simulated_bones": [],
                  "E": float(o.body_E), "density": float(o.body_density)},
-        "object": {"shape": "box_union", "kind": "mesh", "action": "unknown", "min": blo.tolist(), "max": bhi.tolist(),
+        "object": {"shape": "box_union", "kind": "mesh" if spin_cams is None else "visual_hull", "action": "unknown", "min": blo.tolist(), "max": bhi.tolist(),
                    "boxes": [[a.tolist(), b.tolist()] for a, b in boxes], "parts": ["object"],
                    "density": float(o.density), "nu": float(o.nu), "material": "fixed_corotated"},
         "sim": {"size": size, "resolution": int(o.grid_resolution), "substeps": int(o.substeps),
@@ -593,21 +702,22 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
                 "kp": 3.0e3, "kd": 110.0},
         "import": {"video": str(video), "source_fps": src_fps, "source_frames": n_src,
                    "source_size": [W0, H0], "source_indices": idx.tolist(), "masks": str(masks), "poses": str(poses),
-                   "object_mesh": str(object_mesh), "up_camera": [float(v) for v in o.up],
+                   "object_mesh": None if object_mesh is None else str(object_mesh),
+                   "spin_cameras": None if spin_cameras is None else str(spin_cameras), "up_camera": [float(v) for v in o.up],
                    "spin_frames": int(o.spin_frames)},
     }
     # ---- images: the background outside the masks set to the renderer's constant colour
     bg = np.asarray(o.background, dtype=np.float32)
     rgbs, fgs = [], []
     for k in range(n_out):
-        fg = mdict[midx[k]]
+        fg = mdict[midx[k]][0]
         rgb = np.where(fg[..., None] > 0, frames[k], bg)
         rgbs.append((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8))
         fgs.append((fg * 255).astype(np.uint8))
-    sp = o.spin_frames
+    sp = o.spin_frames if spin_cams is None else 0  # a moving camera's spin frames carve the hull, not written
     with atomic_folder(out, own=DATA_DIR_FILES) as tmp:
         (tmp / "scene.json").write_text(json.dumps(meta, indent=1))
-        clips = [("", slice(sp, n_out), "poses.npz")] + ([("spin", slice(0, sp), "spin_poses.npz")] if sp else [])
+        clips = [("", slice(o.spin_frames, n_out), "poses.npz")] + ([("spin", slice(0, sp), "spin_poses.npz")] if sp else [])
         for sub, sl, pname in clips:
             np.savez(tmp / pname, rotations=rot[sl], root_translation=root_t[sl])
             d = tmp / sub if sub else tmp
@@ -617,6 +727,7 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
                 cv2.imwrite(str(d / "rgb" / f"{f:04d}.png"), cv2.cvtColor(rgbs[k], cv2.COLOR_RGB2BGR))
                 cv2.imwrite(str(d / "mask" / f"{f:04d}.png"), fgs[k])
     return {"data_dir": str(out), "frames": n_dyn, "spin_frames": sp, "n_obs": int(n_obs), "fps": fps,
+            "object": "mesh" if spin_cams is None else f"visual hull of {o.spin_frames} views",
             "size": [W, H], "object_boxes": len(boxes), "object_volume_m3": float(sum(np.prod(b - a) for a, b in boxes))}
 
 
