@@ -47,6 +47,19 @@ except (ImportError, OSError, ValueError):  # not installed, a broken shared lib
 
 _warned = False
 
+# CHOLMOD's fill-reducing ordering, never METIS_NodeND: its GKlib replaces the SIGTERM/SIGABRT handlers for the
+# length of the call and a SIGTERM landing there only aborts METIS (CHOLMOD falls back to AMD): the signal was
+# lost and the run went on to exit 0; Python's handler is also put back one-shot (SA_RESETHAND). Instead: AMD
+# below CHOLMOD_NESDIS_MIN_ROWS rows (where CHOLMOD's default keeps AMD on our 3-D meshes: 4,860 rows yes,
+# 10,164 no), CHOLMOD's own nested dissection NESDIS (METIS's vertex separator and CAMD, no handler) above; its
+# fill is METIS's (nnz(L) within 1 % at 35k and 79k rows; benchmarks/RESULTS.md 2026-11-26).
+CHOLMOD_NESDIS_MIN_ROWS = 5000
+
+
+def cholmod_ordering(n: int) -> str:
+    """The CHOLMOD ordering for an n x n matrix: "amd" below ``CHOLMOD_NESDIS_MIN_ROWS``, else "nesdis"."""
+    return "amd" if n < CHOLMOD_NESDIS_MIN_ROWS else "nesdis"
+
 LINEAR_METHODS = ("auto", "direct", "amg")
 # "auto" switches to AMG from this many free dofs on: the direct solve is faster below, AMG above (P1 and P2
 # box cantilevers on a 2-core machine, benchmarks/RESULTS.md 2026-11-25).
@@ -68,7 +81,7 @@ class Factor:
         self.method = None
         if method in ("auto", "cholmod") and _cholmod is not None:
             try:
-                self._f = _cholmod.cholesky(A)
+                self._f = _cholmod.cholesky(A, ordering_method=cholmod_ordering(A.shape[0]))
                 self.method = "cholmod"
             except _cholmod.CholmodNotPositiveDefiniteError:
                 if method == "cholmod":

@@ -21,7 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from physar.errors import ConfigError, SolverError
-from physar.fem.solvers import factorize, has_cholmod
+from physar.fem.solvers import cholmod_ordering, factorize, has_cholmod
 
 try:  # pragma: no cover - platform dependent
     from sksparse import cholmod as _cholmod
@@ -291,7 +291,7 @@ class SparseSolver:
                 if same and self._symbolic is not None:
                     self._symbolic.cholesky_inplace(A)
                 else:
-                    self._symbolic = _cholmod.cholesky(A)
+                    self._symbolic = _cholmod.cholesky(A, ordering_method=cholmod_ordering(A.shape[0]))
                     self._pattern = (A.indptr.copy(), A.indices.copy())
                 self._factor = ("cholmod", self._symbolic)
                 return self._factor
