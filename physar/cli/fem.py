@@ -22,12 +22,14 @@ def solve(
     from tqdm import tqdm
 
     from physar.cli._common import check_toml
-    from physar.fem.config import run_config
+    from physar.fem.config import load_config, run_config
     from physar.geometry import write_mesh
     from physar.geometry.io import check_mesh_destination
 
     check_toml(config, "problem file")
-    check_mesh_destination(out, inputs=[config], kind="result mesh")
+    mesh_file = load_config(config).mesh.file  # the result never replaces the input mesh (or a link to it)
+    check_mesh_destination(out, inputs=[config] + ([config.parent / mesh_file] if mesh_file else []),
+                           kind="result mesh")
     bar = None
 
     def progress(step: int, steps: int) -> None:

@@ -37,7 +37,8 @@ Box = tuple[Vec3, Vec3]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    # inf/nan refused in every number (a load total = [0, 0, nan] reached the solver: "singular system?")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     @field_validator("*", mode="before")
     @classmethod
