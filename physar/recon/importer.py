@@ -854,4 +854,4 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
     return info
 
 
-__all__ = ["ImportOptions", "Intrinsics", "check_dataset", "import_video", "load_smpl", "retarget"]
+__all__ = ["ImportOptions", "Intrinsics", "carve_hull", "check_dataset", "import_video", "load_smpl", "retarget"]
