@@ -598,6 +598,9 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
     if spin_cameras is not None and o.spin_frames < 2:
         raise ConfigError("--spin-cameras needs the spin clip: --spin-frames N (N >= 2 views of the object)")
     spin_cams = _load_cameras(spin_cameras, o.spin_frames) if spin_cameras is not None else None
+    if not Path(masks).is_dir():
+        raise ConfigError(f"{masks}: masks folder not found")
+    smpl = load_smpl(poses)  # the small inputs first: their errors come before the video is decoded
     # ---- read everything (frames and masks kept at the output size only)
     geo = {}
 
@@ -626,7 +629,8 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
     frames, src_fps, n_src, _ = read_video(video, o.fps, prepare_frames)
     fps = src_fps if o.fps is None else float(o.fps)
     idx = source_indices(n_src, src_fps, o.fps)
-    assert len(frames) == len(idx)
+    if len(frames) != len(idx):  # read_video keeps the frames source_indices picks
+        raise ConfigError(f"{video}: kept {len(frames)} frames for {len(idx)} output frames (variable frame rate?)")
     cam, W, H, W0, H0, maps = (geo[k] for k in ("cam", "W", "H", "W0", "H0", "maps"))
 
     def prepare_mask(p: Path, m: np.ndarray) -> np.ndarray:
@@ -643,7 +647,6 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
     mfiles, mdict = read_masks(masks, o.person_labels, o.object_labels, o.ignore_labels,
                                keep=lambda i, n: n != n_src or i in wanted, prepare=prepare_mask)
     midx = _count_match(len(mfiles), n_src, idx, "mask PNGs", masks, video)
-    smpl = load_smpl(poses)
     pidx = _count_match(len(smpl["transl"]), n_src, idx, "poses", poses, video)
     n_out = len(idx)
     if o.spin_frames < 0 or (o.spin_frames and o.spin_frames < 2) or n_out - o.spin_frames < 3:
