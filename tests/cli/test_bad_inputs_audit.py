@@ -1,5 +1,5 @@
-"""Issue 21, second audit: bad inputs found by an outside tester (64 new cases across the commands, not in
-test_bad_inputs*.py; 62 were already clean). The two that were not, fixed at their layer:
+"""Issue 21, second audit: bad inputs tried by an outside tester (63 new cases across the commands, not in
+test_bad_inputs*.py, signals in ar run and rom build included; 61 were already clean). The two that were not, fixed at their layer:
 
 * a ``[[load]] total`` with nan reached the solver and was reported as "the linear solve produced NaN or inf
   (singular system?)" after the assembly: every number of the fem/rom/dynamics configs is now refused when
