@@ -126,7 +126,7 @@ main()
 
 def _run(code, *args, cwd):
     env = dict(os.environ, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="1")
-    return subprocess.run([sys.executable, "-c", code, *map(str, args)], cwd=cwd, env=env,
+    return subprocess.run([sys.executable, "-c", code, *map(str, args)], cwd=cwd, env=env, check=False,
                           capture_output=True, text=True, timeout=300)
 
 
