@@ -463,6 +463,9 @@ def read_observations(path) -> tuple[np.ndarray, np.ndarray]:
     missing = [c for c in cols if c not in header]
     if missing:
         raise ConfigError(f"{path}: missing column(s) {', '.join(missing)} (need a header x,y,z,ux,uy,uz)")
+    twice = [c for c in cols if header.count(c) > 1]
+    if twice:  # which of the two would be read is arbitrary
+        raise ConfigError(f"{path}: column(s) {', '.join(twice)} given twice in the header")
     idx = [header.index(c) for c in cols]
     data = []
     for i, r in enumerate(rows[1:], start=2):

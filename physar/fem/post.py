@@ -28,6 +28,8 @@ def locate(space: FESpace, points: np.ndarray, tol: float = 1e-9) -> tuple[np.nd
     cells = np.empty(len(points), dtype=np.int64)
     bary = np.empty((len(points), 4))
     for i, p in enumerate(points):  # loop over probes (few), vectorised over elements
+        if not np.all(np.isfinite(p)):  # NaN fails every comparison: it would land in element 0
+            raise ConfigError(f"probe point {p.tolist()} is not finite")
         xi = np.einsum("mij,mj->mi", Jinv, p - x0)
         L = np.column_stack([1 - xi.sum(axis=1), xi])
         e = int(np.argmax(L.min(axis=1)))

@@ -314,7 +314,7 @@ def box_mesh(
     if size.shape != (3,) or np.any(size <= 0) or not np.all(np.isfinite(size)):
         raise MeshError(f"box size must be three positive lengths, got {[float(v) for v in np.atleast_1d(size)]}")
     if n.shape != (3,) or np.any(n < 1):
-        raise MeshError(f"box cells must be three positive integers, got {list(np.atleast_1d(n))}")
+        raise MeshError(f"box cells must be three positive integers, got {np.atleast_1d(n).tolist()}")
     nx, ny, nz = (int(v) for v in n)
     n_cells = nx * ny * nz  # Python ints: no overflow for absurd requests
     check_memory(BOX_BYTES_PER_CELL * n_cells, f"a box mesh of {nx} x {ny} x {nz} cells ({6 * n_cells:.3g} tetrahedra)")

@@ -1,9 +1,14 @@
-"""Issue 21, second audit: bad inputs tried by an outside tester (63 new cases across the commands, not in
-test_bad_inputs*.py, signals in ar run and rom build included; 61 were already clean). The two that were not, fixed at their layer:
+"""Issue 21, second audit: bad inputs tried by an outside tester (new cases across the commands, not in
+test_bad_inputs*.py, signals in ar run and rom build included;
+75 in all, 70 were already clean). The five that were not, fixed at their layer:
 
 * a ``[[load]] total`` with nan reached the solver and was reported as "the linear solve produced NaN or inf
   (singular system?)" after the assembly: every number of the fem/rom/dynamics configs is now refused when
   not finite (``allow_inf_nan=False`` on ``physar.fem.config._Strict``), naming the field;
+* ``rom eval --probe nan 0 0`` exited 0 printing u = nan (NaN fails every comparison of the point location,
+  which returned element 0): ``physar.fem.post.locate`` refuses a non-finite point;
+* an observation CSV with a column given twice (``uz,uz``) was read from one of them, exit 0: refused;
+* ``mesh box --cells 0 2 2`` printed numpy reprs (``[np.int64(0), ...]``): plain numbers;
 * ``fem solve -o`` a symbolic link to the problem's own ``[mesh] file`` replaced the link with the result
   (``mesh convert`` already refused it as the same file): the mesh file is now an input of the destination
   check.
@@ -69,3 +74,29 @@ def test_fem_solve_output_linked_to_its_mesh_file(tmp_path):
                    "link.vtu: result mesh destination is the same file as the input", before, tmp_path)
     assert (tmp_path / "link.vtu").is_symlink()
     shutil.rmtree(tmp_path)
+
+
+def test_rom_eval_nan_probe(tmp_path):
+    # mutant: locate() without the finite check (NaN lands in element 0: u = nan printed, exit 0)
+    r = invoke("rom", "build", EXAMPLES / "rom_cantilever.toml", "-o", tmp_path / "m.npz")
+    assert r.exit_code == 0, r.output
+    before = snapshot(tmp_path)
+    assert_refused(invoke("rom", "eval", tmp_path / "m.npz", "--param", "s=0.5", "--param", "P=1", "--probe", "nan",
+                          0, 0), "probe point [nan, 0.0, 0.0] is not finite", before, tmp_path)
+
+
+def test_assimilate_column_given_twice(tmp_path):
+    # mutant: header.index() takes the first of two uz columns (exit 0, an estimate from an arbitrary column)
+    r = invoke("rom", "build", EXAMPLES / "rom_cantilever.toml", "-o", tmp_path / "m.npz")
+    assert r.exit_code == 0, r.output
+    (tmp_path / "o.csv").write_text("x,y,z,ux,uy,uz,uz\n1.0,0.025,0.025,0,0,-0.001,0\n")
+    before = snapshot(tmp_path)
+    assert_refused(invoke("assimilate", tmp_path / "m.npz", tmp_path / "o.csv"),
+                   "o.csv: column(s) uz given twice in the header", before, tmp_path)
+
+
+def test_mesh_box_zero_cells_plain_numbers(tmp_path):
+    # mutant: list(np.atleast_1d(n)) in the message ("[np.int64(0), np.int64(2), np.int64(2)]")
+    before = snapshot(tmp_path)
+    assert_refused(invoke("mesh", "box", "--size", 1, 1, 1, "--cells", 0, 2, 2, "-o", tmp_path / "b.vtu"),
+                   "box cells must be three positive integers, got [0, 2, 2]", before, tmp_path)
