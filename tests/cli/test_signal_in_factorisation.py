@@ -65,9 +65,11 @@ I = sp.identity(n)
 A = (sp.kron(sp.kron(T, I), I) + sp.kron(sp.kron(I, T), I) + sp.kron(sp.kron(I, I), T)).tocsc()
 got = []
 signal.signal(signal.SIGTERM, lambda s, f: got.append(s))
-t = time.monotonic()
-factorize(A)
-D = time.monotonic() - t
+D = float("inf")
+for _ in range(2):  # the shorter of two timed calls (the first one warms up)
+    t = time.monotonic()
+    factorize(A)
+    D = min(D, time.monotonic() - t)
 timer = Timer()
 for k in range(1, 10):
     got.clear()
