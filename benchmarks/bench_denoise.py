@@ -17,7 +17,8 @@ physar.geometry.tetra; real scans shipped in installed packages: pymeshlab's Sta
 reconstruction, 28k vertices) and its `rangemaps/face000.ply` (one raw range scan of a face, open, 85k).
 
 Run:  .venv/bin/python benchmarks/bench_denoise.py [--quick] [--timing-only] [--quality-only] [--sigmas 0.2 0.3]
-      .venv/bin/python benchmarks/bench_denoise.py --calibrate   (constants of normal_filter, other meshes)
+      .venv/bin/python benchmarks/bench_denoise.py --calibrate [--simple-only | --detail-only]
+      (constants of normal_filter, on other meshes; --no-ratio skips the σ_e / σ_n table)
 """
 
 from __future__ import annotations
@@ -79,8 +80,8 @@ def fandisk_like(size: float = 0.025) -> TriMesh:
 
 
 def oriented(mesh: TriMesh) -> TriMesh:
-    """Consistently outward-wound copy (trimesh.repair.fix_normals): gmsh's OCC surfaces come with the
-    orientation of each CAD patch, which flips between patches (vertex normals would cancel there)."""
+    """Consistently outward-wound copy (trimesh.repair.fix_normals). A no-op on the gmsh CAD parts since
+    tetra._occ_surface winds them consistently (same faces, checked); kept for pymeshlab's remeshed output."""
     t = trimesh.Trimesh(mesh.points, mesh.faces, process=False)
     trimesh.repair.fix_normals(t)
     return TriMesh(np.asarray(t.vertices), np.asarray(t.faces), name=mesh.name)
@@ -167,10 +168,14 @@ def evaluate(clean: TriMesh, sigma: float, grid: dict) -> list[dict]:
     noisy = Q.add_noise(clean, sigma, 0, "random")
     closed = is_closed(clean)
     rows = [{"method": "noisy input", "params": "", **measure(noisy, clean, closed), "s_per_vertex": 0.0}]
+    from physar.geometry.normal_filter import normal_filter_denoise
+
     t0 = time.process_time()
-    out = D.denoise(noisy)
+    info = {}
+    out = normal_filter_denoise(noisy, info=info)  # what D.denoise(noisy) runs, with the choice reported
     dt = time.process_time() - t0
-    rows.append({"method": "physar two-stage, automatic default", "params": "from the noisy mesh",
+    rows.append({"method": "physar two-stage, automatic default",
+                 "params": f"from the noisy mesh: σr {info.get('sigma_r')}, {info.get('normal_iterations')} it",
                  **measure(out, clean, closed), "s_per_vertex": dt / clean.n_points})
     for name, variants in grid.items():
         best = None
@@ -244,8 +249,9 @@ def calibration_meshes() -> list[TriMesh]:
 
 
 def calibrate() -> None:
-    """MAD_RATIO = σ_e / σ_n on the calibration meshes (both noise conventions), then the discrepancy factor:
-    normal error of `two-stage` at each factor / the best over fixed stage-1 iteration counts (oracle)."""
+    """MAD_RATIO = σ_e / σ_n on the calibration meshes (both noise conventions), then SURE_NOISE_FACTOR:
+    normal error of `two-stage` (SURE rule) at each factor, and of the previous discrepancy rule, against the
+    best over fixed (σ_r, stage-1 iteration count) pairs (oracle)."""
     from physar.geometry import normal_filter as NF
 
     ms = calibration_meshes()
@@ -254,24 +260,38 @@ def calibrate() -> None:
     if "--simple-only" in sys.argv:
         ms = ms[:4]
     print("| mesh | noise | σ/ē | σ_e / σ_n (3 seeds) |\n|---|---|---|---|")
-    for m in ms:
+    for m in [] if "--no-ratio" in sys.argv else ms:
         for d in ("random", "normal"):
             for sg in (0.1, 0.2, 0.3):
                 sn = sg * Q.mean_edge_length(m) / (np.sqrt(3) if d == "random" else 1.0)
                 r = np.mean([NF.noise_scale(Q.add_noise(m, sg, seed, d)) / sn for seed in range(3)])
                 print(f"| {m.name} | {d} | {sg} | {r:.3f} |")
-    factors = (0.9, 0.95, 1.0, 1.05, 1.1)
-    print("\n| mesh | σ/ē | oracle best (k) | " + " | ".join(f"factor {f}" for f in factors) + " |")
-    print("|---|---|---|" + "---|" * len(factors))
+    factors = (0.85, 0.92, 1.0)
+    print("\n| mesh | σ/ē | oracle best (σr, k) | " + " | ".join(f"SURE, noise factor {f}" for f in factors)
+          + " | discrepancy 0.95 (previous default) |")
+    print("|---|---|---|" + "---|" * (len(factors) + 1))
+    ratios = {f: [] for f in (*factors, "disc")}
     for m in ms:
         for sg in (0.2, 0.3):
             noisy = Q.add_noise(m, sg, 0, "random")
             orc = min((Q.normal_angle_error(NF.normal_filter_denoise(noisy, NF.NormalFilterSettings(
-                normal_iterations=k)), m), k) for k in (1, 2, 3, 5, 8, 12, 20, 30, 50, 100))
-            errs = [Q.normal_angle_error(NF.normal_filter_denoise(noisy, NF.NormalFilterSettings(discrepancy=f)), m)
-                    for f in factors]
-            print(f"| {m.name} | {sg} | {orc[0]:.2f} ({orc[1]}) | " + " | ".join(f"{e:.2f}" for e in errs) + " |",
-                  flush=True)
+                sigma_r=sr, normal_iterations=k)), m), sr, k) for sr in (0.2, 0.35)
+                for k in (1, 2, 3, 5, 8, 12, 20, 30, 50, 100))
+            errs = []
+            for f in factors:
+                NF.SURE_NOISE_FACTOR, keep = f, NF.SURE_NOISE_FACTOR
+                errs.append(Q.normal_angle_error(NF.normal_filter_denoise(noisy), m))
+                NF.SURE_NOISE_FACTOR = keep
+                ratios[f].append(errs[-1] / orc[0])
+            errs.append(Q.normal_angle_error(NF.normal_filter_denoise(noisy, NF.NormalFilterSettings(
+                rule="discrepancy", sigma_r=0.35)), m))
+            ratios["disc"].append(errs[-1] / orc[0])
+            print(f"| {m.name} | {sg} | {orc[0]:.2f} ({orc[1]}, {orc[2]}) | " + " | ".join(f"{e:.2f}" for e in errs)
+                  + " |", flush=True)
+    print("\n| rule | geometric mean of error / oracle | worst |\n|---|---|---|")
+    for f, r in ratios.items():
+        name = "discrepancy 0.95" if f == "disc" else f"SURE, noise factor {f}"
+        print(f"| {name} | {np.exp(np.mean(np.log(r))):.3f} | {max(r):.2f} |")
 
 
 def torus(n: int) -> TriMesh:

@@ -475,18 +475,17 @@ def bilateral_normal_filter(
 
 
 def two_stage_denoise(
-    mesh: TriMesh, iterations: int | None = None, sigma_r: float = 0.35, discrepancy: float = 0.95,
-    progress: Progress = None,
+    mesh: TriMesh, iterations: int | None = None, sigma_r: float | None = None, progress: Progress = None,
 ) -> TriMesh:
     """Bilateral normal filter + feature-weighted Taubin + vertex update (:mod:`physar.geometry.normal_filter`);
-    `iterations` = normal-filter iterations, by default chosen by the discrepancy principle from the mesh's
-    own noise estimate."""
+    `iterations` = normal-filter iterations and `sigma_r` its range width, by default both chosen from the
+    mesh alone by Stein's unbiased estimate of the face-tilt risk (SURE, with the mesh's own noise estimate)."""
     from physar.geometry.normal_filter import NormalFilterSettings, normal_filter_denoise
 
     if iterations is not None:
         _check_iter(iterations)
-    return normal_filter_denoise(mesh, NormalFilterSettings(sigma_r=sigma_r, normal_iterations=iterations,
-                                                            discrepancy=discrepancy), progress=progress)
+    return normal_filter_denoise(mesh, NormalFilterSettings(sigma_r=sigma_r, normal_iterations=iterations),
+                                 progress=progress)
 
 
 METHODS = {

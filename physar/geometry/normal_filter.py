@@ -1,6 +1,7 @@
 """Two-stage feature-aware denoising: bilateral filtering of face normals, a feature-weighted Taubin
 smoothing of the positions (normal and tangential), then a vertex update that fits the filtered normals; the
-amount of normal filtering is chosen by the discrepancy principle from the mesh's own noise estimate.
+amount of normal filtering and its range width are chosen from the mesh alone, by Stein's unbiased estimate of
+the face-tilt error (SURE) with the mesh's own noise estimate.
 
 Why a method beside AL/MSAL (seed 001 §3.2.1): AL moves a vertex only along its normal, so the tangential
 part of random-direction noise (the literature's protocol, :func:`physar.geometry.quality.add_noise`)
@@ -12,7 +13,7 @@ j sharing a vertex with i::
     n_i <- normalize( Σ_j A_j W_s(|c_i - c_j|) W_r(|g_i - g_j|) n_j ),
     W_s(x) = exp(-x² / 2σ_s²),   W_r(x) = exp(-x² / 2σ_r²)
 
-A_j face area, c_j centroid, σ_s = mean centroid distance of neighbouring faces, σ_r = 0.35, g = n (or, with
+A_j face area, c_j centroid, σ_s = mean centroid distance of neighbouring faces, σ_r (0.2 or 0.35, below), g = n (or, with
 ``guided=True``, the mean normal of the most consistent neighbouring patch, after Zhang et al., "Guided mesh
 normal filtering", 2015: H_j = max_{k∈P_j} |n_k - m_j|; it measured worse here, so it is off by default).
 
@@ -34,20 +35,27 @@ become flat and a vertex on an edge is pulled onto the intersection of the plane
 global offset along the vertex normals restores the enclosed volume of the input, δ = (V(q̂) - V(q)) / A(q),
 as in :func:`physar.geometry.denoise.al_iterate`.
 
-Automatic amount of filtering (a user has no clean mesh to tune against): Morozov's discrepancy principle,
-the classical parameter rule for the regularised inverse problem of seed 001 eq. (3.1): filter no further
-than the data's own noise. The std σ_n of the normal component of i.i.d. vertex noise is measured on the input by
-:func:`noise_scale` (one-ring heights minus a local quadric fit, so curvature is not counted as noise), σ_e ≈
-0.29 σ_n (:data:`MAD_RATIO`: 0.27-0.31 for random-direction noise on remeshed spheres, tori, boxes and
-cylinders, the value taken; 0.31-0.33 on pymeshlab's bone and airplane, 0.43-0.70 on its coarse cow; the
-seed's ring-median MAD gave 0.56-0.62 on the simple shapes but 0.62-1.43 on the detailed ones). Stages 1-3 are evaluated at increasing stage-1 iteration
-counts k (:data:`CHECKPOINTS`), and the first k whose residual rms_i((q̂_i - x_i)·n_i) reaches ``discrepancy``
-· σ_e / 0.29 is kept (at most ``max_normal_iterations``): fewer iterations leave noise, more remove shape.
-``discrepancy`` = 0.95 had the lowest geometric mean (1.155) and worst case (1.40) of error / best-k error
-over the calibration meshes (the four shapes plus pymeshlab's cow, bone and airplane; none is a benchmark mesh;
-`benchmarks/bench_denoise.py --calibrate`). Known limit: on meshes with detail at the scale of an edge the rule
-still over-smooths (bone, airplane: 1.2-1.4x the best-k error at 0.2-0.3 ē), as the discrepancy principle tends
-to. Everything is vectorised (scipy.sparse, np.bincount).
+Automatic amount of filtering (a user has no clean mesh to tune against): the stage-1 iteration count k and
+the range width σ_r ∈ {0.2, 0.35} are chosen by Stein's unbiased risk estimate (SURE; Stein 1981, Monte-Carlo
+form of Ramani, Blu & Unser, IEEE TIP 2008) of the face-tilt error of the result q = f(y) of the noisy mesh y::
+
+    R = mean |A (q - x)|²,   (A d)_{f,ij} = n_f · (d_i - d_j)  over the three edges (i, j) of every face f,
+    SURE = mean |A (q - y)|² - 2σ² + 2σ² bᵀAᵀA (f(y + εb) - f(y)) / (ε · 3m),   b ~ N(0, I)
+
+(x the unknown clean mesh, m faces, n_f the face normals of a lightly smoothed y, fixed; A(q - x) is what tilts
+a face, hence its normal error). It assumes i.i.d. isotropic noise of std σ per coordinate, σ =
+:data:`SURE_NOISE_FACTOR` · σ_e / :data:`MAD_RATIO` from :func:`noise_scale` (one-ring heights minus a local
+quadric fit, so curvature is not counted as noise; σ_e ≈ 0.29 σ_n for random-direction noise on remeshed spheres,
+tori, boxes and cylinders, 0.31-0.33 on pymeshlab's bone and airplane, whose edge-scale relief counts as noise:
+hence the factor 0.92, `benchmarks/bench_denoise.py --calibrate`, none of them a benchmark mesh). One probe b
+(seeded) for all (k, σ_r), so the comparison between them is not blurred by sampling; the finite-difference step
+ε = :data:`EPS_FD` σ = 0.1 σ (a smaller one, 0.01 σ, made the estimate jump between neighbouring k where the
+filter is far from linear: σ_r = 0.2 beyond 40 iterations at 0.3 ē). k runs over :data:`CHECKPOINTS` for each
+σ_r until ``patience`` counts in a row bring no lower estimate; the (σ_r, k) of the lowest estimate is kept.
+Unlike the discrepancy principle (``rule="discrepancy"``: the first k whose residual rms_i((q̂_i - x_i)·n_i)
+reaches ``discrepancy`` · σ_e / 0.29, the previous default), SURE weighs the noise removed against the shape
+removed, so it stops early on detailed scans and late on flat CAD faces. It costs two evaluations per (σ_r, k)
+(the probe), about 4x the discrepancy rule. Everything is vectorised (scipy.sparse, np.bincount).
 Units: positions in metres; σ_r, σ_w dimensionless (distances between unit vectors).
 """
 
@@ -66,19 +74,27 @@ from physar.geometry.mesh import TriMesh
 class NormalFilterSettings:
     """Parameters of :func:`normal_filter_denoise` (module doc)."""
 
-    sigma_r: float = 0.35  # stage 1: range kernel width (Zheng et al.'s default)
+    sigma_r: float | None = None  # stage 1: range kernel width; None: chosen among sigma_r_candidates
+    sigma_r_candidates: tuple[float, ...] = (0.2, 0.35)  # rule "sure" picks one (0.35: Zheng et al.'s default)
     normal_iterations: int | None = None  # stage 1 iterations; None: discrepancy principle
     guided: bool = False  # True: range kernel on guidance normals (Zhang et al. 2015)
     smooth_iterations: int = 10  # stage 2: feature-weighted Taubin λ|μ pairs
     sigma_w: float = 0.4  # stage 2: width of the feature weights on filtered vertex normals
     vertex_iterations: int = 10  # stage 3 iterations
-    discrepancy: float = 0.95  # target residual / estimated noise std (normal component)
+    discrepancy: float = 0.95  # rule "discrepancy": target residual / estimated noise std (normal component)
     max_normal_iterations: int = 100
     preserve_volume: bool = True
+    rule: str = "sure"  # automatic stage-1 count: "sure" (face-tilt risk estimate) or "discrepancy"
+    patience: int = 3  # rule "sure": stop after this many checkpoints without a lower risk
 
 
 # σ_e / σ_n of :func:`noise_scale` for i.i.d. random-direction vertex noise; bench_denoise.py --calibrate.
 MAD_RATIO = 0.29
+RULES = ("sure", "discrepancy")
+# rule "sure": the noise std it assumes, as a fraction of σ_e / MAD_RATIO (the estimate runs 3-14 % high on
+# detailed meshes, whose own edge-scale relief counts as noise); bench_denoise.py --calibrate, other meshes.
+SURE_NOISE_FACTOR = 0.92
+EPS_FD = 0.1  # finite-difference step of the divergence probe, in units of the noise std
 CHECKPOINTS = (1, 2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 25, 30, 40, 50, 65, 80, 100)
 
 
@@ -214,9 +230,15 @@ def taubin_weighted(q: np.ndarray, weights: sparse.csr_matrix, iterations: int, 
 def _check(st: NormalFilterSettings) -> None:
     for name in ("sigma_r", "sigma_w", "discrepancy"):
         v = getattr(st, name)
+        if v is None and name == "sigma_r":
+            continue
         if not (np.isfinite(v) and v > 0):
             raise PhysarError(f"{name} must be a finite number > 0, got {v}")
-    for name in ("normal_iterations", "smooth_iterations", "vertex_iterations", "max_normal_iterations"):
+    if not st.sigma_r_candidates or not all(np.isfinite(v) and v > 0 for v in st.sigma_r_candidates):
+        raise PhysarError(f"sigma_r_candidates must be numbers > 0, got {st.sigma_r_candidates}")
+    if st.rule not in RULES:
+        raise PhysarError(f"rule must be one of {', '.join(RULES)}, got {st.rule!r}")
+    for name in ("normal_iterations", "smooth_iterations", "vertex_iterations", "max_normal_iterations", "patience"):
         v = getattr(st, name)
         if v is not None and (isinstance(v, bool) or int(v) != v or not 0 <= v <= 100_000):
             raise PhysarError(f"{name} must be an integer within 0..100000, got {v}")
@@ -230,12 +252,35 @@ def residual_normal_rms(q0: np.ndarray, q: np.ndarray, faces: np.ndarray) -> flo
     return float(np.sqrt(np.mean(np.einsum("ij,ij->i", q0 - q, n) ** 2)))
 
 
+class FaceTilt:
+    """Linear map d (npts, 3) -> (3 m,): n_f·(d_i - d_j) over the three edges (i, j) of every face f, with
+    fixed unit face normals n_f; |A d|² is the face-tilt part of a displacement error d (module doc)."""
+
+    def __init__(self, faces: np.ndarray, normals: np.ndarray):
+        self.i = faces.ravel()
+        self.j = faces[:, [1, 2, 0]].ravel()
+        self.n = np.repeat(normals, 3, axis=0)
+
+    def __call__(self, d: np.ndarray) -> np.ndarray:
+        return np.einsum("ij,ij->i", self.n, d[self.i] - d[self.j])
+
+
+def sure_tilt(tilt: FaceTilt, y: np.ndarray, q: np.ndarray, qp: np.ndarray, ap: np.ndarray, eps: float,
+              sigma: float) -> float:
+    """Monte-Carlo SURE of mean |A(q - x)|² (m²) from the noisy y, the result q = f(y), the result qp =
+    f(y + eps b) for one probe b and ap = A b (module doc)."""
+    div = float(ap @ tilt(qp - q)) / (eps * len(ap))
+    return float(np.mean(tilt(q - y) ** 2)) - 2.0 * sigma**2 + 2.0 * sigma**2 * div
+
+
 def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None = None,
-                          progress=None) -> TriMesh:
+                          progress=None, info: dict | None = None) -> TriMesh:
     """Denoise a triangle surface: bilateral normal filter, feature-weighted Taubin, vertex update (module doc).
 
-    With ``normal_iterations=None`` the stage-1 iteration count follows the discrepancy principle. Returns a
-    mesh with the same faces; `progress(k, q)` is called after each evaluated stage-1 iteration count k.
+    With ``normal_iterations=None`` the stage-1 iteration count (and with ``sigma_r=None`` the range width)
+    follows ``rule`` (SURE by default). Returns a mesh with the same faces; `progress(k, q)` is called after each
+    evaluated stage-1 iteration count k; `info`, if given, receives the chosen ``sigma_r``, ``normal_iterations``
+    and (rule "sure") the list ``risk`` of (σ_r, k, estimate in m²).
     """
     from physar.geometry.denoise import SurfaceOps, directed_edges
 
@@ -249,29 +294,66 @@ def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None =
     ff = _face_graph(mesh)
     nf, area, cen = _face_geometry(q0, mesh.faces)
 
-    def reconstruct(nfk: np.ndarray, k: int) -> np.ndarray:  # stages 2 and 3 after k stage-1 iterations
-        w = feature_weights(mesh.faces, nfk, area, src, dst, len(q0), st.sigma_w)
-        q = taubin_weighted(q0, w, st.smooth_iterations)
+    def reconstruct(y: np.ndarray, nfk: np.ndarray, k: int, sr: float) -> np.ndarray:  # stages 2-3 after k
+        w = feature_weights(mesh.faces, nfk, area, src, dst, len(y), st.sigma_w)
+        q = taubin_weighted(y, w, st.smooth_iterations)
         n2, a2, c2 = _face_geometry(q, mesh.faces)  # stage 1 again, on the smoothed surface, ceil(k/2) times
-        n2 = filter_normals(n2, a2, c2, ff, st.sigma_r, (k + 1) // 2, st.guided)
+        n2 = filter_normals(n2, a2, c2, ff, sr, (k + 1) // 2, st.guided)
         return update_vertices(q, mesh.faces, n2, st.vertex_iterations)
 
+    counts = [c for c in CHECKPOINTS if c <= st.max_normal_iterations] or [st.max_normal_iterations]
     if st.normal_iterations is not None:
         k = st.normal_iterations
-        q = reconstruct(filter_normals(nf, area, cen, ff, st.sigma_r, k, st.guided), k)
+        sr = st.sigma_r if st.sigma_r is not None else st.sigma_r_candidates[-1]
+        q = reconstruct(q0, filter_normals(nf, area, cen, ff, sr, k, st.guided), k, sr)
         if progress is not None:
             progress(st.normal_iterations, q)
-    else:
+    elif st.rule == "discrepancy":
         target = st.discrepancy * noise_scale(mesh) / MAD_RATIO
         q, done = q0, 0
-        for k in [c for c in CHECKPOINTS if c <= st.max_normal_iterations] or [st.max_normal_iterations]:
-            nf = filter_normals(nf, area, cen, ff, st.sigma_r, k - done, st.guided)
+        sr = st.sigma_r if st.sigma_r is not None else st.sigma_r_candidates[-1]
+        for k in counts:
+            nf = filter_normals(nf, area, cen, ff, sr, k - done, st.guided)
             done = k
-            q = reconstruct(nf, k)
+            q = reconstruct(q0, nf, k, sr)
             if progress is not None:
                 progress(k, q)
             if residual_normal_rms(q0, q, mesh.faces) >= target:
                 break
+    else:  # Stein's unbiased estimate of the face-tilt risk (module doc), over k and the σ_r candidates
+        sigma = SURE_NOISE_FACTOR * noise_scale(mesh) / MAD_RATIO
+        probe = np.random.default_rng(0).standard_normal(q0.shape)
+        eps = EPS_FD * sigma
+        sr0 = st.sigma_r if st.sigma_r is not None else max(st.sigma_r_candidates)
+        qref = reconstruct(q0, filter_normals(nf, area, cen, ff, sr0, 1, st.guided), 1, sr0)
+        tilt = FaceTilt(mesh.faces, _face_geometry(qref, mesh.faces)[0])  # normals not those of the noisy input
+        ap = tilt(probe)
+        yp = q0 + eps * probe
+        nfp0, areap, cenp = _face_geometry(yp, mesh.faces)
+        best, q = np.inf, q0
+        for sr in st.sigma_r_candidates if st.sigma_r is None else (st.sigma_r,):
+            nfk, nfp, done, since, low = nf, nfp0, 0, 0, np.inf
+            for k in counts:
+                nfk = filter_normals(nfk, area, cen, ff, sr, k - done, st.guided)
+                nfp = filter_normals(nfp, areap, cenp, ff, sr, k - done, st.guided)
+                done = k
+                qk = reconstruct(q0, nfk, k, sr)
+                qp = reconstruct(yp, nfp, k, sr)
+                if progress is not None:
+                    progress(k, qk)
+                risk = sure_tilt(tilt, q0, qk, qp, ap, eps, sigma)
+                if info is not None:
+                    info.setdefault("risk", []).append((sr, k, risk))
+                if risk < best:
+                    best, q = risk, qk
+                    if info is not None:
+                        info.update(sigma_r=sr, normal_iterations=k)
+                if risk < low:
+                    low, since = risk, 0
+                else:
+                    since += 1
+                    if since >= st.patience:
+                        break
     if st.preserve_volume and v0 is not None:
         n, vol, area_tot = ops.geometry((q - origin).astype(np.float32))
         if area_tot:
