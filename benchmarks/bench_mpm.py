@@ -5,20 +5,23 @@ the unit cube on a 64^3 grid, dt = 1e-4 s; 8k particles (10^3 cells) and 64k par
 Both codes run the same MLS-MPM substep (APIC, quadratic B-splines, Kirchhoff stress
 tau = mu (F F^T - I) + lambda log(J) I, float64); the benchmark checks that their particle positions agree.
 
-Rows:
-* physar forward: ``MPMSolver.step`` with the grid phase on the particles' node box (default) and on the whole
-  dense grid (``active_box=False``, the previous implementation);
-* physar forward+backward: ``torch_bridge.simulate`` (one checkpointed frame of S substeps) + ``backward()`` of
-  a loss on the final positions w.r.t. per-particle E and the initial velocities: the fused frame adjoint
-  (:mod:`physar.mpm.adjoint`, 2 threads and 1 thread) and the generic per-launch tape path (``fused=False``);
+Rows (every timed code runs once per round, in turn, so that all see the same load; medians of ``--rounds``):
+* physar forward: ``MPMSolver.step`` with the grid phase on the particles' node box (``--dense``: also on the
+  whole dense grid, ``active_box=False``, the previous implementation);
+* physar forward+backward: ``torch_bridge.simulate`` (one frame of S substeps) + ``backward()`` of a loss on
+  the final positions w.r.t. per-particle E and the initial velocities, through the fused frame adjoint
+  (:mod:`physar.mpm.adjoint`) with 1 thread, 2 threads, and the default (threads chosen per sweep by
+  measurement, :class:`physar.mpm.adjoint.ThreadChooser`); ``--generic``: also the generic per-launch tape path
+  (``fused=False``);
 * Taichi 1.7 (written here, dense 64^3 grid, ``cpu_max_num_threads`` = all cores): forward, and forward +
   backward by the usual diffmpm scheme (all substep states stored, grid recomputed per substep in reverse,
   ``kernel.grad``), gradients w.r.t. E and the initial velocities;
 * peak resident memory (above the process's memory before the run) of a 100-frame backward pass with
-  per-frame checkpointing, and of a 10-frame pass without it.
+  per-frame checkpointing, and of a 10-frame pass without it (``--no-memory``: skipped).
 
-Usage: ``python benchmarks/bench_mpm.py [--particles 8000 64000] [--substeps 50] [--no-taichi]``.
-Timings are wall-clock seconds on whatever else the machine is doing: the load average is printed.
+Usage: ``python benchmarks/bench_mpm.py [--particles 8000 64000] [--substeps 50] [--rounds 3] [--no-taichi]``.
+Timings are wall-clock seconds on whatever else the machine is doing: the load averages (1, 5, 15 min)
+are printed with each size.
 """
 
 # (no `from __future__ import annotations`: Taichi reads the kernel annotations as objects)
@@ -152,6 +155,14 @@ def _memory_child(n_target, frames, substeps, checkpoint):
 
 # ----------------------------------------------------------------------------------------------- Taichi
 def bench_taichi(x0, v0, vol, S, threads):
+    """(fwd, fb, x_final, dL/dE, dL/dv0, compile s) of one Taichi run (:func:`make_taichi`)."""
+    return make_taichi(x0, v0, vol, S, threads)[1]
+
+
+def make_taichi(x0, v0, vol, S, threads):
+    """Compile the Taichi MLS-MPM of the scene; returns (again, first): ``again()`` times one more forward and
+    one more forward+backward run (fwd, fb substeps/s), ``first`` = (fwd, fb, x_final, dL/dE, dL/dv0,
+    compile s) of the first run."""
     import taichi as ti
 
     ti.init(arch=ti.cpu, default_fp=ti.f64, cpu_max_num_threads=threads, offline_cache=True, log_level=ti.WARN)
@@ -280,28 +291,40 @@ def bench_taichi(x0, v0, vol, S, threads):
     forward(1)
     backward(1)
     compile_s = time.perf_counter() - t
-    init(x0, v0)
-    ti.sync()
-    t = time.perf_counter()
-    forward(S)
-    ti.sync()
-    fwd = S / (time.perf_counter() - t)
-    xf = x.to_numpy()[S]
     w = np.random.default_rng(0).standard_normal(x0.shape)
-    init(x0, v0)
-    for fld in (x, v, C, F):
-        fld.grad.fill(0)
-    Ef.grad.fill(0)
-    ti.sync()
-    t = time.perf_counter()
-    forward(S)
-    seed(w)
-    backward(S)
-    ti.sync()
-    fb = S / (time.perf_counter() - t)
+
+    def again():
+        init(x0, v0)
+        ti.sync()
+        t = time.perf_counter()
+        forward(S)
+        ti.sync()
+        fwd = S / (time.perf_counter() - t)
+        init(x0, v0)
+        for fld in (x, v, C, F):
+            fld.grad.fill(0)
+        Ef.grad.fill(0)
+        ti.sync()
+        t = time.perf_counter()
+        forward(S)
+        seed(w)
+        backward(S)
+        ti.sync()
+        fb = S / (time.perf_counter() - t)
+        return fwd, fb
+
+    fwd, fb = again()
+    xf = x.to_numpy()[S]
     gE, gv = Ef.grad.to_numpy(), v.grad.to_numpy()[0]
-    ti.reset()
-    return fwd, fb, xf, gE, gv, compile_s
+    return again, (fwd, fb, xf, gE, gv, compile_s)
+
+
+def _uptime() -> str:
+    try:
+        with open("/proc/loadavg") as f:
+            return " ".join(f.read().split()[:3])
+    except OSError:
+        return " ".join(f"{v:.2f}" for v in os.getloadavg())
 
 
 def main():
@@ -313,59 +336,103 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--particles", type=int, nargs="+", default=[8000, 64000])
     ap.add_argument("--substeps", type=int, default=50, help="substeps per timed run")
+    ap.add_argument("--rounds", type=int, default=3,
+                    help="timed rounds; each round runs every code once, in turn (the median is reported)")
     ap.add_argument("--no-taichi", action="store_true")
+    ap.add_argument("--generic", action="store_true", help="also time the generic per-launch tape path")
+    ap.add_argument("--dense", action="store_true", help="also time the dense-grid forward (previous)")
+    ap.add_argument("--no-memory", action="store_true", help="skip the peak-memory runs")
     ap.add_argument("--memory-frames", type=int, default=100)
     ap.add_argument("--memory-substeps", type=int, default=5, help="substeps per frame in the memory runs")
     args = ap.parse_args()
     threads = os.cpu_count() or 1
     print(f"# bench_mpm  {time.strftime('%Y-%m-%d %H:%M')}  {platform.processor() or platform.machine()}, "
-          f"{threads} cores, load average {os.getloadavg()[0]:.1f} (start)")
+          f"{threads} cores, load average (1, 5, 15 min) {_uptime()} (start)")
     rows = []
+    med = lambda a: float(np.median(a))
+    rng = lambda a: f"{min(a):.1f}–{max(a):.1f}"
     for n_target in args.particles:
         x, v, vol = scene_arrays(n_target)
         S = args.substeps
-        dense, _ = bench_physar_forward(x, v, vol, S, active_box=False)
-        fwd, xp = bench_physar_forward(x, v, vol, S)
-        fb, gE, gv = bench_physar_backward(x, v, vol, S, threads=2)
-        fb1, _gE1, _gv1 = bench_physar_backward(x, v, vol, S, threads=1)
-        fbg, _gEg, gvg = bench_physar_backward(x, v, vol, S, fused=False)
-        d_fg = np.abs(gv - gvg).max() / np.abs(gvg).max()  # dL/dE is ~roundoff here (F stays ~I in free fall)
-        rows.append((len(x), "physar (Warp CPU, 1 thread), node box", fwd, fb1,
-                     "fwd+bwd: fused frame adjoint, 1 thread"))
-        rows.append((len(x), "physar fwd+bwd fused, 2 threads (default)", float("nan"), fb,
-                     f"dL/dv0 rel. diff vs generic path {d_fg:.1e}"))
-        rows.append((len(x), "physar fwd+bwd generic per-launch tape (previous)", float("nan"), fbg, ""))
-        rows.append((len(x), "physar, dense-grid update (previous)", dense, float("nan"), ""))
+        load0 = _uptime()
+        t_size = time.strftime("%H:%M:%S")
+        if args.dense:
+            dense, _ = bench_physar_forward(x, v, vol, S, active_box=False)
+            rows.append((len(x), "physar, dense-grid update (previous)", dense, float("nan"), ""))
+        codes = {"1": {"threads": 1}, "2": {"threads": 2}, "auto": {"threads": None}}
+        fw, ta_f, ta_fb = [], [], []
+        res = {k: [] for k in codes}
+        ta = None
         if not args.no_taichi:
             try:
-                tf, tfb, xt, tgE, tgv, comp = bench_taichi(x, v, vol, S, threads)
-                dx_err = np.abs(xt - xp).max()
-                gerr = max(np.abs(tgE - gE).max() / np.abs(gE).max(), np.abs(tgv - gv).max() / np.abs(gv).max())
-                rows.append((len(x), f"Taichi 1.7 CPU ({threads} threads), dense grid", tf, tfb,
-                             (f"max |x_ti - x_physar| = {dx_err:.1e} m, grad rel. diff {gerr:.1e}, "
-                              f"first fwd+bwd incl. compile {comp:.0f} s")))
+                again, (_tf, _tfb, xt, tgE, tgv, comp) = make_taichi(x, v, vol, S, threads)
+                ta = (xt, tgE, tgv, comp)
             except ImportError:
                 rows.append((len(x), "Taichi: not installed (`pip install taichi`)", float("nan"), float("nan"), ""))
+        grads = {}
+        for r in range(args.rounds):
+            fw.append(bench_physar_forward(x, v, vol, S)[0])
+            for k, kw in codes.items():
+                fb, gE, gv = bench_physar_backward(x, v, vol, S, **kw)
+                res[k].append(fb)
+                grads[k] = (gE, gv)
+            if ta is not None:
+                a, b = again()
+                ta_f.append(a)
+                ta_fb.append(b)
+        _, xp = bench_physar_forward(x, v, vol, S)
+        gE, gv = grads["2"]
+        load1 = _uptime()
+        tag = f"load {load0} → {load1} ({t_size}–{time.strftime('%H:%M:%S')})"
+        rows.append((len(x), "physar forward (1 thread) / fwd+bwd fused adjoint, 1 thread", med(fw), med(res["1"]),
+                     f"fwd+bwd rounds {rng(res['1'])}; {tag}"))
+        rows.append((len(x), "physar fwd+bwd fused adjoint, 2 threads", float("nan"), med(res["2"]),
+                     f"rounds {rng(res['2'])}"))
+        rows.append((len(x), "physar fwd+bwd fused adjoint, default (threads chosen by measurement)", float("nan"),
+                     med(res["auto"]), f"rounds {rng(res['auto'])}"))
+        if args.generic:
+            fbg, _gEg, gvg = bench_physar_backward(x, v, vol, S, fused=False)
+            d_fg = np.abs(gv - gvg).max() / np.abs(gvg).max()  # dL/dE is ~roundoff here (F stays ~I in free fall)
+            rows.append((len(x), "physar fwd+bwd generic per-launch tape (previous)", float("nan"), fbg,
+                         f"dL/dv0 rel. diff fused vs generic {d_fg:.1e}"))
+        if ta is not None:
+            xt, tgE, tgv, comp = ta
+            dx_err = np.abs(xt - xp).max()
+            gerr = max(np.abs(tgE - gE).max() / np.abs(gE).max(), np.abs(tgv - gv).max() / np.abs(gv).max())
+            rows.append((len(x), f"Taichi 1.7 CPU ({threads} threads), dense grid", med(ta_f), med(ta_fb),
+                         (f"fwd+bwd rounds {rng(ta_fb)}; max |x_ti - x_physar| = {dx_err:.1e} m, grad rel. diff "
+                          f"{gerr:.1e}, first fwd+bwd incl. compile {comp:.0f} s")))
+            import taichi as ti
+
+            ti.reset()
+            for k in codes:
+                print(f"# {len(x)} particles: fwd+bwd physar {k} / Taichi = {med(res[k]) / med(ta_fb):.2f}  "
+                      f"(per round: {', '.join(f'{a / b:.2f}' for a, b in zip(res[k], ta_fb))})")
     print(f"\nScene: neo-Hookean cube falling, {RES}^3 grid, dt = {DT:g} s, float64, {args.substeps} substeps "
-          "timed (after warm-up)\n")
+          f"timed (after warm-up), median of {args.rounds} rounds\n")
     print("| particles | code | forward substeps/s | forward+backward substeps/s | notes |")
     print("|---|---|---|---|---|")
     for n, name, f, b, note in rows:
         fb_s = "-" if np.isnan(b) else f"{b:.1f}"
         f_s = "-" if np.isnan(f) else f"{f:.1f}"
         print(f"| {n} | {name} | {f_s} | {fb_s} | {note} |")
-    x, v, vol = scene_arrays(args.particles[0])
-    F_, T_ = args.memory_frames, args.memory_substeps
-    mem_ck, t_ck = bench_memory(args.particles[0], F_, T_, checkpoint=True)
-    mem_nc, t_nc = bench_memory(args.particles[0], 10, T_, checkpoint=False)
-    print(f"\nPeak memory of a backward pass ({len(x)} particles, {T_} substeps/frame, loss on every frame's "
-          "positions; resident set above the pre-run level):\n")
-    print("| run | frames | peak extra memory (MB) | time (s) |")
-    print("|---|---|---|---|")
-    print(f"| per-frame checkpointing | {F_} | {mem_ck:.0f} | {t_ck:.1f} |")
-    print(f"| no checkpointing | 10 | {mem_nc:.0f} | {t_nc:.1f} |")
-    print(f"| no checkpointing (extrapolated x{F_ // 10}) | {F_} | ~{mem_nc * F_ / 10:.0f} | - |")
-    print(f"\nload average at the end: {os.getloadavg()[0]:.1f}")
+    from physar.mpm import adjoint
+
+    print(f"\nthread chooser state (kind, particle-count octave, threads): mean s/substep, samples, calls: "
+          f"{ {k: (round(v[0], 4), v[1], v[2]) for k, v in adjoint.CHOOSER.est.items()} }")
+    if not args.no_memory:
+        x, v, vol = scene_arrays(args.particles[0])
+        F_, T_ = args.memory_frames, args.memory_substeps
+        mem_ck, t_ck = bench_memory(args.particles[0], F_, T_, checkpoint=True)
+        mem_nc, t_nc = bench_memory(args.particles[0], 10, T_, checkpoint=False)
+        print(f"\nPeak memory of a backward pass ({len(x)} particles, {T_} substeps/frame, loss on every frame's "
+              "positions; resident set above the pre-run level):\n")
+        print("| run | frames | peak extra memory (MB) | time (s) |")
+        print("|---|---|---|---|")
+        print(f"| per-frame checkpointing | {F_} | {mem_ck:.0f} | {t_ck:.1f} |")
+        print(f"| no checkpointing | 10 | {mem_nc:.0f} | {t_nc:.1f} |")
+        print(f"| no checkpointing (extrapolated x{F_ // 10}) | {F_} | ~{mem_nc * F_ / 10:.0f} | - |")
+    print(f"\nload average at the end: {_uptime()}")
 
 
 if __name__ == "__main__":
