@@ -36,13 +36,35 @@ import numpy as np
 from physar.errors import ConfigError
 
 
+def _cannot_write(folder: Path) -> str | None:
+    """Why a file cannot be created in the existing ``folder`` (None if it can): ``os.access``, a read-only
+    mount, then a real probe (a temporary file created and removed at once, the folder's times put back),
+    since root passes ``os.access`` on folders it still cannot write (a read-only mount, /proc, /sys)."""
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return "is not writable"
+    with contextlib.suppress(OSError, AttributeError):
+        if os.statvfs(folder).f_flag & os.ST_RDONLY:
+            return "is not writable (read-only file system)"
+    st = os.stat(folder)
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".physar-probe.", dir=folder)
+    except OSError as exc:
+        return f"is not writable ({exc.strerror or exc})"
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.remove(probe)
+        os.utime(folder, ns=(st.st_atime_ns, st.st_mtime_ns))
+    return None
+
+
 def check_destination(path, *, inputs: Iterable = (), suffixes: Iterable[str] | None = None,
                       kind: str = "file") -> Path:
     """Check that ``path`` can be written as a ``kind`` (e.g. "video", "CSV"); returns it as a Path.
 
     Raises ConfigError (one line naming ``path``) when: it is empty or an existing folder; ``suffixes`` is
     given and its suffix (case-insensitive) is not one of them; its nearest existing ancestor folder is not a
-    writable folder (so the parent can neither be used nor created); it is the same file as one of ``inputs``
+    writable folder (so the parent can neither be used nor created; probed, see :func:`_cannot_write`); it is
+    the same file as one of ``inputs``
     (None entries ignored). Nothing is created.
     """
     if path is None or str(path) == "":
@@ -61,9 +83,10 @@ def check_destination(path, *, inputs: Iterable = (), suffixes: Iterable[str] | 
         anc = anc.parent
     if not anc.is_dir():
         raise ConfigError(f"{path}: cannot create the {kind}'s folder {parent} ({anc} is a file)")
-    if not os.access(anc, os.W_OK | os.X_OK):
+    why = _cannot_write(anc)
+    if why:
         where = "folder" if anc == parent else "folder's parent"
-        raise ConfigError(f"{path}: the {kind}'s {where} {anc} is not writable")
+        raise ConfigError(f"{path}: the {kind}'s {where} {anc} {why}")
     for inp in inputs:
         if inp is None or str(inp) == "":
             continue
@@ -200,9 +223,9 @@ def check_folder(path, *, own: Callable[[str], bool] | None = None, inputs: Iter
         anc = anc.parent
     if not anc.is_dir():
         raise ConfigError(f"{path}: cannot create the {kind} ({anc} is a file)")
-    if not os.access(anc, os.W_OK | os.X_OK):
-        raise ConfigError(f"{path}: {'the ' + kind if anc == p.absolute() else 'its parent ' + str(anc)} "
-                          "is not writable")
+    why = _cannot_write(anc)
+    if why:
+        raise ConfigError(f"{path}: {'the ' + kind if anc == p.absolute() else 'its parent ' + str(anc)} {why}")
     for inp in inputs:
         if inp is not None and str(inp) != "" and Path(inp).absolute().resolve() == p.absolute().resolve():
             raise ConfigError(f"{path}: {kind} is the same as the input {inp}")
