@@ -51,6 +51,9 @@ def format_validation_error(exc, source: str, model=None, section: str | None = 
         allowed = _allowed_keys(model, inner[:-1]) if model is not None else []
         hint = f" (allowed: {', '.join(allowed)})" if allowed else ""
         return f"{source}: unknown key {loc[-1]!r} in [{table}]{hint}"
+    if kind == "missing" and e["loc"] and isinstance(e["loc"][-1], int):  # a tuple given too few values
+        return (f"{source}: [{'.'.join(loc[:-1])}] expected at least {e['loc'][-1] + 1} values, got "
+                f"{e.get('input')!r}")
     if kind == "missing":
         return f"{source}: missing key {loc[-1]!r} in [{table}]"
     if kind == "literal_error":
