@@ -1,6 +1,6 @@
 """Issue 21, second audit: bad inputs tried by an outside tester (new cases across the commands, not in
 test_bad_inputs*.py, signals in ar run and rom build included;
-81 in all, 72 were already clean). The nine that were not, fixed at their layer:
+81 in all, 71 were already clean). The ten that were not, fixed at their layer (by kind):
 
 * a ``[[load]] total`` with nan reached the solver and was reported as "the linear solve produced NaN or inf
   (singular system?)" after the assembly: every number of the fem/rom/dynamics configs is now refused when
