@@ -428,13 +428,21 @@ class ThreadChooser:
     kind of sweep (``"fwd"``: a forward substep, ``"adj"``: a reverse substep) keeps an exponential mean
     (weight 0.3) of its seconds per substep for 1 and for 2 threads, per particle-count octave; the first
     call of each mode is not counted (kernel loading), the two modes alternate until each has two samples,
-    then the faster is used and the other is tried again every ``probe_every`` calls, so that a change of
-    the machine's load is followed."""
+    then the faster is used and the other is tried once after every m calls of the faster, so that a change
+    of the machine's load is followed.  m = max(``probe_every``, ceil((r - 1) / ``overhead``)), at most 256,
+    with r >= 1 the ratio of the two means: the probes cost at most ``overhead`` (5 %) of the time while the
+    means hold."""
 
-    def __init__(self, probe_every: int = 8):
+    def __init__(self, probe_every: int = 8, overhead: float = 0.05):
         self.probe_every = probe_every
+        self.overhead = overhead
         self._lock = threading.Lock()
         self.est: dict = {}  # (kind, octave, mode) -> [mean seconds, samples, calls]
+        self._since: dict = {}  # (kind, octave) -> calls of the faster mode since the last probe
+
+    def interval(self, fast: float, slow: float) -> int:
+        r = slow / fast if fast > 0 else 1.0
+        return int(min(256, max(self.probe_every, math.ceil((r - 1.0) / self.overhead - 1e-9))))
 
     def pick(self, kind: str, n: int) -> int:
         key = (kind, int(n).bit_length())
@@ -444,8 +452,11 @@ class ThreadChooser:
                 mode = 1 if st[0][2] <= st[1][2] else 2
             else:
                 best = 1 if st[0][0] <= st[1][0] else 2
-                total = st[0][2] + st[1][2]
-                mode = 3 - best if total % self.probe_every == 0 else best
+                since = self._since.get(key, 0)
+                if since >= self.interval(st[best - 1][0], st[2 - best][0]):
+                    mode, self._since[key] = 3 - best, 0
+                else:
+                    mode, self._since[key] = best, since + 1
             st[mode - 1][2] += 1
             return mode
 
