@@ -21,6 +21,7 @@ from typer.testing import CliRunner
 import physar.fem.config
 import physar.output
 import physar.synth.truth
+from physar.ar.project import load_project
 from physar.cli.main import app
 from physar.errors import ConfigError
 from physar.synth import FineTruth
@@ -35,11 +36,12 @@ def _built(*a, **k):
 def test_refine_8_refused_with_its_estimate_before_meshing(tmp_path, monkeypatch):
     d = tmp_path / "project"
     d.mkdir()
-    for f in ("project.toml", "rom.toml", "scenario.toml", "model.npz"):
+    for f in ("project.toml", "rom.toml", "scenario.toml"):
         shutil.copy(EXAMPLES / "ar" / "cantilever" / f, d / f)
     shutil.copy(EXAMPLES / "camera_720p.toml", d / "camera.toml")
     (d / "project.toml").write_text((d / "project.toml").read_text().replace("../../camera_720p.toml",
                                                                                "camera.toml"))
+    load_project(d / "project.toml")          # the model built here, before build_problem is patched
     (d / "s.toml").write_text("[truth]\nrefine = 8\n")
     monkeypatch.setattr(physar.output, "available_memory", lambda: 4 * 2**30)
     monkeypatch.setattr(physar.fem.config, "build_problem", _built)
