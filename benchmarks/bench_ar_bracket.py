@@ -7,10 +7,10 @@ latency, with the machine's load average written beside it.
     .venv/bin/python benchmarks/bench_ar_bracket.py --seeds 0 1 2 --cache /tmp/physar_bracket
 
 --model-mesh SIZE runs the pipeline with a copy of the example whose [mesh] size is SIZE (m) (its model built in
-the copy); --truth-mesh SIZE renders the clips from a copy with that [mesh] size, the truth on that mesh refined
-2x (independent of the model's own mesh; cached under CACHE/truth-SIZE). E.g. a 2.5 mm model against the truth
-of the 3.5 mm mesh refined 2x (1.75 mm, 410k dofs, 7.1 GB, about 3 min per clip on this machine):
-    ... --model-mesh 0.0025 --truth-mesh 0.0035 --cache /tmp/physar_bracket
+the copy); --truth-mesh SIZE renders the clips with the scenario's [truth] mesh_size = SIZE (the surface meshed
+again at SIZE, then refined 2x: independent of the model's mesh). The default is the example's scenario: the
+2.5 mm model against the truth of the 3.5 mm mesh refined 2x (1.75 mm, 410k dofs, 7.1 GB, about 3 min per clip
+on this machine). Clips are cached under CACHE/truth-<SIZE>mm/seed<N>.
 """
 from __future__ import annotations
 
@@ -54,23 +54,22 @@ def main(argv=None):
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "physar_bracket")
     ap.add_argument("--model-mesh", type=float, default=None, help="[mesh] size of the model (m; default: the "
                                                                      "example's)")
-    ap.add_argument("--truth-mesh", type=float, default=None, help="[mesh] size whose 2x refinement is the truth "
-                                                                     "(m; default: the model's)")
+    ap.add_argument("--truth-mesh", type=float, default=None, help="[truth] mesh_size: the surface meshed again "
+                                                                     "at this size, refined 2x (m; default: the "
+                                                                     "scenario's)")
     a = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="bench_bracket_"))
     p = load_project(EX / "project.toml" if a.model_mesh is None else _copy(a.model_mesh, work / "model"))
-    pt, cache = p, a.cache
-    if a.truth_mesh is not None:
-        pt = load_project(_copy(a.truth_mesh, work / "truth"))
-        cache = a.cache / f"truth-{a.truth_mesh * 1e3:g}mm"
     ranges = {n: tuple(map(float, r)) for n, r in zip(p.rom.names, p.rom.ranges)}
     base = load_scenario(EX / "scenario.toml", p)
+    truth = base.truth if a.truth_mesh is None else base.truth.model_copy(update={"mesh_size": a.truth_mesh})
+    cache = a.cache / (f"truth-{truth.mesh_size * 1e3:g}mm" if truth.mesh_size else f"truth-model-r{truth.refine}")
     rows = []
     for seed in a.seeds:
         d = cache / f"seed{seed}"
         if not (d / "truth.csv").is_file():
-            sc = base.model_copy(update={"seed": seed})
-            render_project(pt, sc, d)
+            sc = base.model_copy(update={"seed": seed, "truth": truth})
+            render_project(load_project(EX / "project.toml"), sc, d)
         with tempfile.TemporaryDirectory() as tmp:
             load = os.getloadavg()[0]
             summ = ProjectPipeline(p).run(d / "video.mp4", Path(tmp) / "aug.mp4", Path(tmp) / "est.csv")

@@ -1,7 +1,8 @@
 """The new example object (issue 16): a printed L-bracket tetrahedralised from an STL surface, clamped by a plane,
 a load moving along a curved path on its arm plus a sideways offset, markers on three planes (its web, the
-wall, the table). Filmed by the general test-data renderer with truth from a mesh 8x finer; run by the same
-project pipeline as every other project."""
+wall, the table). Filmed by the general test-data renderer with truth on a mesh independent of the model's (the
+STL meshed again at 5 mm and refined 2x: 2.5 mm P2 tetrahedra that are not the model's 2.5 mm gmsh mesh); run
+by the same project pipeline as every other project."""
 import shutil
 from pathlib import Path
 
@@ -38,17 +39,19 @@ def test_bracket_load_position_along_the_curved_path(bracket, tmp_path):
         "seed": 5, "video": {"duration": 1.6},
         "schedule": {"s": {"keyframes": [[0.0, 0.10], [0.5, 0.10], [1.1, 0.06]]},
                      "o": {"keyframes": [[0.0, 0.004]]}},
-        "camera": {"target": [0.11, 0.02, 0.0], "azimuth": -55.0, "elevation": 38.0, "distance": 0.4}})
+        "camera": {"target": [0.11, 0.02, 0.0], "azimuth": -55.0, "elevation": 38.0, "distance": 0.4},
+        "truth": {"mesh_size": 0.005}})
     info = render_project(p, sc, tmp_path / "clip")
-    assert info["truth_dofs"] > 4 * 3 * p.space().n_nodes          # the truth is finer than the model
+    assert info["truth_dofs"] > 1.4 * p.space().n_dofs               # another mesh, finer than the model's
     ProjectPipeline(p).run(tmp_path / "clip" / "video.mp4", tmp_path / "aug.mp4", tmp_path / "est.csv")
     ranges = {n: tuple(map(float, r)) for n, r in zip(p.rom.names, p.rom.ranges)}
     res = score(read_columns(tmp_path / "clip" / "truth.csv"), read_columns(tmp_path / "est.csv"), ranges)
     s = res["parameters"]["s"]
     assert abs(ranges["s"][1] - 0.1278) < 1e-3                       # arc length of the curved path
     assert res["tracking"] == res["frames"] == 48
-    assert s["judged"] == 48 and s["max_error"] <= 0.03 * 0.1278, s
-    assert s["median_error"] <= 0.01 * 0.1278, s
+    # every judged frame within 1 % of the path (issue 16; measured max 0.91 mm = 0.71 %, median 0.43 mm)
+    assert s["judged"] == 48 and s["within"] == 48 and s["max_error"] <= 0.01 * 0.1278, s
+    assert s["median_error"] <= 0.005 * 0.1278, s
     # the sideways offset is weakly observable (plate twist): within 2.5 mm of its 4 mm (measured 4.5-6 mm);
     # catches the offset direction flipped in the model or the truth (the estimate would sit near -3 mm)
     o = read_columns(tmp_path / "est.csv")["o_est"]
