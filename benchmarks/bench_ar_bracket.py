@@ -1,8 +1,8 @@
 """The new example object (examples/ar/bracket: PLA L-bracket from an STL, curved load path + offset, markers on
 three planes) through the general project pipeline on clips of the general test-data renderer (physar.synth,
-truth on a mesh 8x finer), 1280x720, over scenario seeds: accuracy of the load position against the truth (1 %
-of the path = 1.28 mm), fps end to end (decode, estimate, overlay, H.264 ultrafast encode) and per-stage
-latency, with the machine's load average written beside it.
+truth on the STL meshed again and refined, see below), 1280x720, over scenario seeds: accuracy of the load
+position against the truth (1 % of the path = 1.28 mm), fps end to end (decode, estimate, overlay, H.264
+ultrafast encode) and per-stage latency, with the machine's load average written beside it.
 
     .venv/bin/python benchmarks/bench_ar_bracket.py --seeds 0 1 2 --cache /tmp/physar_bracket
 
