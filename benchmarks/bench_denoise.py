@@ -17,6 +17,8 @@ physar.geometry.tetra; real scans shipped in installed packages: pymeshlab's Sta
 reconstruction, 28k vertices) and its `rangemaps/face000.ply` (one raw range scan of a face, open, 85k).
 
 Run:  .venv/bin/python benchmarks/bench_denoise.py [--quick] [--timing-only] [--quality-only] [--sigmas 0.2 0.3]
+      .venv/bin/python benchmarks/bench_denoise.py --timing-only --sizes 1e4 1e5 1e6 [--search coarse exhaustive]
+      (the default's CPU time per vertex and peak memory on noisy tori, one process per call)
       .venv/bin/python benchmarks/bench_denoise.py --calibrate [--simple-only | --detail-only]
       (constants of normal_filter, on other meshes; --no-ratio skips the σ_e / σ_n table)
 """
@@ -329,7 +331,56 @@ def timing_table() -> None:
     print(f"\nload average after timing: {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
 
 
+def timing_one(n: int, search: str) -> None:
+    """One default call on a noisy n x n torus (0.2 ē, random direction, seed 0) in this process; prints one
+    JSON line: CPU and wall seconds, the choice, peak resident memory (ru_maxrss) before and after the call."""
+    import json
+    import resource
+
+    from physar.geometry import normal_filter as NF
+
+    m = Q.add_noise(torus(n), 0.2, 0, "random")
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    load = os.getloadavg()[0]
+    info: dict = {}
+    t0, w0 = time.process_time(), time.perf_counter()
+    NF.normal_filter_denoise(m, NF.NormalFilterSettings(search=search), info=info)
+    cpu, wall = time.process_time() - t0, time.perf_counter() - w0
+    rss1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(json.dumps({"vertices": m.n_points, "cpu_s": cpu, "wall_s": wall, "peak_mib": rss1, "before_mib": rss0,
+                      "load_before": load, "load_after": os.getloadavg()[0], "sigma_r": info.get("sigma_r"),
+                      "k": info.get("normal_iterations"), "evaluations": len(info.get("risk", []))}))
+
+
+def timing_sizes(sizes: list[float], searches: list[str]) -> None:
+    """Time per vertex of the default (`two-stage`, SURE) on noisy tori of about `sizes` vertices, each call in
+    a fresh process (so the peak resident memory is that call's); `--search exhaustive` times the previous
+    search (every checkpoint) for comparison."""
+    import json
+    import subprocess
+
+    print(f"\n{os.cpu_count()} CPUs; noisy torus (0.2 ē, random direction, seed 0); CPU time of one "
+          "`normal_filter_denoise` call (the default of `physar denoise`); peak RSS of its process\n")
+    print("| vertices | search | choice (σr, k) | SURE evaluations | CPU s | CPU µs / vertex | wall s | peak RSS MiB "
+          "(before the call) | load before / after |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for size in sizes:
+        n = round(float(np.sqrt(size)))
+        for search in searches:
+            out = subprocess.run([sys.executable, __file__, "--timing-one", str(n), search], capture_output=True,
+                                 text=True, check=True).stdout.strip().splitlines()[-1]
+            r = json.loads(out)
+            print(f"| {r['vertices']} | {search} | σr {r['sigma_r']}, {r['k']} it | {r['evaluations']} | "
+                  f"{r['cpu_s']:.1f} | {1e6 * r['cpu_s'] / r['vertices']:.0f} | {r['wall_s']:.1f} | "
+                  f"{r['peak_mib']:.0f} ({r['before_mib']:.0f}) | {r['load_before']:.2f} / {r['load_after']:.2f} |",
+                  flush=True)
+
+
 if __name__ == "__main__":
+    if "--timing-one" in sys.argv:  # child process of timing_sizes
+        i = sys.argv.index("--timing-one")
+        timing_one(int(sys.argv[i + 1]), sys.argv[i + 2])
+        sys.exit(0)
     sig = [0.2] if QUICK else [0.1, 0.2, 0.3]
     if "--sigmas" in sys.argv:
         i = sys.argv.index("--sigmas") + 1
@@ -337,6 +388,21 @@ if __name__ == "__main__":
     print(f"# bench_denoise.py {time.strftime('%Y-%m-%d %H:%M')} {'(quick)' if QUICK else ''}")
     if "--calibrate" in sys.argv:
         calibrate()
+        sys.exit(0)
+    if "--sizes" in sys.argv:  # --timing-only --sizes 1e4 1e5 1e6 [--search coarse exhaustive]
+        i = sys.argv.index("--sizes") + 1
+        sizes = []
+        while i < len(sys.argv) and not sys.argv[i].startswith("--"):
+            sizes.append(float(sys.argv[i]))
+            i += 1
+        searches = ["coarse"]
+        if "--search" in sys.argv:
+            i = sys.argv.index("--search") + 1
+            searches = []
+            while i < len(sys.argv) and not sys.argv[i].startswith("--"):
+                searches.append(sys.argv[i])
+                i += 1
+        timing_sizes(sizes, searches)
         sys.exit(0)
     if "--timing-only" not in sys.argv:
         quality_tables(sig)

@@ -50,12 +50,28 @@ tori, boxes and cylinders, 0.31-0.33 on pymeshlab's bone and airplane; the facto
 and 1.0 there, `benchmarks/bench_denoise.py --calibrate`, none of them a benchmark mesh). One probe b
 (seeded) for all (k, σ_r), so the comparison between them is not blurred by sampling; the finite-difference step
 ε = :data:`EPS_FD` σ = 0.1 σ (a smaller one, 0.01 σ, made the estimate jump between neighbouring k where the
-filter is far from linear: σ_r = 0.2 beyond 40 iterations at 0.3 ē). k runs over :data:`CHECKPOINTS` for each
-σ_r until ``patience`` counts in a row bring no lower estimate; the (σ_r, k) of the lowest estimate is kept.
-Unlike the discrepancy principle (``rule="discrepancy"``: the first k whose residual rms_i((q̂_i - x_i)·n_i)
-reaches ``discrepancy`` · σ_e / 0.29, the previous default), SURE weighs the noise removed against the shape
-removed, so it stops early on detailed scans and late on flat CAD faces. It costs two evaluations per (σ_r, k)
-(the probe), about 4x the discrepancy rule. Everything is vectorised (scipy.sparse, np.bincount).
+filter is far from linear: σ_r = 0.2 beyond 40 iterations at 0.3 ē). The (σ_r, k) of the lowest estimate is kept::
+
+    (σ_r*, k*) = argmin { SURE(σ_r, k) : σ_r ∈ candidates, k ∈ K(σ_r) ⊂ CHECKPOINTS }
+
+searched (``search="coarse"``, the default) without evaluating every checkpoint: (1) for each σ_r, SURE at the
+coarse counts :data:`COARSE` (1, 3, 6, 12, 25, 50, 100: about x2 apart, odd first since k and k + 1 share the
+ceil(k/2) re-filter of the reconstruction), one filter chain per σ_r continued from count to count, until
+``coarse_patience`` (2) coarse counts in a row bring no lower estimate; (2) the checkpoints strictly between
+the coarse counts on either side of that σ_r's lowest coarse estimate (around 12: 8, 10, 16, 20), the chain
+run on from its stored state at the lower one; first for the σ_r with the lowest coarse estimate, then for
+another only if its coarse estimate minus the largest gain a refinement brought is below the lowest so far.
+It assumes no lower dip between coarse counts than at them (the estimate is flat near its minimum, so the
+coarse counts alone are within ~1 % of it); ``search="exhaustive"`` (the rule before) evaluates every
+checkpoint in order until ``patience`` (3) in a row bring no lower estimate. The two agreed, same (σ_r, k), on
+the four benchmark meshes at 0.2-0.3 ē and on 18 small cases (plate with a hole, box, sphere; 0.2-0.3 ē,
+3 seeds; ``tests/geometry/test_denoise_search.py`` checks three of them against the full grid). Unlike the discrepancy principle
+(``rule="discrepancy"``: the first k whose residual rms_i((q̂_i - x_i)·n_i) reaches ``discrepancy`` · σ_e /
+0.29, the previous default), SURE weighs the noise removed against the shape removed, so it stops early on
+detailed scans and late on flat CAD faces. Each evaluation reconstructs twice (y and the probe). Everything
+is vectorised (scipy.sparse, np.take): a filter pass evaluates each symmetric pair of faces once,
+W = (S_u + S_uᵀ + I) diag(A) with S_u the strict upper part of W_s W_r; the vertex update is
+x_i <- (I - M_i) x_i + Σ_{f∋i} n_f (n_f·c_f) / |F_i| with M_i = Σ_{f∋i} n_f n_fᵀ / |F_i| fixed per call.
 Units: positions in metres; σ_r, σ_w dimensionless (distances between unit vectors).
 """
 
@@ -85,7 +101,9 @@ class NormalFilterSettings:
     max_normal_iterations: int = 100
     preserve_volume: bool = True
     rule: str = "sure"  # automatic stage-1 count: "sure" (face-tilt risk estimate) or "discrepancy"
-    patience: int = 3  # rule "sure": stop after this many checkpoints without a lower risk
+    search: str = "coarse"  # rule "sure": "coarse" (COARSE counts, then CHECKPOINTS near the lowest) or "exhaustive"
+    coarse_patience: int = 2  # search "coarse": stop after this many coarse counts without a lower risk
+    patience: int = 3  # search "exhaustive": stop after this many checkpoints without a lower risk
 
 
 # σ_e / σ_n of :func:`noise_scale` for i.i.d. random-direction vertex noise; bench_denoise.py --calibrate.
@@ -97,6 +115,8 @@ RULES = ("sure", "discrepancy")
 SURE_NOISE_FACTOR = 1.0
 EPS_FD = 0.1  # finite-difference step of the divergence probe, in units of the noise std
 CHECKPOINTS = (1, 2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 25, 30, 40, 50, 65, 80, 100)
+COARSE = (1, 3, 6, 12, 25, 50, 100)  # search "coarse": about x2 apart, a subset of CHECKPOINTS (odd first: k, k+1 share the re-run)
+SEARCHES = ("coarse", "exhaustive")
 
 
 def noise_scale(mesh: TriMesh) -> float:
@@ -174,23 +194,53 @@ def guidance(nf: np.ndarray, area: np.ndarray, ff: sparse.csr_matrix) -> np.ndar
     return mean[best]
 
 
+class FacePattern:
+    """The face graph of :func:`_face_graph` reduced to what every filter pass reuses: its entries (i, j) above
+    the diagonal, row-major. Both kernels are symmetric in (i, j) and the diagonal weight is the face's own
+    area, so W = (S_u + S_uᵀ + I) diag(A) with S_u the strict upper part: each pair is evaluated once."""
+
+    def __init__(self, ff: sparse.csr_matrix):
+        self.ff = ff
+        m = ff.shape[0]
+        rows = np.repeat(np.arange(m, dtype=ff.indices.dtype), np.diff(ff.indptr))
+        upper = rows < ff.indices
+        self.ru, self.cu = rows[upper], ff.indices[upper]
+        self.indptr = np.r_[0, np.cumsum(np.bincount(self.ru, minlength=m))].astype(ff.indptr.dtype)
+
+
+class Bilateral:
+    """Stage 1 on one surface (face areas, centroids): the spatial kernel on the pairs, fixed, and the upper
+    matrix S_u whose values each pass overwrites (:func:`filter_normals`)."""
+
+    def __init__(self, pattern: FacePattern, area: np.ndarray, cen: np.ndarray):
+        self.p = pattern
+        dc = np.take(cen, pattern.ru, axis=0)
+        dc -= np.take(cen, pattern.cu, axis=0)
+        d2 = np.einsum("ij,ij->i", dc, dc)
+        sig_s2 = float(np.sqrt(d2).mean()) ** 2 if len(d2) else 1.0  # mean centroid distance of neighbours
+        self.ws = np.exp(-d2 / (2.0 * sig_s2))
+        self.area = area
+        m = len(area)
+        self.su = sparse.csr_matrix((np.empty(len(d2)), pattern.cu, pattern.indptr), shape=(m, m))
+        self.sut = self.su.T  # a view: shares su's values
+
+    def run(self, nf: np.ndarray, sigma_r: float, iterations: int, guided: bool = False) -> np.ndarray:
+        p = self.p
+        for _ in range(int(iterations)):
+            g = guidance(nf, self.area, p.ff) if guided else nf
+            dg = np.take(g, p.ru, axis=0)
+            dg -= np.take(g, p.cu, axis=0)
+            self.su.data[:] = self.ws * np.exp(-np.einsum("ij,ij->i", dg, dg) / (2.0 * sigma_r**2))
+            x = self.area[:, None] * nf
+            nf = _unit(self.su @ x + self.sut @ x + x)
+        return nf
+
+
 def filter_normals(nf: np.ndarray, area: np.ndarray, cen: np.ndarray, ff: sparse.csr_matrix, sigma_r: float,
                    iterations: int, guided: bool = False) -> np.ndarray:
     """Stage 1: ``iterations`` bilateral filter passes over unit face normals (joint, on guidance normals, with
     ``guided``; module doc)."""
-    rows = np.repeat(np.arange(ff.shape[0]), np.diff(ff.indptr))
-    cols = ff.indices
-    dc = cen[rows] - cen[cols]
-    d2 = np.einsum("ij,ij->i", dc, dc)
-    off = rows != cols
-    sig_s2 = float(np.sqrt(d2[off]).mean()) ** 2 if off.any() else 1.0
-    base = area[cols] * np.exp(-d2 / (2.0 * sig_s2))
-    for _ in range(int(iterations)):
-        g = guidance(nf, area, ff) if guided else nf
-        dg = g[rows] - g[cols]
-        w = base * np.exp(-np.einsum("ij,ij->i", dg, dg) / (2.0 * sigma_r**2))
-        nf = _unit(sparse.csr_matrix((w, cols, ff.indptr), shape=ff.shape) @ nf)
-    return nf
+    return Bilateral(FacePattern(ff), area, cen).run(nf, sigma_r, iterations, guided)
 
 
 def update_vertices(q: np.ndarray, faces: np.ndarray, nf: np.ndarray, iterations: int) -> np.ndarray:
@@ -198,13 +248,15 @@ def update_vertices(q: np.ndarray, faces: np.ndarray, nf: np.ndarray, iterations
     npts = len(q)
     idx = faces.ravel()
     val = np.maximum(np.bincount(idx, minlength=npts), 1).astype(float)
+    # x_i <- (I - M_i) x_i + Σ_f G[i, f] n_f (n_f·c_f),  G[i, f] = 1/|F_i| (f ∋ i),  M_i = Σ_f G[i, f] n_f n_fᵀ
+    g = sparse.csr_matrix((1.0 / val[idx], (idx, np.repeat(np.arange(len(faces)), 3))), shape=(npts, len(faces)))
+    keep = (np.eye(3).ravel() - g @ (nf[:, :, None] * nf[:, None, :]).reshape(-1, 9)).T.copy()  # (9, npts)
+    nft, (f0, f1, f2), qt = nf.T.copy(), faces.T.copy(), q.T.copy()  # coordinates as rows: 1-D gathers
     for _ in range(int(iterations)):
-        cen = q[faces].mean(axis=1)
-        p = np.einsum("fd,fkd->fk", nf, cen[:, None, :] - q[faces]).ravel()  # n_f·(c_f - x_i) per corner
-        nrep = np.repeat(nf, 3, axis=0)
-        disp = np.stack([np.bincount(idx, weights=p * nrep[:, d], minlength=npts) for d in range(3)], axis=1)
-        q = q + disp / val[:, None]
-    return q
+        nc = sum(nft[d] * (qt[d][f0] + qt[d][f1] + qt[d][f2]) for d in range(3)) / 3.0  # n_f·c_f
+        pull = (g @ (nc[:, None] * nf)).T
+        qt = np.stack([keep[3 * d] * qt[0] + keep[3 * d + 1] * qt[1] + keep[3 * d + 2] * qt[2] for d in range(3)]) + pull
+    return np.ascontiguousarray(qt.T)
 
 
 def feature_weights(faces: np.ndarray, nf: np.ndarray, area: np.ndarray, src: np.ndarray, dst: np.ndarray,
@@ -239,7 +291,10 @@ def _check(st: NormalFilterSettings) -> None:
         raise PhysarError(f"sigma_r_candidates must be numbers > 0, got {st.sigma_r_candidates}")
     if st.rule not in RULES:
         raise PhysarError(f"rule must be one of {', '.join(RULES)}, got {st.rule!r}")
-    for name in ("normal_iterations", "smooth_iterations", "vertex_iterations", "max_normal_iterations", "patience"):
+    if st.search not in SEARCHES:
+        raise PhysarError(f"search must be one of {', '.join(SEARCHES)}, got {st.search!r}")
+    for name in ("normal_iterations", "smooth_iterations", "vertex_iterations", "max_normal_iterations", "patience",
+                 "coarse_patience"):
         v = getattr(st, name)
         if v is not None and (isinstance(v, bool) or int(v) != v or not 0 <= v <= 100_000):
             raise PhysarError(f"{name} must be an integer within 0..100000, got {v}")
@@ -292,21 +347,24 @@ def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None =
     origin = q0.mean(axis=0)
     _, v0, _ = ops.geometry((q0 - origin).astype(np.float32))
     src, dst = directed_edges(ops.edges)
-    ff = _face_graph(mesh)
+    pat = FacePattern(_face_graph(mesh))
     nf, area, cen = _face_geometry(q0, mesh.faces)
+    filt = Bilateral(pat, area, cen)
 
     def reconstruct(y: np.ndarray, nfk: np.ndarray, k: int, sr: float) -> np.ndarray:  # stages 2-3 after k
         w = feature_weights(mesh.faces, nfk, area, src, dst, len(y), st.sigma_w)
         q = taubin_weighted(y, w, st.smooth_iterations)
         n2, a2, c2 = _face_geometry(q, mesh.faces)  # stage 1 again, on the smoothed surface, ceil(k/2) times
-        n2 = filter_normals(n2, a2, c2, ff, sr, (k + 1) // 2, st.guided)
+        if k > 0:
+            n2 = Bilateral(pat, a2, c2).run(n2, sr, (k + 1) // 2, st.guided)
         return update_vertices(q, mesh.faces, n2, st.vertex_iterations)
 
-    counts = [c for c in CHECKPOINTS if c <= st.max_normal_iterations] or [st.max_normal_iterations]
+    cap = st.max_normal_iterations
+    counts = [c for c in CHECKPOINTS if c <= cap] or [cap]
     if st.normal_iterations is not None:
         k = st.normal_iterations
         sr = st.sigma_r if st.sigma_r is not None else st.sigma_r_candidates[-1]
-        q = reconstruct(q0, filter_normals(nf, area, cen, ff, sr, k, st.guided), k, sr)
+        q = reconstruct(q0, filt.run(nf, sr, k, st.guided), k, sr)
         if progress is not None:
             progress(st.normal_iterations, q)
     elif st.rule == "discrepancy":
@@ -314,7 +372,7 @@ def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None =
         q, done = q0, 0
         sr = st.sigma_r if st.sigma_r is not None else st.sigma_r_candidates[-1]
         for k in counts:
-            nf = filter_normals(nf, area, cen, ff, sr, k - done, st.guided)
+            nf = filt.run(nf, sr, k - done, st.guided)
             done = k
             q = reconstruct(q0, nf, k, sr)
             if progress is not None:
@@ -326,35 +384,74 @@ def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None =
         probe = np.random.default_rng(0).standard_normal(q0.shape)
         eps = EPS_FD * sigma
         sr0 = st.sigma_r if st.sigma_r is not None else max(st.sigma_r_candidates)
-        qref = reconstruct(q0, filter_normals(nf, area, cen, ff, sr0, 1, st.guided), 1, sr0)
+        qref = reconstruct(q0, filt.run(nf, sr0, 1, st.guided), 1, sr0)
         tilt = FaceTilt(mesh.faces, _face_geometry(qref, mesh.faces)[0])  # normals not those of the noisy input
         ap = tilt(probe)
         yp = q0 + eps * probe
         nfp0, areap, cenp = _face_geometry(yp, mesh.faces)
-        best, q = np.inf, q0
-        for sr in st.sigma_r_candidates if st.sigma_r is None else (st.sigma_r,):
-            nfk, nfp, done, since, low = nf, nfp0, 0, 0, np.inf
-            for k in counts:
-                nfk = filter_normals(nfk, area, cen, ff, sr, k - done, st.guided)
-                nfp = filter_normals(nfp, areap, cenp, ff, sr, k - done, st.guided)
-                done = k
-                qk = reconstruct(q0, nfk, k, sr)
-                qp = reconstruct(yp, nfp, k, sr)
-                if progress is not None:
-                    progress(k, qk)
-                risk = sure_tilt(tilt, q0, qk, qp, ap, eps, sigma)
+        filt_p = Bilateral(pat, areap, cenp)
+        best = {"risk": np.inf, "q": q0}
+
+        def advance(state: tuple, sr: float, k: int) -> tuple:  # (count, normals of y, normals of y + εb) at k
+            done, a, b = state
+            return k, filt.run(a, sr, k - done, st.guided), filt_p.run(b, sr, k - done, st.guided)
+
+        def evaluate(state: tuple, sr: float) -> float:  # SURE of the result after state[0] stage-1 passes
+            k, a, b = state
+            qk = reconstruct(q0, a, k, sr)
+            risk = sure_tilt(tilt, q0, qk, reconstruct(yp, b, k, sr), ap, eps, sigma)
+            if progress is not None:
+                progress(k, qk)
+            if info is not None:
+                info.setdefault("risk", []).append((sr, k, risk))
+            if risk < best["risk"]:
+                best.update(risk=risk, q=qk)
                 if info is not None:
-                    info.setdefault("risk", []).append((sr, k, risk))
-                if risk < best:
-                    best, q = risk, qk
-                    if info is not None:
-                        info.update(sigma_r=sr, normal_iterations=k)
-                if risk < low:
-                    low, since = risk, 0
+                    info.update(sigma_r=sr, normal_iterations=k)
+            return risk
+
+        def chain(sr: float, ks: list[int], patience: int, state: tuple) -> dict:
+            """Evaluate ks in order from state; stop after `patience` counts with no lower estimate. Returns
+            the lowest estimate, its count, the state at the count evaluated before it, and the count after."""
+            rec = {"risk": np.inf, "k": None, "before": state, "after": None}
+            since, prev = 0, state
+            for k in ks:
+                cur = advance(prev, sr, k)
+                r = evaluate(cur, sr)
+                if r < rec["risk"]:
+                    rec.update(risk=r, k=k, before=prev, after=None)
+                    since = 0
                 else:
+                    if rec["after"] is None:
+                        rec["after"] = k
                     since += 1
-                    if since >= st.patience:
+                    if since >= patience:
                         break
+                prev = cur
+            return rec
+
+        start = (0, nf, nfp0)
+        srs = st.sigma_r_candidates if st.sigma_r is None else (st.sigma_r,)
+        if st.search == "exhaustive":  # every checkpoint of CHECKPOINTS (the rule before the coarse search)
+            for sr in srs:
+                chain(sr, counts, st.patience, start)
+        else:  # coarse geometric counts for every σ_r, then the checkpoints around the lowest (module doc)
+            coarse = [c for c in COARSE if c <= cap] or [cap]
+            if coarse[-1] < cap:
+                coarse.append(cap)
+            recs = sorted((chain(sr, coarse, st.coarse_patience, start) | {"sr": sr} for sr in srs),
+                          key=lambda r: r["risk"])
+            gain = 0.0
+            for i, rec in enumerate(recs):
+                if i > 0 and rec["risk"] - gain >= best["risk"]:
+                    continue  # even the largest refinement gain seen so far would not make it the lowest
+                lo = rec["before"][0]
+                hi = rec["after"] if rec["after"] is not None else rec["k"] + 1
+                fine = [c for c in counts if lo < c < hi and c != rec["k"]]
+                if fine:
+                    low = chain(rec["sr"], fine, len(fine) + 1, rec["before"])["risk"]
+                    gain = max(gain, rec["risk"] - low)
+        q = best["q"]
     if st.preserve_volume and v0 is not None:
         n, vol, area_tot = ops.geometry((q - origin).astype(np.float32))
         if area_tot:
