@@ -23,7 +23,9 @@ markers' corners and the dots' positions in the object's frame. Each frame:
    The covariance of :math:`\mu` is the inverse Gauss-Newton matrix scaled by
    :math:`\max(1, \chi^2/\mathrm{dof})`. On a fresh start (first frame, after a loss) or when the residual is
    far above the recent ones, the parameter box is searched on a grid first (the cost is not convex in a load
-   position);
+   position); after a fresh start the dots are searched again, with the normal radius, where the estimate
+   puts them, and solved again while the residual falls (at most 3 times: the wide first search can take a
+   neighbouring dot for a dot);
 4. an interacting multiple model filter (:class:`physar.assimilation.filters.IMMFilter`) smooths the
    estimate with each frame's std;
 5. the overlay (:class:`physar.ar.surface.SurfaceOverlay`) draws the deformed surface coloured by the field.
@@ -369,6 +371,20 @@ class ProjectPipeline:
             valid = valid2                  # a wrong blob taken for a dot: solve without it
             n_dots = int(valid.sum())
             mu, std, pose, rms = self._solve(pe, px, valid, mu)
+        for _ in range(3 if self._fresh else 0):
+            # the wide search may have taken a neighbour for a dot: search again where the estimate puts them
+            X2 = self.dot_positions(mu)
+            vis2, r2 = self._expected(pose, X2)
+            pred2 = self.camera.project(X2, pose)
+            pred2[~vis2] = np.nan
+            px2, valid2 = find_dots(frame, gray, pred2, r2, self.colour, np.maximum(2.5 * r2, 4.0) +
+                                    self.project.tracking.search_px)
+            if valid2.sum() < self.project.tracking.min_dots:
+                break
+            out2 = self._solve(pe, px2, valid2, mu)
+            if not out2[3] < 0.9 * rms:
+                break
+            (mu, std, pose, rms), n_dots = out2, int(valid2.sum())
         med = np.median(self._res_hist[-30:]) if len(self._res_hist) >= 5 else np.inf
         if not self._fresh and rms > 4 * med:       # stuck in a local minimum, or a jump: search again
             mu2, std2, pose2, rms2 = self._solve(pe, px, valid, self._grid_start(pe.pose, px, valid))

@@ -3,6 +3,7 @@ a load moving along a curved path on its arm plus a sideways offset, markers on 
 wall, the table). Filmed by the general test-data renderer with truth on a mesh independent of the model's (the
 STL meshed again at 5 mm and refined 2x: 2.5 mm P2 tetrahedra that are not the model's 2.5 mm gmsh mesh); run
 by the same project pipeline as every other project."""
+import copy
 import shutil
 from pathlib import Path
 
@@ -11,8 +12,9 @@ import pytest
 
 from physar.ar.project import load_project
 from physar.ar.project_pipeline import ProjectPipeline
-from physar.synth import Scenario, render_project
+from physar.synth import Scenario, load_scenario, render_project
 from physar.synth.score import read_columns, score
+from physar.vision.camera import Camera
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "ar" / "bracket"
 
@@ -29,11 +31,10 @@ def bracket(tmp_path_factory):
 
 def test_bracket_load_position_along_the_curved_path(bracket, tmp_path):
     """1.6 s at 1280x720: the load dwells at s = 100 mm, moves to 60 mm and dwells, 4 mm off the path. Every
-    frame's position within 3 % of the 128 mm path of the truth, the median within 1 % (measured: the model's
-    5 mm mesh is 0.8 % stiffer than the truth, which alone biases s by about 0.7 mm; the offset is weakly
-    observable and correlated with s; the filter lags at the start of a move). Catches: the polyline path read as its chord
-    (its arc length is asserted), a position off by more than 3.8 mm anywhere (a wrong path point, a pose error), a
-    lost track, the offset's sign flipped (below)."""
+    frame's position within 1 % of the 128 mm path of the truth, the median within 0.5 %. Catches: the polyline
+    path read as its chord (its arc length is asserted), a position off by more than 1.28 mm anywhere (a wrong
+    path point, a pose error, a model mesh too coarse: the former 5 mm mesh was 0.8 % stiffer than the truth,
+    which alone biased s by about 0.7 mm), a lost track, the offset's sign flipped (below)."""
     p = bracket
     sc = Scenario.model_validate({
         "seed": 5, "video": {"duration": 1.6},
@@ -56,3 +57,22 @@ def test_bracket_load_position_along_the_curved_path(bracket, tmp_path):
     # catches the offset direction flipped in the model or the truth (the estimate would sit near -3 mm)
     o = read_columns(tmp_path / "est.csv")["o_est"]
     assert abs(np.median(o) - 0.004) < 0.0025, np.median(o)
+
+
+def test_first_frame_at_half_size_finds_its_dots(bracket, tmp_path):
+    """The first frame searches the dots far from their predicted pixels (the load may be anywhere); at 640x360
+    the bracket's dots are 11-17 px apart, so that wide search takes a neighbouring dot for four of the 17 dots
+    and the solve settles 32-45 mm short of the truth. The dots searched again where that estimate puts them,
+    and solved again, give the truth's position (measured 0.6-0.9 mm). The example's scenario (its camera,
+    texture, light) at half size, 0.3 s, truth on the STL meshed at 5 mm and refined 2x. Catches: no second
+    search, a second search still with the wide radius, a second search whose solve is not kept."""
+    base = load_scenario(EXAMPLE / "scenario.toml", bracket)
+    sc = base.model_copy(update={"video": base.video.model_copy(update={"duration": 0.3}),
+                                 "truth": base.truth.model_copy(update={"mesh_size": 0.005})})
+    render_project(bracket, sc, tmp_path / "clip", quick=True)
+    p = copy.copy(bracket)
+    p.camera = Camera.load(tmp_path / "clip" / "camera.toml")
+    assert p.camera.width == 640
+    ProjectPipeline(p, overlay=False).run(tmp_path / "clip" / "video.mp4", out_csv=tmp_path / "est.csv")
+    est, truth = read_columns(tmp_path / "est.csv"), read_columns(tmp_path / "clip" / "truth.csv")
+    assert abs(est["s_est"][0] - truth["s_true"][0]) <= 0.01 * 0.1278, (est["s_est"][0], truth["s_true"][0])
