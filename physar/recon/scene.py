@@ -1,15 +1,20 @@
 """Scene geometry shared by the synthetic generator and the reconstruction (seed 002, §4.1-4.2, §5.1).
 
-A scene is a procedural capsule humanoid (:func:`physar.skinning.procedural_humanoid`) whose right forearm
-presses, squeezes or lifts a soft object lying on a support.  World frame: z up, metres.  The MPM domain is the
+A scene is a body (:class:`physar.skinning.Body`, chosen by ``scene.json`` ``body.model``: ``capsule``, the
+procedural capsule humanoid of the synthetic scenes and of scenes written before the field existed; ``anny``, the
+default for imported real data; ``smpl:PATH``, a user's SMPL / SMPL-X model file; :func:`load_body`) acting on
+a soft object lying on a support (in the synthetic scenes the capsule figure's right forearm presses, squeezes or
+lifts it).  World frame: z up, metres.  The MPM domain is the
 cube [0, size]^3 of simulation coordinates x_sim = x_world - origin; its face z = 0 is the support.  The
 object's canonical (rest) shape is a union of axis-aligned boxes (``scene.json`` field
 ``object.boxes = [[min, max], ...]``; ``object.min``/``object.max`` are their bounding box, the only fields of a
 single-box scene written before the union existed); :func:`object_points` samples it for both the generator
 (fine ground truth) and the reconstruction.  The bones listed in ``simulated_bones`` are MPM particles actuated
 by the gated PD controller of Eq. (6)-(7) towards their LBS trajectory (Eq. 1); the other bones are rendered
-kinematically by LBS only.  Pose sequences are stored as local joint rotations (F, B, 3, 3) and a root
-translation (F, 3) (``poses.npz``).
+kinematically by LBS only.  A bone's particles are the lattice points inside the body that it owns
+(:meth:`physar.skinning.Body.lattice_points`: inside its capsule for the capsule figure, inside the mesh and
+nearest to the bone's vertices for a mesh body).  Pose sequences are stored as local joint rotations
+(F, B, 3, 3) and a root translation (F, 3) (``poses.npz``).
 """
 
 from __future__ import annotations
@@ -19,14 +24,41 @@ import math
 import numpy as np
 import torch
 
-from physar.errors import ConfigError
-from physar.skinning import CapsuleBody, procedural_humanoid, segment_distance
+from physar.errors import ConfigError, PhysarError
+from physar.skinning import (
+    Body,
+    CapsuleBody,
+    box_distance,  # noqa: F401 - re-exported, the recon modules' historical name
+    procedural_humanoid,
+)
+from physar.skinning import load_body as _load_body
 
 FORMAT_VERSION = 1
 
 
 def humanoid(height: float) -> CapsuleBody:
+    """The procedural capsule figure (float64) of the synthetic scenes."""
     return procedural_humanoid(height, dtype=torch.float64)
+
+
+def body_model(meta: dict) -> str:
+    """``scene.json`` ``body.model``: ``capsule`` when absent (scenes written before the field)."""
+    return str(meta["body"].get("model", "capsule"))
+
+
+def load_body(meta: dict, where: str = "scene.json") -> Body:
+    """The scene's body (``body.model``, ``body.height``) as a :class:`physar.skinning.Body`; one-line
+    ConfigError naming the field on a bad value."""
+    b = meta.get("body")
+    if not isinstance(b, dict):
+        raise ConfigError(f"{where}: field 'body' must be a table with model and height")
+    model, height = b.get("model", "capsule"), b.get("height")
+    if not isinstance(height, (int, float)) or isinstance(height, bool):
+        raise ConfigError(f"{where}: body.height = {height!r} must be a number (m)")
+    try:
+        return _load_body(model, float(height), f"{where}: body.model")
+    except PhysarError as e:
+        raise ConfigError(str(e)) from None
 
 
 def rot_y(a: np.ndarray) -> np.ndarray:
@@ -82,49 +114,36 @@ def check_poses(poses: dict, n_bones: int, name: str = "poses") -> tuple[np.ndar
     return r, t
 
 
-def bone_transforms(body: CapsuleBody, rotations: np.ndarray, root: np.ndarray) -> torch.Tensor:
+def bone_transforms(body: Body, rotations: np.ndarray, root: np.ndarray) -> torch.Tensor:
     """Skinning transforms B_k (F, B, 4, 4) of Eq. 1 for a pose sequence."""
-    sk = body.skeleton
-    glob = sk.pose(torch.as_tensor(rotations, dtype=torch.float64), torch.as_tensor(root, dtype=torch.float64))
-    return sk.bone_transforms(glob)
+    return body.bone_transforms(torch.as_tensor(rotations, dtype=torch.float64),
+                                torch.as_tensor(root, dtype=torch.float64))
 
 
-def skin_sequence(body: CapsuleBody, points: np.ndarray, rotations: np.ndarray, root: np.ndarray):
-    """LBS (Eq. 1) of rest points (N, 3) over a pose sequence: positions (F, N, 3) and A_rot (F, N, 3, 3)."""
+def skin_sequence(body: Body, points: np.ndarray, rotations: np.ndarray, root: np.ndarray):
+    r"""LBS (Eq. 1) of rest points (N, 3) over a pose sequence: :math:`A^i = \sum_k W_k^i B_k`,
+    :math:`\mu^i = A^i_\text{rot} X^i + A^i_t`; positions (F, N, 3) and A_rot (F, N, 3, 3). Dense (capsule) or
+    sparse (mesh body: the nearest vertex's weights) skinning weights."""
     X = torch.as_tensor(points, dtype=torch.float64)
     W = body.skinning_weights(X)
     B = bone_transforms(body, rotations, root)  # (F, B, 4, 4)
-    A = torch.einsum("nk,fkij->fnij", W, B)
+    if isinstance(W, tuple):
+        idx, w = W[0], W[1].double()
+        A = torch.stack([(w[..., None, None] * Bf[idx]).sum(-3) for Bf in B]) if len(B) else B[:, :0]
+    else:
+        A = torch.einsum("nk,fkij->fnij", W.double(), B)
     mu = (A[..., :3, :3] @ X[None, :, :, None])[..., 0] + A[..., :3, 3]
     return mu.numpy(), A[..., :3, :3].numpy()
 
 
-def box_distance(points: np.ndarray, lo, hi) -> np.ndarray:
-    """Euclidean distance (m) from points (..., 3) to the axis-aligned box [lo, hi] (0 inside)."""
-    d = np.maximum(np.maximum(np.asarray(lo) - points, 0.0), points - np.asarray(hi))
-    return np.linalg.norm(d, axis=-1)
-
-
-def reaching_bones(body: CapsuleBody, rotations: np.ndarray, root: np.ndarray, boxes, margin: float,
-                   samples: int = 17) -> list[str]:
-    """Bones whose capsule, posed rigidly by its own bone transform B_k (the LBS of Eq. 1 where W_k = 1) over the
-    pose sequence, comes within ``margin`` (m) of the object's boxes [(min, max), ...] in some frame: the bones
-    whose LBS impact reaches the object (seed 002 §4.2), which the reconstruction simulates and actuates (both
-    hands when both touch).  The axis is sampled at ``samples`` points; skeleton order."""
-    B = bone_transforms(body, rotations, root).numpy()  # (F, K, 4, 4)
-    s = np.linspace(0.0, 1.0, samples)[:, None]
-    out = []
-    for k, name in enumerate(body.skeleton.names):
-        r = float(body.radii[k])
-        if r <= 0:
-            continue
-        a, b = body.heads[k].numpy(), body.tails[k].numpy()
-        P = a + s * (b - a)  # (S, 3) rest axis
-        Pw = np.einsum("fij,sj->fsi", B[:, k, :3, :3], P) + B[:, k, None, :3, 3]
-        d = min(float(box_distance(Pw, lo, hi).min()) for lo, hi in boxes)
-        if d - r <= margin:
-            out.append(name)
-    return out
+def reaching_bones(body: Body, rotations: np.ndarray, root: np.ndarray, boxes, margin: float) -> list[str]:
+    """Bones whose skinned surface comes within ``margin`` (m) of the object's boxes [(min, max), ...] in some frame
+    of the pose sequence (:meth:`physar.skinning.Body.clearance`: the capsule posed rigidly by its own B_k for the
+    capsule figure, the bone's own vertices skinned by Eq. 1 for a mesh body): the bones whose LBS impact reaches
+    the object (seed 002 §4.2), which the reconstruction simulates and actuates (both hands when both touch).
+    Skeleton order."""
+    d = body.clearance(bone_transforms(body, rotations, root), boxes)
+    return [name for name, dk in zip(body.skeleton.names, d.tolist()) if dk <= margin]
 
 
 def central_velocities(x: np.ndarray, dt: float) -> np.ndarray:
@@ -146,19 +165,15 @@ def lattice_box(lo, hi, h: float) -> tuple[np.ndarray, float]:
     return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3), float(np.prod(step))
 
 
-def capsule_points(body: CapsuleBody, bones: list[str], h: float, exclude: list[str] = ()) -> np.ndarray:
-    """Rest-pose lattice points (spacing h) inside the capsules of ``bones`` and outside those of ``exclude``."""
-    idx = [body.skeleton.index(b) for b in bones]
-    heads, tails, radii = body.heads[idx], body.tails[idx], body.radii[idx]
-    lo = torch.minimum(heads, tails).min(0).values - radii.max()
-    hi = torch.maximum(heads, tails).max(0).values + radii.max()
-    axes = [torch.arange(float(lo[i]) + h / 2, float(hi[i]), h, dtype=torch.float64) for i in range(3)]
-    P = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    keep = (segment_distance(P, heads, tails) < radii).any(1)
-    if exclude:
-        ex = [body.skeleton.index(b) for b in exclude]
-        keep &= ~(segment_distance(P, body.heads[ex], body.tails[ex]) < body.radii[ex]).any(1)
-    return P[keep].numpy()
+def body_points(body: Body, bones: list[str], h: float, exclude: list[str] = ()) -> np.ndarray:
+    """Rest-pose lattice points (spacing h) of the body owned by ``bones`` and not by ``exclude``
+    (:meth:`physar.skinning.Body.lattice_points`)."""
+    if not bones:
+        return np.zeros((0, 3))
+    return body.lattice_points(bones, h, exclude)
+
+
+capsule_points = body_points  # the name the reconstruction's rig calls
 
 
 def object_box(meta: dict) -> tuple[np.ndarray, np.ndarray]:

@@ -311,8 +311,8 @@ def scene_meta(cfg: SynthConfig) -> dict:
         "fps": cfg.fps, "frames": cfg.frames, "n_obs": cfg.n_obs, "novel_frames": cfg.novel_frames,
         "camera": S.look_at(eye, centre, cfg.fov_deg, cfg.image_size, cfg.image_size),
         "background": [0.3, 0.3, 0.35],
-        "body": {"kind": "procedural_humanoid", "height": cfg.height, "simulated_bones": ["forearm.R"],
-                 "E": cfg.human_E, "density": cfg.human_density},
+        "body": {"model": "capsule", "kind": "procedural_humanoid", "height": cfg.height,
+                 "simulated_bones": ["forearm.R"], "E": cfg.human_E, "density": cfg.human_density},
         "object": {"shape": "box" if len(lay["boxes"]) == 1 else "box_union", "kind": cfg.object,
                    "action": cfg.action, "min": lay["object_min"].tolist(), "max": lay["object_max"].tolist(),
                    "boxes": [[lo.tolist(), hi.tolist()] for lo, hi in lay["boxes"]], "parts": PARTS[cfg.object],
@@ -357,7 +357,7 @@ def simulate_clip(cfg: SynthConfig, meta: dict, body, poses: dict, progress=None
     h = dx / round(cfg.gt_particles_per_cell ** (1 / 3))
     Xo, vol_o = S.object_points(meta, h)
     E, fib, fib_E, part = object_material(cfg, meta, Xo)
-    Xh = S.capsule_points(body, meta["body"]["simulated_bones"], h)
+    Xh = S.body_points(body, meta["body"]["simulated_bones"], h)
     rot, root = S.check_poses(poses, body.skeleton.n_bones)
     ref, _ = S.skin_sequence(body, Xh, rot, root)
     _check_in_domain(meta, "the forearm", ref)
@@ -406,8 +406,8 @@ def _render_clip(cfg, meta, body, poses, xo, xh, Xo, h, out_dir: Path):
     res = cfg.image_size
     col_o = _checker(Xo - Xo.min(0), 0.04, (0.85, 0.35, 0.3), (0.95, 0.85, 0.55))
     sim_bones = meta["body"]["simulated_bones"]
-    Xb = S.capsule_points(body, [b for b, r in zip(body.skeleton.names, body.radii.tolist()) if r > 0
-                                 and b not in sim_bones], cfg.body_spacing, exclude=sim_bones)
+    Xb = S.body_points(body, [b for b in body.volume_bones() if b not in sim_bones], cfg.body_spacing,
+                       exclude=sim_bones)
     rot, root = S.check_poses(poses, body.skeleton.n_bones)
     xb, _ = S.skin_sequence(body, Xb, rot, root)
     skin = np.array([0.55, 0.6, 0.85])  # a blue sleeve for the kinematic body
@@ -463,7 +463,7 @@ def generate(out_dir: str | Path, cfg: SynthConfig | None = None,
             sim = meta["sim"]
             h = sim["size"] / sim["resolution"] / round(cfg.gt_particles_per_cell ** (1 / 3))
             Xo, _ = S.object_points(meta, h)
-            Xh = S.capsule_points(body, meta["body"]["simulated_bones"], h)
+            Xh = S.body_points(body, meta["body"]["simulated_bones"], h)
             xh, _ = S.skin_sequence(body, Xh, sp["rotations"], sp["root_translation"])
             _render_clip(cfg, meta, body, sp, np.broadcast_to(Xo, (cfg.spin_frames, *Xo.shape)), xh, Xo, h,
                          tmp / "spin")

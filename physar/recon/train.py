@@ -201,7 +201,7 @@ def load_dataset(path: str | Path, with_truth: bool = True) -> Dataset:
             raise ConfigError(f"{sj}: missing field '{key}'")
     if meta.get("format_version") != S.FORMAT_VERSION:
         raise ConfigError(f"{sj}: format_version {meta.get('format_version')} (expected {S.FORMAT_VERSION})")
-    body = S.humanoid(meta["body"]["height"])
+    body = S.load_body(meta, str(sj))
     nb = body.skeleton.n_bones
     rot, rt = S.check_poses(_npz(root / "poses.npz"), nb, str(root / "poses.npz"))
     n = len(rot)
@@ -254,7 +254,7 @@ class Rig:
             raise ConfigError(f"train.particles_per_cell = {cfg.particles_per_cell} must be 1, 8, 27 or 64")
         self.cfg = cfg
         sim = meta["sim"]
-        self.body = S.humanoid(meta["body"]["height"])
+        self.body = S.load_body(meta)
         self.origin = np.asarray(sim["origin"], dtype=np.float64)
         dx = sim["size"] / sim["resolution"]
         self.h = h = dx / k
@@ -280,7 +280,7 @@ class Rig:
         self.cam = Camera(c["fx"], c["fy"], c["cx"], c["cy"], int(c["width"]), int(c["height"]),
                           torch.tensor(c["R"], dtype=torch.float32), torch.tensor(c["t"], dtype=torch.float32))
         self.background = torch.tensor(meta.get("background", [0.0, 0.0, 0.0]), dtype=torch.float32)
-        names = [b for b, r in zip(self.body.skeleton.names, self.body.radii.tolist()) if r > 0 and b not in bones]
+        names = [b for b in self.body.volume_bones() if b not in bones]
         Xb = S.capsule_points(self.body, names, cfg.body_spacing, exclude=bones)
         self.Xb = Xb[self._in_view(Xb)]
         self.nb = len(self.Xb)

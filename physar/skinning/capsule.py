@@ -8,13 +8,20 @@ distances d_k(x) to the bone segments: W_k(x) = softmax_k(-d_k(x)^2 / (2 sigma^2
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
 from physar.errors import PhysarError
-from physar.skinning.lbs import lbs
+from physar.skinning.base import Body, boxes_distance
 from physar.skinning.skeleton import Skeleton, rigid
+
+#: bone of :func:`procedural_humanoid` <- SMPL joint whose rotation it takes (its rest pose is SMPL's T-pose)
+HUMANOID_SMPL_MAP = {"root": "pelvis", "pelvis": "pelvis", "spine": "spine3", "head": "head",
+                     "upperarm.L": "left_shoulder", "forearm.L": "left_elbow",
+                     "upperarm.R": "right_shoulder", "forearm.R": "right_elbow",
+                     "thigh.L": "left_hip", "shin.L": "left_knee", "thigh.R": "right_hip", "shin.R": "right_knee"}
 
 
 def segment_distance(points: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -27,14 +34,17 @@ def segment_distance(points: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> 
 
 
 @dataclass
-class CapsuleBody:
-    """Skeleton + one capsule (head, tail, radius) per bone; radius 0 = bone without volume."""
+class CapsuleBody(Body):
+    """Skeleton + one capsule (head, tail, radius) per bone; radius 0 = bone without volume
+    (:class:`physar.skinning.Body`)."""
 
     skeleton: Skeleton
     heads: torch.Tensor  # (B, 3) m
     tails: torch.Tensor  # (B, 3) m
     radii: torch.Tensor  # (B,) m
     sigma: float = 0.05  # m, width of the skinning-weight falloff
+    smpl_map: dict = field(default_factory=dict)  # bone <- SMPL joint (retargeting)
+    tpose: dict = field(default_factory=dict)  # bone -> (end bone, T-pose direction): none, the rest is a T
 
     def __post_init__(self) -> None:
         b = self.skeleton.n_bones
@@ -66,6 +76,47 @@ class CapsuleBody:
         logits = torch.where(act[None], logits, torch.full_like(logits, -torch.inf))
         return torch.softmax(logits, dim=-1)
 
+    def owner(self, points: torch.Tensor) -> torch.Tensor:
+        """(N,) long: bone of largest weight (the nearest capsule axis among bones with volume)."""
+        return self.skinning_weights(points).argmax(-1)
+
+    def volume_bones(self) -> list[str]:
+        """Bones with a capsule (radius > 0)."""
+        return [b for b, r in zip(self.skeleton.names, self.radii.tolist()) if r > 0]
+
+    def lattice_points(self, bones, h: float, exclude=()) -> np.ndarray:
+        """Rest-pose lattice points (spacing h, from the bones' bounding box) inside the capsules of ``bones`` and
+        outside those of ``exclude``."""
+        idx = [self.skeleton.index(b) for b in bones]
+        heads, tails, radii = self.heads[idx].double(), self.tails[idx].double(), self.radii[idx].double()
+        lo = torch.minimum(heads, tails).min(0).values - radii.max()
+        hi = torch.maximum(heads, tails).max(0).values + radii.max()
+        axes = [torch.arange(float(lo[i]) + h / 2, float(hi[i]), h, dtype=torch.float64) for i in range(3)]
+        P = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        keep = (segment_distance(P, heads, tails) < radii).any(1)
+        if exclude:
+            ex = [self.skeleton.index(b) for b in exclude]
+            keep &= ~(segment_distance(P, self.heads[ex].double(), self.tails[ex].double())
+                      < self.radii[ex].double()).any(1)
+        return P[keep].numpy()
+
+    def clearance(self, bone_transforms: torch.Tensor, boxes, samples: int = 17) -> np.ndarray:
+        r"""Per bone, :math:`\min_{f, s} d(B_k^f a_k(s), 	ext{boxes}) - r_k` (m): the capsule posed rigidly by its
+        own transform (the LBS of Eq. 1 where :math:`W_k = 1`), its axis :math:`a_k(s)` sampled at ``samples``
+        points; inf for bones without volume."""
+        B = bone_transforms.detach().double().cpu().numpy()  # (F, K, 4, 4)
+        s = np.linspace(0.0, 1.0, samples)[:, None]
+        out = np.full(self.skeleton.n_bones, np.inf)
+        for k in range(self.skeleton.n_bones):
+            r = float(self.radii[k])
+            if r <= 0:
+                continue
+            a, b = self.heads[k].double().numpy(), self.tails[k].double().numpy()
+            P = a + s * (b - a)  # (S, 3) rest axis
+            Pw = np.einsum("fij,sj->fsi", B[:, k, :3, :3], P) + B[:, k, None, :3, 3]
+            out[k] = float(boxes_distance(Pw, boxes).min()) - r
+        return out
+
     def sample_volume(self, n: int, generator: torch.Generator | None = None,
                       dtype: torch.dtype = torch.float32) -> torch.Tensor:
         """``n`` points uniformly distributed inside the body (rejection sampling in the bounding box)."""
@@ -80,12 +131,6 @@ class CapsuleBody:
             out.append(p)
             have += p.shape[0]
         return torch.cat(out)[:n]
-
-    def pose_points(self, points: torch.Tensor, rotations: torch.Tensor,
-                    root_translation: torch.Tensor | None = None) -> torch.Tensor:
-        """Rest points (N, 3) skinned to the pose (local joint rotations (B, 3, 3)) by Eq. 1."""
-        B = self.skeleton.bone_transforms(self.skeleton.pose(rotations, root_translation))
-        return lbs(points, self.skinning_weights(points), B.to(points.dtype))[0]
 
 
 def procedural_humanoid(height: float = 1.7, dtype: torch.dtype = torch.float32) -> CapsuleBody:
@@ -114,4 +159,5 @@ def procedural_humanoid(height: float = 1.7, dtype: torch.dtype = torch.float32)
     tails = torch.tensor([b[3] for b in bones], dtype=dtype)
     rest = rigid(torch.eye(3, dtype=dtype).expand(len(bones), 3, 3), heads)
     sk = Skeleton(torch.tensor([b[1] for b in bones]), rest, [b[0] for b in bones])
-    return CapsuleBody(sk, heads, tails, torch.tensor([b[4] * h for b in bones], dtype=dtype), sigma=0.05 * h)
+    return CapsuleBody(sk, heads, tails, torch.tensor([b[4] * h for b in bones], dtype=dtype), sigma=0.05 * h,
+                       smpl_map=dict(HUMANOID_SMPL_MAP))
