@@ -54,21 +54,22 @@ filter is far from linear: σ_r = 0.2 beyond 40 iterations at 0.3 ē). The (σ_r
 
     (σ_r*, k*) = argmin { SURE(σ_r, k) : σ_r ∈ candidates, k ∈ K(σ_r) ⊂ CHECKPOINTS }
 
-searched (``search="coarse"``, the default) without evaluating every checkpoint: (1) for each σ_r, SURE at the
-coarse counts :data:`COARSE` (1, 3, 6, 12, 25, 50, 100: about x2 apart, odd first since k and k + 1 share the
-ceil(k/2) re-filter of the reconstruction), one filter chain per σ_r continued from count to count, until
-``coarse_patience`` (2) coarse counts in a row bring no lower estimate; (2) the checkpoints strictly between
-the coarse counts on either side of that σ_r's lowest coarse estimate (around 12: 8, 10, 16, 20), the chain
-run on from its stored state at the lower one; first for the σ_r with the lowest coarse estimate, then for
-another only if its coarse estimate minus the largest gain a refinement brought is below the lowest so far.
-It assumes no lower dip between coarse counts than at them (the estimate is flat near its minimum, so the
-coarse counts alone are within ~1 % of it); ``search="exhaustive"`` (the rule before) evaluates every
-checkpoint in order until ``patience`` (3) in a row bring no lower estimate. The two agreed, same (σ_r, k), on
-the four benchmark meshes at 0.2-0.3 ē and on 18 small cases (plate with a hole, box, sphere; 0.2-0.3 ē,
-3 seeds; ``tests/geometry/test_denoise_search.py`` checks three of them against the full grid). Unlike the discrepancy principle
-(``rule="discrepancy"``: the first k whose residual rms_i((q̂_i - x_i)·n_i) reaches ``discrepancy`` · σ_e /
-0.29, the previous default), SURE weighs the noise removed against the shape removed, so it stops early on
-detailed scans and late on flat CAD faces. Each evaluation reconstructs twice (y and the probe). Everything
+with K(σ_r) the counts that the previous rule's walk (``search="exhaustive"``) evaluates: every checkpoint in
+order until ``patience`` (3) in a row bring no lower estimate. The default (``search="coarse"``)
+makes the same walk with fewer evaluations: (1) SURE at the coarse counts :data:`COARSE` (1, 3, 6, 12, 25, 50,
+100: about x2 apart, odd first since k and k + 1 share the ceil(k/2) re-filter of the reconstruction) while
+each one lowers the estimate, one filter chain continued from count to count; (2) from the coarse count before
+the lowest one, the previous rule's walk over the checkpoints, the chain run on from the state stored there
+and the coarse counts it passes not evaluated again. Where the estimate falls through the coarse counts
+skipped in (1) (at most two checkpoints lie between two coarse counts, so three in a row without a lower
+estimate cannot hide there unless one of them is below the next coarse count), the two searches take the
+same (σ_r, k); they did on the four benchmark meshes at 0.2-0.3 ē, the calibration meshes and 18 small cases
+(plate with a hole, box, sphere; 0.2-0.3 ē, 3 seeds), with 18-22 evaluations of SURE where the previous one
+made 23-36 (``tests/geometry/test_denoise_search.py`` checks three of them against the full grid). On flat
+and smooth shapes, where both run to the cap of 100, that is 9 counts per σ_r instead of 18. Unlike the
+discrepancy principle (``rule="discrepancy"``: the first k whose residual rms_i((q̂_i - x_i)·n_i) reaches
+``discrepancy`` · σ_e / 0.29, the default before SURE), SURE weighs the noise removed against the shape
+removed, so it stops early on detailed scans and late on flat CAD faces. Each evaluation reconstructs twice (y and the probe). Everything
 is vectorised (scipy.sparse, np.take): a filter pass evaluates each symmetric pair of faces once,
 W = (S_u + S_uᵀ + I) diag(A) with S_u the strict upper part of W_s W_r; the vertex update is
 x_i <- (I - M_i) x_i + Σ_{f∋i} n_f (n_f·c_f) / |F_i| with M_i = Σ_{f∋i} n_f n_fᵀ / |F_i| fixed per call.
@@ -102,8 +103,7 @@ class NormalFilterSettings:
     preserve_volume: bool = True
     rule: str = "sure"  # automatic stage-1 count: "sure" (face-tilt risk estimate) or "discrepancy"
     search: str = "coarse"  # rule "sure": "coarse" (COARSE counts, then CHECKPOINTS near the lowest) or "exhaustive"
-    coarse_patience: int = 2  # search "coarse": stop after this many coarse counts without a lower risk
-    patience: int = 3  # search "exhaustive": stop after this many checkpoints without a lower risk
+    patience: int = 3  # rule "sure": stop after this many checkpoints in a row without a lower risk
 
 
 # σ_e / σ_n of :func:`noise_scale` for i.i.d. random-direction vertex noise; bench_denoise.py --calibrate.
@@ -293,8 +293,7 @@ def _check(st: NormalFilterSettings) -> None:
         raise PhysarError(f"rule must be one of {', '.join(RULES)}, got {st.rule!r}")
     if st.search not in SEARCHES:
         raise PhysarError(f"search must be one of {', '.join(SEARCHES)}, got {st.search!r}")
-    for name in ("normal_iterations", "smooth_iterations", "vertex_iterations", "max_normal_iterations", "patience",
-                 "coarse_patience"):
+    for name in ("normal_iterations", "smooth_iterations", "vertex_iterations", "max_normal_iterations", "patience"):
         v = getattr(st, name)
         if v is not None and (isinstance(v, bool) or int(v) != v or not 0 <= v <= 100_000):
             raise PhysarError(f"{name} must be an integer within 0..100000, got {v}")
@@ -410,47 +409,43 @@ def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None =
                     info.update(sigma_r=sr, normal_iterations=k)
             return risk
 
-        def chain(sr: float, ks: list[int], patience: int, state: tuple) -> dict:
-            """Evaluate ks in order from state; stop after `patience` counts with no lower estimate. Returns
-            the lowest estimate, its count, the state at the count evaluated before it, and the count after."""
-            rec = {"risk": np.inf, "k": None, "before": state, "after": None}
-            since, prev = 0, state
+        def walk(sr: float, ks: list[int], patience: int, state: tuple, known: dict | None = None,
+                 low: float = np.inf) -> tuple[list, bool]:
+            """Evaluate ks in order from state (the estimates and states of `known` {k: (estimate, state)}
+            reused), until `patience` counts in a row bring no estimate below `low` and the lower ones found.
+            Returns the last three (k, estimate, state) and whether it stopped before the end of ks."""
+            seen, since, cur = [], 0, state
             for k in ks:
-                cur = advance(prev, sr, k)
-                r = evaluate(cur, sr)
-                if r < rec["risk"]:
-                    rec.update(risk=r, k=k, before=prev, after=None)
-                    since = 0
+                if known and k in known:
+                    r, cur = known[k]
                 else:
-                    if rec["after"] is None:
-                        rec["after"] = k
+                    cur = advance(cur, sr, k)
+                    r = evaluate(cur, sr)
+                seen = [*seen[-2:], (k, r, cur)]
+                if r < low:
+                    low, since = r, 0
+                else:
                     since += 1
                     if since >= patience:
-                        break
-                prev = cur
-            return rec
+                        return seen, True
+            return seen, False
 
         start = (0, nf, nfp0)
         srs = st.sigma_r_candidates if st.sigma_r is None else (st.sigma_r,)
-        if st.search == "exhaustive":  # every checkpoint of CHECKPOINTS (the rule before the coarse search)
-            for sr in srs:
-                chain(sr, counts, st.patience, start)
-        else:  # coarse geometric counts for every σ_r, then the checkpoints around the lowest (module doc)
-            coarse = [c for c in COARSE if c <= cap] or [cap]
-            if coarse[-1] < cap:
-                coarse.append(cap)
-            recs = sorted((chain(sr, coarse, st.coarse_patience, start) | {"sr": sr} for sr in srs),
-                          key=lambda r: r["risk"])
-            gain = 0.0
-            for i, rec in enumerate(recs):
-                if i > 0 and rec["risk"] - gain >= best["risk"]:
-                    continue  # even the largest refinement gain seen so far would not make it the lowest
-                lo = rec["before"][0]
-                hi = rec["after"] if rec["after"] is not None else rec["k"] + 1
-                fine = [c for c in counts if lo < c < hi and c != rec["k"]]
-                if fine:
-                    low = chain(rec["sr"], fine, len(fine) + 1, rec["before"])["risk"]
-                    gain = max(gain, rec["risk"] - low)
+        coarse = [c for c in COARSE if c <= cap] or [cap]
+        if coarse[-1] < cap:
+            coarse.append(cap)
+        for sr in srs:
+            if st.search == "exhaustive":  # every checkpoint in order (the rule before the coarse search)
+                walk(sr, counts, st.patience, start)
+                continue
+            # coarse counts while each lowers the estimate, then the same walk from the coarse count before the
+            # lowest one, reusing the coarse counts it passes (module doc)
+            seen, rose = walk(sr, coarse, 1, start)
+            lowest = len(seen) - (2 if rose else 1)
+            lo_k, lo_r, lo_state = seen[lowest - 1] if lowest > 0 else (0, np.inf, start)
+            known = {k: (r, state) for k, r, state in seen[lowest:]}
+            walk(sr, [c for c in counts if c > lo_k], st.patience, lo_state, known, lo_r)
         q = best["q"]
     if st.preserve_volume and v0 is not None:
         n, vol, area_tot = ops.geometry((q - origin).astype(np.float32))
