@@ -65,7 +65,8 @@ skipped in (1) (at most two checkpoints lie between two coarse counts, so three 
 estimate cannot hide there unless one of them is below the next coarse count), the two searches take the
 same (σ_r, k); they did on the four benchmark meshes at 0.2-0.3 ē, the calibration meshes and 18 small cases
 (plate with a hole, box, sphere; 0.2-0.3 ē, 3 seeds), with 18-22 evaluations of SURE where the previous one
-made 23-36 (``tests/geometry/test_denoise_search.py`` checks three of them against the full grid). On flat
+made 22-36 (the same 8-13 where the lowest is at 1-4 iterations, as on the scans;
+``tests/geometry/test_denoise_search.py`` checks three cases against the full grid). On flat
 and smooth shapes, where both run to the cap of 100, that is 9 counts per σ_r instead of 18. Unlike the
 discrepancy principle (``rule="discrepancy"``: the first k whose residual rms_i((q̂_i - x_i)·n_i) reaches
 ``discrepancy`` · σ_e / 0.29, the default before SURE), SURE weighs the noise removed against the shape
