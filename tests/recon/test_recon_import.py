@@ -122,7 +122,7 @@ def user(tiny_scene, tmp_path_factory):
     up = ",".join(repr(float(v)) for v in R[:, 2])  # world +z in camera coordinates
     args = ["recon", "import", d / "clip.mp4", "--masks", d / "masks", "--poses", d / "smpl.npz", "--camera",
             d / "camera.toml", f"--up={up}", "--object-mesh", d / "object.obj", "--size", "32", "--fps", "30",
-            "--spin-frames", ns, "--n-obs", 3, "--domain-size", 0.48]
+            "--spin-frames", ns, "--n-obs", 3, "--domain-size", 0.48, "--body", "capsule"]
     return {"dir": d, "meta": meta, "body": body, "rgb": rgb, "mask": mask > 0.5, "rot": rot, "rt": rt, "R": R, "t": t,
             "args": args, "ns": ns}
 
