@@ -192,3 +192,21 @@ def test_import_body_option_errors_are_one_line(tmp_path):
         with pytest.raises(I.ConfigError) as e:
             I.import_body(spec, 1.7)
         assert "\n" not in str(e.value) and frag in str(e.value), str(e.value)
+
+
+def test_smpl_release_extras_are_never_unpickled(anny, tmp_path):
+    """A model file with an extra pickled entry (as some SMPL-X releases hold part tables) loads: only
+    v_template, f, weights, kintree_table and J_regressor are read (allow_pickle=False); a file lacking one of
+    them is one line naming the file and the array. Mutant caught: reading every entry of the npz (the pickled
+    one raises)."""
+    fake_smpl_npz(tmp_path / "base.npz", anny)
+    with np.load(tmp_path / "base.npz") as z:
+        arrays = {k: z[k] for k in z.files}
+    extra = np.empty(1, dtype=object)
+    extra[0] = {"head": 15}
+    np.savez(tmp_path / "SMPLX_LIKE.npz", part2num=extra, **arrays)
+    assert load_body(f"smpl:{tmp_path / 'SMPLX_LIKE.npz'}", 1.7).skeleton.names == JOINTS
+    np.savez(tmp_path / "NOJ.npz", **{k: v for k, v in arrays.items() if k != "J_regressor"})
+    with pytest.raises(PhysarError) as e:
+        load_body(f"smpl:{tmp_path / 'NOJ.npz'}", 1.7)
+    assert "\n" not in str(e.value) and "NOJ.npz" in str(e.value) and "'J_regressor'" in str(e.value)
