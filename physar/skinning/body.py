@@ -139,6 +139,29 @@ def ray_crossings(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
     return w
 
 
+def is_closed(faces: np.ndarray) -> bool:
+    """True when every edge of the triangle mesh is shared by exactly two faces (no hole, no fin)."""
+    f = np.asarray(faces)
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    _, count = np.unique(e, axis=0, return_counts=True)
+    return bool(np.all(count == 2))
+
+
+def mesh_inside(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+                closed: bool | None = None) -> np.ndarray:
+    r"""(N,) bool inside test of a triangle mesh by signed ray crossings (:func:`ray_crossings`):
+    :math:`|w_z| \ge 1` for a closed mesh; for a mesh with holes (e.g. an SMPL-X template's eye sockets), the
+    majority over the rays along +z, +x and +y, so that a ray escaping through a hole is outvoted."""
+    P = np.asarray(points, dtype=np.float64)
+    V = np.asarray(vertices, dtype=np.float64)
+    votes = np.abs(ray_crossings(P, V, faces)) >= 1
+    if is_closed(faces) if closed is None else closed:
+        return votes
+    for perm in ([1, 2, 0], [2, 0, 1]):  # the ray along x, then along y, as the last coordinate
+        votes = votes.astype(np.int64) + (np.abs(ray_crossings(P[:, perm], V[:, perm], faces)) >= 1)
+    return votes >= 2
+
+
 def point_triangle_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Exact Euclidean distance (N,) from points p (N, 3) to triangles (a, b, c) ((N, 3) each): the closest point
     by Voronoi regions of the vertices, edges and face (Ericson, Real-Time Collision Detection, 5.1.5)."""
@@ -205,22 +228,28 @@ class BodyModel(Body):
 
     def inside(self, points: torch.Tensor) -> torch.Tensor:
         r"""(N,) bool: :math:`|w| \ge 1` for the signed ray-crossing count :math:`w` (:func:`ray_crossings`; the
-        winding number of a closed mesh; rest pose), orientation-agnostic. For open meshes use
-        :func:`winding_number` (:math:`|w| > 1/2`)."""
-        w = ray_crossings(points.detach().cpu().double().numpy(), self._v, self._f)
-        return torch.as_tensor(np.abs(w) >= 1)
+        winding number of a closed mesh; rest pose), orientation-agnostic; the majority of three axis rays for a
+        mesh with holes (:func:`mesh_inside`)."""
+        return torch.as_tensor(mesh_inside(points.detach().cpu().double().numpy(), self._v, self._f, self.closed))
 
     def signed_distance(self, points: torch.Tensor) -> torch.Tensor:
         """(N,) m: exact distance to the rest surface (:func:`surface_distance`), negative inside."""
         P = points.detach().cpu().double().numpy()
         d = surface_distance(P, self._v, self._f)
-        return torch.as_tensor(np.where(np.abs(ray_crossings(P, self._v, self._f)) >= 1, -d, d), dtype=points.dtype)
+        return torch.as_tensor(np.where(mesh_inside(P, self._v, self._f, self.closed), -d, d), dtype=points.dtype)
 
     def _nearest(self, points: torch.Tensor) -> torch.Tensor:
         if not hasattr(self, "_tree"):
             self._tree = cKDTree(self._v)
         _, nn = self._tree.query(points.detach().cpu().double().numpy())
         return torch.as_tensor(nn, dtype=torch.long)
+
+    @property
+    def closed(self) -> bool:
+        """Whether the mesh is closed (:func:`is_closed`; one ray per point suffices), computed once."""
+        if not hasattr(self, "_closed"):
+            self._closed = is_closed(self._f)
+        return self._closed
 
     @property
     def _v(self) -> np.ndarray:
@@ -266,7 +295,7 @@ class BodyModel(Body):
         i1 = np.ceil((mine.max(0) - x0) / h).astype(int) + 1
         axes = [x0[i] + (np.arange(i0[i], i1[i]) + 0.5) * h for i in range(3)]
         P = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-        P = P[np.abs(ray_crossings(P, V, self._f)) >= 1]
+        P = P[mesh_inside(P, V, self._f, self.closed)]
         o = self.owner(torch.as_tensor(P)).numpy()
         return P[np.isin(o, idx) & ~np.isin(o, ex)]
 

@@ -78,6 +78,24 @@ def test_signed_distance_of_box_body_against_closed_form():
     assert np.abs(np.abs(sd) - trimesh.proximity.closest_point(m, X)[1]).max() < 1e-7  # trimesh: ~1e-8 m
 
 
+def test_inside_of_a_mesh_with_a_hole_by_three_rays():
+    """A unit icosphere with six faces cut out at its top (an open mesh, as an SMPL-X template with eye sockets):
+    the majority of three axis rays classifies 3862 random points (away from the chordal gap) exactly as
+    |x| < 1 does, where the single vertical ray through the hole misclassifies some (25 here). Mutant caught: the
+    open mesh treated as closed (one ray)."""
+    from physar.skinning.body import is_closed, mesh_inside
+
+    s = trimesh.creation.icosphere(3)
+    V, F = np.asarray(s.vertices), np.asarray(s.faces)
+    F = np.delete(F, np.argsort(-V[F].mean(1)[:, 2])[:6], axis=0)
+    X = np.random.default_rng(0).uniform(-1.3, 1.3, (4000, 3))
+    r = np.linalg.norm(X, axis=1)
+    X, r = X[(r < 0.95) | (r > 1.0)], r[(r < 0.95) | (r > 1.0)]
+    assert not is_closed(F)
+    assert np.array_equal(mesh_inside(X, V, F), r < 1)
+    assert not np.array_equal(mesh_inside(X, V, F, closed=True), r < 1)
+
+
 def test_rest_pose_lbs_is_identity(anny):
     """Identity local rotations and zero root translation: every skinning transform B_k = G_k (G_k^rest)^-1 is
     the identity (1e-12) and LBS returns the rest particles unchanged. Mutant caught: B_k = G_k without the
