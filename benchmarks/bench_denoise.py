@@ -217,6 +217,8 @@ def quality_tables(sigmas: list[float]) -> None:
                       f"{r['dist']:.3f} | {vol} | {1e6 * r['s_per_vertex']:.1f} |", flush=True)
             if len(rows) > 2:
                 summary.append((label, sigma, rows[1], min(rows[2:], key=lambda r: r["ang"])))
+    if not summary:
+        return
     print("\n| mesh | σ/ē | physar default: normal error (°) | best peer (its best parameters) | ratio | "
           "default volume change % |")
     print("|---|---|---|---|---|---|")
