@@ -14,12 +14,19 @@ Pipeline (Kerbl et al. 2023, 3DGS; Zwicker et al. 2002, EWA splatting), seed 002
 
 Tile-based version (``backend="torch"``): each Gaussian is bucketed into the square pixel tiles its
 support touches (``tile_size`` 4 by default: fastest of 2/4/8/16 in benchmarks/bench_gaussians.py on
-the CPU, since a tile's pixels are evaluated densely). The support radius is
-r_i = sqrt(2 ln(255 eta_i) lambda_max(Sigma'_i)), beyond which alpha_i < 1/255 is skipped anyway, so the bucketing is exact (no 3-sigma truncation error; <= 3.33 sigma).
+the CPU, since a tile's pixels are evaluated densely). The support is the ellipse
+d^T Q d <= k_i^2, k_i^2 = 2 ln(255 eta_i), beyond which alpha_i < 1/255 is skipped anyway; it is bucketed by
+its axis-aligned bounding box, half-widths k_i sqrt(Sigma'_xx), k_i sqrt(Sigma'_yy) (at most the radius
+r_i = k_i sqrt(lambda_max(Sigma'_i)) of the enclosing circle; <= 3.33 sigma), so the bucketing is exact
+(no 3-sigma truncation error).
 The (tile, Gaussian) pairs are sorted by tile then depth, every pair evaluates all its tile's pixels, and
 the transmittance is a segmented cumulative sum of log(1 - alpha) (in float64). Early termination is
 the exact rule above (a pair contributes iff T_i (1 - alpha_i) >= 1e-4). Everything after the pair list
-is differentiable by autograd. ``backend="dense"`` evaluates all Gaussians at all pixels (the naive
+is differentiable by autograd. When gradients are needed, a first pass without autograd drops the pairs
+that cannot matter: those with, at every pixel of their tile, alpha = 0 (log(1 - alpha) = 0 changes no
+product) or compositing already terminated before them (T_i < 1e-4: every later pair at that pixel is
+terminated too, with or without them); the second pass, with autograd, composites the rest and gives the
+same image and gradients (the dropped pairs' gradients are exactly zero). ``backend="dense"`` evaluates all Gaussians at all pixels (the naive
 reference used by the benchmark); ``backend="gsplat"`` calls ``gsplat.rasterization`` (CUDA only;
 untested here: no GPU on the development machine).
 """
@@ -48,13 +55,15 @@ class RenderResult:
     rgb: torch.Tensor
     alpha: torch.Tensor
     depth: torch.Tensor
-    n_pairs: int = 0  # (tile, Gaussian) pairs evaluated (tile backend), for diagnostics
+    n_pairs: int = 0  # (tile, Gaussian) pairs bucketed (tile backend), for diagnostics
+    n_composited: int = 0  # of those, pairs composited by the differentiable pass (fewer when culled)
 
 
 @dataclass
 class Projected:
     """Screen-space Gaussians: means2d (N, 2) px, conics (N, 3) = (Q00, Q01, Q11) px^-2, depths (N,) m,
-    radii (N,) px (0 = culled), opacities (N,), colours (N, 3)."""
+    radii (N,) px (0 = culled), opacities (N,), colours (N, 3); extents (N, 2) px: half-widths of the
+    support's bounding box (None: the radius in both directions)."""
 
     means2d: torch.Tensor
     conics: torch.Tensor
@@ -62,6 +71,7 @@ class Projected:
     radii: torch.Tensor
     opacities: torch.Tensor
     colors: torch.Tensor
+    extents: torch.Tensor | None = None
 
 
 def project(means: torch.Tensor, cov3d: torch.Tensor, opacities: torch.Tensor, colors: torch.Tensor,
@@ -97,9 +107,14 @@ def project(means: torch.Tensor, cov3d: torch.Tensor, opacities: torch.Tensor, c
         k2 = 2.0 * torch.log(torch.clamp_min(o * 255.0, 1.0))
         radii = torch.sqrt(k2 * torch.clamp_min(lam, 0.0))
         radii = torch.where(valid & (o > ALPHA_MIN), radii, torch.zeros_like(radii))
-        inside = (u + radii > 0) & (u - radii < cam.width) & (v + radii > 0) & (v - radii < cam.height)
+        # bounding box of the ellipse d^T Q d <= k2 (Q^-1 = [[a, b], [b, c]]): half-widths sqrt(k2 a),
+        # sqrt(k2 c); 1e-3 relative margin for the rounding of Q (float32) against a, c; never above r
+        ext = torch.stack([torch.minimum(radii, 1.001 * torch.sqrt(k2 * torch.clamp_min(a, 0.0))),
+                           torch.minimum(radii, 1.001 * torch.sqrt(k2 * torch.clamp_min(c, 0.0)))], -1)
+        inside = (u + ext[:, 0] > 0) & (u - ext[:, 0] < cam.width) & (v + ext[:, 1] > 0) & (v - ext[:, 1] < cam.height)
         radii = torch.where(inside, radii, torch.zeros_like(radii))
-    return Projected(torch.stack([u, v], -1), conics, z, radii, opacities, colors)
+        ext = torch.where(inside[:, None], ext, torch.zeros_like(ext))
+    return Projected(torch.stack([u, v], -1), conics, z, radii, opacities, colors, ext)
 
 
 def _alpha(dx: torch.Tensor, dy: torch.Tensor, conic: torch.Tensor, opac: torch.Tensor) -> torch.Tensor:
@@ -110,18 +125,24 @@ def _alpha(dx: torch.Tensor, dy: torch.Tensor, conic: torch.Tensor, opac: torch.
     return torch.where(keep, alpha, torch.zeros_like(alpha))
 
 
-def _composite_weights(alpha: torch.Tensor, seg_start: torch.Tensor | None, seg_of: torch.Tensor | None):
-    """Front-to-back weights w_i = alpha_i T_i with 3DGS early termination, along dim 0.
-
-    With ``seg_start``/``seg_of`` the products restart at every segment (tile) start.
-    """
+def _log_transmittance(alpha: torch.Tensor, seg_start: torch.Tensor | None, seg_of: torch.Tensor | None):
+    """(log(1 - alpha), inclusive and exclusive cumulative sums of it along dim 0 in float64): log T after and
+    before each element; with ``seg_start``/``seg_of`` the sums restart at every segment (tile) start."""
     log1m = torch.log1p(-alpha)
     cs = torch.cumsum(log1m.double(), 0)
     incl = cs
     if seg_start is not None:
         base = torch.cat([torch.zeros_like(cs[:1]), cs])[seg_start]  # cs before each segment start
         incl = cs - base[seg_of]
-    excl = incl - log1m.double()
+    return log1m, incl, incl - log1m.double()
+
+
+def _composite_weights(alpha: torch.Tensor, seg_start: torch.Tensor | None, seg_of: torch.Tensor | None):
+    """Front-to-back weights w_i = alpha_i T_i with 3DGS early termination, along dim 0.
+
+    With ``seg_start``/``seg_of`` the products restart at every segment (tile) start.
+    """
+    _, incl, excl = _log_transmittance(alpha, seg_start, seg_of)
     keep = incl >= math.log(T_MIN)
     T = torch.exp(excl).to(alpha.dtype)
     return torch.where(keep, alpha * T, torch.zeros_like(alpha))
@@ -133,23 +154,27 @@ def _sh_colors(g: Gaussians, cam: Camera) -> torch.Tensor:
 
 
 def rasterize_tiles(pr: Projected, width: int, height: int, background: torch.Tensor | None = None,
-                    tile_size: int = 4, max_elements: float = 2e8) -> RenderResult:
+                    tile_size: int = 4, max_elements: float = 2e8, cull: bool = True) -> RenderResult:
     """Tile-bucketed rasterisation of projected Gaussians (see module docstring). Differentiable.
 
     Memory grows with (pairs x tile pixels), about the total footprint area; more than ``max_elements``
-    raises a PhysarError instead of exhausting memory."""
+    raises a PhysarError instead of exhausting memory. ``cull``: with autograd, drop the pairs that cannot
+    contribute before the differentiable pass (exact; see the module docstring)."""
     dtype, dev = pr.means2d.dtype, pr.means2d.device
     ts = tile_size
     tx, ty = -(-width // ts), -(-height // ts)
+    grads = torch.is_grad_enabled() and any(
+        t.requires_grad for t in (pr.means2d, pr.conics, pr.opacities, pr.colors, pr.depths))
     with torch.no_grad():
         vis = torch.nonzero(pr.radii > 0).squeeze(1)
         m = pr.means2d.detach()[vis]
-        r = pr.radii[vis]
-        # pixel i (centre i + 0.5) can be touched iff |i + 0.5 - u| <= r
-        x0 = torch.clamp(torch.floor((m[:, 0] - r - 0.5) / ts), 0, tx - 1).long()
-        x1 = torch.clamp(torch.floor((m[:, 0] + r - 0.5) / ts), 0, tx - 1).long()
-        y0 = torch.clamp(torch.floor((m[:, 1] - r - 0.5) / ts), 0, ty - 1).long()
-        y1 = torch.clamp(torch.floor((m[:, 1] + r - 0.5) / ts), 0, ty - 1).long()
+        ext = pr.radii[vis, None].expand(-1, 2) if pr.extents is None else pr.extents[vis]
+        rx, ry = ext[:, 0], ext[:, 1]
+        # pixel i (centre i + 0.5) can be touched iff |i + 0.5 - u| <= rx (rows: ry)
+        x0 = torch.clamp(torch.floor((m[:, 0] - rx - 0.5) / ts), 0, tx - 1).long()
+        x1 = torch.clamp(torch.floor((m[:, 0] + rx - 0.5) / ts), 0, tx - 1).long()
+        y0 = torch.clamp(torch.floor((m[:, 1] - ry - 0.5) / ts), 0, ty - 1).long()
+        y1 = torch.clamp(torch.floor((m[:, 1] + ry - 0.5) / ts), 0, ty - 1).long()
         nx, ny = x1 - x0 + 1, y1 - y0 + 1
         cnt = nx * ny
         gid = torch.repeat_interleave(torch.arange(vis.numel(), device=dev), cnt)
@@ -170,13 +195,24 @@ def rasterize_tiles(pr: Projected, width: int, height: int, background: torch.Te
                 f"render: {n_pairs} (tile, Gaussian) pairs x {ts * ts} pixels exceed max_elements="
                 f"{max_elements:.0e} (memory); the Gaussians' footprints are too large for this image size: "
                 "lower the resolution, prune large or near-camera Gaussians, or raise max_elements")
-        seg_start = torch.searchsorted(tile, tile.unique_consecutive())
-        seg_of = torch.searchsorted(seg_start, torch.arange(n_pairs, device=dev), right=True) - 1
-        # pixel centres of every tile: (n_tiles, ts*ts, 2)
         loc = torch.arange(ts, dtype=dtype, device=dev) + 0.5
         ly, lx = torch.meshgrid(loc, loc, indexing="ij")
-        px = (tile % tx).to(dtype)[:, None] * ts + lx.reshape(1, -1)
-        py = (tile // tx).to(dtype)[:, None] * ts + ly.reshape(1, -1)
+        lx, ly = lx.reshape(1, -1), ly.reshape(1, -1)
+
+        def segments(tile):  # tile starts, the tile of every pair, pixel centres of every pair's tile
+            seg_start = torch.searchsorted(tile, tile.unique_consecutive())
+            seg_of = torch.searchsorted(seg_start, torch.arange(tile.numel(), device=dev), right=True) - 1
+            return seg_start, seg_of, (tile % tx).to(dtype)[:, None] * ts + lx, (tile // tx).to(dtype)[:, None] * ts + ly
+
+        seg_start, seg_of, px, py = segments(tile)
+        if cull and grads and n_pairs:
+            mean0 = pr.means2d.detach()[gsel]
+            a0 = _alpha(px - mean0[:, 0:1], py - mean0[:, 1:2], pr.conics.detach()[gsel], pr.opacities.detach()[gsel])
+            _, _, excl0 = _log_transmittance(a0, seg_start, seg_of)
+            need = ((a0 > 0) & (excl0 >= math.log(T_MIN))).any(1)
+            del a0, excl0
+            tile, gsel = tile[need], gsel[need]
+            seg_start, seg_of, px, py = segments(tile)
     mean = pr.means2d[gsel]
     alpha = _alpha(px - mean[:, 0:1], py - mean[:, 1:2], pr.conics[gsel], pr.opacities[gsel])
     w = _composite_weights(alpha, seg_start, seg_of)
@@ -187,14 +223,14 @@ def rasterize_tiles(pr: Projected, width: int, height: int, background: torch.Te
     acc = acc.index_add(0, tile, torch.cat([w[..., None] * feat[:, None, :], w[..., None]], -1))
     img = acc.reshape(ty, tx, ts, ts, 5).permute(0, 2, 1, 3, 4).reshape(ty * ts, tx * ts, 5)
     img = img[:height, :width]
-    return _finish(img[..., :3], img[..., 3], img[..., 4], background, n_pairs)
+    return _finish(img[..., :3], img[..., 3], img[..., 4], background, n_pairs, int(tile.numel()))
 
 
-def _finish(rgb, dsum, alpha, background, n_pairs=0) -> RenderResult:
+def _finish(rgb, dsum, alpha, background, n_pairs=0, n_composited=0) -> RenderResult:
     if background is not None:
         rgb = rgb + (1.0 - alpha)[..., None] * background.to(rgb.dtype)
     depth = torch.where(alpha > 0, dsum / torch.clamp_min(alpha, 1e-12), torch.zeros_like(dsum))
-    return RenderResult(rgb, alpha, depth, n_pairs)
+    return RenderResult(rgb, alpha, depth, n_pairs, n_composited)
 
 
 def rasterize_dense(pr: Projected, width: int, height: int, background: torch.Tensor | None = None,

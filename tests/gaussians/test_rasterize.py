@@ -212,3 +212,102 @@ def test_memory_guard_and_offscreen_jacobian_clamp():
                                  torch.tensor([0.9], dtype=D), torch.ones(1, 3, dtype=D))
     out = render(near, _cam(32, 32))
     assert out.alpha.max() == 0 and out.n_pairs == 0
+
+
+def _opaque_layers(n_layers=6, per_layer=16, seed=11):
+    """Stacked layers of nearly opaque, strongly anisotropic Gaussians (axis ratios up to 8): a quarter of
+    the pixels terminate (T < 1e-4), and the pairs behind them are culled."""
+    gen = torch.Generator().manual_seed(seed)
+    n = n_layers * per_layer
+    means = (torch.rand(n, 3, generator=gen, dtype=D) - 0.5) * torch.tensor([0.4, 0.4, 0.0], dtype=D)
+    means[:, 2] = 2.0 + 0.1 * torch.arange(n_layers, dtype=D).repeat_interleave(per_layer)
+    scales = 0.04 + 0.15 * torch.rand(n, 3, generator=gen, dtype=D)
+    scales[0::2, 0] *= 0.125  # thin in x: the x and y extents of the bounding box differ
+    scales[1::2, 1] *= 0.125
+    return Gaussians.from_values(means, scales, 0.9 + 0.0999 * torch.rand(n, generator=gen, dtype=D),
+                                 torch.rand(n, 3, generator=gen, dtype=D),
+                                 quats=torch.randn(n, 4, generator=gen, dtype=D))
+
+
+def test_culled_tiles_match_dense_reference_values_and_gradients():
+    """With autograd the tile backend drops (tile, Gaussian) pairs that cannot contribute (alpha = 0 at every
+    pixel of the tile, or compositing terminated before them) and buckets each footprint by the bounding box
+    of its ellipse; image and gradients must equal the dense reference (every Gaussian at every pixel, no
+    tiles, no culling) to float64 rounding.  Mutants caught: culling a pair terminated at any (not every)
+    pixel of its tile, the x and y half-widths of the bounding box swapped, culling without a pixel test."""
+    g = _opaque_layers()
+    cam = _cam(30, 26, f=60.0)  # not multiples of the tile size
+    gen = torch.Generator().manual_seed(12)
+    wr, wa, wd = (torch.rand(26, 30, *s, generator=gen, dtype=D) for s in ((3,), (), ()))
+    names = ["means", "log_scales", "sh", "opacity_logits", "quats"]
+    results = {}
+    for backend in ("torch", "dense"):
+        leaves = {k: getattr(g, k).clone().requires_grad_() for k in names}
+        out = render(Gaussians(**leaves), cam, background=torch.tensor([0.2, 0.3, 0.4], dtype=D), backend=backend)
+        ((out.rgb * wr).sum() + (out.alpha * wa).sum() + (out.depth * out.alpha * wd).sum()).backward()
+        results[backend] = (out, {k: v.grad for k, v in leaves.items()})
+    (a, ga), (b, gb) = results["torch"], results["dense"]
+    assert b.alpha.max() > 0.999 and b.alpha.min() < 0.5  # terminated pixels (T < 1e-3) and free pixels
+    assert 0 < a.n_composited < 0.7 * a.n_pairs  # the culling is exercised
+    for name in ("rgb", "alpha", "depth"):
+        assert (getattr(a, name) - getattr(b, name)).abs().max() < 1e-12, name
+    for k in names:
+        assert gb[k].abs().max() > 0, k
+        assert (ga[k] - gb[k]).abs().max() <= 1e-9 * gb[k].abs().max(), k
+    # without autograd nothing is culled, and the image is the same
+    with torch.no_grad():
+        c = render(g, cam, background=torch.tensor([0.2, 0.3, 0.4], dtype=D))
+    assert c.n_composited == c.n_pairs == a.n_pairs
+    assert (c.rgb - b.rgb.detach()).abs().max() < 1e-12
+
+
+def test_bounding_box_buckets_fewer_pairs_than_the_circle():
+    """The support ellipse of a thin Gaussian is bucketed by its bounding box (half-widths
+    k sqrt(Sigma'_xx), k sqrt(Sigma'_yy)), not by the enclosing circle of radius k sqrt(lambda_max):
+    closed-form tile count of one axis-aligned Gaussian, 8:1 in x:y."""
+    cam = _cam(64, 64, f=100.0)
+    g = Gaussians.from_values(torch.tensor([[0.0, 0.0, 2.0]], dtype=D), torch.tensor([[0.16, 0.02, 0.02]], dtype=D),
+                              torch.tensor([0.5], dtype=D), torch.ones(1, 3, dtype=D))
+    out = render(g, cam, eps2d=0.0)
+    sx, sy = 100 * 0.16 / 2.0, 100 * 0.02 / 2.0  # px
+    k = math.sqrt(2 * math.log(255 * 0.5))
+    ntiles = lambda c, h: math.floor((c + h - 0.5) / 4) - math.floor((c - h - 0.5) / 4) + 1
+    tx = min(ntiles(32.0, 1.001 * k * sx), 16)  # clipped to the image's 16 tiles
+    assert out.n_pairs == tx * ntiles(32.0, 1.001 * k * sy)
+    assert out.n_pairs < 16 * 16 / 2  # the circle (radius k sx > 32 px) would cover every tile
+
+
+def test_terminating_pair_is_kept_and_the_pairs_behind_it_are_culled():
+    """Four large Gaussians stacked on the optical axis (sigma 50 px at 2 m, image 16 px): after layers 1-2
+    T >= 1e-4 at every pixel, layer 3 brings it below 1e-4 everywhere (so it terminates and does not
+    composite), layer 4 is never reached.  Closed form at every pixel: colour = c1 a1 + c2 a2 (1 - a1)
+    + bg T2, alpha = 1 - T2, T2 = (1 - a1)(1 - a2); layer 4's pairs are culled, layer 3's kept, and the
+    gradients equal the dense reference's.  Mutant caught: culling by T (1 - alpha) < 1e-4 instead of
+    T < 1e-4 (drops the terminating layer 3, and layer 4 composites with weight ~1e-5)."""
+    cam = _cam(16, 16, f=100.0)
+    z = torch.tensor([2.0, 2.1, 2.2, 2.3], dtype=D)
+    eta = torch.tensor([0.9999, 0.98, 0.99, 0.3], dtype=D)
+    cols = torch.tensor([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 1.0, 1.0]], dtype=D)
+    names = ["means", "log_scales", "sh", "opacity_logits", "quats"]
+    g = Gaussians.from_values(torch.stack([torch.zeros(4, dtype=D), torch.zeros(4, dtype=D), z], 1),
+                              z / 2.0, eta, cols)  # scale z / 2 m at depth z: sigma = 50 px for all four
+    bg = torch.tensor([0.2, 0.3, 0.4], dtype=D)
+    res = {}
+    for backend in ("torch", "dense"):
+        leaves = {k: getattr(g, k).clone().requires_grad_() for k in names}
+        out = render(Gaussians(**leaves), cam, background=bg, backend=backend, eps2d=0.0)
+        (out.rgb.sum() + out.alpha.sum()).backward()
+        res[backend] = (out, {k: v.grad for k, v in leaves.items()})
+    (a, ga), (b, gb) = res["torch"], res["dense"]
+    jj, ii = torch.meshgrid(torch.arange(16, dtype=D) + 0.5, torch.arange(16, dtype=D) + 0.5, indexing="ij")
+    r2 = (ii - 8.0) ** 2 + (jj - 8.0) ** 2
+    al = [torch.clamp(eta[i] * torch.exp(-0.5 * r2 / (100 * (z[i] / 2) / z[i]) ** 2), max=0.99) for i in range(4)]
+    T1, T2, T3 = 1 - al[0], (1 - al[0]) * (1 - al[1]), (1 - al[0]) * (1 - al[1]) * (1 - al[2])
+    assert T2.min() > 1e-4 and T3.max() < 1e-4  # the scenario: layer 3 terminates every pixel
+    rgb = al[0][..., None] * cols[0] + (al[1] * T1)[..., None] * cols[1] + T2[..., None] * bg
+    for out in (a, b):
+        assert (out.rgb - rgb).abs().max() < 1e-12 and (out.alpha - (1 - T2)).abs().max() < 1e-12
+    assert a.n_pairs == 64 and a.n_composited == 48  # 16 tiles x 4 layers; layer 4 culled
+    for k in names:
+        assert (ga[k] - gb[k]).abs().max() <= 1e-9 * gb[k].abs().max(), k
+    assert ga["sh"][2:].abs().max() == 0 and ga["opacity_logits"][2:].abs().max() == 0
