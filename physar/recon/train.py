@@ -838,13 +838,14 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
     recon.save(run / "model.npz", cfg, st)
     canon = render_gaussians_canonical(rig, app, kin)
     save_ply(run / "gaussians.ply", canon)
-    report = evaluate(recon, ds, progress=progress)
+    renders: dict = {}
+    report = evaluate(recon, ds, progress=progress, renders=renders)
     report["train_seconds"] = st.seconds
     report["canonical"] = st.info
     report["history_final"] = {k: (v[-1] if v else None) for k, v in st.history.items()}
     report["history_first"] = {k: (v[0] if v else None) for k, v in st.history.items()}
     write_json(run / "report.json", report)
-    _preview(recon, ds, run / "preview.mp4")
+    _preview(recon, ds, run / "preview.mp4", renders)
     return report
 
 
@@ -956,16 +957,27 @@ class Reconstruction:
         methods hold their last observed frame).
 
         Returns rgb (F, H, W, 3) and alpha (F, H, W) as float32 numpy arrays; frame 0 is the canonical scene."""
-        rig = self.rig
+        return self.render_sequence(self.kinematics(rotations, root), method, progress)
+
+    def kinematics(self, rotations: np.ndarray, root: np.ndarray) -> dict:
+        """Checked poses -> :meth:`Rig.kinematics` (LBS of the pose sequence), to share between renders."""
         rotations, root = S.check_poses({"rotations": rotations, "root_translation": root},
-                                        rig.body.skeleton.n_bones)
-        kin = rig.kinematics(rotations, root)
+                                        self.rig.body.skeleton.n_bones)
+        return self.rig.kinematics(rotations, root)
+
+    def render_sequence(self, kin: dict, method: str = "physics", progress: Progress | None = None,
+                        objects: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`predict` from precomputed kinematics (:meth:`kinematics`); ``objects``, when given, receives
+        the object particle positions of every frame ((No, 3) float64 numpy arrays, frame 0 = rest)."""
+        rig = self.rig
         n = kin["frames"]
         Xo = torch.as_tensor(rig.Xo)
         I_o = torch.eye(3, dtype=torch.float64).expand(rig.no, 3, 3)
         out_rgb, out_a = [], []
 
         def emit(f, xo, Fo, xh, Fh):
+            if objects is not None:
+                objects.append(xo.detach().numpy())
             with torch.no_grad():
                 r = render_scene(rig, self.app, xo, Fo, xh, Fh, kin["xb"][f], kin["A_b"][f])
             out_rgb.append(r.rgb.numpy())
@@ -994,11 +1006,17 @@ class Reconstruction:
 METHODS = ("physics", "lbs", "4dgs", "spflow")
 
 
-def evaluate(recon: Reconstruction, ds: Dataset, methods=METHODS, progress: Progress | None = None) -> dict:
+def evaluate(recon: Reconstruction, ds: Dataset, methods=METHODS, progress: Progress | None = None,
+             renders: dict | None = None) -> dict:
     """Metrics of each method on reconstruction (observed frames 1..n_obs-1), prediction (future frames) and
     the novel action, on all frames and on the large-deformation subsets (frames whose true maximum object
     displacement is >= half the maximum over that subset's own frames,
-    :func:`physar.recon.metrics.large_deformation_frames`); E error against the truth."""
+    :func:`physar.recon.metrics.large_deformation_frames`); E error against the truth.
+
+    Each sequence is rendered once: the kinematics of each pose set are computed once, the novel action of the
+    per-frame methods (which follow LBS there) reuses the LBS render and its metrics, and the 3-D object error
+    of physics takes the positions of its clip render.  ``renders``, when given, receives each method's
+    dynamic-clip RGB (F, H, W, 3) (the preview of :func:`fit` reuses them)."""
     from physar.recon.metrics import large_deformation_frames, lpips_model, sequence_metrics
 
     try:
@@ -1010,8 +1028,17 @@ def evaluate(recon: Reconstruction, ds: Dataset, methods=METHODS, progress: Prog
     n, no = len(ds.rgb), ds.n_obs
     disp = ds.truth["dynamic_max_displacement"] if ds.truth else None
     sets = {"recon": list(range(1, no)), "pred": list(range(no, n))}
+    kin = recon.kinematics(ds.rotations, ds.root_t)
+    kin_novel = recon.kinematics(ds.novel["rotations"], ds.novel["root_t"]) if ds.novel is not None else None
+    novel_res: dict[str, dict] = {}
+    physics_objects: list | None = None
     for m in methods:
-        rgb, a = recon.predict(ds.rotations, ds.root_t, m, progress)
+        objects = [] if m == "physics" else None
+        rgb, a = recon.render_sequence(kin, m, progress, objects)
+        if objects is not None:
+            physics_objects = objects
+        if renders is not None:
+            renders[m] = rgb
         res = {}
         for name, fr in sets.items():
             res[name] = metrics(rgb, a, ds.rgb, ds.mask, fr)
@@ -1019,17 +1046,20 @@ def evaluate(recon: Reconstruction, ds: Dataset, methods=METHODS, progress: Prog
                 res[name + "_large"] = metrics(rgb, a, ds.rgb, ds.mask, large_deformation_frames(disp, fr))
         if ds.novel is not None:
             m2 = "lbs" if m in ("4dgs", "spflow") else m  # a per-frame deformation cannot follow new poses
-            rgb2, a2 = recon.predict(ds.novel["rotations"], ds.novel["root_t"], m2, progress)
-            fr = list(range(1, len(rgb2)))
-            res["novel"] = metrics(rgb2, a2, ds.novel["rgb"], ds.novel["mask"], fr)
-            if ds.truth is not None:
-                res["novel_large"] = metrics(rgb2, a2, ds.novel["rgb"], ds.novel["mask"],
-                                                      large_deformation_frames(ds.truth["novel_max_displacement"], fr))
+            if m2 not in novel_res:
+                rgb2, a2 = recon.render_sequence(kin_novel, m2, progress)
+                fr = list(range(1, len(rgb2)))
+                nr = {"novel": metrics(rgb2, a2, ds.novel["rgb"], ds.novel["mask"], fr)}
+                if ds.truth is not None:
+                    nr["novel_large"] = metrics(rgb2, a2, ds.novel["rgb"], ds.novel["mask"],
+                                                large_deformation_frames(ds.truth["novel_max_displacement"], fr))
+                novel_res[m2] = nr
+            res.update({k: dict(v) for k, v in novel_res[m2].items()})
         out["methods"][m] = res
     if ds.truth is not None:
         out["material"] = material_error(recon, ds.truth)
         if "dynamic_object_positions" in ds.truth:
-            out["object_3d_error_mm"] = object_3d_errors(recon, ds)
+            out["object_3d_error_mm"] = object_3d_errors(recon, ds, kin, physics_objects)
     om = recon.phys.omega(recon.rig).detach().numpy()
     out["omega"] = {"object_max_abs": float(np.abs(om[:recon.rig.no]).max()),
                     "body_mean": float(om[recon.rig.no:].mean())}
@@ -1049,9 +1079,14 @@ def cell_average_truth(rig: Rig, truth: dict) -> np.ndarray:
     return out / np.maximum(cnt, 1)[None, :, None]
 
 
-def object_3d_errors(recon: Reconstruction, ds: Dataset) -> dict:
+def object_3d_errors(recon: Reconstruction, ds: Dataset, kin: dict | None = None,
+                     physics_objects: list | None = None) -> dict:
     """Mean 3-D distance (mm) of the object particles to the cell-averaged truth over the observed frames
-    1..n_obs-1, per method (lbs = the object at rest), and the floor of the discretisation (frame 0)."""
+    1..n_obs-1, per method (lbs = the object at rest), and the floor of the discretisation (frame 0).
+
+    ``physics_objects``: the object positions of a physics render of the clip (frames 0..; from
+    :meth:`Reconstruction.render_sequence`), used instead of simulating the observed frames again; ``kin``:
+    the clip's kinematics (:meth:`Reconstruction.kinematics`)."""
     rig = recon.rig
     gt = cell_average_truth(rig, ds.truth)
     frames = range(1, ds.n_obs)
@@ -1060,8 +1095,11 @@ def object_3d_errors(recon: Reconstruction, ds: Dataset) -> dict:
            "4dgs": float(np.mean([err(recon.flow[f], f) for f in frames]))}
     if recon.spflow:
         out["spflow"] = float(np.mean([err(recon.spflow[f], f) for f in frames]))
-    kin = rig.kinematics(ds.rotations, ds.root_t)
-    sim = {f: xo.numpy() for f, xo, *_ in simulate_clip(rig, recon.phys, kin, ds.n_obs, grad=False)}
+    if physics_objects is not None and len(physics_objects) >= ds.n_obs:
+        sim = dict(enumerate(physics_objects))
+    else:
+        kin = kin if kin is not None else recon.kinematics(ds.rotations, ds.root_t)
+        sim = {f: xo.numpy() for f, xo, *_ in simulate_clip(rig, recon.phys, kin, ds.n_obs, grad=False)}
     out["physics"] = float(np.mean([err(sim[f], f) for f in frames]))
     return out
 
@@ -1091,10 +1129,13 @@ def material_error(recon: Reconstruction, truth: dict) -> dict:
                                  float(recon.phys.nu_object(rig).detach().max())]}
 
 
-def _preview(recon: Reconstruction, ds: Dataset, path: Path) -> bool:
+def _preview(recon: Reconstruction, ds: Dataset, path: Path, renders: dict | None = None) -> bool:
+    """Side-by-side MP4 of the clip and each method's render (``renders`` from :func:`evaluate`; a method
+    missing there is rendered)."""
+    renders = renders or {}
     cols = [ds.rgb]
     for m in METHODS:
-        cols.append(recon.predict(ds.rotations, ds.root_t, m)[0])
+        cols.append(renders[m] if m in renders else recon.predict(ds.rotations, ds.root_t, m)[0])
     frames = np.concatenate(cols, axis=2)
     return write_mp4(path, (np.clip(frames, 0, 1) * 255 + 0.5).astype(np.uint8), ds.meta["fps"])
 
