@@ -16,7 +16,7 @@ import numpy as np
 
 from physar.errors import MeshError
 from physar.geometry.mesh import TriMesh
-from physar.geometry.tetra import _Gmsh
+from physar.geometry.tetra import _add_discrete_surface, _Gmsh
 
 
 def size_for_faces(surface: TriMesh, faces: int) -> float:
@@ -34,12 +34,9 @@ def remesh_surface(surface: TriMesh, size: float, angle: float = 40.0) -> TriMes
     input where it matters. Raises MeshError when gmsh cannot re-parametrise a patch."""
     if not (np.isfinite(size) and size > 0):
         raise MeshError(f"{surface.name}: remesh size must be a positive length in m, got {size}")
-    used = np.unique(surface.faces)
     with _Gmsh() as gmsh:
         gmsh.model.add("physar_remesh")
-        s = gmsh.model.addDiscreteEntity(2)
-        gmsh.model.mesh.addNodes(2, s, (used + 1).tolist(), surface.points[used].ravel().tolist())
-        gmsh.model.mesh.addElementsByType(s, 2, [], (surface.faces + 1).ravel().tolist())
+        _add_discrete_surface(gmsh, surface)
         try:
             gmsh.model.mesh.classifySurfaces(np.radians(angle), True, True, np.pi)
             gmsh.model.mesh.createGeometry()

@@ -72,6 +72,16 @@ class _Gmsh:
         return False
 
 
+def _add_discrete_surface(gmsh, surface: TriMesh) -> int:
+    """Add ``surface``'s triangles to the current gmsh model as one discrete surface (gmsh node tags = vertex
+    index + 1, unused vertices left out); returns its entity tag."""
+    used = np.unique(surface.faces)
+    s = gmsh.model.addDiscreteEntity(2)
+    gmsh.model.mesh.addNodes(2, s, (used + 1).tolist(), surface.points[used].ravel().tolist())
+    gmsh.model.mesh.addElementsByType(s, 2, [], (surface.faces + 1).ravel().tolist())
+    return s
+
+
 def boundary_edge_count(mesh: TriMesh) -> int:
     """Number of edges used by exactly one face (0 for a closed surface)."""
     e = np.sort(mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
@@ -116,12 +126,9 @@ def tetrahedralize(surface: TriMesh, size: float | None = None, angle: float = 4
         size = default_size(surface)
     if not (np.isfinite(size) and size > 0):
         raise MeshError(f"{name}: mesh size must be a positive length in m, got {size}")
-    used = np.unique(surface.faces)
     with _Gmsh() as gmsh:
         gmsh.model.add("physar")
-        s = gmsh.model.addDiscreteEntity(2)
-        gmsh.model.mesh.addNodes(2, s, (used + 1).tolist(), surface.points[used].ravel().tolist())
-        gmsh.model.mesh.addElementsByType(s, 2, [], (surface.faces + 1).ravel().tolist())
+        _add_discrete_surface(gmsh, surface)
         try:
             gmsh.model.mesh.classifySurfaces(np.radians(angle), True, False, np.pi)
             gmsh.model.mesh.createGeometry()
