@@ -95,19 +95,26 @@ def lpips(a: np.ndarray, b: np.ndarray) -> float:
     return lpips_model()(a, b)
 
 
-def sequence_metrics(pred_rgb, pred_alpha, gt_rgb, gt_mask, frames, lpips_fn=None) -> dict:
+def sequence_metrics(pred_rgb, pred_alpha, gt_rgb, gt_mask, frames, lpips_fn=None, cache: dict | None = None) -> dict:
     """Mean PSNR, SSIM and IoU (and LPIPS when ``lpips_fn`` from :func:`lpips_model` is given) over the listed
-    frame indices (NaN for an empty list)."""
+    frame indices (NaN for an empty list).
+
+    ``cache``: a dict the caller keeps for one (prediction, truth) pair of sequences; each frame's metrics are
+    computed once over the calls that share it (e.g. all frames and their large-deformation subset)."""
     frames = list(frames)
     if not frames:
         out = {"psnr": float("nan"), "ssim": float("nan"), "iou": float("nan"), "frames": 0}
         return out | ({"lpips": float("nan")} if lpips_fn else {})
-    p = [psnr(pred_rgb[f], gt_rgb[f]) for f in frames]
-    s = [ssim(pred_rgb[f], gt_rgb[f]) for f in frames]
-    i = [iou(pred_alpha[f] >= 0.5, gt_mask[f] >= 0.5) for f in frames]
+    cache = {} if cache is None else cache
+    for f in frames:
+        if f not in cache:
+            cache[f] = (psnr(pred_rgb[f], gt_rgb[f]), ssim(pred_rgb[f], gt_rgb[f]),
+                        iou(pred_alpha[f] >= 0.5, gt_mask[f] >= 0.5),
+                        lpips_fn(pred_rgb[f], gt_rgb[f]) if lpips_fn is not None else None)
+    p, s, i, lp = ([cache[f][k] for f in frames] for k in range(4))
     out = {"psnr": float(np.mean(p)), "ssim": float(np.mean(s)), "iou": float(np.mean(i)), "frames": len(frames)}
     if lpips_fn is not None:
-        out["lpips"] = float(np.mean([lpips_fn(pred_rgb[f], gt_rgb[f]) for f in frames]))
+        out["lpips"] = float(np.mean(lp))
     return out
 
 

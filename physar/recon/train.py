@@ -1024,7 +1024,7 @@ def evaluate(recon: Reconstruction, ds: Dataset, methods=METHODS, progress: Prog
         out = {"methods": {}, "lpips": "computed (AlexNet backbone)"}
     except PhysarError as exc:
         lp, out = None, {"methods": {}, "lpips": str(exc)}
-    metrics = lambda *a: sequence_metrics(*a, lpips_fn=lp)
+    metrics = lambda *a, cache: sequence_metrics(*a, lpips_fn=lp, cache=cache)  # per-frame values computed once
     n, no = len(ds.rgb), ds.n_obs
     disp = ds.truth["dynamic_max_displacement"] if ds.truth else None
     sets = {"recon": list(range(1, no)), "pred": list(range(no, n))}
@@ -1039,20 +1039,21 @@ def evaluate(recon: Reconstruction, ds: Dataset, methods=METHODS, progress: Prog
             physics_objects = objects
         if renders is not None:
             renders[m] = rgb
-        res = {}
+        res, mc = {}, {}
         for name, fr in sets.items():
-            res[name] = metrics(rgb, a, ds.rgb, ds.mask, fr)
+            res[name] = metrics(rgb, a, ds.rgb, ds.mask, fr, cache=mc)
             if disp is not None:
-                res[name + "_large"] = metrics(rgb, a, ds.rgb, ds.mask, large_deformation_frames(disp, fr))
+                res[name + "_large"] = metrics(rgb, a, ds.rgb, ds.mask, large_deformation_frames(disp, fr), cache=mc)
         if ds.novel is not None:
             m2 = "lbs" if m in ("4dgs", "spflow") else m  # a per-frame deformation cannot follow new poses
             if m2 not in novel_res:
                 rgb2, a2 = recon.render_sequence(kin_novel, m2, progress)
-                fr = list(range(1, len(rgb2)))
-                nr = {"novel": metrics(rgb2, a2, ds.novel["rgb"], ds.novel["mask"], fr)}
+                fr, mc = list(range(1, len(rgb2))), {}
+                nr = {"novel": metrics(rgb2, a2, ds.novel["rgb"], ds.novel["mask"], fr, cache=mc)}
                 if ds.truth is not None:
                     nr["novel_large"] = metrics(rgb2, a2, ds.novel["rgb"], ds.novel["mask"],
-                                                large_deformation_frames(ds.truth["novel_max_displacement"], fr))
+                                                large_deformation_frames(ds.truth["novel_max_displacement"], fr),
+                                                cache=mc)
                 novel_res[m2] = nr
             res.update({k: dict(v) for k, v in novel_res[m2].items()})
         out["methods"][m] = res
