@@ -34,6 +34,7 @@ with gmsh's OpenCASCADE kernel (exact CAD booleans), for tests and examples.
 
 from __future__ import annotations
 
+import signal
 import threading
 from collections.abc import Callable
 
@@ -54,11 +55,14 @@ class _Gmsh:
         except ImportError as exc:  # pragma: no cover - gmsh is a dependency
             raise MeshError(f"tetrahedralisation needs the gmsh Python package (pip install gmsh): {exc}") from None
         _GMSH_LOCK.acquire()
+        self._handlers = _signal_handlers()
         try:
             gmsh.initialize(readConfigFiles=False, interruptible=False)
         except Exception:
             _GMSH_LOCK.release()
             raise
+        finally:
+            _restore_handlers(self._handlers)
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.option.setNumber("General.Verbosity", 0)
         self.gmsh = gmsh
@@ -68,8 +72,24 @@ class _Gmsh:
         try:
             self.gmsh.finalize()
         finally:
+            _restore_handlers(self._handlers)
             _GMSH_LOCK.release()
         return False
+
+
+def _signal_handlers() -> dict:
+    """Python's handlers of SIGINT and SIGTERM (gmsh's initialize/finalize reset them in C: measured, a
+    SIGTERM after a gmsh session killed the process instead of unwinding through physar's cleanup)."""
+    return {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+
+
+def _restore_handlers(handlers: dict) -> None:
+    """Install ``handlers`` again at the C level (main thread only; elsewhere signals are not ours to set)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for s, h in handlers.items():
+        if h is not None:
+            signal.signal(s, h)
 
 
 def _add_discrete_surface(gmsh, surface: TriMesh) -> int:
