@@ -26,12 +26,14 @@ def _to_jsonable(obj: Any) -> Any:
     if isinstance(obj, np.ndarray):
         return _to_jsonable(obj.tolist())
     if isinstance(obj, np.generic):
-        return obj.item()
+        return _to_jsonable(obj.item())
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None            # strict JSON has no NaN / Infinity: null
     return obj
 
 
 def print_json(obj: Any) -> None:
-    """Print `obj` (numpy arrays allowed) as JSON on stdout."""
+    """Print `obj` (numpy arrays allowed) as strict JSON on stdout (NaN and infinities as null)."""
     sys.stdout.write(json.dumps(_to_jsonable(obj), indent=None) + "\n")
     sys.stdout.flush()
 

@@ -62,8 +62,10 @@ def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None 
           recovery: int = 5, source: str = "estimates", truth_source: str = "truth file") -> dict:
     r"""Per parameter: judged frames (not at rest, no occluder, what is observed in view (truth column
     in_view), not recovering after an occlusion or a look-away), frames within
-    :math:`\mathtt{tol} \times \mathrm{range}`, max / mean / median |error|, and the recovery frames after
-    each occlusion. ``ranges`` {name: (lo, hi)} (default: the span of the truth)."""
+    :math:`\mathtt{tol} \times \mathrm{range}` (a judged frame before the first "tracking" or "rest" frame
+    carries the pipeline's starting value, not an estimate, and counts as outside whatever that value is;
+    later "hold" / "lost" frames are judged by the estimate they hold), max / mean / median |error|, and the
+    recovery frames after each occlusion. ``ranges`` {name: (lo, hi)} (default: the span of the truth)."""
     names = [c[:-5] for c in truth if c.endswith("_true")]
     if not names:
         raise ConfigError(f"{truth_source}: no <name>_true column (is it the truth.csv of `physar synth render`?)")
@@ -82,6 +84,8 @@ def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None 
     status = np.asarray(est.get("status", np.array(["tracking"] * n)))[:n]
     rest = np.asarray(truth.get("at_rest", np.zeros(n)), float)[:n] > 0
     judged = ~occ & ~after & ~rest
+    # a row before the first frame with an estimate of its own carries the pipeline's starting value
+    estimated = np.cumsum(np.isin(status, ("tracking", "rest"))) > 0
     out = {"frames": int(n), "judged": int(judged.sum()), "at_rest": int(rest.sum()), "tol": tol, "parameters": {}}
     for name in names:
         t = np.asarray(truth[f"{name}_true"], float)[:n]
@@ -89,7 +93,7 @@ def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None 
         lo, hi = (ranges or {}).get(name, (float(t.min()), float(t.max())))
         lim = tol * max(hi - lo, 1e-300)
         err = np.abs(e - t)
-        err[~np.isfinite(err)] = np.inf
+        err[~np.isfinite(err) | ~estimated] = np.inf
         ej = err[judged]
         rec = []
         for s in ends:
