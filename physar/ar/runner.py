@@ -106,6 +106,7 @@ def _loop(process, camera, reader, source, out_video, out_csv, fps, crf, csv_hea
     fps = fps or getattr(reader, "fps", 30.0)
     total = getattr(reader, "frames_hint", 0)
     sample = _Sample(keep_results, stats_sample)
+    counts: dict[str, int] = {}
     t_first = None
     with guard_cm as guard, clip_outputs(out_video, out_csv, camera.size, fps, ["frame", "time_s", "status", *csv_header], crf=crf,
                       preset=preset, threaded=True, threads=encoder_threads, convert=convert) as (writer, rows):
@@ -135,6 +136,9 @@ def _loop(process, camera, reader, source, out_video, out_csv, fps, crf, csv_hea
             if time_io:
                 r.stages_ms["encode"] = (t_prev - t_out) * 1e3  # waiting for the encoder queue
             sample.add(r)
+            status = getattr(r, "status", None)
+            if status is not None:
+                counts[status] = counts.get(status, 0) + 1
             t_src = getattr(reader, "last_time", None) if live else None
             if t_src is not None and t_first is None:
                 t_first = t_src
@@ -163,6 +167,8 @@ def _loop(process, camera, reader, source, out_video, out_csv, fps, crf, csv_hea
         summary["process_cpu_ms_per_frame"] = cpu_s / n * 1e3
     if hasattr(reader, "dropped") and live:
         summary["dropped"] = int(reader.dropped)
+    if counts:
+        summary["status_counts"] = counts
     if interrupted:
         summary["interrupted"] = True
         summary["signal"] = guard.name

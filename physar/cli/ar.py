@@ -110,6 +110,13 @@ def ar_run(
             f"{summary['frames']} frames at {summary['fps']:.1f} fps, median latency "
             f"{summary['latency_ms_median']:.2f} ms" + (f"; wrote {out}" if out else "")
             + (f" and {csv_out}" if csv_out else ""))
+    counts = summary.get("status_counts", {})
+    if summary["frames"] and not counts.get("tracking", 0):
+        log(f"warning: no frame was tracked ({', '.join(f'{v} {k}' for k, v in sorted(counts.items()))}): "
+            + ("no pose from the markers: check each [[marker]] id, size (m), center, normal and up against the "
+               "printed markers; " if counts.get("lost", 0) else "")
+            + ("too few dots or features found: check [dots] colour, diameter and points, [tracking] min_dots"
+               if counts.get("hold", 0) else "").rstrip("; "))
     if summary.get("interrupted"):
         raise typer.Exit(code=130)  # Ctrl-C / SIGTERM: the outputs up to the last frame are complete
 
@@ -140,8 +147,8 @@ def _run_project(project_path, spec, out, csv_out, field, max_frames, preset, cr
     project = load_project(project_path, progress=_bar("model"))
     if field is not None:
         project.config.overlay.field = field
+    pipe = ProjectPipeline(project)      # built before the source opens: a live source drops frames meanwhile
     src = _open(spec, project.camera, f"{project_path} [camera] file")
-    pipe = ProjectPipeline(project)
     return pipe.run(src, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf,
                     keep_results=False)  # running statistics only: bounded memory on a live source
 
