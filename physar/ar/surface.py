@@ -120,6 +120,12 @@ def display_surface(X: np.ndarray, faces: np.ndarray, max_faces: int, angle: flo
     return new.points, g, W
 
 
+
+def _peak(v: np.ndarray) -> float:
+    """The value of largest magnitude, with its sign (the maximum of a non-negative field such as von Mises
+    or |u|; for a displacement component the deflection, e.g. -2.97 mm, not the largest positive value)."""
+    return float(v[int(np.argmax(np.abs(v)))]) if v.size else float("nan")
+
 class SurfaceOverlay:
     """Draws a reduced model's deformed boundary surface for one frame.
 
@@ -210,25 +216,25 @@ class SurfaceOverlay:
     def geometry(self, camera: Camera, pose: Pose, c: np.ndarray, mu=None):
         """What a frame's surface is drawn from: (p (v, 2) pixels of the deformed surface vertices, faces
         ids (k,) into ``faces`` of those turned towards the camera sorted far to near, their colour levels (k,)
-        into the LUT, the field's maximum [SI]); the arrays are None when nothing is in front of the camera."""
+        into the LUT, the field's peak [SI]: its value of largest magnitude, signed); the arrays are None when nothing is in front of the camera."""
         vm = self.values(c, mu)
         v = vm if self.W is None else self.W @ vm
         X = self.X0 + self.exag * np.tensordot(c, self.U, 1)
         Xc = X @ pose.R.T + pose.t
         if np.any(Xc[:, 2] <= 1e-6):
-            return None, None, None, float(vm.max())
+            return None, None, None, _peak(vm)
         p = camera.project(X, pose)
         tri = self.faces
         n = np.cross(Xc[tri[:, 1]] - Xc[tri[:, 0]], Xc[tri[:, 2]] - Xc[tri[:, 0]])
         front = np.einsum("ij,ij->i", n, Xc[tri[:, 0]]) < 0      # outward normal towards the camera
         ids = np.flatnonzero(front)
         if not len(ids):
-            return None, None, None, float(vm.max())
+            return None, None, None, _peak(vm)
         ids = ids[np.argsort(-Xc[tri[ids], 2].mean(1))]
         lo, hi = self.vrange
         lev = np.clip(((v[tri[ids]].mean(1) - lo) / (hi - lo) * (self.levels - 1)).round(), 0,
                       self.levels - 1).astype(int)
-        return p, ids, lev, float(vm.max())
+        return p, ids, lev, _peak(vm)
 
     def _surface(self, img, camera, pose, c, mu=None) -> float:
         """Fill the deformed surface; returns the field's maximum (SI units)."""
@@ -288,7 +294,9 @@ class SurfaceOverlay:
                 sd = f"+/- {2 * std[j] * f:.3g} {u} (2 sd)" if np.isfinite(std[j]) else u
                 lines.append((f"{names[j]} = {mu[j] * f:.4g} {sd}", col))
             if "field_max" in info:
-                lines.append((f"max {self.label} {info['field_max'] * self.scale:.3g} {self.unit}", (230, 230, 230)))
+                v = info["field_max"] * self.scale
+                lines.append((f"max {self.label} {v:.3g} {self.unit}" if v >= 0 else
+                              f"max |{self.label}| {-v:.3g} {self.unit} (negative)", (230, 230, 230)))
         obs = info.get("observed", f"{info.get('dots', 0)}/{info.get('dots_total', 0)} dots")
         lines.append((f"{status}: {info.get('markers', 0)} {info.get('pose_from', 'markers')}, {obs}",
                       (200, 200, 200)))
