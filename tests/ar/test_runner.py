@@ -50,7 +50,8 @@ def test_csv_rows_video_and_statistics(tmp_path):
                         ["4", "0.4000", "hold", "2.00"]]
     assert s["frames"] == 5 and len(s["results"]) == 5
     assert sorted(s) == sorted(["frames", "wall_s", "fps", "latency_ms_median", "latency_ms_p95",
-                                "stages_ms_median", "results"])
+                                "stages_ms_median", "results", "status_counts"])
+    assert s["status_counts"] == {"hold": 3, "tracking": 2}      # the statuses of the rows above
     # latencies 1..5 ms: median 3, 95th percentile (linear) 1 + 0.95 * 4
     assert s["latency_ms_median"] == pytest.approx(3.0) and s["latency_ms_p95"] == pytest.approx(4.8)
     # stage "a" 0..4 -> 2; "b" 1, 0, 1, 0, 1 (missing counts 0) -> 1; stages sorted by name
