@@ -291,7 +291,11 @@ def test_ar_run_reads_a_tcp_stream_and_stops_cleanly_on_sigint(project_dir, clip
         run = subprocess.Popen([str(physar), "ar", "run", str(project_dir / "project.toml"),
                                 f"tcp://127.0.0.1:{port}", "-o", str(out / "aug.mp4"), "--csv", str(out / "est.csv")],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                               env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                               # SIGINT as a terminal would deliver it: under a background job (`make test &`)
+                               # the test runner itself ignores SIGINT, the child would inherit that and (as
+                               # physar must, for `physar ar run ... &`) ignore it too
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         time.sleep(8.0)
         run.send_signal(signal.SIGINT)
         _, err = run.communicate(timeout=60)
