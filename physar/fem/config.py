@@ -26,7 +26,15 @@ from pydantic import (
 from physar.errors import ConfigError, MeshError, PhysarError, format_validation_error, refuse_coercion
 from physar.fem.assembly import ElasticModel
 from physar.fem.elements import FESpace
-from physar.fem.loads import gravity_load, point_load, select_nodes_mask, traction_load
+from physar.fem.loads import (
+    default_tol,
+    gravity_load,
+    plane_miss_hint,
+    point_load,
+    points_miss_hint,
+    select_nodes_mask,
+    traction_load,
+)
 from physar.fem.materials import MATERIALS, make_material
 from physar.fem.post import nodal_average, probe, von_mises
 from physar.fem.solvers import StaticResult, solve_static
@@ -73,7 +81,8 @@ class PlaneSelector(_Strict):
     point: Vec3 = Field(..., description="a point of the plane [m]")
     normal: Vec3 = Field(..., description="normal of the plane, any non-zero length [-]")
     tol: float | None = Field(None, ge=0, description="distance from the plane within which nodes are selected [m]; "
-                                                     "default 1e-9 of the mesh extent")
+                                                     "default 4 float32 ulps of the coordinates + 1e-6 of the mesh "
+                                                     "extent (physar.fem.loads.default_tol)")
 
     @model_validator(mode="after")
     def _normal(self):
@@ -90,7 +99,8 @@ class _Selector(_Strict):
     region: str | int | None = Field(None, description="mesh tag (physical group) name or id")
     points: list[Vec3] | None = Field(None, min_length=1, description="nodes within tol of these points [m]")
     tol: float | None = Field(None, ge=0, description="distance from `points` within which nodes are selected [m]; "
-                                                     "default 1e-9 of the mesh extent")
+                                                     "default 4 float32 ulps of the coordinates + 1e-6 of the mesh "
+                                                     "extent (physar.fem.loads.default_tol)")
     plane: PlaneSelector | None = Field(None, description="nodes within tol of a plane {point, normal, tol}")
 
     def _check_selector(self, required: bool = True):
@@ -242,6 +252,21 @@ class Problem:
     prescribed: np.ndarray | None = None  # Dirichlet values on `fixed` (n_dofs,), None = all zero
 
 
+def check_mesh_size(size: float | None, points, name: str, what: str = "[mesh] size") -> None:
+    """Refuse an element size larger than the object's largest bounding-box extent (a length in mm
+    given as m: ``size = 3`` on a 0.16 m part): one ConfigError line with the value and the extent.
+
+    The rule cannot refuse a legitimate coarse mesh: no element can be longer than the object, so any
+    size above the largest extent gives the mesh of size = extent (one element across); the finest mm
+    slip it misses (a size in mm below the extent in m) is a part over 1 m meshed at under 1 mm."""
+    if size is None:
+        return
+    extent = float(np.ptp(np.asarray(points, float), axis=0).max())
+    if size > extent + default_tol(points):  # the slack: a size = extent written from float32 STL coordinates
+        raise ConfigError(f"{what} = {size:g} m is larger than the object's largest extent {extent:.4g} m "
+                          f"({name}): lengths are in metres ({size:g} mm is {size / 1000:g})")
+
+
 def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
     """The [mesh] of a problem file: a box, a volume mesh file (with its tags), or a closed surface file
     (STL, OBJ, PLY, OFF, or any file with triangles only) tetrahedralised by
@@ -252,6 +277,7 @@ def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
             p = base_dir / p
         mesh = read_mesh(p, kind="auto")
         if isinstance(mesh, TriMesh):
+            check_mesh_size(section.size, mesh.points, p.name)
             try:
                 return tetrahedralize(mesh, size=section.size, source=f"[mesh] file {p.name}")
             except MeshError as exc:
@@ -261,6 +287,15 @@ def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
                               "to a surface file that is tetrahedralised)")
         return mesh
     return box_mesh(section.box, section.cells)
+
+
+def _miss_hint(space, sel: dict) -> str:
+    """Why a plane / points selector picked nothing: the nearest node's distance and the tol to give."""
+    if sel.get("plane") is not None:
+        return plane_miss_hint(space, *sel["plane"], sel.get("tol"))
+    if sel.get("points") is not None:
+        return points_miss_hint(space, sel["points"], sel.get("tol"))
+    return "check the selector (metres, in the mesh's frame)"
 
 
 def build_problem(cfg: FemConfig, base_dir: Path | None = None, mesh=None) -> Problem:
@@ -284,7 +319,7 @@ def build_problem(cfg: FemConfig, base_dir: Path | None = None, mesh=None) -> Pr
         if not mask.any():
             if f.box is not None:
                 raise ConfigError(f"[[fix]] #{i + 1}: no node lies in box {list(map(list, f.box))}")
-            raise ConfigError(f"[[fix]] #{i + 1}: no node matches {f.describe()}")
+            raise ConfigError(f"[[fix]] #{i + 1}: no node matches {f.describe()}; {_miss_hint(space, f.selector())}")
         nodes = np.flatnonzero(mask)
         fix_dofs.append({c: 3 * nodes + "xyz".index(c) for c in f.components})
     fixed = np.unique(np.concatenate([d for fd in fix_dofs for d in fd.values()] or [np.zeros(0, np.int64)]))
@@ -373,6 +408,7 @@ __all__ = [
     "Problem",
     "build_mesh",
     "build_problem",
+    "check_mesh_size",
     "format_validation_error",
     "load_config",
     "parse_config",

@@ -3,6 +3,7 @@
 Nodes and boundary faces are selected by exactly one of: a `box`, a mesh `region` (physical group name
 or id of the mesh file, :class:`physar.geometry.regions.MeshTags`), `points` (nodes within `tol`) or a
 `plane` ((point, normal): nodes within `tol` of it) — see :func:`select_nodes_mask`, :func:`select_faces`.
+The default `tol` is :func:`default_tol` (robust to float32 coordinates, e.g. of an STL file).
 
 Surface loads integrate f_a = ∫_Γ N_a t dA over boundary faces; the tet shape functions are evaluated
 on the face (the barycentric coordinate of the opposite vertex is 0), so P1 and P2 are treated alike.
@@ -16,7 +17,7 @@ import numpy as np
 
 from physar.errors import ConfigError, MeshError
 from physar.fem.elements import P2_EDGES, FESpace, shape_functions, tri_quadrature
-from physar.geometry.mesh import TET_FACES, BoundarySurface, in_box, row_keys, select_boundary_faces
+from physar.geometry.mesh import TET_FACES, BoundarySurface, in_box, row_keys
 from physar.geometry.path import path_length, path_point  # noqa: F401 - re-exported: the load path helpers
 from physar.geometry.regions import near_points, on_plane
 
@@ -52,6 +53,58 @@ def _scatter(space: FESpace, cells: np.ndarray, nodal: np.ndarray) -> np.ndarray
     """Sum element nodal forces (f, nen, 3) into a global vector."""
     dofs = space.cell_dofs[cells]
     return np.bincount(dofs.ravel(), weights=nodal.reshape(len(cells), -1).ravel(), minlength=space.n_dofs)
+
+
+_EPS32 = float(np.finfo(np.float32).eps)  # 2**-23
+
+
+def default_tol(points: np.ndarray) -> float:
+    """The default selection tolerance [m] for the nodes ``points`` (n, 3):
+    ``4 * eps32 * max|x| + 1e-6 * extent``.
+
+    * ``4 * eps32 * max|x|`` (eps32 = 2**-23): an STL file (and other float32 mesh files) rounds each
+      coordinate to float32, an error of at most half a float32 ulp, <= eps32/2 * |x|; so a face written at
+      x = 0.16 is read at 0.1599999964 and a plane or point given in float64 at 0.16 must still pick it.
+      Four ulps leave room for the rounding of both the mesh and the written selector and for the
+      float64 arithmetic of the distance; it scales with the coordinates' magnitude, so it also holds for a
+      part placed far from the origin.
+    * ``1e-6 * extent``: round-off of a mesher that moved nodes by a relative 1e-6 or less (gmsh
+      writes 16 digits, but projections onto a surface are not exact).
+
+    Both are far below any element size (a mesh finer than 1e-5 of its extent has 10**15 cells), so the
+    default never reaches the next layer of nodes; a larger `tol` is the user's choice.
+    """
+    X = np.asarray(points, float)
+    if X.size == 0:
+        return 0.0
+    scale = float(np.abs(X).max())
+    extent = float(np.ptp(X.reshape(-1, X.shape[-1]), axis=0).max())
+    return 4.0 * _EPS32 * scale + 1e-6 * extent
+
+
+def _tol(space: FESpace, tol) -> float:
+    return default_tol(space.mesh.points) if tol is None else tol
+
+
+def plane_miss_hint(space: FESpace, point, normal, tol=None) -> str:
+    """The end of a 'no node matches plane' message: the nearest node's distance to the plane, and the
+    `tol` that would select it."""
+    n = np.asarray(normal, float)
+    n = n / np.linalg.norm(n)
+    d = np.abs((space.nodes - np.asarray(point, float)) @ n)
+    i = int(np.argmin(d))
+    return (f"the nearest node {np.round(space.nodes[i], 9).tolist()} is {d[i]:.3g} m from the plane "
+            f"(tol used {_tol(space, tol):.3g} m); give the plane a larger tol (e.g. tol = {d[i] * 1.01:.3g}) "
+            "if that node is meant, or check the point (metres, in the mesh's frame)")
+
+
+def points_miss_hint(space: FESpace, points, tol=None) -> str:
+    """The end of a 'no node matches points' message: the nearest node's distance to the points."""
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(space.nodes).query(np.asarray(points, float).reshape(-1, 3), k=1)
+    return (f"the nearest node is {d.max():.3g} m from a point (tol used {_tol(space, tol):.3g} m); "
+            "give a larger tol if that node is meant")
 
 
 def _one_selector(box, region, points, plane) -> str:
@@ -100,17 +153,17 @@ def select_nodes_mask(space: FESpace, box=None, region=None, points=None, plane=
 
     box [[lo], [hi]] (closed); region (name or id): the vertices of the tagged triangles/tetrahedra and,
     for P2, the midpoints of their edges; points [[x, y, z], ...]: nodes within `tol` of one of them;
-    plane (point, normal): nodes within `tol` of the plane. `tol` defaults to 1e-9 of the mesh extent.
-    An empty selection is not an error here (see :func:`fixed_dofs` callers).
+    plane (point, normal): nodes within `tol` of the plane. `tol` (also the slack of a box) defaults to
+    :func:`default_tol`. An empty selection is not an error here (see :func:`fixed_dofs` callers).
     """
     kind = _one_selector(box, region, points, plane)
     X = space.nodes
     if kind == "box":
-        return in_box(X, box)
+        return in_box(X, box, tol=_tol(space, None))
     if kind == "points":
-        return near_points(X, points, tol)
+        return near_points(X, points, _tol(space, tol))
     if kind == "plane":
-        return on_plane(X, plane[0], plane[1], tol)
+        return on_plane(X, plane[0], plane[1], _tol(space, tol))
     rows, cells = _region(space, region, what)
     mask = np.zeros(space.n_nodes, bool)
     mask[rows.ravel()] = True
@@ -128,7 +181,7 @@ def select_cells_mask(space: FESpace, box=None, region=None, what: str = "select
     if box is not None and region is not None:
         raise ConfigError("give at most one of box, region (a cell selection)")
     if box is not None:
-        return in_box(mesh.points[mesh.cells].mean(axis=1), box, tol=1e-9 * max(np.ptp(mesh.points, axis=0).max(), 1e-300))
+        return in_box(mesh.points[mesh.cells].mean(axis=1), box, tol=_tol(space, None))
     if region is not None:
         _, cells = _region(space, region, what)
         return cells if cells.size == mesh.n_cells else np.zeros(mesh.n_cells, bool)
@@ -146,11 +199,12 @@ def select_faces(space: FESpace, box=None, region=None, points=None, plane=None,
     kind = _one_selector(box, region, points, plane)
     surf = _surface(space)
     if kind == "box":
-        return select_boundary_faces(surf, box=box)
+        return np.flatnonzero(in_box(surf.face_centroids(), box, tol=_tol(space, None)))
     fg = surf.faces_global
     if kind in ("points", "plane"):
         X = space.mesh.points
-        m = near_points(X, points, tol) if kind == "points" else on_plane(X, plane[0], plane[1], tol)
+        t = _tol(space, tol)
+        m = near_points(X, points, t) if kind == "points" else on_plane(X, plane[0], plane[1], t)
         return np.flatnonzero(m[fg].all(axis=1))
     rows, cells = _region(space, region, what)
     n = space.mesh.n_points
@@ -174,7 +228,11 @@ def traction_load(space: FESpace, box: Sequence[Sequence[float]] | None = None,
     if len(faces) == 0:
         if kind == "box":
             raise ConfigError(f"traction load: no boundary face has its centroid in box {np.asarray(box).tolist()}")
-        raise ConfigError(f"traction load: no boundary face matches {_describe(kind, box, region, points, plane, tol)}")
+        hint = ""
+        if kind == "plane":
+            hint = "; " + plane_miss_hint(space, plane[0], plane[1], tol)
+        raise ConfigError(f"traction load: no boundary face matches {_describe(kind, box, region, points, plane, tol)}"
+                          + hint)
     total = np.asarray(total, dtype=float)
     area = surf.mesh.face_areas()[faces].sum()
     cells, _, w, N = _face_quadrature(space, faces, 2)
@@ -252,7 +310,7 @@ def fixed_dofs(
     if region is not None or points is not None or plane is not None:
         mask &= select_nodes_mask(space, box=box, region=region, points=points, plane=plane, tol=tol)
     elif box is not None:
-        mask &= in_box(space.nodes, box)
+        mask &= in_box(space.nodes, box, tol=_tol(space, None))
     if where is not None:
         mask &= np.asarray(where(space.nodes), dtype=bool)
     nodes = np.flatnonzero(mask)

@@ -20,11 +20,23 @@ from physar.errors import ConfigError
 from physar.fem.elements import FESpace, shape_functions, shape_gradients_ref
 
 
-def locate(space: FESpace, points: np.ndarray, tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
-    """Element index (p,) and barycentric coordinates (p, 4) of reference-configuration points."""
+def locate(space: FESpace, points: np.ndarray, tol: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Element index (p,) and barycentric coordinates (p, 4) of reference-configuration points.
+
+    A point outside every element by at most `tol` [m] (default :func:`physar.fem.loads.default_tol`:
+    a point on a boundary face of a float32 STL mesh, read 1 ulp inside) is accepted and projected onto
+    the nearest element (its barycentric coordinates clipped at 0).
+    """
+    from physar.fem.loads import default_tol
+
     points = np.atleast_2d(np.asarray(points, dtype=float))
+    tol = default_tol(space.mesh.points) if tol is None else float(tol)
     Jinv, _ = space.jacobians
     x0 = space.mesh.points[space.mesh.cells[:, 0]]
+    # |grad L_i|: rows of Jinv for L_1..L_3, minus their sum for L_0; L_i / |grad L_i| is the signed
+    # distance [m] to the plane of the face opposite vertex i (negative outside)
+    G = np.concatenate([-Jinv.sum(axis=1)[:, None, :], Jinv], axis=1)
+    gnorm = np.linalg.norm(G, axis=2)
     cells = np.empty(len(points), dtype=np.int64)
     bary = np.empty((len(points), 4))
     for i, p in enumerate(points):  # loop over probes (few), vectorised over elements
@@ -32,10 +44,13 @@ def locate(space: FESpace, points: np.ndarray, tol: float = 1e-9) -> tuple[np.nd
             raise ConfigError(f"probe point {p.tolist()} is not finite")
         xi = np.einsum("mij,mj->mi", Jinv, p - x0)
         L = np.column_stack([1 - xi.sum(axis=1), xi])
-        e = int(np.argmax(L.min(axis=1)))
-        if L[e].min() < -tol:
-            raise ConfigError(f"probe point {p.tolist()} lies outside the mesh")
-        cells[i], bary[i] = e, L[e]
+        dist = (L / gnorm).min(axis=1)
+        e = int(np.argmax(dist))
+        if dist[e] < -tol:
+            raise ConfigError(f"probe point {p.tolist()} lies outside the mesh (by {-dist[e]:.3g} m at least; "
+                              f"points within {tol:.3g} m of it are accepted)")
+        Le = np.clip(L[e], 0.0, None)
+        cells[i], bary[i] = e, Le / Le.sum()
     return cells, bary
 
 

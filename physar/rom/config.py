@@ -118,7 +118,7 @@ class ParameterSection(_Strict):
     region: str | int | None = Field(None, description="mesh tag (physical group) name or id")
     at: list[Vec3] | None = Field(None, min_length=1, description="nodes within tol of these points (m)")
     tol: float | None = Field(None, ge=0, description="distance from `at` within which nodes are selected [m]; "
-                                                     "default 1e-9 of the mesh extent")
+                                                     "default physar.fem.loads.default_tol")
     plane: PlaneSelector | None = Field(None, description="displacement, rotation: nodes within tol of a "
                                                           "plane {point, normal, tol}")
 
@@ -279,7 +279,12 @@ def build_rom(cfg: RomConfig, progress: Callable[[int, int], None] | None = None
     moving-load builders (:func:`physar.rom.elastic.build_moving_load_pgd`, POD, non-intrusive); every
     other combination the general :class:`physar.rom.problem.ParametricProblem`.
     """
-    problem = build_problem(cfg)
+    try:
+        problem = build_problem(cfg)
+    except ConfigError as exc:  # name the file: "[[fix]] #1: no node matches ..." alone does not say which
+        if source == "config" or str(exc).startswith(source):
+            raise
+        raise ConfigError(f"{source}: {exc}") from None
     r = cfg.rom
     workers = workers if workers is not None else r.workers
     scheduler = scheduler if scheduler is not None else r.scheduler
@@ -422,7 +427,10 @@ def build_parametric_problem(cfg: RomConfig, problem, source: str = "config") ->
             except ConfigError as exc:
                 raise ConfigError(f"{source}: {exc}") from None
             if not mask.any():
-                raise ConfigError(f"{what}: no node matches {p.describe()}")
+                from physar.fem.config import _miss_hint
+
+                raise ConfigError(f"{what}: no node matches {p.describe()}; "
+                                  f"{_miss_hint(space, {**p.selector()})}")
             nodes = np.flatnonzero(mask)
             moved |= mask
             if p.kind == "displacement":
