@@ -327,13 +327,35 @@ def _file(base: Path, name: str) -> Path:
     return p if p.is_absolute() else base / p
 
 
+def _config_inputs(path: Path) -> list[Path]:
+    """The files a rom.toml reads besides itself: its ``[mesh] file`` (the only file input of a
+    `physar rom build` file), resolved against the file's folder; none if it does not parse (the build
+    then reports the error)."""
+    import tomllib
+
+    try:
+        mesh = tomllib.loads(path.read_text()).get("mesh", {})
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return []
+    f = mesh.get("file") if isinstance(mesh, dict) else None
+    return [_file(path.parent, f)] if isinstance(f, str) else []
+
+
 def _config_hash(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    """SHA-256 of a rom.toml and of the content of its file inputs (:func:`_config_inputs`: the mesh or
+    surface file), so that editing either rebuilds the model. A missing input hashes as missing (the
+    build then names it)."""
+    h = hashlib.sha256(path.read_bytes())
+    for f in _config_inputs(path):
+        h.update(b"\0input\0" + str(f.name).encode())
+        h.update(hashlib.sha256(f.read_bytes()).digest() if f.is_file() else b"missing")
+    return h.hexdigest()
 
 
 def load_model(cfg: ProjectConfig, source: str, progress=None, build: bool = True):
     """The project's reduced model: ``[model] file`` if it exists (and, when ``config`` is given too, was
-    built from that configuration as it is now: its SHA-256 is stored in the model), else built from
+    built from that configuration as it is now: the SHA-256 of the rom.toml and of its mesh file is stored
+    in the model, :func:`_config_hash`), else built from
     ``[model] config`` (``physar rom build``) and, if ``file`` is given, written there atomically."""
     from physar.rom import SeparatedModel
     from physar.rom.config import build_rom, load_rom_config
@@ -350,8 +372,9 @@ def load_model(cfg: ProjectConfig, source: str, progress=None, build: bool = Tru
         if digest is None or rom.metadata.get("config_sha256") == digest:
             return rom
         if not build:
-            raise ConfigError(f"{source}: [model] file = {m.file!r} was not built from {m.config!r} as it is now; "
-                              "run `physar ar build` (or delete the file)")
+            also = "".join(f" and {f.name}" for f in _config_inputs(conf))
+            raise ConfigError(f"{source}: [model] file = {m.file!r} was not built from {m.config!r}{also} as they "
+                              "are now; run `physar ar build` (or delete the file)")
     elif file is not None and conf is None:
         raise ConfigError(f"{source}: [model] file = {m.file!r}: file not found (give config = \"rom.toml\" to "
                           "build it)")
