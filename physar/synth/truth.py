@@ -136,6 +136,18 @@ class FineTruth:
             if cfg.mesh.file is None or Path(cfg.mesh.file).suffix.lower() not in (".stl", ".obj", ".ply", ".off"):
                 raise ConfigError(f"{path}: [mesh]: a truth mesh_size needs a model meshed from a surface file "
                                   "(STL, OBJ, PLY, OFF); a box or volume mesh is refined as it is")
+            model_size = cfg.mesh.size
+            if model_size is None:  # the model's default: tetrahedralize's, from its surface
+                from physar.geometry import read_mesh
+                from physar.geometry.tetra import default_size
+
+                f = Path(cfg.mesh.file)
+                model_size = default_size(read_mesh(f if f.is_absolute() else base / f, kind="auto"))
+            if mesh_size / refine > model_size * (1 + 1e-9):
+                raise ConfigError(f"{path}: [truth] mesh_size = {mesh_size:g} m refined {refine}x gives elements of "
+                                  f"{mesh_size / refine:.4g} m, larger than the model's [mesh] size "
+                                  f"{model_size:.4g} m: the truth would be coarser than the model; give "
+                                  f"mesh_size <= {refine * model_size:.4g} (refine x the model's size)")
             cfg = cfg.model_copy(deep=True)
             cfg.mesh.size = float(mesh_size)
         try:

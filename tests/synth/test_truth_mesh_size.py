@@ -50,3 +50,26 @@ def test_mesh_size_needs_a_surface_file():
         FineTruth(EXAMPLES / "ar" / "cantilever" / "rom.toml", mesh_size=0.005)
     with pytest.raises(ConfigError, match="positive length"):
         FineTruth(BRACKET, mesh_size=-1.0)
+
+
+@pytest.mark.parametrize("mesh_size,refine", [(0.006, 2), (0.003, 1)])
+def test_truth_coarser_than_the_model_is_refused(mesh_size, refine):
+    """The README promises a truth finer than the model: on the bracket (model [mesh] size 2.5 mm) a
+    truth at 6 mm refined 2x (3 mm elements) or 3 mm unrefined is refused with the sizes named, before
+    any meshing. Catches: no check (a coarser truth is built), mesh_size compared without the refine."""
+    with pytest.raises(ConfigError, match=r"rom.toml: \[truth\] mesh_size = .* refined .* larger than the "
+                                          r"model's \[mesh\] size 0.0025 m: the truth would be coarser"):
+        FineTruth(BRACKET, refine=refine, mesh_size=mesh_size)
+
+
+def test_shipped_truth_sizes_are_finer_than_their_models():
+    """examples/ar/bracket (model 2.5 mm, truth 3.5 mm refined 2x = 1.75 mm) and tests/ar/test_bracket.py
+    (truth 5 mm refined 2x = 2.5 mm, equal to the model: allowed) pass the rule (checked on the numbers the
+    files carry). Catches: a rule that is >= instead of >, one that ignores refine."""
+    import tomllib
+
+    model = load_rom_config(BRACKET).mesh.size
+    scen = tomllib.loads((BRACKET.parent / "scenario.toml").read_text())["truth"]
+    assert scen["mesh_size"] / scen.get("refine", 2) <= model
+    test_src = (Path(__file__).resolve().parents[1] / "ar" / "test_bracket.py").read_text()
+    assert '"mesh_size": 0.005' in test_src and 0.005 / 2 <= model
