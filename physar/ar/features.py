@@ -68,7 +68,7 @@ class FeatureObserver:
         dist = float(pose.apply(centre[None])[0, 2])
         s = self.camera.fx / max(dist, 1e-6)
         self.tracker = PlaneTextureTracker(self.camera, self.o - m * self.eu - m * self.ev, self.eu, self.ev,
-                                           (self.L[0] + 2 * m, self.L[1] + 2 * m), s, n_points=self.cfg.points,
+                                           (self.L[0] + 2 * m, self.L[1] + 2 * m), s, n_points=self.cfg.points or 600,
                                            win=self.cfg.window_px)
 
     def add_reference(self, frame: np.ndarray, gray: np.ndarray, pose: Pose) -> bool:

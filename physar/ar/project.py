@@ -168,9 +168,12 @@ class BarSection(_Strict):
 
 
 class FeaturesSection(_Strict):
-    """The object's own texture on one planar face: features chosen in the first frames (the object at rest,
-    u = 0), tracked by Lucas-Kanade in the face's rectified view; their in-plane displacements are the
-    observations (seed 000 §5.2)."""
+    """The object's own texture on one planar face (seed 000 §5.2). Alone (``mode = "plane"``): features chosen
+    in the first frames (the object at rest, u = 0), tracked by Lucas-Kanade in the face's rectified view;
+    their in-plane displacements are the observations. With ``[dots]`` (``mode = "points"``): features chosen
+    on the face in the first tracked frame, placed on the model's deformed surface there, tracked in the image
+    and used beside the dots as rows of the same (pose, parameters) solve, each group weighted by its own
+    residual."""
 
     origin: Vec3 = Field(..., description="a corner of the face [m]")
     u: Vec3 = Field(..., description="direction of the face's first side [-]")
@@ -179,7 +182,12 @@ class FeaturesSection(_Strict):
     margin: Float | None = Field(None, ge=0, description="rectified band around the face [m] (default: a "
                                                          "quarter of the shorter side)")
     reference_frames: Int = Field(8, ge=1, description="first frames showing the object at rest")
-    points: Int = Field(600, ge=3, le=20000, description="features tracked")
+    mode: Literal["auto", "plane", "points"] = Field(
+        "auto", description="how the features observe the parameters: \"plane\" (in-plane displacements in "
+                            "the face's rectified view), \"points\" (image points in the joint solve with the "
+                            "dots); auto: points with [dots], else plane")
+    points: Int | None = Field(None, ge=3, le=20000, description="features tracked (default: 600 in plane mode, "
+                                                                 "80 in points mode)")
     window_px: Int = Field(15, ge=5, le=61, description="Lucas-Kanade window")
     nuisance: Literal["none", "rigid", "similarity", "affine"] = Field(
         "similarity", description="apparent in-plane motion of the whole face removed from the observations "
@@ -248,7 +256,7 @@ class ProjectConfig(_Strict):
     dots: DotsSection | None = Field(None, description="printed dots on the surface, observing the parameters "
                                                        "(or [features] or [[bar]])")
     features: FeaturesSection | None = Field(None, description="the object's own texture on a planar face, "
-                                                               "observing the parameters (not with [dots])")
+                                                               "observing the parameters (alone, or beside [dots])")
     bar: list[BarSection] = Field(default_factory=list, description="rigid bars turned by rotation parameters, "
                                                                     "each measuring its parameter")
     overlay: OverlaySection = Field(OverlaySection(), description="what is drawn over the video")
@@ -267,8 +275,12 @@ class ProjectConfig(_Strict):
                              "markers: give [[marker]] tables or the plane's image")
         if self.dots is None and self.features is None and not self.bar:
             raise ValueError("nothing observes the parameters: give [dots], [features] or [[bar]]")
-        if self.dots is not None and self.features is not None:
-            raise ValueError("give [dots] or [features], not both")
+        if self.features is not None and self.features.mode == "points" and self.dots is None:
+            raise ValueError("[features] mode = \"points\" needs [dots] (the first tracked frame places the "
+                             "features on the object); without dots use mode = \"plane\"")
+        if self.features is not None and self.features.mode == "plane" and self.dots is not None:
+            raise ValueError("[features] mode = \"plane\" cannot be used with [dots]: give mode = \"points\" "
+                             "(or leave it out)")
         ids = [m.id for m in self.marker]
         if len(set(ids)) != len(ids):
             raise ValueError(f"marker ids must be distinct, got {ids}")
