@@ -1,56 +1,70 @@
-"""Surface mesh denoising: anisotropic Laplacian (AL) and multiscale AL (MSAL), seed 001 §3.2.1.
+r"""Surface mesh denoising: anisotropic Laplacian (AL) and multiscale AL (MSAL), seed 001 §3.2.1.
 
-AL (seed 001 §3.2.1, after Huang & Ascher, SISC 2008 and Inverse Problems 2008), per vertex i with
-one-ring N(i), noisy data q̂ and unit vertex normal n_i (area-weighted average of face normals)::
+AL (seed 001 §3.2.1, after Huang & Ascher, SISC 2008 and Inverse Problems 2008), per vertex :math:`i` with
+one-ring :math:`N(i)`, noisy data :math:`\hat q` and unit vertex normal :math:`n_i` (area-weighted average of
+face normals):
 
-    h_ij = (q_j - q_i)^T n_i,     Δq_i = (1/C_i) Σ_j g(h_ij) h_ij n_i,     C_i = Σ_j g(h_ij)
-    q_i <- q_i + τ Δq_i + λ_i (q̂_i - q_i)
+.. math::
+
+    h_{ij} = (q_j - q_i)^\top n_i, \qquad
+    \Delta q_i = \frac{1}{C_i} \sum_{j \in N(i)} g(h_{ij})\, h_{ij}\, n_i, \qquad
+    C_i = \sum_{j \in N(i)} g(h_{ij}),
+
+    q_i \leftarrow q_i + \tau\, \Delta q_i + \lambda_i (\hat q_i - q_i).
 
 Edge-stopping function g and robust scaling. The seed defers g and "the robust local scaling factor"
 to Huang & Ascher; their text was not retrievable here, so the choice below follows the robust-statistics
 framework the seed's wording ("edge stopping", "robust") comes from, Black, Sapiro, Marimont & Heeger,
 "Robust anisotropic diffusion", IEEE TIP 7(3), 1998:
 
-* robust scale of the noise, σ_e = 1.4826 · median_ij |h_ij - med_{k∈N(i)} h_ik| over all directed
-  edges of the noisy data (MAD; subtracting the one-ring median removes the curvature bias of h, so σ_e
-  measures noise, not shape);
-* Gaussian edge stopping g(h) = exp(-h² / (2 s²)) with s = κ σ_e, κ = 1.5 — the seed calls AL "a
-  simplification of bilateral filtering with Gaussian splitting", and the Gaussian is the range kernel of
-  bilateral mesh filtering (Fleishman et al. 2003): a neighbour whose height deviates by several noise
-  standard deviations (a sharp edge, |h| ~ edge length) barely pulls the vertex. κ = 1.5 was chosen once
-  on the benchmark meshes (benchmarks/bench_denoise.py) and is used for all of them.
-  ``g="tukey"`` (Tukey's biweight (1 - (h/s)²)² for |h| < s, Black et al.'s robust choice, use κ ≈ √5)
-  and ``g="lorentz"`` (1/(1 + h²/2s²), Perona-Malik) are available; Tukey rejects a vertex whose every
-  neighbour lies outside the window, so isolated noise spikes can survive it;
-* robust local scale σ_i = 1.4826 · median_{j∈N(i)} |h_ij - med_k h_ik| of the noisy data (local MAD),
-  used by MSAL for λ_i.
+* robust scale of the noise, :math:`\sigma_e = 1.4826 \operatorname{median}_{ij} |h_{ij} - \operatorname{med}_{k
+  \in N(i)} h_{ik}|` over all directed edges of the noisy data (MAD; subtracting the one-ring median removes
+  the curvature bias of h, so :math:`\sigma_e` measures noise, not shape);
+* Gaussian edge stopping :math:`g(h) = \exp(-h^2 / 2 s^2)` with :math:`s = \kappa \sigma_e`,
+  :math:`\kappa = 1.5` — the seed calls AL "a simplification of bilateral filtering with Gaussian splitting",
+  and the Gaussian is the range kernel of bilateral mesh filtering (Fleishman et al. 2003): a neighbour whose
+  height deviates by several noise standard deviations (a sharp edge, :math:`|h|` ~ edge length) barely
+  pulls the vertex. :math:`\kappa = 1.5` was chosen once on the benchmark meshes
+  (benchmarks/bench_denoise.py) and is used for all of them. ``g="tukey"`` (Tukey's biweight
+  :math:`(1 - (h/s)^2)^2` for :math:`|h| < s`, Black et al.'s robust choice, use :math:`\kappa \approx \sqrt
+  5`) and ``g="lorentz"`` (:math:`1 / (1 + h^2 / 2 s^2)`, Perona-Malik) are available; Tukey rejects a vertex
+  whose every neighbour lies outside the window, so isolated noise spikes can survive it;
+* robust local scale :math:`\sigma_i = 1.4826 \operatorname{median}_{j \in N(i)} |h_{ij} - \operatorname{med}_k
+  h_{ik}|` of the noisy data (local MAD), used by MSAL for :math:`\lambda_i`.
 
-MSAL (seed 001 §3.2.1): step k = 0, 1, 2, ... uses τ = ξ^k and λ_i = f · σ_i / max_j σ_j (f = 1 is the
-seed's choice; the fidelity factor f and ξ are documented parameters, see :func:`msal`).
+MSAL (seed 001 §3.2.1): step :math:`k = 0, 1, 2, \dots` uses :math:`\tau = \xi^k` and
+:math:`\lambda_i = f \sigma_i / \max_j \sigma_j` (:math:`f = 1` is the seed's choice; the fidelity factor
+:math:`f` and :math:`\xi` are documented parameters, see :func:`msal`).
 
-Shrinkage correction (our addition, not in the seed; on by default): the one-ring average in Δq has a
-curvature bias (on a sphere of radius R every h_ij ≈ -|e_ij|²/2R), so plain AL moves curved parts
-inward like mean-curvature flow. Following the HC idea of Vollmer, Mencl & Müller ("Improved Laplacian
-smoothing of noisy surface meshes", Eurographics 1999) with α = 0, the smooth (low-frequency) part of
-the displacement field is removed before the step::
+Shrinkage correction (our addition, not in the seed; on by default): the one-ring average in
+:math:`\Delta q` has a curvature bias (on a sphere of radius :math:`R` every
+:math:`h_{ij} \approx -|e_{ij}|^2 / 2R`), so plain AL moves curved parts inward like mean-curvature flow.
+Following the HC idea of Vollmer, Mencl & Müller ("Improved Laplacian smoothing of noisy surface meshes",
+Eurographics 1999) with :math:`\alpha = 0`, the smooth (low-frequency) part of the displacement field is
+removed before the step:
 
-    Δq̃_i = Δq_i - (1/|N(i)|) Σ_{j∈N(i)} Δq_j,      q_i <- q_i + τ Δq̃_i + λ_i (q̂_i - q_i)
+.. math::
 
-(HC's factor (1 - β) is absorbed in τ; ``shrink_correction`` ∈ [0, 1] scales the subtracted mean,
-1 by default, 0 gives the seed's plain update). Noise, which varies from vertex to vertex, is still
-removed; the slowly varying curvature displacement largely cancels, while the lowest-frequency noise
-is removed more slowly (a noisy plane needs ~100 instead of ~30 steps to reach < 1° normal error). On
-the curved benchmark meshes (bunny, bone, noise 0.2 ē) it lowers the vertex-to-surface distance of
-MSAL by 25-35 % at equal or lower normal error (benchmarks/bench_denoise.py).
+    \Delta\tilde q_i = \Delta q_i - \frac{1}{|N(i)|} \sum_{j \in N(i)} \Delta q_j, \qquad
+    q_i \leftarrow q_i + \tau\, \Delta\tilde q_i + \lambda_i (\hat q_i - q_i)
+
+(HC's factor :math:`1 - \beta` is absorbed in :math:`\tau`; ``shrink_correction`` :math:`\in [0, 1]` scales
+the subtracted mean, 1 by default, 0 gives the seed's plain update). Noise, which varies from vertex to
+vertex, is still removed; the slowly varying curvature displacement largely cancels, while the
+lowest-frequency noise is removed more slowly (a noisy plane needs ~100 instead of ~30 steps to reach < 1°
+normal error). On the curved benchmark meshes (bunny, bone, noise :math:`0.2 \bar e`) it lowers the
+vertex-to-surface distance of MSAL by 25-35 % at equal or lower normal error (benchmarks/bench_denoise.py).
 
 Volume preservation (our addition, not in the seed): normal-direction smoothing shrinks a closed surface
 like mean-curvature flow. With ``preserve_volume=True`` each step is followed by one global offset along
-the vertex normals, q <- q + δ n with δ = (V(q̂) - V(q)) / A(q) (V enclosed volume, A area): to first
-order this restores the volume of the noisy input exactly; it is a single scalar per step, so it does
-not change the relative shape. It is skipped for open surfaces (V undefined).
+the vertex normals, :math:`q \leftarrow q + \delta n` with :math:`\delta = (V(\hat q) - V(q)) / A(q)`
+(:math:`V` enclosed volume, :math:`A` area): to first order this restores the volume of the noisy input
+exactly; it is a single scalar per step, so it does not change the relative shape. It is skipped for open
+surfaces (:math:`V` undefined).
 
 Everything is vectorised over directed edges (np.bincount) and faces (scipy.sparse incidence); there is
-no Python loop over vertices. Units: positions in metres; τ, λ, ξ, κ, f are dimensionless.
+no Python loop over vertices. Units: positions in metres; :math:`\tau, \lambda, \xi, \kappa, f` are
+dimensionless.
 """
 
 from __future__ import annotations
@@ -81,14 +95,15 @@ def directed_edges(edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def heights(q: np.ndarray, n: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """h_ij = (q_j - q_i)^T n_i for directed edges (m)."""
+    r"""Heights :math:`h_{ij} = (q_j - q_i)^\top n_i` of the directed edges (m)."""
     return np.einsum("ij,ij->i", q[dst] - q[src], n[src])
 
 
 def _grouped_median(x: np.ndarray, src: np.ndarray, npts: int) -> np.ndarray:
-    """Lower median of x over each group src == i (0 for empty groups); `src` must be sorted.
+    r"""Lower median of x over each group src == i (0 for empty groups); `src` must be sorted.
 
-    One float sort of the keys 2 src + (x - min) / span · 0.999 (each group owns [2i, 2i + 1)), which is
+    One float sort of the keys :math:`2\,\mathrm{src} + 0.999\,(x - \min x) / \mathrm{span}` (each group owns
+    :math:`[2i, 2i + 1)`), which is
     ~5x faster than a lexsort; the values are recovered to ~1e-9 of the span of x.
     """
     counts = np.bincount(src, minlength=npts)
@@ -108,9 +123,13 @@ def _grouped_median(x: np.ndarray, src: np.ndarray, npts: int) -> np.ndarray:
 
 
 def noise_scales(h: np.ndarray, src: np.ndarray, npts: int) -> tuple[float, np.ndarray]:
-    """Robust scales of directed-edge heights h (src sorted): global σ_e and local σ_i (m).
+    r"""Robust scales of directed-edge heights h (src sorted): global :math:`\sigma_e` and local :math:`\sigma_i` (m).
 
-    σ_e = 1.4826 median_ij |h_ij - m_i| and σ_i = 1.4826 median_j |h_ij - m_i|, m_i = med_k h_ik
+    .. math::
+
+        \sigma_e = 1.4826 \operatorname{median}_{ij} |h_{ij} - m_i|, \qquad
+        \sigma_i = 1.4826 \operatorname{median}_j |h_{ij} - m_i|, \qquad m_i = \operatorname{med}_k h_{ik}
+
     (MAD with the one-ring median, i.e. the curvature bias of h, removed).
     """
     if len(h) == 0:
@@ -120,17 +139,20 @@ def noise_scales(h: np.ndarray, src: np.ndarray, npts: int) -> tuple[float, np.n
 
 
 def local_scale(h: np.ndarray, src: np.ndarray, npts: int) -> np.ndarray:
-    """Robust local scale σ_i = 1.4826 median_j |h_ij - med_k h_ik| (local MAD, m); src sorted."""
+    r"""Robust local scale :math:`\sigma_i = 1.4826 \operatorname{median}_j |h_{ij} - \operatorname{med}_k h_{ik}|`
+    (local MAD, m); src sorted."""
     return noise_scales(h, src, npts)[1]
 
 
 def robust_scale(h: np.ndarray, src: np.ndarray, npts: int) -> float:
-    """Global robust noise scale σ_e = 1.4826 median_ij |h_ij - med_k h_ik| (m); src sorted."""
+    r"""Global robust noise scale :math:`\sigma_e = 1.4826 \operatorname{median}_{ij} |h_{ij} -
+    \operatorname{med}_k h_{ik}|` (m); src sorted."""
     return noise_scales(h, src, npts)[0]
 
 
 def edge_stopping(h: np.ndarray, s: float, kind: str = G_DEFAULT) -> np.ndarray:
-    """Edge-stopping weights g(h) for scale s (m): Gaussian, Tukey biweight or Lorentzian (see module doc)."""
+    """Edge-stopping weights :math:`g(h)` for scale :math:`s` (m): Gaussian, Tukey biweight or Lorentzian (see
+    module doc)."""
     x2 = (h / s) ** 2
     if kind == "gauss":
         return np.exp(-0.5 * x2)
@@ -203,7 +225,8 @@ Geometry = Callable[[np.ndarray], tuple[np.ndarray, float | None, float | None]]
 
 
 def ring_mean_matrix(src: np.ndarray, dst: np.ndarray, npts: int) -> sparse.csr_matrix:
-    """Sparse M, (M x)_i = mean_{j∈N(i)} x_j, from directed edges sorted by src (float32; isolated rows 0)."""
+    r"""Sparse :math:`M`, :math:`(M x)_i = \operatorname{mean}_{j \in N(i)} x_j`, from directed edges sorted by
+    src (float32; isolated rows 0)."""
     deg = np.bincount(src, minlength=npts)
     indptr = np.concatenate([[0], np.cumsum(deg)])
     w = (1.0 / np.maximum(deg, 1)).astype(np.float32)[src]
@@ -211,7 +234,8 @@ def ring_mean_matrix(src: np.ndarray, dst: np.ndarray, npts: int) -> sparse.csr_
 
 
 def _edge_heights(q32: np.ndarray, n: np.ndarray, a: np.ndarray, b: np.ndarray):
-    """Heights of both directions of undirected edges (a, b): h_ab = d·n_a, h_ba = -d·n_b, d = q_b - q_a."""
+    r"""Heights of both directions of undirected edges (a, b): :math:`h_{ab} = d \cdot n_a`,
+    :math:`h_{ba} = -d \cdot n_b`, :math:`d = q_b - q_a`."""
     d = q32[b] - q32[a]
     return np.einsum("ij,ij->i", d, n[a]), -np.einsum("ij,ij->i", d, n[b])
 
@@ -230,15 +254,18 @@ def al_iterate(
     shrink_correction: float = 1.0,
     rescale: float | None = None,
 ) -> np.ndarray:
-    """Run q <- q + τ_k Δq + λ (q̂ - q) for each τ_k in `taus` (seed 001 §3.2.1).
+    r"""Run :math:`q \leftarrow q + \tau_k \Delta q + \lambda (\hat q - q)` for each :math:`\tau_k` in `taus`
+    (seed 001 §3.2.1).
 
     `geometry(q32)` returns (unit normals, volume or None, area or None) at centred float32 positions;
-    `edges` are the undirected graph edges (e, 2). The edge-stopping scale is fixed from the noisy data, s = κ σ_e (:func:`noise_scales`,
-    or the given `sigma_e`). With `shrink_correction`, Δq_i is replaced by Δq_i - mean_{j∈N(i)} Δq_j
+    `edges` are the undirected graph edges (e, 2). The edge-stopping scale is fixed from the noisy data,
+    :math:`s = \kappa \sigma_e` (:func:`noise_scales`, or the given `sigma_e`). With `shrink_correction`,
+    :math:`\Delta q_i` is replaced by :math:`\Delta q_i - \operatorname{mean}_{j \in N(i)} \Delta q_j`
     (module doc). With `preserve_volume` and a closed surface, each step is followed by the global
-    normal offset δ = (V(q̂) - V(q)) / A(q). With `rescale` = ρ (feature mode, our addition), the
-    edge-stopping scale is re-estimated from the current positions before every step,
-    s_k = κ max(σ_e(q_k), ρ σ_e(q̂)): as the noise goes, s shrinks and sharp edges stop the flow.
+    normal offset :math:`\delta = (V(\hat q) - V(q)) / A(q)`. With `rescale` = :math:`\rho` (feature mode,
+    our addition), the edge-stopping scale is re-estimated from the current positions before every step,
+    :math:`s_k = \kappa \max(\sigma_e(q_k), \rho\, \sigma_e(\hat q))`: as the noise goes, :math:`s` shrinks
+    and sharp edges stop the flow.
     """
     if kappa <= 0:
         raise PhysarError(f"kappa must be > 0, got {kappa}")
@@ -317,8 +344,16 @@ def anisotropic_laplacian(
     g: str = G_DEFAULT, preserve_volume: bool = True, shrink_correction: float = 1.0,
     progress: Progress = None,
 ) -> TriMesh:
-    """AL denoising (seed 001 §3.2.1) with constant τ and fidelity λ; see the module doc for g, κ and
-    the shrinkage / volume corrections (set both False for the seed's plain update)."""
+    r"""AL denoising (seed 001 §3.2.1) with constant step :math:`\tau` (`tau`) and fidelity :math:`\lambda`
+    (`lam`):
+
+    .. math::
+
+        q_i \leftarrow q_i + \tau\, \Delta q_i + \lambda (\hat q_i - q_i), \qquad
+        \Delta q_i = \frac{\sum_{j \in N(i)} g(h_{ij})\, h_{ij}\, n_i}{\sum_{j \in N(i)} g(h_{ij})};
+
+    see the module doc for :math:`g`, :math:`\kappa` and the shrinkage / volume corrections (set both False
+    for the seed's plain update)."""
     _check_iter(iterations)
     if not (0 < tau <= 1) or not (0 <= lam <= 1):
         raise PhysarError(f"AL needs 0 < tau <= 1 and 0 <= lam <= 1, got tau={tau}, lam={lam}")
@@ -329,13 +364,15 @@ def anisotropic_laplacian(
 
 
 def msal_lambda(sigma_i: np.ndarray) -> np.ndarray:
-    """λ_i = σ_i / max_j σ_j with the robust local scale σ_i of the noisy data (seed 001 §3.2.1)."""
+    r""":math:`\lambda_i = \sigma_i / \max_j \sigma_j` with the robust local scale :math:`\sigma_i` of the noisy
+    data (seed 001 §3.2.1)."""
     m = sigma_i.max() if len(sigma_i) else 0.0
     return sigma_i / m if m > 0 else np.zeros_like(sigma_i)
 
 
 def scales_of(q: np.ndarray, normals: np.ndarray, edges: np.ndarray) -> tuple[float, np.ndarray]:
-    """(σ_e, σ_i) of positions q with unit normals on the graph `edges` (:func:`noise_scales`)."""
+    r""":math:`(\sigma_e, \sigma_i)` of positions q with unit normals on the graph `edges`
+    (:func:`noise_scales`)."""
     src, dst = directed_edges(edges)
     return noise_scales(heights(q, normals, src, dst), src, len(q))
 
@@ -353,10 +390,15 @@ def msal(
     fidelity: float = MSAL_FIDELITY, g: str = G_DEFAULT, preserve_volume: bool = True,
     shrink_correction: float = 1.0, rescale: float | None = None, progress: Progress = None,
 ) -> TriMesh:
-    """MSAL (seed 001 §3.2.1): step k uses τ = ξ^k and λ_i = fidelity · σ_i / max σ.
+    r"""MSAL (seed 001 §3.2.1): step :math:`k` is an AL step (:func:`anisotropic_laplacian`) with
 
-    The seed sets fidelity = 1 and "typically up to 4 iterations"; as k -> ∞ the iteration returns to
-    the data q̂. Defaults here: ξ = 0.9, fidelity = 0.05, 8 iterations, with the shrinkage and volume
+    .. math::
+
+        \tau = \xi^k, \qquad \lambda_i = f\, \frac{\sigma_i}{\max_j \sigma_j}
+
+    (:math:`f` = `fidelity`, :math:`\sigma_i` the robust local scale of the noisy data). The seed sets
+    :math:`f = 1` and "typically up to 4 iterations"; as :math:`k \to \infty` the iteration returns to
+    the data :math:`\hat q`. Defaults here: :math:`\xi = 0.9`, :math:`f = 0.05`, 8 iterations, with the shrinkage and volume
     corrections of the module doc (set ``xi=0.5, fidelity=1, shrink_correction=False,
     preserve_volume=False`` for the seed's plain form). ``rescale=0.5`` is the feature mode for meshes
     with sharp edges (CAD): the edge-stopping scale follows the remaining noise (:func:`al_iterate`);
@@ -383,7 +425,8 @@ def msal_sharp(mesh: TriMesh, iterations: int = 16, progress: Progress = None) -
 
 
 def _umbrella(q: np.ndarray, lap: sparse.csr_matrix) -> np.ndarray:
-    """Uniform Laplacian L q_i = mean_j q_j - q_i (lap = row-normalised adjacency)."""
+    r"""Uniform Laplacian :math:`(L q)_i = \operatorname{mean}_{j \in N(i)} q_j - q_i` (lap = row-normalised
+    adjacency)."""
     return lap @ q - q
 
 
@@ -399,7 +442,8 @@ def _umbrella_matrix(mesh: TriMesh) -> sparse.csr_matrix:
 def laplacian_smooth(
     mesh: TriMesh, iterations: int = 10, lam: float = 0.5, progress: Progress = None
 ) -> TriMesh:
-    """Baseline: explicit uniform Laplacian smoothing q <- q + λ L q."""
+    r"""Baseline: explicit uniform Laplacian smoothing :math:`q \leftarrow q + \lambda L q` (:math:`\lambda` =
+    `lam`, :math:`(L q)_i = \operatorname{mean}_{j \in N(i)} q_j - q_i`)."""
     _check_iter(iterations)
     lap = _umbrella_matrix(mesh)
     q = mesh.points.copy()
@@ -413,7 +457,9 @@ def laplacian_smooth(
 def taubin_smooth(
     mesh: TriMesh, iterations: int = 10, lam: float = 0.5, mu: float = -0.53, progress: Progress = None
 ) -> TriMesh:
-    """Baseline: Taubin λ|μ smoothing, each iteration q <- q + λ L q then q <- q + μ L q."""
+    r"""Baseline: Taubin :math:`\lambda|\mu` smoothing, each iteration :math:`q \leftarrow q + \lambda L q` then
+    :math:`q \leftarrow q + \mu L q` (:math:`\lambda` = `lam` > 0, :math:`\mu` = `mu` < 0, :math:`L` the uniform
+    Laplacian)."""
     _check_iter(iterations)
     lap = _umbrella_matrix(mesh)
     q = mesh.points.copy()
@@ -429,16 +475,22 @@ def bilateral_normal_filter(
     mesh: TriMesh, iterations: int = 20, sigma_r: float = 0.35, vertex_iterations: int = 10,
     progress: Progress = None,
 ) -> TriMesh:
-    """Baseline: bilateral normal filtering (Zheng, Fu, Au & Tai, IEEE TVCG 2011, local iterative scheme).
+    r"""Baseline: bilateral normal filtering (Zheng, Fu, Au & Tai, IEEE TVCG 2011, local iterative scheme).
 
-    Face normals n_i are filtered over faces sharing a vertex with face i (itself included)::
+    Face normals :math:`n_i` are filtered over faces sharing a vertex with face :math:`i` (itself included):
 
-        n_i <- normalize( Σ_j A_j W_s(|c_i - c_j|) W_r(|n_i - n_j|) n_j ),
-        W_s(x) = exp(-x²/(2 σ_s²)), W_r(x) = exp(-x²/(2 σ_r²)),
+    .. math::
 
-    with A_j face areas, c_j centroids, σ_s = mean distance between centroids of neighbouring faces
-    (fixed on the input), `iterations` times; then the vertices are fitted to the filtered normals by
-    `vertex_iterations` steps of x_i <- x_i + (1/|F_i|) Σ_{f∋i} n_f n_fᵀ (c_f - x_i) (Sun et al. 2007).
+        n_i \leftarrow \operatorname{normalize}\Big( \sum_j A_j\, W_s(|c_i - c_j|)\, W_r(|n_i - n_j|)\, n_j \Big),
+        \qquad W_s(x) = e^{-x^2 / 2\sigma_s^2}, \quad W_r(x) = e^{-x^2 / 2\sigma_r^2},
+
+    with :math:`A_j` face areas, :math:`c_j` centroids, :math:`\sigma_s` = mean distance between centroids of
+    neighbouring faces (fixed on the input), :math:`\sigma_r` = `sigma_r`, `iterations` times; then the
+    vertices are fitted to the filtered normals by `vertex_iterations` steps of (Sun et al. 2007)
+
+    .. math::
+
+        x_i \leftarrow x_i + \frac{1}{|F_i|} \sum_{f \ni i} n_f n_f^\top (c_f - x_i).
     """
     _check_iter(iterations)
     ops = SurfaceOps.from_mesh(mesh)

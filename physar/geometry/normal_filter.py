@@ -1,4 +1,4 @@
-"""Two-stage feature-aware denoising: bilateral filtering of face normals, a feature-weighted Taubin
+r"""Two-stage feature-aware denoising: bilateral filtering of face normals, a feature-weighted Taubin
 smoothing of the positions (normal and tangential), then a vertex update that fits the filtered normals; the
 amount of normal filtering and its range width are chosen from the mesh alone, by Stein's unbiased estimate of
 the face-tilt error (SURE) with the mesh's own noise estimate.
@@ -7,74 +7,99 @@ Why a method beside AL/MSAL (seed 001 §3.2.1): AL moves a vertex only along its
 part of random-direction noise (the literature's protocol, :func:`physar.geometry.quality.add_noise`)
 stays and sharp edges stay jagged (issue 20 measurements: 1.4-1.8x a tuned Taubin or normal filter).
 
-Stage 1, bilateral filter of face normals (Zheng, Fu, Au & Tai, IEEE TVCG 2011), per face i over the faces
-j sharing a vertex with i::
+Stage 1, bilateral filter of face normals (Zheng, Fu, Au & Tai, IEEE TVCG 2011), per face :math:`i` over the
+faces :math:`j` sharing a vertex with :math:`i`:
 
-    n_i <- normalize( Σ_j A_j W_s(|c_i - c_j|) W_r(|g_i - g_j|) n_j ),
-    W_s(x) = exp(-x² / 2σ_s²),   W_r(x) = exp(-x² / 2σ_r²)
+.. math::
 
-A_j face area, c_j centroid, σ_s = mean centroid distance of neighbouring faces, σ_r (0.2 or 0.35, below), g = n (or, with
-``guided=True``, the mean normal of the most consistent neighbouring patch, after Zhang et al., "Guided mesh
-normal filtering", 2015: H_j = max_{k∈P_j} |n_k - m_j|; it measured worse here, so it is off by default).
+    n_i \leftarrow \operatorname{normalize}\Big( \sum_j A_j\, W_s(|c_i - c_j|)\, W_r(|g_i - g_j|)\, n_j \Big),
+    \qquad W_s(x) = e^{-x^2 / 2\sigma_s^2}, \quad W_r(x) = e^{-x^2 / 2\sigma_r^2}
 
-Stage 2, feature-weighted Taubin λ|μ smoothing (Taubin, SIGGRAPH 1995; λ = 0.5, μ = -0.53) of the positions,
-with edge weights from the filtered vertex normals ν_i (area-weighted averages of the stage-1 normals)::
+:math:`A_j` face area, :math:`c_j` centroid, :math:`\sigma_s` = mean centroid distance of neighbouring faces,
+:math:`\sigma_r` (0.2 or 0.35, below), :math:`g = n` (or, with ``guided=True``, the mean normal of the most
+consistent neighbouring patch, after Zhang et al., "Guided mesh normal filtering", 2015:
+:math:`H_j = \max_{k \in P_j} |n_k - m_j|`; it measured worse here, so it is off by default).
 
-    x <- x + λ L x,  x <- x + μ L x,   (L x)_i = Σ_j w_ij (x_j - x_i) / Σ_j w_ij,
-    w_ij = exp(-|ν_i - ν_j|² / 2σ_w²),  σ_w = 0.4
+Stage 2, feature-weighted Taubin :math:`\lambda|\mu` smoothing (Taubin, SIGGRAPH 1995; :math:`\lambda = 0.5`,
+:math:`\mu = -0.53`) of the positions, with edge weights from the filtered vertex normals :math:`\nu_i`
+(area-weighted averages of the stage-1 normals):
+
+.. math::
+
+    x \leftarrow x + \lambda L x, \quad x \leftarrow x + \mu L x, \qquad
+    (L x)_i = \frac{\sum_j w_{ij} (x_j - x_i)}{\sum_j w_{ij}}, \qquad
+    w_{ij} = e^{-|\nu_i - \nu_j|^2 / 2\sigma_w^2}, \quad \sigma_w = 0.4
 
 It moves vertices tangentially too (it regularises the sampling the noise disturbed, which AL cannot), and
 across a sharp edge the weights vanish, so the two sides are smoothed separately.
 
-Stage 3, vertex update (Sun, Rosin, Martin & Langbein, IEEE TVCG 2007), 10 times::
+Stage 3, vertex update (Sun, Rosin, Martin & Langbein, IEEE TVCG 2007), 10 times:
 
-    x_i <- x_i + (1/|F_i|) Σ_{f∋i} n_f n_fᵀ (c_f - x_i)
+.. math::
+
+    x_i \leftarrow x_i + \frac{1}{|F_i|} \sum_{f \ni i} n_f n_f^\top (c_f - x_i)
 
 every face plane (through its centroid, with its stage-1 normal) pulls the vertex along that normal: planes
 become flat and a vertex on an edge is pulled onto the intersection of the planes of both sides. Last, one
-global offset along the vertex normals restores the enclosed volume of the input, δ = (V(q̂) - V(q)) / A(q),
-as in :func:`physar.geometry.denoise.al_iterate`.
+global offset along the vertex normals restores the enclosed volume of the input,
+:math:`\delta = (V(\hat q) - V(q)) / A(q)`, as in :func:`physar.geometry.denoise.al_iterate`.
 
-Automatic amount of filtering (a user has no clean mesh to tune against): the stage-1 iteration count k and
-the range width σ_r ∈ {0.2, 0.35} are chosen by Stein's unbiased risk estimate (SURE; Stein 1981, Monte-Carlo
-form of Ramani, Blu & Unser, IEEE TIP 2008) of the face-tilt error of the result q = f(y) of the noisy mesh y::
+Automatic amount of filtering (a user has no clean mesh to tune against): the stage-1 iteration count :math:`k`
+and the range width :math:`\sigma_r \in \{0.2, 0.35\}` are chosen by Stein's unbiased risk estimate (SURE;
+Stein 1981, Monte-Carlo form of Ramani, Blu & Unser, IEEE TIP 2008) of the face-tilt error of the result
+:math:`q = f(y)` of the noisy mesh :math:`y`:
 
-    R = mean |A (q - x)|²,   (A d)_{f,ij} = n_f · (d_i - d_j)  over the three edges (i, j) of every face f,
-    SURE = mean |A (q - y)|² - 2σ² + 2σ² bᵀAᵀA (f(y + εb) - f(y)) / (ε · 3m),   b ~ N(0, I)
+.. math::
 
-(x the unknown clean mesh, m faces, n_f the face normals of a lightly smoothed y, fixed; A(q - x) is what tilts
-a face, hence its normal error). It assumes i.i.d. isotropic noise of std σ per coordinate, σ =
-:data:`SURE_NOISE_FACTOR` · σ_e / :data:`MAD_RATIO` from :func:`noise_scale` (one-ring heights minus a local
-quadric fit, so curvature is not counted as noise; σ_e ≈ 0.29 σ_n for random-direction noise on remeshed spheres,
-tori, boxes and cylinders, 0.31-0.33 on pymeshlab's bone and airplane; the factor 1.0 was the best of 0.85, 0.92
-and 1.0 there, `benchmarks/bench_denoise.py --calibrate`, none of them a benchmark mesh). One probe b
-(seeded) for all (k, σ_r), so the comparison between them is not blurred by sampling; the finite-difference step
-ε = :data:`EPS_FD` σ = 0.1 σ (a smaller one, 0.01 σ, made the estimate jump between neighbouring k where the
-filter is far from linear: σ_r = 0.2 beyond 40 iterations at 0.3 ē). The (σ_r, k) of the lowest estimate is kept::
+    R = \operatorname{mean} |A (q - x)|^2, \qquad (A d)_{f,ij} = n_f \cdot (d_i - d_j)
+    \text{ over the three edges } (i, j) \text{ of every face } f,
 
-    (σ_r*, k*) = argmin { SURE(σ_r, k) : σ_r ∈ candidates, k ∈ K(σ_r) ⊂ CHECKPOINTS }
+    \mathrm{SURE} = \operatorname{mean} |A (q - y)|^2 - 2\sigma^2
+    + \frac{2\sigma^2\, b^\top A^\top A\, (f(y + \varepsilon b) - f(y))}{3 m\, \varepsilon},
+    \qquad b \sim N(0, I)
 
-with K(σ_r) the counts that the previous rule's walk (``search="exhaustive"``) evaluates: every checkpoint in
-order until ``patience`` (3) in a row bring no lower estimate. The default (``search="coarse"``)
+(:math:`x` the unknown clean mesh, :math:`m` faces, :math:`n_f` the face normals of a lightly smoothed
+:math:`y`, fixed; :math:`A(q - x)` is what tilts a face, hence its normal error). It assumes i.i.d. isotropic
+noise of std :math:`\sigma` per coordinate, :math:`\sigma` = :data:`SURE_NOISE_FACTOR` :math:`\cdot\,\sigma_e /`
+:data:`MAD_RATIO` from :func:`noise_scale` (one-ring heights minus a local quadric fit, so curvature is not
+counted as noise; :math:`\sigma_e \approx 0.29 \sigma_n` for random-direction noise on remeshed spheres, tori,
+boxes and cylinders, 0.31-0.33 on pymeshlab's bone and airplane; the factor 1.0 was the best of 0.85, 0.92
+and 1.0 there, `benchmarks/bench_denoise.py --calibrate`, none of them a benchmark mesh). One probe :math:`b`
+(seeded) for all :math:`(k, \sigma_r)`, so the comparison between them is not blurred by sampling; the
+finite-difference step :math:`\varepsilon` = :data:`EPS_FD` :math:`\sigma = 0.1 \sigma` (a smaller one,
+:math:`0.01 \sigma`, made the estimate jump between neighbouring :math:`k` where the filter is far from linear:
+:math:`\sigma_r = 0.2` beyond 40 iterations at :math:`0.3 \bar e`). The :math:`(\sigma_r, k)` of the lowest
+estimate is kept:
+
+.. math::
+
+    (\sigma_r^*, k^*) = \operatorname*{argmin} \{ \mathrm{SURE}(\sigma_r, k) :
+    \sigma_r \in \text{candidates},\ k \in K(\sigma_r) \subset \text{CHECKPOINTS} \}
+
+with :math:`K(\sigma_r)` the counts that the previous rule's walk (``search="exhaustive"``) evaluates: every
+checkpoint in order until ``patience`` (3) in a row bring no lower estimate. The default (``search="coarse"``)
 makes the same walk with fewer evaluations: (1) SURE at the coarse counts :data:`COARSE` (1, 3, 6, 12, 25, 50,
-100: about x2 apart, odd first since k and k + 1 share the ceil(k/2) re-filter of the reconstruction) while
-each one lowers the estimate, one filter chain continued from count to count; (2) from the coarse count before
-the lowest one, the previous rule's walk over the checkpoints, the chain run on from the state stored there
-and the coarse counts it passes not evaluated again. Where the estimate falls through the coarse counts
-skipped in (1) (at most two checkpoints lie between two coarse counts, so three in a row without a lower
-estimate cannot hide there unless one of them is below the next coarse count), the two searches take the
-same (σ_r, k); they did on the four benchmark meshes at 0.2-0.3 ē, the calibration meshes and 18 small cases
-(plate with a hole, box, sphere; 0.2-0.3 ē, 3 seeds), with 18-22 evaluations of SURE where the previous one
-made 22-36 (the same 8-13 where the lowest is at 1-4 iterations, as on the scans;
-``tests/geometry/test_denoise_search.py`` checks three cases against the full grid). On flat
-and smooth shapes, where both run to the cap of 100, that is 9 counts per σ_r instead of 18. Unlike the
-discrepancy principle (``rule="discrepancy"``: the first k whose residual rms_i((q̂_i - x_i)·n_i) reaches
-``discrepancy`` · σ_e / 0.29, the default before SURE), SURE weighs the noise removed against the shape
-removed, so it stops early on detailed scans and late on flat CAD faces. Each evaluation reconstructs twice (y and the probe). Everything
-is vectorised (scipy.sparse, np.take): a filter pass evaluates each symmetric pair of faces once,
-W = (S_u + S_uᵀ + I) diag(A) with S_u the strict upper part of W_s W_r; the vertex update is
-x_i <- (I - M_i) x_i + Σ_{f∋i} n_f (n_f·c_f) / |F_i| with M_i = Σ_{f∋i} n_f n_fᵀ / |F_i| fixed per call.
-Units: positions in metres; σ_r, σ_w dimensionless (distances between unit vectors).
+100: about x2 apart, odd first since :math:`k` and :math:`k + 1` share the :math:`\lceil k/2 \rceil` re-filter
+of the reconstruction) while each one lowers the estimate, one filter chain continued from count to count;
+(2) from the coarse count before the lowest one, the previous rule's walk over the checkpoints, the chain run
+on from the state stored there and the coarse counts it passes not evaluated again. Where the estimate falls
+through the coarse counts skipped in (1) (at most two checkpoints lie between two coarse counts, so three in a
+row without a lower estimate cannot hide there unless one of them is below the next coarse count), the two
+searches take the same :math:`(\sigma_r, k)`; they did on the four benchmark meshes at 0.2-0.3 ē, the
+calibration meshes and 18 small cases (plate with a hole, box, sphere; 0.2-0.3 ē, 3 seeds), with 18-22
+evaluations of SURE where the previous one made 22-36 (the same 8-13 where the lowest is at 1-4 iterations,
+as on the scans; ``tests/geometry/test_denoise_search.py`` checks three cases against the full grid). On flat
+and smooth shapes, where both run to the cap of 100, that is 9 counts per :math:`\sigma_r` instead of 18.
+Unlike the discrepancy principle (``rule="discrepancy"``: the first :math:`k` whose residual
+:math:`\operatorname{rms}_i((\hat q_i - x_i) \cdot n_i)` reaches ``discrepancy`` :math:`\cdot\, \sigma_e / 0.29`,
+the default before SURE), SURE weighs the noise removed against the shape removed, so it stops early on
+detailed scans and late on flat CAD faces. Each evaluation reconstructs twice (:math:`y` and the probe).
+Everything is vectorised (scipy.sparse, np.take): a filter pass evaluates each symmetric pair of faces once,
+:math:`W = (S_u + S_u^\top + I) \operatorname{diag}(A)` with :math:`S_u` the strict upper part of
+:math:`W_s W_r`; the vertex update is
+:math:`x_i \leftarrow (I - M_i)\, x_i + \sum_{f \ni i} n_f (n_f \cdot c_f) / |F_i|` with
+:math:`M_i = \sum_{f \ni i} n_f n_f^\top / |F_i|` fixed per call.
+Units: positions in metres; :math:`\sigma_r, \sigma_w` dimensionless (distances between unit vectors).
 """
 
 from __future__ import annotations
@@ -121,13 +146,19 @@ SEARCHES = ("coarse", "exhaustive")
 
 
 def noise_scale(mesh: TriMesh) -> float:
-    """σ_e (m): robust scale of the one-ring heights left after a local quadric fit (module doc).
+    r""":math:`\sigma_e` (m): robust scale of the one-ring heights left after a local quadric fit (module doc).
 
-    Per vertex i with unit normal n_i and tangent axes (t1, t2): h_ij = (q_j - q_i)·n_i ≈ c_0 + a x² + b x y
-    + c y², (x, y) = ((q_j - q_i)·t1, (q_j - q_i)·t2) scaled by the ring's rms edge length, fitted by least
-    squares (batched 4 x 4 normal equations); σ_e = 1.4826 median |r_ij| over the residuals of vertices with at
-    least 6 neighbours (all vertices if there are none). c_0 absorbs the vertex's own noise and the quadric the
-    surface's curvature, so σ_e measures the neighbours' noise, not shape (the seed's ring-median MAD,
+    Per vertex :math:`i` with unit normal :math:`n_i` and tangent axes :math:`(t_1, t_2)`:
+
+    .. math::
+
+        h_{ij} = (q_j - q_i) \cdot n_i \approx c_0 + a x^2 + b x y + c y^2, \qquad
+        (x, y) = ((q_j - q_i) \cdot t_1,\ (q_j - q_i) \cdot t_2)
+
+    scaled by the ring's rms edge length, fitted by least squares (batched 4 x 4 normal equations);
+    :math:`\sigma_e = 1.4826 \operatorname{median} |r_{ij}|` over the residuals of vertices with at least 6
+    neighbours (all vertices if there are none). :math:`c_0` absorbs the vertex's own noise and the quadric the
+    surface's curvature, so :math:`\sigma_e` measures the neighbours' noise, not shape (the seed's ring-median MAD,
     :func:`physar.geometry.denoise.noise_scales`, also picks up curvature that varies within a ring).
     """
     from physar.geometry.denoise import SurfaceOps, directed_edges
@@ -196,9 +227,10 @@ def guidance(nf: np.ndarray, area: np.ndarray, ff: sparse.csr_matrix) -> np.ndar
 
 
 class FacePattern:
-    """The face graph of :func:`_face_graph` reduced to what every filter pass reuses: its entries (i, j) above
+    r"""The face graph of :func:`_face_graph` reduced to what every filter pass reuses: its entries (i, j) above
     the diagonal, row-major. Both kernels are symmetric in (i, j) and the diagonal weight is the face's own
-    area, so W = (S_u + S_uᵀ + I) diag(A) with S_u the strict upper part: each pair is evaluated once."""
+    area, so :math:`W = (S_u + S_u^\top + I) \operatorname{diag}(A)` with :math:`S_u` the strict upper part: each
+    pair is evaluated once."""
 
     def __init__(self, ff: sparse.csr_matrix):
         self.ff = ff
@@ -262,7 +294,8 @@ def update_vertices(q: np.ndarray, faces: np.ndarray, nf: np.ndarray, iterations
 
 def feature_weights(faces: np.ndarray, nf: np.ndarray, area: np.ndarray, src: np.ndarray, dst: np.ndarray,
                     npts: int, sigma_w: float) -> sparse.csr_matrix:
-    """Row-normalised (npts x npts) weights w_ij = exp(-|ν_i - ν_j|²/2σ_w²) over directed edges (stage 2)."""
+    r"""Row-normalised (npts x npts) weights :math:`w_{ij} = e^{-|\nu_i - \nu_j|^2 / 2\sigma_w^2}` over directed
+    edges (stage 2)."""
     idx = faces.ravel()
     acc = np.repeat(area[:, None] * nf, 3, axis=0)
     nv = _unit(np.stack([np.bincount(idx, weights=acc[:, d], minlength=npts) for d in range(3)], axis=1))
@@ -274,7 +307,7 @@ def feature_weights(faces: np.ndarray, nf: np.ndarray, area: np.ndarray, src: np
 
 def taubin_weighted(q: np.ndarray, weights: sparse.csr_matrix, iterations: int, lam: float = 0.5,
                     mu: float = -0.53) -> np.ndarray:
-    """Stage 2: ``iterations`` Taubin λ|μ pairs with the row-normalised weights (module doc)."""
+    r"""Stage 2: ``iterations`` Taubin :math:`\lambda|\mu` pairs with the row-normalised weights (module doc)."""
     for _ in range(int(iterations)):
         q = q + lam * (weights @ q - q)
         q = q + mu * (weights @ q - q)
@@ -301,7 +334,8 @@ def _check(st: NormalFilterSettings) -> None:
 
 
 def residual_normal_rms(q0: np.ndarray, q: np.ndarray, faces: np.ndarray) -> float:
-    """rms over vertices of (q0_i - q_i)·n_i, n_i the unit (area-weighted) vertex normals of q (m)."""
+    r""":math:`\operatorname{rms}_i ((q_{0,i} - q_i) \cdot n_i)`, :math:`n_i` the unit (area-weighted) vertex
+    normals of q (m)."""
     from physar.geometry.quality import vertex_normals_arrays
 
     n = vertex_normals_arrays(q, faces)
@@ -309,8 +343,9 @@ def residual_normal_rms(q0: np.ndarray, q: np.ndarray, faces: np.ndarray) -> flo
 
 
 class FaceTilt:
-    """Linear map d (npts, 3) -> (3 m,): n_f·(d_i - d_j) over the three edges (i, j) of every face f, with
-    fixed unit face normals n_f; |A d|² is the face-tilt part of a displacement error d (module doc)."""
+    r"""Linear map :math:`A`: d (npts, 3) -> (3 m,), :math:`(A d)_{f,ij} = n_f \cdot (d_i - d_j)` over the three
+    edges :math:`(i, j)` of every face :math:`f`, with fixed unit face normals :math:`n_f`; :math:`|A d|^2` is the
+    face-tilt part of a displacement error :math:`d` (module doc)."""
 
     def __init__(self, faces: np.ndarray, normals: np.ndarray):
         self.i = faces.ravel()
@@ -323,20 +358,21 @@ class FaceTilt:
 
 def sure_tilt(tilt: FaceTilt, y: np.ndarray, q: np.ndarray, qp: np.ndarray, ap: np.ndarray, eps: float,
               sigma: float) -> float:
-    """Monte-Carlo SURE of mean |A(q - x)|² (m²) from the noisy y, the result q = f(y), the result qp =
-    f(y + eps b) for one probe b and ap = A b (module doc)."""
+    r"""Monte-Carlo SURE of :math:`\operatorname{mean} |A(q - x)|^2` (m²) from the noisy :math:`y`, the result
+    :math:`q = f(y)`, the result qp = :math:`f(y + \varepsilon b)` for one probe :math:`b` and ap = :math:`A b`
+    (module doc)."""
     div = float(ap @ tilt(qp - q)) / (eps * len(ap))
     return float(np.mean(tilt(q - y) ** 2)) - 2.0 * sigma**2 + 2.0 * sigma**2 * div
 
 
 def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None = None,
                           progress=None, info: dict | None = None) -> TriMesh:
-    """Denoise a triangle surface: bilateral normal filter, feature-weighted Taubin, vertex update (module doc).
+    r"""Denoise a triangle surface: bilateral normal filter, feature-weighted Taubin, vertex update (module doc).
 
     With ``normal_iterations=None`` the stage-1 iteration count (and with ``sigma_r=None`` the range width)
     follows ``rule`` (SURE by default). Returns a mesh with the same faces; `progress(k, q)` is called after each
     evaluated stage-1 iteration count k; `info`, if given, receives the chosen ``sigma_r``, ``normal_iterations``
-    and (rule "sure") the list ``risk`` of (σ_r, k, estimate in m²).
+    and (rule "sure") the list ``risk`` of (:math:`\sigma_r`, k, estimate in m²).
     """
     from physar.geometry.denoise import SurfaceOps, directed_edges
 
