@@ -196,9 +196,9 @@ class BoundarySurface:
 
 
 def row_keys(rows: np.ndarray, n: int) -> np.ndarray:
-    """One integer per row of small non-negative integers < n (for fast 1-D np.unique).
+    r"""One integer per row of small non-negative integers < n (for fast 1-D np.unique).
 
-    Falls back to a structured void view when n ** width does not fit in 63 bits.
+    Falls back to a structured void view when :math:`n^{\text{width}}` does not fit in 63 bits.
     """
     rows = np.ascontiguousarray(rows, dtype=np.int64)
     w = rows.shape[1]

@@ -1,17 +1,19 @@
-"""Point-cloud denoising: PCA normals on the k-NN graph and the AL / MSAL update (seed 001 §3.2.1).
+r"""Point-cloud denoising: PCA normals on the k-NN graph and the AL / MSAL update (seed 001 §3.2.1).
 
 Normals: for each point, the eigenvector of the smallest eigenvalue of the covariance of its k nearest
 neighbours (seed 001 §3.2.1 footnote 1). Consistent orientation (``orient="mst"``, the default) follows
 Hoppe, DeRose, Duchamp, McDonald & Stuetzle, "Surface reconstruction from unorganized points"
-(SIGGRAPH 1992): a minimum spanning tree of the k-NN graph with edge cost 1 - |n_i·n_j|
-(scipy.sparse.csgraph) propagates the sign from a root, n_j <- sign(n_j·n_parent) n_j, so neighbouring
+(SIGGRAPH 1992): a minimum spanning tree of the k-NN graph with edge cost :math:`1 - |n_i \cdot n_j|`
+(scipy.sparse.csgraph) propagates the sign from a root,
+:math:`n_j \leftarrow \operatorname{sign}(n_j \cdot n_{\mathrm{parent}})\, n_j`, so neighbouring
 normals agree even where a centroid rule fails (the inner side of a torus, concave parts). The root of each
 connected component is its point farthest from the cloud centroid, oriented away from the centroid (or the
 point nearest a given `viewpoint`, oriented towards it). The propagation is vectorised by pointer jumping
-(the sign of a point is the product of the relative signs along its tree path; log2(depth) passes over
+(the sign of a point is the product of the relative signs along its tree path; :math:`\log_2(\mathrm{depth})`
+passes over
 all points). ``orient="centroid"`` flips each normal away from the centroid (star-shaped shapes only).
 The AL/MSAL update of :mod:`physar.geometry.denoise` then runs over the symmetric k-NN graph; it uses
-h_ij n_i, which does not depend on the sign of n_i, so the loop uses unoriented normals.
+:math:`h_{ij} n_i`, which does not depend on the sign of :math:`n_i`, so the loop uses unoriented normals.
 """
 
 from __future__ import annotations
@@ -85,9 +87,9 @@ def _unoriented_normals(p: np.ndarray, k: int, idx: np.ndarray | None = None) ->
 def orient_normals_mst(
     points: np.ndarray, normals: np.ndarray, k: int = 10, viewpoint: np.ndarray | None = None
 ) -> np.ndarray:
-    """Consistently oriented copy of `normals` by MST sign propagation on the k-NN graph (Hoppe 1992).
+    r"""Consistently oriented copy of `normals` by MST sign propagation on the k-NN graph (Hoppe 1992).
 
-    Tree edge cost 1 - |n_i·n_j| (+1e-9, so that no edge weighs zero); per connected component, the
+    Tree edge cost :math:`1 - |n_i \cdot n_j|` (+1e-9, so that no edge weighs zero); per connected component, the
     root is the point farthest from the centroid, oriented away from it (or the point nearest
     `viewpoint`, oriented towards it). See the module doc.
     """
@@ -159,7 +161,8 @@ def denoise_points(
     tau: float = 0.5, xi: float = MSAL_XI, fidelity: float = MSAL_FIDELITY, kappa: float = KAPPA,
     g: str = G_DEFAULT, shrink_correction: float = 1.0, progress: Progress = None,
 ) -> np.ndarray:
-    """AL (constant τ, λ = 0) or MSAL (τ = ξ^k, λ_i = fidelity · σ_i / max σ) on the k-NN graph.
+    r"""AL (constant :math:`\tau`, :math:`\lambda = 0`) or MSAL (:math:`\tau = \xi^k`,
+    :math:`\lambda_i = f \sigma_i / \max_j \sigma_j`, :math:`f` = `fidelity`) on the k-NN graph.
 
     Same update, edge-stopping function and robust scales as :mod:`physar.geometry.denoise` (seed 001
     §3.2.1), with PCA normals and the same optional shrinkage correction; no volume correction (a point

@@ -131,7 +131,8 @@ def surface_distances(mesh: TriMesh, reference: TriMesh) -> dict:
 
 
 def signed_volume(mesh: TriMesh) -> float:
-    """Enclosed volume (m^3) by the divergence theorem, sum over faces of x0 . (x1 x x2) / 6."""
+    r"""Enclosed volume (m^3) by the divergence theorem, :math:`\sum_f x_0 \cdot (x_1 \times x_2) / 6` over the
+    faces :math:`(x_0, x_1, x_2)`."""
     x = mesh.points[mesh.faces]
     return float(np.einsum("ij,ij->i", x[:, 0], np.cross(x[:, 1], x[:, 2])).sum() / 6.0)
 

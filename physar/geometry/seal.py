@@ -1,14 +1,20 @@
-"""Boot-seal (bellows) mesh generator for the virtual boot seal of seed 000 §5.3.
+r"""Boot-seal (bellows) mesh generator for the virtual boot seal of seed 000 §5.3.
 
-The seal is a corrugated rubber sleeve around the z axis: a meridian profile (R(t), Z(t)) swept about
+The seal is a corrugated rubber sleeve around the z axis: a meridian profile :math:`(R(t), Z(t))` swept about
 the axis, with a wall of constant thickness along the profile normal. From bottom to top: a cylindrical
 cuff of radius `r_bottom` and height `cuff`, `n_convolutions` convolutions on a cone from `r_bottom` to
 `r_top`,
-    R(z) = r_b + (r_t - r_b) xi^2 (3 - 2 xi) + a (1 - cos(2 pi n xi)) / 2,   xi = (z - cuff) / (H - 2 cuff),
-and a cylindrical top cuff of radius `r_top`. The wall occupies R(t) + eta t_w n_R, Z(t) + eta t_w n_Z,
-eta in [-1/2, 1/2], with (n_R, n_Z) the unit normal of the mid-profile. The structured grid
-(eta: n_thick, phi: n_phi, profile arc length: n_profile) is split into 6 Kuhn tetrahedra per cell,
-periodic in phi (conforming across the seam). Lengths in metres.
+
+.. math::
+
+    R(z) = r_b + (r_t - r_b)\, \xi^2 (3 - 2 \xi) + \frac{a}{2} (1 - \cos(2 \pi n \xi)), \qquad
+    \xi = \frac{z - \mathrm{cuff}}{H - 2\,\mathrm{cuff}},
+
+and a cylindrical top cuff of radius `r_top`. The wall occupies
+:math:`(R(t) + \eta\, t_w n_R,\ Z(t) + \eta\, t_w n_Z)`, :math:`\eta \in [-1/2, 1/2]`, with
+:math:`(n_R, n_Z)` the unit normal of the mid-profile. The structured grid (:math:`\eta`: n_thick,
+:math:`\phi`: n_phi, profile arc length: n_profile) is split into 6 Kuhn tetrahedra per cell, periodic in
+:math:`\phi` (conforming across the seam). Lengths in metres.
 """
 
 from __future__ import annotations

@@ -204,9 +204,9 @@ def _occ_surface(build: Callable, size: float, name: str) -> TriMesh:
 
 
 def _orient_patches(pts: np.ndarray, faces: np.ndarray, patch: np.ndarray, name: str) -> np.ndarray:
-    """Wind every patch (a CAD face, meshed consistently by gmsh, but with the orientation of its underlying
+    r"""Wind every patch (a CAD face, meshed consistently by gmsh, but with the orientation of its underlying
     surface, which the OCC boolean results do not keep consistent) like its neighbours, then each closed
-    connected part outward (positive signed volume Σ_f x_0·(x_1 × x_2)/6).
+    connected part outward (positive signed volume :math:`\sum_f x_0 \cdot (x_1 \times x_2) / 6`).
 
     Two patches sharing an edge agree when the edge runs in opposite directions in their triangles; the
     flips follow by a breadth-first walk over the patch graph. An edge with other than two triangles, or
