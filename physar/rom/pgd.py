@@ -1,21 +1,27 @@
-"""Intrusive PGD for K u = sum_k f_k g_k(mu), one parameter on a 1-D grid (seed 000 §3).
+r"""Intrusive PGD for :math:`K u = \sum_k f_k\, g_k(\mu)`, one parameter on a 1-D grid (seed 000 §3).
 
-Greedy rank-one enrichment u_n = u_{n-1} + F_n G_n(mu), with F_n, G_n found by the
+Greedy rank-one enrichment :math:`u_n = u_{n-1} + F_n G_n(\mu)`, with :math:`F_n, G_n` found by the
 alternating-direction fixed point:
-  F-step: (G.W G) K F = sum_k f_k (g_k.W G) - sum_i K F_i (G_i.W G)
-  G-step: G(mu_q) = F.(sum_k f_k g_k(mu_q) - sum_i K F_i G_i(mu_q)) / (F.K F)
-with W the trapezoidal quadrature weights of the parameter grid (the greedy loop and the fixed point of
+
+.. math::
+
+    \text{F-step:} \quad (G^\top W G)\, K F = \sum_k f_k\, (g_k^\top W G) - \sum_i K F_i\, (G_i^\top W G),
+
+    \text{G-step:} \quad G(\mu_q) = \frac{F^\top \big(\sum_k f_k\, g_k(\mu_q) - \sum_i K F_i\, G_i(\mu_q)\big)}
+    {F^\top K F}
+
+with :math:`W` the trapezoidal quadrature weights of the parameter grid (the greedy loop and the fixed point of
 seed 000 §3). After each new term the update step re-solves the parameter functions of all terms on the
-spatial modes found so far (a Galerkin projection of the parametric problem on span{F_i}), so the fixed
+spatial modes found so far (a Galerkin projection of the parametric problem on :math:`\operatorname{span}\{F_i\}`), so the fixed
 point of a term only has to find a direction F and is stopped early; the enrichment stops on an
 estimate of the relative residual of the whole parametric problem on the grid (seed §3: "a stopping
 criterion is mandatory"), besides the amplitude of the last term. See :func:`pgd_linear` (there, with K
-independent of mu, the fixed point's G-step already is that projection).
+independent of :math:`\mu`, the fixed point's G-step already is that projection).
 
 :func:`pgd_affine` is the same for 1 to 3 parameters on tensor grids and an operator affine in them,
-K(mu) = sum_m A_m prod_j alpha_m^j(mu_j) (the Young's modulus of a region), with the update step as
-alternating least squares on the parameter functions (exact for one parameter); :func:`pgd_linear_tensor`
-is its case K(mu) = K.
+:math:`K(\mu) = \sum_m A_m \prod_j \alpha_m^j(\mu_j)` (the Young's modulus of a region), with the update step
+as alternating least squares on the parameter functions (exact for one parameter); :func:`pgd_linear_tensor`
+is its case :math:`K(\mu) = K`.
 """
 from __future__ import annotations
 
@@ -63,8 +69,9 @@ def _solve_columns(solve, B):
 
 
 def _change_norm(gram, Gnew, Gold, W):
-    """||u_n - u_{n-1}||, L2 over the grid (trapezoidal weights W[j]), u_n = sum_i F_i prod_j Gnew[j][i] and
-    u_{n-1} = the same with Gold (one term fewer); gram = (F_i.F_k). Without the update step this is the
+    r""":math:`\|u_n - u_{n-1}\|`, L2 over the grid (trapezoidal weights W[j]),
+    :math:`u_n = \sum_i F_i \prod_j G^{\mathrm{new}}_{j,i}` and :math:`u_{n-1}` the same with Gold (one term
+    fewer); gram = :math:`(F_i^\top F_k)`. Without the update step this is the
     norm of the new term, with it the change the new term made to the whole model."""
     if len(Gnew) == 1:
         D = Gnew[0].copy()
@@ -163,12 +170,13 @@ SEPARATION_SHARE = 0.1
 
 
 def _grouped_model(F, A, grids, names, units, gram=None, drop=0.0):
-    """SeparatedModel of u(mu) = sum_i F_i A_i(mu), A_i (n_grid,) tables on the tensor grid (C order) of 1 or 2
-    parameters. With two, each table is written as sum_r sigma_r U_r(mu_1) V_r(mu_2) by the SVD of
-    W_1^1/2 A_i W_2^1/2 (W_j the trapezoidal weights: sigma_r is the term's L2 norm over the grid), F_i
-    repeated once per term (as :func:`physar.rom.pod.pod_from_snapshots`), and the smallest terms of all
-    modes are dropped while their norms sum (in squares) to at most ``drop`` times the model's norm
-    ||u||_W (``gram`` = (F_i.F_k); the cross terms between modes neglected)."""
+    r"""SeparatedModel of :math:`u(\mu) = \sum_i F_i A_i(\mu)`, :math:`A_i` (n_grid,) tables on the tensor grid
+    (C order) of 1 or 2 parameters. With two, each table is written as
+    :math:`\sum_r \sigma_r U_r(\mu_1) V_r(\mu_2)` by the SVD of :math:`W_1^{1/2} A_i W_2^{1/2}` (:math:`W_j` the
+    trapezoidal weights: :math:`\sigma_r` is the term's L2 norm over the grid), :math:`F_i` repeated once per
+    term (as :func:`physar.rom.pod.pod_from_snapshots`), and the smallest terms of all modes are dropped while
+    their norms sum (in squares) to at most ``drop`` times the model's norm :math:`\|u\|_W` (``gram`` =
+    :math:`(F_i^\top F_k)`; the cross terms between modes neglected)."""
     if len(grids) == 1:
         return SeparatedModel(F, grids, [A], names, units)
     if len(grids) != 2:
@@ -329,12 +337,13 @@ def pgd_linear_tensor(K, B, grids, max_modes=40, tol=1e-4, max_fp=50, fp_tol=Non
 
 @dataclass(frozen=True)
 class SeparatedTerm:
-    """One term of a separated operator or load: ``value`` times 1-D functions of the parameters.
+    r"""One term of a separated operator or load: ``value`` times 1-D functions of the parameters.
 
-    An operator term is a sparse (n, n) matrix A with ``factors`` {j: alpha(mu_j) on grid j}: the
-    operator is sum_m A_m prod_j alpha_m^j(mu_j) (e.g. K_rest + (E / E_ref) K_region). A load term is
+    An operator term is a sparse (n, n) matrix :math:`A` with ``factors`` {j: :math:`\alpha(\mu_j)` on grid j}:
+    the operator is :math:`\sum_m A_m \prod_j \alpha_m^j(\mu_j)` (e.g.
+    :math:`K_{\mathrm{rest}} + (E / E_{\mathrm{ref}}) K_{\mathrm{region}}`). A load term is
     ``value`` (n, N) (dense or sparse), its columns the load at the nodes of the tensor grid of the
-    parameters ``axes`` (C order; N = 1 for axes = ()), times ``factors`` {j: h(mu_j)} for j not in
+    parameters ``axes`` (C order; N = 1 for axes = ()), times ``factors`` {j: :math:`h(\mu_j)`} for j not in
     ``axes``. A parameter named nowhere enters as the constant 1.
     """
 
@@ -346,31 +355,44 @@ class SeparatedTerm:
 def pgd_affine(ops, loads, grids, max_modes=40, tol=1e-4, max_fp=50, fp_tol=None, factor=None, names=None,
                units=None, progress=None, check=None, check_tol=None, update=None, residual_tol=None,
                probes=PROBES, seed=0, start=None):
-    """Intrusive PGD for K(mu) u = f(mu), K(mu) = sum_m A_m prod_j alpha_m^j(mu_j) and f(mu) = sum_t
-    (load term t), 1 to 3 parameters on tensor grids (seed 000 §3: an operator affine in the parameter).
+    r"""Intrusive PGD for :math:`K(\mu) u = f(\mu)`, :math:`K(\mu) = \sum_m A_m \prod_j \alpha_m^j(\mu_j)` and
+    :math:`f(\mu) = \sum_t` (load term t), 1 to 3 parameters on tensor grids (seed 000 §3: an operator affine
+    in the parameter).
 
-    ``ops``, ``loads``: lists of :class:`SeparatedTerm`. With the trapezoidal weights w_j of each grid,
-    a_j = w_j G^j and <x, y>_j = sum_q w_j(q) x(q) y(q), the greedy enrichment u_n = u_{n-1} + F prod_j G^j
-    alternates
+    ``ops``, ``loads``: lists of :class:`SeparatedTerm`. With the trapezoidal weights :math:`w_j` of each grid,
+    :math:`a_j = w_j G^j` and :math:`\langle x, y \rangle_j = \sum_q w_j(q)\, x(q)\, y(q)`, the greedy
+    enrichment :math:`u_n = u_{n-1} + F \prod_j G^j` alternates
 
-      F-step:  sum_m A_m prod_j <alpha_m^j G^j, G^j>_j F = <f, prod_j G^j> - sum_i sum_m A_m F_i prod_j
-               <alpha_m^j G_i^j, G^j>_j
-      G^j-step (each j in turn, the others fixed; at each grid point q of parameter j):
-               G^j(q) sum_m (F.A_m F) alpha_m^j(q) prod_{k != j} <alpha_m^k G^k, G^k>_k =
-               <f, F prod_{k != j} G^k>(q) - sum_i sum_m (F.A_m F_i) alpha_m^j(q) G_i^j(q) prod_{k != j}
-               <alpha_m^k G_i^k, G^k>_k
+    .. math::
 
-    until the change of the rank-one term F prod_j G^j is below ``fp_tol`` (default FP_TOL_UPDATE with
+        \text{F-step:} \quad \sum_m A_m \prod_j \langle \alpha_m^j G^j, G^j \rangle_j\, F
+        = \Big\langle f, \prod_j G^j \Big\rangle - \sum_i \sum_m A_m F_i \prod_j
+        \langle \alpha_m^j G_i^j, G^j \rangle_j,
+
+    and the :math:`G^j`-step (each :math:`j` in turn, the others fixed; at each grid point :math:`q` of
+    parameter :math:`j`)
+
+    .. math::
+
+        G^j(q) \sum_m (F^\top A_m F)\, \alpha_m^j(q) \prod_{k \ne j} \langle \alpha_m^k G^k, G^k \rangle_k
+        = \Big\langle f, F \prod_{k \ne j} G^k \Big\rangle(q)
+        - \sum_i \sum_m (F^\top A_m F_i)\, \alpha_m^j(q)\, G_i^j(q) \prod_{k \ne j}
+        \langle \alpha_m^k G_i^k, G^k \rangle_k
+
+    until the change of the rank-one term :math:`F \prod_j G^j` is below ``fp_tol`` (default FP_TOL_UPDATE with
     the update step, 1e-6 without). With ``update`` = k > 0 (default: 1 sweep for one parameter,
     UPDATE_SWEEPS for more; 0: none), k sweeps of the update step follow each new term: the spatial modes
-    F_1..F_n fixed, the functions of every term for parameter j are recomputed together (Galerkin, one
-    n x n system per grid point q):
+    :math:`F_1, \dots, F_n` fixed, the functions of every term for parameter :math:`j` are recomputed together
+    (Galerkin, one :math:`n \times n` system per grid point :math:`q`):
 
-      sum_k [sum_m (F_i.A_m F_k) alpha_m^j(q) prod_{l != j} <alpha_m^l G_k^l, G_i^l>_l] G_k^j(q)
-          = <f, F_i prod_{l != j} G_i^l>(q),   i = 1..n,
+    .. math::
 
-    for j = 1..p in turn (alternating least squares on the parameter functions; for one parameter the
-    Galerkin projection on span F, exactly). The greedy sum alone converges slowly with two parameters:
+        \sum_k \Big[ \sum_m (F_i^\top A_m F_k)\, \alpha_m^j(q) \prod_{l \ne j}
+        \langle \alpha_m^l G_k^l, G_i^l \rangle_l \Big] G_k^j(q)
+        = \Big\langle f, F_i \prod_{l \ne j} G_i^l \Big\rangle(q), \qquad i = 1, \dots, n,
+
+    for :math:`j = 1, \dots, p` in turn (alternating least squares on the parameter functions; for one parameter
+    the Galerkin projection on :math:`\operatorname{span} F`, exactly). The greedy sum alone converges slowly with two parameters:
     for E of a region x a moving load (tests/rom/test_param_kinds.py, P1, 81 x 21 grid) the error at
     random points is 2.3e-3 after 40 terms, 1.7e-4 after 30 with ``update`` = 2. With a constant operator
     and two load parameters (the patch of benchmarks/bench_rom.py) the sweeps change nothing measurable:
@@ -380,15 +402,16 @@ def pgd_affine(ops, loads, grids, max_modes=40, tol=1e-4, max_fp=50, fp_tol=None
     a moving load (41 x 21 grid, tests/rom/test_pgd_update.py), 15 terms: error 1.5e-3 from 66 solves;
     without the update (fixed point to 1e-6): 1.4e-2 from 413.
 
-    Each term is normalised (|F| = 1, <G^j, G^j>_j = 1 for j >= 2, the amplitude in G^1). The greedy loop
-    stops at ``max_modes``, when the relative amplitude ||u_n - u_{n-1}|| / ||u_1|| (as in
-    :func:`pgd_linear`; without the update |G_n^1|_w / |G_1^1|_w of the new term) < ``tol``, or when the
+    Each term is normalised (:math:`|F| = 1`, :math:`\langle G^j, G^j \rangle_j = 1` for :math:`j \ge 2`, the
+    amplitude in :math:`G^1`). The greedy loop stops at ``max_modes``, when the relative amplitude
+    :math:`\|u_n - u_{n-1}\| / \|u_1\|` (as in :func:`pgd_linear`; without the update
+    :math:`|G_n^1|_w / |G_1^1|_w` of the new term) < ``tol``, or when the
     relative residual estimate (:class:`_Probes`, ``probes`` fixed probes: the L2 displacement error the
     residual causes, relative, on the grid; info["residuals"]) <= ``residual_tol`` (default ``tol``). The
-    fixed point of the first term starts from seeded random G^j (a constant start keeps a symmetric
+    fixed point of the first term starts from seeded random :math:`G^j` (a constant start keeps a symmetric
     problem in its even subspace); later ones too with two or three parameters or without the update, from
     the previous term's G plus noise with one parameter and the update (``start`` "random" | "previous",
-    as in :func:`pgd_linear`). The A_m must be symmetric. ``factor(A) -> solve`` factorises an F-step
+    as in :func:`pgd_linear`). The :math:`A_m` must be symmetric. ``factor(A) -> solve`` factorises an F-step
     matrix (default :func:`physar.fem.factorize`; see :class:`_FStepSolver`). Returns (model, info) with
     info["amplitudes"], info["residuals"], info["fixed_point_iterations"], info["factorizations"],
     info["cg_iterations"], info["solves"] (F-step and probe solves); ``check``/``check_tol`` as in
@@ -432,7 +455,7 @@ class _Loads:
         self.shape = shape
 
     def rhs(self, a):
-        """<f, prod_j G^j> for a_j = w_j G^j: (n,)."""
+        r""":math:`\langle f, \prod_j G^j \rangle` for :math:`a_j = w_j G^j`: (n,)."""
         out = 0.0
         for B, axes, h in self.terms:
             scale = np.prod([a[k] @ hk for k, hk in h.items()])
@@ -440,11 +463,12 @@ class _Loads:
         return np.asarray(out).ravel()
 
     def projections(self, F):
-        """B_t^T F on each term's tensor grid."""
+        r""":math:`B_t^\top F` on each term's tensor grid."""
         return [np.asarray(B.T @ F).reshape([self.shape[k] for k in axes]) for B, axes, _ in self.terms]
 
     def contract(self, P, a, j):
-        """<f, F prod_{k != j} G^k> at the grid points of parameter j (P = projections(F)): (n_j,)."""
+        r""":math:`\langle f, F \prod_{k \ne j} G^k \rangle` at the grid points of parameter j
+        (P = projections(F)): (n_j,)."""
         out = np.zeros(self.shape[j])
         for Pt, (_, axes, h) in zip(P, self.terms):
             scale = np.prod([a[k] @ hk for k, hk in h.items() if k != j])
@@ -457,10 +481,11 @@ class _Loads:
 
 
 class _FStepSolver:
-    """Solves sum_m c_m A_m x = b for the F-step of :func:`pgd_affine`.
+    r"""Solves :math:`\sum_m c_m A_m x = b` for the F-step of :func:`pgd_affine`.
 
-    One operator term: A_1 is factorised once. Several: the coefficient ratios r_m = c_m / c_1 are
-    rounded to bins 20 % wide (in log r); the matrix of the bin, A_1 + sum_m r_bin A_m, is factorised once
+    One operator term: :math:`A_1` is factorised once. Several: the coefficient ratios :math:`r_m = c_m / c_1`
+    are rounded to bins 20 % wide (in :math:`\log r`); the matrix of the bin,
+    :math:`A_1 + \sum_m r_{\mathrm{bin}} A_m`, is factorised once
     (the last ``keep`` kept) and preconditions conjugate gradients on the exact matrix (its eigenvalues
     lie within a factor 1.2 of the preconditioner's: ~10 iterations to 1e-12).
     """
@@ -516,7 +541,8 @@ class _FStepSolver:
 
 
 def _normalise(F, G, W):
-    """|F| = 1 and <G^j, G^j>_j = 1 for j >= 2 per term, the amplitude in G^1 (in place on the lists)."""
+    r""":math:`|F| = 1` and :math:`\langle G^j, G^j \rangle_j = 1` for :math:`j \ge 2` per term, the amplitude in
+    :math:`G^1` (in place on the lists)."""
     for i in range(len(F)):
         nF = np.linalg.norm(F[i]) or 1.0
         F[i] = F[i] / nF
@@ -551,19 +577,23 @@ def _update(Fs, AFs, Gs, Ps, alpha, f, W, sweeps):
 
 
 class _Probes:
-    """The residual estimate of :func:`pgd_affine`: ``k`` fixed probes of the tensor grid, the exact
+    r"""The residual estimate of :func:`pgd_affine`: ``k`` fixed probes of the tensor grid, the exact
     solutions there (k solves, once) and the relative L2 error of the model at them.
 
-    Probe k weights each parameter j that no operator factor depends on by sqrt(w_j) xi_j (xi_j standard
-    normal, a product of independent Gaussian vectors: E[z z^T] = diag(w)) and fixes every parameter the
-    operator depends on at a random grid point (K differs between those, so their probes are not
-    combined). u_k = K_k^-1 f(z_k), K_k the operator there; the estimate is
+    Probe :math:`k` weights each parameter :math:`j` that no operator factor depends on by
+    :math:`\sqrt{w_j}\, \xi_j` (:math:`\xi_j` standard normal, a product of independent Gaussian vectors:
+    :math:`E[z z^\top] = \operatorname{diag}(w)`) and fixes every parameter the operator depends on at a random
+    grid point (:math:`K` differs between those, so their probes are not combined).
+    :math:`u_k = K_k^{-1} f(z_k)`, :math:`K_k` the operator there; the estimate is
 
-      rho_n = sqrt(sum_k ||u_k - u_n(z_k)||^2 / sum_k ||u_k||^2),  u_k - u_n(z_k) = K_k^-1 (f(z_k) - K_k u_n(z_k)),
+    .. math::
+
+        \rho_n = \sqrt{\frac{\sum_k \|u_k - u_n(z_k)\|^2}{\sum_k \|u_k\|^2}}, \qquad
+        u_k - u_n(z_k) = K_k^{-1} \big(f(z_k) - K_k u_n(z_k)\big),
 
     the residual of the parametric problem at the probes, measured by the displacement error it causes
-    (its K^-1 image, relative: the same measure as POD's discarded energy). u_n(z_k) = sum_i F_i
-    prod_j <G_i^j, z_k^j> needs no solve.
+    (its :math:`K^{-1}` image, relative: the same measure as POD's discarded energy).
+    :math:`u_n(z_k) = \sum_i F_i \prod_j \langle G_i^j, z_k^j \rangle` needs no solve.
     """
 
     def __init__(self, alpha, f, W, shape, solve, k, seed):
