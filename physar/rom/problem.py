@@ -1,17 +1,27 @@
-"""The parametric problem behind `physar rom build`: what each parameter does to the FE problem.
+r"""The parametric problem behind `physar rom build`: what each parameter does to the FE problem.
 
-Parameters mu = (mu_1, .., mu_p), 1 <= p <= 3, each of one kind (seed 000 §5.1-5.3):
+Parameters :math:`\mu = (\mu_1, \dots, \mu_p)`, :math:`1 \le p \le 3`, each of one kind (seed 000 §5.1-5.3):
 
-* ``load_position`` s [m]: a point load (regularised Dirac, :func:`physar.fem.point_load`) at path(s) on a
-  polyline; ``load_magnitude`` P [N] scales it to |load| = P; ``load_offset`` t [m] moves it to path(s) + t e.
-* ``displacement`` d [m]: the nodes of a region are prescribed u = d e (a translation along the unit e).
-* ``rotation`` theta [deg]: the nodes of a region follow the rigid rotation R(theta) about the unit axis a
-  through the point c, the finite rotation u = R(theta)(X - c) + c - X; by Rodrigues' formula, with v = X - c,
-  u = (cos theta - 1)(v - a (a.v)) + sin theta (a x v), a sum of two separated terms in theta.
-* ``youngs_modulus`` E [Pa]: the cells of a region have Young's modulus E (the rest E_ref of [material]).
-  Every material here has W proportional to E at fixed nu, so K(E) = K_rest + (E / E_ref) K_region.
+* ``load_position`` :math:`s` [m]: a point load (regularised Dirac, :func:`physar.fem.point_load`) at
+  :math:`\mathrm{path}(s)` on a polyline; ``load_magnitude`` :math:`P` [N] scales it to :math:`|\mathrm{load}| = P`;
+  ``load_offset`` :math:`t` [m] moves it to :math:`\mathrm{path}(s) + t e`.
+* ``displacement`` :math:`d` [m]: the nodes of a region are prescribed :math:`u = d e` (a translation along the
+  unit :math:`e`).
+* ``rotation`` :math:`\theta` [deg]: the nodes of a region follow the rigid rotation :math:`R(\theta)` about the
+  unit axis :math:`a` through the point :math:`c`, the finite rotation :math:`u = R(\theta)(X - c) + c - X`; by
+  Rodrigues' formula, with :math:`v = X - c`,
 
-The other supports ([[fix]], u = u_fix there) and loads ([[load]], f_fix) of the file apply at every mu.
+  .. math::
+
+      u = (\cos\theta - 1)\,(v - a\, (a \cdot v)) + \sin\theta\, (a \times v),
+
+  a sum of two separated terms in :math:`\theta`.
+* ``youngs_modulus`` :math:`E` [Pa]: the cells of a region have Young's modulus :math:`E` (the rest
+  :math:`E_{\mathrm{ref}}` of [material]). Every material here has :math:`W` proportional to :math:`E` at fixed
+  :math:`\nu`, so :math:`K(E) = K_{\mathrm{rest}} + (E / E_{\mathrm{ref}})\, K_{\mathrm{region}}`.
+
+The other supports ([[fix]], :math:`u = u_{\mathrm{fix}}` there) and loads ([[load]], :math:`f_{\mathrm{fix}}`) of
+the file apply at every :math:`\mu`.
 A node in a prescribed region is driven by the region, not by a [[fix]] it also lies in; a node in two
 regions moves by the sum. :class:`ParametricProblem` is the full model as a black box ``u = problem(mu)``
 (non-intrusive PGD, check solves) and, for a linear material, gives the separated operator, loads and
@@ -90,8 +100,8 @@ class Translation:
 
 @dataclass(frozen=True)
 class Rotation:
-    """u = R(theta)(X - c) + c - X on ``nodes``, about the unit ``axis`` a through ``point`` c (right hand);
-    theta in degrees (``degrees=False``: radians)."""
+    r""":math:`u = R(\theta)(X - c) + c - X` on ``nodes``, about the unit ``axis`` :math:`a` through ``point``
+    :math:`c` (right hand); :math:`\theta` in degrees (``degrees=False``: radians)."""
 
     nodes: np.ndarray
     axis: np.ndarray
@@ -99,7 +109,8 @@ class Rotation:
     degrees: bool = True
 
     def shapes(self, X) -> np.ndarray:
-        """(2, n_dofs): w1 = v - a (a.v) and w2 = a x v (v = X - c) on the nodes, 0 elsewhere."""
+        r"""(2, n_dofs): :math:`w_1 = v - a\, (a \cdot v)` and :math:`w_2 = a \times v` (:math:`v = X - c`) on the
+        nodes, 0 elsewhere."""
         a = self.axis
         v = X[self.nodes] - self.point
         out = np.zeros((2, len(X), 3))
@@ -108,7 +119,7 @@ class Rotation:
         return out.reshape(2, -1)
 
     def factors(self, theta) -> np.ndarray:
-        """(2, len(theta)): cos(theta) - 1 and sin(theta)."""
+        r"""(2, len(theta)): :math:`\cos\theta - 1` and :math:`\sin\theta`."""
         th = np.atleast_1d(np.asarray(theta, float)) * (np.pi / 180.0 if self.degrees else 1.0)
         return np.stack([np.cos(th) - 1.0, np.sin(th)])
 
@@ -213,8 +224,9 @@ class ParametricProblem:
         return u
 
     def _predict(self, model, u, f, u_d) -> np.ndarray:
-        """Predictor of a load/Dirichlet increment: the tangent at the last equilibrium u,
-        K_ff(u) du_f = (f - f_int(u) - K(u) du_d)_f with du_d the increment of the prescribed values (Newton
+        r"""Predictor of a load/Dirichlet increment: the tangent at the last equilibrium :math:`u`,
+        :math:`K_{ff}(u)\, \delta u_f = (f - f_{\mathrm{int}}(u) - K(u)\, \delta u_d)_f` with :math:`\delta u_d`
+        the increment of the prescribed values (Newton
         from the raw jump of the prescribed nodes alone starts from badly distorted elements next to them)."""
         from physar.fem.solvers import factorize, has_cholmod
 
@@ -243,8 +255,9 @@ class ParametricProblem:
 
     # -- the separated form of a linear problem (intrusive PGD) ------------------------------------------
     def stiffness_terms(self, grids):
-        """[(K_m (n_dofs, n_dofs), {j: alpha_m(mu_j) on grids[j]})]: K(mu) = sum_m K_m prod alpha_m; K_rest
-        (cells in no youngs_modulus region, omitted when empty) and one K_region per youngs_modulus."""
+        r"""[(:math:`K_m` (n_dofs, n_dofs), {j: :math:`\alpha_m(\mu_j)` on grids[j]})]:
+        :math:`K(\mu) = \sum_m K_m \prod_j \alpha_m(\mu_j)`; :math:`K_{\mathrm{rest}}` (cells in no
+        youngs_modulus region, omitted when empty) and one :math:`K_{\mathrm{region}}` per youngs_modulus."""
         mods = [(j, p) for j, p in enumerate(self.parts) if isinstance(p, Modulus)]
         if not mods:
             return [(self.model.tangent_stiffness(), {})]
@@ -259,7 +272,8 @@ class ParametricProblem:
         return out
 
     def prescribed_terms(self, grids):
-        """[(w (n_dofs,), {j: h(mu_j) on grids[j]})]: u_D(mu) = sum w prod h (u_fix, then per region)."""
+        r"""[(w (n_dofs,), {j: :math:`h(\mu_j)` on grids[j]})]: :math:`u_D(\mu) = \sum w \prod_j h(\mu_j)`
+        (u_fix, then per region)."""
         X = self.model.space.nodes
         out = [(self.u_fix, {})] if np.any(self.u_fix) else []
         for j, part in enumerate(self.parts):
@@ -269,7 +283,8 @@ class ParametricProblem:
         return out
 
     def load_terms(self, grids):
-        """[(B (n_dofs, N) sparse/dense, axes, {j: h(mu_j)})]: f(mu) = sum B[:, grid node of axes] prod h."""
+        r"""[(B (n_dofs, N) sparse/dense, axes, {j: :math:`h(\mu_j)`})]:
+        :math:`f(\mu) = \sum B[:, \text{grid node of axes}] \prod_j h(\mu_j)`."""
         import scipy.sparse as sp
 
         out = [(self.f_fix[:, None], (), {})] if np.any(self.f_fix) else []
