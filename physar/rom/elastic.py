@@ -111,7 +111,8 @@ def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radi
 
 
 def _checker(Uc, mus):
-    """check(model) = max_k ||model(mu_k) - Uc[:, k]|| / max_k ||Uc[:, k]|| (full solves Uc at mus)."""
+    r""":math:`\mathrm{check}(\mathrm{model}) = \max_k \|\mathrm{model}(\mu_k) - U_c[:, k]\| / \max_k \|U_c[:, k]\|`
+    (full solves :math:`U_c` at mus)."""
     scale = np.linalg.norm(Uc, axis=0).max()
 
     def check(red):
@@ -207,16 +208,19 @@ def _with_prescribed(problem, lifts, grids, red, names, units):
 @blas_single_threaded
 def build_parametric_pgd(problem, grids, names, units, max_modes=40, tol=1e-4, n_check=0, check_tol=None,
                          progress=None, seed=0, update=True, residual_tol=None):
-    """Intrusive PGD of a linear :class:`physar.rom.problem.ParametricProblem` (any of its parameter kinds).
+    r"""Intrusive PGD of a linear :class:`physar.rom.problem.ParametricProblem` (any of its parameter kinds).
 
-    With u = u_D(mu) + u_0(mu), u_D the prescribed displacements (u_fix and each region's
-    sum_r w_r h_r(mu_j), exact, kept as the first modes) and u_0 = 0 on the Dirichlet dofs:
+    With :math:`u = u_D(\mu) + u_0(\mu)`, :math:`u_D` the prescribed displacements (u_fix and each region's
+    :math:`\sum_r w_r h_r(\mu_j)`, exact, kept as the first modes) and :math:`u_0 = 0` on the Dirichlet dofs:
 
-      K_ff(mu) u_0 = f_f(mu) - K_fd(mu) u_D(mu),   K(mu) = sum_m K_m alpha_m(mu)
+    .. math::
+
+        K_{ff}(\mu)\, u_0 = f_f(\mu) - K_{fd}(\mu)\, u_D(\mu), \qquad K(\mu) = \sum_m K_m \alpha_m(\mu)
 
     a separated operator and a separated load (products of the terms), solved by
     :func:`physar.rom.pgd.pgd_affine` on the tensor ``grids``. ``n_check`` random full solves
-    (``problem(mu)``) give info["check_errors"] (max over the points of ||u_ROM - u_FE|| / max ||u_FE||,
+    (``problem(mu)``) give info["check_errors"] (max over the points of
+    :math:`\|u_{\mathrm{ROM}} - u_{\mathrm{FE}}\| / \max \|u_{\mathrm{FE}}\|`,
     after each mode) and info["check_error"]; ``check_tol`` also stops the enrichment (as
     :func:`build_moving_load_pgd`); ``update`` (True: the default sweeps of pgd_affine, False: none, an
     integer: that many) and ``residual_tol`` as there. Returns (SeparatedModel, info).

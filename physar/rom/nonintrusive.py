@@ -1,29 +1,35 @@
-"""Non-intrusive PGD (seed 000 §5.3): the full model is a black box u = solve(mu); the separated
-approximation u(x, mu) ~ sum_i F_i(x) prod_j G_i^j(mu_j) is built from snapshots at collocation points
+r"""Non-intrusive PGD (seed 000 §5.3): the full model is a black box :math:`u = \mathrm{solve}(\mu)`; the
+separated approximation :math:`u(x, \mu) \approx \sum_i F_i(x) \prod_j G_i^j(\mu_j)` is built from snapshots
+at collocation points
 of the parameter domain, sampled adaptively, with snapshots computed in parallel on Dask.
 
 Sampling (a tensor grid refined interval by interval, in the spirit of the adaptive collocation of the
 seed's reference [50]): every parameter starts with ``initial_points`` equispaced values. In each
-round, for every parameter j and every interval [a, b] of its current values not yet converged, the
-black box is run at the midpoint m = (a + b)/2 crossed with the current values of the other
-parameters. These runs first serve as out-of-sample checks: the interval is converged when
+round, for every parameter :math:`j` and every interval :math:`[a, b]` of its current values not yet
+converged, the black box is run at the midpoint :math:`m = (a + b)/2` crossed with the current values of the
+other parameters. These runs first serve as out-of-sample checks: the interval is converged when
 
-  max_q ||u_h(mu_q) - u(mu_q)|| / max_samples ||u|| <= tol
+.. math::
 
-for the approximation u_h built before they were run; either way the runs become samples (a tensor grid
+    \frac{\max_q \|u_h(\mu_q) - u(\mu_q)\|}{\max_{\text{samples}} \|u\|} \le \mathrm{tol}
+
+for the approximation :math:`u_h` built before they were run; either way the runs become samples (a tensor grid
 needs them) and a failing interval is split into two that are checked in the next round. Sampling stops
 when no interval fails or ``max_points`` values per parameter are reached; the last round's maximum is
 reported as the error estimate.
 
-Separated approximation (collocation) on the tensor grid of samples, data tensor T (n_dof, n_1..n_p):
-greedy rank-one enrichment, each term by alternating least squares (seed §3 fixed point, here on
-point values instead of the weak form)
+Separated approximation (collocation) on the tensor grid of samples, data tensor :math:`T`
+(n_dof, n_1..n_p): greedy rank-one enrichment, each term by alternating least squares (seed §3 fixed point,
+here on point values instead of the weak form)
 
-  F   = R x_1 G^1 ... x_p G^p / prod_j |G^j|^2,
-  G^j = R x_0 F x_{k != j} G^k / (|F|^2 prod_{k != j} |G^k|^2),
+.. math::
 
-with R the residual tensor, each new term followed by an update of all terms (joint ALS sweeps over
-the space and every parameter direction, CP-ALS), until |R| / |T| <= fit_tol (default tol / 10) or
+    F = \frac{R \times_1 G^1 \cdots \times_p G^p}{\prod_j |G^j|^2}, \qquad
+    G^j = \frac{R \times_0 F \times_{k \ne j} G^k}{|F|^2 \prod_{k \ne j} |G^k|^2},
+
+with :math:`R` the residual tensor (:math:`\times_k` the mode-:math:`k` product), each new term followed by an
+update of all terms (joint ALS sweeps over the space and every parameter direction, CP-ALS), until
+:math:`|R| / |T| \le` fit_tol (default tol / 10) or
 ``max_modes``. The space direction is compressed first by a thin SVD of the snapshot matrix (exact up to
 fit_tol / 100), so the ALS runs on a small coefficient tensor. For one parameter the greedy rank-one
 ALS converges to the truncated SVD, which is used directly. Between samples the 1-D modes are

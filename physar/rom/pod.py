@@ -1,15 +1,19 @@
-"""POD baseline (for comparison with PGD, seed 000 §3): snapshots + SVD + interpolated coefficients.
+r"""POD baseline (for comparison with PGD, seed 000 §3): snapshots + SVD + interpolated coefficients.
 
-Snapshots u(mu_q) on a tensor grid of the parameters are stacked as columns of S (n_dof x N); the
-thin SVD S = Phi Sigma V^T gives the spatial basis Phi_1..Phi_n (n chosen by max_modes and the
-relative energy criterion sqrt(sum_{i>n} sigma_i^2 / sum_i sigma_i^2) <= tol) and the coefficients
-a_i(mu_q) = sigma_i V_qi. The coefficients are interpolated between grid points by cubic splines:
+Snapshots :math:`u(\mu_q)` on a tensor grid of the parameters are stacked as columns of :math:`S`
+(n_dof x N); the thin SVD :math:`S = \Phi \Sigma V^\top` gives the spatial basis :math:`\Phi_1, \dots, \Phi_n`
+(:math:`n` chosen by max_modes and the relative energy criterion
+:math:`\sqrt{\sum_{i>n} \sigma_i^2 / \sum_i \sigma_i^2} \le \mathrm{tol}`) and the coefficients
+:math:`a_i(\mu_q) = \sigma_i V_{qi}`. The coefficients are interpolated between grid points by cubic splines:
 
-  u(mu) ~ sum_i Phi_i a_i(mu).
+.. math::
 
-With one parameter this is a SeparatedModel as it stands (F_i = Phi_i, G_i = a_i). With two, each
-coefficient table a_i(mu_1, mu_2) is written as sum_r s_ir U_ir(mu_1) V_ir(mu_2) by its own SVD
-(exact up to ``coef_tol``), so the result is again a SeparatedModel (Phi_i repeated once per term),
+    u(\mu) \approx \sum_i \Phi_i\, a_i(\mu).
+
+With one parameter this is a SeparatedModel as it stands (:math:`F_i = \Phi_i`, :math:`G_i = a_i`). With two,
+each coefficient table :math:`a_i(\mu_1, \mu_2)` is written as :math:`\sum_r s_{ir} U_{ir}(\mu_1) V_{ir}(\mu_2)`
+by its own SVD (exact up to ``coef_tol``), so the result is again a SeparatedModel (:math:`\Phi_i` repeated once
+per term),
 and the fast assimilation path applies unchanged.
 """
 from __future__ import annotations

@@ -1,32 +1,39 @@
-"""How far a reduced model is from the converged solution: its discretisation error against a finer check solve.
+r"""How far a reduced model is from the converged solution: its discretisation error against a finer check solve.
 
 The finite-element problem of a ``physar rom build`` configuration is rebuilt on a finer mesh (``[mesh] box``:
 cells x ``refine`` in every direction; a mesh file or a tetrahedralised surface: every tetrahedron split into 8
-at its edge midpoints, log2(``refine``) times, region tags carried over) with the same material, supports, loads
-and parameters (:func:`physar.rom.config.build_parametric_problem`: every parameter kind), and solved in full at
-a few parameter points mu_k. The reduced model u_R(mu) (its modes live on
-the configuration's mesh) is compared with the finer solution u_f(mu) at the reduced model's nodes, all of
-which are nodes of the finer mesh:
+at its edge midpoints, :math:`\log_2` ``refine`` times, region tags carried over) with the same material,
+supports, loads and parameters (:func:`physar.rom.config.build_parametric_problem`: every parameter kind), and
+solved in full at a few parameter points :math:`\mu_k`. The reduced model :math:`u_R(\mu)` (its modes live on
+the configuration's mesh) is compared with the finer solution :math:`u_f(\mu)` at the reduced model's nodes,
+all of which are nodes of the finer mesh. Displacement, over all dofs:
 
-  displacement  e_L2 = ||u_R - u_f||_2 / ||u_f||_2 over all dofs,   e_max = max_a |u_R,a - u_f,a| / max_a |u_f,a|
-  von Mises     the same with sigma_vM = sqrt(3/2 s:s) (s the deviatoric Cauchy stress) at the mesh vertices,
-                both recovered by :func:`physar.fem.post.nodal_stress` (each mesh with its own elements)
+.. math::
 
-(|.| the Euclidean norm of a node's displacement). The difference holds the reduced model's truncation error
-and the discretisation error of the coarser mesh; the latter dominates a converged PGD. For smooth solutions
-e(h) - e(h/2) = (1 - 2^-p) e(h) with p the order of convergence, so the check is a slight underestimate (P2
-displacement p = 3: 7/8 of the error; P2 stress and P1 displacement p = 2: 3/4; P1 stress p = 1: 1/2).
+    e_{L2} = \frac{\|u_R - u_f\|_2}{\|u_f\|_2}, \qquad
+    e_{\max} = \frac{\max_a |u_{R,a} - u_{f,a}|}{\max_a |u_{f,a}|}
+
+(:math:`|\cdot|` the Euclidean norm of a node's displacement); von Mises stress: the same with
+:math:`\sigma_{vM} = \sqrt{\tfrac32\, s : s}` (:math:`s` the deviatoric Cauchy stress) at the mesh vertices,
+both recovered by :func:`physar.fem.post.nodal_stress` (each mesh with its own elements). The difference holds
+the reduced model's truncation error and the discretisation error of the coarser mesh; the latter dominates a
+converged PGD. For smooth solutions :math:`e(h) - e(h/2) = (1 - 2^{-p})\, e(h)` with :math:`p` the order of
+convergence, so the check is a slight underestimate (P2 displacement :math:`p = 3`: 7/8 of the error; P2 stress
+and P1 displacement :math:`p = 2`: 3/4; P1 stress :math:`p = 1`: 1/2).
 
 Where the exact stress is singular (a perfect clamp's edge, a re-entrant corner) or concentrated under a point
 load, the stress error does not shrink with refinement. The von Mises errors are therefore also given *away*
-from them, over the set A of vertices at least 2 l from every supported or prescribed node and 2 l beyond the
-radius of every point load (l = (6 V / n_cells)^(1/3) the model's mean element size, the edge of a cube that 6 such
-tetrahedra fill), relative to the whole field (the scale an overlay's colours span; the field in A alone may be
-near zero, beyond a load):
+from them, over the set :math:`A` of vertices at least :math:`2 l` from every supported or prescribed node and
+:math:`2 l` beyond the radius of every point load (:math:`l = (6 V / n_{\mathrm{cells}})^{1/3}` the model's mean
+element size, the edge of a cube that 6 such tetrahedra fill), relative to the whole field (the scale an
+overlay's colours span; the field in :math:`A` alone may be near zero, beyond a load):
 
-  e_L2,A = rms_A(sigma_R - sigma_f) / rms(sigma_f),     e_max,A = max_A |sigma_R - sigma_f| / max(sigma_f)
+.. math::
 
-A re-entrant corner that is neither support nor load stays in A: ``*_max_at`` says where the largest error lies.
+    e_{L2,A} = \frac{\operatorname{rms}_A(\sigma_R - \sigma_f)}{\operatorname{rms}(\sigma_f)}, \qquad
+    e_{\max,A} = \frac{\max_A |\sigma_R - \sigma_f|}{\max \sigma_f}
+
+A re-entrant corner that is neither support nor load stays in :math:`A`: ``*_max_at`` says where the largest error lies.
 """
 from __future__ import annotations
 
@@ -138,10 +145,11 @@ def _split_tags(mesh: TetMesh, conn: np.ndarray, tags: MeshTags) -> MeshTags:
 
 
 def check_points(ranges, n: int) -> np.ndarray:
-    """n parameter points (n, p) in the box ``ranges`` [(lo, hi)], k = 0..n-1: the first parameter at
-    lo + (k + 1) / n (hi - lo), reaching the end of its range (a load position: the far end); parameter j >= 1 at
-    lo_j + frac((k + 1) / n + j g) (hi_j - lo_j), g = (sqrt 5 - 1) / 2 (a rank-1 lattice: no two parameters
-    move together)."""
+    r"""n parameter points (n, p) in the box ``ranges`` [(lo, hi)], :math:`k = 0, \dots, n-1`: the first
+    parameter at :math:`\mathrm{lo} + \frac{k + 1}{n} (\mathrm{hi} - \mathrm{lo})`, reaching the end of its range
+    (a load position: the far end); parameter :math:`j \ge 1` at
+    :math:`\mathrm{lo}_j + \operatorname{frac}\big(\frac{k + 1}{n} + j g\big) (\mathrm{hi}_j - \mathrm{lo}_j)`,
+    :math:`g = (\sqrt 5 - 1) / 2` (a rank-1 lattice: no two parameters move together)."""
     lo, hi = (np.array(v, float) for v in zip(*ranges))
     frac = np.mod((np.arange(n)[:, None] + 1.0) / n + GOLDEN * np.arange(len(lo))[None, :], 1.0)
     frac[:, 0] = (np.arange(n) + 1.0) / n
@@ -180,7 +188,8 @@ def _matching(coarse: np.ndarray, fine: np.ndarray, what: str) -> np.ndarray:
 
 
 def _rel(a: np.ndarray, b: np.ndarray) -> tuple[float, float, int]:
-    """(||a - b|| / ||b||, max_i |a_i - b_i| / max_i |b_i|, argmax) over the rows (norm of each row)."""
+    r"""(:math:`\|a - b\| / \|b\|`, :math:`\max_i |a_i - b_i| / \max_i |b_i|`, argmax) over the rows (norm of
+    each row)."""
     diff = np.linalg.norm((a - b).reshape(len(b), -1), axis=1)
     ref = np.linalg.norm(b.reshape(len(b), -1), axis=1)
     l2 = float(np.linalg.norm(diff) / max(np.linalg.norm(ref), 1e-300))
@@ -193,7 +202,8 @@ def _von_mises(sig: np.ndarray) -> np.ndarray:
 
 
 def _element_size(space) -> float:
-    """l = (6 V / n_cells)^(1/3) [m]: the edge of a cube that 6 tetrahedra of the mean volume fill."""
+    r""":math:`l = (6 V / n_{\mathrm{cells}})^{1/3}` [m]: the edge of a cube that 6 tetrahedra of the mean volume
+    fill."""
     return float((np.abs(space.jacobians[1]).sum() / space.mesh.n_cells) ** (1.0 / 3.0))
 
 

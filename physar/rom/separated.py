@@ -1,4 +1,4 @@
-"""Separated parametric models u(x, mu) = sum_i F_i(x) prod_j G_i^j(mu_j) (seed 000, §2.2 and §4).
+r"""Separated parametric models :math:`u(x, \mu) = \sum_i F_i(x) \prod_j G_i^j(\mu_j)` (seed 000, §2.2 and §4).
 
 Displacements in m, parameters in the units given by ``units``; ``kinds`` says what each parameter is
 (:data:`KIND_UNITS`: a load position, a load magnitude, a prescribed displacement, ...).
@@ -97,7 +97,8 @@ class SeparatedModel:
         return self._coeffs(mu.tolist())
 
     def _value_derivative(self, j, m):
-        """(2, n_modes): G^j(m) and dG^j/dmu_j(m) from the precomputed cubic coefficients."""
+        r"""(2, n_modes): :math:`G^j(m)` and :math:`\mathrm{d}G^j/\mathrm{d}\mu_j(m)` from the precomputed cubic
+        coefficients."""
         x = self._knots[j]
         k = bisect_right(x, m) - 1
         k = 0 if k < 0 else (min(k, len(x) - 2))
@@ -106,7 +107,8 @@ class SeparatedModel:
         return np.dot(((t2 * t, t2, t, 1.0), (3.0 * t2, 2.0 * t, 1.0, 0.0)), self._coef[j][k])
 
     def _coeffs(self, mu):
-        """c(mu), dc/dmu for a list of floats (no validation; the fast path of the LM loop)."""
+        r""":math:`c(\mu)`, :math:`\mathrm{d}c/\mathrm{d}\mu` for a list of floats (no validation; the fast path of
+        the LM loop)."""
         if len(mu) == 1:
             vd = self._value_derivative(0, mu[0])
             return vd[0], vd[1:]
