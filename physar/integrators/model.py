@@ -1,16 +1,20 @@
-"""Dynamics models M q'' = f_els(q) + f_dmp(q, v) + f_ext (seed 001 §2, Eq. 2.1).
+r"""Dynamics models :math:`M \ddot q = f_{\mathrm{els}}(q) + f_{\mathrm{dmp}}(q, v) + f_{\mathrm{ext}}` (seed 001 §2,
+Eq. 2.1).
 
-q is the nodal displacement vector (n_dofs,) [m], v = q' [m/s]. A model gives the total force
-f(q, v) = f_els(q) + f_dmp(q, v) + f_ext [N] and its linearisation K = -df/dq, D = -df/dv, on the free
-dofs (pinned dofs are held at constant values, with zero velocity).
+:math:`q` is the nodal displacement vector (n_dofs,) [m], :math:`v = \dot q` [m/s]. A model gives the total
+force :math:`f(q, v) = f_{\mathrm{els}}(q) + f_{\mathrm{dmp}}(q, v) + f_{\mathrm{ext}}` [N] and its
+linearisation :math:`K = -\partial f / \partial q`, :math:`D = -\partial f / \partial v`, on the free dofs
+(pinned dofs are held at constant values, with zero velocity).
 
-* :class:`LinearDynamics`: constant matrices, f = -K q - D v + f_ext (the seed's analysis case, §2.1).
+* :class:`LinearDynamics`: constant matrices, :math:`f = -K q - D v + f_{\mathrm{ext}}` (the seed's analysis
+  case, §2.1).
 * :class:`SolidModel`: a physar.fem ElasticModel (any material, P1/P2) with lumped or consistent mass,
-  Rayleigh damping D = alpha M + beta K(q) (K the current tangent), gravity M g, pinned nodes and a
-  penalty ground plane z = z0: f_z = k (z0 - z) on nodes below it. For the co-rotated material on P1
-  tetrahedra a fast element kernel is used: one polar decomposition F = R S per element, force
-  P = 2 mu (F - R) + lambda tr(S - I) R (identical to physar.fem's Corotated), and the stiffness-warping
-  tangent R K0 Rᵀ per element (the dR terms are dropped: SPD, as in SOFA-class engines).
+  Rayleigh damping :math:`D = \alpha M + \beta K(q)` (:math:`K` the current tangent), gravity :math:`M g`, pinned
+  nodes and a penalty ground plane :math:`z = z_0`: :math:`f_z = k (z_0 - z)` on nodes below it. For the
+  co-rotated material on P1 tetrahedra a fast element kernel is used: one polar decomposition :math:`F = R S`
+  per element, force :math:`P = 2 \mu (F - R) + \lambda \operatorname{tr}(S - I)\, R` (identical to
+  physar.fem's Corotated), and the stiffness-warping tangent :math:`R K^0 R^\top` per element (the
+  :math:`\mathrm{d}R` terms are dropped: SPD, as in SOFA-class engines).
 """
 
 from __future__ import annotations
@@ -28,9 +32,11 @@ from physar.integrators.linalg import BlockRotation, FreePattern
 
 @dataclass
 class Linearization:
-    """Total force f (n,) at (q, v) and, on the free dofs, K = -df/dq and D = -df/dv (or None = 0).
+    r"""Total force :math:`f` (n,) at (q, v) and, on the free dofs, :math:`K = -\partial f / \partial q` and
+    :math:`D = -\partial f / \partial v` (or None = 0).
 
-    `rayleigh` = (alpha, beta) when D = alpha M + beta K_elastic exactly (lets the model add matrices once).
+    `rayleigh` = :math:`(\alpha, \beta)` when :math:`D = \alpha M + \beta K_{\mathrm{elastic}}` exactly (lets the
+    model add matrices once).
     """
 
     f: np.ndarray
@@ -172,7 +178,8 @@ class FemKernel:
 
 
 def _cofactor(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Cofactor matrices C (m, 3, 3) and determinants (m,) of a batch a (m, 3, 3): a⁻ᵀ = C / det."""
+    r"""Cofactor matrices :math:`C` (m, 3, 3) and determinants (m,) of a batch :math:`a` (m, 3, 3):
+    :math:`a^{-\top} = C / \det a`."""
     a00, a01, a02 = a[:, 0, 0], a[:, 0, 1], a[:, 0, 2]
     a10, a11, a12 = a[:, 1, 0], a[:, 1, 1], a[:, 1, 2]
     a20, a21, a22 = a[:, 2, 0], a[:, 2, 1], a[:, 2, 2]
@@ -197,11 +204,12 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def fast_polar(F: np.ndarray, tol: float = 1e-13, max_iter: int = 12) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation R and stretch S = Rᵀ F of F = R S, batched (m, 3, 3).
+    r"""Rotation :math:`R` and stretch :math:`S = R^\top F` of :math:`F = R S`, batched (m, 3, 3).
 
-    Scaled Newton iteration R <- ½ (g R + R⁻ᵀ / g), g = |det R|^(-1/3) (Higham), vectorised with explicit
-    cofactors and only the unconverged matrices iterated; elements with det F <= 0 (inverted) or not
-    converged fall back to physar.fem's SVD polar (which keeps det R = +1).
+    Scaled Newton iteration :math:`R \leftarrow \tfrac12 (g R + R^{-\top} / g)`, :math:`g = |\det R|^{-1/3}`
+    (Higham), vectorised with explicit cofactors and only the unconverged matrices iterated; elements with
+    :math:`\det F \le 0` (inverted) or not converged fall back to physar.fem's SVD polar (which keeps
+    :math:`\det R = +1`).
     """
     R = np.array(F, dtype=float, copy=True)
     C, det = _cofactor(R)
@@ -370,18 +378,30 @@ class CorotatedP1Kernel:
         return fast_polar(acc)[0]
 
     def _warped(self, R):
-        """Ke = blockdiag(R) K0 blockdiag(R)ᵀ, i.e. Ke[a, b] = R K0ab Rᵀ, as (m, 12, 12), dof order (a, i)."""
+        r""":math:`K_e = \operatorname{blockdiag}(R)\, K^0 \operatorname{blockdiag}(R)^\top`, i.e.
+        :math:`K_e[a, b] = R K^0_{ab} R^\top`, as (m, 12, 12), dof order (a, i)."""
         m = len(R)
         X = np.matmul(self.K0.reshape(m, 48, 3), np.swapaxes(R, 1, 2))  # [m, (a, j, b), l]
         return np.matmul(R[:, None], X.reshape(m, 4, 3, 12)).reshape(m, 12, 12)
 
     def _exact(self, R, S):
-        """Exact element tangent (m, 12, 12): the warped part plus the dR terms of the co-rotated P.
+        r"""Exact element tangent (m, 12, 12): the warped part plus the :math:`\mathrm{d}R` terms of the
+        co-rotated :math:`P`:
 
-        dP = 2 mu (dF - dR) + lambda tr(Rᵀ dF) R + lambda tr(S - I) dR, dR = R [w]x,
-        w = (tr S I - S)⁻¹ axial(Rᵀ dF - dFᵀ R); for dF = e_k ⊗ G_b: axial(...) = G_b x (Rᵀ e_k), so
-        K[ai, bk] = V (2 mu δ_ik G_a·G_b + lambda g_ai g_bk + (lambda tr(S - I) - 2 mu) (R (w_bk x G_a))_i),
-        g_a = R G_a.
+        .. math::
+
+            \mathrm{d}P = 2\mu (\mathrm{d}F - \mathrm{d}R) + \lambda \operatorname{tr}(R^\top \mathrm{d}F)\, R
+            + \lambda \operatorname{tr}(S - I)\, \mathrm{d}R, \qquad \mathrm{d}R = R\, [w]_\times,
+
+            w = (\operatorname{tr}(S)\, I - S)^{-1} \operatorname{axial}(R^\top \mathrm{d}F - \mathrm{d}F^\top R);
+
+        for :math:`\mathrm{d}F = e_k \otimes G_b`:
+        :math:`\operatorname{axial}(\dots) = G_b \times (R^\top e_k)`, so
+
+        .. math::
+
+            K[ai, bk] = V \big(2\mu\, \delta_{ik}\, G_a \cdot G_b + \lambda\, g_{ai}\, g_{bk}
+            + (\lambda \operatorname{tr}(S - I) - 2\mu)\, (R\, (w_{bk} \times G_a))_i\big), \qquad g_a = R G_a.
         """
         m = len(R)
         G, V = self.G, self.vol
@@ -553,7 +573,7 @@ class SolidModel(DynamicsModel):
 
     # -- pieces ------------------------------------------------------------------------------------
     def _ground(self, q):
-        """Contact force (n,), active dofs and penetration, from the node heights z = Z + q_z."""
+        """Contact force (n,), active dofs and penetration, from the node heights :math:`z = Z + q_z`."""
         g = self.ground
         z = self.space.nodes[:, 2] + q[2::3]
         pen = g.z0 - z

@@ -1,32 +1,53 @@
-"""Time steppers for M q'' = f(q, v) (seed 001 §2), sharing one Newton / sparse-solve machinery.
+r"""Time steppers for :math:`M \ddot q = f(q, v)` (seed 001 §2), sharing one Newton / sparse-solve machinery.
 
-Every implicit stage of every method below has the same form, solved for the velocity v on the free
+Every implicit stage of every method below has the same form, solved for the velocity :math:`v` on the free
 dofs by :meth:`Integrator._stage`:
 
-    M v - h_f f(q, v) = r,     q = q̂ + h_q v,                                            (S)
+.. math::
 
-with Newton matrix J = M + h_f D + h_f h_q K (K = -df/dq, D = -df/dv). Newton starts from the
-previous state (q_{n-1}, v_{n-1}) as linearisation point, so one iteration of backward Euler is the
-classic semi-implicit (linearly implicit) step (M + hD + h²K) Δv = h (f_{n-1} - h K v_{n-1}).
+    M v - h_f\, f(q, v) = r, \qquad q = \hat q + h_q v, \qquad \text{(S)}
 
-Methods (h the step; f_n = f(q_n, v_n)):
-* symplectic Euler: v_n = v_{n-1} + h M⁻¹ f_{n-1}, q_n = q_{n-1} + h v_n (explicit).
-* backward Euler (BE): (S) with h_f = h_q = h, q̂ = q_{n-1}, r = M v_{n-1}; full Newton.
+with Newton matrix :math:`J = M + h_f D + h_f h_q K` (:math:`K = -\partial f / \partial q`,
+:math:`D = -\partial f / \partial v`). Newton starts from the previous state :math:`(q_{n-1}, v_{n-1})` as
+linearisation point, so one iteration of backward Euler is the classic semi-implicit (linearly implicit) step
+:math:`(M + h D + h^2 K)\, \Delta v = h\, (f_{n-1} - h K v_{n-1})`.
+
+Methods (:math:`h` the step; :math:`f_n = f(q_n, v_n)`):
+
+* symplectic Euler: :math:`v_n = v_{n-1} + h M^{-1} f_{n-1}`, :math:`q_n = q_{n-1} + h v_n` (explicit).
+* backward Euler (BE): (S) with :math:`h_f = h_q = h`, :math:`\hat q = q_{n-1}`, :math:`r = M v_{n-1}`; full
+  Newton.
 * semi-implicit (SI): BE with exactly one Newton iteration.
-* implicit midpoint: (S) for v_{n-½} with h_f = h_q = h/2, r = M v_{n-1}; v_n = 2 v_{n-½} - v_{n-1},
-  q_n = q_{n-1} + h v_{n-½}.
-* generalized-α (seed Eq. 2.11-2.12, Chung-Hulbert): unknown a_{n+α};
-  q_n = q_{n-1} + h v_{n-1} + h²/2 ((1-2β) a_{n-1+α} + 2β a_{n+α}),
-  v_n = v_{n-1} + h ((1-γ) a_{n-1+α} + γ a_{n+α}),
-  (1-α_m) M a_{n+α} + α_m M a_{n-1+α} = (1-α_f) f_n + α_f f_{n-1},
-  α_m = (2r-1)/(r+1), α_f = r/(r+1), α = α_m - α_f, β = (1-α)²/4, γ = 1/2 - α;
-  as (S): h_q = hβ/γ, h_f = hγ(1-α_f)/(1-α_m). r = 1: no numerical damping, r = 0: most.
-* θ method (seed Eq. 2.15), trapezoid + BDF2 on u = (q, v), u' = b(u):
-  u_n = u_{n-1} + (1-θ) h/2 [b(u_{n-1}) + b(u_n)] + θ/3 [u_{n-1} - u_{n-2} + 2h b(u_n)],
-  so h_f = h_q = c h with c = (1-θ)/2 + 2θ/3; θ = 0 trapezoid, θ = 1 BDF2. Two-step: the first step
-  is one trapezoid step (second order, one-step).
-* TR-BDF2 (γ = 2 - √2): a trapezoid stage to t + γh, then BDF2 on (t, t + γh, t + h):
-  u_n = [u_γ - (1-γ)² u_{n-1}] / (γ(2-γ)) + (1-γ)/(2-γ) h b(u_n). L-stable, second order.
+* implicit midpoint: (S) for :math:`v_{n-1/2}` with :math:`h_f = h_q = h/2`, :math:`r = M v_{n-1}`;
+  :math:`v_n = 2 v_{n-1/2} - v_{n-1}`, :math:`q_n = q_{n-1} + h v_{n-1/2}`.
+* generalized-α (seed Eq. 2.11-2.12, Chung-Hulbert): unknown :math:`a_{n+\alpha}`;
+
+  .. math::
+
+      q_n &= q_{n-1} + h v_{n-1} + \tfrac{h^2}{2} \big((1 - 2\beta)\, a_{n-1+\alpha} + 2\beta\, a_{n+\alpha}\big), \\
+      v_n &= v_{n-1} + h \big((1 - \gamma)\, a_{n-1+\alpha} + \gamma\, a_{n+\alpha}\big), \\
+      (1 - \alpha_m) M a_{n+\alpha} + \alpha_m M a_{n-1+\alpha} &= (1 - \alpha_f) f_n + \alpha_f f_{n-1},
+
+  :math:`\alpha_m = \frac{2r - 1}{r + 1}`, :math:`\alpha_f = \frac{r}{r + 1}`, :math:`\alpha = \alpha_m - \alpha_f`,
+  :math:`\beta = (1 - \alpha)^2 / 4`, :math:`\gamma = 1/2 - \alpha`; as (S): :math:`h_q = h \beta / \gamma`,
+  :math:`h_f = h \gamma (1 - \alpha_f) / (1 - \alpha_m)`. :math:`r = 1`: no numerical damping, :math:`r = 0`: most.
+* θ method (seed Eq. 2.15), trapezoid + BDF2 on :math:`u = (q, v)`, :math:`\dot u = b(u)`:
+
+  .. math::
+
+      u_n = u_{n-1} + (1 - \theta) \tfrac{h}{2} \big[b(u_{n-1}) + b(u_n)\big]
+      + \tfrac{\theta}{3} \big[u_{n-1} - u_{n-2} + 2 h\, b(u_n)\big],
+
+  so :math:`h_f = h_q = c h` with :math:`c = (1 - \theta)/2 + 2\theta/3`; :math:`\theta = 0` trapezoid,
+  :math:`\theta = 1` BDF2. Two-step: the first step is one trapezoid step (second order, one-step).
+* TR-BDF2 (:math:`\gamma = 2 - \sqrt 2`): a trapezoid stage to :math:`t + \gamma h`, then BDF2 on
+  :math:`(t, t + \gamma h, t + h)`:
+
+  .. math::
+
+      u_n = \frac{u_\gamma - (1 - \gamma)^2 u_{n-1}}{\gamma (2 - \gamma)} + \frac{1 - \gamma}{2 - \gamma}\, h\, b(u_n).
+
+  L-stable, second order.
 """
 
 from __future__ import annotations
