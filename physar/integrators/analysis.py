@@ -1,11 +1,17 @@
-"""Artificial damping of the time steppers (seed 001 §2.1).
+r"""Artificial damping of the time steppers (seed 001 §2.1).
 
-For the test equation q'' + ω² q = 0 every stepper is linear in its state, x_n = T x_{n-1}. T (the
-amplification matrix; for the two-step θ method the companion matrix on (q_n, v_n, q_{n-1}, v_{n-1}))
-is obtained here by applying the implemented `step` to the unit states of a one-degree-of-freedom
-:class:`LinearDynamics` model, so the analysis tests the real code. The artificial damping is the d of
-q'' + d q' + ω² q = 0 whose amplitude decays like ρ(T) per step: d = -(2/h) ln ρ(T) (seed Eq. 2.7-2.9);
-d/ω depends on hω only.
+For the test equation :math:`\ddot q + \omega^2 q = 0` every stepper is linear in its state,
+:math:`x_n = T x_{n-1}`. :math:`T` (the amplification matrix; for the two-step θ method the companion matrix on
+:math:`(q_n, v_n, q_{n-1}, v_{n-1})`) is obtained here by applying the implemented `step` to the unit states of
+a one-degree-of-freedom :class:`LinearDynamics` model, so the analysis tests the real code. The artificial
+damping is the :math:`d` of :math:`\ddot q + d \dot q + \omega^2 q = 0` whose amplitude decays like
+:math:`\rho(T)` per step (seed Eq. 2.7-2.9):
+
+.. math::
+
+    d = -\frac{2}{h} \ln \rho(T);
+
+:math:`d / \omega` depends on :math:`h\omega` only.
 """
 
 from __future__ import annotations
@@ -72,8 +78,9 @@ def d_backward_euler(hw, h=1.0):
 
 
 def plot_damping_figures(path, hw=None, rs=(0.0, 0.25, 0.5, 0.75, 1.0), thetas=(0.0, 0.25, 0.5, 0.75, 1.0)):
-    """Seed Fig. 2.1 (generalized-α, r = 0:.25:1) and Fig. 2.2 (θ method, θ = 0:.25:1), plus BE/SI,
-    midpoint and TR-BDF2 for reference: d/ω versus hω (log axis). Written atomically as PNG (the path is
+    r"""Seed Fig. 2.1 (generalized-α, :math:`r = 0, 0.25, \dots, 1`) and Fig. 2.2 (θ method,
+    :math:`\theta = 0, 0.25, \dots, 1`), plus BE/SI, midpoint and TR-BDF2 for reference: :math:`d/\omega` versus
+    :math:`h\omega` (log axis). Written atomically as PNG (the path is
     checked first: a .png suffix and a writable place)."""
     import matplotlib
 
@@ -111,11 +118,12 @@ def plot_damping_figures(path, hw=None, rs=(0.0, 0.25, 0.5, 0.75, 1.0), thetas=(
 
 
 def energy_drift(rows: list[dict]) -> dict:
-    """Energy balance of a run from its per-step energy rows (dicts with t, kinetic, elastic, potential, total
+    r"""Energy balance of a run from its per-step energy rows (dicts with t, kinetic, elastic, potential, total
     [J], as recorded by :func:`physar.integrators.config.run_simulation`).
 
-    ``growth`` = max_t (E(t) - E(0)) / S and ``final`` = (E(T) - E(0)) / S, with S the largest |kinetic|,
-    |elastic|, |potential| of the run: the share of the run's energy that the integrator made up (it is 0 for
+    ``growth`` = :math:`\max_t (E(t) - E(0)) / S` and ``final`` = :math:`(E(T) - E(0)) / S`, with :math:`S` the
+    largest :math:`|E_{\mathrm{kinetic}}|`, :math:`|E_{\mathrm{elastic}}|`, :math:`|E_{\mathrm{potential}}|` of
+    the run: the share of the run's energy that the integrator made up (it is 0 for
     exact dynamics without damping, negative with damping; implicit midpoint on a nonlinear model gains).
     """
     tot = np.array([r["total"] for r in rows], dtype=float)
@@ -168,8 +176,13 @@ def dominant_frequency(signal, dt: float, pad: int = 16) -> float:
 
 def euler_bernoulli_cantilever_omega(E: float, rho: float, length: float, width: float, height: float,
                                      mode: int = 1) -> float:
-    """First bending angular frequencies of a clamped-free Euler-Bernoulli beam [rad/s], bending about
-    the width axis (deflection along `height`): ω = (β L)² √(E I / (ρ A L⁴)), β L = 1.8751, 4.6941, 7.8548."""
+    r"""First bending angular frequencies of a clamped-free Euler-Bernoulli beam [rad/s], bending about
+    the width axis (deflection along `height`):
+
+    .. math::
+
+        \omega = (\beta L)^2 \sqrt{\frac{E I}{\rho A L^4}}, \qquad \beta L = 1.8751,\ 4.6941,\ 7.8548
+        \ (\text{mode} = 1, 2, 3)."""
     bl = [1.875104068711961, 4.694091132974175, 7.854757438237613][mode - 1]
     I = width * height**3 / 12.0
     A = width * height

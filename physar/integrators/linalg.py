@@ -1,13 +1,19 @@
-"""Sparse solves for the implicit steppers (seed 001 §2: every implicit step is a sparse SPD solve).
+r"""Sparse solves for the implicit steppers (seed 001 §2: every implicit step is a sparse SPD solve).
 
 * :class:`FreePattern`: the restriction A[free][:, free] of matrices that share one CSR pattern, done
   as index arithmetic on their data (no sparse indexing per step, and the same pattern every step).
 * :class:`SparseSolver`: Cholesky (CHOLMOD) with the symbolic analysis reused across steps when the
   pattern is unchanged, LU fallback, a factor cache for constant matrices (linear models), and an
-  optional preconditioned-CG mode ('pcg') that keeps one Cholesky factor A_ref and solves later
-  matrices A by CG preconditioned with  P⁻¹ = Q A_ref⁻¹ Qᵀ,  Q = blockdiag(R_i R_ref,iᵀ)  the per-node
-  rotation since the factorisation (co-rotated elasticity: A ≈ Q A_ref Qᵀ, the "rotated
-  preconditioner"); it refactors when CG needs more than `refactor_iters` iterations. CG may start from
+  optional preconditioned-CG mode ('pcg') that keeps one Cholesky factor :math:`A_{\mathrm{ref}}` and solves
+  later matrices :math:`A` by CG preconditioned with
+
+  .. math::
+
+      P^{-1} = Q A_{\mathrm{ref}}^{-1} Q^\top, \qquad
+      Q = \operatorname{blockdiag}(R_i R_{\mathrm{ref},i}^\top)
+
+  the per-node rotation since the factorisation (co-rotated elasticity:
+  :math:`A \approx Q A_{\mathrm{ref}} Q^\top`, the "rotated preconditioner"); it refactors when CG needs more than `refactor_iters` iterations. CG may start from
   a guess x0 (the caller's previous solution), and runs its preconditioner solves on `threads` BLAS /
   OpenMP threads (default 1: a 10⁴-dof triangular solve gains nothing from a second thread and loses
   several times on a loaded machine; see benchmarks/bench_integrators.py).
@@ -174,19 +180,20 @@ class BlockRotation:
         return self._QT @ x
 
     def relative_to(self, ref: BlockRotation) -> BlockRotation:
-        """Q Q_refᵀ (per node R_i R_ref,iᵀ)."""
+        r""":math:`Q Q_{\mathrm{ref}}^\top` (per node :math:`R_i R_{\mathrm{ref},i}^\top`)."""
         out = BlockRotation.__new__(BlockRotation)
         out.R, out.free, out.n = np.matmul(self.R, np.swapaxes(ref.R, 1, 2)), self.free, self.n
         return out
 
 
 def pcg(A, b: np.ndarray, prec, rtol: float, maxiter: int, x0=None) -> tuple[np.ndarray, int, bool]:
-    """Preconditioned conjugate gradients (Hestenes-Stiefel) for SPD A: (x, iterations, converged).
+    r"""Preconditioned conjugate gradients (Hestenes-Stiefel) for SPD A: (x, iterations, converged).
 
-    Stops when |b - A x| <= rtol |b| (scipy.sparse.linalg.cg's criterion with atol = 0); `prec(r)`
-    applies P⁻¹. Starts from x0 when given and its residual is below |b| (else from 0: a worse guess
-    only costs iterations). Returns converged = False on a non-positive curvature pᵀAp <= 0 or after
-    maxiter iterations. The loop is written out (one A-product, one P⁻¹ apply, two dot products per
+    Stops when :math:`|b - A x| \le \mathrm{rtol}\, |b|` (scipy.sparse.linalg.cg's criterion with atol = 0);
+    `prec(r)` applies :math:`P^{-1}`. Starts from x0 when given and its residual is below :math:`|b|` (else from
+    0: a worse guess only costs iterations). Returns converged = False on a non-positive curvature
+    :math:`p^\top A p \le 0` or after maxiter iterations. The loop is written out (one A-product, one
+    :math:`P^{-1}` apply, two dot products per
     iteration) because scipy's cg adds ~0.1 ms of wrapper work per iteration at 10⁴ unknowns.
     """
     bn = float(np.linalg.norm(b))
@@ -221,7 +228,7 @@ def pcg(A, b: np.ndarray, prec, rtol: float, maxiter: int, x0=None) -> tuple[np.
 
 
 class SparseSolver:
-    """Solve A x = b for a sequence of SPD(-ish) sparse matrices sharing one sparsity pattern.
+    """Solve :math:`A x = b` for a sequence of SPD(-ish) sparse matrices sharing one sparsity pattern.
 
     `solve(A, b, key, frame)`: when `key` is not None and a factor was cached under it, that factor is
     reused (constant matrices; always a direct solve). Otherwise, method 'direct' refactors A (reusing
@@ -229,7 +236,7 @@ class SparseSolver:
     CG to relative residual `rtol` with the rotated preconditioner built from the last factor and
     `frame()` (a callable returning a :class:`BlockRotation` or None), refactoring when CG took more
     than `refactor_iters` iterations or failed; `x0` (optional) is CG's starting guess, used when its
-    residual |b - A x0| is below |b|. `threads`: BLAS/OpenMP threads during CG (None: unchanged).
+    residual :math:`|b - A x_0|` is below :math:`|b|`. `threads`: BLAS/OpenMP threads during CG (None: unchanged).
     Non-positive-definite matrices fall back to LU. Counts `n_factorizations` and `n_cg_iterations`.
     """
 

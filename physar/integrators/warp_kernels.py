@@ -1,17 +1,22 @@
-"""NVIDIA Warp CPU kernels for co-rotated linear P1 tetrahedra (seed 001 §2, Eq. 2.1; the fast path of
+r"""NVIDIA Warp CPU kernels for co-rotated linear P1 tetrahedra (seed 001 §2, Eq. 2.1; the fast path of
 :class:`physar.integrators.model.CorotatedP1Kernel`, backend 'warp').
 
-Per element e with shape-function gradients G_a (a = 0..3) and volume V (all float64):
+Per element :math:`e` with shape-function gradients :math:`G_a` (:math:`a = 0, \dots, 3`) and volume :math:`V`
+(all float64):
 
-* F = I + Σ_a u_a ⊗ G_a = R S (polar decomposition by the scaled Newton iteration
-  R <- ½ (g R + R⁻ᵀ / g), g = |det R|^(-1/3), the same iteration and tolerance as
-  :func:`physar.integrators.model.fast_polar`; an element with det F <= 1e-12 |F|³ or not converged in
-  12 iterations is flagged and redone in numpy by the SVD polar decomposition);
-* P = 2 mu (F - R) + lambda tr(S - I) R, nodal forces f_a = V P G_a;
-* warped stiffness K_e = R K0_e Rᵀ, entry by entry with g_a = R G_a:
-  K_e[a i, b k] = V (lambda g_ai g_bk + mu g_ak g_bi + mu δ_ik G_a·G_b), summed into CSR data slots;
-* matrix-free product K_e x_e: H = Σ_a (Rᵀ x_a) ⊗ G_a, σ = lambda tr H I + mu (H + Hᵀ), y_a += V R σ G_a;
-* per-node frame: the polar factor of Σ_e∋node V_e R_e.
+* :math:`F = I + \sum_a u_a \otimes G_a = R S` (polar decomposition by the scaled Newton iteration
+  :math:`R \leftarrow \tfrac12 (g R + R^{-\top} / g)`, :math:`g = |\det R|^{-1/3}`, the same iteration and
+  tolerance as :func:`physar.integrators.model.fast_polar`; an element with
+  :math:`\det F \le 10^{-12} |F|^3` or not converged in 12 iterations is flagged and redone in numpy by the
+  SVD polar decomposition);
+* :math:`P = 2\mu (F - R) + \lambda \operatorname{tr}(S - I)\, R`, nodal forces :math:`f_a = V P G_a`;
+* warped stiffness :math:`K_e = R K^0_e R^\top`, entry by entry with :math:`g_a = R G_a`:
+  :math:`K_e[ai, bk] = V (\lambda\, g_{ai} g_{bk} + \mu\, g_{ak} g_{bi} + \mu\, \delta_{ik}\, G_a \cdot G_b)`,
+  summed into CSR data slots;
+* matrix-free product :math:`K_e x_e`: :math:`H = \sum_a (R^\top x_a) \otimes G_a`,
+  :math:`\sigma = \lambda \operatorname{tr}(H)\, I + \mu (H + H^\top)`,
+  :math:`y_a \mathrel{+}= V R \sigma G_a`;
+* per-node frame: the polar factor of :math:`\sum_{e \ni \mathrm{node}} V_e R_e`.
 
 Warp runs these kernels as compiled native loops; numpy needs several passes over (m, 12, 12) arrays
 for the same work (see benchmarks/bench_integrators.py, table "SI step variants").
@@ -205,7 +210,7 @@ class WarpCorotatedP1:
                              wp.zeros(int(nnz), dtype=wp.float64, device=DEVICE))
 
     def warped_assemble(self, name: str) -> np.ndarray:
-        """CSR data (nnz,) of Σ_e R_e K0_e R_eᵀ at the stored rotations, on the slots `name`."""
+        r"""CSR data (nnz,) of :math:`\sum_e R_e K^0_e R_e^\top` at the stored rotations, on the slots `name`."""
         slots, data = self._slots[name]
         data.zero_()
         wp.launch(_warped_assemble, dim=self.m,
@@ -213,7 +218,7 @@ class WarpCorotatedP1:
         return data.numpy()
 
     def warped_matvec(self, x: np.ndarray) -> np.ndarray:
-        """Σ_e R_e K0_e R_eᵀ x (n_nodes * 3,) at the stored rotations (a fresh array)."""
+        r""":math:`\sum_e R_e K^0_e R_e^\top x` (n_nodes * 3,) at the stored rotations (a fresh array)."""
         self.y.zero_()
         wp.launch(_warped_matvec, dim=self.m,
                   inputs=[_wp(x.reshape(-1, 3), wp.vec3d), self.cells, self.R, self.G, self.vol, self.lam,
@@ -221,7 +226,7 @@ class WarpCorotatedP1:
         return self.y.numpy().reshape(-1).copy()
 
     def node_frames(self):
-        """(Rn, acc, flagged): per-node polar factors of Σ V_e R_e (n_nodes, 3, 3) at the stored
+        r"""(Rn, acc, flagged): per-node polar factors of :math:`\sum_e V_e R_e` (n_nodes, 3, 3) at the stored
         rotations, the sums themselves, and the nodes left to the caller."""
         self.acc.zero_()
         wp.launch(_node_accumulate, dim=self.m, inputs=[self.R, self.cells, self.vol, self.acc], device=DEVICE)
