@@ -1,9 +1,17 @@
-"""Assembly of internal force, tangent stiffness, energy and mass (vectorised over elements).
+r"""Assembly of internal force, tangent stiffness, energy and mass (vectorised over elements).
 
-With shape-function gradients G_aJ = dN_a/dX_J and F = I + Σ_a u_a ⊗ G_a at each quadrature point:
-  internal force   f_ai = Σ_q w_q det J  P_iJ(F) G_aJ                      (f_int = dΠ/du)
-  tangent          K_aibk = Σ_q w_q det J  G_aJ A_iJkL(F) G_bL             (K = d f_int / du)
-  consistent mass  M_ab = Σ_q w_q det J  rho N_a N_b  (times I3); lumped by HRZ diagonal scaling.
+With shape-function gradients :math:`G_{aJ} = \partial N_a / \partial X_J` and
+:math:`F = I + \sum_a u_a \otimes G_a` at each quadrature point :math:`q` (weight :math:`w_q`):
+
+.. math::
+
+    f_{ai} &= \sum_q w_q \det J\, P_{iJ}(F)\, G_{aJ}
+    \quad \text{internal force, } f_{\mathrm{int}} = \partial \Pi / \partial u, \\
+    K_{aibk} &= \sum_q w_q \det J\, G_{aJ}\, \mathbb{A}_{iJkL}(F)\, G_{bL}
+    \quad \text{tangent, } K = \partial f_{\mathrm{int}} / \partial u, \\
+    M_{ab} &= \sum_q w_q \det J\, \rho\, N_a N_b
+    \quad \text{consistent mass (times } I_3\text{); lumped by HRZ diagonal scaling.}
+
 Element arrays go to a CSR matrix through a precomputed scatter map (pattern built once per space).
 """
 

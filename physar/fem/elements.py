@@ -1,8 +1,9 @@
-"""Lagrange tetrahedra (P1, P2), quadrature and the vector function space.
+r"""Lagrange tetrahedra (P1, P2), quadrature and the vector function space.
 
-Reference tetrahedron with barycentric coordinates L0 = 1 - xi - eta - zeta, L1 = xi, L2 = eta,
-L3 = zeta. P1: N_a = L_a. P2 (10 nodes, VTK `tetra10` order: vertices, then edges 01, 12, 02, 03, 13,
-23): N_a = L_a (2 L_a - 1) at vertices, N_ab = 4 L_a L_b at edge midpoints. Elements are affine
+Reference tetrahedron with barycentric coordinates :math:`L_0 = 1 - \xi - \eta - \zeta`, :math:`L_1 = \xi`,
+:math:`L_2 = \eta`, :math:`L_3 = \zeta`. P1: :math:`N_a = L_a`. P2 (10 nodes, VTK `tetra10` order: vertices,
+then edges 01, 12, 02, 03, 13, 23): :math:`N_a = L_a (2 L_a - 1)` at vertices, :math:`N_{ab} = 4 L_a L_b` at
+edge midpoints. Elements are affine
 (straight edges), so the Jacobian is constant per element. Quadrature rules come from scikit-fem.
 """
 

@@ -73,7 +73,8 @@ def cauchy_stress(model, u: np.ndarray) -> np.ndarray:
 
 
 def _cauchy(material, F: np.ndarray) -> np.ndarray:
-    """Cauchy stress sigma = P Fᵀ / J (P for a linear material) at deformation gradients F (..., 3, 3) [Pa]."""
+    r"""Cauchy stress :math:`\sigma = P F^\top / J` (:math:`P` for a linear material) at deformation gradients
+    F (..., 3, 3) [Pa]."""
     P = material.stress(F.reshape(-1, 3, 3)).reshape(F.shape)
     if material.linear:
         return P
@@ -82,22 +83,28 @@ def _cauchy(material, F: np.ndarray) -> np.ndarray:
 
 def nodal_stress(model, u: np.ndarray, vertices: np.ndarray | None = None,
                  cell_scale: np.ndarray | None = None) -> np.ndarray:
-    """Cauchy stress at mesh vertices recovered from each element's own vertex values: (n, 3, 3) [Pa].
+    r"""Cauchy stress at mesh vertices recovered from each element's own vertex values: (n, 3, 3) [Pa].
 
-    For every element e holding vertex a, the deformation gradient is evaluated at that vertex from the
-    shape-function gradients there (not at the quadrature points),
+    For every element :math:`e` holding vertex :math:`a`, the deformation gradient is evaluated at that vertex
+    from the shape-function gradients there (not at the quadrature points),
 
-        F_e(X_a) = I + Σ_b u_b ⊗ ∇N_b(X_a),      σ_e(X_a) = σ(F_e(X_a))   (P Fᵀ / J; small-strain σ if linear),
+    .. math::
 
-    and the element values are averaged with the element volumes V_e as weights,
+        F_e(X_a) = I + \sum_b u_b \otimes \nabla N_b(X_a), \qquad \sigma_e(X_a) = \sigma(F_e(X_a))
 
-        σ(X_a) = Σ_{e ∋ a} V_e σ_e(X_a) / Σ_{e ∋ a} V_e.
+    (:math:`P F^\top / J`; the small-strain :math:`\sigma` if linear), and the element values are averaged with
+    the element volumes :math:`V_e` as weights,
 
-    On P2 the strain is linear in each element, so σ_e(X_a) is its exact vertex value and a linear stress
+    .. math::
+
+        \sigma(X_a) = \frac{\sum_{e \ni a} V_e\, \sigma_e(X_a)}{\sum_{e \ni a} V_e}.
+
+    On P2 the strain is linear in each element, so :math:`\sigma_e(X_a)` is its exact vertex value and a linear stress
     field (pure bending) is recovered exactly; on P1 it is the element's constant stress. ``vertices``:
     indices into ``model.space.mesh.points`` (default all); only the elements touching them are evaluated.
-    ``u``: (n_dofs,) [m]. ``cell_scale`` (n_cells,): σ_e multiplied by it before averaging (a Young's modulus
-    E_e = cell_scale[e] E varying by cell: σ is proportional to E at fixed ν for every physar material).
+    ``u``: (n_dofs,) [m]. ``cell_scale`` (n_cells,): :math:`\sigma_e` multiplied by it before averaging (a
+    Young's modulus :math:`E_e` = cell_scale[e] :math:`E` varying by cell: :math:`\sigma` is proportional to
+    :math:`E` at fixed :math:`\nu` for every physar material).
     """
     space = model.space
     mesh = space.mesh

@@ -1,28 +1,34 @@
-"""Linear and nonlinear static solvers.
+r"""Linear and nonlinear static solvers.
 
-Linear systems K u = f on the free dofs (u = 0 or u_D on the fixed ones) are solved by one of:
+Linear systems :math:`K u = f` on the free dofs (:math:`u = 0` or :math:`u_D` on the fixed ones) are solved by
+one of:
 
 * ``direct``: sparse Cholesky, CHOLMOD (scikit-sparse) when available, factored once and re-solved many
   times; otherwise scipy's SuperLU with a warning. A matrix that is not positive definite (a tangent past
-  a limit point) falls back to LU. Time grows as about N^1.8 and memory as N^1.2 on 3-D meshes.
+  a limit point) falls back to LU. Time grows as about :math:`N^{1.8}` and memory as :math:`N^{1.2}` on 3-D
+  meshes.
 * ``amg``: conjugate gradients preconditioned by one V-cycle of smoothed-aggregation algebraic multigrid
   (pyamg, energy-minimising prolongation smoothing), with the six rigid-body modes of elasticity
-  (3 translations, 3 infinitesimal rotations ω × (x - x̄) per node) as near-nullspace; stops at
-  |K u - f| <= rtol |f|. Time and memory grow about linearly in N.
+  (3 translations, 3 infinitesimal rotations :math:`\omega \times (x - \bar x)` per node) as near-nullspace;
+  stops at :math:`|K u - f| \le \mathrm{rtol}\, |f|`. Time and memory grow about linearly in :math:`N`.
 * ``auto``: ``amg`` from :data:`AMG_MIN_DOFS` free dofs on (measured crossover, benchmarks/RESULTS.md)
   or when the direct factor would need more than half of the available memory, else ``direct``.
 
-`solve_static` solves R(u) = f_int(u) - λ f_ext = 0 by Newton–Raphson, K(u) Δu = -R(u), with
+`solve_static` solves :math:`R(u) = f_{\mathrm{int}}(u) - \lambda f_{\mathrm{ext}} = 0` by Newton–Raphson,
+:math:`K(u)\, \Delta u = -R(u)`, with
 
-* a line search: the full step unless it inverts elements or raises |R| a thousandfold; then a search on
-  the total potential Π(u) = E(u) - λ f_ext·u along Δu, α making the directional derivative
-  g(α) = Δu·R(u + α Δu) small, |g(α)| <= 0.5 |g(0)| (regula falsi on g);
-* automatic load-step control: λ advances by Δλ <= 1/steps; a step that fails is retried with Δλ/4,
-  a step that converges in few iterations lets Δλ grow (x2); each step starts from a secant predictor;
-* the stopping test |R_free| <= tol · max(λ |f_ext|, |f_int(u)|) (f_int over all dofs, i.e. including
-  the reactions), or, once Newton stagnates, |R_free| <= 10 ε ||diag K_ff|| h: the round-off of f_int
-  (ε machine epsilon, h the cube root of the mean element volume x 6), so tiny loads and stiff materials
-  converge.
+* a line search: the full step unless it inverts elements or raises :math:`|R|` a thousandfold; then a search
+  on the total potential :math:`\Pi(u) = E(u) - \lambda f_{\mathrm{ext}} \cdot u` along :math:`\Delta u`,
+  :math:`\alpha` making the directional derivative :math:`g(\alpha) = \Delta u \cdot R(u + \alpha \Delta u)`
+  small, :math:`|g(\alpha)| \le 0.5\, |g(0)|` (regula falsi on :math:`g`);
+* automatic load-step control: :math:`\lambda` advances by :math:`\Delta\lambda \le 1/\mathrm{steps}`; a step
+  that fails is retried with :math:`\Delta\lambda / 4`, a step that converges in few iterations lets
+  :math:`\Delta\lambda` grow (x2); each step starts from a secant predictor;
+* the stopping test :math:`|R_{\mathrm{free}}| \le \mathrm{tol} \cdot \max(\lambda |f_{\mathrm{ext}}|,
+  |f_{\mathrm{int}}(u)|)` (:math:`f_{\mathrm{int}}` over all dofs, i.e. including the reactions), or, once
+  Newton stagnates, :math:`|R_{\mathrm{free}}| \le 10\, \varepsilon\, \|\operatorname{diag} K_{ff}\|\, h`: the
+  round-off of :math:`f_{\mathrm{int}}` (:math:`\varepsilon` machine epsilon, :math:`h` the cube root of the mean
+  element volume x 6), so tiny loads and stiff materials converge.
 
 `check_constraints` fails early, with a clear message, when the fixed dofs leave rigid-body modes free.
 """
@@ -131,12 +137,13 @@ def rigid_body_modes(nodes: np.ndarray) -> np.ndarray:
 
 
 class AMGSolver:
-    """K x = b by CG preconditioned with smoothed-aggregation AMG (pyamg), K SPD (n, n).
+    r""":math:`K x = b` by CG preconditioned with smoothed-aggregation AMG (pyamg), K SPD (n, n).
 
     `near_nullspace` (n, k): the modes K nearly annihilates, for elasticity the rigid-body modes of the
     free dofs (:func:`rigid_body_modes`); they span the coarse spaces, which is what makes the iteration
     count independent of the mesh size. When the dofs come in node triples (3 a, 3 a + 1, 3 a + 2) K is
-    aggregated by 3x3 node blocks. `solve(b, rtol)` stops at |K x - b| <= rtol |b|; `iterations` lists the
+    aggregated by 3x3 node blocks. `solve(b, rtol)` stops at :math:`|K x - b| \le \mathrm{rtol}\, |b|`;
+    `iterations` lists the
     CG iterations of each solve. Raises SolverError if CG does not reach `rtol` in `maxiter` iterations
     (K not positive definite, or far too ill-conditioned).
     """
@@ -196,7 +203,7 @@ def available_memory() -> int:
 
 def direct_memory_estimate(n: int, nnz: int) -> float:
     """Estimated peak bytes of a sparse Cholesky factor of a 3-D elasticity matrix (n free dofs, nnz
-    entries): nested dissection fills L to O(n^(4/3)); the constant is fitted to CHOLMOD's measured
+    entries): nested dissection fills L to :math:`O(n^{4/3})`; the constant is fitted to CHOLMOD's measured
     peak on box cantilevers (P1 and P2, benchmarks/RESULTS.md)."""
     return _FILL_BYTES * (nnz / max(n, 1)) * float(n) ** (4.0 / 3.0)
 
@@ -360,15 +367,18 @@ class _Tangent:
 
 
 def _line_search(model, f, u, du, free, r, rn, growth: float = None):
-    """Step length α along the Newton direction Δu: (u, f_int, r, |r_free|) at u + α Δu, or a reason string.
+    r"""Step length :math:`\alpha` along the Newton direction :math:`\Delta u`: (u, f_int, r, |r_free|) at
+    :math:`u + \alpha \Delta u`, or a reason string.
 
-    The full step α = 1 is kept unless it inverts elements (non-finite forces) or multiplies |R_free| by
-    more than ``growth`` (default 1e3; non-monotone: on the elastica cases this takes 16-33 iterations where
-    an exact line search on Π crawls for 25-39, and pure Newton fails at α = 10 with neo-Hookean). Then, for a descent
-    direction of Π (g(0) = Δu·R(u) < 0) α makes g(α) = Δu·R(u + α Δu) = dΠ/dα small,
-    |g(α)| <= η |g(0)|, by regula falsi on g with bisection where a trial inverts elements (non-finite
-    forces); the full step is kept when g(1) is still negative. Otherwise (tangent not positive definite)
-    the first of α = 1, 1/2, 1/4, ... that lowers |R_free|.
+    The full step :math:`\alpha = 1` is kept unless it inverts elements (non-finite forces) or multiplies
+    :math:`|R_{\mathrm{free}}|` by more than ``growth`` (default 1e3; non-monotone: on the elastica cases this
+    takes 16-33 iterations where an exact line search on :math:`\Pi` crawls for 25-39, and pure Newton fails at
+    :math:`\alpha = 10` with neo-Hookean). Then, for a descent direction of :math:`\Pi`
+    (:math:`g(0) = \Delta u \cdot R(u) < 0`) :math:`\alpha` makes
+    :math:`g(\alpha) = \Delta u \cdot R(u + \alpha \Delta u) = \mathrm{d}\Pi / \mathrm{d}\alpha` small,
+    :math:`|g(\alpha)| \le \eta\, |g(0)|`, by regula falsi on :math:`g` with bisection where a trial inverts
+    elements (non-finite forces); the full step is kept when :math:`g(1)` is still negative. Otherwise (tangent
+    not positive definite) the first of :math:`\alpha = 1, 1/2, 1/4, \dots` that lowers :math:`|R_{\mathrm{free}}|`.
     """
     def trial(a):
         ut = u + a * du
@@ -479,7 +489,7 @@ def _newton(model, f, u, free, tol, max_iter, tangent: _Tangent, h: float) -> _A
 
 
 def _element_size(model) -> float:
-    """h = (6 |mean tet volume|)^(1/3) [m], the edge of a cube cut into 6 such tetrahedra."""
+    r""":math:`h = (6\, |\text{mean tet volume}|)^{1/3}` [m], the edge of a cube cut into 6 such tetrahedra."""
     _, detJ = model.space.jacobians
     return float(np.cbrt(np.mean(np.abs(detJ))))
 
