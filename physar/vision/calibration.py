@@ -1,8 +1,9 @@
-"""Camera calibration from ChArUco images (seed 000 §2.1: "after calibration and lens distortion correction").
+r"""Camera calibration from ChArUco images (seed 000 §2.1: "after calibration and lens distortion correction").
 
 Zhang's method as implemented by OpenCV: ChArUco corners (chessboard corners identified by the ArUco
 markers in the white squares) give 2-D/3-D correspondences; ``cv2.calibrateCamera`` minimises the
-reprojection error sum_i sum_k ||p_ik - Π(K, d, R_i, t_i; X_k)||^2 over K, distortion d and the view poses.
+reprojection error :math:`\sum_i \sum_k \|p_{ik} - \Pi(K, d, R_i, t_i; X_k)\|^2` over :math:`K`, distortion
+:math:`d` and the view poses :math:`(R_i, t_i)`.
 """
 from __future__ import annotations
 

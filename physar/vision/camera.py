@@ -1,8 +1,9 @@
-"""Pinhole camera with lens distortion, rigid poses, plane back-projection (seed 000 §2.1).
+r"""Pinhole camera with lens distortion, rigid poses, plane back-projection (seed 000 §2.1).
 
-The projection is p = Π(x) = K [R | t] x (seed 000 §2.1, Eq. of the camera operator), followed by the
+The projection is :math:`p = \Pi(x) = K\, [R \mid t]\, x` (seed 000 §2.1, Eq. of the camera operator),
+followed by the
 OpenCV radial/tangential distortion model (k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4]]]). A :class:`Pose`
-maps world points to camera coordinates, x_c = R x_w + t (OpenCV convention: x right, y down, z forward).
+maps world points to camera coordinates, :math:`x_c = R x_w + t` (OpenCV convention: x right, y down, z forward).
 Lengths in m, pixels in px.
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Tracking of small coloured dots on the object and their displacements (seed 000 §2.1, §5.1: "small blue
+r"""Tracking of small coloured dots on the object and their displacements (seed 000 §2.1, §5.1: "small blue
 dots adhered to the beam for the determination of the beam deflection").
 
 Per frame: the dots are predicted by projecting their last 3-D positions with the current pose, or by pyramidal
@@ -6,9 +6,14 @@ Lucas-Kanade (KLT) optical flow from the previous frame (``flow``: always, never
 projection missed the measured dots by more than ``flow_px`` in the previous frame, i.e. when the object
 deforms fast; blob detection (connected components of the colour mask) finds dots without a track); each
 prediction is refined by the colour-weighted centroid of the blob in a small window,
-p = Σ w_i x_i / Σ w_i with w_i = max(0, c_i - τ) and c = B - max(R, G) the "blueness" of pixel i.
+
+.. math::
+
+    p = \frac{\sum_i w_i x_i}{\sum_i w_i}, \qquad w_i = \max(0, c_i - \tau), \qquad c = B - \max(R, G)
+
+(:math:`c_i` the "blueness" of pixel :math:`i`).
 The refined pixels are back-projected onto the object's plane (ray-plane intersection, :class:`Camera`),
-giving 3-D positions x and displacements u* = x - X_ref.
+giving 3-D positions :math:`x` and displacements :math:`u^* = x - X_{\mathrm{ref}}`.
 """
 from __future__ import annotations
 
@@ -77,10 +82,10 @@ class DotTracker:
                                 np.clip(np.round(pred[:, 1]).astype(int), self.r, h - self.r - 1)])
 
     def _centroid(self, frame, pred, gray=None):
-        """Centroids around predictions (n, 2); returns (pixels, mass).
+        r"""Centroids around predictions (n, 2); returns (pixels, mass).
 
-        The colour ("blueness" c = B - max(R, G)) finds the blob and gives its mass, but the position is
-        the centroid of the luma contrast d = |Y_bg - Y| above half its peak, inside the (dilated) colour
+        The colour ("blueness" :math:`c = B - \max(R, G)`) finds the blob and gives its mass, but the position
+        is the centroid of the luma contrast :math:`d = |Y_{\mathrm{bg}} - Y|` above half its peak, inside the (dilated) colour
         mask: video is stored as 4:2:0, so colour has half the resolution of luma and a colour centroid
         locks to the 2-pixel chroma grid (±0.06 px here, slowly varying as the camera moves), while the
         luma centroid does not (measured on scene (a): 0.063 px vs 0.123 px rms vertically).

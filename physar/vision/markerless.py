@@ -1,4 +1,4 @@
-"""Markerless vision (seed 000 §5.2, §5.3): camera pose from ORB features of a rigid planar scene part,
+r"""Markerless vision (seed 000 §5.2, §5.3): camera pose from ORB features of a rigid planar scene part,
 in-plane deformation of a textured surface by feature tracking, lever angle by colour segmentation.
 
 * :class:`PlanarMap` — ORB keypoints (Rublee et al., seed ref. [51]) with known 3-D positions on a world
@@ -6,12 +6,13 @@ in-plane deformation of a textured surface by feature tracking, lever angle by c
   the plane (the support plate, §5.3). ``locate`` matches the frame's ORB descriptors (Hamming distance,
   Lowe ratio test), fits the plane-to-image homography by RANSAC (seed ref. [52]: the plane's features are
   the inliers, the rest of the scene the outliers, §5.3.2), and the pose from the inliers by IPPE + LM
-  (minimising Σ ||p_k - Π(R, t; X_k)||²).
+  (minimising :math:`\sum_k \|p_k - \Pi(R, t; X_k)\|^2`).
 * :class:`PlaneTextureTracker` — rectifies a planar surface patch of the object with the current pose
-  (homography H = K [R e_u, R e_v, R o + t] A from the patch's pixel grid to the image) and tracks the
+  (homography :math:`H = K\, [R e_u,\ R e_v,\ R o + t]\, A` from the patch's pixel grid to the image) and tracks the
   surface's own texture features (ORB keypoints of the reference view) by pyramidal Lucas-Kanade from the
   reference view to the current one, with a forward-backward check. The in-plane displacement of a
-  material point X of the patch is (p_k - p_k^0) / (px per m) along (e_u, e_v): the observations u* of
+  material point :math:`X` of the patch is :math:`(p_k - p_k^0) / (\text{px per m})` along :math:`(e_u, e_v)`:
+  the observations :math:`u^*` of
   seed 000 Eq. (2) without fiducials (§5.2, "some existing pattern in the solid").
 * :func:`lever_angle` — white-colour segmentation (low saturation, high value) of a rectified plate view in
   an annulus about the pivot and the principal direction of the segmented pixels (§5.3.2, Fig. 17).
@@ -35,8 +36,9 @@ def _orb(n_features: int, fast_threshold: int = 12):
 
 
 def plane_homography(camera: Camera, pose: Pose, origin, axis_u, axis_v, px_per_m: float) -> np.ndarray:
-    """3x3 map from rectified pixel (c, r) of the plane patch origin + a e_u + b e_v (a = (c + 1/2)/s,
-    b = (r + 1/2)/s, s = px_per_m) to image pixels (pinhole part of the camera)."""
+    r"""3x3 map from rectified pixel :math:`(c, r)` of the plane patch :math:`o + a e_u + b e_v`
+    (:math:`o` = origin, :math:`a = (c + 1/2)/s`, :math:`b = (r + 1/2)/s`, :math:`s` = px_per_m) to image pixels
+    (pinhole part of the camera)."""
     o, eu, ev = (np.asarray(v, float) for v in (origin, axis_u, axis_v))
     s = float(px_per_m)
     A = np.array([[1 / s, 0, 0.5 / s], [0, 1 / s, 0.5 / s], [0, 0, 1.0]])
@@ -55,7 +57,8 @@ class LocateResult:
 
 
 class PlanarMap:
-    """ORB features with known positions on a world plane X = origin + a e_u + b e_v; camera pose by
+    """ORB features with known positions on a world plane :math:`X = o + a e_u + b e_v` (:math:`o` = origin);
+    camera pose by
     descriptor matching + RANSAC homography + IPPE/LM pose (see the module docstring)."""
 
     def __init__(self, camera: Camera, uv: np.ndarray, descriptors: np.ndarray, origin, axis_u, axis_v,

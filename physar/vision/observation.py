@@ -1,9 +1,11 @@
-"""Observation operator C: mesh displacements -> displacements of observed surface points (seed 000 §2.1, §4).
+r"""Observation operator :math:`C`: mesh displacements -> displacements of observed surface points (seed 000
+§2.1, §4).
 
 Each observed point is located on the boundary surface of the mesh (closest surface triangle, barycentric
-coordinates λ on it). On that face the tetrahedron's shape functions are evaluated with the barycentric
-coordinate of the opposite vertex set to 0, so u(x) = Σ_a N_a(λ) u_a is exact for P1 and P2 (the trace
-of the element on its face). C has one row per observed point and component: row k·nc + j is
+coordinates :math:`\lambda` on it). On that face the tetrahedron's shape functions are evaluated with the
+barycentric coordinate of the opposite vertex set to 0, so :math:`u(x) = \sum_a N_a(\lambda)\, u_a` is exact
+for P1 and P2 (the trace of the element on its face). :math:`C` has one row per observed point and component:
+row :math:`k \cdot n_c + j` is
 component ``components[j]`` of point k.
 """
 from __future__ import annotations
