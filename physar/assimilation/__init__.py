@@ -95,9 +95,10 @@ def _inv_small(A):
 
 
 def _lm_fast(model, z, mu0, lo, hi, alpha, prior, max_iter, tol):
-    """LM on the reduced residual e(mu) = z - R c(mu); returns (mu, c, dc, cost, iterations).
+    r"""LM on the reduced residual :math:`e(\mu) = z - R\, c(\mu)`; returns (mu, c, dc, cost, iterations).
 
-    cost excludes the constant ||(I - Q Q^T) y||^2; the Marquardt damping scales diag(J^T J).
+    cost excludes the constant :math:`\|(I - Q Q^\top)\, y\|^2`; the Marquardt damping scales
+    :math:`\operatorname{diag}(J^\top J)`.
     """
     R = model.observation_qr[1]
     coeffs = model._coeffs
@@ -224,11 +225,11 @@ def _critical(false_alarm, d1, d2):
 
 
 def _fit_ratio(cost, d1, perp, d2, yy, m, noise, model_error, false_alarm):
-    """Statistic / critical value of the fit test (module docstring); nan when it cannot be made.
+    r"""Statistic / critical value of the fit test (module docstring); nan when it cannot be made.
 
     cost: squared residual the parameters can change (d1 = its dimension - p degrees of freedom);
     perp: squared residual they cannot change (d2 degrees of freedom, used when ``noise`` is None);
-    yy = ||y||^2 over m observations (the model-error term)."""
+    yy = :math:`\|y\|^2` over m observations (the model-error term)."""
     if not false_alarm or d1 < 1:
         return math.nan
     s2 = (model_error * model_error) * yy / m
