@@ -62,6 +62,37 @@ MATH_DOCSTRINGS = {
 MATH_MODULES = ["physar.assimilation", "physar.recon.flow", "physar.recon.canonical", "physar.recon.metrics",
                 "physar.recon.train", "physar.ar.project_pipeline", "physar.ar.surface"]  # shown in the reference
 
+# private modules and helpers (not in the reference) whose docstrings state equations: math markup too, so
+# the source reads the same as the public docstrings and a helper made public renders at once; dotted paths
+PRIVATE_MATH_DOCSTRINGS = [
+    "physar.geometry.denoise", "physar.geometry.denoise.heights", "physar.geometry.denoise.noise_scales",
+    "physar.geometry.denoise.local_scale", "physar.geometry.denoise.robust_scale",
+    "physar.geometry.denoise.ring_mean_matrix", "physar.geometry.denoise._edge_heights",
+    "physar.geometry.denoise.al_iterate", "physar.geometry.denoise.anisotropic_laplacian",
+    "physar.geometry.denoise.msal_lambda", "physar.geometry.denoise._umbrella",
+    "physar.geometry.denoise.laplacian_smooth", "physar.geometry.denoise.taubin_smooth",
+    "physar.geometry.denoise.bilateral_normal_filter",
+    "physar.geometry.normal_filter", "physar.geometry.normal_filter.noise_scale",
+    "physar.geometry.normal_filter.FacePattern", "physar.geometry.normal_filter.feature_weights",
+    "physar.geometry.normal_filter.FaceTilt", "physar.geometry.normal_filter.sure_tilt",
+    "physar.geometry.pointcloud", "physar.geometry.pointcloud.orient_normals_mst",
+    "physar.geometry.pointcloud.denoise_points", "physar.geometry.quality.signed_volume", "physar.geometry.seal",
+    "physar.rom.pgd", "physar.rom.pgd.SeparatedTerm", "physar.rom.pgd.pgd_affine", "physar.rom.pgd._Probes",
+    "physar.rom.pgd._FStepSolver", "physar.rom.pgd._grouped_model", "physar.rom.problem",
+    "physar.rom.problem.Rotation", "physar.rom.problem.ParametricProblem.stiffness_terms", "physar.rom.pod",
+    "physar.rom.nonintrusive", "physar.rom.quality", "physar.rom.quality.check_points",
+    "physar.rom.elastic.build_parametric_pgd", "physar.rom.separated",
+    "physar.integrators.steppers", "physar.integrators.model", "physar.integrators.model.fast_polar",
+    "physar.integrators.analysis", "physar.integrators.analysis.euler_bernoulli_cantilever_omega",
+    "physar.integrators.linalg", "physar.integrators.linalg.pcg",
+    "physar.fem.assembly", "physar.fem.elements", "physar.fem.post.nodal_stress", "physar.fem.solvers",
+    "physar.vision.camera", "physar.vision.calibration", "physar.vision.markerless", "physar.vision.dots",
+    "physar.vision.observation", "physar.assimilation._lm_fast",
+]
+# what marks an equation written as plain text: operator symbols, ASCII arrows and norms, a power or
+# subscript on a symbol, a Greek letter in an assignment (units such as m² are not flagged)
+PLAIN_MATH = re.compile(r"[Σ∑‖ᵀ√∈∂∇≤≥←]|⁻¹|\|\||<-|[A-Za-zα-ω)](?<!\bm)\^[\w({-]|[α-ωΔΠΣΦ]\w*\s*[=<>]|[A-Za-zα-ω_)](?<!\bm)[²³]")
+
 
 def _noise_free(stderr: str) -> str:
     """The build's stderr without the kernels' chatter (the warnings and errors of the build remain)."""
@@ -87,6 +118,64 @@ def test_seed_equations_are_marked_as_math(name):
     obj = importlib.import_module(name) if name in MATH_MODULES else getattr(importlib.import_module(module), attr)
     doc = inspect.getdoc(obj) or ""
     assert ":math:`" in doc or ".. math::" in doc, f"{name}: no math markup in its docstring"
+
+
+def _dotted(name: str):
+    """The module, class, function or method at a dotted path."""
+    parts = name.split(".")
+    for i in range(len(parts), 0, -1):
+        try:
+            obj = importlib.import_module(".".join(parts[:i]))
+        except ImportError:
+            continue
+        for attr in parts[i:]:
+            obj = getattr(obj, attr)
+        return obj
+    raise ImportError(name)
+
+
+def plain_text_math(doc: str) -> list[str]:
+    """The lines of a docstring that write an equation as plain text: :data:`PLAIN_MATH` outside math roles,
+    ``.. math::`` blocks, literals and literal blocks."""
+    doc = re.sub(r":math:`[^`]*`|``[^`]*``", "", doc)
+    found, block = [], None
+    for line in doc.splitlines():
+        indent = len(line) - len(line.lstrip())
+        if block is not None and (not line.strip() or indent > block):
+            continue
+        block = indent if line.lstrip().startswith(".. math::") or line.rstrip().endswith("::") else None
+        if PLAIN_MATH.search(line):
+            found.append(line.strip())
+    return found
+
+
+@pytest.mark.parametrize("name", PRIVATE_MATH_DOCSTRINGS)
+def test_private_docstrings_write_equations_as_math(name):
+    """The equations of private modules and helpers are reST math too (``:math:`` / ``.. math::``), with no
+    equation left in plain text beside them; a docstring rewritten back to plain text fails."""
+    doc = inspect.getdoc(_dotted(name)) or ""
+    assert ":math:`" in doc or ".. math::" in doc, f"{name}: no math markup in its docstring"
+    assert plain_text_math(doc) == [], f"{name}: equations in plain text"
+
+
+def test_plain_text_math_flags_the_old_docstrings():
+    """The check itself, on docstrings as they were before the conversion (mutants: a docstring gone back to
+    plain text), and on their math versions, which pass."""
+    old = ["Baseline: Taubin λ|μ smoothing, each iteration q <- q + λ L q then q <- q + μ L q.",
+           "MSAL (seed 001 §3.2.1): step k uses τ = ξ^k and λ_i = fidelity · σ_i / max σ.",
+           "Global robust noise scale σ_e = 1.4826 median_ij |h_ij - med_k h_ik| (m); src sorted.",
+           "Rotation R and stretch S = Rᵀ F of F = R S, batched (m, 3, 3).",
+           "    R(z) = r_b + (r_t - r_b) xi^2 (3 - 2 xi) + a (1 - cos(2 pi n xi)) / 2",
+           "check(model) = max_k ||model(mu_k) - Uc[:, k]|| / max_k ||Uc[:, k]|| (full solves Uc at mus).",
+           "    F_e(X_a) = I + Σ_b u_b ⊗ ∇N_b(X_a),      σ_e(X_a) = σ(F_e(X_a))"]
+    for doc in old:
+        assert plain_text_math(doc), doc
+    from physar.geometry import denoise
+
+    for fn in (denoise.taubin_smooth, denoise.robust_scale, denoise.msal):
+        assert plain_text_math(inspect.getdoc(fn)) == []
+    assert plain_text_math("Enclosed volume (m², m^3) of a mesh; ``x ** 2`` and :math:`\\sigma^2` are fine.\n"
+                           "Example::\n\n    q <- q + lam * L q\n") == []
 
 
 # --- the site ------------------------------------------------------------------------------------------------
