@@ -12,6 +12,10 @@ second test plants the mutant it is there for and asserts that the check reports
 * an API page that leaves a public name out: :func:`missing_from_reference`;
 * a duplicate or an unsorted ``__all__``, a private (``_``) name in it, a listed submodule without its own
   ``__all__`` (every helper of it would be public): :func:`order_problems`, :func:`all_problems`.
+* a package of physar without ``__all__``, or one with public names that the reference leaves out:
+  :func:`package_problems` (``physar.cli`` declares an empty one: its Python functions are private);
+* an API page that documents something private (a name not in ``__all__``, a private module, private or
+  undocumented members): :func:`private_in_reference`.
 
 Needs only the package (the API-page check also needs Sphinx, the ``docs`` extra, and is skipped without it).
 """
@@ -207,6 +211,57 @@ def all_problems(api: dict[str, list[str]]) -> list[str]:
     return problems
 
 
+def package_problems(root: Path, documented) -> list[str]:
+    """Every package under ``root`` (a directory with ``__init__.py``, read as source: nothing imported) states
+    its public API in a literal ``__all__``; one that the reference does not document (not in
+    ``documented``) must declare it empty: wholly private (``physar.cli``: the command line is the interface).
+    Catches a new subpackage that exports its helpers by default, or one public but missing from the docs."""
+    problems = []
+    for init in sorted(root.rglob("__init__.py")):
+        name = ".".join(init.relative_to(root.parent).parent.parts)
+        names = None
+        for node in ast.parse(init.read_text()).body:
+            target = node.targets[0] if isinstance(node, ast.Assign) else getattr(node, "target", None)
+            if isinstance(target, ast.Name) and target.id == "__all__" and node.value is not None:
+                names = ast.literal_eval(node.value)
+        if names is None:
+            problems.append(f"{name}: no __all__ in its __init__.py")
+        elif name not in documented and names:
+            problems.append(f"{name}: __all__ lists {sorted(names)} but the API reference does not document it")
+    return problems
+
+
+_DIRECTIVE = re.compile(r"^\.\. (automodule|autoclass|autofunction|py:data):: (\S+)\n((?:   :.*\n)*)", re.MULTILINE)
+_NO_PRIVATE_OPTIONS = (":private-members:", ":undoc-members:", ":imported-members:", ":ignore-module-all:",
+                       ":special-members:")
+
+
+def private_in_reference(api: dict[str, list[str]], page_of) -> list[str]:
+    """What the autodoc input of the API pages (``page_of(package)``) would document beyond the public API:
+    a directive or an autosummary entry for a name not in its module's ``__all__``, a private module, a
+    package page whose ``automodule`` has ``:members:`` (the page's own entries decide what is shown), or an
+    option that adds private or undocumented members."""
+    problems = []
+    for package in physar_public.PACKAGES:
+        page = page_of(package)
+        for kind, target, options in _DIRECTIVE.findall(page):
+            module, _, name = target.rpartition(".")
+            if kind == "automodule":
+                if target == package:
+                    if ":no-members:" not in options:
+                        problems.append(f"{package} page: automodule {target} without :no-members:")
+                elif target not in api:
+                    problems.append(f"{package} page: automodule {target}, a private module")
+            elif module not in api or name not in api[module]:
+                problems.append(f"{package} page: {kind} {target}, not in {module}.__all__")
+            problems += [f"{package} page: {target} with {o}" for o in _NO_PRIVATE_OPTIONS if o in options]
+        for block in re.findall(r"^\.\. autosummary::\n((?:   .*\n|\n)*)", page, re.MULTILINE):
+            entries = [line.strip() for line in block.splitlines() if line.strip() and not line.strip().startswith(":")]
+            problems += [f"{package} page: autosummary entry {e}, not in {package}.__all__"
+                         for e in entries if e not in api[package]]
+    return problems
+
+
 # --- the tests ----------------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -304,6 +359,55 @@ def test_missing_from_reference_catches_a_skipped_name(api, physar_api, monkeypa
     page = physar_api.api_page("physar.recon").replace(".. automodule:: physar.recon.train\n", "")
     problems = missing_from_reference({**api}, lambda p: page if p == "physar.recon" else physar_api.api_page(p))
     assert problems == ["physar.recon.train: no automodule with :members: on the physar.recon page"]
+
+
+def test_every_package_states_its_public_api():
+    """Each package of physar has an ``__all__``; those the reference leaves out export nothing."""
+    assert package_problems(ROOT / "physar", physar_public.PACKAGES) == []
+    assert {"physar.fem", "physar.cli"} <= {".".join(p.relative_to(ROOT).parent.parts)
+                                           for p in (ROOT / "physar").rglob("__init__.py")}
+
+
+def test_package_problems_catches_a_package_without_all(tmp_path):
+    """Mutants caught: a new subpackage without ``__all__`` (every helper public by default); a package
+    that lists names in ``__all__`` but is not in the reference (public and undocumented)."""
+    root = tmp_path / "physar"
+    for name, text in {"": "__all__ = ['PhysarError']", "fem": "__all__ = ['solve_static']",
+                       "cli": "__all__: list[str] = []", "newpkg": '"""A new package."""\nx = 1',
+                       "extra": "__all__ = ['helper']"}.items():
+        (root / name).mkdir(parents=True, exist_ok=True)
+        (root / name / "__init__.py").write_text(text + "\n")
+    assert package_problems(root, ("physar", "physar.fem")) == [
+        "physar.extra: __all__ lists ['helper'] but the API reference does not document it",
+        "physar.newpkg: no __all__ in its __init__.py"]
+
+
+def test_nothing_private_is_in_the_api_reference(api, physar_api):
+    """The autodoc input of the API pages names only public names and public modules, with no option that
+    would pull in private or undocumented members."""
+    assert private_in_reference(api, physar_api.api_page) == []
+
+
+def test_private_in_reference_catches_a_private_name(api, physar_api, monkeypatch):
+    """Mutants caught: a page generator that documents a name not in ``__all__`` (here the package's
+    attribute ``denoise``, a private module) or a private function; a package automodule with
+    ``:members:``; an ``:undoc-members:`` option."""
+    public_names = physar_api.public_names
+    monkeypatch.setattr(physar_api, "public_names", lambda p: [*public_names(p), "denoise", "al_iterate"]
+                        if p == "physar.geometry" else public_names(p))
+    import physar.geometry
+    from physar.geometry.denoise import al_iterate
+
+    monkeypatch.setattr(physar.geometry, "al_iterate", al_iterate, raising=False)
+    assert private_in_reference(api, physar_api.api_page) == [
+        "physar.geometry page: autofunction physar.geometry.al_iterate, not in physar.geometry.__all__",
+        "physar.geometry page: automodule physar.geometry.denoise, a private module",
+        "physar.geometry page: autosummary entry al_iterate, not in physar.geometry.__all__"]
+    monkeypatch.undo()
+    page = physar_api.api_page("physar.fem").replace(":no-members:", ":members:\n   :undoc-members:")
+    assert private_in_reference(api, lambda p: page if p == "physar.fem" else physar_api.api_page(p)) == [
+        "physar.fem page: automodule physar.fem without :no-members:",
+        "physar.fem page: physar.fem with :undoc-members:"]
 
 
 def test_the_stability_page_names_every_public_package():
