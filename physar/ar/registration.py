@@ -11,6 +11,10 @@ the object's frame, or from a textured plane fixed in it.
   they are found in; the plane's ORB map is built from that frame, without the markers and the object
   (masked by their projections), and the markers are not looked for again (§5.2, Fig. 8).
 
+A ``[[marker]]`` whose corners disagree with the pose the other markers give (wrong centre, normal, up, size
+or id) is left out of the pose, with one warning line naming the project file and the marker
+(:meth:`physar.vision.markers.MarkerTracker._consistent`).
+
 :meth:`Registration.update` returns a :class:`physar.vision.markers.PoseEstimate` (status measured /
 predicted / lost, the marker corners when markers gave the pose, for the joint refinement).
 """
@@ -35,7 +39,9 @@ class Registration:
         self.plane = cfg.registration.plane
         self.markers = None
         if project.board is not None:
-            self.markers = MarkerTracker(cam, project.board, noise_px=cfg.tracking.corner_sigma_px)
+            # a [[marker]] table that disagrees with the others is left out of the pose, said once naming the file
+            self.markers = MarkerTracker(cam, project.board, noise_px=cfg.tracking.corner_sigma_px,
+                                         source=getattr(project, "source", None))
         self.board = project.board
         self.bounds = bounds
         self.map = self.coarse = None

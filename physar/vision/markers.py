@@ -5,15 +5,22 @@ previous pose (a full-frame search only when the pose is unknown), their corners
 accuracy, and the pose minimises the reprojection error Σ_k ||p_k - Π(R, t; X_k)||² (IPPE for the planar
 board, then Levenberg-Marquardt). A constant-velocity filter on (log R, t) predicts the next pose, smooths
 measurements within their noise, gates outliers and holds the pose while the markers are occluded.
+
+A marker whose corners disagree with the pose the other markers give (a ``[[marker]]`` table with a wrong
+centre, normal, up, size or id) is left out of the pose (:meth:`MarkerTracker._consistent`): the markers are
+dropped one at a time, each time the one whose removal lets the rest agree best, until the rest agree within
+``max_reproj_px``. A marker found disagreeing with at least two others in ``confirm`` frames (and in more frames
+than it agreed) is left out for good, with one warning line saying what disagrees.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
-from physar.errors import ConfigError
+from physar.errors import ConfigError, PhysarWarning
 from physar.vision.calibration import aruco_dictionary
 from physar.vision.camera import Camera, Pose
 
@@ -135,13 +142,24 @@ class MarkerTracker:
     (every white cell brighter than every black cell, see :meth:`_verify`). A marker that fails (occluded, the
     prediction off after a hold) falls back to ArUco detection in its region of interest, and every
     ``redetect_every`` frames (0: never) all markers are detected again.
+
+    Markers that disagree with the others are left out of the pose (see the module doc and
+    :meth:`_consistent`); ``rejected`` maps the board index of each marker left out for good (after
+    ``confirm`` frames) to the reason, also given once as a :class:`physar.errors.PhysarWarning` starting with
+    ``source`` (the project file).
     """
 
     def __init__(self, camera: Camera, board: MarkerBoard, roi_margin: float = 0.3, min_markers: int = 1,
                  alpha: float = 0.6, noise_px: float = 0.15, hold_frames: int = 150, max_reproj_px: float = 3.0,
                  gate_px: float = 40.0, track: bool = True, track_px: float = 2.5, redetect_every: int = 30,
-                 full_search_every: int = 4):
+                 full_search_every: int = 4, confirm: int = 3, source: str | None = None):
         self.camera, self.board = camera, board
+        self.confirm, self.source = max(1, int(confirm)), source
+        self.rejected: dict[int, str] = {}              # board index -> why it is left out of the pose
+        self._agreed = np.zeros(len(board.ids), int)   # frames each marker agreed with at least one other
+        self._disagreed = np.zeros(len(board.ids), int)  # frames it disagreed with at least two others
+        self._searched = np.zeros(len(board.ids), int)   # whole-frame searches for it while it was suspect
+        self.n_left_out = 0                             # markers left out of a frame's pose (statistics)
         params = cv2.aruco.DetectorParameters()
         params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
         params.cornerRefinementWinSize = 4
@@ -259,6 +277,8 @@ class MarkerTracker:
         found = {}
         if prediction is not None:
             proj = self.camera.project(self.board.corners.reshape(-1, 3), prediction).reshape(-1, 4, 2)
+            if self.rejected:   # markers left out for good are not looked for (their predicted place is wrong)
+                proj[list(self.rejected)] = np.nan
             periodic = self.redetect_every > 0 and self._frame % self.redetect_every == 0
             # corner tracking only from a measured pose: after a hold the prediction has drifted too far for
             # the sub-pixel refinement to converge fully (2-3.5 px overlay error in the first frames after a
@@ -279,7 +299,7 @@ class MarkerTracker:
                 if k in det:
                     found[k] = det[k]
                     self.n_detected += 1
-            if len(found) >= self.min_markers and (self._missed == 0 or len(found) == len(proj)):
+            if len(found) >= self.min_markers and (self._missed == 0 or len(found) == len(proj) - len(self.rejected)):
                 return found, False
             # markers back after a hold: the drifted prediction's ROIs may miss some of them, so the frame is
             # searched in full (once: the pose is measured again from then on)
@@ -327,14 +347,161 @@ class MarkerTracker:
                 break
         return best, img
 
+    def _marker_rms(self, pose: Pose, found: dict, ks) -> np.ndarray:
+        """RMS reprojection error [px] of each marker ``ks`` of ``found`` under ``pose`` (inf behind it)."""
+        X = self.board.corners[list(ks)].reshape(-1, 3)
+        img = np.concatenate([found[k] for k in ks]).reshape(-1, 2)
+        if np.any(pose.apply(X)[:, 2] <= 0):
+            return np.full(len(ks), np.inf)
+        d2 = np.sum((self.camera.project(X, pose) - img) ** 2, 1).reshape(len(ks), 4)
+        return np.sqrt(d2.mean(1))
+
+    def _consistent(self, found: dict, prediction: Pose | None):
+        """(best, image corners, the markers used) of the pose from the markers of ``found`` that agree.
+
+        Markers left out for good (``rejected``) are dropped first. When every marker's corners lie within
+        max_reproj_px / 2 of the joint pose, all are used (one solve, the usual case). Otherwise markers are
+        dropped one at a time, each time the one whose removal gives the smallest worst per-marker error of the
+        rest (a solve without it: its own corners cannot pull that pose), as long as its corners are more than
+        max_reproj_px from that pose. A dropped marker farther than max_reproj_px from the pose of at least two
+        others that agree counts as disagreeing (``confirm`` such frames, more than it agreed with another:
+        left out for good, one warning, :meth:`explain`). Two markers that
+        disagree: the one with more disagreeing frames goes, else the one farther from the predicted pose; with
+        neither to tell them apart, no pose is measured."""
+        if self.rejected:
+            found = {k: c for k, c in found.items() if k not in self.rejected}
+        if len(found) < self.min_markers or not found:
+            return None, None, found
+        best, img = self._solve(found, prediction)
+        ks = sorted(found)
+        if len(ks) < 2:
+            return best, img, found
+        thr = self.max_reproj_px
+        if best is not None and self._marker_rms(best[0], found, ks).max() <= 0.5 * thr:
+            self._agreed[ks] += 1
+            return best, img, found
+        keep, dropped = list(ks), []
+        while len(keep) > 2:
+            trials = []
+            for k in keep:
+                rest = [j for j in keep if j != k]
+                b, _ = self._solve({j: found[j] for j in rest}, prediction)
+                if b is not None:
+                    trials.append((float(self._marker_rms(b[0], found, rest).max()), k, b))
+            if not trials:
+                break
+            worst_rest, k, b = min(trials, key=lambda t: t[0])
+            if self._marker_rms(b[0], found, [k])[0] <= thr:
+                break      # the least helpful marker agrees with the others' pose: nothing to drop
+            keep.remove(k)
+            dropped.append(k)
+            if worst_rest <= thr:
+                break
+        if len(keep) == 2:
+            b, _ = self._solve({j: found[j] for j in keep}, prediction)
+            if b is None or self._marker_rms(b[0], found, keep).max() > thr:
+                k = self._odd_one_out(found, keep, prediction)
+                if k is None:
+                    return None, None, {}
+                keep.remove(k)
+                dropped.append(k)
+        if not dropped:
+            return best, img, found
+        kept = {j: found[j] for j in keep}
+        best, img = self._solve(kept, prediction)
+        if best is not None and self._marker_rms(best[0], found, keep).max() <= thr:
+            self.n_left_out += len(dropped)
+            if len(keep) >= 2:      # the others agree: each dropped marker far from their pose disagreed
+                self._agreed[keep] += 1
+                for k in dropped:
+                    if self._marker_rms(best[0], found, [k])[0] > thr:
+                        self._disagreed[k] += 1
+                        if self._disagreed[k] >= self.confirm and self._disagreed[k] > self._agreed[k]:
+                            self._reject(k, found[k], best[0], keep)
+        return best, img, kept
+
+    def _odd_one_out(self, found, pair, prediction) -> int | None:
+        """Which of two disagreeing markers to drop: the one that disagreed with others in more frames, else
+        the one whose corners are farther from the predicted pose (by more than max_reproj_px); None when
+        neither tells."""
+        a, b = pair
+        if self._disagreed[a] != self._disagreed[b]:
+            return a if self._disagreed[a] > self._disagreed[b] else b
+        if prediction is not None:
+            ea, eb = self._marker_rms(prediction, found, pair)
+            if abs(ea - eb) > self.max_reproj_px:
+                return a if ea > eb else b
+        return None
+
+    def _reject(self, k: int, corners: np.ndarray, pose: Pose, rest: list):
+        """Leave marker ``k`` out for good and say so once (see :meth:`explain`)."""
+        why = self.explain(k, corners, pose, rest)
+        self.rejected[k] = why
+        warnings.warn(PhysarWarning(f"{self.source}: {why}" if self.source else why), stacklevel=3)
+
+    def explain(self, k: int, corners: np.ndarray, pose: Pose, rest) -> str:
+        """One line saying how the image corners ``corners`` (4, 2) of marker ``k`` disagree with ``pose``, the
+        camera pose the markers ``rest`` give: seen where another marker should be (ids swapped), turned about its
+        normal (its up), mirrored (its normal), at another scale (its size, e.g. given in mm), else how far
+        (mm) and how much turned (degrees) it is from where the others put it (its centre, normal)."""
+        ids = self.board.ids
+        cfg = self.board.corners[k]
+        thr = self.max_reproj_px
+        name = f"[[marker]] id {ids[k]}"
+        by = (f"[[marker]] id {ids[rest[0]]}" if len(rest) == 1
+              else f"[[marker]] ids {', '.join(str(ids[j]) for j in rest)}")
+        tail = "; it is left out of the camera pose"
+
+        def fits(X):    # the corners X (4, 3) project onto the image corners under the others' pose
+            return bool(np.all(pose.apply(X)[:, 2] > 0)
+                        and np.sqrt(np.mean(np.sum((self.camera.project(X, pose) - corners) ** 2, 1))) <= thr)
+
+        for j in range(len(ids)):
+            if j != k and fits(self.board.corners[j]):
+                return (f"{name} is seen where {by} put [[marker]] id {ids[j]}: are the two ids swapped? Check its "
+                        f"id{tail}")
+        for r, turn in ((1, "90°"), (2, "180°"), (3, "90°")):
+            if fits(np.roll(cfg, r, axis=0)):
+                return f"{name} is seen turned by {turn} about its normal from where {by} put it: check its up{tail}"
+        if fits(cfg[[1, 0, 3, 2]]):
+            return (f"{name} is seen mirrored where {by} put it: check its normal (outward from the face it is "
+                    f"stuck on){tail}")
+        c = cfg.mean(0)
+        side = float(np.linalg.norm(cfg[1] - cfg[0]))
+        own, _ = self._solve({k: corners}, None)
+        if own is None:
+            return f"{name} disagrees with where {by} put it: check its center, normal, up and size{tail}"
+        zk, z = own[0].apply(c[None])[0, 2], pose.apply(c[None])[0, 2]
+        sigma = z / zk if zk > 0 else np.nan
+        if np.isfinite(sigma) and abs(sigma - 1) > 0.05 and fits(c + sigma * (cfg - c)):
+            return (f"{name} fits where {by} put it only with a side of {sigma * side:.3g} m, not size = "
+                    f"{side:.4g}: check its size (metres){tail}")
+        X = pose.inverse().apply(own[0].apply(cfg))     # where it is if its size is right, object frame
+        d = float(np.linalg.norm(X.mean(0) - c))
+        n0 = np.cross(cfg[1] - cfg[0], cfg[3] - cfg[0])
+        n1 = np.cross(X[1] - X[0], X[3] - X[0])
+        ang = float(np.degrees(np.arccos(np.clip(n0 @ n1 / (np.linalg.norm(n0) * np.linalg.norm(n1)), -1, 1))))
+        return (f"{name} is {d * 1e3:.0f} mm / {ang:.0f}° away from where {by} put it: check its center, normal, "
+                f"up and size{tail}")
+
     def update(self, gray) -> PoseEstimate:
         """Process one grey frame (uint8 (h, w)); returns the filtered pose and its status."""
         pred = self.predicted()
         found, full = self.detect(gray, pred)
+        if not full and self._disagreed.any():
+            # a marker that disagreed and is not confirmed yet is looked for in the whole frame (its predicted
+            # place is wrong when its table is), at most 2 * confirm times each, until it agrees or is confirmed
+            sus = [k for k in np.flatnonzero((self._disagreed > self._agreed) & (self._searched < 2 * self.confirm))
+                   if k not in found and k not in self.rejected]
+            if sus:
+                self._searched[sus] += 1
+                for k, c in self._detect(gray).items():
+                    found.setdefault(k, c)
+                full = True
         self._frame += 1
         best = None
         if len(found) >= self.min_markers:
-            best, img = self._solve(found, pred)
+            best, img, found = self._consistent(found, pred)
         if best is not None and best[1] <= self.max_reproj_px:
             pose, err = best
             if pred is not None and self._missed == 0:
