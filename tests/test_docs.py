@@ -152,7 +152,8 @@ def test_api_page_lists_the_package_all(api):
 
     page = api.api_page("physar.fem")
     for name in physar.fem.__all__:
-        assert re.search(rf"^\.\. (autoclass|autofunction|py:data):: physar\.fem\.{name}$", page, re.MULTILINE), name
+        assert re.search(rf"^\.\. (autoclass|autofunction):: physar\.fem\.{name}$|"
+                         rf"^\.\. py:data:: {name}\n   :module: physar\.fem$", page, re.MULTILINE), name
 
 
 def test_plain_text_docstrings_are_escaped_outside_literals(api):

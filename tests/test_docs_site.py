@@ -291,6 +291,21 @@ def test_api_reference_renders_the_equations_as_math(site):
     assert 'class="math' in flow[:flow.find('id="module-', 20)]
 
 
+def test_api_reference_shows_only_public_objects(site):
+    """Every object the built API pages document is a public name (in its module's ``__all__``) or a public
+    member of one: no private helper, no private module, no ``_name``. Mutant caught: a page generator or
+    autodoc option that lets a private name into the reference."""
+    api = physar_public.public_api()
+    public = {f"{module}.{name}" for module, names in api.items() for name in names}
+    private = []
+    for page in sorted((site.html / "_generated" / "api").glob("physar*.html")):
+        for ident in re.findall(r'<dt class="sig sig-object py" id="([^"]+)"', page.read_text()):
+            owner = next((p for p in public if ident == p or ident.startswith(p + ".")), None)
+            if owner is None or any(part.startswith("_") for part in ident[len(owner):].split(".")[1:]):
+                private.append(f"{page.name}: {ident}")
+    assert private == []
+
+
 # --- what a browser shows ----------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")

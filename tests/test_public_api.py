@@ -134,7 +134,8 @@ def missing_from_reference(api: dict[str, list[str]], page_of) -> list[str]:
             if sub in api:
                 if not re.search(rf"^\.\. automodule:: {re.escape(sub)}\n   :members:$", page, re.MULTILINE):
                     problems.append(f"{sub}: no automodule with :members: on the {package} page")
-            elif not re.search(rf"^\.\. (autoclass|autofunction|py:data):: {re.escape(sub)}$", page, re.MULTILINE):
+            elif not (re.search(rf"^\.\. (autoclass|autofunction):: {re.escape(sub)}$", page, re.MULTILINE) or re.search(
+                    rf"^\.\. py:data:: {re.escape(name)}\n   :module: {re.escape(package)}$", page, re.MULTILINE)):
                 problems.append(f"{sub}: not on the {package} page")
     return problems
 
@@ -245,6 +246,8 @@ def private_in_reference(api: dict[str, list[str]], page_of) -> list[str]:
     for package in physar_public.PACKAGES:
         page = page_of(package)
         for kind, target, options in _DIRECTIVE.findall(page):
+            if kind == "py:data":  # a constant by its name, in the module its :module: option names
+                target = re.search(r":module: (\S+)", options).group(1) + "." + target
             module, _, name = target.rpartition(".")
             if kind == "automodule":
                 if target == package:

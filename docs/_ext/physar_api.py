@@ -29,9 +29,12 @@ def _entry(package: str, name: str, obj) -> list[str]:
         return [f".. autoclass:: {full}", "   :members:", ""]
     if inspect.isroutine(obj) or callable(obj):
         return [f".. autofunction:: {full}", ""]
+    # a constant by its own name in its package (a dotted name here would be read as relative to the
+    # automodule's package: physar.fem.physar.fem.MATERIALS)
     if name == "__version__":
-        return [f".. py:data:: {full}", "", "   The installed version of physar.", ""]
-    return [f".. py:data:: {full}", f"   :value: {obj!r}"[:200], "", f"   {data_doc(package, name) or ''}", ""]
+        return [f".. py:data:: {name}", f"   :module: {package}", "", "   The installed version of physar.", ""]
+    return [f".. py:data:: {name}", f"   :module: {package}", f"   :value: {obj!r}"[:200], "",
+            f"   {data_doc(package, name) or ''}", ""]
 
 
 def api_page(package: str) -> str:
