@@ -240,6 +240,53 @@ def traction_load(space: FESpace, box: Sequence[Sequence[float]] | None = None,
     return _scatter(space, cells, nodal)
 
 
+def _point_triangle_distance(P: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """Exact distance of points P (m, 3) to triangles T (m, 3, 3), pairwise: the projection onto the plane when
+    it falls inside the triangle, else the nearest of the three edges (segments)."""
+    A, B, C = T[:, 0], T[:, 1], T[:, 2]
+    e0, e1, v = B - A, C - A, P - A
+    d00, d01, d11 = (e0 * e0).sum(1), (e0 * e1).sum(1), (e1 * e1).sum(1)
+    d20, d21 = (v * e0).sum(1), (v * e1).sum(1)
+    den = d00 * d11 - d01 * d01
+    with np.errstate(divide="ignore", invalid="ignore"):
+        b1 = (d11 * d20 - d01 * d21) / den
+        b2 = (d00 * d21 - d01 * d20) / den
+    inside = (den > 0) & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1)
+    d = np.where(inside, np.linalg.norm(v - np.nan_to_num(b1)[:, None] * e0 - np.nan_to_num(b2)[:, None] * e1,
+                                        axis=1), np.inf)
+    for a, b in ((A, B), (B, C), (C, A)):
+        ab = b - a
+        t = np.clip(((P - a) * ab).sum(1) / np.maximum((ab * ab).sum(1), 1e-300), 0.0, 1.0)
+        d = np.minimum(d, np.linalg.norm(P - a - t[:, None] * ab, axis=1))
+    return d
+
+
+def surface_distance(space: FESpace, points) -> np.ndarray:
+    """Exact distance [m] of each point (n, 3) to the mesh's boundary surface (its triangles), from inside or
+    outside the body. Candidate triangles: those whose centroid lies within the nearest centroid's distance
+    plus the largest centroid-to-vertex distance of any triangle (no closer triangle can lie outside)."""
+    from scipy.spatial import cKDTree
+
+    cache = space.__dict__.setdefault("_physar_cache", {})
+    if "surface_tree" not in cache:
+        surf = _surface(space).mesh
+        tri = surf.points[surf.faces]
+        c = tri.mean(1)
+        cache["surface_tree"] = (cKDTree(c), tri, float(np.linalg.norm(tri - c[:, None], axis=2).max()))
+    tree, tri, reach = cache["surface_tree"]
+    P = np.asarray(points, float).reshape(-1, 3)
+    if len(P) == 0:
+        return np.zeros(0)
+    dc, _ = tree.query(P)
+    cand = tree.query_ball_point(P, dc + reach * (1 + 1e-9) + 1e-12)
+    lens = np.array([len(c) for c in cand])
+    pi = np.repeat(np.arange(len(P)), lens)
+    fi = np.concatenate([np.asarray(c, np.int64) for c in cand])
+    out = np.full(len(P), np.inf)
+    np.minimum.at(out, pi, _point_triangle_distance(P[pi], tri[fi]))
+    return out
+
+
 def bump(d: np.ndarray, radius: float) -> np.ndarray:
     r"""Smooth compact kernel :math:`(1 - (d/r)^2)^2` for :math:`d < r`, else 0 (:math:`C^1` in :math:`d`;
     regularised Dirac)."""
@@ -265,10 +312,16 @@ def point_load(
     reach = np.linalg.norm(pts_face - c[:, None], axis=2).max(axis=1)
     faces = np.flatnonzero(np.linalg.norm(c - p, axis=1) <= radius + reach)
     if len(faces) == 0:
-        raise ConfigError(f"point load at {p.tolist()}: no boundary within radius {radius}")
+        d = float(surface_distance(space, p)[0])
+        raise ConfigError(f"point load at {p.tolist()}: no boundary within radius {radius}: the point is "
+                          f"{d:.3g} m from the object's surface; check the point (metres, in the mesh's frame)")
     cells, x, w, N = _face_quadrature(space, faces, degree)
     k = w * bump(np.linalg.norm(x - p, axis=2), radius)
     if k.sum() <= 0:
+        d = float(surface_distance(space, p)[0])
+        if d >= radius:
+            raise ConfigError(f"point load at {p.tolist()}: no boundary within radius {radius}: the point is "
+                              f"{d:.3g} m from the object's surface; check the point (metres, in the mesh's frame)")
         raise ConfigError(
             f"point load at {p.tolist()}: radius {radius} is too small for the mesh there "
             "(no surface quadrature point within it); increase the radius or refine the mesh"

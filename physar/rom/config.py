@@ -55,8 +55,11 @@ linear material, where the operator is affine in E and the loads and prescribed 
 separated in the parameters (a rotation too: cos theta - 1 and sin theta); non-intrusive PGD (full
 Newton solves as a black box) for any other material.
 
-The load point is ``physar.geometry.path_point(path, s)``; a point off the surface loads the body where
-the bump kernel of radius ``radius`` meets it (as a fem ``point`` load does). The load of ``rom eval``
+The load point is ``physar.geometry.path_point(path, s)``, spread over the surface by the bump kernel of
+radius ``radius`` (as a fem ``point`` load). The path must lie on the object's surface: a path point farther
+than ``tol`` (default radius / 4) from it, or a stretch of the path that leaves it (over a hole, past an
+edge), or a load_offset range that takes the load off it, is refused before the build
+(:func:`check_load_path`). The load of ``rom eval``
 at s is exactly the load of a ``[[load]] type = "point"`` at path(s) with the
 same total and radius, so the two commands solve the same problem.
 """
@@ -117,8 +120,10 @@ class ParameterSection(_Strict):
                                               "[x1, y1, z1]]; youngs_modulus: cells whose centroid is inside [m]")
     region: str | int | None = Field(None, description="mesh tag (physical group) name or id")
     at: list[Vec3] | None = Field(None, min_length=1, description="nodes within tol of these points (m)")
-    tol: float | None = Field(None, ge=0, description="distance from `at` within which nodes are selected [m]; "
-                                                     "default physar.fem.loads.default_tol")
+    tol: float | None = Field(None, ge=0, description="at: distance from `at` within which nodes are selected [m] "
+                                                     "(default physar.fem.loads.default_tol); load_position: the "
+                                                     "farthest the path (its points and the line between them) "
+                                                     "may be from the object's surface [m] (default radius / 4)")
     plane: PlaneSelector | None = Field(None, description="displacement, rotation: nodes within tol of a "
                                                           "plane {point, normal, tol}")
 
@@ -139,7 +144,7 @@ class ParameterSection(_Strict):
             raise ValueError(f"{what} needs {', '.join(missing)}")
         new = ("axis", "point", *_SELECTORS, "tol")
         allowed = {"displacement": ("direction", *_SELECTORS, "tol"), "rotation": ("axis", "point", *_SELECTORS, "tol"),
-                   "youngs_modulus": ("box", "region")}.get(self.kind, ())
+                   "youngs_modulus": ("box", "region"), "load_position": ("tol",)}.get(self.kind, ())
         extra = [k for k in new if getattr(self, k) is not None and k not in allowed]
         if self.kind in ("youngs_modulus", "rotation") and self.direction is not None:
             extra.insert(0, "direction")
@@ -171,7 +176,7 @@ class ParameterSection(_Strict):
                              f"it moves; got {', '.join(given) or 'none'})")
         if self.kind == "youngs_modulus" and len(given) > 1:
             raise ValueError(f"give at most one of box, region (the cells of E; got {', '.join(given)})")
-        if self.tol is not None and self.at is None:
+        if self.tol is not None and self.at is None and self.kind != "load_position":
             raise ValueError("tol applies to at (a plane takes its own tol)")
         if self.kind == "youngs_modulus" and self.range[0] <= 0:
             raise ValueError(f"range of Young's modulus must be > 0 Pa, got {list(self.range)}")
@@ -285,6 +290,10 @@ def build_rom(cfg: RomConfig, progress: Callable[[int, int], None] | None = None
         if source == "config" or str(exc).startswith(source):
             raise
         raise ConfigError(f"{source}: {exc}") from None
+    pos = next((p for p in cfg.parameter if p.kind == "load_position"), None)
+    if pos is not None:     # before any solve: a path off the object fails late and with the wrong hint
+        check_load_path(problem.space, pos, source,
+                        next((p for p in cfg.parameter if p.kind == "load_offset"), None))
     r = cfg.rom
     workers = workers if workers is not None else r.workers
     scheduler = scheduler if scheduler is not None else r.scheduler
@@ -318,6 +327,62 @@ def build_rom(cfg: RomConfig, progress: Callable[[int, int], None] | None = None
     if "amplitudes" in info:
         rom.metadata["mode_amplitudes"] = [float(a) for a in info["amplitudes"]]
     return rom, problem.space, info
+
+
+def check_load_path(space, pos: ParameterSection, source: str = "config",
+                    offset: ParameterSection | None = None) -> None:
+    """Refuse a load path that is not on the object's surface (ConfigError, one line naming the file, the
+    parameter and where). ``tol`` is the parameter's tol, default radius / 4.
+
+    * a path point farther than tol from the boundary surface (a point past the end of the object, a
+      coordinate in mm, a point inside the body): its index and distance;
+    * the path between its points sampled every tol / 2 of arc length: the first stretch farther than tol
+      from the surface (a path over a hole or across a gap between two parts): the arc length s where it
+      leaves the object and where it comes back. Not a matter of the load's radius: the path must go round;
+    * with a load_offset, the same samples moved by each end of its range along its direction.
+    """
+    from physar.fem.loads import surface_distance
+    from physar.geometry.path import path_point
+
+    path = np.asarray(pos.path, float)
+    tol = float(pos.tol) if pos.tol is not None else float(pos.radius) / 4
+    what = f"{source}: [[parameter]] {pos.name!r}"
+    d = surface_distance(space, path)
+    far = np.flatnonzero(d > tol)
+    if far.size:
+        i = int(far[0])
+        more = f" (and {far.size - 1} more of its points)" if far.size > 1 else ""
+        raise ConfigError(f"{what}: path point {i} {path[i].tolist()} is {d[i] * 1e3:.3g} mm from the object's "
+                          f"surface (tol {tol * 1e3:.3g} mm){more}: a load path lies on the surface; check the point "
+                          "(metres, in the mesh's frame)")
+    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    n = int(min(20001, max(2, np.ceil(cum[-1] / (0.5 * tol)) + 1))) if tol > 0 else 20001
+    s = np.union1d(np.linspace(0.0, cum[-1], n), cum)
+    X = path_point(path, s)
+    shifts = [(None, 0.0)]
+    if offset is not None:
+        u = np.asarray(offset.direction, float) / np.linalg.norm(offset.direction)
+        shifts += [(offset, float(t)) for t in offset.range]
+    for off, t in shifts:
+        ds = surface_distance(space, X + t * u) if off is not None else surface_distance(space, X)
+        out = ds > tol
+        if not out.any():
+            continue
+        j0 = int(np.flatnonzero(out)[0])
+        back = np.flatnonzero(~out[j0:])
+        j1 = j0 + int(back[0]) if back.size else len(s)
+        k = j0 + int(np.argmax(ds[j0:j1]))
+        seg = int(np.clip(np.searchsorted(cum, s[j0], side="right") - 1, 0, len(path) - 2))
+        leave = s[j0 - 1] if j0 > 0 else s[0]
+        until = f"comes back at s = {s[j1] * 1e3:.1f} mm" if j1 < len(s) else "does not come back"
+        if off is None:
+            raise ConfigError(f"{what}: the path leaves the object at s = {leave * 1e3:.1f} mm (between path points "
+                              f"{seg} and {seg + 1}) and {until}; it is {ds[k] * 1e3:.3g} mm from the object's surface "
+                              f"at s = {s[k] * 1e3:.1f} mm (tol {tol * 1e3:.3g} mm): a hole or a gap is in the "
+                              "way: route the path round it on the surface (a larger radius does not help)")
+        raise ConfigError(f"{what}: with [[parameter]] {off.name!r} = {t:g} m the load leaves the object at s = "
+                          f"{leave * 1e3:.1f} mm ({ds[k] * 1e3:.3g} mm from its surface at s = {s[k] * 1e3:.1f} "
+                          f"mm, tol {tol * 1e3:.3g} mm): narrow the range of {off.name!r} or move the path")
 
 
 def _build_moving_load(cfg, problem, progress, source, workers, scheduler):
@@ -472,4 +537,4 @@ def _with_magnitude(rom, magnitude_range, load_norm):
 
 
 __all__ = ["MAX_POINTS", "ParameterSection", "RomConfig", "RomSection", "build_parametric_problem", "build_rom",
-           "load_rom_config", "parameter_grid"]
+           "check_load_path", "load_rom_config", "parameter_grid"]
