@@ -27,6 +27,9 @@ Ground truth:
   C tangent to its centreline (y in the prongs, z in the spine); bag vertical in the shell and the handle's
   posts, along y in its bar, none in the filling. The reconstruction learns an isotropic E field only (the
   fibres are what it must absorb);
+* plasticity (``yield_stress`` > 0): the object's elastic law becomes Hencky with a von Mises return map on
+  the Hencky strain (yield stress ``yield_stress``), the fibre term acting on the elastic part; the
+  reconstruction's expert law is fixed-corotated and elastic;
 * dynamics: MLS-MPM (:class:`physar.mpm.MPMSolver`) on a FINER particle set (``gt_particles_per_cell``,
   default 8 per cell) than the reconstruction uses, with gravity; the forearm is a set of MPM particles
   actuated by the gated PD controller (Eq. 6-7, :math:`\omega = 1` inside the forearm, 0 on the object)
@@ -70,6 +73,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from physar.errors import ConfigError, format_validation_error, refuse_coercion
+from physar.mpm.constitutive import ELASTIC_HENCKY, PLASTIC_VON_MISES
 from physar.mpm.model import Control, MPMModel, MPMSolver
 from physar.output import atomic_folder, check_folder, own_names
 from physar.recon import scene as S
@@ -126,6 +130,8 @@ class SynthConfig(BaseModel):
     E_soft: float = Field(3.0e3, gt=0, description="Young's modulus of the object's soft part [Pa]")
     E_stiff: float = Field(1.2e4, gt=0, description="Young's modulus of the object's stiff part [Pa]")
     fiber_E: float = Field(2.4e4, ge=0, description="fibre modulus E_f of the anisotropic term [Pa] (0: isotropic)")
+    yield_stress: float = Field(0.0, ge=0, description="von Mises yield stress of the object [Pa] (Hencky "
+                                "elasticity + von Mises plasticity in the truth; 0: elastic, fixed-corotated)")
     nu: float = Field(0.3, gt=-1, lt=0.5, description="Poisson ratio of the object [-]")
     density: float = Field(200.0, gt=0, description="density of the object [kg/m^3]")
     human_E: float = Field(1.0e4, gt=0, description="Young's modulus of the simulated forearm [Pa]")
@@ -368,12 +374,15 @@ def simulate_clip(cfg: SynthConfig, meta: dict, body, poses: dict, progress=None
     aniso = {}
     if np.any(fib_E > 0):  # isotropic scenes build exactly the model they always did
         aniso = {"fiber": np.r_[fib, np.zeros((nh, 3))], "fiber_E": np.r_[fib_E, np.zeros(nh)]}
+    elastic, plastic, pp = np.zeros(n), np.zeros(n), np.zeros((n, 4))
+    if getattr(cfg, "yield_stress", 0.0) > 0:  # plastic truth: Hencky + von Mises on the object (not the body)
+        elastic[:no], plastic[:no], pp[:no, 0] = ELASTIC_HENCKY, PLASTIC_VON_MISES, cfg.yield_stress
     model = MPMModel(size=sim["size"], resolution=sim["resolution"], dt=dt_f / sim["substeps"],
                      substeps=sim["substeps"], mass=np.r_[np.full(no, vol_o * cfg.density),
                                                           np.full(nh, h**3 * cfg.human_density)],
                      volume=np.r_[np.full(no, vol_o), np.full(nh, h**3)], E=np.r_[E, np.full(nh, cfg.human_E)],
-                     nu=np.full(n, cfg.nu), elastic=np.zeros(n), plastic=np.zeros(n),
-                     plastic_params=np.zeros((n, 4)), body=np.r_[np.zeros(no), np.ones(nh)],
+                     nu=np.full(n, cfg.nu), elastic=elastic, plastic=plastic,
+                     plastic_params=pp, body=np.r_[np.zeros(no), np.ones(nh)],
                      gravity=(0.0, 0.0, cfg.gravity), walls=sim["walls"], **aniso)
     x0 = np.r_[Xo, ref[0]] - origin
     v0 = np.r_[np.zeros((no, 3)), vref[0]]

@@ -1,0 +1,179 @@
+"""Benchmark of issue 17 part 4: the anny body presses a C-shaped pillow with both forearms and hands (truth:
+anisotropic fibres + von Mises plasticity on 27 particles per cell, :mod:`physar.recon.synth_anny`), rendered by
+the sphere renderer, exported as a user's files (MP4, label PNGs, SMPL npz in camera coordinates, object OBJ)
+and read back through ``physar recon import`` (subprocess, the real user's route) and checked by ``physar recon
+check``; then ``recon fit`` (:func:`physar.recon.train.fit`, which evaluates every method) and ``physar recon
+predict`` of the novel action (subprocess).
+
+Measured on the large-deformation subsets (frames whose true maximum object displacement is >= half the
+subset's maximum): PSNR / SSIM / IoU of physics, LBS-only and the 4DGS-like per-frame fit for reconstruction,
+prediction and the novel action; the mean 3-D object error (mm, vs the fine truth averaged onto the
+reconstruction's particles) on the same frames (LBS-only = the object at rest; 4DGS-like holds its last observed
+frame in prediction and has no motion of its own for a novel action, so it is the object at rest there);
+reconstruction PSNR of the fitted appearance rendered with the true object motion (the oracle of
+``bench_recon.pixel_fit_diagnostics``); learned E error mean |log10 E / E_true| vs the initial guess's.
+
+    .venv/bin/python benchmarks/bench_recon_pillow.py [--quick] [--config examples/recon_anny_cpillow.toml]
+        [--out /tmp/bench_recon_pillow] [--no-diagnostics]
+
+``--quick``: 96 px, 6 + 4 + 5 frames, fewer iterations (a few minutes); the full run is the TOML as written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from physar.recon.metrics import large_deformation_frames
+from physar.recon.synth_anny import attach_truth, export_user_files, generate_anny, load_anny_config
+from physar.recon.train import Reconstruction, cell_average_truth, fit, load_dataset, load_train_config
+
+ROOT = Path(__file__).parents[1]
+QUICK_SYNTH = {"image_size": 96, "frames": 6, "n_obs": 4, "novel_frames": 5, "spin_frames": 4}
+QUICK_TRAIN = {"appearance_iters": 40, "finetune_iters": 10, "flow_iters": 8, "spflow_iters": 8,
+               "physics_iters": 10, "window_start": 3}
+PHYSAR = [sys.executable, "-c", "from physar.cli.main import main; main()"]
+
+
+def log(msg: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')} load {os.getloadavg()[0]:.2f}] {msg}", flush=True)
+
+
+def cli(*args) -> dict | None:
+    r = subprocess.run([*PHYSAR, *map(str, args)], check=False, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit(f"physar {' '.join(map(str, args[:2]))} failed ({r.returncode}): {r.stderr[-2000:]}")
+    i = r.stdout.find("{")
+    return json.loads(r.stdout[i:]) if i >= 0 else None
+
+
+def errors_3d(recon: Reconstruction, ds, key: str, rotations, root_t, frames, hold_from: int | None) -> dict:
+    """Mean 3-D object error (mm) over ``frames`` of physics, LBS-only (rest) and 4DGS-like (its per-frame
+    positions while observed, then its last observed frame; rest when ``hold_from`` is None: a novel action)."""
+    rig = recon.rig
+    gt = cell_average_truth(rig, {"rest_positions": ds.truth["rest_positions"],
+                                  "dynamic_object_positions": ds.truth[f"{key}_object_positions"]})
+    objs: list = []
+    recon.render_sequence(recon.kinematics(rotations, root_t), "physics", objects=objs)
+    err = lambda x, f: float(np.linalg.norm(np.asarray(x) - gt[f], axis=1).mean() * 1e3)
+    fl = [x.numpy() for x in recon.flow]
+    four = (lambda f: fl[min(f, len(fl) - 1)]) if hold_from is not None else (lambda f: rig.Xo)
+    m = lambda fn: float(np.mean([fn(f) for f in frames])) if frames else float("nan")
+    return {"physics": m(lambda f: err(objs[f], f)), "lbs": m(lambda f: err(rig.Xo, f)),
+            "4dgs": m(lambda f: err(four(f), f))}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--config", default=str(ROOT / "examples" / "recon_anny_cpillow.toml"))
+    ap.add_argument("--out", default="/tmp/bench_recon_pillow")
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--no-diagnostics", action="store_true")
+    ap.add_argument("--reuse-data", action="store_true", help="keep OUT/data and OUT/user when present")
+    a = ap.parse_args()
+    torch.set_num_threads(min(2, torch.get_num_threads()))
+    scfg = load_anny_config(a.config, QUICK_SYNTH if a.quick else None)
+    tcfg = load_train_config(a.config, QUICK_TRAIN if a.quick else None)
+    if scfg.gt_particles_per_cell <= tcfg.particles_per_cell:
+        raise SystemExit("gt_particles_per_cell must exceed the reconstruction's particles_per_cell")
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t_all = time.perf_counter()
+    log(f"start: {a.config}{' --quick' if a.quick else ''}, {scfg.image_size} px, torch threads "
+        f"{torch.get_num_threads()}")
+    data, user = out / "data", out / "user"
+    t0 = time.perf_counter()
+    if not (a.reuse_data and (data / "truth.npz").exists()):
+        step = {}
+
+        def prog(k, i, n):
+            if step.get(k, -1) < i * 4 // n:
+                step[k] = i * 4 // n
+                log(f"generate {k}: {i}/{n}")
+        generate_anny(data, scfg, prog)
+    t_gen = time.perf_counter() - t0
+    log(f"generated in {t_gen:.0f} s")
+    t0 = time.perf_counter()
+    if not (a.reuse_data and (user / "data" / "truth.npz").exists()):
+        args = export_user_files(data, user)
+        for key, dst in (("args", user / "data"), ("novel_args", user / "novel")):
+            if dst.exists():
+                shutil.rmtree(dst)
+            cli("recon", "import", *args[key], "--out", dst, "--json")
+        attach_truth(user / "data", user / "novel", data)
+    chk = cli("recon", "check", user / "data", "--json")
+    t_imp = time.perf_counter() - t0
+    log(f"exported + imported in {t_imp:.0f} s; recon check problems: {chk['problems']}")
+    t0 = time.perf_counter()
+    step = {}
+
+    def fprog(stage, i, n, loss):
+        if step.get(stage, -1) < i * 4 // max(n, 1):
+            step[stage] = i * 4 // max(n, 1)
+            log(f"fit {stage}: {i}/{n} loss {loss:.4f}")
+    rep = fit(user / "data", out / "run", tcfg, progress=fprog, restart=True)
+    t_fit = time.perf_counter() - t0
+    log(f"fit + evaluation in {t_fit:.0f} s")
+    cli("recon", "predict", out / "run", "--poses", user / "data" / "novel_poses.npz", "--out", out / "novel.mp4")
+    ds = load_dataset(user / "data")
+    recon = Reconstruction.load(out / "run")
+    n, no = len(ds.rgb), ds.n_obs
+    disp = ds.truth["dynamic_max_displacement"]
+    sub = {"recon_large": large_deformation_frames(disp, range(1, no)),
+           "pred_large": large_deformation_frames(disp, range(no, n)),
+           "novel_large": large_deformation_frames(ds.truth["novel_max_displacement"], range(1, len(ds.novel["rgb"])))}
+    e3 = {"recon_large": errors_3d(recon, ds, "dynamic", ds.rotations, ds.root_t, sub["recon_large"], no),
+          "pred_large": errors_3d(recon, ds, "dynamic", ds.rotations, ds.root_t, sub["pred_large"], no),
+          "novel_large": errors_3d(recon, ds, "novel", ds.novel["rotations"], ds.novel["root_t"], sub["novel_large"],
+                                   None)}
+    oracle = None
+    if not a.no_diagnostics:
+        spec = importlib.util.spec_from_file_location("bench_recon", ROOT / "benchmarks" / "bench_recon.py")
+        br = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(br)
+        log("pixel-fit diagnostics (true-motion oracle render)")
+        oracle = br.pixel_fit_diagnostics(user / "data", out / "run")
+    mat = rep["material"]
+    res = {"config": a.config, "quick": a.quick, "image_size": scfg.image_size, "subsets": sub, "errors_3d_mm": e3,
+           "methods": rep["methods"], "material": mat, "simulated_bones": recon.rig.meta["body"]["simulated_bones"],
+           "times_s": {"generate": t_gen, "export_import_check": t_imp, "fit_eval": t_fit,
+                       "train": rep["train_seconds"], "total": time.perf_counter() - t_all},
+           "oracle": oracle, "check_problems": chk["problems"], "load_end": os.getloadavg()[0]}
+    (out / "results.json").write_text(json.dumps(res, indent=1, default=float))
+    print(f"\nscene: anny + c_pillow, both forearms/hands ({len(res['simulated_bones'])} simulated bones), "
+          f"{scfg.image_size} px, spin {scfg.spin_frames} / dynamic {scfg.frames} ({scfg.n_obs} observed) / novel "
+          f"{scfg.novel_frames} frames; truth {scfg.gt_particles_per_cell}/cell fibres + von Mises "
+          f"({scfg.yield_stress:g} Pa), recon {tcfg.particles_per_cell}/cell")
+    print(f"times: generate {t_gen:.0f} s, export+import+check {t_imp:.0f} s, fit+eval {t_fit:.0f} s (train "
+          f"{rep['train_seconds']:.0f} s); load average at the end {os.getloadavg()[0]:.2f}\n")
+    print("| subset (frames) | method | PSNR | SSIM | IoU | 3-D error (mm) |")
+    print("|---|---|---|---|---|---|")
+    for s in ("recon_large", "pred_large", "novel_large"):
+        for m in ("physics", "lbs", "4dgs"):
+            v = rep["methods"][m][s]
+            print(f"| {s} ({','.join(map(str, sub[s]))}) | {m} | {v['psnr']:.2f} | {v['ssim']:.4f} | {v['iou']:.4f} | "
+                  f"{e3[s][m]:.2f} |")
+    print(f"\nlearned E: mean |log10 E/E_true| {mat['mean_abs_log10_error']:.3f} (initial guess "
+          f"{mat['initial_mean_abs_log10_error']:.3f}); soft/stiff geomean {mat['E_soft_learned_geomean']:.0f} / "
+          f"{mat['E_stiff_learned_geomean']:.0f} Pa (true {mat['E_soft_true']:.0f} / {mat['E_stiff_true']:.0f})")
+    if oracle:
+        print("\n| object motion rendered (observed frames) | recon PSNR | recon_large PSNR | recon_large IoU |")
+        print("|---|---|---|---|")
+        for name, m in oracle:
+            print(f"| {name} | {m['recon']['psnr']:.2f} | {m['recon_large']['psnr']:.2f} | "
+                  f"{m['recon_large']['iou']:.4f} |")
+    log(f"done in {time.perf_counter() - t_all:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
