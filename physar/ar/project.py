@@ -283,10 +283,13 @@ class ProjectConfig(_Strict):
                              "(or leave it out)")
         ids = [m.id for m in self.marker]
         if len(set(ids)) != len(ids):
-            raise ValueError(f"marker ids must be distinct, got {ids}")
-        dicts = {m.dictionary for m in self.marker}
-        if len(dicts) > 1:
-            raise ValueError(f"all markers must use one dictionary, got {sorted(dicts)}")
+            twice = next(i for i in ids if ids.count(i) > 1)
+            raise ValueError(f"[[marker]] id {twice} is given twice (ids must be distinct, got {ids})")
+        first = self.marker[0] if self.marker else None
+        other = next((m for m in self.marker if m.dictionary != first.dictionary), None)
+        if other is not None:
+            raise ValueError(f"[[marker]] id {other.id}: dictionary {other.dictionary!r} differs from "
+                             f"{first.dictionary!r} of [[marker]] id {first.id} (one dictionary per project)")
         return self
 
 
@@ -328,10 +331,58 @@ def read_project_toml(path) -> dict:
     return read_toml(path)
 
 
-def parse_project(data: dict, source: str) -> ProjectConfig:
-    from physar.fem.config import parse_config
+def marker_name(tables, k: int) -> str:
+    """How every message names the k-th ``[[marker]]`` table: ``[[marker]] id N`` (its id), or
+    ``[[marker]] table K`` (1-based) when it has no integer id."""
+    t = tables[k] if isinstance(tables, list) and 0 <= k < len(tables) else None
+    i = t.get("id") if isinstance(t, dict) else getattr(t, "id", None)
+    return f"[[marker]] id {i}" if isinstance(i, int) and not isinstance(i, bool) else f"[[marker]] table {k + 1}"
 
-    return parse_config(data, source, ProjectConfig)
+
+def parse_project(data: dict, source: str) -> ProjectConfig:
+    """Validate a project's TOML data; ConfigError (one line) naming the file, the table and the key. A
+    ``[[marker]]`` table is named by its id (:func:`marker_name`), as in every other message about markers."""
+    from pydantic import ValidationError
+
+    from physar.errors import format_validation_error
+
+    try:
+        cfg = ProjectConfig.model_validate(data)
+    except ValidationError as exc:
+        msg = format_validation_error(exc, source, ProjectConfig)
+        loc = exc.errors()[0]["loc"]
+        if len(loc) >= 2 and loc[0] == "marker" and isinstance(loc[1], int):
+            msg = _name_marker(msg, loc, marker_name(data.get("marker"), loc[1]))
+        msg = msg.replace(": [top level] [[marker]]", ": [[marker]]", 1)   # a check across the tables
+        raise ConfigError(msg) from None
+    if cfg.marker:      # every id within the dictionary (here, so that `ar print-markers` says it too)
+        from physar.vision.calibration import aruco_dictionary
+
+        dictionary = cfg.marker[0].dictionary
+        try:
+            dic = aruco_dictionary(dictionary)
+        except ConfigError as e:
+            raise ConfigError(f"{source}: [[marker]] id {cfg.marker[0].id}: dictionary: {e}") from None
+        n_ids = dic.bytesList.shape[0]
+        for m in cfg.marker:
+            if m.id >= n_ids:
+                raise ConfigError(f"{source}: [[marker]] id {m.id} is outside {dictionary} (ids 0-{n_ids - 1})")
+    return cfg
+
+
+def _name_marker(msg: str, loc: tuple, name: str) -> str:
+    """``msg`` of an error at ``loc`` = ("marker", k, key...) with the table's pydantic location (``[marker.k.key]``,
+    ``[marker.k]``, ``marker.k.key``, ``in [marker]``) replaced by ``name`` (``[[marker]] id N``)."""
+    import re
+
+    k = loc[1]
+    for pat, fmt in ((rf"\[marker\.{k}\.([^\]]+)\] ", "{name}: {key}: "), (rf"\[marker\.{k}\] ", "{name}: "),
+                     (rf"(?<![\w\[.])marker\.{k}\.([\w.]+)", "{name}: {key}"), (r"in \[marker\]", "in {name}")):
+        out, n = re.subn(pat, lambda m, fmt=fmt: fmt.format(name=name, key=m.group(1) if m.groups() else ""), msg,
+                         count=1)
+        if n:
+            return out
+    return msg
 
 
 def _file(base: Path, name: str) -> Path:
@@ -406,7 +457,6 @@ def load_project(path, progress=None, build: bool = True) -> ARProject:
     Checks beyond the schema, each one clear line: the camera file, every marker id within its dictionary,
     every dot on the model's surface (within ``[dots] tol``), ``[overlay] show`` naming the model's
     parameters. The camera's resolution is checked against the video when a source is opened."""
-    from physar.vision.calibration import aruco_dictionary
     from physar.vision.camera import Camera
     from physar.vision.markers import MarkerBoard
 
@@ -420,18 +470,9 @@ def load_project(path, progress=None, build: bool = True) -> ARProject:
     except ConfigError as e:
         raise ConfigError(f"{source}: [camera] file: {e}") from None
     board = None
-    if cfg.marker:
-        dictionary = cfg.marker[0].dictionary
-        try:
-            dic = aruco_dictionary(dictionary)
-        except ConfigError as e:
-            raise ConfigError(f"{source}: [[marker]] dictionary: {e}") from None
-        n_ids = dic.bytesList.shape[0]
-        for k, m in enumerate(cfg.marker):
-            if m.id >= n_ids:
-                raise ConfigError(f"{source}: [[marker]] {k + 1}: id = {m.id} is outside {dictionary} "
-                                  f"(ids 0-{n_ids - 1})")
-        board = MarkerBoard([m.id for m in cfg.marker], np.stack([m.corners() for m in cfg.marker]), dictionary)
+    if cfg.marker:      # (ids and dictionary checked by parse_project)
+        board = MarkerBoard([m.id for m in cfg.marker], np.stack([m.corners() for m in cfg.marker]),
+                            cfg.marker[0].dictionary)
     plane_image = None
     pl = cfg.registration.plane
     if pl is not None and pl.image is not None:
@@ -540,7 +581,8 @@ colour = [30, 70, 200]     # RGB of the printed dots
 # Nothing stuck on the object? (README "Markerless AR"; examples/ar/foam, examples/ar/seal)
 # [registration] method = "plane" + [registration.plane] origin, u, v and image + px_per_m: the pose from a
 #                textured plate (its design image), or no image: learned from the first frame the markers give
-# [features]     origin, u, v, size of a textured face of the object, tracked from the first frames (at rest)
+# [features]     origin, u, v, size of a textured face of the object, tracked from the first frames (at rest);
+#                beside [dots]: its texture's corners become more observed points of the same solve
 # [[bar]]        parameter, zero, length, width, face: a lever turned by a rotation parameter, seen by colour
 
 [overlay]
