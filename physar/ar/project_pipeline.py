@@ -17,7 +17,9 @@ markers' corners and the dots' positions in the object's frame. Each frame:
        + \lVert (P(x_i + u_i(\mu); \mathrm{pose}) - d^*_i) / \sigma_d \rVert^2,
 
    with :math:`X_c` the seen marker corners, :math:`c^*` their pixels, :math:`x_i` the dots' reference
-   positions, :math:`u_i(\mu) = \sum_m c_m(\mu)\, C_i F_m` the reduced model at the dots (:math:`C`: the
+   positions (and, with ``[features] mode = "points"``, the texture features' material points,
+   :mod:`physar.ar.surface_points`, as more rows with their own :math:`\sigma_f`, set from the features'
+   residuals relative to the dots'), :math:`u_i(\mu) = \sum_m c_m(\mu)\, C_i F_m` the reduced model at the dots (:math:`C`: the
    surface observation operator), :math:`d^*_i` the dots' pixels; a pose error moves the points as
    :math:`X \to c + \exp(\delta\theta)(X - c) + \delta t` before the pose (:math:`c`: the markers' centre).
    The covariance of :math:`\mu` is the inverse Gauss-Newton matrix scaled by
@@ -41,6 +43,7 @@ import numpy as np
 
 from physar.ar.runner import run_video
 from physar.assimilation.filters import IMMFilter
+from physar.errors import ConfigError, PhysarError
 from physar.vision.blobs import find_dots
 from physar.vision.camera import Pose
 from physar.vision.observation import surface_observation_matrix
@@ -61,6 +64,7 @@ class ProjectFrame:
         residual_px: RMS reprojection residual of the frame's fit (nan where none was made).
         n_markers: markers found.
         n_dots: observations used: dots (or tracked feature points) and directly measured levers.
+        n_features: texture features used beside the dots (``[features] mode = "points"``).
         latency_ms: wall time of the frame, ms.
         stages_ms: wall time per stage (``markers_pose``, ``dots``, ``assimilate``, ``overlay``), ms.
         cpu_ms: CPU time of the processing thread, ms.
@@ -76,6 +80,7 @@ class ProjectFrame:
     latency_ms: float
     stages_ms: dict = field(default_factory=dict)
     cpu_ms: float = float("nan")
+    n_features: int = 0
 
 
 class ProjectPipeline:
@@ -104,9 +109,22 @@ class ProjectPipeline:
         params = project.parameters()
         self.bars = [BarObserver(b, params[self.names.index(b.parameter)], self.names.index(b.parameter), cam)
                      for b in cfg.bar]
-        self.features = FeatureObserver(project) if cfg.features is not None else None
         self.dots, self.normals = project.dots, project.dot_normals
         self.use_dots = cfg.dots is not None and len(self.dots) > 0
+        # texture features: as image points beside the dots (mode "points"), or alone in the face's rectified
+        # view (mode "plane")
+        points_mode = cfg.features is not None and (cfg.features.mode == "points" or (
+            cfg.features.mode == "auto" and self.use_dots))
+        self.features = FeatureObserver(project) if cfg.features is not None and not points_mode else None
+        self.points = self._fsig = None
+        if points_mode:
+            from physar.ar.surface_points import GroupSigma, SurfacePoints
+
+            try:
+                self.points = SurfacePoints(project)
+            except PhysarError as e:
+                raise ConfigError(f"{project.source}: {e}") from None
+            self._fsig = GroupSigma(start=3 * trk.dot_sigma_px)
         if self.use_dots:
             C = surface_observation_matrix(space, self.dots, components=(0, 1, 2),
                                            tol=cfg.dots.tol or cfg.dots.diameter / 4)
@@ -152,6 +170,9 @@ class ProjectPipeline:
             self.filter.reset()
         if self.features is not None:
             self.features.reset()
+        if self.points is not None:
+            self.points.reset()
+            self._fsig.reset()
         self.mu = (self.lo + self.hi) / 2
         self.std = np.full(self.lo.size, np.nan)
         self.at_rest = self.features is not None
@@ -190,10 +211,12 @@ class ProjectPipeline:
             return "markers"
         return "plane features"
 
-    def _observed(self, n_obs: int, n_bars: int) -> str:
+    def _observed(self, n_obs: int, n_bars: int, n_feat: int = 0) -> str:
         parts = []
         if self.use_dots:
             parts.append(f"{n_obs}/{len(self.dots)} dots")
+        if self.points is not None and self.points.ready:
+            parts.append(f"{n_feat}/{len(self.points.points)} features")
         elif self.features is not None:
             total = len(self.features.points) if self.features.ready else 0
             parts.append(f"{n_obs}/{total} features" if total else "collecting the reference")
@@ -221,10 +244,11 @@ class ProjectPipeline:
         c = self.centre
         return Pose(pose.R @ E, pose.R @ (c - E @ c + th[3:6]) + pose.t)
 
-    def _residuals(self, pose, TH, Xc, img_c, px, valid, sc, sd) -> np.ndarray:
+    def _residuals(self, pose, TH, Xc, img_c, P, Fp, tgt, sc, sig) -> np.ndarray:
         """Weighted residuals (k, m) of k vectors TH (k, 6 + p) = (pose increment, mu) at once (the frame's
-        residual and the finite-difference Jacobian's columns in one pass): marker corners / sc, then dots
-        / sd, pixels of the dots' deformed positions under the increment's pose (:meth:`_pose_of`)."""
+        residual and the finite-difference Jacobian's columns in one pass): marker corners / sc, then the
+        observed surface points (dots, then features) / sig, pixels of their deformed positions P + c(mu) Fp
+        under the increment's pose (:meth:`_pose_of`) minus their detected pixels tgt."""
         TH = np.atleast_2d(TH)
         p = self.lo.size
         E = np.array([cv2.Rodrigues(np.asarray(t[:3], float).reshape(3, 1))[0] for t in TH])   # (k, 3, 3)
@@ -234,7 +258,7 @@ class ProjectPipeline:
         coeffs: dict = {}                   # the pose columns share the frame's mu: c(mu) once per distinct mu
         C = np.array([coeffs[m] if m in coeffs else coeffs.setdefault(m, self.rom._coeffs(list(m))[0])
                       for m in map(tuple, np.clip(TH[:, 6:6 + p], self.lo, self.hi).tolist())])   # (k, modes)
-        W = self.dots[valid][None] + np.einsum("km,mnd->knd", C, self.Fd[:, valid])
+        W = P[None] + np.einsum("km,mnd->knd", C, Fp)
         if Xc is not None:
             W = np.concatenate([np.broadcast_to(Xc, (len(TH),) + Xc.shape), W], 1)
         if np.any(self.camera.dist):
@@ -245,7 +269,7 @@ class ProjectPipeline:
             K = self.camera.K
             q = uv[..., :1] * K[:2, 0] + uv[..., 1:] * K[:2, 1] + K[:2, 2]
         nc = 0 if Xc is None else len(Xc)
-        rd = ((q[:, nc:] - px[valid]) / sd).reshape(len(TH), -1)
+        rd = ((q[:, nc:] - tgt) / np.reshape(sig, (-1, 1))).reshape(len(TH), -1)
         if Xc is None:
             return rd
         return np.concatenate([((q[:, :nc] - img_c) / sc).reshape(len(TH), -1), rd], 1)
@@ -271,10 +295,22 @@ class ProjectPipeline:
         out[np.flatnonzero(valid)[e > lim]] = False
         return out
 
-    def _solve(self, pe, px, valid, mu0, iters: int = 10):
-        """Joint Gauss-Newton on (pose, mu) from the frame's pose and mu0; returns (mu, std, pose, rms px)."""
+    def _solve(self, pe, px, valid, mu0, iters: int = 10, feat=None):
+        """Joint Gauss-Newton on (pose, mu) from the frame's pose and mu0 on the dots ``px[valid]`` and, with
+        ``feat`` = (pixels, valid, sigma), the features' rows; returns (mu, std, pose, rms px of the dots,
+        rms px of the features)."""
         trk = self.project.tracking
         sd = trk.dot_sigma_px
+        P, Fp, tgt = self.dots[valid], self.Fd[:, valid], px[valid]
+        sig = np.full(len(P), sd)
+        n_f = 0
+        if feat is not None:
+            fpx, fvalid, fsig = feat
+            n_f = int(fvalid.sum())
+            P = np.concatenate([P, self.points.points[fvalid]])
+            Fp = np.concatenate([Fp, self.points.Fp[:, fvalid]], 1)
+            tgt = np.concatenate([tgt, fpx[fvalid]])
+            sig = np.r_[sig, np.full(n_f, fsig)]
         Xc = img_c = None
         sc = max(float(np.nan_to_num(pe.reprojection_px, nan=0.0)), trk.corner_sigma_px)
         npose = 0
@@ -294,7 +330,7 @@ class ProjectPipeline:
         steps = np.r_[np.full(6, 1e-6), 1e-6 * rng]
 
         def res(t):
-            return self._residuals(pe.pose, t, Xc, img_c, px, valid, sc, sd)[0]
+            return self._residuals(pe.pose, t, Xc, img_c, P, Fp, tgt, sc, sig)[0]
 
         def jac(t, r):
             h = steps[free].copy()
@@ -302,7 +338,7 @@ class ProjectPipeline:
             h[upper] = -h[upper]          # at the upper bound: a backward difference (a forward one would be
             E = np.tile(t, (free.size, 1))  # clipped to zero and freeze the parameter there)
             E[np.arange(free.size), free] += h
-            return ((self._residuals(pe.pose, E, Xc, img_c, px, valid, sc, sd) - r) / h[:, None]).T
+            return ((self._residuals(pe.pose, E, Xc, img_c, P, Fp, tgt, sc, sig) - r) / h[:, None]).T
 
         r = res(th)
         cost = r @ r
@@ -341,58 +377,96 @@ class ProjectPipeline:
             cov = np.full((free.size, free.size), np.inf)
         std = np.sqrt(np.abs(np.diag(cov)[-p:]))
         n_d = int(valid.sum())
-        rms = float(np.sqrt(np.mean((r[-2 * n_d:] * sd) ** 2))) if n_d else float("nan")
-        return th[6:].copy(), std, self._pose_of(pe.pose, th), rms
+        rp = (r[r.size - 2 * (n_d + n_f):] * np.repeat(sig, 2)).reshape(-1, 2)      # pixels: dots, features
+        rms = float(np.sqrt(np.mean(rp[:n_d] ** 2))) if n_d else float("nan")
+        rms_f = float(np.sqrt(np.mean(rp[n_d:] ** 2))) if n_f else float("nan")
+        return th[6:].copy(), std, self._pose_of(pe.pose, th), rms, rms_f
+
+    def _feature_inliers(self, pose, mu, fpx, fvalid) -> np.ndarray:
+        """Features whose reprojection error is below max(1 px, median + 4 x 1.4826 MAD): LK locked onto
+        another patch (or a feature occluded since the reference) is dropped, as for the dots."""
+        q = self.camera.project(self.points.positions(self.rom.coefficients(mu)[0])[fvalid], pose)
+        e = np.linalg.norm(q - fpx[fvalid], axis=1)
+        lim = max(1.0, 4 * 1.4826 * float(np.median(np.abs(e - np.median(e)))) + float(np.median(e)))
+        out = fvalid.copy()
+        out[np.flatnonzero(fvalid)[e > lim]] = False
+        return out
 
     def _dots(self, frame, gray, pe, st, t1):
-        """Dots stage: search, joint (pose, mu) solve, outlier dots, re-search of the box on a jump.
-        -> (mu, std, pose, rms px, dots used) or None when too few dots."""
+        """Dots stage: search, features tracked (points mode), joint (pose, mu) solve, outlier dots and
+        features, re-search of the box on a jump. -> ((mu, std, pose, rms px, features used) or None when
+        too few dots, dots used)."""
+        trk = self.project.tracking
         X = self.dot_positions(self.mu)
         vis, r_px = self._expected(pe.pose, X)
         pred = self.camera.project(X, pe.pose)
         pred[~vis] = np.nan
-        extra = self.project.tracking.search_px
+        extra = trk.search_px
         if self._fresh:   # the load may be anywhere: search as far as the model can move a dot
             extra = max(extra, self.camera.fx * self._umax / max(float(np.median(
                 (X @ pe.pose.R.T + pe.pose.t)[:, 2])), 1e-9))
         search = np.maximum(2.5 * r_px, 4.0) + extra
         px, valid = find_dots(frame, gray, pred, r_px, self.colour, search)
         n_dots = int(valid.sum())
+        feat = None
+        if self.points is not None and self.points.ready and not self._fresh:
+            fpx, fvalid = self.points.track(gray, pe.pose, self.rom.coefficients(self.mu)[0])
+            if fvalid.sum() >= 3:
+                feat = (fpx, fvalid, self._fsig.sigma(trk.dot_sigma_px))
         t2 = time.perf_counter()
         st["dots"] = (t2 - t1) * 1e3
-        if n_dots < self.project.tracking.min_dots:
+        if n_dots < trk.min_dots:
             return None, n_dots
         start = self.mu
         if self._fresh:
             start = self._grid_start(pe.pose, px, valid)
-        mu, std, pose, rms = self._solve(pe, px, valid, start)
+        mu, std, pose, rms, rms_f = self._solve(pe, px, valid, start, feat=feat)
         valid2 = self._inliers(pose, mu, px, valid)
-        if valid2.sum() < valid.sum() and valid2.sum() >= self.project.tracking.min_dots:
-            valid = valid2                  # a wrong blob taken for a dot: solve without it
-            n_dots = int(valid.sum())
-            mu, std, pose, rms = self._solve(pe, px, valid, mu)
+        fvalid2 = None if feat is None else self._feature_inliers(pose, mu, feat[0], feat[1])
+        drop_d = valid2.sum() < valid.sum() and valid2.sum() >= trk.min_dots
+        drop_f = feat is not None and fvalid2.sum() < feat[1].sum() and fvalid2.sum() >= 3
+        if drop_d or drop_f:                # a wrong blob taken for a dot, a feature lost: solve without it
+            if drop_d:
+                valid = valid2
+                n_dots = int(valid.sum())
+            if drop_f:
+                feat = (feat[0], fvalid2, feat[2])
+            mu, std, pose, rms, rms_f = self._solve(pe, px, valid, mu, feat=feat)
         for _ in range(3 if self._fresh else 0):
             # the wide search may have taken a neighbour for a dot: search again where the estimate puts them
             X2 = self.dot_positions(mu)
             vis2, r2 = self._expected(pose, X2)
             pred2 = self.camera.project(X2, pose)
             pred2[~vis2] = np.nan
-            px2, valid2 = find_dots(frame, gray, pred2, r2, self.colour, np.maximum(2.5 * r2, 4.0) +
-                                    self.project.tracking.search_px)
-            if valid2.sum() < self.project.tracking.min_dots:
+            px2, valid2 = find_dots(frame, gray, pred2, r2, self.colour, np.maximum(2.5 * r2, 4.0) + trk.search_px)
+            if valid2.sum() < trk.min_dots:
                 break
             out2 = self._solve(pe, px2, valid2, mu)
             if not out2[3] < 0.9 * rms:
                 break
-            (mu, std, pose, rms), n_dots = out2, int(valid2.sum())
+            (mu, std, pose, rms, rms_f), n_dots = out2, int(valid2.sum())
         med = np.median(self._res_hist[-30:]) if len(self._res_hist) >= 5 else np.inf
         if not self._fresh and rms > 4 * med:       # stuck in a local minimum, or a jump: search again
-            mu2, std2, pose2, rms2 = self._solve(pe, px, valid, self._grid_start(pe.pose, px, valid))
-            if rms2 < rms:
-                mu, std, pose, rms = mu2, std2, pose2, rms2
+            out2 = self._solve(pe, px, valid, self._grid_start(pe.pose, px, valid), feat=feat)
+            if out2[3] < rms:
+                mu, std, pose, rms, rms_f = out2
         self._res_hist.append(rms)
         del self._res_hist[:-60]
-        return (mu, std, pose, rms), n_dots
+        n_feat = 0
+        if feat is not None:
+            n_feat = int(feat[1].sum())
+            self._fsig.add(rms_f, rms)
+            self.points.refine(pose, self.rom.coefficients(mu)[0], feat[0], feat[1])
+        if self.points is not None and not self._fresh and (not self.points.ready
+                                                             or self.points.valid_fraction < 0.5):
+            # choose the features in this frame (placed on the surface the dots' estimate gives), or again
+            # when fewer than half of them are still tracked (the view has changed)
+            X3 = self.dot_positions(mu)
+            vis3, r3 = self._expected(pose, X3)
+            q3 = self.camera.project(X3, pose)
+            self.points.set_reference(gray, pose, self.rom.coefficients(mu)[0], q3[vis3], r3[vis3])
+            self._fsig.reset()
+        return (mu, std, pose, rms, n_feat), n_dots
 
     def process(self, frame: np.ndarray, index: int, draw: bool = True, gray: np.ndarray | None = None):
         """One BGR frame -> (image, :class:`ProjectFrame`)."""
@@ -403,7 +477,7 @@ class ProjectPipeline:
         pe = self.registration.update(gray)
         t1 = time.perf_counter()
         st["markers_pose"] = (t1 - t0) * 1e3
-        status, rms, n_obs, n_bars, draw_pose = "lost", float("nan"), 0, 0, pe.pose
+        status, rms, n_obs, n_bars, n_feat, draw_pose = "lost", float("nan"), 0, 0, 0, pe.pose
         st["dots"] = st["assimilate"] = 0.0
         if pe.status == "measured":
             p = self.lo.size
@@ -412,7 +486,7 @@ class ProjectPipeline:
             if self.use_dots:
                 out, n_obs = self._dots(frame, gray, pe, st, t1)
                 if out is not None:
-                    mu, std, draw_pose, rms = out
+                    mu, std, draw_pose, rms, n_feat = out
             elif self.features is not None:
                 if not self.features.ready:
                     self.features.add_reference(frame, gray, pe.pose)
@@ -450,24 +524,25 @@ class ProjectPipeline:
         out = frame
         self.last_pose, self.last_status = draw_pose, status      # what the frame's overlay is drawn with
         if draw and self.overlay is not None:
-            info = {"markers": pe.n_markers, "pose_from": self.pose_from, "observed": self._observed(n_obs, n_bars)}
+            info = {"markers": pe.n_markers, "pose_from": self.pose_from, "observed": self._observed(n_obs, n_bars, n_feat)}
             c = self.view_coefficients()
             out = self.overlay.draw(frame, self.camera, draw_pose, c, self.mu, self.std,
                                     status if draw_pose is not None else "lost", info, self.names, self.units)
         t4 = time.perf_counter()
         st["overlay"] = (t4 - t3) * 1e3
         return out, ProjectFrame(index, status, self.mu.copy(), self.std.copy(), rms, pe.n_markers, n_obs + n_bars,
-                                 (t4 - t0) * 1e3, st, (time.thread_time() - c0) * 1e3)
+                                 (t4 - t0) * 1e3, st, (time.thread_time() - c0) * 1e3, n_feat)
 
     # -- whole videos --------------------------------------------------------------------------------------
     def csv_header(self) -> list[str]:
         return ([f"{n}_est" for n in self.names] + [f"{n}_std" for n in self.names]
-                + ["residual_px", "markers", "dots", "latency_ms"])
+                + ["residual_px", "markers", "dots"] + (["features"] if self.points is not None else [])
+                + ["latency_ms"])
 
-    @staticmethod
-    def csv_row(r: ProjectFrame) -> list:
+    def csv_row(self, r: ProjectFrame) -> list:
         return ([f"{v:.6g}" for v in r.mu] + [f"{v:.6g}" for v in r.std]
-                + [f"{r.residual_px:.4f}", r.n_markers, r.n_dots, f"{r.latency_ms:.3f}"])
+                + [f"{r.residual_px:.4f}", r.n_markers, r.n_dots]
+                + ([r.n_features] if self.points is not None else []) + [f"{r.latency_ms:.3f}"])
 
     def run(self, source, out_video=None, out_csv=None, fps: float | None = None, crf: int = 20,
             preset: str = "ultrafast", progress: Callable[[int, int], None] | None = None,

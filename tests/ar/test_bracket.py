@@ -20,33 +20,47 @@ EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "ar" / "bracket"
 
 
 @pytest.fixture(scope="module")
-def bracket(tmp_path_factory):
+def bracket_dir(tmp_path_factory):
     d = tmp_path_factory.mktemp("bracket")
-    for f in ("project.toml", "rom.toml", "bracket.stl"):
+    for f in ("project.toml", "project_features.toml", "rom.toml", "bracket.stl"):
         shutil.copy(EXAMPLE / f, d / f)
     shutil.copy(EXAMPLE.parents[1] / "camera_720p.toml", d / "camera.toml")
-    (d / "project.toml").write_text((d / "project.toml").read_text().replace("../../camera_720p.toml", "camera.toml"))
-    return load_project(d / "project.toml")
+    for f in ("project.toml", "project_features.toml"):
+        (d / f).write_text((d / f).read_text().replace("../../camera_720p.toml", "camera.toml"))
+    return d
 
 
-def test_bracket_load_position_along_the_curved_path(bracket, tmp_path):
-    """1.6 s at 1280x720: the load dwells at s = 100 mm, moves to 60 mm and dwells, 4 mm off the path. Every
-    frame's position within 1 % of the 128 mm path of the truth, the median within 0.5 %. Catches: the polyline
-    path read as its chord (its arc length is asserted), a position off by more than 1.28 mm anywhere (a wrong
-    path point, a pose error, a model mesh too coarse: the former 5 mm mesh was 0.8 % stiffer than the truth,
-    which alone biased s by about 0.7 mm), a lost track, the offset's sign flipped (below)."""
-    p = bracket
+@pytest.fixture(scope="module")
+def bracket(bracket_dir):
+    return load_project(bracket_dir / "project.toml")
+
+
+@pytest.fixture(scope="module")
+def clip(bracket, tmp_path_factory):
+    """1.6 s at 1280x720: the load dwells at s = 100 mm, moves to 60 mm and dwells, 4 mm off the path; truth on
+    the STL meshed again at 5 mm and refined 2x."""
     sc = Scenario.model_validate({
         "seed": 5, "video": {"duration": 1.6},
         "schedule": {"s": {"keyframes": [[0.0, 0.10], [0.5, 0.10], [1.1, 0.06]]},
                      "o": {"keyframes": [[0.0, 0.004]]}},
         "camera": {"target": [0.11, 0.02, 0.0], "azimuth": -55.0, "elevation": 38.0, "distance": 0.4},
         "truth": {"mesh_size": 0.005}})
-    info = render_project(p, sc, tmp_path / "clip")
-    assert info["truth_dofs"] > 1.4 * p.space().n_dofs               # another mesh, finer than the model's
-    ProjectPipeline(p).run(tmp_path / "clip" / "video.mp4", tmp_path / "aug.mp4", tmp_path / "est.csv")
+    d = tmp_path_factory.mktemp("bracket_clip")
+    info = render_project(bracket, sc, d)
+    assert info["truth_dofs"] > 1.4 * bracket.space().n_dofs               # another mesh, finer than the model's
+    return d
+
+
+def test_bracket_load_position_along_the_curved_path(bracket, clip, tmp_path):
+    """The clip of the ``clip`` fixture: every frame's position within 1 % of the 128 mm path of the truth, the
+    median within 0.5 %. Catches: the polyline path read as its chord (its arc length is asserted), a position
+    off by more than 1.28 mm anywhere (a wrong path point, a pose error, a model mesh too coarse: the former
+    5 mm mesh was 0.8 % stiffer than the truth, which alone biased s by about 0.7 mm), a lost track, the offset's
+    sign flipped (below)."""
+    p = bracket
+    ProjectPipeline(p).run(clip / "video.mp4", tmp_path / "aug.mp4", tmp_path / "est.csv")
     ranges = {n: tuple(map(float, r)) for n, r in zip(p.rom.names, p.rom.ranges)}
-    res = score(read_columns(tmp_path / "clip" / "truth.csv"), read_columns(tmp_path / "est.csv"), ranges)
+    res = score(read_columns(clip / "truth.csv"), read_columns(tmp_path / "est.csv"), ranges)
     s = res["parameters"]["s"]
     assert abs(ranges["s"][1] - 0.1278) < 1e-3                       # arc length of the curved path
     assert res["tracking"] == res["frames"] == 48
@@ -57,6 +71,24 @@ def test_bracket_load_position_along_the_curved_path(bracket, tmp_path):
     # catches the offset direction flipped in the model or the truth (the estimate would sit near -3 mm)
     o = read_columns(tmp_path / "est.csv")["o_est"]
     assert abs(np.median(o) - 0.004) < 0.0025, np.median(o)
+
+
+def test_bracket_dots_and_texture_features(bracket_dir, clip, tmp_path):
+    """The example's dots + natural features project (``project_features.toml``: the arm's top-face texture as
+    rows of the same solve) on the same clip: every frame within 1 % of the path (measured max 1.00 mm), the
+    features in use from the second frame on (80 chosen, at least 40 kept on every later frame), the CSV's
+    features column. Catches: features placed at the wrong material points or their displacement's sign
+    flipped (a bias of millimetres in s), features never chosen or all rejected, weights that let the features
+    override the dots."""
+    p = load_project(bracket_dir / "project_features.toml")
+    ProjectPipeline(p).run(clip / "video.mp4", tmp_path / "aug.mp4", tmp_path / "est.csv")
+    ranges = {n: tuple(map(float, r)) for n, r in zip(p.rom.names, p.rom.ranges)}
+    est = read_columns(tmp_path / "est.csv")
+    res = score(read_columns(clip / "truth.csv"), est, ranges)
+    s = res["parameters"]["s"]
+    assert res["tracking"] == res["frames"] == 48
+    assert s["judged"] == 48 and s["within"] == 48 and s["max_error"] <= 0.01 * 0.1278, s
+    assert est["features"][0] == 0 and np.min(est["features"][2:]) >= 40, est["features"]
 
 
 def test_first_frame_at_half_size_finds_its_dots(bracket, tmp_path):
@@ -76,3 +108,42 @@ def test_first_frame_at_half_size_finds_its_dots(bracket, tmp_path):
     ProjectPipeline(p, overlay=False).run(tmp_path / "clip" / "video.mp4", out_csv=tmp_path / "est.csv")
     est, truth = read_columns(tmp_path / "est.csv"), read_columns(tmp_path / "clip" / "truth.csv")
     assert abs(est["s_est"][0] - truth["s_true"][0]) <= 0.01 * 0.1278, (est["s_est"][0], truth["s_true"][0])
+
+
+def test_texture_features_land_where_the_truth_moves_them(bracket_dir, clip):
+    """Features chosen on frame 0 at the truth's pose and parameters (s = 100 mm), then tracked in frame 47
+    (s = 60 mm, another pose of the handheld camera) starting where the model at frame 0's parameters puts them
+    (several px away): the tracked pixels must match the projection of their material points moved by the
+    reduced model at frame 47's true parameters, with frame 47's true pose. The video comes from the renderer's
+    independent truth mesh. Catches: barycentrics in the wrong order or the ray turned by R instead of R^T (the
+    material points land a triangle away), the displacement's sign flipped or taken at the wrong points, a
+    tracker that returns its starting guess."""
+    import av
+
+    from physar.ar.surface_points import SurfacePoints
+    from physar.vision.camera import Pose
+
+    p = load_project(bracket_dir / "project_features.toml")
+    truth = read_columns(clip / "truth.csv")
+    with av.open(str(clip / "video.mp4")) as c:
+        grays = [f.to_ndarray(format="gray") for f in c.decode(video=0)]
+
+    def at(k):
+        pose = Pose.from_rvec([truth[a][k] for a in ("rx", "ry", "rz")], [truth[a][k] for a in ("tx", "ty", "tz")])
+        return pose, p.rom.coefficients([truth["s_true"][k], truth["o_true"][k]])[0]
+
+    sp = SurfacePoints(p)
+    pose0, c0 = at(0)
+    dots = p.camera.project(p.dots + np.tensordot(c0, ProjectPipeline(p, overlay=False).Fd, 1), pose0)
+    n = sp.set_reference(grays[0], pose0, c0, dots, np.full(len(dots), 5.0))
+    assert n >= 60
+    assert np.all(np.abs(sp.points[:, 2] - 0.005) < 1e-9)          # on the arm's top face (z = 5 mm)
+    pose1, c1 = at(47)
+    px, ok = sp.track(grays[47], pose1, c0)                          # started from frame 0's parameters
+    assert ok.mean() > 0.7
+    want = p.camera.project(sp.positions(c1), pose1)
+    start = p.camera.project(sp.positions(c0), pose1)
+    moved = np.linalg.norm(want - start, axis=1)[ok]
+    err = np.linalg.norm(px - want, axis=1)[ok]
+    assert np.median(moved) > 2.0, np.median(moved)                  # the guess was off by pixels
+    assert np.median(err) < 0.2 and np.percentile(err, 90) < 0.4, (np.median(err), np.percentile(err, 90))
