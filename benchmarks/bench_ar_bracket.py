@@ -6,6 +6,10 @@ ultrafast encode) and per-stage latency, with the machine's load average written
 
     .venv/bin/python benchmarks/bench_ar_bracket.py --seeds 0 1 2 --cache /tmp/physar_bracket
 
+--project FILE runs another project file of the example on the same clips (e.g. project_features.toml: the
+dots plus the arm's texture features); both ``--project project.toml project_features.toml`` run one after the
+other on each clip, so that the two are compared under the same load.
+
 --model-mesh SIZE runs the pipeline with a copy of the example whose [mesh] size is SIZE (m) (its model built in
 the copy); --truth-mesh SIZE renders the clips with the scenario's [truth] mesh_size = SIZE (the surface meshed
 again at SIZE, then refined 2x: independent of the model's mesh). The default is the example's scenario: the
@@ -27,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 EX = ROOT / "examples" / "ar" / "bracket"
 
 
-def _copy(size: float, dest: Path) -> Path:
+def _copy(size: float, dest: Path, name: str = "project.toml") -> Path:
     """A copy of the example in ``dest`` with [mesh] size = ``size`` (the camera file by absolute path)."""
     dest.mkdir(parents=True, exist_ok=True)
     for f in ("bracket.stl", "scenario.toml"):
@@ -38,9 +42,9 @@ def _copy(size: float, dest: Path) -> Path:
         raise SystemExit("rom.toml: no [mesh] size line to change")
     (dest / "rom.toml").write_text(new)
     cam = (EX.parent.parent / "camera_720p.toml").resolve()
-    (dest / "project.toml").write_text((EX / "project.toml").read_text().replace(
+    (dest / name).write_text((EX / name).read_text().replace(
         'file = "../../camera_720p.toml"', f'file = "{cam}"'))
-    return dest / "project.toml"
+    return dest / name
 
 
 def main(argv=None):
@@ -57,34 +61,42 @@ def main(argv=None):
     ap.add_argument("--truth-mesh", type=float, default=None, help="[truth] mesh_size: the surface meshed again "
                                                                      "at this size, refined 2x (m; default: the "
                                                                      "scenario's)")
+    ap.add_argument("--project", nargs="+", default=["project.toml"], help="project file(s) of the example")
     a = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="bench_bracket_"))
-    p = load_project(EX / "project.toml" if a.model_mesh is None else _copy(a.model_mesh, work / "model"))
+    projects = {n: load_project(EX / n if a.model_mesh is None else _copy(a.model_mesh, work / "model", n))
+                for n in a.project}
+    p = next(iter(projects.values()))
     ranges = {n: tuple(map(float, r)) for n, r in zip(p.rom.names, p.rom.ranges)}
     base = load_scenario(EX / "scenario.toml", p)
     truth = base.truth if a.truth_mesh is None else base.truth.model_copy(update={"mesh_size": a.truth_mesh})
     cache = a.cache / (f"truth-{truth.mesh_size * 1e3:g}mm" if truth.mesh_size else f"truth-model-r{truth.refine}")
-    rows = []
+    rows = {n: [] for n in projects}
     for seed in a.seeds:
         d = cache / f"seed{seed}"
         if not (d / "truth.csv").is_file():
             sc = base.model_copy(update={"seed": seed, "truth": truth})
             render_project(load_project(EX / "project.toml"), sc, d)
-        with tempfile.TemporaryDirectory() as tmp:
-            load = os.getloadavg()[0]
-            summ = ProjectPipeline(p).run(d / "video.mp4", Path(tmp) / "aug.mp4", Path(tmp) / "est.csv")
-            res = score(read_columns(d / "truth.csv"), read_columns(Path(tmp) / "est.csv"), ranges)
-        s, o = res["parameters"]["s"], res["parameters"]["o"]
-        st = summ["stages_ms_median"]
-        rows.append((s["within"], s["judged"], s["max_error"], s["mean_error"], o["mean_error"], summ["fps"]))
-        print(f"seed {seed}: s {s['within']}/{s['judged']} within 1.28 mm, max {s['max_error'] * 1e3:.2f} mm, mean "
-              f"{s['mean_error'] * 1e3:.2f} mm, median {s['median_error'] * 1e3:.2f} mm | offset mean |err| "
-              f"{o['mean_error'] * 1e3:.2f} mm | {summ['fps']:.1f} fps, latency median {summ['latency_ms_median']:.2f} ms, "
-              f"stages " + ", ".join(f"{k} {v:.2f}" for k, v in st.items()) + f" ms | load {load:.2f}", flush=True)
-    w = sum(r[0] for r in rows)
-    j = sum(r[1] for r in rows)
-    print(f"all: {w}/{j} judged frames within 1 % of the path, worst {max(r[2] for r in rows) * 1e3:.2f} mm, "
-          f"mean {np.mean([r[3] for r in rows]) * 1e3:.2f} mm; fps {min(r[5] for r in rows):.1f}-{max(r[5] for r in rows):.1f}")
+        for name, pr in projects.items():
+            with tempfile.TemporaryDirectory() as tmp:
+                load = os.getloadavg()[0]
+                summ = ProjectPipeline(pr).run(d / "video.mp4", Path(tmp) / "aug.mp4", Path(tmp) / "est.csv")
+                res = score(read_columns(d / "truth.csv"), read_columns(Path(tmp) / "est.csv"), ranges)
+            s, o = res["parameters"]["s"], res["parameters"]["o"]
+            st = summ["stages_ms_median"]
+            rows[name].append((s["within"], s["judged"], s["max_error"], s["mean_error"], o["mean_error"],
+                               summ["fps"], o["median_error"]))
+            print(f"{name} seed {seed}: s {s['within']}/{s['judged']} within 1.28 mm, max {s['max_error'] * 1e3:.2f} "
+                  f"mm, mean {s['mean_error'] * 1e3:.2f} mm, median {s['median_error'] * 1e3:.2f} mm | offset |err| "
+                  f"mean {o['mean_error'] * 1e3:.2f} mm, median {o['median_error'] * 1e3:.2f} mm | {summ['fps']:.1f} "
+                  f"fps, latency median {summ['latency_ms_median']:.2f} ms, stages "
+                  + ", ".join(f"{k} {v:.2f}" for k, v in st.items()) + f" ms | load {load:.2f}", flush=True)
+    for name, rr in rows.items():
+        w = sum(r[0] for r in rr)
+        j = sum(r[1] for r in rr)
+        print(f"{name}: {w}/{j} judged frames within 1 % of the path, worst {max(r[2] for r in rr) * 1e3:.2f} mm, "
+              f"mean {np.mean([r[3] for r in rr]) * 1e3:.2f} mm; offset mean |err| "
+              f"{np.mean([r[4] for r in rr]) * 1e3:.2f} mm; fps {min(r[5] for r in rr):.1f}-{max(r[5] for r in rr):.1f}")
     shutil.rmtree(work, ignore_errors=True)
 
 
