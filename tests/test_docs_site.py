@@ -58,6 +58,7 @@ MATH_DOCSTRINGS = {
     "physar.gaussians": ["covariance", "eval_sh", "render"],
     "physar.skinning": ["lbs", "blend_transforms", "winding_number", "axis_angle_to_matrix"],
     "physar.mpm": ["Control", "MPMModel", "diagnostics"],
+    "physar.ar.surface": ["display_surface"],
 }
 MATH_MODULES = ["physar.assimilation", "physar.recon.flow", "physar.recon.canonical", "physar.recon.metrics",
                 "physar.recon.train", "physar.ar.project_pipeline", "physar.ar.surface"]  # shown in the reference
@@ -88,6 +89,8 @@ PRIVATE_MATH_DOCSTRINGS = [
     "physar.fem.assembly", "physar.fem.elements", "physar.fem.post.nodal_stress", "physar.fem.solvers",
     "physar.vision.camera", "physar.vision.calibration", "physar.vision.markerless", "physar.vision.dots",
     "physar.vision.observation", "physar.assimilation._lm_fast",
+    "physar.ar.features", "physar.ar.surface.sampled_stress", "physar.ar.project.MarkerSection.corners",
+    "physar.ar.project.FeaturesSection",
 ]
 # what marks an equation written as plain text: operator symbols, ASCII arrows and norms, a power or
 # subscript on a symbol, a Greek letter in an assignment (units such as m² are not flagged)

@@ -1,28 +1,33 @@
-"""Deformation observed on the object's own texture, without fiducials (seed 000 §5.2, "some existing pattern
+r"""Deformation observed on the object's own texture, without fiducials (seed 000 §5.2, "some existing pattern
 in the solid").
 
-The project's ``[features]`` face is a planar face of the object: X = o + a e_u + b e_v, a in [0, L_u],
-b in [0, L_v]. With each frame's pose the face (and a band around it) is rectified at about the image's own
-scale. The first ``reference_frames`` frames show the object at rest (u = 0): their rectified views are
-averaged into the reference view, whose ORB keypoints (one per grid bucket, inside the face) become the
-tracked material points x_k; optionally (``ends``) the face's two ends along e_u are located in the averaged
-colour view (where each column's mean colour crosses halfway between the surroundings' and the face's) and
-correct the material coordinates for a pose error of the registration frame (measured on the foam scene:
-1.26 instead of 1.53 mm mean on the old specialised renderer's clip; 1.82 instead of 1.15 mm on the
-test-data renderer's clip, where the detected ends lay 1.5 px too close together: off by default). Each later frame: pyramidal Lucas-Kanade from the reference view with a
-forward-backward check gives the in-plane displacements y_k = (u·e_u, u·e_v)(x_k), and
+The project's ``[features]`` face is a planar face of the object: :math:`X = o + a e_u + b e_v`,
+:math:`a \in [0, L_u]`, :math:`b \in [0, L_v]`. With each frame's pose the face (and a band around it) is
+rectified at about the image's own scale. The first ``reference_frames`` frames show the object at rest
+(:math:`u = 0`): their rectified views are averaged into the reference view, whose ORB keypoints (one per grid
+bucket, inside the face) become the tracked material points :math:`x_k`; optionally (``ends``) the face's two
+ends along :math:`e_u` are located in the averaged colour view (where each column's mean colour crosses halfway
+between the surroundings' and the face's) and correct the material coordinates for a pose error of the
+registration frame (measured on the foam scene: 1.26 instead of 1.53 mm mean on the old specialised
+renderer's clip; 1.82 instead of 1.15 mm on the test-data renderer's clip, where the detected ends lay 1.5 px
+too close together: off by default). Each later frame: pyramidal Lucas-Kanade from the reference view with a
+forward-backward check gives the in-plane displacements :math:`y_k = (u \cdot e_u,\ u \cdot e_v)(x_k)`, and
 
-    mu* = argmin_mu min_{a, n} || P (y - a C u(mu) - N n) ||²          (seed 000 Eq. (2))
+.. math::
 
-with C the surface observation operator at the x_k projected on (e_u, e_v), u(mu) = Σ_m c_m(mu) F_m the
-reduced model, a a free amplitude (``free_scale``: a stiffness error of the model does not bias mu; else
-a = 1) and N the apparent in-plane motion of the whole face (``nuisance``: rigid, similarity or affine; a pose
-error between the registration plane and the face), projected out (variable projection). The cost is a
-quadratic form in the mode coefficients c(mu), evaluated on a fine grid of the parameter box (global: no
-local minima) and refined by a parabola through the best grid point and its neighbours along each parameter;
-sd(mu*)² = 2 sigma² / cost'' with sigma² = cost(mu*) / (m - p) (Gauss-Newton covariance of seed 000 §4).
-Features farther than 4 robust sigma from the fitted field (locked onto a wrong pore) are dropped, the fit is
-repeated, and they are re-seeded from the model's prediction.
+    \mu^* = \arg\min_\mu \min_{a, n} \| P (y - a\, C u(\mu) - N n) \|^2 \qquad \text{(seed 000 Eq. (2))}
+
+with :math:`C` the surface observation operator at the :math:`x_k` projected on :math:`(e_u, e_v)`,
+:math:`u(\mu) = \sum_m c_m(\mu) F_m` the reduced model, :math:`a` a free amplitude (``free_scale``: a stiffness
+error of the model does not bias :math:`\mu`; else :math:`a = 1`) and :math:`N` the apparent in-plane motion of
+the whole face (``nuisance``: rigid, similarity or affine; a pose error between the registration plane and the
+face), projected out (variable projection). The cost is a quadratic form in the mode coefficients
+:math:`c(\mu)`, evaluated on a fine grid of the parameter box (global: no local minima) and refined by a
+parabola through the best grid point and its neighbours along each parameter;
+:math:`\operatorname{sd}(\mu^*)^2 = 2 \sigma^2 / \mathrm{cost}''` with
+:math:`\sigma^2 = \mathrm{cost}(\mu^*) / (m - p)` (Gauss-Newton covariance of seed 000 §4).
+Features farther than 4 robust :math:`\sigma` from the fitted field (locked onto a wrong pore) are dropped, the
+fit is repeated, and they are re-seeded from the model's prediction.
 """
 from __future__ import annotations
 

@@ -79,8 +79,8 @@ class MarkerSection(_Strict):
         return self
 
     def corners(self) -> np.ndarray:
-        """(4, 3) corners in ArUco order (top-left, top-right, bottom-right, bottom-left) seen from outside:
-        right = up x normal."""
+        r"""(4, 3) corners in ArUco order (top-left, top-right, bottom-right, bottom-left) seen from outside:
+        :math:`\mathrm{right} = \mathrm{up} \times \mathrm{normal}`."""
         n = np.asarray(self.normal, float)
         n /= np.linalg.norm(n)
         u = np.asarray(self.up, float)
@@ -169,10 +169,10 @@ class BarSection(_Strict):
 
 class FeaturesSection(_Strict):
     """The object's own texture on one planar face (seed 000 §5.2). Alone (``mode = "plane"``): features chosen
-    in the first frames (the object at rest, u = 0), tracked by Lucas-Kanade in the face's rectified view;
-    their in-plane displacements are the observations. With ``[dots]`` (``mode = "points"``): features chosen
-    on the face in the first tracked frame, placed on the model's deformed surface there, tracked in the image
-    and used beside the dots as rows of the same (pose, parameters) solve, each group weighted by its own
+    in the first frames (the object at rest, :math:`u = 0`), tracked by Lucas-Kanade in the face's rectified
+    view; their in-plane displacements are the observations. With ``[dots]`` (``mode = "points"``): features
+    chosen on the face in the first tracked frame, placed on the model's deformed surface there, tracked in the
+    image and used beside the dots as rows of the same (pose, parameters) solve, each group weighted by its own
     residual."""
 
     origin: Vec3 = Field(..., description="a corner of the face [m]")

@@ -51,11 +51,11 @@ def surface_stress_modes(space, F, E: float, nu: float, nodes) -> np.ndarray:
 
 
 def sampled_stress(rom, model, nodes, cell_scale=None, points: int | None = None):
-    """(grids, values): the nodal von Mises stress [Pa] at the surface vertices ``nodes`` on a grid of the
-    parameter box, from the reduced model's displacement u(mu) and the FE ``model``'s own material (Cauchy
-    stress P Fᵀ / J, so a nonlinear material, a rigid rotation or a Young's modulus region, via
-    ``cell_scale(mu)``, are all right; :func:`physar.fem.post.nodal_stress`). The overlay interpolates it
-    multilinearly in mu; stress is not linear in the mode coefficients for these models."""
+    r"""(grids, values): the nodal von Mises stress [Pa] at the surface vertices ``nodes`` on a grid of the
+    parameter box, from the reduced model's displacement :math:`u(\mu)` and the FE ``model``'s own material
+    (Cauchy stress :math:`P F^\top / J`, so a nonlinear material, a rigid rotation or a Young's modulus region,
+    via ``cell_scale(mu)``, are all right; :func:`physar.fem.post.nodal_stress`). The overlay interpolates it
+    multilinearly in :math:`\mu`; stress is not linear in the mode coefficients for these models."""
     grids = [np.asarray(g, float) for g in getattr(rom, "grids", [])]
     if points is not None or len(grids) != rom.n_params or np.prod([len(g) for g in grids]) > 4000:
         n = points or {1: 33, 2: 9}.get(rom.n_params, 5)     # the model's own parameter grids when small enough
@@ -76,10 +76,11 @@ def display_surface(X: np.ndarray, faces: np.ndarray, max_faces: int, angle: flo
     """(points (d, 3), faces (g, 3), W (d, v) sparse) of an even triangulation with about ``max_faces``
     triangles of the surface (X (v, 3), faces), or None when it has no more than ``max_faces`` already.
 
-    W holds the barycentric weights of each new vertex's closest point on the surface (exact point-triangle
-    distance among the 12 triangles with the nearest centroids): a field v at the surface's vertices is
-    W v at the new ones. New triangles are wound like the surface triangle closest to their centroid, so
-    outward normals stay outward. Sharp edges (dihedral above ``angle`` degrees) are kept."""
+    :math:`W` holds the barycentric weights of each new vertex's closest point on the surface (exact
+    point-triangle distance among the 12 triangles with the nearest centroids): a field :math:`v` at the
+    surface's vertices is :math:`W v` at the new ones. New triangles are wound like the surface triangle
+    closest to their centroid, so outward normals stay outward. Sharp edges (dihedral above ``angle`` degrees)
+    are kept."""
     import scipy.sparse as sp
     from scipy.spatial import cKDTree
 
