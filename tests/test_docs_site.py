@@ -53,7 +53,7 @@ MATH_DOCSTRINGS = {
                            "CorotatedP1Kernel"],
     "physar.rom": ["SeparatedModel", "pgd_linear", "pgd_linear_tensor"],
     "physar.assimilation": ["observation_matrix"],
-    "physar.vision": ["Pose", "surface_observation_matrix"],
+    "physar.vision": ["Pose", "surface_observation_matrix", "MarkerTracker"],
     "physar.synth": ["rasterize"],
     "physar.gaussians": ["covariance", "eval_sh", "render"],
     "physar.skinning": ["lbs", "blend_transforms", "winding_number", "axis_angle_to_matrix"],
@@ -90,7 +90,10 @@ PRIVATE_MATH_DOCSTRINGS = [
     "physar.vision.camera", "physar.vision.calibration", "physar.vision.markerless", "physar.vision.dots",
     "physar.vision.observation", "physar.assimilation._lm_fast",
     "physar.ar.features", "physar.ar.surface.sampled_stress", "physar.ar.project.MarkerSection.corners",
-    "physar.ar.project.FeaturesSection",
+    "physar.ar.project.FeaturesSection", "physar.ar.bars", "physar.vision.markers",
+    "physar.vision.markers.rotation_std", "physar.vision.markers.MarkerTracker._verify",
+    "physar.vision.dots.DotTracker._dilate", "physar.vision.printing", "physar.vision.printing._page",
+    "physar.vision.printing.write_board_sheet", "physar.vision.printing.write_marker_sheet",
 ]
 # what marks an equation written as plain text: operator symbols, ASCII arrows and norms, a power or
 # subscript on a symbol, a Greek letter in an assignment (units such as m² are not flagged)

@@ -1,11 +1,12 @@
-"""A rigid bar turned by a rotation parameter, measured in each frame (seed 000 §5.3.2, Fig. 17).
+r"""A rigid bar turned by a rotation parameter, measured in each frame (seed 000 §5.3.2, Fig. 17).
 
-The bar pivots about the parameter's rotation axis a through its point p (from the model's build
-configuration); its visible face lies in the plane through P = p + face a perpendicular to a. With the pose
-of the frame, that plane is rectified around P (right = a x zero, the direction the bar turns to for a positive
-angle; up = zero, the bar's direction at parameter 0), the bar's colour (bright, unsaturated) is segmented in
-an annulus about the pivot, and the angle of the segmented pixels' principal axis from ``up`` towards ``right``
-is the parameter (:func:`physar.vision.markerless.lever_angle`), in the parameter's unit.
+The bar pivots about the parameter's rotation axis :math:`a` through its point :math:`p` (from the model's
+build configuration); its visible face lies in the plane through :math:`P = p + \mathrm{face}\, a`
+perpendicular to :math:`a`. With the pose of the frame, that plane is rectified around :math:`P`
+(:math:`\mathrm{right} = a \times \mathrm{zero}`, the direction the bar turns to for a positive angle;
+:math:`\mathrm{up} = \mathrm{zero}`, the bar's direction at parameter 0), the bar's colour (bright,
+unsaturated) is segmented in an annulus about the pivot, and the angle of the segmented pixels' principal axis
+from ``up`` towards ``right`` is the parameter (:func:`physar.vision.markerless.lever_angle`), in the parameter's unit.
 
 A measurement is rejected (NaN) when the segmented area is not that of the bar (0.4 to 1.8 times the expected
 area: a wrong pose, or something else of that colour) or the angle lies outside the parameter's range by more

@@ -85,9 +85,9 @@ class DotTracker:
         r"""Centroids around predictions (n, 2); returns (pixels, mass).
 
         The colour ("blueness" :math:`c = B - \max(R, G)`) finds the blob and gives its mass, but the position
-        is the centroid of the luma contrast :math:`d = |Y_{\mathrm{bg}} - Y|` above half its peak, inside the (dilated) colour
-        mask: video is stored as 4:2:0, so colour has half the resolution of luma and a colour centroid
-        locks to the 2-pixel chroma grid (±0.06 px here, slowly varying as the camera moves), while the
+        is the centroid of the luma contrast :math:`d = |Y_{\mathrm{bg}} - Y|` above half its peak, inside the
+        (dilated) colour mask: video is stored as 4:2:0, so colour has half the resolution of luma and a colour
+        centroid locks to the 2-pixel chroma grid (±0.06 px here, slowly varying as the camera moves), while the
         luma centroid does not (measured on scene (a): 0.063 px vs 0.123 px rms vertically).
         """
         cx, cy = self._window_centre(pred, frame.shape).T
@@ -116,8 +116,8 @@ class DotTracker:
 
     @staticmethod
     def _dilate(mask, r: int = 2):
-        """Binary dilation of (n, k, k) masks by a (2r+1)² square (one OpenCV call on the stacked masks,
-        separated by r empty rows)."""
+        """Binary dilation of (n, k, k) masks by a :math:`(2r+1)^2` square (one OpenCV call on the stacked
+        masks, separated by :math:`r` empty rows)."""
         n, k, _ = mask.shape
         pad = np.zeros((n, k + r, k), np.uint8)
         pad[:, :k] = mask

@@ -1,10 +1,10 @@
-"""Fiducial markers and camera pose (seed 000 §2.1, §5.1: fiducial markers locate the camera).
+r"""Fiducial markers and camera pose (seed 000 §2.1, §5.1: fiducial markers locate the camera).
 
 ArUco markers are found with ``cv2.aruco.ArucoDetector`` inside regions of interest predicted from the
 previous pose (a full-frame search only when the pose is unknown), their corners are refined to sub-pixel
-accuracy, and the pose minimises the reprojection error Σ_k ||p_k - Π(R, t; X_k)||² (IPPE for the planar
-board, then Levenberg-Marquardt). A constant-velocity filter on (log R, t) predicts the next pose, smooths
-measurements within their noise, gates outliers and holds the pose while the markers are occluded.
+accuracy, and the pose minimises the reprojection error :math:`\sum_k \|p_k - \Pi(R, t; X_k)\|^2` (IPPE for
+the planar board, then Levenberg-Marquardt). A constant-velocity filter on :math:`(\log R, t)` predicts the next
+pose, smooths measurements within their noise, gates outliers and holds the pose while the markers are occluded.
 
 A marker whose corners disagree with the pose the other markers give (a ``[[marker]]`` table with a wrong
 centre, normal, up, size or id) is left out of the pose (:meth:`MarkerTracker._consistent`): the markers are
@@ -94,10 +94,12 @@ class PoseEstimate:
 
 
 def rotation_std(camera: Camera, pose: Pose, points, sigma_px: float, centre=None) -> np.ndarray:
-    """Standard deviations [rad] of the camera pose's rotation about the world axes through ``centre`` that
+    r"""Standard deviations [rad] of the camera pose's rotation about the world axes through ``centre`` that
     PnP on ``points`` (m, 3) with pixel noise ``sigma_px`` leaves: Gauss-Newton covariance
-    sigma² (J^T J)^-1 of the 6 pose parameters (3 small world rotations δθ, 3 translations δt),
-    X -> c + exp(δθ)(X - c) + δt, J by central differences of the projection."""
+    :math:`\sigma^2 (J^\top J)^{-1}` (:math:`\sigma` = ``sigma_px``) of the 6 pose parameters (3 small world
+    rotations :math:`\delta\theta`, 3 translations :math:`\delta t`),
+    :math:`X \mapsto c + \exp(\delta\theta)(X - c) + \delta t` (:math:`c` = ``centre``), :math:`J` by central
+    differences of the projection."""
     X = np.asarray(points, float).reshape(-1, 3)
     c = X.mean(0) if centre is None else np.asarray(centre, float)
     h = 1e-6
@@ -127,12 +129,13 @@ def _exp_rot(w):
 
 
 class MarkerTracker:
-    """Per-frame marker detection (ROI-predicted) and filtered camera pose.
+    r"""Per-frame marker detection (ROI-predicted) and filtered camera pose.
 
     ``alpha`` (0..1]: weight of a measurement whose change from the prediction is within the noise
-    (``noise_px`` of reprojection); larger changes pass through (alpha -> 1), so camera motion does not lag.
-    ``hold_frames``: how long the pose is predicted (velocity decaying) when no marker is visible; while it
-    is held the predicted regions are searched in every frame, the full frame every ``full_search_every``.
+    (``noise_px`` of reprojection); larger changes pass through (:math:`\alpha \to 1`), so camera motion does
+    not lag. ``hold_frames``: how long the pose is predicted (velocity decaying) when no marker is visible;
+    while it is held the predicted regions are searched in every frame, the full frame every
+    ``full_search_every``.
 
     ``track``: follow the markers between detections instead of detecting them in every frame: the corners
     predicted by the pose filter are refined by ``cv2.cornerSubPix`` (the same refinement, window and stopping
@@ -227,8 +230,8 @@ class MarkerTracker:
         return out
 
     def _verify(self, gray, corners: dict) -> dict:
-        """The markers of ``corners`` {k: (4, 2)} whose image shows their dictionary bits: the (n+2)² cells
-        (n² bits and the black border) are sampled (3x3 bilinear samples per cell) through the homography
+        """The markers of ``corners`` {k: (4, 2)} whose image shows their dictionary bits: the :math:`(n+2)^2`
+        cells (:math:`n^2` bits and the black border) are sampled (3x3 bilinear samples per cell) through the homography
         that maps the unit square to the corners (TL, TR, BR, BL), and every cell that is white in the
         marker must be brighter than every black cell, by at least a quarter of the white-black mean
         difference and 10 grey levels."""

@@ -1,4 +1,4 @@
-"""Printable sheets at true scale: a ChArUco calibration board and ArUco markers.
+r"""Printable sheets at true scale: a ChArUco calibration board and ArUco markers.
 
 The sheet is drawn as a white raster at ``dpi`` (each marker or board drawn by OpenCV at its physical size
 rounded to whole pixels, so sizes are true within half a pixel) and written as
@@ -11,8 +11,8 @@ rounded to whole pixels, so sizes are true within half a pixel) and written as
 Each marker is labelled under it with its dictionary, id and side length in mm; the board with its squares,
 square and marker sides and dictionary. ``paper`` ("A4", "A3", "letter" or (width, height) in m, portrait)
 fixes the page size (portrait, or landscape when only that fits; contents centred; ConfigError when they do
-not fit); else the sheet fits the contents
-with a 10 mm margin. Sheets larger than A0 (841 x 1189 mm, either orientation) are refused.
+not fit); else the sheet fits the contents with a 10 mm margin. Sheets larger than A0
+(:math:`841 \times 1189` mm, either orientation) are refused.
 """
 from __future__ import annotations
 
@@ -48,7 +48,8 @@ def _suffix(path) -> str:
 
 
 def _page(paper, content_w: float, content_h: float) -> tuple[float, float]:
-    """Page size (m) for contents of content_w x content_h m (margins included in neither)."""
+    r"""Page size (m) for contents of :math:`\mathtt{content\_w} \times \mathtt{content\_h}` m (margins
+    included in neither)."""
     if paper is None:
         w, h = content_w + 2 * MARGIN, content_h + 2 * MARGIN
     else:
@@ -104,10 +105,11 @@ def _write(img: np.ndarray, path, dpi: float, size_m: tuple[float, float]) -> di
 
 
 def write_board_sheet(spec: CharucoSpec, path, dpi: float = 300, paper=None) -> dict:
-    """Write the ChArUco board ``spec`` at true scale to ``path`` (.png or .pdf) with a label under it.
+    r"""Write the ChArUco board ``spec`` at true scale to ``path`` (.png or .pdf) with a label under it.
 
-    Returns path, dpi, pixels (w, h), width_mm/height_mm (the raster: pixels / dpi, within a pixel of the
-    page) and page_mm (the page; a PDF's page size exactly). Raises ConfigError for a bad dpi, suffix or paper, or a sheet larger than A0."""
+    Returns path, dpi, pixels (w, h), width_mm/height_mm (the raster: :math:`\mathrm{pixels} / \mathrm{dpi}`,
+    within a pixel of the page) and page_mm (the page; a PDF's page size exactly). Raises ConfigError for a bad
+    dpi, suffix or paper, or a sheet larger than A0."""
     dpi = _check_dpi(dpi)
     _suffix(path)
     bw, bh = spec.squares_x * spec.square, spec.squares_y * spec.square
@@ -128,13 +130,13 @@ def write_board_sheet(spec: CharucoSpec, path, dpi: float = 300, paper=None) -> 
 
 
 def write_marker_sheet(markers, path, dpi: float = 300, paper=None) -> dict:
-    """Write ArUco markers at true scale to ``path`` (.png or .pdf): ``markers`` is a list of (dictionary name,
+    r"""Write ArUco markers at true scale to ``path`` (.png or .pdf): ``markers`` is a list of (dictionary name,
     id, side in m), laid out left to right in rows (a new row when the next one would pass 1189 mm or the
     paper's width), each labelled under it ("DICT_4X4_50 id 3, 30 mm").
 
     Returns as :func:`write_board_sheet`, plus ``markers``: the top-left pixel and side in pixels of each.
-    Raises ConfigError for an unknown dictionary, an id outside the dictionary's range, a side <= 0, an empty
-    list, or a sheet larger than A0 / the paper."""
+    Raises ConfigError for an unknown dictionary, an id outside the dictionary's range, a side :math:`\le 0`, an
+    empty list, or a sheet larger than A0 / the paper."""
     dpi = _check_dpi(dpi)
     _suffix(path)
     if not markers:
