@@ -94,6 +94,9 @@ PRIVATE_MATH_DOCSTRINGS = [
     "physar.vision.markers.rotation_std", "physar.vision.markers.MarkerTracker._verify",
     "physar.vision.dots.DotTracker._dilate", "physar.vision.printing", "physar.vision.printing._page",
     "physar.vision.printing.write_board_sheet", "physar.vision.printing.write_marker_sheet",
+    "physar.assimilation.filters.IMMFilter", "physar.rom.config", "physar.rom.config.build_rom",
+    "physar.rom.config.check_load_path", "physar.rom.config.parameter_grid", "physar.fem.loads",
+    "physar.fem.loads.default_tol",
 ]
 # what marks an equation written as plain text: operator symbols, ASCII arrows and norms, a power or
 # subscript on a symbol, a Greek letter in an assignment (units such as m² are not flagged)

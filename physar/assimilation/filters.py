@@ -6,19 +6,21 @@ import numpy as np
 
 
 class IMMFilter:
-    """Interacting multiple model filter (Blom & Bar-Shalom 1988) on each parameter, state (value, rate per
-    frame), two models: "dwell" (the parameter stays: x <- x, rate 0, drift ``dwell_sigma``) and "moving"
-    (constant rate, white acceleration of std ``motion_accel``; both as fractions of the parameter range
-    [lo, hi], per frame), Markov switching with probabilities ``switch`` = (P(dwell -> moving),
-    P(moving -> dwell)). The measurement variance is the frame's own std² (floored at 2e-4 of the range),
-    so an uncertain frame moves the estimate less; an innovation beyond ``jump_sigma`` standard deviations of
-    the moving model re-initialises the filter at the measurement. P(dwell -> moving) = 0.3,
-    P(moving -> dwell) = 0.05: measured on the three-clip L-bracket benchmark (720 frames, truth on a finer
-    mesh) this keeps 720/720 frames within 1 % (worst 1.24 mm of the 16 mm range) where (0.2, 0.1) lost 5
-    frames at the start and end of moves (worst 1.35 mm); on the ten cantilever clips 3310/3310 within 1 %
-    (worst 3.9 mm of 0.5 m; 4.5 mm with (0.2, 0.1)); the foam and seal clips are unchanged (mean 1.20 vs
-    1.19 mm, median 0.074 vs 0.072 deg). ``update(z, std)`` returns the filtered
-    (mu, std); ``reset()`` makes the next measurement start the filter again."""
+    r"""Interacting multiple model filter (Blom & Bar-Shalom 1988) on each parameter, state (value, rate per
+    frame), two models: "dwell" (the parameter stays: :math:`x \leftarrow x`, rate 0, drift ``dwell_sigma``)
+    and "moving" (constant rate, white acceleration of std ``motion_accel``; both as fractions of the
+    parameter range :math:`[\mathrm{lo}, \mathrm{hi}]`, per frame), Markov switching with probabilities
+    ``switch`` = :math:`(P(\text{dwell} \to \text{moving}),\ P(\text{moving} \to \text{dwell}))`. The
+    measurement variance is the frame's own :math:`\mathrm{std}^2` (floored at 2e-4 of the range), so an
+    uncertain frame moves the estimate less; an innovation beyond ``jump_sigma`` standard deviations of the
+    moving model re-initialises the filter at the measurement.
+    :math:`P(\text{dwell} \to \text{moving}) = 0.3`, :math:`P(\text{moving} \to \text{dwell}) = 0.05`:
+    measured on the three-clip L-bracket benchmark (720 frames, truth on a finer mesh) this keeps 720/720
+    frames within 1 % (worst 1.24 mm of the 16 mm range) where (0.2, 0.1) lost 5 frames at the start and end
+    of moves (worst 1.35 mm); on the ten cantilever clips 3310/3310 within 1 % (worst 3.9 mm of 0.5 m; 4.5 mm
+    with (0.2, 0.1)); the foam and seal clips are unchanged (mean 1.20 vs 1.19 mm, median 0.074 vs 0.072 deg).
+    ``update(z, std)`` returns the filtered (mu, std); ``reset()`` makes the next measurement start the filter
+    again."""
 
     def __init__(self, lo, hi, dwell_sigma: float = 1e-4, motion_accel: float = 5e-3,
                  switch: tuple = (0.3, 0.05), jump_sigma: float = 4.0):

@@ -1,12 +1,13 @@
-"""External loads as consistent nodal force vectors (n_dofs,) [N], and Dirichlet dof selection.
+r"""External loads as consistent nodal force vectors (n_dofs,) [N], and Dirichlet dof selection.
 
 Nodes and boundary faces are selected by exactly one of: a `box`, a mesh `region` (physical group name
 or id of the mesh file, :class:`physar.geometry.regions.MeshTags`), `points` (nodes within `tol`) or a
 `plane` ((point, normal): nodes within `tol` of it) — see :func:`select_nodes_mask`, :func:`select_faces`.
 The default `tol` is :func:`default_tol` (robust to float32 coordinates, e.g. of an STL file).
 
-Surface loads integrate f_a = ∫_Γ N_a t dA over boundary faces; the tet shape functions are evaluated
-on the face (the barycentric coordinate of the opposite vertex is 0), so P1 and P2 are treated alike.
+Surface loads integrate :math:`f_a = \int_\Gamma N_a\, t \,\mathrm{d}A` over boundary faces; the tet shape
+functions are evaluated on the face (the barycentric coordinate of the opposite vertex is 0), so P1 and P2 are
+treated alike.
 """
 
 from __future__ import annotations
@@ -59,20 +60,20 @@ _EPS32 = float(np.finfo(np.float32).eps)  # 2**-23
 
 
 def default_tol(points: np.ndarray) -> float:
-    """The default selection tolerance [m] for the nodes ``points`` (n, 3):
-    ``4 * eps32 * max|x| + 1e-6 * extent``.
+    r"""The default selection tolerance [m] for the nodes ``points`` (n, 3):
+    :math:`4\, \varepsilon_{32} \max|x| + 10^{-6}\, \mathrm{extent}`.
 
-    * ``4 * eps32 * max|x|`` (eps32 = 2**-23): an STL file (and other float32 mesh files) rounds each
-      coordinate to float32, an error of at most half a float32 ulp, <= eps32/2 * |x|; so a face written at
-      x = 0.16 is read at 0.1599999964 and a plane or point given in float64 at 0.16 must still pick it.
-      Four ulps leave room for the rounding of both the mesh and the written selector and for the
-      float64 arithmetic of the distance; it scales with the coordinates' magnitude, so it also holds for a
-      part placed far from the origin.
-    * ``1e-6 * extent``: round-off of a mesher that moved nodes by a relative 1e-6 or less (gmsh
-      writes 16 digits, but projections onto a surface are not exact).
+    * :math:`4\, \varepsilon_{32} \max|x|` (:math:`\varepsilon_{32} = 2^{-23}`): an STL file (and other
+      float32 mesh files) rounds each coordinate to float32, an error of at most half a float32 ulp,
+      :math:`\le \varepsilon_{32}/2 \cdot |x|`; so a face written at :math:`x = 0.16` is read at 0.1599999964
+      and a plane or point given in float64 at 0.16 must still pick it. Four ulps leave room for the rounding
+      of both the mesh and the written selector and for the float64 arithmetic of the distance; it scales with
+      the coordinates' magnitude, so it also holds for a part placed far from the origin.
+    * :math:`10^{-6}\, \mathrm{extent}`: round-off of a mesher that moved nodes by a relative 1e-6 or less
+      (gmsh writes 16 digits, but projections onto a surface are not exact).
 
-    Both are far below any element size (a mesh finer than 1e-5 of its extent has 10**15 cells), so the
-    default never reaches the next layer of nodes; a larger `tol` is the user's choice.
+    Both are far below any element size (a mesh finer than 1e-5 of its extent has :math:`10^{15}` cells), so
+    the default never reaches the next layer of nodes; a larger `tol` is the user's choice.
     """
     X = np.asarray(points, float)
     if X.size == 0:

@@ -1,4 +1,4 @@
-"""The reduced-model problem file (TOML): a FEM problem file plus ``[[parameter]]`` tables and ``[rom]``.
+r"""The reduced-model problem file (TOML): a FEM problem file plus ``[[parameter]]`` tables and ``[rom]``.
 
 Example (see README, "Reduced models")::
 
@@ -48,20 +48,20 @@ load_position parameter), see :mod:`physar.rom.problem` for what each does::
     box = [[0, 0, 0], [0.5, 0.1, 0.1]]
 
 `points` is the grid of each parameter (intrusive PGD, POD; its initial samples non-intrusively), an integer
-3..2001, so the point-set selector of a region is ``at`` here. Nodes of a prescribed region are driven by
-it (all three components), not by a [[fix]] they also lie in; [[fix]] values and [[load]] tables apply at
-every parameter value. The method: intrusive PGD (:func:`physar.rom.elastic.build_parametric_pgd`) for a
-linear material, where the operator is affine in E and the loads and prescribed displacements are
-separated in the parameters (a rotation too: cos theta - 1 and sin theta); non-intrusive PGD (full
-Newton solves as a black box) for any other material.
+3..2001, so the point-set selector of a region is ``at`` here. Nodes of a prescribed region are driven by it
+(all three components), not by a [[fix]] they also lie in; [[fix]] values and [[load]] tables apply at every
+parameter value. The method: intrusive PGD (:func:`physar.rom.elastic.build_parametric_pgd`) for a linear
+material, where the operator is affine in E and the loads and prescribed displacements are separated in the
+parameters (a rotation too: :math:`\cos\theta - 1` and :math:`\sin\theta`); non-intrusive PGD (full Newton
+solves as a black box) for any other material.
 
 The load point is ``physar.geometry.path_point(path, s)``, spread over the surface by the bump kernel of
 radius ``radius`` (as a fem ``point`` load). The path must lie on the object's surface: a path point farther
-than ``tol`` (default radius / 4) from it, or a stretch of the path that leaves it (over a hole, past an
-edge), or a load_offset range that takes the load off it, is refused before the build
-(:func:`check_load_path`). The load of ``rom eval``
-at s is exactly the load of a ``[[load]] type = "point"`` at path(s) with the
-same total and radius, so the two commands solve the same problem.
+than ``tol`` (default :math:`\mathtt{radius} / 4`) from it, or a stretch of the path that leaves it (over a
+hole, past an edge), or a load_offset range that takes the load off it, is refused before the build
+(:func:`check_load_path`). The load of ``rom eval`` at :math:`s` is exactly the load of a
+``[[load]] type = "point"`` at :math:`\mathrm{path}(s)` with the same total and radius, so the two commands
+solve the same problem.
 """
 from __future__ import annotations
 
@@ -280,8 +280,8 @@ def build_rom(cfg: RomConfig, progress: Callable[[int, int], None] | None = None
               workers: int | None = None, scheduler: str | None = None):
     """Build the reduced model a RomConfig describes. Returns (SeparatedModel, space, info).
 
-    A moving load alone (load_position, with load_magnitude / load_offset) on supports at u = 0 takes the
-    moving-load builders (:func:`physar.rom.elastic.build_moving_load_pgd`, POD, non-intrusive); every
+    A moving load alone (load_position, with load_magnitude / load_offset) on supports at :math:`u = 0` takes
+    the moving-load builders (:func:`physar.rom.elastic.build_moving_load_pgd`, POD, non-intrusive); every
     other combination the general :class:`physar.rom.problem.ParametricProblem`.
     """
     try:
@@ -331,14 +331,15 @@ def build_rom(cfg: RomConfig, progress: Callable[[int, int], None] | None = None
 
 def check_load_path(space, pos: ParameterSection, source: str = "config",
                     offset: ParameterSection | None = None) -> None:
-    """Refuse a load path that is not on the object's surface (ConfigError, one line naming the file, the
-    parameter and where). ``tol`` is the parameter's tol, default radius / 4.
+    r"""Refuse a load path that is not on the object's surface (ConfigError, one line naming the file, the
+    parameter and where). ``tol`` is the parameter's tol, default :math:`\mathtt{radius} / 4`.
 
     * a path point farther than tol from the boundary surface (a point past the end of the object, a
       coordinate in mm, a point inside the body): its index and distance;
-    * the path between its points sampled every tol / 2 of arc length: the first stretch farther than tol
-      from the surface (a path over a hole or across a gap between two parts): the arc length s where it
-      leaves the object and where it comes back. Not a matter of the load's radius: the path must go round;
+    * the path between its points sampled every :math:`\mathtt{tol} / 2` of arc length: the first stretch
+      farther than tol from the surface (a path over a hole or across a gap between two parts): the arc length
+      :math:`s` where it leaves the object and where it comes back. Not a matter of the load's radius: the
+      path must go round;
     * with a load_offset, the same samples moved by each end of its range along its direction.
     """
     from physar.fem.loads import surface_distance
@@ -429,8 +430,9 @@ def _build_moving_load(cfg, problem, progress, source, workers, scheduler):
 
 
 def parameter_grid(p: ParameterSection, problem: ParametricProblem, j: int) -> np.ndarray:
-    """The grid of parameter j of the intrusive PGD: uniform (s uniform in arc length), 3 points for the
-    load magnitude (u is linear in it), geometric for Young's modulus (u varies like 1/E)."""
+    """The grid of parameter :math:`j` of the intrusive PGD: uniform (:math:`s` uniform in arc length), 3
+    points for the load magnitude (:math:`u` is linear in it), geometric for Young's modulus (:math:`u` varies
+    like :math:`1/E`)."""
     if p.kind == "load_position":
         return np.linspace(0.0, problem.parts[j].length, p.points)
     if p.kind == "load_magnitude":
