@@ -97,6 +97,13 @@ PRIVATE_MATH_DOCSTRINGS = [
     "physar.assimilation.filters.IMMFilter", "physar.rom.config", "physar.rom.config.build_rom",
     "physar.rom.config.check_load_path", "physar.rom.config.parameter_grid", "physar.fem.loads",
     "physar.fem.loads.default_tol",
+    "physar.synth.render", "physar.synth.render.noise_image", "physar.synth.render.aruco_texture",
+    "physar.synth.render._grid_tris", "physar.synth.render.ProjectRenderer._crease_pairs",
+    "physar.synth.render.ProjectRenderer._markers", "physar.synth.render.ProjectRenderer._plate",
+    "physar.synth.render.ProjectRenderer._wall", "physar.synth.scenario.Pan.angle",
+    "physar.synth.scenario.BarGeometry", "physar.synth.scenario.BarGeometry.direction",
+    "physar.synth.scenario.PlaneGeometry", "physar.synth.truth", "physar.synth.truth._check_truth_memory",
+    "physar.synth.truth.FineTruth._newton", "physar.synth.truth.FineTruth._equilibrium",
 ]
 # what marks an equation written as plain text: operator symbols, ASCII arrows and norms, a power or
 # subscript on a symbol, a Greek letter in an assignment (units such as m² are not flagged)

@@ -1,27 +1,30 @@
-"""A synthetic video of ANY AR project: its object deformed by a finer finite-element model, textured, lit and
+r"""A synthetic video of ANY AR project: its object deformed by a finer finite-element model, textured, lit and
 filmed by a handheld camera, with the project's markers, dots, plane image and levers, a cluttered wall behind,
 sensor noise and occluders. Test data for the product pipeline, never part of it (it knows the truth).
 
-Each frame (scenario time t):
+Each frame (scenario time :math:`t`):
 
-1. parameters p(t) from the scenario's schedule, displacement u = u_fine(p(t)) of :class:`FineTruth` (a mesh
-   ``refine`` times finer than the reduced model's: no inverse crime); u = 0 before ``[schedule] rest_until``;
-   a virtual object (``[model] visible = false``) is not drawn and has no FineTruth;
-2. one z-buffer (:func:`rasterize`) of: the fine mesh's boundary triangles at X + u; the markers (rigid
-   squares with a white quiet zone, as the project declares them; a depth bias keeps them above their face;
-   only before ``[schedule] markers_until``); the ``[registration.plane]`` image on its rectangle (a grid
-   whose UV puts image pixel j's centre at (j + 1/2) / px_per_m from the origin along u, v); each ``[[bar]]``
-   as a white box (the pivot = axis point + face axis, along zero turned by its rotation parameter, the
-   thickness behind its visible face); a ``[load_body]`` cylinder on the deformed surface at the load point;
-   all projected with the camera's lens model;
-3. per pixel the nearest front-facing triangle and its perspective-correct barycentric coordinates b, so
-   every surface pixel knows its REFERENCE point X = Σ b_i X_i: the texture (tri-planar procedural noise,
-   optional dark pores), the dots (coverage clip(0.5 + (r - |X - d|) / m, 0, 1), m = the triangle's metres per
-   pixel: anti-aliased, sub-pixel exact) and the marker images are functions of X, so they deform with the
+1. parameters :math:`p(t)` from the scenario's schedule, displacement :math:`u = u_\text{fine}(p(t))` of
+   :class:`FineTruth` (a mesh ``refine`` times finer than the reduced model's: no inverse crime);
+   :math:`u = 0` before ``[schedule] rest_until``; a virtual object (``[model] visible = false``) is not drawn
+   and has no FineTruth;
+2. one z-buffer (:func:`rasterize`) of: the fine mesh's boundary triangles at :math:`X + u`; the markers
+   (rigid squares with a white quiet zone, as the project declares them; a depth bias keeps them above their
+   face; only before ``[schedule] markers_until``); the ``[registration.plane]`` image on its rectangle (a
+   grid whose UV puts image pixel :math:`j`'s centre at :math:`(j + 1/2) / \mathtt{px\_per\_m}` from the
+   origin along :math:`u`, :math:`v`); each ``[[bar]]`` as a white box (the pivot
+   :math:`p + \mathrm{face}\, a`, :math:`a` the axis through its point :math:`p`, along zero turned by its
+   rotation parameter, the thickness behind its visible face); a ``[load_body]`` cylinder on the deformed
+   surface at the load point; all projected with the camera's lens model;
+3. per pixel the nearest front-facing triangle and its perspective-correct barycentric coordinates :math:`b`,
+   so every surface pixel knows its REFERENCE point :math:`X = \sum_i b_i X_i`: the texture (tri-planar
+   procedural noise, optional dark pores), the dots (coverage
+   :math:`\operatorname{clip}(0.5 + (r - |X - d|) / m,\ 0,\ 1)`, :math:`m` = the triangle's metres per pixel:
+   anti-aliased, sub-pixel exact) and the marker images are functions of :math:`X`, so they deform with the
    object;
-4. Lambert shading I = albedo (a + (1 - a) max(0, n·l)) with n interpolated from the deformed vertex normals,
-   global brightness with flicker, vignetting, motion blur along the target's image motion, a Gaussian PSF,
-   read and shot noise.
+4. Lambert shading :math:`I = \mathrm{albedo}\, (a + (1 - a) \max(0, n \cdot l))` with :math:`n` interpolated
+   from the deformed vertex normals, global brightness with flicker, vignetting, motion blur along the
+   target's image motion, a Gaussian PSF, read and shot noise.
 
 The wall is a textured plane (the project's plane when it has no image: the pipeline learns its texture; else
 perpendicular to the mean line of sight behind the target), drawn by intersecting every pixel's ray (lens
@@ -55,10 +58,10 @@ def rasterize(xy: np.ndarray, z: np.ndarray, tris: np.ndarray, width: int, heigh
     ``xy`` (n, 2) pixel coordinates of the vertices (pixel centres at integers), ``z`` (n,) their depths [m]
     (> 0 in front of the camera), ``tris`` (m, 3) vertex indices, ``front`` (m,) bool mask of triangles drawn
     (default: all), ``bias`` (m,) depth offsets [m] added in the z-test only (decals). A pixel :math:`p` is
-    inside a triangle when its three edge functions are >= 0; its screen-space barycentrics :math:`\beta` give
-    the perspective-correct :math:`b_i = (\beta_i / z_i) / \sum_j \beta_j / z_j` and the depth
-    :math:`1 / \sum_j \beta_j / z_j`; the nearest triangle wins. Returns (pix (N,) flat pixel indices, tri
-    (N,), b (N, 3)), one entry per covered pixel."""
+    inside a triangle when its three edge functions are :math:`\ge 0`; its screen-space barycentrics
+    :math:`\beta` give the perspective-correct :math:`b_i = (\beta_i / z_i) / \sum_j \beta_j / z_j` and the
+    depth :math:`1 / \sum_j \beta_j / z_j`; the nearest triangle wins. Returns (pix (N,) flat pixel indices,
+    tri (N,), b (N, 3)), one entry per covered pixel."""
     tris = np.asarray(tris, np.int64)
     keep = np.all(z[tris] > 1e-6, axis=1)
     if front is not None:
@@ -113,8 +116,9 @@ def rasterize(xy: np.ndarray, z: np.ndarray, tris: np.ndarray, width: int, heigh
 
 # ------------------------------------------------------------------------------------------------- textures
 def noise_image(shape: tuple[int, int], feature_px: float, octaves: int, rng: np.random.Generator) -> np.ndarray:
-    """Zero-mean, unit-std band-limited noise (h, w) float32: octaves of white noise upsampled with bicubic
-    interpolation from cells of ``feature_px * 2**o`` pixels, amplitudes halving with the frequency."""
+    r"""Zero-mean, unit-std band-limited noise (h, w) float32: octaves :math:`o` of white noise upsampled with
+    bicubic interpolation from cells of :math:`\mathtt{feature\_px} \cdot 2^o` pixels, amplitudes halving with
+    the frequency."""
     h, w = shape
     out = np.zeros((h, w), np.float32)
     for o in range(octaves):
@@ -126,8 +130,8 @@ def noise_image(shape: tuple[int, int], feature_px: float, octaves: int, rng: np
 
 
 def aruco_texture(dictionary: str, marker_id: int, px_per_cell: int = 16) -> np.ndarray:
-    """The marker's image (float32 grey in [0, 1]) with a white quiet zone of one cell on every side; the
-    marker's own square spans [c, 1 - c] of the texture, c = 1 / (cells + 2)."""
+    r"""The marker's image (float32 grey in [0, 1]) with a white quiet zone of one cell on every side; the
+    marker's own square spans :math:`[c, 1 - c]` of the texture, :math:`c = 1 / (\mathrm{cells} + 2)`."""
     from physar.vision.calibration import aruco_dictionary
 
     d = aruco_dictionary(dictionary)
@@ -223,9 +227,10 @@ class ProjectRenderer:
             self.planes.append((a, b, im))
 
     def _crease_pairs(self, crease: float) -> tuple[np.ndarray, np.ndarray]:
-        """Smoothing groups of the shading normals: pairs (corner c = 3 f + j, face g) such that g touches
-        the vertex of corner c and its reference normal is within ``crease`` of face f's. A corner's normal
-        is the sum of those faces' (area-weighted) normals: smooth on curved surfaces, sharp at edges."""
+        """Smoothing groups of the shading normals: pairs (corner :math:`c = 3 f + j`, face :math:`g`) such
+        that :math:`g` touches the vertex of corner :math:`c` and its reference normal is within ``crease`` of
+        face :math:`f`'s. A corner's normal is the sum of those faces' (area-weighted) normals: smooth on curved
+        surfaces, sharp at edges."""
         m = len(self.tris)
         corner_v = self.tris.ravel()
         order = np.argsort(corner_v, kind="stable")
@@ -258,7 +263,8 @@ class ProjectRenderer:
         return out
 
     def _markers(self):
-        """Marker plates: a (g+1)^2 vertex grid per marker (follows the lens distortion), UV in the texture."""
+        """Marker plates: a :math:`(g+1)^2` vertex grid per marker (follows the lens distortion), UV in the
+        texture."""
         from physar.vision.calibration import aruco_dictionary
 
         board = self.project.board
@@ -294,8 +300,9 @@ class ProjectRenderer:
             self.m_tris = np.zeros((0, 3), np.int64)
 
     def _plate(self):
-        """The [registration.plane] image (when the project has one) on its rectangle, a (g+1)^2 grid with UV
-        in image pixels (pixel j's centre at (j + 1/2) / px_per_m from the origin), and its dark rim."""
+        r"""The [registration.plane] image (when the project has one) on its rectangle, a :math:`(g+1)^2` grid
+        with UV in image pixels (pixel :math:`j`'s centre at :math:`(j + 1/2) / \mathtt{px\_per\_m}` from the
+        origin), and its dark rim."""
         pl = self.res.plane
         self.p_X = np.zeros((0, 3))
         self.p_tris = np.zeros((0, 3), np.int64)
@@ -332,10 +339,11 @@ class ProjectRenderer:
         self.surf_nodes = surf
 
     def _wall(self):
-        """A cluttered wall on the resolved wall plane (the project's plane without an image, else behind the
+        r"""A cluttered wall on the resolved wall plane (the project's plane without an image, else behind the
         target), with band-limited noise and random rectangles and discs (features for markerless
-        registration); texture pixel (i, j) centred at wall_centre + ((j + 1/2) s - half) right +
-        ((i + 1/2) s - half) down, s = 2 half / n."""
+        registration); texture pixel :math:`(i, j)` centred at
+        :math:`c + ((j + 1/2) s - h)\, \mathrm{right} + ((i + 1/2) s - h)\, \mathrm{down}`,
+        :math:`s = 2 h / n` (:math:`c` = ``wall_centre``, :math:`h` the half side)."""
         res = self.res
         cam = self.camera
         D = res.distance + res.wall_distance
@@ -610,9 +618,10 @@ def _tri_normals(X, T) -> np.ndarray:
 
 
 def _grid_tris(g: int, base: int) -> np.ndarray:
-    """Triangles of a (g+1) x (g+1) vertex grid (row-major, rows along the second axis T, columns along S),
-    wound so that their normal is -(dS x dT) (the outward ``normal`` of a marker / plane whose S and T are
-    its right and down directions)."""
+    r"""Triangles of a :math:`(g+1) \times (g+1)` vertex grid (row-major, rows along the second axis
+    :math:`T`, columns along :math:`S`), wound so that their normal is :math:`-(\mathrm{d}S \times \mathrm{d}T)`
+    (the outward ``normal`` of a marker / plane whose :math:`S` and :math:`T` are its right and down
+    directions)."""
     i = np.arange((g + 1) ** 2).reshape(g + 1, g + 1) + base
     a, b, c, d = i[:-1, :-1].ravel(), i[:-1, 1:].ravel(), i[1:, 1:].ravel(), i[1:, :-1].ravel()
     return np.concatenate([np.column_stack([a, d, c]), np.column_stack([a, c, b])])

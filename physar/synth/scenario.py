@@ -140,8 +140,11 @@ class Pan(_Strict):
     ramp: float = Field(0.5, gt=0, description="s to turn away (and back), cosine profile")
 
     def angle(self, t: float) -> float:
-        """Yaw [deg] at time t: 0 outside [start, start + duration], yaw * (1 - cos(pi r)) / 2 with
-        r = min(tau / ramp, (duration - tau) / ramp, 1) inside."""
+        r"""Yaw [deg] at time :math:`t`: 0 outside
+        :math:`[\mathrm{start}, \mathrm{start} + \mathrm{duration}]`,
+        :math:`\mathrm{yaw}\, (1 - \cos(\pi r)) / 2` inside, with
+        :math:`r = \min(\tau / \mathrm{ramp},\ (\mathrm{duration} - \tau) / \mathrm{ramp},\ 1)` and
+        :math:`\tau = t - \mathrm{start}`."""
         tau = t - self.start
         if not 0 <= tau <= self.duration:
             return 0.0
@@ -391,9 +394,11 @@ def default_schedule(project, duration: float) -> dict[str, Schedule]:
 
 @dataclass(frozen=True)
 class BarGeometry:
-    """A project's [[bar]] resolved against its rotation parameter: the visible face's pivot (the axis point
+    r"""A project's [[bar]] resolved against its rotation parameter: the visible face's pivot (the axis point
     moved by ``face`` along the unit ``axis``), the unit direction ``zero`` at parameter 0, length and width
-    [m]; ``facing``: the unit normal of the visible face (sign(face) axis; +axis for face = 0)."""
+    [m]; ``facing``: the unit normal of the visible face
+    (:math:`\operatorname{sign}(\mathrm{face})\, \mathrm{axis}`; :math:`+\mathrm{axis}` for
+    :math:`\mathrm{face} = 0`)."""
 
     name: str
     axis: np.ndarray
@@ -405,8 +410,10 @@ class BarGeometry:
     facing: np.ndarray
 
     def direction(self, value: float) -> np.ndarray:
-        """Unit direction (3,) of the bar at the parameter value: ``zero`` turned by it about ``axis`` (right
-        hand; Rodrigues, zero perpendicular to axis: cos(a) zero + sin(a) axis x zero)."""
+        r"""Unit direction (3,) of the bar at the parameter value: ``zero`` turned by it about ``axis`` (right
+        hand; Rodrigues, zero perpendicular to axis:
+        :math:`\cos(a)\, \mathrm{zero} + \sin(a)\, \mathrm{axis} \times \mathrm{zero}`, :math:`a` the value
+        as an angle)."""
         a = math.radians(value) if self.degrees else float(value)
         return math.cos(a) * self.zero + math.sin(a) * np.cross(self.axis, self.zero)
 
@@ -430,9 +437,9 @@ def bar_geometries(project) -> list[BarGeometry]:
 
 @dataclass(frozen=True)
 class PlaneGeometry:
-    """The project's [registration.plane]: ``origin`` (the image's top-left corner), unit ``u`` (image rows,
-    rightwards) and ``v`` (columns, downwards), ``normal`` = -(u x v) (the side the image is seen from);
-    with an image: ``image`` (BGR uint8), ``px_per_m`` and ``size`` = (width, height) [m]."""
+    r"""The project's [registration.plane]: ``origin`` (the image's top-left corner), unit ``u`` (image rows,
+    rightwards) and ``v`` (columns, downwards), ``normal`` = :math:`-(u \times v)` (the side the image is seen
+    from); with an image: ``image`` (BGR uint8), ``px_per_m`` and ``size`` = (width, height) [m]."""
 
     origin: np.ndarray
     u: np.ndarray

@@ -1,19 +1,20 @@
-"""Ground truth of a synthetic clip from a FINER finite-element model than the project's reduced model.
+r"""Ground truth of a synthetic clip from a FINER finite-element model than the project's reduced model.
 
 The FE problem is rebuilt from the project's ``physar rom build`` configuration (``[model] config``): the
 same material, supports, constant loads and ``[[parameter]]`` definitions, on a mesh ``refine`` times finer
 (``[mesh] box``: cells multiplied by ``refine``; a mesh file or a tetrahedralised surface: every
 tetrahedron split into 8, ``log2(refine)`` times, with its region tags carried over). A surface file can
 first be tetrahedralised again at another size (``mesh_size``), so that the truth's mesh is not a
-subdivision of the model's. The parameters act
-exactly as in the reduced model's build (:class:`physar.rom.problem.ParametricProblem`, from
-:func:`physar.rom.config.build_parametric_problem`): a load at ``path_point(path, s) + t * direction`` with the
-total ``load * P / |load|``, a prescribed translation d e of a region, the finite rigid rotation
-u = R(theta)(X - c) + c - X of a region, a Young's modulus of a region; so truth and model differ only by the
-discretisation (no inverse crime).
+subdivision of the model's. The parameters act exactly as in the reduced model's build
+(:class:`physar.rom.problem.ParametricProblem`, from :func:`physar.rom.config.build_parametric_problem`): a
+load at :math:`\mathrm{path}(s) + t\, \mathrm{direction}` (``path_point(path, s)``) with the total
+:math:`\mathrm{load}\; P / |\mathrm{load}|`, a prescribed translation :math:`d\, e` of a region, the finite
+rigid rotation :math:`u = R(\theta)(X - c) + c - X` of a region, a Young's modulus of a region; so truth and
+model differ only by the discretisation (no inverse crime).
 
-Linear material: K (on the free dofs) is factored once (per Young's modulus value when a youngs_modulus
-parameter changes it) and u = u_D + K_ff^-1 (f - K u_D) with u_D the prescribed values. Nonlinear material
+Linear material: :math:`K` (on the free dofs) is factored once (per Young's modulus value when a
+youngs_modulus parameter changes it) and :math:`u = u_D + K_{ff}^{-1} (f - K u_D)` with :math:`u_D` the
+prescribed values. Nonlinear material
 (St.VK, neo-Hookean, ...): Newton (:func:`physar.fem.solve_static`) by continuation in the parameters from the
 previous solution (the frames' order: a loading path), its step halved until Newton converges; the first
 solve from the unloaded state in the configuration's ``[solver] steps``. Each distinct parameter vector is
@@ -81,9 +82,9 @@ _TRUTH_BYTES_PER_ENTRY = 43
 
 
 def _check_truth_memory(n_tets: int, element: str, source, refine: int) -> None:
-    """Refuse (ConfigError, one line) a truth of ``n_tets`` tetrahedra whose stiffness assembly would need more
-    memory than is available: about ``_TRUTH_BYTES_PER_ENTRY`` (3 n)^2 bytes per tetrahedron, n = 4 (P1) or
-    10 (P2) nodes; checked before the refined mesh is made."""
+    r"""Refuse (ConfigError, one line) a truth of ``n_tets`` tetrahedra whose stiffness assembly would need more
+    memory than is available: about ``_TRUTH_BYTES_PER_ENTRY`` :math:`\cdot\, (3 n)^2` bytes per tetrahedron,
+    :math:`n` = 4 (P1) or 10 (P2) nodes; checked before the refined mesh is made."""
     from physar.output import check_memory
 
     nodes = 10 if element == "P2" else 4
@@ -228,9 +229,10 @@ class FineTruth:
         return u_d + self._solver.solve(f)
 
     def _newton(self, mu, max_halvings: int = 6) -> np.ndarray:
-        """Continuation from the previous solution (mu0, u0) to mu (from rest, mu0 = mu at load factor 0, for
-        the first solve, in [solver] steps): n equal steps in the parameters (and the load factor), a rotation
-        by at most 5 deg per step, n doubled while Newton fails."""
+        r"""Continuation from the previous solution :math:`(\mu_0, u_0)` to :math:`\mu` (from rest,
+        :math:`\mu_0 = \mu` at load factor 0, for the first solve, in [solver] steps): :math:`n` equal steps
+        in the parameters (and the load factor), a rotation by at most 5 deg per step, :math:`n` doubled while
+        Newton fails."""
         pb = self.problem
         if self._last is None:
             mu0, u0, lam0 = mu, np.zeros(self.space.n_dofs), 0.0
@@ -255,10 +257,11 @@ class FineTruth:
         return u
 
     def _equilibrium(self, mu, lam: float, u0: np.ndarray) -> np.ndarray:
-        """Newton with backtracking from u0 for f_int(u) = lam f(mu) on the free dofs, u = lam u_D(mu) on the
-        fixed ones, from the tangent predictor at u0; a state with an inverted element (J <= 0 at a quadrature
-        point) is refused. Converged when |R_free| <= tol max(|f|, |f_int|, |R_0|),
-        R_0 the predictor's right-hand side (the out-of-balance force of the increment): it keeps the criterion
+        r"""Newton with backtracking from :math:`u_0` for :math:`f_\text{int}(u) = \lambda f(\mu)` on the free
+        dofs, :math:`u = \lambda u_D(\mu)` on the fixed ones, from the tangent predictor at :math:`u_0`; a
+        state with an inverted element (:math:`J \le 0` at a quadrature point) is refused. Converged when
+        :math:`|R_\text{free}| \le \mathrm{tol}\, \max(|f|, |f_\text{int}|, |R_0|)`, :math:`R_0` the
+        predictor's right-hand side (the out-of-balance force of the increment): it keeps the criterion
         meaningful where the reactions vanish (a free part turned rigidly)."""
         from physar.fem import factorize
 
