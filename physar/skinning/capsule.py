@@ -1,9 +1,10 @@
-"""A tiny procedural humanoid made of capsules, for fast tests and synthetic scenes (seed 002, §4.1-4.2).
+r"""A tiny procedural humanoid made of capsules, for fast tests and synthetic scenes (seed 002, §4.1-4.2).
 
-Each bone k carries a capsule: the set of points within radius r_k (m) of the segment [a_k, b_k] (its
-rest-pose head and tail). The body volume is the union of the capsules; the inside test gives the gating
-mask of seed 002, Eq. 7 (omega_i = 0 for particles outside the body). Skinning weights come from the
-distances d_k(x) to the bone segments: W_k(x) = softmax_k(-d_k(x)^2 / (2 sigma^2)) (so they sum to 1).
+Each bone :math:`k` carries a capsule: the set of points within radius :math:`r_k` (m) of the segment
+:math:`[a_k, b_k]` (its rest-pose head and tail). The body volume is the union of the capsules; the inside
+test gives the gating mask of seed 002, Eq. 7 (:math:`\omega_i = 0` for particles outside the body). Skinning
+weights come from the distances :math:`d_k(x)` to the bone segments:
+:math:`W_k(x) = \operatorname{softmax}_k\big(-d_k(x)^2 / (2 \sigma^2)\big)` (so they sum to 1).
 """
 
 from __future__ import annotations
@@ -101,7 +102,7 @@ class CapsuleBody(Body):
         return P[keep].numpy()
 
     def clearance(self, bone_transforms: torch.Tensor, boxes, samples: int = 17) -> np.ndarray:
-        r"""Per bone, :math:`\min_{f, s} d(B_k^f a_k(s), 	ext{boxes}) - r_k` (m): the capsule posed rigidly by its
+        r"""Per bone, :math:`\min_{f, s} d(B_k^f a_k(s), \text{boxes}) - r_k` (m): the capsule posed rigidly by its
         own transform (the LBS of Eq. 1 where :math:`W_k = 1`), its axis :math:`a_k(s)` sampled at ``samples``
         points; inf for bones without volume."""
         B = bone_transforms.detach().double().cpu().numpy()  # (F, K, 4, 4)

@@ -1,9 +1,11 @@
-"""Linear blend skinning (seed 002, Eq. 1).
+r"""Linear blend skinning (seed 002, Eq. 1).
 
-A^i = sum_k W_k^i B_k (a 4x4 affine blend of the bone transforms B_k in SE(3));
-mu_lbs^i = A_rot^i mu_c^i + A_t^i and R_lbs^i = A_rot^i R_c^i. A_rot is a blend of rotations, in general
-not orthogonal; for Gaussians it therefore enters the covariance like a deformation gradient,
-Sigma = A_rot R_c S S^T R_c^T A_rot^T (seed 002, Eq. 3 with F = A_rot), which
+:math:`A^i = \sum_k W_k^i B_k` (a 4x4 affine blend of the bone transforms :math:`B_k` in SE(3));
+:math:`\mu_\text{lbs}^i = A_\text{rot}^i \mu_c^i + A_t^i` and :math:`R_\text{lbs}^i = A_\text{rot}^i R_c^i`.
+:math:`A_\text{rot}` is a blend of rotations, in general not orthogonal; for Gaussians it therefore enters the
+covariance like a deformation gradient,
+:math:`\Sigma = A_\text{rot} R_c S S^\top R_c^\top A_\text{rot}^\top` (seed 002, Eq. 3 with
+:math:`F = A_\text{rot}`), which
 :func:`lbs_gaussians` returns for :func:`physar.gaussians.render` (``F=``).
 """
 

@@ -1,9 +1,11 @@
-"""Skeletons with bone transforms in SE(3) and forward kinematics (seed 002, §3.1, Eq. 1).
+r"""Skeletons with bone transforms in SE(3) and forward kinematics (seed 002, §3.1, Eq. 1).
 
-Transforms are 4x4 homogeneous matrices [R t; 0 1] (R in SO(3), t in m) as torch tensors. A skeleton has
-B bones with ``parents[k] < k`` (-1 for roots) and rest-pose bone frames G_k^rest (world <- bone).
-A pose gives local joint rotations; forward kinematics composes them down the hierarchy,
-G_k = G_parent(k) L_k, and the skinning transform of Eq. 1 is B_k(theta) = G_k(theta) (G_k^rest)^-1.
+Transforms are 4x4 homogeneous matrices :math:`\begin{bmatrix} R & t \\ 0 & 1 \end{bmatrix}`
+(:math:`R \in SO(3)`, :math:`t` in m) as torch tensors. A skeleton has :math:`B` bones with ``parents[k] < k``
+(-1 for roots) and rest-pose bone frames :math:`G_k^\text{rest}` (world :math:`\leftarrow` bone). A pose gives
+local joint rotations; forward kinematics composes them down the hierarchy,
+:math:`G_k = G_{\mathrm{parent}(k)} L_k`, and the skinning transform of Eq. 1 is
+:math:`B_k(\theta) = G_k(\theta)\, (G_k^\text{rest})^{-1}`.
 """
 
 from __future__ import annotations
@@ -78,7 +80,7 @@ class Skeleton:
 
     Attributes:
         parents: (B,) long, parent index (-1 for a root), parents[k] < k.
-        rest_global: (B, 4, 4) rest-pose bone frames :math:`G_k^\text{rest}` (world <- bone), m.
+        rest_global: (B, 4, 4) rest-pose bone frames :math:`G_k^\text{rest}` (world :math:`\leftarrow` bone), m.
         names: bone names.
     """
 
