@@ -106,6 +106,9 @@ PRIVATE_MATH_DOCSTRINGS = [
     "physar.synth.truth.FineTruth._newton", "physar.synth.truth.FineTruth._equilibrium",
     "physar.skinning.capsule", "physar.skinning.capsule.CapsuleBody.clearance", "physar.skinning.lbs",
     "physar.skinning.skeleton", "physar.skinning.body", "physar.skinning.body._anny_smpl_map",
+    "physar.gaussians.camera", "physar.gaussians.model", "physar.gaussians.sh", "physar.gaussians.sh.sh_basis",
+    "physar.gaussians.rasterize", "physar.gaussians.rasterize.Projected", "physar.gaussians.rasterize._alpha",
+    "physar.gaussians.rasterize._log_transmittance", "physar.gaussians.rasterize._composite_weights",
 ]
 # what marks an equation written as plain text: operator symbols, ASCII arrows and norms, a power or
 # subscript on a symbol, a Greek letter in an assignment (units such as m² are not flagged)

@@ -1,8 +1,9 @@
-"""Pinhole camera for the Gaussian rasteriser (OpenCV convention: x right, y down, z forward, unit m).
+r"""Pinhole camera for the Gaussian rasteriser (OpenCV convention: x right, y down, z forward, unit m).
 
-A world point X maps to camera coordinates p = R X + t and to the pixel (u, v) = (fx p_x / p_z + cx,
-fy p_y / p_z + cy), in pixel units with the centre of pixel (i, j) (column i, row j) at (i + 0.5, j + 0.5)
-(the convention of gsplat and of the 3DGS CUDA rasteriser).
+A world point :math:`X` maps to camera coordinates :math:`p = R X + t` and to the pixel
+:math:`(u, v) = (f_x p_x / p_z + c_x,\ f_y p_y / p_z + c_y)`, in pixel units with the centre of pixel
+:math:`(i, j)` (column :math:`i`, row :math:`j`) at :math:`(i + 0.5, j + 0.5)` (the convention of gsplat and of
+the 3DGS CUDA rasteriser).
 """
 
 from __future__ import annotations

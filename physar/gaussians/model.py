@@ -1,8 +1,9 @@
-"""A set of 3-D Gaussians (seed 002, §3.1 and §4.1) and the physics-aware covariance (seed 002, Eq. 3).
+r"""A set of 3-D Gaussians (seed 002, §3.1 and §4.1) and the physics-aware covariance (seed 002, Eq. 3).
 
-Each Gaussian i has a mean mu_i (m), a rotation R_i stored as a unit quaternion (w, x, y, z), a diagonal
-scale S_i = diag(s_i) stored as log(s_i) (s_i in m), an opacity eta_i in (0, 1) stored as its logit, and
-spherical-harmonic (SH) colour coefficients h_i of degree <= 3, shape (K, 3) with K = (degree + 1)**2.
+Each Gaussian :math:`i` has a mean :math:`\mu_i` (m), a rotation :math:`R_i` stored as a unit quaternion
+(w, x, y, z), a diagonal scale :math:`S_i = \operatorname{diag}(s_i)` stored as :math:`\log(s_i)` (:math:`s_i`
+in m), an opacity :math:`\eta_i \in (0, 1)` stored as its logit, and spherical-harmonic (SH) colour
+coefficients :math:`h_i` of degree :math:`\le 3`, shape (K, 3) with :math:`K = (\mathrm{degree} + 1)^2`.
 These are the parameterisations of the standard 3DGS PLY layout (Kerbl et al. 2023), so a `Gaussians`
 object round-trips through :mod:`physar.gaussians.ply` without conversion.
 """

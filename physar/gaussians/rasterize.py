@@ -1,34 +1,40 @@
-"""Differentiable Gaussian splatting on the CPU (vectorised PyTorch), with gsplat on CUDA.
+r"""Differentiable Gaussian splatting on the CPU (vectorised PyTorch), with gsplat on CUDA.
 
 Pipeline (Kerbl et al. 2023, 3DGS; Zwicker et al. 2002, EWA splatting), seed 002 §3.1:
 
-1. Projection. Camera coordinates p = R mu + t; pixel mean m = (fx p_x/p_z + cx, fy p_y/p_z + cy);
-   2-D covariance Sigma' = J R Sigma R^T J^T + eps2d I with the Jacobian of the perspective map
-   J = [[fx/z, 0, -fx x/z^2], [0, fy/z, -fy y/z^2]]; conic Q = Sigma'^-1.
-2. Per pixel p, per Gaussian i: alpha_i = min(0.99, eta_i exp(-1/2 d^T Q d)), d = p - m_i; contributions
-   with alpha_i < 1/255 are skipped (as in 3DGS).
-3. Front-to-back compositing in increasing p_z: C = sum_i c_i alpha_i T_i, T_i = prod_{j<i} (1 - alpha_j),
-   stopping (without the stopping Gaussian) once T_i (1 - alpha_i) < 1e-4 (3DGS early termination).
-   Outputs RGB (+ background * T_final), alpha A = 1 - T_final = sum_i alpha_i T_i, and expected depth
-   D = sum_i z_i alpha_i T_i / A (m, 0 where A = 0).
+1. Projection. Camera coordinates :math:`p = R \mu + t`; pixel mean
+   :math:`m = (f_x p_x / p_z + c_x,\ f_y p_y / p_z + c_y)`; 2-D covariance
+   :math:`\Sigma' = J R \Sigma R^\top J^\top + \epsilon_\text{2d} I` with the Jacobian of the perspective map
+   :math:`J = \begin{bmatrix} f_x / z & 0 & -f_x x / z^2 \\ 0 & f_y / z & -f_y y / z^2 \end{bmatrix}`
+   (:math:`(x, y, z) = p`); conic :math:`Q = \Sigma'^{-1}`.
+2. Per pixel :math:`p`, per Gaussian :math:`i`:
+   :math:`\alpha_i = \min(0.99,\ \eta_i \exp(-\tfrac12 d^\top Q d))`, :math:`d = p - m_i`; contributions with
+   :math:`\alpha_i < 1/255` are skipped (as in 3DGS).
+3. Front-to-back compositing in increasing :math:`p_z`: :math:`C = \sum_i c_i \alpha_i T_i`,
+   :math:`T_i = \prod_{j<i} (1 - \alpha_j)`, stopping (without the stopping Gaussian) once
+   :math:`T_i (1 - \alpha_i) < 10^{-4}` (3DGS early termination). Outputs RGB
+   (:math:`+\ \mathrm{background} \cdot T_\text{final}`), alpha
+   :math:`A = 1 - T_\text{final} = \sum_i \alpha_i T_i`, and expected depth
+   :math:`D = \sum_i z_i \alpha_i T_i / A` (m, 0 where :math:`A = 0`).
 
 Tile-based version (``backend="torch"``): each Gaussian is bucketed into the square pixel tiles its
 support touches (``tile_size`` 4 by default: fastest of 2/4/8/16 in benchmarks/bench_gaussians.py on
 the CPU, since a tile's pixels are evaluated densely). The support is the ellipse
-d^T Q d <= k_i^2, k_i^2 = 2 ln(255 eta_i), beyond which alpha_i < 1/255 is skipped anyway; it is bucketed by
-its axis-aligned bounding box, half-widths k_i sqrt(Sigma'_xx), k_i sqrt(Sigma'_yy) (at most the radius
-r_i = k_i sqrt(lambda_max(Sigma'_i)) of the enclosing circle; <= 3.33 sigma), so the bucketing is exact
-(no 3-sigma truncation error).
+:math:`d^\top Q d \le k_i^2`, :math:`k_i^2 = 2 \ln(255\, \eta_i)`, beyond which :math:`\alpha_i < 1/255` is
+skipped anyway; it is bucketed by its axis-aligned bounding box, half-widths :math:`k_i \sqrt{\Sigma'_{xx}}`,
+:math:`k_i \sqrt{\Sigma'_{yy}}` (at most the radius :math:`r_i = k_i \sqrt{\lambda_\max(\Sigma'_i)}` of the
+enclosing circle; :math:`\le 3.33\, \sigma`), so the bucketing is exact (no 3-sigma truncation error).
 The (tile, Gaussian) pairs are sorted by tile then depth, every pair evaluates all its tile's pixels, and
-the transmittance is a segmented cumulative sum of log(1 - alpha) (in float64). Early termination is
-the exact rule above (a pair contributes iff T_i (1 - alpha_i) >= 1e-4). Everything after the pair list
-is differentiable by autograd. When gradients are needed, a first pass without autograd drops the pairs
-that cannot matter: those with, at every pixel of their tile, alpha = 0 (log(1 - alpha) = 0 changes no
-product) or compositing already terminated before them (T_i < 1e-4: every later pair at that pixel is
-terminated too, with or without them); the second pass, with autograd, composites the rest and gives the
-same image and gradients (the dropped pairs' gradients are exactly zero). ``backend="dense"`` evaluates all Gaussians at all pixels (the naive
-reference used by the benchmark); ``backend="gsplat"`` calls ``gsplat.rasterization`` (CUDA only;
-untested here: no GPU on the development machine).
+the transmittance is a segmented cumulative sum of :math:`\log(1 - \alpha)` (in float64). Early termination
+is the exact rule above (a pair contributes iff :math:`T_i (1 - \alpha_i) \ge 10^{-4}`). Everything after the
+pair list is differentiable by autograd. When gradients are needed, a first pass without autograd drops the
+pairs that cannot matter: those with, at every pixel of their tile, :math:`\alpha = 0`
+(:math:`\log(1 - \alpha) = 0` changes no product) or compositing already terminated before them
+(:math:`T_i < 10^{-4}`: every later pair at that pixel is terminated too, with or without them); the second
+pass, with autograd, composites the rest and gives the same image and gradients (the dropped pairs' gradients
+are exactly zero). ``backend="dense"`` evaluates all Gaussians at all pixels (the naive reference used by the
+benchmark); ``backend="gsplat"`` calls ``gsplat.rasterization`` (CUDA only; untested here: no GPU on the
+development machine).
 """
 
 from __future__ import annotations
@@ -61,9 +67,9 @@ class RenderResult:
 
 @dataclass
 class Projected:
-    """Screen-space Gaussians: means2d (N, 2) px, conics (N, 3) = (Q00, Q01, Q11) px^-2, depths (N,) m,
-    radii (N,) px (0 = culled), opacities (N,), colours (N, 3); extents (N, 2) px: half-widths of the
-    support's bounding box (None: the radius in both directions)."""
+    r"""Screen-space Gaussians: means2d (N, 2) px, conics (N, 3) = :math:`(Q_{00}, Q_{01}, Q_{11})`
+    :math:`\mathrm{px}^{-2}`, depths (N,) m, radii (N,) px (0 = culled), opacities (N,), colours (N, 3);
+    extents (N, 2) px: half-widths of the support's bounding box (None: the radius in both directions)."""
 
     means2d: torch.Tensor
     conics: torch.Tensor
@@ -118,7 +124,8 @@ def project(means: torch.Tensor, cov3d: torch.Tensor, opacities: torch.Tensor, c
 
 
 def _alpha(dx: torch.Tensor, dy: torch.Tensor, conic: torch.Tensor, opac: torch.Tensor) -> torch.Tensor:
-    """alpha = min(0.99, eta exp(-d^T Q d / 2)), zeroed where < 1/255 (broadcast over pixels)."""
+    r""":math:`\alpha = \min(0.99,\ \eta \exp(-d^\top Q d / 2))`, zeroed where :math:`< 1/255` (broadcast over
+    pixels)."""
     power = -0.5 * (conic[..., 0:1] * dx * dx + conic[..., 2:3] * dy * dy) - conic[..., 1:2] * dx * dy
     alpha = torch.clamp_max(opac[..., None] * torch.exp(torch.clamp_max(power, 0.0)), ALPHA_MAX)
     keep = (power <= 0) & (alpha >= ALPHA_MIN)
@@ -126,8 +133,9 @@ def _alpha(dx: torch.Tensor, dy: torch.Tensor, conic: torch.Tensor, opac: torch.
 
 
 def _log_transmittance(alpha: torch.Tensor, seg_start: torch.Tensor | None, seg_of: torch.Tensor | None):
-    """(log(1 - alpha), inclusive and exclusive cumulative sums of it along dim 0 in float64): log T after and
-    before each element; with ``seg_start``/``seg_of`` the sums restart at every segment (tile) start."""
+    r"""(:math:`\log(1 - \alpha)`, inclusive and exclusive cumulative sums of it along dim 0 in float64):
+    :math:`\log T` after and before each element; with ``seg_start``/``seg_of`` the sums restart at every
+    segment (tile) start."""
     log1m = torch.log1p(-alpha)
     cs = torch.cumsum(log1m.double(), 0)
     incl = cs
@@ -138,7 +146,7 @@ def _log_transmittance(alpha: torch.Tensor, seg_start: torch.Tensor | None, seg_
 
 
 def _composite_weights(alpha: torch.Tensor, seg_start: torch.Tensor | None, seg_of: torch.Tensor | None):
-    """Front-to-back weights w_i = alpha_i T_i with 3DGS early termination, along dim 0.
+    r"""Front-to-back weights :math:`w_i = \alpha_i T_i` with 3DGS early termination, along dim 0.
 
     With ``seg_start``/``seg_of`` the products restart at every segment (tile) start.
     """
@@ -287,8 +295,8 @@ def render(g: Gaussians, cam: Camera, *, F: torch.Tensor | None = None, cov3d: t
 
     ``F`` (N, 3, 3): deformation gradients, giving :math:`\Sigma = F R S S^\top R^\top F^\top` (seed 002,
     Eq. 3); ``cov3d`` (N, 3, 3) overrides the covariance; ``colors`` (N, 3) overrides the SH colour (otherwise
-    SH evaluated in the direction camera centre -> mean). ``eps2d`` (px^2) is the 3DGS screen-space
-    low-pass filter (0.3); ``near`` (m) culls Gaussians with :math:`p_z \le \mathtt{near}`.
+    SH evaluated in the direction camera centre :math:`\to` mean). ``eps2d`` (:math:`\mathrm{px}^2`) is the
+    3DGS screen-space low-pass filter (0.3); ``near`` (m) culls Gaussians with :math:`p_z \le \mathtt{near}`.
     ``backend``: "torch" (tiles, CPU/any device), "dense" (naive reference), "gsplat" (CUDA, untested
     here), "auto" (gsplat when the tensors are on CUDA and gsplat imports, torch otherwise).
     ``max_elements``: memory guard of the tile backend (pairs x tile pixels), see :func:`rasterize_tiles`.

@@ -1,6 +1,7 @@
-"""Real spherical harmonics up to degree 3 for view-dependent colour (3DGS convention).
+r"""Real spherical harmonics up to degree 3 for view-dependent colour (3DGS convention).
 
-colour(d) = sum_{l<=deg, m} c_lm Y_lm(d) + 0.5, clamped at 0, with d the unit direction from the camera
+:math:`\mathrm{colour}(d) = \sum_{l \le \mathrm{deg},\, m} c_{lm} Y_{lm}(d) + 0.5`, clamped at 0, with
+:math:`d` the unit direction from the camera
 centre to the Gaussian mean. The constants are those of the real SH basis used by 3DGS / gsplat.
 """
 
@@ -17,7 +18,7 @@ C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.37317633259
 
 
 def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
-    """Real SH basis values (N, (degree+1)^2) at unit directions ``dirs`` (N, 3)."""
+    r"""Real SH basis values (N, :math:`(\mathrm{degree}+1)^2`) at unit directions ``dirs`` (N, 3)."""
     x, y, z = dirs.unbind(-1)
     out = [torch.full_like(x, C0)]
     if degree >= 1:
