@@ -58,13 +58,13 @@ MATH_DOCSTRINGS = {
     "physar.gaussians": ["covariance", "eval_sh", "render"],
     "physar.skinning": ["lbs", "blend_transforms", "winding_number", "axis_angle_to_matrix", "Skeleton"],
     "physar.mpm": ["Control", "MPMModel", "diagnostics"],
-    "physar.ar.surface": ["display_surface"],
 }
 MATH_MODULES = ["physar.assimilation", "physar.recon.flow", "physar.recon.canonical", "physar.recon.metrics",
                 "physar.recon.train", "physar.ar.project_pipeline", "physar.ar.surface"]  # shown in the reference
 
 # private modules and helpers (not in the reference) whose docstrings state equations: math markup too, so
-# the source reads the same as the public docstrings and a helper made public renders at once; dotted paths
+# the source reads the same as the public docstrings and a helper made public renders at once; also members of
+# a public submodule (physar.ar.surface), which has no page of its own for MATH_DOCSTRINGS; dotted paths
 PRIVATE_MATH_DOCSTRINGS = [
     "physar.geometry.denoise", "physar.geometry.denoise.heights", "physar.geometry.denoise.noise_scales",
     "physar.geometry.denoise.local_scale", "physar.geometry.denoise.robust_scale",
@@ -89,8 +89,8 @@ PRIVATE_MATH_DOCSTRINGS = [
     "physar.fem.assembly", "physar.fem.elements", "physar.fem.post.nodal_stress", "physar.fem.solvers",
     "physar.vision.camera", "physar.vision.calibration", "physar.vision.markerless", "physar.vision.dots",
     "physar.vision.observation", "physar.assimilation._lm_fast",
-    "physar.ar.features", "physar.ar.surface.sampled_stress", "physar.ar.project.MarkerSection.corners",
-    "physar.ar.project.FeaturesSection", "physar.ar.bars", "physar.vision.markers",
+    "physar.ar.features", "physar.ar.surface.sampled_stress", "physar.ar.surface.display_surface",
+    "physar.ar.project.MarkerSection.corners", "physar.ar.project.FeaturesSection", "physar.ar.bars", "physar.vision.markers",
     "physar.vision.markers.rotation_std", "physar.vision.markers.MarkerTracker._verify",
     "physar.vision.dots.DotTracker._dilate", "physar.vision.printing", "physar.vision.printing._page",
     "physar.vision.printing.write_board_sheet", "physar.vision.printing.write_marker_sheet",
