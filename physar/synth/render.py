@@ -167,7 +167,8 @@ class ProjectRenderer:
         self.project = project
         sc = self.res.sc
         self.visible = self.res.visible
-        self.truth = (truth or FineTruth(project, refine=sc.truth.refine, mesh_size=sc.truth.mesh_size)) if self.visible else None
+        self.truth = (truth or FineTruth(project, refine=sc.truth.refine, mesh_size=sc.truth.mesh_size,
+                                         coarsest=quick)) if self.visible else None
         self.camera = self.res.camera
         self.rng = np.random.default_rng(sc.seed)
         if self.visible:
@@ -702,7 +703,8 @@ def truth_header(names) -> list[str]:
 def render_project(project, scenario: Scenario, out_dir, progress: Callable[[int, int], None] | None = None,
                    quick: bool = False, crf: int | None = None) -> dict:
     """Render a project's synthetic clip into ``out_dir`` (created; only these files are written):
-    ``video.mp4``, ``truth.csv``, ``camera.toml`` and ``scenario.json``. ``quick``: half size, at most 2 s.
+    ``video.mp4``, ``truth.csv``, ``camera.toml`` and ``scenario.json``. ``quick``: half size, at most 2 s, and
+    the coarsest truth the scenario allows (:class:`FineTruth` ``coarsest``: a smoke check, not an accuracy figure).
     Returns a summary (paths, frames, size, truth solves)."""
     from physar.ar.video import write_clip
     from physar.output import atomic_write_text

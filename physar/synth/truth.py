@@ -108,10 +108,14 @@ class FineTruth:
     (its :class:`physar.rom.problem.ParametricProblem`), ``solve(params)`` -> u (n_dofs,) [m] for a dict
     {parameter name: value}, cached per distinct parameter vector; ``solves`` counts the distinct solves."""
 
-    def __init__(self, project, refine: int = 2, cache: int = 64, mesh_size: float | None = None):
+    def __init__(self, project, refine: int = 2, cache: int = 64, mesh_size: float | None = None,
+                 coarsest: bool = False):
         """``project``: an ARProject (its ``[model] config``) or the path of a ``physar rom build`` file.
         ``mesh_size`` [m]: for a model meshed from a surface file, tetrahedralise that surface again at this
-        size before refining (a truth mesh independent of the model's, not a subdivision of it)."""
+        size before refining (a truth mesh independent of the model's, not a subdivision of it). ``coarsest``
+        (quick clips, smoke checks): raise ``mesh_size`` to ``refine`` times the model's [mesh] size, the
+        coarsest truth still no coarser than the model and still on an independent mesh; ``mesh_size_used``
+        says what was meshed."""
         from physar.fem.config import build_mesh, build_problem
         from physar.rom.config import build_parametric_problem, load_rom_config
 
@@ -127,6 +131,7 @@ class FineTruth:
                 path = cfg_p._base_dir / path
         cfg = load_rom_config(path)
         self.source = str(path)
+        self.mesh_size_used = None
         refine = int(refine)
         if refine < 1:
             raise ConfigError(f"{path}: truth refinement must be >= 1, got {refine}")
@@ -144,6 +149,8 @@ class FineTruth:
 
                 f = Path(cfg.mesh.file)
                 model_size = default_size(read_mesh(f if f.is_absolute() else base / f, kind="auto"))
+            if coarsest:
+                mesh_size = max(float(mesh_size), refine * model_size)
             if mesh_size / refine > model_size * (1 + 1e-9):
                 raise ConfigError(f"{path}: [truth] mesh_size = {mesh_size:g} m refined {refine}x gives elements of "
                                   f"{mesh_size / refine:.4g} m, larger than the model's [mesh] size "
@@ -151,6 +158,7 @@ class FineTruth:
                                   f"mesh_size <= {refine * model_size:.4g} (refine x the model's size)")
             cfg = cfg.model_copy(deep=True)
             cfg.mesh.size = float(mesh_size)
+            self.mesh_size_used = float(mesh_size)
         try:
             if cfg.mesh.box is not None:
                 fine = cfg.model_copy(deep=True)

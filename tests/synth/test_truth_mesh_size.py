@@ -73,3 +73,18 @@ def test_shipped_truth_sizes_are_finer_than_their_models():
     assert scen["mesh_size"] / scen.get("refine", 2) <= model
     test_src = (Path(__file__).resolve().parents[1] / "ar" / "test_bracket.py").read_text()
     assert '"mesh_size": 0.005' in test_src and 0.005 / 2 <= model
+
+
+def test_quick_clips_take_the_coarsest_allowed_truth(tmp_path):
+    """``coarsest`` (what ``quick`` renders use): the scenario's 8 mm truth of a 10 mm model refined 2x is meshed
+    at 2 x 10 = 20 mm instead (elements of the model's size, on another mesh), not at 8 mm; a scenario already
+    coarser than that keeps its own size. Catches: the flag ignored (8 mm, 2.5x the elements), the model's size
+    used without the refinement (10 mm: elements half the model's)."""
+    text = BRACKET.read_text()
+    (tmp_path / "rom.toml").write_text(text.replace("size = 0.0025", "size = 0.01"))
+    (tmp_path / "bracket.stl").write_bytes((BRACKET.parent / "bracket.stl").read_bytes())
+    quick = FineTruth(tmp_path / "rom.toml", refine=2, mesh_size=0.008, coarsest=True)
+    assert quick.mesh_size_used == pytest.approx(0.02)
+    full = FineTruth(tmp_path / "rom.toml", refine=2, mesh_size=0.008)
+    assert full.mesh_size_used == pytest.approx(0.008)
+    assert quick.space.n_dofs < full.space.n_dofs
