@@ -109,6 +109,11 @@ PRIVATE_MATH_DOCSTRINGS = [
     "physar.gaussians.camera", "physar.gaussians.model", "physar.gaussians.sh", "physar.gaussians.sh.sh_basis",
     "physar.gaussians.rasterize", "physar.gaussians.rasterize.Projected", "physar.gaussians.rasterize._alpha",
     "physar.gaussians.rasterize._log_transmittance", "physar.gaussians.rasterize._composite_weights",
+    "physar.mpm.actuation", "physar.mpm.actuation.held_force", "physar.mpm.colliders",
+    "physar.mpm.constitutive", "physar.mpm.constitutive.drucker_prager_alpha",
+    "physar.mpm.constitutive.sym_sqrt", "physar.mpm.constitutive.fiber_stress", "physar.mpm.model",
+    "physar.mpm.model.stress_kernel", "physar.mpm.model.g2p_gather",
+    "physar.mpm.model.elastic_energy_density",
 ]
 # what marks an equation written as plain text: operator symbols, ASCII arrows and norms, a power or
 # subscript on a symbol, a Greek letter in an assignment (units such as m² are not flagged)

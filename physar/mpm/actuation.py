@@ -1,19 +1,25 @@
-"""Gated PD actuation of seed 002, Eq. (6)-(7).
+r"""Gated PD actuation of seed 002, Eq. (6)-(7).
 
-f_PD = k_p (x_ref - x) + k_d (v_ref - v)   (Eq. 6),   f_ex = omega f_PD   (Eq. 7).
+.. math::
 
-physar scales the force by the particle mass, f_ex = m_p omega_p [k_p (x_ref - x) + k_d (v_ref - v)], so that
-the gains do not depend on the particle sampling: k_p is in 1/s^2 and k_d in 1/s (seed 002 App. uses
-k_p = 2e2, k_d = 2e1).  omega_p = 0 outside the actuated volume.  The force is transferred to the grid with
-the P2G weights (seed 002, §4.2) as the impulse dt f_ex.
+    f_\text{PD} = k_p (x_\text{ref} - x) + k_d (v_\text{ref} - v) \quad \text{(Eq. 6)}, \qquad
+    f_\text{ex} = \omega f_\text{PD} \quad \text{(Eq. 7)}.
 
-When the force is evaluated (seed 002 Alg. 2): lines 2-4 compute f_ex^n from the state s_n at the start of
-frame n and the T substeps of lines 5-8 all apply that same force (:func:`held_force`, the default of
-:class:`physar.mpm.model.Control` and :class:`physar.mpm.torch_bridge.Params`).  The per-substep variant
-(:func:`pd_force` inside the P2G kernel, evaluated on each substep's state) is kept for stiff tracking
-(``hold=False``): held over a frame of length h, the explicit PD update is stable only for about
-omega k_d h < 2 and omega k_p h^2 < 2 (the velocity factor 1 - omega k_d h of one frame), e.g. the seed's
-gains at 30 fps, not k_d = 110 1/s.
+physar scales the force by the particle mass,
+:math:`f_\text{ex} = m_p \omega_p \big[k_p (x_\text{ref} - x) + k_d (v_\text{ref} - v)\big]`, so that the
+gains do not depend on the particle sampling: :math:`k_p` is in :math:`1/\mathrm{s}^2` and :math:`k_d` in
+:math:`1/\mathrm{s}` (seed 002 App. uses :math:`k_p = 2 \cdot 10^2`, :math:`k_d = 2 \cdot 10^1`).
+:math:`\omega_p = 0` outside the actuated volume.  The force is transferred to the grid with the P2G weights
+(seed 002, §4.2) as the impulse :math:`dt\, f_\text{ex}`.
+
+When the force is evaluated (seed 002 Alg. 2): lines 2-4 compute :math:`f_\text{ex}^n` from the state
+:math:`s_n` at the start of frame :math:`n` and the :math:`T` substeps of lines 5-8 all apply that same force
+(:func:`held_force`, the default of :class:`physar.mpm.model.Control` and
+:class:`physar.mpm.torch_bridge.Params`).  The per-substep variant (:func:`pd_force` inside the P2G kernel,
+evaluated on each substep's state) is kept for stiff tracking (``hold=False``): held over a frame of length
+:math:`h`, the explicit PD update is stable only for about :math:`\omega k_d h < 2` and
+:math:`\omega k_p h^2 < 2` (the velocity factor :math:`1 - \omega k_d h` of one frame), e.g. the seed's gains
+at 30 fps, not :math:`k_d = 110\ \mathrm{s}^{-1}`.
 """
 
 from __future__ import annotations
@@ -38,8 +44,9 @@ def pd_force(
 
 
 def held_force(m, omega, x, v, x_ref, v_ref, kp: float, kd: float):
-    """f_ex = m omega [k_p (x_ref - x) + k_d (v_ref - v)] (N), Eq. (6)-(7), for NumPy arrays or torch tensors
-    (differentiable): m, omega (N,), x, v, x_ref, v_ref (N, 3) at the start of a frame (Alg. 2, lines 2-4)."""
+    r""":math:`f_\text{ex} = m \omega \big[k_p (x_\text{ref} - x) + k_d (v_\text{ref} - v)\big]` (N),
+    Eq. (6)-(7), for NumPy arrays or torch tensors (differentiable): m, omega (N,), x, v, x_ref, v_ref (N, 3)
+    at the start of a frame (Alg. 2, lines 2-4)."""
     return (m * omega)[:, None] * (kp * (x_ref - x) + kd * (v_ref - v))
 
 

@@ -1,34 +1,49 @@
-"""Kinematic colliders of the MPM grid update (seed 002, Alg. 1 line "grid velocity update + boundary").
+r"""Kinematic colliders of the MPM grid update (seed 002, Alg. 1 line "grid velocity update + boundary").
 
 A collider is a rigid box or capsule that moves on a prescribed path (no rotation) and is not affected by the
-material.  In the grid update of every substep, each grid node x_i that lies inside a collider (signed distance
-phi(x_i) < 0) gets the collider's boundary condition in the collider's frame (Stomakhin et al. 2013, §8;
-Hu et al. 2018): with the collider velocity v_c and the collider's outward normal n at the node,
+material.  In the grid update of every substep, each grid node :math:`x_i` that lies inside a collider
+(signed distance :math:`\phi(x_i) < 0`) gets the collider's boundary condition in the collider's frame
+(Stomakhin et al. 2013, §8; Hu et al. 2018): with the collider velocity :math:`v_c` and the collider's outward
+normal :math:`n` at the node, :math:`v_\text{rel} = v_i - v_c` is set by
 
-    v_rel = v_i - v_c
-    sticky:    v_rel = 0
-    slip:      v_rel <- v_rel - (v_rel . n) n, then Coulomb friction on the tangential part
-               (v_t <- 0 if |v_t| <= -mu v_n, else v_t (1 + mu v_n / |v_t|), v_n = v_rel . n)
-    separate:  as slip, but only where the node approaches the collider (v_rel . n < 0)
-    v_i = v_rel + v_c.
+* sticky: :math:`v_\text{rel} = 0`;
+* slip: :math:`v_\text{rel} \leftarrow v_\text{rel} - (v_\text{rel} \cdot n)\, n`, then Coulomb friction on
+  the tangential part, with :math:`v_n = v_\text{rel} \cdot n`:
 
-After G2P, a particle whose new position x_p lies inside a collider (at the collider's end-of-substep position)
-is projected onto the surface, x_p <- x_p - phi(x_p) n(x_p), so particles never penetrate (the grid condition
-alone lets them sink up to ~0.3 cells into a curved collider).  The coupling of a body to a sticky or frictional
-collider acts through the nodes inside it, i.e. through the lowest layer(s) of a particle's 3x3x3 stencil.
+  .. math::
+
+      v_t \leftarrow \begin{cases} 0 & \text{if } \lVert v_t \rVert \le -\mu v_n, \\
+      v_t \big(1 + \mu v_n / \lVert v_t \rVert\big) & \text{otherwise;} \end{cases}
+
+* separate: as slip, but only where the node approaches the collider (:math:`v_\text{rel} \cdot n < 0`);
+
+and then :math:`v_i = v_\text{rel} + v_c`.
+
+After G2P, a particle whose new position :math:`x_p` lies inside a collider (at the collider's end-of-substep
+position) is projected onto the surface, :math:`x_p \leftarrow x_p - \phi(x_p)\, n(x_p)`, so particles never
+penetrate (the grid condition alone lets them sink up to ~0.3 cells into a curved collider).  The coupling of
+a body to a sticky or frictional collider acts through the nodes inside it, i.e. through the lowest
+layer(s) of a particle's 3x3x3 stencil.
 
 These are the same piecewise-linear maps as the domain walls (:func:`physar.mpm.model._apply_bc`), so the
 grid update stays differentiable (almost everywhere) and is taped like the rest of the substep.
 
-Shapes (c = centre at time t):
+Shapes (:math:`c` = centre at time :math:`t`):
 
-* box with half extents h: q = |x - c| - h, phi = |max(q, 0)| + min(max_k q_k, 0); n = grad phi;
-* capsule = segment c +- L a (unit axis a, half length L) swept by a sphere of radius r:
-  s = clamp((x - c) . a, -L, L), phi = |x - c - s a| - r, n = (x - c - s a) / |x - c - s a|.
+* box with half extents :math:`h`: :math:`q = |x - c| - h` (per component),
+  :math:`\phi = \lVert \max(q, 0) \rVert + \min(\max_k q_k, 0)`; :math:`n = \nabla \phi`;
+* capsule = segment :math:`c \pm L a` (unit axis :math:`a`, half length :math:`L`) swept by a sphere of radius
+  :math:`r`:
 
-Motion: either a constant velocity, c(t) = c0 + u t, or a keyframed path (t_k, c_k), piecewise linear,
-held at the first/last keyframe outside [t_0, t_K].  A substep from t to t + dt uses c(t) and the mean
-velocity (c(t + dt) - c(t)) / dt, so the material in contact moves exactly with the collider.
+  .. math::
+
+      s = \operatorname{clamp}\big((x - c) \cdot a, -L, L\big), \qquad
+      \phi = \lVert x - c - s a \rVert - r, \qquad n = \frac{x - c - s a}{\lVert x - c - s a \rVert}.
+
+Motion: either a constant velocity, :math:`c(t) = c_0 + u t`, or a keyframed path :math:`(t_k, c_k)`,
+piecewise linear, held at the first/last keyframe outside :math:`[t_0, t_K]`.  A substep from :math:`t` to
+:math:`t + dt` uses :math:`c(t)` and the mean velocity :math:`(c(t + dt) - c(t)) / dt`, so the material in
+contact moves exactly with the collider.
 """
 
 from __future__ import annotations

@@ -1,45 +1,57 @@
-"""Expert constitutive laws and plastic return maps as Warp functions (seed 002, §3.2, Alg. 1 lines 3 and 5).
+r"""Expert constitutive laws and plastic return maps as Warp functions (seed 002, §3.2, Alg. 1 lines 3 and 5).
 
-All functions work in float64 and return the **Kirchhoff** stress tau = J sigma = P F^T (Pa); the
-MLS-MPM force of Alg. 1 uses tau directly (Hu et al. 2018, Eq. 18).  The Cauchy stress of the seed
-is sigma = tau / J.
+All functions work in float64 and return the **Kirchhoff** stress :math:`\tau = J \sigma = P F^\top` (Pa); the
+MLS-MPM force of Alg. 1 uses :math:`\tau` directly (Hu et al. 2018, Eq. 18).  The Cauchy stress of the seed
+is :math:`\sigma = \tau / J`.
 
-Elastic laws (``ELASTIC_*`` codes), with Lamé parameters mu = E / (2 (1 + nu)),
-lambda = E nu / ((1 + nu)(1 - 2 nu)):
+Elastic laws (``ELASTIC_*`` codes), with Lamé parameters :math:`\mu = E / (2 (1 + \nu))`,
+:math:`\lambda = E \nu / ((1 + \nu)(1 - 2 \nu))`:
 
-* fixed-corotated (Stomakhin et al. 2012): tau = 2 mu (F - R) F^T + lambda (J - 1) J I, R = polar(F),
-  evaluated as 2 mu (B - sqrt(B)) + ..., B = F F^T (valid for J > 0), with a Newton matrix square root;
-* Kirchhoff–Saint Venant (StVK): tau = F (2 mu G + lambda tr(G) I) F^T, G = (F^T F - I) / 2;
-* compressible neo-Hookean: tau = mu (F F^T - I) + lambda log(J) I;
+* fixed-corotated (Stomakhin et al. 2012):
+  :math:`\tau = 2 \mu (F - R) F^\top + \lambda (J - 1) J I`, :math:`R = \operatorname{polar}(F)`, evaluated as
+  :math:`2 \mu (B - \sqrt{B}) + \dots`, :math:`B = F F^\top` (valid for :math:`J > 0`), with a Newton matrix
+  square root;
+* Kirchhoff–Saint Venant (StVK): :math:`\tau = F (2 \mu G + \lambda \operatorname{tr}(G) I) F^\top`,
+  :math:`G = (F^\top F - I) / 2`;
+* compressible neo-Hookean: :math:`\tau = \mu (F F^\top - I) + \lambda \log(J) I`;
 * Hencky (StVK in logarithmic strain, used with the Hencky-strain return maps):
-  tau = U (2 mu log S + lambda tr(log S) I) U^T for F = U S V^T.
+  :math:`\tau = U (2 \mu \log S + \lambda \operatorname{tr}(\log S) I) U^\top` for :math:`F = U S V^\top`.
 
-Plastic return maps (``PLASTIC_*`` codes), F = P(F_trial) of Alg. 1 line 5, acting on the singular values
-S of F_trial = U S V^T:
+Plastic return maps (``PLASTIC_*`` codes), :math:`F = \mathcal{P}(F_\text{trial})` of Alg. 1 line 5, acting on
+the singular values :math:`S` of :math:`F_\text{trial} = U S V^\top`:
 
-* identity: F = F_trial;
-* von Mises (metal): Hencky strain e = log S, deviatoric part e^ = e - tr(e)/3; if
-  2 mu ||e^|| > sqrt(2/3) sigma_Y the deviatoric strain is scaled back onto the yield surface;
-* Drucker–Prager (sand, Klar et al. 2016, Alg. 2): tr(e) > 0 -> S = I; else
-  dgamma = ||e^|| + (3 lambda + 2 mu) / (2 mu) tr(e) alpha, alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi));
-  if dgamma > 0, e <- e - dgamma e^ / ||e^||;
-* snow (Stomakhin et al. 2013): S clamped to [1 - theta_c, 1 + theta_s], the removed volume goes into the
-  plastic Jacobian J_p, and the Lamé parameters harden as exp(xi (1 - J_p)).
+* identity: :math:`F = F_\text{trial}`;
+* von Mises (metal): Hencky strain :math:`e = \log S`, deviatoric part
+  :math:`\hat e = e - \operatorname{tr}(e)/3`; if :math:`2 \mu \lVert \hat e \rVert > \sqrt{2/3}\, \sigma_Y`
+  the deviatoric strain is scaled back onto the yield surface;
+* Drucker–Prager (sand, Klar et al. 2016, Alg. 2): :math:`\operatorname{tr}(e) > 0 \Rightarrow S = I`; else
+
+  .. math::
+
+      \delta\gamma = \lVert \hat e \rVert + \frac{3 \lambda + 2 \mu}{2 \mu} \operatorname{tr}(e)\, \alpha,
+      \qquad \alpha = \sqrt{2/3}\, \frac{2 \sin\phi}{3 - \sin\phi};
+
+  if :math:`\delta\gamma > 0`, :math:`e \leftarrow e - \delta\gamma\, \hat e / \lVert \hat e \rVert`;
+* snow (Stomakhin et al. 2013): :math:`S` clamped to :math:`[1 - \theta_c, 1 + \theta_s]`, the removed volume
+  goes into the plastic Jacobian :math:`J_p`, and the Lamé parameters harden as :math:`\exp(\xi (1 - J_p))`.
 
 Anisotropic fibre term (physar's choice of an anisotropic ground-truth law, not part of seed 002): every
-elastic law above may be augmented per particle by a standard fibre-reinforced I4 term (Holzapfel-style
-fibre family, here with a quadratic instead of an exponential fibre energy), with a0 the unit fibre direction
-in the rest configuration and E_f >= 0 (Pa) the fibre modulus:
+elastic law above may be augmented per particle by a standard fibre-reinforced :math:`I_4` term
+(Holzapfel-style fibre family, here with a quadratic instead of an exponential fibre energy), with :math:`a_0`
+the unit fibre direction in the rest configuration and :math:`E_f \ge 0` (Pa) the fibre modulus:
 
-  Psi_f = (E_f / 8) (I4 - 1)^2,  I4 = |F a0|^2,
-  tau_f = (dPsi_f/dF) F^T = (E_f / 2) (I4 - 1) (F a0)(F a0)^T   (:func:`fiber_stress`).
+.. math::
 
-Its small-strain uniaxial stiffness along a0 is E_f (on top of the isotropic law); it acts in tension and in
-compression, is smooth in F and objective.  It is not scaled by the snow hardening and, for the plastic
-materials, acts on the elastic part F of Alg. 1 (after the return map), like the isotropic law.
+    \Psi_f = \frac{E_f}{8} (I_4 - 1)^2, \qquad I_4 = |F a_0|^2, \qquad
+    \tau_f = \frac{\partial \Psi_f}{\partial F} F^\top = \frac{E_f}{2} (I_4 - 1) (F a_0)(F a_0)^\top
 
-Per-particle plastic parameters are packed into a vec4d ``pp``: von Mises (sigma_Y [Pa], -, -, -),
-Drucker–Prager (alpha [-], -, -, -), snow (theta_c, theta_s, xi, -).
+(:func:`fiber_stress`).  Its small-strain uniaxial stiffness along :math:`a_0` is :math:`E_f` (on top of the
+isotropic law); it acts in tension and in compression, is smooth in :math:`F` and objective.  It is not scaled
+by the snow hardening and, for the plastic materials, acts on the elastic part :math:`F` of Alg. 1 (after the
+return map), like the isotropic law.
+
+Per-particle plastic parameters are packed into a vec4d ``pp``: von Mises (:math:`\sigma_Y` [Pa], -, -, -),
+Drucker–Prager (:math:`\alpha` [-], -, -, -), snow (:math:`\theta_c`, :math:`\theta_s`, :math:`\xi`, -).
 """
 
 from __future__ import annotations
@@ -76,7 +88,8 @@ SV_MIN = wp.constant(wp.float64(1.0e-6))  # smallest singular value fed to log (
 
 
 def drucker_prager_alpha(friction_angle_deg: float) -> float:
-    """alpha = sqrt(2/3) 2 sin(phi) / (3 - sin(phi)) of Klar et al. 2016 for a friction angle phi (degrees)."""
+    r""":math:`\alpha = \sqrt{2/3}\, 2 \sin\phi / (3 - \sin\phi)` of Klar et al. 2016 for a friction angle
+    :math:`\phi` (degrees)."""
     s = math.sin(math.radians(friction_angle_deg))
     return math.sqrt(2.0 / 3.0) * 2.0 * s / (3.0 - s)
 
@@ -90,8 +103,9 @@ def lame(E: wp.float64, nu: wp.float64):
 
 @wp.func
 def sym_sqrt(B: wp.mat33d) -> wp.mat33d:
-    """Square root of a symmetric positive-definite matrix by 10 Newton steps Y <- (Y + Y^-1 B) / 2 from
-    Y0 = sqrt(tr B / 3) I.  Smooth in B (no eigen/SVD), so its derivative is exact at repeated eigenvalues."""
+    r"""Square root of a symmetric positive-definite matrix by 10 Newton steps
+    :math:`Y \leftarrow (Y + Y^{-1} B) / 2` from :math:`Y_0 = \sqrt{\operatorname{tr} B / 3}\, I`.  Smooth in
+    :math:`B` (no eigen/SVD), so its derivative is exact at repeated eigenvalues."""
     a = wp.sqrt(wp.trace(B) / _f(3.0))
     Y = a * wp.identity(n=3, dtype=wp.float64)
     for _ in range(10):
@@ -137,8 +151,9 @@ def kirchhoff_stress(
 
 @wp.func
 def fiber_stress(F: wp.mat33d, a0: wp.vec3d, Ef: wp.float64) -> wp.mat33d:
-    """Kirchhoff stress of the fibre energy Psi_f = (E_f/8)(I4 - 1)^2, I4 = |F a0|^2 (a0 unit, rest frame):
-    tau_f = (E_f/2)(I4 - 1) (F a0)(F a0)^T (Pa).  Zero for E_f = 0 or a0 = 0."""
+    r"""Kirchhoff stress of the fibre energy :math:`\Psi_f = (E_f/8)(I_4 - 1)^2`, :math:`I_4 = |F a_0|^2`
+    (:math:`a_0` unit, rest frame): :math:`\tau_f = (E_f/2)(I_4 - 1) (F a_0)(F a_0)^\top` (Pa).  Zero for
+    :math:`E_f = 0` or :math:`a_0 = 0`."""
     fa = F * a0
     I4 = wp.dot(fa, fa)
     return (_f(0.5) * Ef * (I4 - _f(1.0))) * wp.outer(fa, fa)

@@ -1,25 +1,37 @@
-"""MLS-MPM with APIC transfers and quadratic B-splines in 3-D (seed 002, §3.2, Alg. 1), in NVIDIA Warp.
+r"""MLS-MPM with APIC transfers and quadratic B-splines in 3-D (seed 002, §3.2, Alg. 1), in NVIDIA Warp.
 
 Newton-style split: :class:`MPMModel` holds the constants (grid, particle masses/volumes, materials,
-boundaries, gravity, time step), :class:`MPMState` the per-particle state s = {x, v, C, F} (+ the plastic
-Jacobian J_p of the snow law), and :class:`MPMSolver` advances ``step(state_in, state_out, control, dt)`` by one
-substep of Alg. 1:
+boundaries, gravity, time step), :class:`MPMState` the per-particle state :math:`s = \{x, v, C, F\}` (+ the
+plastic Jacobian :math:`J_p` of the snow law), and :class:`MPMSolver` advances
+``step(state_in, state_out, control, dt)`` by one substep of Alg. 1:
 
-1. sigma = E(F, E, nu) + fibre term            (:func:`stress_kernel`, Kirchhoff stress tau = J sigma;
-                                                the optional anisotropic fibre term is
-                                                :func:`physar.mpm.constitutive.fiber_stress`)
-2. P2G: m_i = sum_p w_ip m_p,  (m v)_i = sum_p w_ip [m_p v_p + (m_p C_p - dt V_p 4/dx^2 tau_p)(x_i - x_p)
-   + dt f_ex,p]                                 (MLS-MPM, Hu et al. 2018, Eq. 29; f_ex of seed Eq. 7)
-3. grid: v_i = (m v)_i / m_i + dt g, then wall/ground boundary conditions
-4. G2P: v_p = sum_i w_ip v_i,  C_p = 4/dx^2 sum_i w_ip v_i (x_i - x_p)^T,  F_trial = (I + dt C_p) F_p,
-   x_p += dt v_p                               (APIC, Jiang et al. 2015); a particle that would end inside a
-   kinematic collider is projected onto its surface, x_p -= phi n (:mod:`physar.mpm.colliders`)
-5. F = P(F_trial)                               (:mod:`physar.mpm.constitutive`)
+1. :math:`\sigma = \mathcal{E}(F, E, \nu)` + fibre term (:func:`stress_kernel`, Kirchhoff stress
+   :math:`\tau = J \sigma`; the optional anisotropic fibre term is
+   :func:`physar.mpm.constitutive.fiber_stress`);
+2. P2G (MLS-MPM, Hu et al. 2018, Eq. 29; :math:`f_\text{ex}` of seed Eq. 7):
 
-Units: SI (m, s, kg, Pa).  All arrays are float64.  The grid covers the cube [0, size]^3 with ``pad``
-extra nodes on each side; walls sit at the faces of the cube (the ground is the face z = 0).  Particles
-are clamped to the padded grid so that they can never index outside it (a NaN state is reported by
-:meth:`MPMSolver.simulate_frame` as a :class:`physar.errors.SolverError`).
+   .. math::
+
+       m_i = \sum_p w_{ip} m_p, \qquad
+       (m v)_i = \sum_p w_{ip} \Big[m_p v_p + \Big(m_p C_p - dt\, V_p \frac{4}{dx^2} \tau_p\Big)(x_i - x_p)
+       + dt\, f_{\text{ex},p}\Big];
+
+3. grid: :math:`v_i = (m v)_i / m_i + dt\, g`, then wall/ground boundary conditions;
+4. G2P (APIC, Jiang et al. 2015):
+
+   .. math::
+
+       v_p = \sum_i w_{ip} v_i, \qquad C_p = \frac{4}{dx^2} \sum_i w_{ip} v_i (x_i - x_p)^\top, \qquad
+       F_\text{trial} = (I + dt\, C_p) F_p, \qquad x_p \mathrel{+}= dt\, v_p;
+
+   a particle that would end inside a kinematic collider is projected onto its surface,
+   :math:`x_p \mathrel{-}= \phi\, n` (:mod:`physar.mpm.colliders`);
+5. :math:`F = \mathcal{P}(F_\text{trial})` (:mod:`physar.mpm.constitutive`).
+
+Units: SI (m, s, kg, Pa).  All arrays are float64.  The grid covers the cube :math:`[0, \mathrm{size}]^3`
+with ``pad`` extra nodes on each side; walls sit at the faces of the cube (the ground is the face
+:math:`z = 0`).  Particles are clamped to the padded grid so that they can never index outside it (a NaN
+state is reported by :meth:`MPMSolver.simulate_frame` as a :class:`physar.errors.SolverError`).
 """
 
 from __future__ import annotations
@@ -94,7 +106,8 @@ def stress_kernel(
     fiber_E: wp.array(dtype=wp.float64),
     tau: wp.array(dtype=wp.mat33d),
 ):
-    """Step 1: tau_p = tau_expert(F_p; E_p, nu_p) + (E_f/2)(I4 - 1)(F a0)(F a0)^T (seed 002 §3.2 + fibre term)."""
+    r"""Step 1: :math:`\tau_p = \tau_\text{expert}(F_p; E_p, \nu_p) + (E_f/2)(I_4 - 1)(F a_0)(F a_0)^\top`
+    (seed 002 §3.2 + fibre term)."""
     p = wp.tid()
     h = hardening_factor(Jp[p], plastic[p], pp[p])
     tau[p] = kirchhoff_stress_fiber(F[p], E[p], nu[p], elastic[p], h, fiber[p], fiber_E[p])
@@ -287,7 +300,8 @@ def g2p_particle(
 @wp.func
 def g2p_gather(grid_v: wp.array3d(dtype=wp.vec3d), xp: wp.vec3d, origin: wp.float64, dx: wp.float64,
                nmax: wp.int32, off: wp.vec3i):
-    """APIC gather of step 4: v_p = sum_i w_ip v_i, C_p = 4/dx^2 sum_i w_ip v_i (x_i - x_p)^T."""
+    r"""APIC gather of step 4: :math:`v_p = \sum_i w_{ip} v_i`,
+    :math:`C_p = (4/dx^2) \sum_i w_{ip} v_i (x_i - x_p)^\top`."""
     inv_dx = _f(1.0) / dx
     b = _base(xp, origin, inv_dx, nmax)
     fx = _frac(xp, origin, inv_dx, b)
@@ -742,11 +756,11 @@ def _lame_np(E, nu):
 
 def elastic_energy_density(F: np.ndarray, E: np.ndarray, nu: np.ndarray, elastic: np.ndarray,
                            fiber: np.ndarray | None = None, fiber_E: np.ndarray | None = None) -> np.ndarray:
-    """Strain energy density psi(F) (J/m^3, per unit rest volume) matching the stresses of
-    :mod:`physar.mpm.constitutive` (without snow hardening).
+    r"""Strain energy density :math:`\psi(F)` (:math:`\mathrm{J/m^3}`, per unit rest volume) matching the
+    stresses of :mod:`physar.mpm.constitutive` (without snow hardening).
 
-    With ``fiber`` (N, 3, unit rest directions a0, zero rows allowed) and ``fiber_E`` (N,) the fibre energy
-    Psi_f = (E_f / 8)(|F a0|^2 - 1)^2 is added (:class:`MPMModel`)."""
+    With ``fiber`` (N, 3, unit rest directions :math:`a_0`, zero rows allowed) and ``fiber_E`` (N,) the fibre
+    energy :math:`\Psi_f = (E_f / 8)(|F a_0|^2 - 1)^2` is added (:class:`MPMModel`)."""
     mu, la = _lame_np(np.asarray(E), np.asarray(nu))
     s = np.linalg.svd(F, compute_uv=False)
     J = np.prod(s, axis=1)
