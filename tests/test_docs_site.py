@@ -57,7 +57,7 @@ MATH_DOCSTRINGS = {
     "physar.synth": ["rasterize"],
     "physar.gaussians": ["covariance", "eval_sh", "render"],
     "physar.skinning": ["lbs", "blend_transforms", "winding_number", "axis_angle_to_matrix", "Skeleton"],
-    "physar.mpm": ["Control", "MPMModel", "diagnostics"],
+    "physar.mpm": ["Control", "MPMModel", "diagnostics", "Params"],
 }
 MATH_MODULES = ["physar.assimilation", "physar.recon.flow", "physar.recon.canonical", "physar.recon.metrics",
                 "physar.recon.train", "physar.ar.project_pipeline", "physar.ar.surface"]  # shown in the reference
@@ -111,9 +111,11 @@ PRIVATE_MATH_DOCSTRINGS = [
     "physar.gaussians.rasterize._log_transmittance", "physar.gaussians.rasterize._composite_weights",
     "physar.mpm.actuation", "physar.mpm.actuation.held_force", "physar.mpm.colliders",
     "physar.mpm.constitutive", "physar.mpm.constitutive.drucker_prager_alpha",
-    "physar.mpm.constitutive.sym_sqrt", "physar.mpm.constitutive.fiber_stress", "physar.mpm.model",
-    "physar.mpm.model.stress_kernel", "physar.mpm.model.g2p_gather",
-    "physar.mpm.model.elastic_energy_density",
+    "physar.mpm.constitutive.sym_sqrt", "physar.mpm.constitutive.fiber_stress", "physar.mpm.identify",
+    "physar.mpm.identify.lattice_moment", "physar.mpm.identify._Moments", "physar.mpm.identify._moment_terms",
+    "physar.mpm.model", "physar.mpm.model.stress_kernel", "physar.mpm.model.g2p_gather",
+    "physar.mpm.model.elastic_energy_density", "physar.mpm.neural", "physar.mpm.neural.invariant_features",
+    "physar.mpm.neural.regulariser", "physar.mpm.scene.sample_body", "physar.mpm.torch_bridge._transfer_op",
 ]
 # what marks an equation written as plain text: operator symbols, ASCII arrows and norms, a power or
 # subscript on a symbol, a Greek letter in an assignment (units such as m² are not flagged)

@@ -1,28 +1,33 @@
-"""Material identification from a particle trajectory (seed 002, §4.4, the 3-D flow term of Eq. 10).
+r"""Material identification from a particle trajectory (seed 002, §4.4, the 3-D flow term of Eq. 10).
 
 The target is a sequence of particle clouds (e.g. ``physar mpm run`` output) that may be sampled differently
-from the model (no one-to-one particle correspondence), so the misfit compares, per body b and frame n,
-moments of the body's particles that do not depend on the sampling: the centre c_b^n and the change of the
-covariance since frame 0, D_b^n = S^_b^n - S^_b^0,
+from the model (no one-to-one particle correspondence), so the misfit compares, per body :math:`b` and frame
+:math:`n`, moments of the body's particles that do not depend on the sampling: the centre :math:`c_b^n` and
+the change of the covariance since frame 0, :math:`D_b^n = \hat S_b^n - \hat S_b^0`,
 
-    L(theta) = 1/N_f sum_n sum_b ( ||c_b^n - c*_b^n||^2 / h^2 + ||D_b^n - D*_b^n||_F^2 / h^4 ),
+.. math::
 
-h = grid spacing.  S^ is the particles' covariance S plus the second moment of the lattice cell each particle
-stands for, carried by the body's affine motion: S^_b^n = S_b^n + A_b^n Delta_b A_b^n^T, with Delta_b =
-diag(s_i^2 / 12) (s_i: the lattice spacing of the body's frame-0 positions along axis i) and A_b^n the least-
-squares affine map of the body's frame-0 positions to frame n.  Without it the covariance of a lattice is
-short of the body's by s^2/12 per axis, an offset between a model and a target sampled at different densities
-(it biased E by 9 % with 8 vs 27 particles per cell on a 16-cell bar); with it S^ is exact for any affine
-motion of a box (stretch, shear, rotation) whatever the sampling.
-The unknowns are log(E_b) per body (and optionally nu_b), optimised by L-BFGS with
+    L(\theta) = \frac{1}{N_f} \sum_n \sum_b \left( \frac{\lVert c_b^n - c_b^{*n} \rVert^2}{h^2}
+    + \frac{\lVert D_b^n - D_b^{*n} \rVert_F^2}{h^4} \right),
+
+:math:`h` = grid spacing.  :math:`\hat S` is the particles' covariance :math:`S` plus the second moment of the
+lattice cell each particle stands for, carried by the body's affine motion:
+:math:`\hat S_b^n = S_b^n + A_b^n \Delta_b (A_b^n)^\top`, with
+:math:`\Delta_b = \operatorname{diag}(s_i^2 / 12)` (:math:`s_i`: the lattice spacing of the body's frame-0
+positions along axis :math:`i`) and :math:`A_b^n` the least-squares affine map of the body's frame-0 positions
+to frame :math:`n`.  Without it the covariance of a lattice is short of the body's by :math:`s^2/12` per axis,
+an offset between a model and a target sampled at different densities (it biased :math:`E` by 9 % with 8 vs 27
+particles per cell on a 16-cell bar); with it :math:`\hat S` is exact for any affine motion of a box (stretch,
+shear, rotation) whatever the sampling.
+The unknowns are :math:`\log E_b` per body (and optionally :math:`\nu_b`), optimised by L-BFGS with
 gradients from :func:`physar.mpm.torch_bridge.simulate`.
 
-The misfit of an oscillating body is not convex in E: once the simulated and target vibrations are more than
-about half a period apart over the sequence, L-BFGS slides to a wrong minimum (e.g. a rigid, infinitely stiff
-body).  So L-BFGS starts from a global scan: forward runs with every body's E scaled by the same factor
-2^k (k = -scan_octaves … scan_octaves in steps of 1/4), keeping per body the factor with the smallest per-body
-misfit.  For non-interacting bodies this is an exact per-body grid search (the misfit separates by body);
-for touching bodies it is a heuristic start.
+The misfit of an oscillating body is not convex in :math:`E`: once the simulated and target vibrations are
+more than about half a period apart over the sequence, L-BFGS slides to a wrong minimum (e.g. a rigid,
+infinitely stiff body).  So L-BFGS starts from a global scan: forward runs with every body's :math:`E` scaled
+by the same factor :math:`2^k` (:math:`k = -K \dots K` in steps of 1/4, :math:`K` = ``scan_octaves``), keeping
+per body the factor with the smallest per-body misfit.  For non-interacting bodies this is an exact per-body
+grid search (the misfit separates by body); for touching bodies it is a heuristic start.
 """
 
 from __future__ import annotations
@@ -48,8 +53,9 @@ class IdentifyResult:
 
 
 def lattice_moment(x0: np.ndarray, body: np.ndarray, n_bodies: int) -> np.ndarray:
-    """Delta_b = diag(s_i^2 / 12) (n_bodies, 3, 3): s_i = (max - min) / (k - 1) over the k distinct frame-0
-    coordinates of body b along axis i (the lattice spacing; 0 for one particle layer, ~0 for scattered points)."""
+    r""":math:`\Delta_b = \operatorname{diag}(s_i^2 / 12)` (n_bodies, 3, 3):
+    :math:`s_i = (\max - \min) / (k - 1)` over the :math:`k` distinct frame-0 coordinates of body :math:`b`
+    along axis :math:`i` (the lattice spacing; 0 for one particle layer, ~0 for scattered points)."""
     out = np.zeros((n_bodies, 3, 3))
     for b in range(n_bodies):
         xb = np.asarray(x0, dtype=np.float64)[np.asarray(body) == b]
@@ -62,8 +68,8 @@ def lattice_moment(x0: np.ndarray, body: np.ndarray, n_bodies: int) -> np.ndarra
 
 
 class _Moments:
-    """Centres c_b and lattice-corrected covariances S^_b (module docstring) of frames of one particle set, whose
-    frame-0 positions ``x0`` fix the lattice moment and the affine fits."""
+    r"""Centres :math:`c_b` and lattice-corrected covariances :math:`\hat S_b` (module docstring) of frames of
+    one particle set, whose frame-0 positions ``x0`` fix the lattice moment and the affine fits."""
 
     def __init__(self, x0, body: np.ndarray, n_bodies: int):
         x0 = torch.as_tensor(np.asarray(x0, dtype=np.float64))
@@ -107,7 +113,8 @@ def target_moments(frames: list[dict], n_bodies: int, n_frames: int):
 
 
 def _moment_terms(c, s, moments: _Moments, tc, td, n: int, h: float) -> torch.Tensor:
-    """Per body: ||c - c*||^2 / h^2 + ||(S^ - S^0) - D*||_F^2 / h^4 at frame n (``td``: the target's D*)."""
+    r"""Per body: :math:`\lVert c - c^* \rVert^2 / h^2 + \lVert (\hat S - \hat S^0) - D^* \rVert_F^2 / h^4` at
+    frame :math:`n` (``td``: the target's :math:`D^*`)."""
     return ((c - tc[n]) ** 2).sum(-1) / h**2 + ((s - moments.s0 - td[n]) ** 2).sum((-2, -1)) / h**4
 
 

@@ -1,21 +1,30 @@
-"""Neural residual constitutive laws of seed 002, Eq. (8), with the regulariser of Eq. (11).
+r"""Neural residual constitutive laws of seed 002, Eq. (8), with the regulariser of Eq. (11).
 
-sigma = E(F, E, nu) + E_theta(F, l_e),    F = P(F_trial) + P_theta(F_trial, l_p)          (Eq. 8)
+.. math::
+
+    \sigma = \mathcal{E}(F, E, \nu) + \mathcal{E}_\theta(F, l_e), \qquad
+    F = \mathcal{P}(F_\text{trial}) + \mathcal{P}_\theta(F_\text{trial}, l_p) \qquad \text{(Eq. 8)}
 
 Both residuals are NCLaw-style MLPs (13 -> 64 -> 64 -> 9, seed 002 App. A) on the rotation-invariant features
-[singular values of F (3), F^T F (9), det F (1)]; the per-particle latent (64) is added to the output of the
-first hidden layer.  The last layer is zero-initialised, so a fresh network returns 0 and training starts from
-the expert law.  Output scaling (physar's choice, so that the unit network output is meaningful):
+[singular values of :math:`F` (3), :math:`F^\top F` (9), :math:`\det F` (1)]; the per-particle latent (64) is
+added to the output of the first hidden layer.  The last layer is zero-initialised, so a fresh network returns
+0 and training starts from the expert law.  Output scaling (physar's choice, so that the unit network output
+is meaningful):
 
-* E_theta: Cauchy stress residual sigma_theta = stress_scale * sym(reshape(out, 3, 3)) (Pa); it enters the MPM
-  force as the Kirchhoff stress J sigma_theta (symmetric, so angular momentum stays conserved);
-* P_theta: deformation-gradient residual = F_scale * reshape(out, 3, 3) (dimensionless).
+* :math:`\mathcal{E}_\theta`: Cauchy stress residual
+  :math:`\sigma_\theta = s_\sigma \operatorname{sym}(\operatorname{reshape}(\mathrm{out}, 3, 3))` (Pa),
+  :math:`s_\sigma` = ``stress_scale``; it enters the MPM force as the Kirchhoff stress :math:`J \sigma_\theta`
+  (symmetric, so angular momentum stays conserved);
+* :math:`\mathcal{P}_\theta`: deformation-gradient residual
+  :math:`s_F \operatorname{reshape}(\mathrm{out}, 3, 3)` (dimensionless), :math:`s_F` = ``F_scale``.
 
-The singular values come from Warp's ``svd3`` (finite gradients at F = I, unlike ``torch.linalg.svd``).
+The singular values come from Warp's ``svd3`` (finite gradients at :math:`F = I`, unlike
+``torch.linalg.svd``).
 
-Activation truncation at inference (seed App. A.2, Eq. 12): O = 0 where ||O||_Fro < eps (eps = 1e-3), O the
-(3, 3) output matrix of a network.  physar applies it to the network's own (unit) output, before the output
-scaling above, so that eps keeps the seed's meaning of "a negligible network output" whatever the scale.
+Activation truncation at inference (seed App. A.2, Eq. 12): :math:`O = 0` where
+:math:`\lVert O \rVert_\text{Fro} < \epsilon` (:math:`\epsilon = 10^{-3}`), :math:`O` the (3, 3) output matrix
+of a network.  physar applies it to the network's own (unit) output, before the output scaling above, so that
+:math:`\epsilon` keeps the seed's meaning of "a negligible network output" whatever the scale.
 """
 
 from __future__ import annotations
@@ -25,7 +34,8 @@ from torch import nn
 
 
 def invariant_features(F: torch.Tensor, sv: torch.Tensor) -> torch.Tensor:
-    """(N, 13) features [sigma_1..3, (F^T F) row-major, det F] of deformation gradients F (N, 3, 3)."""
+    r"""(N, 13) features :math:`[\sigma_1, \sigma_2, \sigma_3, F^\top F \text{ (row-major)}, \det F]` of
+    deformation gradients :math:`F` (N, 3, 3)."""
     C = F.transpose(1, 2) @ F
     return torch.cat([sv, C.reshape(-1, 9), torch.linalg.det(F)[:, None]], dim=1)
 
@@ -86,12 +96,22 @@ class NeuralResidual(nn.Module):
 
 def regulariser(nets: NeuralResidual | None, omega: torch.Tensor | None, F=None, l_e=None, F_trial=None, l_p=None,
                 lam_law: float = 10.0, lam_omega: float = 0.1, lam_feat: float = 1.0) -> torch.Tensor:
-    """R = lam_law (||E_theta(F, l_e)||_2 + ||P_theta(F_trial, l_p)||_2) + lam_omega ||omega||_2     (Eq. 11)
-    + lam_feat (||l_e||_2 + ||l_p||_2) (seed 002 App. A, R_feat).  Defaults are the seed's weights.
+    r"""The regulariser of Eq. (11) plus the latent term :math:`R_\text{feat}` of seed 002 App. A:
 
-    ||.||_2 is the 2-norm of all entries (over particles).  F, F_trial (N, 3, 3): deformation gradients where
-    the residuals are evaluated (their singular values enter as features only, without gradient); a residual
-    that is absent (``nets`` None or its network None) or has no F contributes nothing."""
+    .. math::
+
+        R = \lambda_\text{law} \big(\lVert \mathcal{E}_\theta(F, l_e) \rVert_2
+        + \lVert \mathcal{P}_\theta(F_\text{trial}, l_p) \rVert_2\big)
+        + \lambda_\omega \lVert \omega \rVert_2
+        + \lambda_\text{feat} \big(\lVert l_e \rVert_2 + \lVert l_p \rVert_2\big),
+
+    with :math:`\lambda_\text{law}, \lambda_\omega, \lambda_\text{feat}` = ``lam_law``, ``lam_omega``,
+    ``lam_feat``.  Defaults are the seed's weights.
+
+    :math:`\lVert \cdot \rVert_2` is the 2-norm of all entries (over particles).  F, F_trial (N, 3, 3):
+    deformation gradients where the residuals are evaluated (their singular values enter as features only,
+    without gradient); a residual that is absent (``nets`` None or its network None) or has no F contributes
+    nothing."""
     r = lam_omega * torch.linalg.vector_norm(omega) if omega is not None else torch.zeros((), dtype=torch.float64)
     if nets is None:
         return r

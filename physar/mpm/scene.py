@@ -235,11 +235,13 @@ def _lattice(lo, hi, h):
 
 
 def sample_body(body: Body, dx: float, base_dir: Path | None = None) -> tuple[np.ndarray, float]:
-    """Particle positions (N, 3) and the volume of each particle (m^3), n^3 = particles_per_cell per cell.
+    r"""Particle positions (N, 3) and the volume of each particle (:math:`\mathrm{m}^3`), :math:`n^3` =
+    ``particles_per_cell`` per cell.
 
-    A box is filled with a lattice centred in it (spacing (max - min) / round((max - min) n / dx) per axis), so
-    its centroid and second moments are exact for every sampling; spheres and meshes use the lattice of
-    spacing dx / n aligned with the grid.
+    A box is filled with a lattice centred in it (spacing
+    :math:`(\max - \min) / \operatorname{round}((\max - \min)\, n / dx)` per axis), so its centroid and second
+    moments are exact for every sampling; spheres and meshes use the lattice of spacing :math:`dx / n` aligned
+    with the grid.
     """
     h = dx / round(body.particles_per_cell ** (1 / 3))
     if body.shape == "box":

@@ -84,8 +84,9 @@ def _sv_op(model: MPMModel, F, grad=False):
 
 
 def _transfer_op(model: MPMModel, x, v, C, F, tau, omega, x_ref, v_ref, f_hold, gains, grad=False, t=0.0):
-    """P2G, grid update and G2P of the substep starting at time t (s); ``gains`` = [kp, kd] (1/s^2, 1/s) of the
-    per-substep PD force, ``f_hold`` (N, 3) N the force held over the frame (Alg. 2)."""
+    r"""P2G, grid update and G2P of the substep starting at time t (s); ``gains`` = [kp, kd]
+    (:math:`\mathrm{s}^{-2}`, :math:`\mathrm{s}^{-1}`) of the per-substep PD force, ``f_hold`` (N, 3) N the
+    force held over the frame (Alg. 2)."""
     a = model.warp_arrays()
     col = a["colliders"].at(t, model.dt)
     n, g = model.n_particles, model.n_grid
@@ -134,13 +135,16 @@ def _transfer_wrapped(model, x, v, C, F, tau, omega, x_ref, v_ref, f_hold, kp, k
 
 @dataclass
 class Params:
-    """Differentiable per-particle parameters (torch float64 tensors; ``None`` = not used).
+    r"""Differentiable per-particle parameters (torch float64 tensors; ``None`` = not used).
 
-    E (N,) Pa, nu (N,), omega (N,) actuation gate, x_ref/v_ref (N, 3) PD references (constant over a frame, or
-    a callable frame -> (x_ref, v_ref)), l_e/l_p (N, latent) latents, kp (1/s^2), kd (1/s), fiber_E (N,) Pa
-    fibre moduli of the anisotropic term (``None``: the model's ``fiber_E``, not differentiated).
-    ``hold``: the PD force of Eq. (6)-(7) is evaluated once per frame on the frame's initial state and held over
-    its substeps (seed Alg. 2, the default); ``False``: recomputed on every substep's state.
+    E (N,) Pa, nu (N,), omega (N,) actuation gate :math:`\omega`, x_ref/v_ref (N, 3) PD references (constant
+    over a frame, or a callable frame -> (x_ref, v_ref)), l_e/l_p (N, latent) latents, kp
+    (:math:`\mathrm{s}^{-2}`), kd (:math:`\mathrm{s}^{-1}`), fiber_E (N,) Pa fibre moduli of the anisotropic
+    term (``None``: the model's ``fiber_E``, not differentiated).  The PD force of Eq. (6)-(7) is
+    :math:`f_\text{ex} = m\, \omega \big[k_p (x_\text{ref} - x) + k_d (v_\text{ref} - v)\big]` with
+    :math:`k_p, k_d` = kp, kd.
+    ``hold``: that force is evaluated once per frame on the frame's initial state and held over its substeps
+    (seed Alg. 2, the default); ``False``: recomputed on every substep's state.
     """
 
     E: torch.Tensor
