@@ -116,6 +116,7 @@ PRIVATE_MATH_DOCSTRINGS = [
     "physar.mpm.model", "physar.mpm.model.stress_kernel", "physar.mpm.model.g2p_gather",
     "physar.mpm.model.elastic_energy_density", "physar.mpm.neural", "physar.mpm.neural.invariant_features",
     "physar.mpm.neural.regulariser", "physar.mpm.scene.sample_body", "physar.mpm.torch_bridge._transfer_op",
+    "physar.mpm.adjoint.g2p_gather_adjoint_kernel", "physar.mpm.adjoint.p2g_scatter_adjoint_kernel",
 ]
 # what marks an equation written as plain text: operator symbols, ASCII arrows and norms, a power or
 # subscript on a symbol, a Greek letter in an assignment (units such as m² are not flagged)

@@ -260,17 +260,26 @@ def g2p_gather_adjoint_kernel(
     adj_F: wp.array(dtype=wp.mat33d),
     adj_Jp: wp.array(dtype=wp.float64),
 ):
-    """Reverse of the APIC gather (:func:`physar.mpm.model.g2p_gather`), written out by hand.
+    r"""Reverse of the APIC gather (:func:`physar.mpm.model.g2p_gather`), written out by hand.
 
-    With K = 4/dx^2, fx = (x - origin)/dx - base, dpos_i = (i - fx) dx and given adj_nv = dL/dv_p,
-    adj_nC = dL/dC_p:  dL/dv_i += w_ip (adj_nv + K adj_nC dpos_i)  (scattered into adj_gv), and
-    dL/dx_p += (1/dx) sum_i [ (grad w_ip) v_i . (adj_nv + K adj_nC dpos_i) - w_ip dx K adj_nC^T v_i ].
+    With :math:`K = 4/dx^2`, :math:`f_x = (x - \mathrm{origin})/dx - \mathrm{base}`,
+    :math:`\Delta_i = (i - f_x)\, dx` and given :math:`\bar v_p = \partial L / \partial v_p` (``adj_nv``),
+    :math:`\bar C_p = \partial L / \partial C_p` (``adj_nC``):
+
+    .. math::
+
+        \frac{\partial L}{\partial v_i} \mathrel{+}= w_{ip} \big(\bar v_p + K \bar C_p \Delta_i\big)
+        \quad \text{(scattered into adj\_gv)},
+
+        \frac{\partial L}{\partial x_p} \mathrel{+}= \frac{1}{dx} \sum_i \Big[ \nabla w_{ip}\,
+        \big(v_i \cdot (\bar v_p + K \bar C_p \Delta_i)\big) - w_{ip}\, dx\, K \bar C_p^\top v_i \Big].
 
     ``tail`` = 1 (no colliders, no plastic law): the rest of the substep's reverse is done here as well, for
-    x_new = clamp(x + dt v_p) and F_new = (I + dt C_p) F, J_p,new = J_p (adj_nv, adj_nC are then the adjoints of the
-    stored v_p, C_p only; the clamp passes the adjoint where lo <= x <= hi, as Warp's ``clamp`` does);
-    ``tail`` = 0: adj_nv, adj_nC are the totals (the tail was reversed by Warp's adjoints of
-    :func:`advect_kernel` and :func:`trial_plastic_kernel`)."""
+    :math:`x_\text{new} = \operatorname{clamp}(x + dt\, v_p)` and :math:`F_\text{new} = (I + dt\, C_p) F`,
+    :math:`J_{p,\text{new}} = J_p` (``adj_nv``, ``adj_nC`` are then the adjoints of the stored :math:`v_p`,
+    :math:`C_p` only; the clamp passes the adjoint where :math:`\mathrm{lo} \le x \le \mathrm{hi}`, as Warp's
+    ``clamp`` does); ``tail`` = 0: ``adj_nv``, ``adj_nC`` are the totals (the tail was reversed by Warp's
+    adjoints of :func:`advect_kernel` and :func:`trial_plastic_kernel`)."""
     p = wp.tid() + p0
     xp = x[p]
     inv_dx = _f(1.0) / dx
@@ -336,13 +345,29 @@ def p2g_scatter_adjoint_kernel(
     adj_tau: wp.array(dtype=wp.mat33d),
     adj_f: wp.array(dtype=wp.vec3d),
 ):
-    """Reverse of the MLS-MPM scatter (:func:`physar.mpm.model.p2g_particle`) as a gather, written out by hand.
+    r"""Reverse of the MLS-MPM scatter (:func:`physar.mpm.model.p2g_particle`) as a gather, written out by
+    hand.
 
-    Forward: (mv)_i += w_ip (mom + A dpos_i), m_i += w_ip m_p with mom = m_p v_p + dt f_p and
-    A = -dt V_p K tau_p + m_p C_p (K = 4/dx^2).  Given dL/d(mv)_i, dL/dm_i: a_mom = sum_i w_ip dL/d(mv)_i,
-    a_A = sum_i w_ip dL/d(mv)_i dpos_i^T, dL/dfx = sum_i (grad w_ip)[dL/d(mv)_i . (mom + A dpos_i) + dL/dm_i m_p]
-    - w_ip dx A^T dL/d(mv)_i; then dL/dx_p += dL/dfx / dx, dL/dv_p += m_p a_mom, dL/dC_p += m_p a_A,
-    dL/dtau_p = -dt V_p K a_A, dL/df_p = dt a_mom (the last two are written, not accumulated)."""
+    Forward: :math:`(m v)_i \mathrel{+}= w_{ip} (\mathrm{mom} + A \Delta_i)`,
+    :math:`m_i \mathrel{+}= w_{ip} m_p` with :math:`\mathrm{mom} = m_p v_p + dt\, f_p` and
+    :math:`A = -dt\, V_p K \tau_p + m_p C_p` (:math:`K = 4/dx^2`, :math:`\Delta_i` and :math:`f_x` as in
+    :func:`g2p_gather_adjoint_kernel`).  Given :math:`\overline{mv}_i = \partial L / \partial (m v)_i` and
+    :math:`\bar m_i = \partial L / \partial m_i`:
+
+    .. math::
+
+        \bar a_\mathrm{mom} = \sum_i w_{ip}\, \overline{mv}_i, \qquad
+        \bar a_A = \sum_i w_{ip}\, \overline{mv}_i \Delta_i^\top,
+
+        \frac{\partial L}{\partial f_x} = \sum_i \Big[ \nabla w_{ip} \big(\overline{mv}_i \cdot
+        (\mathrm{mom} + A \Delta_i) + \bar m_i m_p\big) - w_{ip}\, dx\, A^\top \overline{mv}_i \Big];
+
+    then :math:`\partial L / \partial x_p \mathrel{+}= (\partial L / \partial f_x) / dx`,
+    :math:`\partial L / \partial v_p \mathrel{+}= m_p \bar a_\mathrm{mom}`,
+    :math:`\partial L / \partial C_p \mathrel{+}= m_p \bar a_A`,
+    :math:`\partial L / \partial \tau_p = -dt\, V_p K \bar a_A`,
+    :math:`\partial L / \partial f_p = dt\, \bar a_\mathrm{mom}` (the last two are written, not
+    accumulated)."""
     p = wp.tid() + p0
     xp = x[p]
     m = mass[p]
