@@ -117,6 +117,9 @@ PRIVATE_MATH_DOCSTRINGS = [
     "physar.mpm.model.elastic_energy_density", "physar.mpm.neural", "physar.mpm.neural.invariant_features",
     "physar.mpm.neural.regulariser", "physar.mpm.scene.sample_body", "physar.mpm.torch_bridge._transfer_op",
     "physar.mpm.adjoint.g2p_gather_adjoint_kernel", "physar.mpm.adjoint.p2g_scatter_adjoint_kernel",
+    "physar.mpm.adjoint", "physar.mpm.colliders.collider_sdf", "physar.mpm.colliders.Collider.signed_distance",
+    "physar.ar.surface_points", "physar.ar.surface_points.ray_triangle", "physar.ar.surface_points.GroupSigma",
+    "physar.ar.surface_points.SurfacePoints.refine",
 ]
 # what marks an equation written as plain text: operator symbols, ASCII arrows and norms, a power or
 # subscript on a symbol, a Greek letter in an assignment (units such as m² are not flagged)

@@ -1,19 +1,20 @@
-"""Fused, hand-scheduled reverse mode for frames of expert-law MLS-MPM substeps (seed 002, Alg. 1-2).
+r"""Fused, hand-scheduled reverse mode for frames of expert-law MLS-MPM substeps (seed 002, Alg. 1-2).
 
 The generic bridge (:mod:`physar.mpm.torch_bridge`) wraps every Warp launch in its own autograd function and
 replays it on a ``wp.Tape``; with per-frame checkpointing a substep is then run three times forward plus once
 in reverse, with fresh allocations per launch.  Without neural residuals the whole frame is one
 :class:`torch.autograd.Function` here:
 
-* two fused kernels per substep: stress + P2G (tau = tau(F, E, nu) + fibre term tau_f(F, a0, E_f) of
-  :func:`physar.mpm.constitutive.fiber_stress` inside the scatter) and G2P + return map
-  (F = P((I + dt C) F) inside the gather); the grid update is the shared ``grid_update_kernel``;
+* two fused kernels per substep: stress + P2G (:math:`\tau = \tau(F, E, \nu) + \tau_f(F, a_0, E_f)`, the fibre
+  term of :func:`physar.mpm.constitutive.fiber_stress`, inside the scatter) and G2P + return map
+  (:math:`F \leftarrow \mathcal{P}\big((I + \Delta t\, C) F\big)` inside the gather); the grid update is the
+  shared ``grid_update_kernel``;
 * forward: the last K substeps of the frame keep their states and grids, as many as a memory budget allows
-  (``FusedFrame.keep_bytes``, over all frames alive in the graph); the first T - K store only the states at
-  segment boundaries (every k ~ sqrt(T - K) substeps);
-* backward: the kept substeps are reversed directly; then per segment (last first) the k substeps are
-  recomputed with their states and grids stored and reversed; memory is O((K + (T - K) / k + k) N), cost
-  (2 - K / T) forward + 1 adjoint sweep;
+  (``FusedFrame.keep_bytes``, over all frames alive in the graph); the first :math:`T - K` store only the
+  states at segment boundaries (every :math:`k \approx \sqrt{T - K}` substeps);
+* backward: the kept substeps are reversed directly; then per segment (last first) the :math:`k` substeps are
+  recomputed with their states and grids stored and reversed; memory is
+  :math:`O\big((K + (T - K)/k + k)\, N\big)`, cost :math:`2 - K/T` forward sweeps + 1 adjoint sweep;
 * the reverse of a substep, per particle (issue 19: hand-written where Warp's generated adjoint of the
   27-node loops was 3-4x slower than the forward): the return map and position update by Warp's adjoints of
   small per-particle kernels (:func:`trial_plastic_kernel`, :func:`advect_kernel`; by hand in

@@ -121,7 +121,7 @@ class Collider:
         return c0, (self.position(t + dt) - c0) / dt
 
     def signed_distance(self, x: np.ndarray, t: float = 0.0) -> np.ndarray:
-        """phi(x) (m) at time t for points x (N, 3); negative inside (NumPy twin of :func:`collider_sdf`)."""
+        r""":math:`\phi(x)` (m) at time t for points x (N, 3); negative inside (NumPy twin of :func:`collider_sdf`)."""
         d = np.asarray(x, dtype=np.float64) - self.position(t)
         if self.shape == "box":
             q = np.abs(d) - np.asarray(self.half_extents, dtype=np.float64)
@@ -138,7 +138,8 @@ class Collider:
 
 @wp.func
 def collider_sdf(p: wp.vec3d, kind: wp.int32, c: wp.vec3d, size: wp.vec3d, axis: wp.vec3d) -> wp.vec4d:
-    """(phi, n_x, n_y, n_z): signed distance of p to the collider and its outward normal (module docstring)."""
+    r"""(:math:`\phi`, :math:`n_x`, :math:`n_y`, :math:`n_z`): signed distance of p to the collider and its
+    outward normal (module docstring)."""
     d = p - c
     phi = _f(0.0)
     n = wp.vec3d(_f(0.0), _f(0.0), _f(1.0))

@@ -626,9 +626,12 @@ class MPMState:
 
 @dataclass
 class Control:
-    r"""PD actuation of seed Eq. (6)-(7): gate omega (N,), references x_ref, v_ref (N, 3), gains kp, kd,
+    r"""PD actuation of seed Eq. (6)-(7): gate :math:`\omega` (N,), references :math:`x_\text{ref}`, :math:`v_\text{ref}`
+    (N, 3), gains :math:`k_p`, :math:`k_d`,
 
-    .. math:: f_\text{ex} = m\, \omega \big[k_p (x_\text{ref} - x) + k_d (v_\text{ref} - v)\big].
+    .. math::
+
+        f_\text{ex} = m\, \omega \big[k_p (x_\text{ref} - x) + k_d (v_\text{ref} - v)\big].
 
     ``hold=True`` (seed Alg. 2): :meth:`MPMSolver.simulate_frame` evaluates :math:`f_\text{ex}` once from the
     state at the start of the frame and applies it at every substep; ``False``: recomputed from each substep's
