@@ -80,6 +80,40 @@ def errors_3d(recon: Reconstruction, ds, key: str, rotations, root_t, frames, ho
     return out
 
 
+def identifiability(data_dir: Path, tcfg) -> list[tuple[str, float, float]]:
+    """bench_recon.identifiability with the simulated bones of the clip (an imported scene lists none: the rig
+    finds the reaching bones from the poses): mean 3-D object error (mm, observed frames) of the
+    reconstruction's simulator with the true isotropic E (nearest fine particle), scaled, swapped and uniform
+    fields, vs the cell-averaged truth, and the distance to the motion with the true field."""
+    from scipy.spatial import cKDTree
+
+    from physar.recon.train import Physics, Rig, simulate_clip
+
+    ds = load_dataset(data_dir)
+    rig = Rig(ds.meta, tcfg.model_copy(update={"material_grid": (0, 0, 0), "residual": False}),
+              poses=(ds.rotations, ds.root_t))
+    kin = rig.kinematics(ds.rotations, ds.root_t)
+    gt = cell_average_truth(rig, ds.truth)
+    Et = ds.truth["E"][cKDTree(ds.truth["rest_positions"]).query(rig.Xo)[1]]
+
+    def run(E):
+        ph = Physics.init(rig)
+        ph.log_E = torch.log(torch.as_tensor(E, dtype=torch.float64))
+        return {f: xo.numpy() for f, xo, *_ in simulate_clip(rig, ph, kin, ds.n_obs, grad=False)}
+
+    ref = run(Et)
+    fr = range(1, ds.n_obs)
+    rows = []
+    fields = [("true isotropic field", Et)] + [(f"{s} x true", s * Et) for s in (0.5, 2.0, 4.0)] + [
+        ("soft/stiff swapped", Et.min() + Et.max() - Et), ("uniform E_init", np.full(rig.no, tcfg.E_init))]
+    for name, E in fields:
+        x = run(E)
+        rows.append((name, float(np.mean([np.linalg.norm(x[f] - gt[f], axis=1).mean() for f in fr]) * 1e3),
+                     float(np.mean([np.linalg.norm(x[f] - ref[f], axis=1).mean() for f in fr]) * 1e3)))
+        log(f"identifiability {name}: {rows[-1][1]:.2f} mm")
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--config", default=str(ROOT / "examples" / "recon_anny_cpillow.toml"))
@@ -87,6 +121,8 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--no-diagnostics", action="store_true")
     ap.add_argument("--reuse-data", action="store_true", help="keep OUT/data and OUT/user when present")
+    ap.add_argument("--identifiability", action="store_true", help="also run bench_recon.identifiability on the "
+                    "imported scene: the reconstruction's simulator with scaled / uniform E fields vs the truth")
     ap.add_argument("--eval-only", action="store_true", help="reuse OUT/data, OUT/user and OUT/run (its "
                     "report.json): recompute the tables without fitting")
     a = ap.parse_args()
@@ -150,11 +186,14 @@ def main() -> None:
           "pred_large": errors_3d(recon, ds, "dynamic", ds.rotations, ds.root_t, sub["pred_large"], no),
           "novel_large": errors_3d(recon, ds, "novel", ds.novel["rotations"], ds.novel["root_t"], sub["novel_large"],
                                    None)}
-    oracle = None
+    oracle, ident = None, None
+    spec = importlib.util.spec_from_file_location("bench_recon", ROOT / "benchmarks" / "bench_recon.py")
+    br = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(br)
+    if a.identifiability:
+        log("E identifiability (the reconstruction's simulator, observed frames, no learning)")
+        ident = identifiability(user / "data", tcfg)
     if not a.no_diagnostics:
-        spec = importlib.util.spec_from_file_location("bench_recon", ROOT / "benchmarks" / "bench_recon.py")
-        br = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(br)
         log("pixel-fit diagnostics (true-motion oracle render)")
         oracle = br.pixel_fit_diagnostics(user / "data", out / "run")
     mat = rep["material"]
@@ -162,7 +201,7 @@ def main() -> None:
            "methods": rep["methods"], "material": mat, "simulated_bones": recon.rig.meta["body"]["simulated_bones"],
            "times_s": {"generate": t_gen, "export_import_check": t_imp, "fit_eval": t_fit,
                        "train": rep["train_seconds"], "total": time.perf_counter() - t_all},
-           "oracle": oracle, "check_problems": chk["problems"], "load_end": os.getloadavg()[0]}
+           "oracle": oracle, "identifiability": ident, "check_problems": chk["problems"], "load_end": os.getloadavg()[0]}
     (out / "results.json").write_text(json.dumps(res, indent=1, default=float))
     print(f"\nscene: anny + c_pillow, both forearms/hands ({len(res['simulated_bones'])} simulated bones), "
           f"{scfg.image_size} px, spin {scfg.spin_frames} / dynamic {scfg.frames} ({scfg.n_obs} observed) / novel "
@@ -181,6 +220,12 @@ def main() -> None:
     print(f"\nlearned E: mean |log10 E/E_true| {mat['mean_abs_log10_error']:.3f} (initial guess "
           f"{mat['initial_mean_abs_log10_error']:.3f}); soft/stiff geomean {mat['E_soft_learned_geomean']:.0f} / "
           f"{mat['E_stiff_learned_geomean']:.0f} Pa (true {mat['E_soft_true']:.0f} / {mat['E_stiff_true']:.0f})")
+    if ident:
+        print("\n| E field (reconstruction's simulator, no learning) | 3-D error vs truth (mm) | distance to the "
+              "true-field motion (mm) |")
+        print("|---|---|---|")
+        for name, e, d in ident:
+            print(f"| {name} | {e:.2f} | {d:.2f} |")
     if oracle:
         print("\n| object motion rendered (observed frames) | recon PSNR | recon_large PSNR | recon_large IoU |")
         print("|---|---|---|---|")
