@@ -119,7 +119,8 @@ PRIVATE_MATH_DOCSTRINGS = [
     "physar.mpm.adjoint.g2p_gather_adjoint_kernel", "physar.mpm.adjoint.p2g_scatter_adjoint_kernel",
     "physar.mpm.adjoint", "physar.mpm.colliders.collider_sdf", "physar.mpm.colliders.Collider.signed_distance",
     "physar.ar.surface_points", "physar.ar.surface_points.ray_triangle", "physar.ar.surface_points.GroupSigma",
-    "physar.ar.surface_points.SurfacePoints.refine",
+    "physar.ar.surface_points.SurfacePoints.refine", "physar.vision.blobs.find_dots",
+    "physar.vision.markerless.PlanarMap.from_image", "physar.rom.nonintrusive.separated_fit",
 ]
 # what marks an equation written as plain text: operator symbols, ASCII arrows and norms, a power or
 # subscript on a symbol, a Greek letter in an assignment (units such as m² are not flagged)

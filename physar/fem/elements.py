@@ -119,7 +119,7 @@ class FESpace:
 
     @cached_property
     def jacobians(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per element J^{-1} (m, 3, 3) and det J (m,) of the affine map from the reference tet."""
+        r"""Per element :math:`J^{-1}` (m, 3, 3) and :math:`\det J` (m,) of the affine map from the reference tet."""
         x = self.mesh.points[self.mesh.cells]
         J = np.stack([x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0]], axis=2)  # columns
         return np.linalg.inv(J), np.linalg.det(J)

@@ -162,7 +162,7 @@ def separated_fit(T: np.ndarray, max_modes: int = 30, fit_tol: float = 1e-6, max
                   als_tol: float = 1e-10, sweeps: int = 100):
     """Greedy rank-one / ALS separated approximation of a tensor T (n_dof, n_1, .., n_p).
 
-    Returns (F (n, n_dof), [G^j (n, n_j)], relative residuals after each mode).
+    Returns (F (n, n_dof), [:math:`G^j` (n, n_j)], relative residuals after each mode).
     """
     T = np.asarray(T, float)
     p = T.ndim - 1

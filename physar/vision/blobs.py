@@ -11,7 +11,6 @@ the 2-pixel chroma grid, while luma has full resolution.
 """
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from physar.vision.dots import DotTracker
@@ -46,11 +45,11 @@ def dot_score(win_bgr: np.ndarray, colour_rgb) -> np.ndarray:
 
 
 def find_dots(frame, gray, pred, radius_px, colour_rgb, search_px, min_contrast: float = 0.15):
-    """Centroids (n, 2) [px] and validity (n,) of the dots predicted at ``pred`` (n, 2) with expected image
+    r"""Centroids (n, 2) [px] and validity (n,) of the dots predicted at ``pred`` (n, 2) with expected image
     radius ``radius_px`` (n,) [px], searched within ``search_px`` (n,) of the prediction.
 
     A dot is valid when its peak score exceeds the window's background by ``min_contrast`` and its mask's
-    area is within 0.25-4 times the expected pi r²."""
+    area is within 0.25-4 times the expected :math:`\pi r^2`."""
     pred = np.asarray(pred, float)
     n = len(pred)
     out = np.full((n, 2), np.nan)

@@ -94,8 +94,9 @@ class PlanarMap:
     @classmethod
     def from_image(cls, camera: Camera, image: np.ndarray, px_per_m: float, origin, axis_u, axis_v,
                    n_features: int = 3000, scales=(1.0,), **kw) -> PlanarMap:
-        """Map from a fronto-parallel reference image of the plane: pixel (c, r) <-> origin +
-        (c + 1/2)/s e_u + (r + 1/2)/s e_v, s = px_per_m (e.g. the design drawing or a scan of the plate).
+        r"""Map from a fronto-parallel reference image of the plane: pixel (c, r) is the point
+        :math:`o + \frac{c + 1/2}{s} e_u + \frac{r + 1/2}{s} e_v`, :math:`s` = px_per_m (e.g. the design
+        drawing or a scan of the plate).
         ``scales``: the image is also described at these zooms (ORB's own pyramid covers a factor ~2.5 only;
         use the zooms at which the plate will be seen)."""
         gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
@@ -116,8 +117,9 @@ class PlanarMap:
     def enable_refinement(self, reference: np.ndarray, px_per_m: float, origin_uv=(0.0, 0.0),
                           mask: np.ndarray | None = None, n_points: int = 400, min_points: int = 40,
                           max_rms_px: float = 1.0):
-        """Refine every pose by Lucas-Kanade on the rectified plane: `reference` is a fronto-parallel view
-        of the plane (pixel (c, r) <-> origin + (u0 + (c + 1/2)/s) e_u + (v0 + (r + 1/2)/s) e_v); its
+        r"""Refine every pose by Lucas-Kanade on the rectified plane: `reference` is a fronto-parallel view
+        of the plane (pixel (c, r) is the point :math:`o + (u_0 + \frac{c + 1/2}{s}) e_u + (v_0 + \frac{r +
+        1/2}{s}) e_v`); its
         features are tracked into the current frame rectified with the pose to refine (small residual flow),
         and the pose is re-fitted to all of them (LM). Also gives frame-to-frame tracking from the previous
         pose, ORB matching being needed only to (re)localise."""
