@@ -121,6 +121,8 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--no-diagnostics", action="store_true")
     ap.add_argument("--reuse-data", action="store_true", help="keep OUT/data and OUT/user when present")
+    ap.add_argument("--seed", type=int, default=None, help="[train] seed override (spread over runs)")
+    ap.add_argument("--run", default="run", help="RUN_DIR name under OUT")
     ap.add_argument("--identifiability", action="store_true", help="also run bench_recon.identifiability on the "
                     "imported scene: the reconstruction's simulator with scaled / uniform E fields vs the truth")
     ap.add_argument("--eval-only", action="store_true", help="reuse OUT/data, OUT/user and OUT/run (its "
@@ -128,7 +130,8 @@ def main() -> None:
     a = ap.parse_args()
     torch.set_num_threads(min(2, torch.get_num_threads()))
     scfg = load_anny_config(a.config, QUICK_SYNTH if a.quick else None)
-    tcfg = load_train_config(a.config, QUICK_TRAIN if a.quick else None)
+    tcfg = load_train_config(a.config, {**(QUICK_TRAIN if a.quick else {}),
+                                        **({} if a.seed is None else {"seed": a.seed})})
     if scfg.gt_particles_per_cell <= tcfg.particles_per_cell:
         raise SystemExit("gt_particles_per_cell must exceed the reconstruction's particles_per_cell")
     out = Path(a.out)
@@ -168,15 +171,15 @@ def main() -> None:
             step[stage] = i * 4 // max(n, 1)
             log(f"fit {stage}: {i}/{n} loss {loss:.4f}")
     if a.eval_only:
-        rep = json.loads((out / "run" / "report.json").read_text())
+        rep = json.loads((out / a.run / "report.json").read_text())
     else:
-        rep = fit(user / "data", out / "run", tcfg, progress=fprog, restart=True)
+        rep = fit(user / "data", out / a.run, tcfg, progress=fprog, restart=True)
     t_fit = time.perf_counter() - t0
     log(f"fit + evaluation in {t_fit:.0f} s")
     if not a.eval_only:
-        cli("recon", "predict", out / "run", "--poses", user / "data" / "novel_poses.npz", "--out", out / "novel.mp4")
+        cli("recon", "predict", out / a.run, "--poses", user / "data" / "novel_poses.npz", "--out", out / "novel.mp4")
     ds = load_dataset(user / "data")
-    recon = Reconstruction.load(out / "run")
+    recon = Reconstruction.load(out / a.run)
     n, no = len(ds.rgb), ds.n_obs
     disp = ds.truth["dynamic_max_displacement"]
     sub = {"recon_large": large_deformation_frames(disp, range(1, no)),
@@ -195,14 +198,14 @@ def main() -> None:
         ident = identifiability(user / "data", tcfg)
     if not a.no_diagnostics:
         log("pixel-fit diagnostics (true-motion oracle render)")
-        oracle = br.pixel_fit_diagnostics(user / "data", out / "run")
+        oracle = br.pixel_fit_diagnostics(user / "data", out / a.run)
     mat = rep["material"]
     res = {"config": a.config, "quick": a.quick, "image_size": scfg.image_size, "subsets": sub, "errors_3d_mm": e3,
            "methods": rep["methods"], "material": mat, "simulated_bones": recon.rig.meta["body"]["simulated_bones"],
            "times_s": {"generate": t_gen, "export_import_check": t_imp, "fit_eval": t_fit,
                        "train": rep["train_seconds"], "total": time.perf_counter() - t_all},
            "oracle": oracle, "identifiability": ident, "check_problems": chk["problems"], "load_end": os.getloadavg()[0]}
-    (out / "results.json").write_text(json.dumps(res, indent=1, default=float))
+    (out / f"results_{a.run}.json").write_text(json.dumps(res, indent=1, default=float))
     print(f"\nscene: anny + c_pillow, both forearms/hands ({len(res['simulated_bones'])} simulated bones), "
           f"{scfg.image_size} px, spin {scfg.spin_frames} / dynamic {scfg.frames} ({scfg.n_obs} observed) / novel "
           f"{scfg.novel_frames} frames; truth {scfg.gt_particles_per_cell}/cell fibres + von Mises "
