@@ -220,6 +220,8 @@ def import_cmd(
     grid_resolution: int = typer.Option(16, "--grid-resolution", help="MPM cells per side (also the voxel size)"),
     density: float = typer.Option(200.0, "--density", help="object density [kg/m^3]"),
     nu: float = typer.Option(0.3, "--nu", help="object Poisson ratio"),
+    floor: str = typer.Option("sticky", "--floor", help="the support under the object: sticky (it stays put) or "
+                              "separate (it can be lifted off)"),
     json_out: bool = typer.Option(False, "--json", help="print a summary as JSON"),
 ) -> None:
     """Import a video of a person acting on a soft object (label masks, SMPL poses, a camera, an up vector and the
@@ -240,6 +242,8 @@ def import_cmd(
     for t, o in ((person_labels, "--person-labels"), (object_labels, "--object-labels"), (ignore_labels, "--ignore-labels")):
         if t and any(v != int(v) or v < 0 for v in _floats(t, None, o)):
             raise ConfigError(f"{o} must be non-negative integers, got {t!r}")
+    if floor not in ("sticky", "separate"):
+        raise ConfigError(f"--floor must be sticky or separate, got {floor!r}")
     intr = None
     if camera is not None:
         from physar.vision.camera import Camera
@@ -257,7 +261,7 @@ def import_cmd(
                          ignore_labels=labels(ignore_labels, "--ignore-labels"), up=_floats(up, 3, "--up"),
                          height=height, body=body, pelvis_offset=_floats(pelvis_offset, 3, "--pelvis-offset"),
                          background=_floats(background, 3, "--background"), domain_size=domain_size,
-                         grid_resolution=grid_resolution, density=density, nu=nu)
+                         grid_resolution=grid_resolution, density=density, nu=nu, floor=floor)
     summary = import_video(video, out, masks=masks, poses=poses, intrinsics=intr, focal_px=focal_px,
                            focal_35mm=focal_35mm, object_mesh=object_mesh, spin_cameras=spin_cameras, opts=opts)
     print_json(summary) if json_out else log(

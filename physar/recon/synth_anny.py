@@ -26,6 +26,12 @@ Scene (``[synth]`` of a TOML such as ``examples/recon_anny_cpillow.toml``; :clas
   ``E_stiff``, soft prongs ``E_soft``, fibres tangent to the C's centreline, ``fiber_E``) and, with
   ``yield_stress`` > 0, Hencky elasticity with von Mises plasticity (:func:`physar.recon.synth.simulate_clip`):
   a material the reconstruction's isotropic elastic expert law cannot express.
+* **Object** (``object = "bag"``, ``action = "lift"``): a bag body (``bag_size``) with a handle over its top: two
+  posts at :math:`\pm x` outside both forearms and a bar along x above them, ``handle_length`` along y around the
+  forearms' midpoints, a tunnel ``handle_hole`` high centred on the forearms; the body rises (negative depth), the
+  forearms catch the bar and carry the bag off a ``separate`` support (``recon import --floor separate``);
+  material of :func:`physar.recon.synth.object_material` (stiff shell ``bag_wall`` thick and handle, soft filling,
+  fibres vertical in the shell and the posts, along y in the bar).
 * **Truth dynamics**: :func:`physar.recon.synth.simulate_clip` on ``gt_particles_per_cell`` particles per cell
   (finer than the reconstruction's); the simulated bones are those whose skinned vertices come within one grid
   cell of the object in the clip and whose lattice stays in the MPM domain (the rule of the reconstruction's
@@ -82,8 +88,9 @@ class AnnySceneConfig(BaseModel):
         return refuse_coercion(value, cls.model_fields[info.field_name].annotation)
 
     body: Literal["anny"] = Field("anny", description="the body (anny: the default recon body)")
-    object: Literal["c_pillow"] = Field("c_pillow", description="the object (c_pillow)")
-    action: Literal["squeeze"] = Field("squeeze", description="both forearms press the C's upper prong")
+    object: Literal["c_pillow", "bag"] = Field("c_pillow", description="the object: c_pillow | bag")
+    action: Literal["squeeze", "lift"] = Field("squeeze", description="squeeze (c_pillow: both forearms press the "
+                                               "C's upper prong) | lift (bag: both forearms rise under its handle)")
     image_size: int = Field(256, ge=16, le=1024, description="square image side, px")
     fov_deg: float = Field(40.0, gt=5, lt=120, description="vertical field of view [deg]")
     camera_distance: float = Field(0.9, gt=0.1, description="m, from the object centre")
@@ -122,7 +129,10 @@ class AnnySceneConfig(BaseModel):
     gravity: float = Field(-9.81, description="vertical acceleration [m/s^2]")
     gt_particles_per_cell: int = Field(27, description="particles per cell of the truth: 8, 27 or 64")
     body_spacing: float = Field(0.008, gt=0, description="mean spacing of the rendered body surface samples [m]")
-    bag_wall: float = Field(0.03, gt=0, description="unused (object_material's bag parameter)")
+    bag_size: Vec3 = Field((0.54, 0.15, 0.12), description="bag body (x, y, z) below the handle [m]")
+    bag_wall: float = Field(0.03, gt=0, description="bag: shell, posts and bar thickness [m]")
+    handle_length: float = Field(0.09, gt=0, description="bag: extent of the handle along y [m]")
+    handle_hole: float = Field(0.12, gt=0, description="bag: clear height under the handle's bar [m]")
     seed: int = Field(0, description="seed of the body surface samples")
 
     @model_validator(mode="after")
@@ -132,12 +142,19 @@ class AnnySceneConfig(BaseModel):
         k = round(self.gt_particles_per_cell ** (1 / 3))
         if k**3 != self.gt_particles_per_cell:
             raise ValueError(f"gt_particles_per_cell = {self.gt_particles_per_cell} must be a cube")
+        if (self.object, self.action) not in (("c_pillow", "squeeze"), ("bag", "lift")):
+            raise ValueError(f"action '{self.action}' is not supported for object '{self.object}' (c_pillow + "
+                             "squeeze, bag + lift)")
         L, D, H = self.c_pillow_size
         if not (2 * self.c_thickness < H and self.c_thickness < D):
             raise ValueError(f"c_thickness = {self.c_thickness} m needs 2 x thickness < height ({H}) and < depth ({D})")
         dx = self.domain_size / self.grid_resolution
-        for name, v in (("c_pillow_size x", L), ("c_pillow_size y", D), ("c_pillow_size z", H),
-                        ("c_thickness", self.c_thickness)):
+        sizes = ((("c_pillow_size x", L), ("c_pillow_size y", D), ("c_pillow_size z", H), ("c_thickness",
+                                                                                            self.c_thickness))
+                 if self.object == "c_pillow" else tuple((f"bag_size {a}", v) for a, v in zip("xyz", self.bag_size))
+                 + (("bag_wall", self.bag_wall), ("handle_length", self.handle_length),
+                    ("handle_hole", self.handle_hole)))
+        for name, v in sizes:
             if abs(v / dx - round(v / dx)) > 1e-6:
                 raise ValueError(f"{name} = {v} m must be a multiple of the cell {dx:g} m (domain_size / "
                                  "grid_resolution): the imported voxels must give the same boxes")
@@ -240,13 +257,15 @@ def clip_depths(cfg: AnnySceneConfig) -> dict:
     m = f >= cfg.n_obs
     d[m] = cfg.press_obs + (cfg.press_pred - cfg.press_obs) * S.smoothstep((f[m] - cfg.n_obs + 1)
                                                                            / (cfg.frames - cfg.n_obs))
+    sign = -1.0 if cfg.action == "lift" else 1.0  # a lift raises the body: negative depth
+    d = sign * d
     fn = np.arange(cfg.novel_frames, dtype=np.float64)
     sn = S.smoothstep(fn / (0.7 * (cfg.novel_frames - 1)))
     fs = np.arange(cfg.spin_frames, dtype=np.float64)
     ys = np.radians(cfg.spin_deg) * (2 * S.smoothstep(fs / max(cfg.spin_frames - 1, 1)) - 1)
     z = lambda n: np.zeros(n)
     return {"spin": (z(cfg.spin_frames), z(cfg.spin_frames), ys), "": (d, z(cfg.frames), z(cfg.frames)),
-            "novel": (cfg.press_novel * sn, np.radians(cfg.novel_roll_deg) * sn, z(cfg.novel_frames))}
+            "novel": (sign * cfg.press_novel * sn, np.radians(cfg.novel_roll_deg) * sn, z(cfg.novel_frames))}
 
 
 # ----------------------------------------------------------------------------------------------- layout
@@ -255,29 +274,57 @@ def arm_bone_ids(body) -> list[int]:
 
 
 def scene_meta(cfg: AnnySceneConfig, body, poses0: dict) -> dict:
-    """scene.json: the C placed under the forearms of the first dynamic frame, in front of the torso."""
+    """scene.json: the C placed under the forearms of the first dynamic frame, in front of the torso; or the bag
+    with its handle's tunnel (along y) around the forearms' midpoints, its posts outside both forearms."""
     B = S.bone_transforms(body, poses0["rotations"][:1], poses0["root_translation"][:1])[0]
     V = body.skin_vertices(B).numpy()
     own = body.vertex_owner().numpy()
     arm = np.isin(own, arm_bone_ids(body))
     torso = np.isin(own, [k for k, n in enumerate(body.skeleton.names) if n.startswith(("spine", "root",
                                                                                              "pelvis"))])
-    L, D, H = cfg.c_pillow_size
-    t = cfg.c_thickness
-    top = float(V[arm, 2].min()) - cfg.gap
-    near = torso & (np.abs(V[:, 2] - top) < 0.15)
-    back = float(V[near, 1].min()) - cfg.torso_clearance  # the C's spine face (+y)
-    bot, y0, y1 = top - H, back - D, back
     V3 = lambda *v: np.array(v, dtype=np.float64)
-    boxes = [(V3(-L / 2, y0, bot), V3(L / 2, y1, bot + t)),  # lower prong
-             (V3(-L / 2, y1 - t, bot + t), V3(L / 2, y1, top - t)),  # spine
-             (V3(-L / 2, y0, top - t), V3(L / 2, y1, top))]  # upper prong
+    travel = max(cfg.press_pred, cfg.press_novel)
+    if cfg.object == "c_pillow":
+        L, D, H = cfg.c_pillow_size
+        t = cfg.c_thickness
+        top = float(V[arm, 2].min()) - cfg.gap
+        near = torso & (np.abs(V[:, 2] - top) < 0.15)
+        back = float(V[near, 1].min()) - cfg.torso_clearance  # the C's spine face (+y)
+        bot, y0, y1 = top - H, back - D, back
+        boxes = [(V3(-L / 2, y0, bot), V3(L / 2, y1, bot + t)),  # lower prong
+                 (V3(-L / 2, y1 - t, bot + t), V3(L / 2, y1, top - t)),  # spine
+                 (V3(-L / 2, y0, top - t), V3(L / 2, y1, top))]  # upper prong
+        rise = 0.0
+    else:  # bag: both forearms in the handle's tunnel (along y), posts at +-x outside them, bar above
+        L, D, H = cfg.bag_size
+        w, hl, ho = cfg.bag_wall, cfg.handle_length, cfg.handle_hole
+        sk = body.skeleton
+        G = sk.pose(torch.as_tensor(poses0["rotations"][:1]), torch.as_tensor(poses0["root_translation"][:1]))[0]
+        yc = 0.5 * float(G[sk.index("lowerarm01.L"), 1, 3] + G[sk.index("wrist.L"), 1, 3])
+        band = arm & (np.abs(V[:, 1] - yc) < hl / 2 + 0.02)
+        zb, zt, xm = float(V[band, 2].min()), float(V[band, 2].max()), float(np.abs(V[band, 0]).max())
+        if zt - zb > ho - 0.01 or xm > L / 2 - w - 0.005:
+            raise ConfigError(f"bag: the forearms ({zt - zb:.3f} m thick, reaching |x| = {xm:.3f} m) do not fit the "
+                              f"handle's tunnel ({ho} m high, |x| < {L / 2 - w:.3f} m): raise handle_hole or bag_size x")
+        mid = 0.5 * (zb + zt)
+        bot = mid - ho / 2 - H
+        y0, y1 = yc - D / 2, yc + D / 2
+        torso_y = float(V[torso & (np.abs(V[:, 2] - mid) < 0.15), 1].min())
+        if y1 > torso_y - cfg.torso_clearance:
+            raise ConfigError(f"bag: its back (y = {y1:.3f} m) is within torso_clearance of the torso ({torso_y:.3f})")
+        top = mid + ho / 2 + w
+        boxes = [(V3(-L / 2, y0, bot), V3(L / 2, y1, mid - ho / 2)),  # body
+                 (V3(-L / 2, yc - hl / 2, mid - ho / 2), V3(-L / 2 + w, yc + hl / 2, mid + ho / 2)),  # post (-x)
+                 (V3(L / 2 - w, yc - hl / 2, mid - ho / 2), V3(L / 2, yc + hl / 2, mid + ho / 2)),  # post (+x)
+                 (V3(-L / 2, yc - hl / 2, mid + ho / 2), V3(L / 2, yc + hl / 2, top))]  # bar
+        rise = travel
     lo, hi = V3(-L / 2, y0, bot), V3(L / 2, y1, top)
     size = cfg.domain_size
     origin = V3(-size / 2, 0.5 * (y0 + y1) - size / 2, bot)
-    if max(L, D) > 0.8 * size or H + max(cfg.press_pred, cfg.press_novel) > 0.9 * size:
-        raise ConfigError(f"domain_size = {size} m is too small for the object {cfg.c_pillow_size}")
-    centre = 0.5 * (lo + hi)
+    if max(L, D) > 0.8 * size or (top - bot) + travel > 0.9 * size:
+        raise ConfigError(f"domain_size = {size} m is too small for the object ({np.round(hi - lo, 3).tolist()} m) "
+                          f"and the travel {travel} m")
+    centre = 0.5 * (lo + hi) + V3(0.0, 0.0, 0.5 * rise)
     el = np.radians(cfg.camera_elevation_deg)
     eye = centre + cfg.camera_distance * np.array([0.0, -np.cos(el), np.sin(el)])
     return {
@@ -291,7 +338,8 @@ def scene_meta(cfg: AnnySceneConfig, body, poses0: dict) -> dict:
                    "max": hi.tolist(), "boxes": [[a.tolist(), b.tolist()] for a, b in boxes],
                    "parts": PARTS[cfg.object], "density": cfg.density, "nu": cfg.nu, "material": "fixed_corotated"},
         "sim": {"size": size, "resolution": cfg.grid_resolution, "substeps": cfg.substeps, "origin": origin.tolist(),
-                "gravity": [0.0, 0.0, cfg.gravity], "walls": sim_walls("sticky"), "kp": cfg.kp, "kd": cfg.kd},
+                "gravity": [0.0, 0.0, cfg.gravity], "walls": sim_walls("separate" if cfg.action == "lift" else "sticky"),
+                "kp": cfg.kp, "kd": cfg.kd},
         "synth_config": cfg.model_dump(),
     }
 
@@ -496,7 +544,8 @@ def export_user_files(data_dir, out_dir) -> dict:
     up = ",".join(repr(float(v)) for v in R[:, 2])  # world +z in camera coordinates
     common = ["--object-mesh", out / "object.obj", f"--focal-px={c['fx']!r}", f"--up={up}",
               "--domain-size", meta["sim"]["size"], "--grid-resolution", meta["sim"]["resolution"],
-              "--height", cfg.height, "--density", cfg.density, "--nu", cfg.nu]
+              "--height", cfg.height, "--density", cfg.density, "--nu", cfg.nu,
+              "--floor", "separate" if cfg.action == "lift" else "sticky"]
     args = [out / "clip.mp4", "--masks", out / "masks", "--poses", out / "smpl.npz", "--spin-frames",
             cfg.spin_frames, "--n-obs", cfg.n_obs, *common]
     nargs = [out / "novel.mp4", "--masks", out / "novel_masks", "--poses", out / "novel_smpl.npz",
