@@ -58,6 +58,11 @@ FORMATS: tuple[Format, ...] = (
            "examples/recon_tiny.toml",
            "Two tables, `[synth]` (the synthetic scene) and `[train]` (the fit); a file with neither table "
            "is read as one of them at the top level."),
+    Format("recon_anny", "Anny two-hand benchmark scene", "python benchmarks/bench_recon_pillow.py --config FILE",
+           (("synth", "physar.recon.synth_anny.AnnySceneConfig"),), "examples/recon_anny_cpillow.toml",
+           "The `[synth]` table of the anny benchmark scenes (the body squeezing a C-shaped pillow or lifting a "
+           "bag, truth with fibres and plasticity), exported as a user's files and read back by "
+           "`physar recon import`; `[train]` as in the reconstruction configuration."),
 )
 
 # units as they are written in the schemas' descriptions; "-" marks a dimensionless quantity ("[-]")

@@ -117,7 +117,7 @@ class AnnySceneConfig(BaseModel):
     E_stiff: float = Field(1.2e4, gt=0, description="Young's modulus of the spine [Pa]")
     fiber_E: float = Field(2.4e4, ge=0, description="fibre modulus [Pa]")
     yield_stress: float = Field(800.0, ge=0, description="von Mises yield stress of the object [Pa] (0: elastic)")
-    nu: float = Field(0.3, gt=-1, lt=0.5, description="Poisson ratio of the object")
+    nu: float = Field(0.3, gt=-1, lt=0.5, description="Poisson ratio of the object [-]")
     density: float = Field(200.0, gt=0, description="object density [kg/m^3]")
     human_E: float = Field(1.0e4, gt=0, description="Young's modulus of the simulated body [Pa]")
     human_density: float = Field(1000.0, gt=0, description="density of the simulated body [kg/m^3]")
