@@ -117,6 +117,7 @@ class ProjectPipeline:
             cfg.features.mode == "auto" and self.use_dots))
         self.features = FeatureObserver(project) if cfg.features is not None and not points_mode else None
         self.points = self._fsig = None
+        self._ref_wait = 0
         if points_mode:
             from physar.ar.surface_points import GroupSigma, SurfacePoints
 
@@ -173,6 +174,7 @@ class ProjectPipeline:
         if self.points is not None:
             self.points.reset()
             self._fsig.reset()
+        self._ref_wait = 0
         self.mu = (self.lo + self.hi) / 2
         self.std = np.full(self.lo.size, np.nan)
         self.at_rest = self.features is not None
@@ -457,14 +459,18 @@ class ProjectPipeline:
             n_feat = int(feat[1].sum())
             self._fsig.add(rms_f, rms)
             self.points.refine(pose, self.rom.coefficients(mu)[0], feat[0], feat[1])
-        if self.points is not None and not self._fresh and (not self.points.ready
-                                                             or self.points.valid_fraction < 0.5):
+        if self._ref_wait > 0:
+            self._ref_wait -= 1
+        elif self.points is not None and not self._fresh and (not self.points.ready
+                                                               or self.points.valid_fraction < 0.5):
             # choose the features in this frame (placed on the surface the dots' estimate gives), or again
-            # when fewer than half of them are still tracked (the view has changed)
+            # when fewer than half of them are still tracked (the view has changed); a face not seen well
+            # enough is tried again 30 frames later
             X3 = self.dot_positions(mu)
             vis3, r3 = self._expected(pose, X3)
             q3 = self.camera.project(X3, pose)
-            self.points.set_reference(gray, pose, self.rom.coefficients(mu)[0], q3[vis3], r3[vis3])
+            if self.points.set_reference(gray, pose, self.rom.coefficients(mu)[0], q3[vis3], r3[vis3]) == 0:
+                self._ref_wait = 30
             self._fsig.reset()
         return (mu, std, pose, rms, n_feat), n_dots
 

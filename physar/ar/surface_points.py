@@ -186,7 +186,7 @@ class SurfacePoints:
         h, w = gray.shape[:2]
         inside = np.all(np.isfinite(pred), 1) & (pred[:, 0] > 0) & (pred[:, 1] > 0) & (pred[:, 0] < w - 1) & (
             pred[:, 1] < h - 1)
-        if inside.sum() < 3:
+        if inside.sum() < 4:                    # (a homography needs four)
             self.valid_fraction = 0.0
             return px, np.zeros(n, bool)
         # the reference view warped to this frame by the homography that best maps the features' reference
