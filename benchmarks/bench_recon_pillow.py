@@ -206,7 +206,7 @@ def main() -> None:
                        "train": rep["train_seconds"], "total": time.perf_counter() - t_all},
            "oracle": oracle, "identifiability": ident, "check_problems": chk["problems"], "load_end": os.getloadavg()[0]}
     (out / f"results_{a.run}.json").write_text(json.dumps(res, indent=1, default=float))
-    print(f"\nscene: anny + c_pillow, both forearms/hands ({len(res['simulated_bones'])} simulated bones), "
+    print(f"\nscene: anny + {scfg.object} ({scfg.action}), both forearms/hands ({len(res['simulated_bones'])} simulated bones), "
           f"{scfg.image_size} px, spin {scfg.spin_frames} / dynamic {scfg.frames} ({scfg.n_obs} observed) / novel "
           f"{scfg.novel_frames} frames; truth {scfg.gt_particles_per_cell}/cell fibres + von Mises "
           f"({scfg.yield_stress:g} Pa), recon {tcfg.particles_per_cell}/cell")
