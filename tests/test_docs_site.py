@@ -121,6 +121,7 @@ PRIVATE_MATH_DOCSTRINGS = [
     "physar.ar.surface_points", "physar.ar.surface_points.ray_triangle", "physar.ar.surface_points.GroupSigma",
     "physar.ar.surface_points.SurfacePoints.refine", "physar.vision.blobs.find_dots",
     "physar.vision.markerless.PlanarMap.from_image", "physar.rom.nonintrusive.separated_fit",
+    "physar.recon.pointrender", "physar.recon.synth_anny.surface_samples", "physar.recon.importer.retarget",
 ]
 # what marks an equation written as plain text: operator symbols, ASCII arrows and norms, a power or
 # subscript on a symbol, a Greek letter in an assignment (units such as m² are not flagged)

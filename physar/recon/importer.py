@@ -414,9 +414,10 @@ def rotation_between(d: np.ndarray, e: np.ndarray) -> np.ndarray:
 
 
 def retarget(smpl: dict, body, R: np.ndarray, t: np.ndarray, pelvis_offset=(0.0, 0.0, 0.0)) -> dict:
-    """Local rotations (F, B, 3, 3) and root translations (F, 3) of a recon body (:class:`physar.skinning.Body`:
-    its ``smpl_map`` and ``tpose``) for SMPL parameters in camera coordinates and the world -> camera pose (R, t)
-    (module docstring: Delta_k = R^T G_s(k) M^T C_k, L_k = Q_k^T Delta_parent^T Delta_k Q_k)."""
+    r"""Local rotations (F, B, 3, 3) and root translations (F, 3) of a recon body (:class:`physar.skinning.Body`:
+    its ``smpl_map`` and ``tpose``) for SMPL parameters in camera coordinates and the world-to-camera pose (R, t)
+    (module docstring: :math:`\Delta_k = R^\top G_{s(k)} M^\top C_k`,
+    :math:`L_k = Q_k^\top \Delta_{\mathrm{parent}(k)}^\top \Delta_k Q_k`)."""
     G = smpl_global_rotations(smpl["rotations"])
     sk = body.skeleton
     F, parents = len(G), sk.parents.tolist()

@@ -1,10 +1,11 @@
-"""Ground-truth renderer of the synthetic scenes: z-buffered shaded sphere impostors (numpy).
+r"""Ground-truth renderer of the synthetic scenes: z-buffered shaded sphere impostors (numpy).
 
 This is deliberately *not* the Gaussian rasteriser of :mod:`physar.gaussians` (no inverse crime, issue 8
 part 4): every point (a fine MPM particle or a body sample) is drawn as an opaque sphere of radius r (m),
-i.e. a screen-space disc of radius f r / z (px), at the depth of the sphere surface z - r sqrt(1 - d^2)
-(d = normalised distance to the disc centre), with Lambert shading of the sphere normal
-n = (d_x, d_y, -sqrt(1 - d^2)) (camera frame) by a directional light, and a hard z-buffer.  The image is
+i.e. a screen-space disc of radius :math:`f r / z` (px), at the depth of the sphere surface
+:math:`z - r \sqrt{1 - d^2}` (:math:`d` = normalised distance to the disc centre), with Lambert shading of the
+sphere normal :math:`n = (d_x, d_y, -\sqrt{1 - d^2})` (camera frame) by a directional light, and a hard
+z-buffer.  The image is
 rendered at ``supersample`` times the resolution and box-filtered down (anti-aliased edges); the mask is
 the covered fraction >= 0.5.  Camera: pinhole, OpenCV convention (x right, y down, z forward), pixel
 (i, j) centred at (i + 0.5, j + 0.5), the convention of :class:`physar.gaussians.Camera`.

@@ -369,7 +369,8 @@ def simulated_bones(body, meta: dict, clips: list[dict], h: float) -> list[str]:
 
 # ----------------------------------------------------------------------------------------------- rendering
 def surface_samples(body, spacing: float, exclude: list[str], seed: int = 0) -> np.ndarray:
-    """Area-uniform points on the rest mesh (about one per spacing^2), without those owned by ``exclude``."""
+    r"""Area-uniform points on the rest mesh (about one per :math:`\mathrm{spacing}^2`), without those owned by
+    ``exclude``."""
     V, T = body.vertices.double().numpy(), body.faces.numpy()
     a = 0.5 * np.linalg.norm(np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]]), axis=1)
     rng = np.random.default_rng(seed)
