@@ -111,6 +111,7 @@ class SurfacePoints:
                               f"{list(f.origin)}, u {list(f.u)}, v {list(f.v)}, size {list(f.size)} m "
                               f"(tol {tol:.2g} m)")
         self.T0 = T[sel]                                                        # (k, 3, 3) reference
+        self.face_idx = np.flatnonzero(sel)                                     # into the boundary's faces
         F = self.rom.F.reshape(self.rom.n_modes, -1, 3)
         self.TU = np.ascontiguousarray(F[:, surf.node_map[faces[sel]]])          # (modes, k, 3, 3)
         self.eu, self.ev = eu, ev
@@ -167,7 +168,7 @@ class SurfacePoints:
             return 0
         T0v = self.T0[vis][idx[hit]]
         x = np.einsum("nj,njd->nd", bary[hit], T0v)
-        C = surface_observation_matrix(self.space, x, components=(0, 1, 2), tol=1e-6)
+        C = surface_observation_matrix(self.space, x, components=(0, 1, 2), tol=1e-6, faces=self.face_idx)
         self.Fp = np.asarray(C @ self.rom.F.T).T.reshape(self.rom.n_modes, -1, 3)
         self.points = x
         self.count = np.ones(len(x))
