@@ -42,14 +42,19 @@ from physar.recon.train import (
 )
 
 
-def identifiability(data_dir: Path, tcfg) -> list[tuple[str, float, float]]:
+def identifiability(data_dir: Path, tcfg, scales=(0.25, 0.5, 0.7, 1.4, 2.0, 4.0), true_label: str = "true field",
+                    from_poses: bool = False, residual: bool | None = None,
+                    log=None) -> list[tuple[str, float, float]]:
     """Mean 3-D object error (mm, observed frames) of the reconstruction's simulator run with given E fields
-    (true field mapped to its particles, scaled, swapped halves, uniform), vs the cell-averaged truth; and
-    the mean distance (mm) to the motion with the true field (the signal an E change leaves in the data)."""
+    (true field mapped to its particles, ``scales`` times it, swapped halves, uniform), vs the cell-averaged
+    truth; and the mean distance (mm) to the motion with the true field (the signal an E change leaves in the
+    data). ``from_poses``: the rig finds the simulated bones from the clip's poses (an imported scene lists
+    none); ``residual``: override the config's residual law; ``log``: called with one line per field."""
     from scipy.spatial import cKDTree
 
     ds = load_dataset(data_dir)
-    rig = Rig(ds.meta, tcfg.model_copy(update={"material_grid": (0, 0, 0)}))
+    upd = {"material_grid": (0, 0, 0)} | ({} if residual is None else {"residual": residual})
+    rig = Rig(ds.meta, tcfg.model_copy(update=upd), **({"poses": (ds.rotations, ds.root_t)} if from_poses else {}))
     kin = rig.kinematics(ds.rotations, ds.root_t)
     gt = cell_average_truth(rig, ds.truth)
     Et = ds.truth["E"][cKDTree(ds.truth["rest_positions"]).query(rig.Xo)[1]]
@@ -62,12 +67,14 @@ def identifiability(data_dir: Path, tcfg) -> list[tuple[str, float, float]]:
     ref = run(Et)
     fr = range(1, ds.n_obs)
     rows = []
-    fields = [("true field", Et)] + [(f"{s} x true", s * Et) for s in (0.25, 0.5, 0.7, 1.4, 2.0, 4.0)] + [
+    fields = [(true_label, Et)] + [(f"{s} x true", s * Et) for s in scales] + [
         ("soft/stiff swapped", Et.min() + Et.max() - Et), ("uniform E_init", np.full(rig.no, tcfg.E_init))]
     for name, E in fields:
         x = run(E)
         rows.append((name, float(np.mean([np.linalg.norm(x[f] - gt[f], axis=1).mean() for f in fr]) * 1e3),
                      float(np.mean([np.linalg.norm(x[f] - ref[f], axis=1).mean() for f in fr]) * 1e3)))
+        if log is not None:
+            log(f"identifiability {name}: {rows[-1][1]:.2f} mm")
     return rows
 
 

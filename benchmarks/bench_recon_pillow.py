@@ -80,40 +80,6 @@ def errors_3d(recon: Reconstruction, ds, key: str, rotations, root_t, frames, ho
     return out
 
 
-def identifiability(data_dir: Path, tcfg) -> list[tuple[str, float, float]]:
-    """bench_recon.identifiability with the simulated bones of the clip (an imported scene lists none: the rig
-    finds the reaching bones from the poses): mean 3-D object error (mm, observed frames) of the
-    reconstruction's simulator with the true isotropic E (nearest fine particle), scaled, swapped and uniform
-    fields, vs the cell-averaged truth, and the distance to the motion with the true field."""
-    from scipy.spatial import cKDTree
-
-    from physar.recon.train import Physics, Rig, simulate_clip
-
-    ds = load_dataset(data_dir)
-    rig = Rig(ds.meta, tcfg.model_copy(update={"material_grid": (0, 0, 0), "residual": False}),
-              poses=(ds.rotations, ds.root_t))
-    kin = rig.kinematics(ds.rotations, ds.root_t)
-    gt = cell_average_truth(rig, ds.truth)
-    Et = ds.truth["E"][cKDTree(ds.truth["rest_positions"]).query(rig.Xo)[1]]
-
-    def run(E):
-        ph = Physics.init(rig)
-        ph.log_E = torch.log(torch.as_tensor(E, dtype=torch.float64))
-        return {f: xo.numpy() for f, xo, *_ in simulate_clip(rig, ph, kin, ds.n_obs, grad=False)}
-
-    ref = run(Et)
-    fr = range(1, ds.n_obs)
-    rows = []
-    fields = [("true isotropic field", Et)] + [(f"{s} x true", s * Et) for s in (0.5, 2.0, 4.0)] + [
-        ("soft/stiff swapped", Et.min() + Et.max() - Et), ("uniform E_init", np.full(rig.no, tcfg.E_init))]
-    for name, E in fields:
-        x = run(E)
-        rows.append((name, float(np.mean([np.linalg.norm(x[f] - gt[f], axis=1).mean() for f in fr]) * 1e3),
-                     float(np.mean([np.linalg.norm(x[f] - ref[f], axis=1).mean() for f in fr]) * 1e3)))
-        log(f"identifiability {name}: {rows[-1][1]:.2f} mm")
-    return rows
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--config", default=str(ROOT / "examples" / "recon_anny_cpillow.toml"))
@@ -195,7 +161,10 @@ def main() -> None:
     spec.loader.exec_module(br)
     if a.identifiability:
         log("E identifiability (the reconstruction's simulator, observed frames, no learning)")
-        ident = identifiability(user / "data", tcfg)
+        # with the simulated bones of the clip (an imported scene lists none: the rig finds the reaching bones
+        # from the poses), no residual law, the true isotropic E (nearest fine particle)
+        ident = br.identifiability(user / "data", tcfg, scales=(0.5, 2.0, 4.0), true_label="true isotropic field",
+                                   from_poses=True, residual=False, log=log)
     if not a.no_diagnostics:
         log("pixel-fit diagnostics (true-motion oracle render)")
         oracle = br.pixel_fit_diagnostics(user / "data", out / a.run)
