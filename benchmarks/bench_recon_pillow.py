@@ -16,9 +16,13 @@ reconstruction PSNR of the fitted appearance rendered with the true object motio
 ``bench_recon.pixel_fit_diagnostics``); learned E error mean |log10 E / E_true| vs the initial guess's.
 
     .venv/bin/python benchmarks/bench_recon_pillow.py [--quick] [--config examples/recon_anny_cpillow.toml]
-        [--out /tmp/bench_recon_pillow] [--no-diagnostics]
+        [--out /tmp/bench_recon_pillow] [--no-diagnostics] [--ablations]
 
 ``--quick``: 96 px, 6 + 4 + 5 frames, fewer iterations (a few minutes); the full run is the TOML as written.
+``--ablations`` (seed 002 Table 3): the full model switches on each ablated part the TOML leaves off (residual
+laws with latents, the 3-D flow term at TrainConfig's default lambda_flow, the omega = 0 surface layer at its
+default depth); after its fit, each variant refits only the physics stage on the full run's stages 1-2
+(``fit(..., reuse=)``, as in bench_recon) into OUT/RUN_<variant>, and one table row per variant is printed.
 """
 
 from __future__ import annotations
@@ -38,12 +42,24 @@ import torch
 
 from physar.recon.metrics import large_deformation_frames
 from physar.recon.synth_anny import attach_truth, export_user_files, generate_anny, load_anny_config
-from physar.recon.train import Reconstruction, cell_average_truth, fit, load_dataset, load_train_config
+from physar.recon.train import (
+    Reconstruction,
+    TrainConfig,
+    cell_average_truth,
+    fit,
+    load_dataset,
+    load_train_config,
+)
 
 ROOT = Path(__file__).parents[1]
 QUICK_SYNTH = {"image_size": 96, "frames": 6, "n_obs": 4, "novel_frames": 5, "spin_frames": 4}
 QUICK_TRAIN = {"appearance_iters": 40, "finetune_iters": 10, "flow_iters": 8, "spflow_iters": 8,
                "physics_iters": 10, "window_start": 3}
+# seed 002 Table 3 ablations: (row, RUN_DIR suffix, TrainConfig update of the full model)
+ABLATIONS = (("w/o latents l_e", "nolatents", {"latents": False}),
+             ("w/o residual law E_theta", "noresidual", {"residual": False}),
+             ("w/o 3-D flow (lambda_flow 0)", "noflow", {"lambda_flow": 0.0}),
+             ("w/o omega = 0 layer", "nolayer", {"surface_layer": 0.0}))
 PHYSAR = [sys.executable, "-c", "from physar.cli.main import main; main()"]
 
 
@@ -80,6 +96,22 @@ def errors_3d(recon: Reconstruction, ds, key: str, rotations, root_t, frames, ho
     return out
 
 
+def subset_errors(recon: Reconstruction, ds, sub: dict) -> dict:
+    """:func:`errors_3d` on the three large-deformation subsets."""
+    no, nv = ds.n_obs, ds.novel
+    return {"recon_large": errors_3d(recon, ds, "dynamic", ds.rotations, ds.root_t, sub["recon_large"], no),
+            "pred_large": errors_3d(recon, ds, "dynamic", ds.rotations, ds.root_t, sub["pred_large"], no),
+            "novel_large": errors_3d(recon, ds, "novel", nv["rotations"], nv["root_t"], sub["novel_large"], None)}
+
+
+def full_model(tcfg: TrainConfig) -> TrainConfig:
+    """The full model of the ablations: every part an ablation removes switched on."""
+    return tcfg.model_copy(update={
+        "residual": True, "latents": True,
+        "lambda_flow": tcfg.lambda_flow or TrainConfig.model_fields["lambda_flow"].default,
+        "surface_layer": tcfg.surface_layer or None})  # None: half the particle spacing
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--config", default=str(ROOT / "examples" / "recon_anny_cpillow.toml"))
@@ -93,6 +125,8 @@ def main() -> None:
                     "imported scene: the reconstruction's simulator with scaled / uniform E fields vs the truth")
     ap.add_argument("--eval-only", action="store_true", help="reuse OUT/data, OUT/user and OUT/run (its "
                     "report.json): recompute the tables without fitting")
+    ap.add_argument("--ablations", action="store_true", help="full model with every ablated part on, then "
+                    "physics-only refits w/o latents, w/o residual law, w/o 3-D flow, w/o omega = 0 layer")
     a = ap.parse_args()
     torch.set_num_threads(min(2, torch.get_num_threads()))
     scfg = load_anny_config(a.config, QUICK_SYNTH if a.quick else None)
@@ -100,6 +134,11 @@ def main() -> None:
                                         **({} if a.seed is None else {"seed": a.seed})})
     if scfg.gt_particles_per_cell <= tcfg.particles_per_cell:
         raise SystemExit("gt_particles_per_cell must exceed the reconstruction's particles_per_cell")
+    if a.ablations:
+        tcfg = full_model(tcfg)
+        for name, _, upd in ABLATIONS:  # each variant must differ from the full model in the config used
+            if all(getattr(tcfg, k) == v for k, v in upd.items()):
+                raise SystemExit(f"{name}: the full model already has {upd}")
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     t_all = time.perf_counter()
@@ -151,10 +190,20 @@ def main() -> None:
     sub = {"recon_large": large_deformation_frames(disp, range(1, no)),
            "pred_large": large_deformation_frames(disp, range(no, n)),
            "novel_large": large_deformation_frames(ds.truth["novel_max_displacement"], range(1, len(ds.novel["rgb"])))}
-    e3 = {"recon_large": errors_3d(recon, ds, "dynamic", ds.rotations, ds.root_t, sub["recon_large"], no),
-          "pred_large": errors_3d(recon, ds, "dynamic", ds.rotations, ds.root_t, sub["pred_large"], no),
-          "novel_large": errors_3d(recon, ds, "novel", ds.novel["rotations"], ds.novel["root_t"], sub["novel_large"],
-                                   None)}
+    e3 = subset_errors(recon, ds, sub)
+    abl = {}
+    for name, suffix, upd in ABLATIONS if a.ablations else ():
+        rd = out / f"{a.run}_{suffix}"
+        t0 = time.perf_counter()
+        if a.eval_only:
+            r = json.loads((rd / "report.json").read_text())
+        else:
+            log(f"ablation {name}: physics stage on {out / a.run}'s stages 1-2")
+            r = fit(user / "data", rd, tcfg.model_copy(update=upd), progress=fprog, restart=True, reuse=out / a.run)
+        abl[name] = {"update": upd, "physics": r["methods"]["physics"], "material": r["material"],
+                     "errors_3d_mm": {s: v["physics"] for s, v in subset_errors(Reconstruction.load(rd), ds,
+                                                                                sub).items()},
+                     "fit_eval_s": time.perf_counter() - t0}
     oracle, ident = None, None
     spec = importlib.util.spec_from_file_location("bench_recon", ROOT / "benchmarks" / "bench_recon.py")
     br = importlib.util.module_from_spec(spec)
@@ -173,7 +222,9 @@ def main() -> None:
            "methods": rep["methods"], "material": mat, "simulated_bones": recon.rig.meta["body"]["simulated_bones"],
            "times_s": {"generate": t_gen, "export_import_check": t_imp, "fit_eval": t_fit,
                        "train": rep["train_seconds"], "total": time.perf_counter() - t_all},
-           "oracle": oracle, "identifiability": ident, "check_problems": chk["problems"], "load_end": os.getloadavg()[0]}
+           "oracle": oracle, "identifiability": ident, "check_problems": chk["problems"], "load_end": os.getloadavg()[0],
+           "ablations": abl, "train_config": {k: getattr(tcfg, k) for k in ("residual", "latents", "lambda_flow",
+                                                                             "surface_layer", "seed")}}
     (out / f"results_{a.run}.json").write_text(json.dumps(res, indent=1, default=float))
     print(f"\nscene: anny + {scfg.object} ({scfg.action}), both forearms/hands ({len(res['simulated_bones'])} simulated bones), "
           f"{scfg.image_size} px, spin {scfg.spin_frames} / dynamic {scfg.frames} ({scfg.n_obs} observed) / novel "
@@ -204,6 +255,18 @@ def main() -> None:
         for name, m in oracle:
             print(f"| {name} | {m['recon']['psnr']:.2f} | {m['recon_large']['psnr']:.2f} | "
                   f"{m['recon_large']['iou']:.4f} |")
+    if abl:
+        full = {"physics": rep["methods"]["physics"], "material": mat,
+                "errors_3d_mm": {s: v["physics"] for s, v in e3.items()}}
+        print(f"\nablations (physics; full model: residual laws + latents, lambda_flow {tcfg.lambda_flow:g}, "
+              f"surface layer {tcfg.surface_layer or 'default (half the particle spacing)'}; seed {tcfg.seed})")
+        print("| variant | recon_large PSNR | recon_large IoU | pred_large PSNR | pred_large IoU | novel_large PSNR | "
+              "novel_large IoU | 3-D error recon / pred / novel (mm) | E mean abs log10 err |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for name, v in {"full": full, **abl}.items():
+            p, e = v["physics"], v["errors_3d_mm"]
+            print(f"| {name} | " + " | ".join(f"{p[s]['psnr']:.2f} | {p[s]['iou']:.4f}" for s in sub) +
+                  f" | {' / '.join(f'{e[s]:.2f}' for s in sub)} | {v['material']['mean_abs_log10_error']:.3f} |")
     log(f"done in {time.perf_counter() - t_all:.0f} s")
 
 
