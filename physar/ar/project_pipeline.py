@@ -51,6 +51,23 @@ from physar.vision.observation import surface_observation_matrix
 STAGES = ("decode", "markers_pose", "dots", "assimilate", "overlay", "encode")
 
 
+def _rotations(w: np.ndarray) -> np.ndarray:
+    r"""Rotation matrices (k, 3, 3) of rotation vectors w (k, 3) (Rodrigues, as ``cv2.Rodrigues`` one by one):
+    :math:`R = I + a W + b W^2`, :math:`W = [w]_\times`, :math:`a = \sin\theta / \theta`,
+    :math:`b = (1 - \cos\theta) / \theta^2`, :math:`\theta = |w|` (their series below 1e-4)."""
+    w = np.asarray(w, float).reshape(-1, 3)
+    th2 = np.einsum("ki,ki->k", w, w)
+    th = np.sqrt(th2)
+    small = th < 1e-4
+    ts = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th2 / 6.0, np.sin(ts) / ts)
+    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ts)) / (ts * ts))
+    W = np.zeros((len(w), 3, 3))
+    W[:, 0, 1], W[:, 0, 2], W[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    W[:, 1, 0], W[:, 2, 0], W[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    return np.eye(3) + a[:, None, None] * W + b[:, None, None] * (W @ W)
+
+
 @dataclass
 class ProjectFrame:
     """What :meth:`ProjectPipeline.process` reports for one frame (a CSV row of :meth:`ProjectPipeline.run`).
@@ -253,7 +270,7 @@ class ProjectPipeline:
         under the increment's pose (:meth:`_pose_of`) minus their detected pixels tgt."""
         TH = np.atleast_2d(TH)
         p = self.lo.size
-        E = np.array([cv2.Rodrigues(np.asarray(t[:3], float).reshape(3, 1))[0] for t in TH])   # (k, 3, 3)
+        E = _rotations(TH[:, :3])                                                               # (k, 3, 3)
         R = pose.R @ E
         c0 = self.centre
         t = (c0 - E @ c0 + TH[:, 3:6]) @ pose.R.T + pose.t                                     # (k, 3)
