@@ -35,6 +35,7 @@ markers' corners and the dots' positions in the object's frame. Each frame:
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -43,12 +44,18 @@ import numpy as np
 
 from physar.ar.runner import run_video
 from physar.assimilation.filters import IMMFilter
-from physar.errors import ConfigError, PhysarError
+from physar.errors import ConfigError, PhysarError, PhysarWarning
 from physar.vision.blobs import find_dots
 from physar.vision.camera import Pose
 from physar.vision.observation import surface_observation_matrix
 
 STAGES = ("decode", "markers_pose", "dots", "assimilate", "overlay", "encode")
+
+
+LOW_BITS_PER_PIXEL = 0.15
+"""Bits per pixel and frame below which :meth:`ProjectPipeline.run` warns that texture features suffer from the
+codec: the bracket example's clips at 0.09 (2.4 Mbit/s, 1280x720, 30 fps) made the dots + features project worse
+than the dots alone, at 0.6 (17 Mbit/s) better; phones record about 0.2-0.3."""
 
 
 def _rotations(w: np.ndarray) -> np.ndarray:
@@ -567,6 +574,28 @@ class ProjectPipeline:
                 + [f"{r.residual_px:.4f}", r.n_markers, r.n_dots]
                 + ([r.n_features] if self.points is not None else []) + [f"{r.latency_ms:.3f}"])
 
+    def _warn_bitrate(self, source) -> None:
+        """One warning when texture features are tracked in a video file (a path or an opened
+        :class:`physar.ar.video.VideoReader`) below :data:`LOW_BITS_PER_PIXEL`."""
+        from pathlib import Path
+
+        from physar.ar.sources import is_url
+        from physar.ar.video import bits_per_pixel
+
+        if not isinstance(source, (str, Path)):
+            source = getattr(source, "path", None)          # an opened VideoReader
+        if self.points is None or not isinstance(source, (str, Path)) or is_url(str(source)) \
+                or not Path(source).is_file():
+            return
+        q = bits_per_pixel(source)
+        if q is not None and q[0] < LOW_BITS_PER_PIXEL:
+            bpp, rate, w, h, fps = q
+            warnings.warn(PhysarWarning(
+                f"{source}: {rate / 1e6:.1f} Mbit/s for {w}x{h} at {fps:g} fps ({bpp:.2f} bit per pixel): at so low "
+                "a bitrate H.264 moves a fine texture by a tenth of a pixel, and the [features] may make the "
+                "estimates worse than the dots alone (measured on examples/ar/bracket: benchmarks/RESULTS.md, "
+                "\"H.264 bitrate\")"), stacklevel=3)
+
     def run(self, source, out_video=None, out_csv=None, fps: float | None = None, crf: int = 20,
             preset: str = "ultrafast", progress: Callable[[int, int], None] | None = None,
             max_frames: int | None = None, snapshots: dict | None = None, **kw) -> dict:
@@ -581,6 +610,7 @@ class ProjectPipeline:
                 return reader.frames_with_luma()
             return ((f, None) for f in reader)
 
+        self._warn_bitrate(source)
         prev = cv2.getNumThreads()
         cv2.setNumThreads(1)
         try:

@@ -165,6 +165,27 @@ class VideoWriter:
         self.close()
 
 
+def bits_per_pixel(path) -> tuple[float, float, int, int, float] | None:
+    r"""(bits per pixel and frame :math:`b / (w h f)`, bit rate b [bit/s], width w, height h, frame rate f) of a
+    video file's first video stream, from its container (the stream's own rate, else the file's size over its
+    duration); None when the file cannot be read or does not say."""
+    import av
+
+    try:
+        with av.open(str(path)) as c:
+            s = c.streams.video[0]
+            w, h = s.codec_context.width, s.codec_context.height
+            fps = float(s.average_rate or s.guessed_rate or 0)
+            rate = s.bit_rate or c.bit_rate or 0
+            if not rate and c.duration:
+                rate = Path(path).stat().st_size * 8 / (c.duration / 1e6)
+    except (av.FFmpegError, OSError, ValueError, IndexError):
+        return None
+    if not (rate and w and h and fps):
+        return None
+    return rate / (w * h * fps), float(rate), w, h, fps
+
+
 def _to_bgr(frame, convert: str) -> tuple[np.ndarray, np.ndarray | None]:
     """(BGR, luma) of a decoded frame. ``convert="opencv"`` converts 8-bit yuv420p with
     ``cv2.cvtColor(COLOR_YUV2BGR_I420)`` (BT.601, about half the CPU time of FFmpeg's swscale here; values
@@ -329,4 +350,4 @@ class CameraSource:
         self._cap.release()
 
 
-__all__ = ["CameraSource", "VideoReader", "VideoWriter"]
+__all__ = ["CameraSource", "VideoReader", "VideoWriter", "bits_per_pixel"]
