@@ -62,7 +62,7 @@ def main(argv=None):
     ap.add_argument("--truth-mesh", type=float, default=None, help="[truth] mesh_size: the surface meshed again "
                                                                      "at this size, refined 2x (m; default: the "
                                                                      "scenario's)")
-    ap.add_argument("--crf", type=int, default=None, help="H.264 crf of the rendered clips (default: the "
+    ap.add_argument("--crf", type=int, default=None, choices=range(52), metavar="0-51", help="H.264 crf of the rendered clips (default: the "
                                                            "scenario's [video] crf)")
     ap.add_argument("--project", nargs="+", default=["project.toml"], help="project file(s) of the example")
     a = ap.parse_args(argv)

@@ -209,9 +209,9 @@ class SurfacePoints:
         p1 = (pred[inside].astype(np.float32) - off).reshape(-1, 1, 2)
         crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)
         win = (self.win, self.win)
-        p1, st1, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, p1.copy(), winSize=win, maxLevel=1, criteria=crit,
+        p1, st1, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, p1.copy(), winSize=win, maxLevel=2, criteria=crit,
                                               flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
-        pb, st2, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, p0.copy(), winSize=win, maxLevel=1, criteria=crit,
+        pb, st2, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, p0.copy(), winSize=win, maxLevel=2, criteria=crit,
                                               flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
         ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (np.linalg.norm((pb - p0).reshape(-1, 2), axis=1) < fb_px)
         idx = np.flatnonzero(inside)
