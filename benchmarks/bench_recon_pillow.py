@@ -53,7 +53,7 @@ from physar.recon.train import (
 
 ROOT = Path(__file__).parents[1]
 QUICK_SYNTH = {"image_size": 96, "frames": 6, "n_obs": 4, "novel_frames": 5, "spin_frames": 4}
-QUICK_TRAIN = {"appearance_iters": 40, "finetune_iters": 10, "flow_iters": 8, "spflow_iters": 8,
+QUICK_TRAIN = {"appearance_iters": 40, "finetune_iters": 10, "flow_iters": 8, "spflow_iters": 30,
                "physics_iters": 10, "window_start": 3}
 # seed 002 Table 3 ablations: (row, RUN_DIR suffix, TrainConfig update of the full model)
 ABLATIONS = (("w/o latents l_e", "nolatents", {"latents": False}),

@@ -18,6 +18,16 @@ r"""Structure-preserving 3-D flow of seed 002 §4.4 (Eq. 9): the losses of the p
   :math:`R_i` the rotation of the polar decomposition of :math:`S_i = \sum_j (x_i - x_j)(X_i - X_j)^\top` (the
   optimal local rotation). :math:`R_i` is held fixed when differentiating, which gives the exact gradient at
   the optimal rotations (envelope theorem).
+* :math:`L_\text{ray}` (:func:`ray_motion`), **not in the seed**: the mean squared motion along the camera ray
+  of each particle's previous position, :math:`\operatorname{mean}_i ((x'_{n,i} - x'_{n-1,i}) \cdot r_i)^2`
+  (m^2), :math:`r_i` the unit ray from the camera centre through :math:`x'_{n-1,i}`.  A 2-D flow observes motion
+  along the ray only through the change of scale (looming); with DIS's errors (0.2-0.3 px against 0.6-1.2 px of
+  motion on the quick C-pillow) that signal is noise, and the flow term alone moved the object along the rays
+  the wrong way (depth error 9.6 mm at the third frame against 5.7 mm for the object at rest, benchmarks/RESULTS.md
+  "Why the Eq. 9 flow target was poor").  The term keeps the unobserved depth at the previous frame's unless
+  ARAP (the hidden particles) asks for more.
+
+:func:`sp_flow_prior` is the weighted sum of the three geometric terms that the image loss is added to.
 """
 
 from __future__ import annotations
@@ -101,6 +111,26 @@ def flow_loss(x_prev: torch.Tensor, x_new: torch.Tensor, flow: torch.Tensor, vis
     return (uv1 - uv0.detach() - u).abs().sum(1).mean()
 
 
+def ray_motion(x_prev: torch.Tensor, x_new: torch.Tensor, centre: torch.Tensor) -> torch.Tensor:
+    r""":math:`L_\text{ray}` (m^2): mean over particles of the squared component of :math:`x_\text{new} -
+    x_\text{prev}` along the unit ray from the camera centre (world, (3,)) through :math:`x_\text{prev}`."""
+    ray = x_prev - centre
+    ray = ray / torch.linalg.vector_norm(ray, dim=1, keepdim=True)
+    return (((x_new - x_prev) * ray.detach()).sum(1) ** 2).mean()
+
+
+def sp_flow_prior(x: torch.Tensor, x_prev: torch.Tensor, flow: torch.Tensor, vis: torch.Tensor, K, R, t,
+                  X_rest: torch.Tensor, pairs: torch.Tensor, lambda_of: float, lambda_arap: float,
+                  lambda_ray: float) -> torch.Tensor:
+    r"""The geometric part of the Eq. 9 objective for frame n (the image loss is added by the caller):
+    :math:`\lambda_\text{of} L_\text{flow} + \lambda_\text{arap} L_\text{arap} + \lambda_\text{ray}
+    L_\text{ray}` with ``x_prev`` = :math:`x'_{n-1}` and the camera (K, R, t) of :func:`project`."""
+    out = lambda_of * flow_loss(x_prev, x, flow, vis, K, R, t) + lambda_arap * arap_energy(x, X_rest, pairs)
+    if lambda_ray > 0:
+        out = out + lambda_ray * ray_motion(x_prev, x, -(R.T @ t))
+    return out
+
+
 def polar_rotation(S: torch.Tensor) -> torch.Tensor:
     r"""Rotation part (:math:`\det = +1`) of the polar decomposition of :math:`S` (..., 3, 3)."""
     U, _, Vh = torch.linalg.svd(S)
@@ -124,4 +154,4 @@ def arap_energy(x: torch.Tensor, X: torch.Tensor, pairs: torch.Tensor) -> torch.
     return 0.5 * ((r_i**2).sum(1) + (r_j**2).sum(1)).mean()
 
 
-__all__ = ["arap_energy", "dis_flow", "flow_loss", "polar_rotation"]
+__all__ = ["arap_energy", "dis_flow", "flow_loss", "polar_rotation", "ray_motion", "sp_flow_prior"]

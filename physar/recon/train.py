@@ -15,8 +15,9 @@ Stages (``fit``):
    an edge-length rigidity term (:math:`F` from a least-squares fit to lattice neighbours enters Eq. 3); it
    cannot predict (it holds the last observed frame).  (b) the **structure-preserving 3-D flow** of §4.4,
    Eq. 9 (:mod:`physar.recon.flow`): per-frame positions :math:`x'_n` optimised with RGB + mask, OpenCV-DIS
-   optical flow between consecutive observed frames, and ARAP w.r.t. the rest lattice; :math:`x'_n`
-   supervises stage 3.
+   optical flow between consecutive observed frames, ARAP w.r.t. the rest lattice and (not in the seed) a
+   penalty on motion along the camera rays, which the 2-D flow does not observe (``lambda_ray``); each frame
+   starts from the previous two extrapolated at constant velocity; :math:`x'_n` supervises stage 3.
 3. **physics** (§4.2-4.4, Eq. 6-11, Alg. 2): per-particle Young's modulus :math:`E` of the object
    (log-parameterised), its Poisson ratio :math:`\nu`
    (:math:`\nu_\text{min} + (\nu_\text{max} - \nu_\text{min}) \operatorname{sigmoid}(z)`, bounds 0.2-0.4 of
@@ -107,8 +108,10 @@ class TrainConfig(BaseModel):
     flow_lr: float = Field(2e-3, gt=0, description="Adam step on positions, m")
     rigidity: float = Field(1.0e3, ge=0, description="4DGS-like baseline: weight of the edge-length term, 1/m^2")
     spflow_iters: int = Field(30, ge=0, description="per frame, structure-preserving 3-D flow (Eq. 9)")
-    lambda_of: float = Field(0.02, ge=0, description="Eq. 9 optical-flow (DIS) term [1/px]")
-    lambda_arap: float = Field(3.0e4, ge=0, description="Eq. 9 ARAP term, 1/m^2")
+    lambda_of: float = Field(3.0, ge=0, description="Eq. 9 optical-flow (DIS) term [1/px]")
+    lambda_arap: float = Field(3.0e5, ge=0, description="Eq. 9 ARAP term, 1/m^2")
+    lambda_ray: float = Field(3.0e5, ge=0, description="Eq. 9 addition (not in the seed): squared motion along "
+                              "the camera rays, which the 2-D flow does not observe [1/m^2]")
     physics_iters: int = Field(40, ge=0, description="Adam iterations of the physics stage (§4.2-4.4, Alg. 2)")
     physics_lr: float = Field(0.15, gt=0, description="Adam step on log E, the nu logits and omega logits [-]")
     E_init: float = Field(6.0e3, gt=0, description="initial Young's modulus of the object, Pa")
@@ -522,7 +525,7 @@ def simulate_clip(rig: Rig, phys: Physics, kin: dict, frames: int, grad: bool = 
 # configuration fields that stages 1-2 depend on (a physics-only variant may reuse those stages)
 _PRE_PHYSICS = ("particles_per_cell", "body_spacing", "appearance_iters", "appearance_lr", "finetune_iters",
                 "spin_stride", "flow_iters", "flow_lr", "rigidity", "spflow_iters", "lambda_of", "lambda_arap",
-                "lambda_rgb", "lambda_mask", "seed")
+                "lambda_ray", "lambda_rgb", "lambda_mask", "seed")
 
 
 @dataclass
@@ -757,13 +760,14 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
         st.stage, st.iteration, st.spflow = "spflow", 0, [Xo.clone()]
         save(st)
 
-    # ---- stage 2b: structure-preserving 3-D flow, RGB + DIS optical flow + ARAP (Eq. 9)
+    # ---- stage 2b: structure-preserving 3-D flow, RGB + DIS optical flow + ARAP (Eq. 9) + motion along the rays
     if st.stage == "spflow":
-        from physar.recon.flow import arap_energy, dis_flow, flow_loss, project, visible
+        from physar.recon.flow import dis_flow, project, sp_flow_prior, visible
 
         K, Rc, tc = (torch.as_tensor(a) for a in S.camera_matrices(rig.meta))
         for f in range(len(st.spflow), ds.n_obs):
             xp = st.spflow[-1]
+            x0 = 2 * xp - st.spflow[-2] if len(st.spflow) >= 2 else xp  # warm start: constant velocity
             with torch.no_grad():
                 r0 = render_scene(rig, app, xp, rig.deformation_from_neighbours(xp), kin["ref"][f - 1],
                                   kin["A_h"][f - 1], kin["xb"][f - 1], kin["A_b"][f - 1])
@@ -771,9 +775,9 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
             vis = visible(uv, z, r0.depth.double(), r0.alpha.double(), tol=rig.h)
             of = torch.as_tensor(dis_flow(ds.rgb[f - 1], ds.rgb[f]), dtype=torch.float64)
             x, loss = _fit_positions(
-                rig, app, kin, f, rgb[f], mask[f], xp, cfg.spflow_iters, cfg.flow_lr,
-                lambda x, xp=xp, of=of, vis=vis: (cfg.lambda_of * flow_loss(xp, x, of, vis, K, Rc, tc)
-                                                  + cfg.lambda_arap * arap_energy(x, Xo, rig.pairs)))
+                rig, app, kin, f, rgb[f], mask[f], x0, cfg.spflow_iters, cfg.flow_lr,
+                lambda x, xp=xp, of=of, vis=vis: sp_flow_prior(x, xp, of, vis, K, Rc, tc, Xo, rig.pairs, cfg.lambda_of,
+                                                               cfg.lambda_arap, cfg.lambda_ray))
             st.history["spflow"].append(loss)
             st.spflow.append(x)
             prog("spflow", f, ds.n_obs - 1, loss)
