@@ -127,3 +127,25 @@ def test_errors(tmp_path):
 
     with pytest.raises(ConfigError, match="video is 32x24 but the camera is for 64x48"):
         run_video(_process, cam, Source(_frames(2)), tmp_path / "v.mp4")
+
+
+def test_one_blas_thread_while_frames_are_processed():
+    """Inside the frame loop every BLAS library runs one thread (idle OpenBLAS workers spin on the cores the
+    decoder and encoder need: benchmarks/RESULTS.md, "H.264 bitrate"), and the caller's limits come back after.
+    Catches: the limit dropped, or left in place after the run."""
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+
+    def blas_threads():
+        return [p["num_threads"] for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"]
+
+    np.ones((64, 64)) @ np.ones((64, 64))   # numpy's BLAS loaded
+    before = blas_threads()
+    seen = []
+
+    def process(k, frame, draw):
+        seen.append(blas_threads())
+        return _process(k, frame, draw)
+
+    run_video(process, Camera.from_fov(W, H, 60.0), _frames(3), None, None)
+    assert seen and all(t and max(t) == 1 for t in seen), seen
+    assert blas_threads() == before
