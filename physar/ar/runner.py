@@ -69,7 +69,7 @@ def run_video(process: Callable, camera, source, out_video=None, out_csv=None, f
     reader = open_source(source, convert=convert, width=camera.width, height=camera.height) if opened else source
     try:
         # one BLAS thread: a frame's products are small, and idle OpenBLAS workers spin on the cores the decoder
-        # and the encoder need (measured on the bracket at 17 Mbit/s: 29 -> 20 ms of CPU per frame, 68 -> 87 fps)
+        # and the encoder need (measured on the bracket at 17 Mbit/s: 29 -> 18 ms of CPU per frame, 68 -> 97 fps)
         with single_blas_thread():
             return _loop(process, camera, reader, source, out_video, out_csv, fps, crf, csv_header, csv_row,
                          progress, snapshots, max_frames, stage_names, preset, encoder_threads, convert, frames,
