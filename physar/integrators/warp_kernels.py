@@ -18,7 +18,9 @@ Per element :math:`e` with shape-function gradients :math:`G_a` (:math:`a = 0, \
   :math:`y_a \mathrel{+}= V R \sigma G_a`;
 * per-node frame: the polar factor of :math:`\sum_{e \ni \mathrm{node}} V_e R_e`.
 
-Warp runs these kernels as compiled native loops; numpy needs several passes over (m, 12, 12) arrays
+Every allocation and launch names its device (``device`` of :class:`WarpCorotatedP1`, "cpu" by default;
+without it Warp would use its default device, ``cuda:0`` on a machine with a GPU).  Warp runs these kernels as
+compiled native loops; numpy needs several passes over (m, 12, 12) arrays
 for the same work (see benchmarks/bench_integrators.py, table "SI step variants").
 """
 
@@ -32,7 +34,7 @@ wp.config.log_level = 30  # warp >= 1.10: no banner on stdout
 wp.init()
 
 _f = wp.float64
-DEVICE = "cpu"
+DEVICE = "cpu"  # the default device of WarpCorotatedP1
 
 
 @wp.func
@@ -110,8 +112,8 @@ def _warped_assemble(R_in: wp.array(dtype=wp.mat33d), G: wp.array2d(dtype=wp.vec
                     if i == k:
                         val += gg
                     s = slots[e, (a * 3 + i) * 12 + b * 3 + k]
-                    if s >= 0:
-                        data[s] += V * val  # CPU kernels run serially: a plain add is safe
+                    if s >= 0:  # elements share slots: atomic on a GPU (on the CPU, serial: the same sum)
+                        wp.atomic_add(data, s, V * val)
 
 
 @wp.kernel
@@ -155,50 +157,55 @@ def _node_polar(acc: wp.array(dtype=wp.mat33d), tol: wp.float64, R_out: wp.array
     flag[i] = bad
 
 
-def _wp(a: np.ndarray, dtype):
-    """A warp CPU array sharing memory with the C-contiguous numpy array `a` (no copy)."""
-    return wp.array(np.ascontiguousarray(a), dtype=dtype, device=DEVICE, copy=False)
+def _wp(a: np.ndarray, dtype, device: str = DEVICE):
+    """A warp array of the numpy array `a` on `device`: on the CPU sharing memory with `a` made C-contiguous
+    (no copy), elsewhere a copy."""
+    on_cpu = wp.get_device(device).is_cpu
+    return wp.array(np.ascontiguousarray(a), dtype=dtype, device=device, copy=not on_cpu)
 
 
 class WarpCorotatedP1:
     """Warp buffers and launches for one mesh: `cells` (m, 4) node ids, `G` (m, 4, 3) gradients [1/m],
-    `vol` (m,) [m³], Lamé `lam`, `mu` [Pa], `n_nodes`. All results are numpy views of warp CPU memory,
-    overwritten by the next call of the same method (copy to keep)."""
+    `vol` (m,) [m³], Lamé `lam`, `mu` [Pa], `n_nodes`, on the Warp `device` ("cpu", the default, or
+    "cuda:N"). On the CPU all results are numpy views of warp memory, overwritten by the next call of the same
+    method (copy to keep); on a GPU they are host copies."""
 
-    def __init__(self, cells, G, vol, lam: float, mu: float, n_nodes: int, tol: float = 1e-13):
+    def __init__(self, cells, G, vol, lam: float, mu: float, n_nodes: int, tol: float = 1e-13,
+                 device: str = DEVICE):
+        self.device = device = wp.get_device(device).alias
         self.m = m = len(cells)
         self.n_nodes = n_nodes
         self.lam, self.mu, self.tol = float(lam), float(mu), float(tol)
-        self.cells = _wp(np.asarray(cells, dtype=np.int32), wp.int32)
-        self.G = _wp(np.asarray(G, dtype=np.float64), wp.vec3d)
-        self.vol = _wp(np.asarray(vol, dtype=np.float64), wp.float64)
-        self.F = wp.zeros(m, dtype=wp.mat33d, device=DEVICE)
-        self.R = wp.zeros(m, dtype=wp.mat33d, device=DEVICE)
-        self.fe = wp.zeros((m, 4), dtype=wp.vec3d, device=DEVICE)
-        self.flag = wp.zeros(m, dtype=wp.int32, device=DEVICE)
-        self.y = wp.zeros(n_nodes, dtype=wp.vec3d, device=DEVICE)
-        self.acc = wp.zeros(n_nodes, dtype=wp.mat33d, device=DEVICE)
-        self.Rn = wp.zeros(n_nodes, dtype=wp.mat33d, device=DEVICE)
-        self.nflag = wp.zeros(n_nodes, dtype=wp.int32, device=DEVICE)
+        self.cells = _wp(np.asarray(cells, dtype=np.int32), wp.int32, device)
+        self.G = _wp(np.asarray(G, dtype=np.float64), wp.vec3d, device)
+        self.vol = _wp(np.asarray(vol, dtype=np.float64), wp.float64, device)
+        self.F = wp.zeros(m, dtype=wp.mat33d, device=device)
+        self.R = wp.zeros(m, dtype=wp.mat33d, device=device)
+        self.fe = wp.zeros((m, 4), dtype=wp.vec3d, device=device)
+        self.flag = wp.zeros(m, dtype=wp.int32, device=device)
+        self.y = wp.zeros(n_nodes, dtype=wp.vec3d, device=device)
+        self.acc = wp.zeros(n_nodes, dtype=wp.mat33d, device=device)
+        self.Rn = wp.zeros(n_nodes, dtype=wp.mat33d, device=device)
+        self.nflag = wp.zeros(n_nodes, dtype=wp.int32, device=device)
         self._slots = {}  # name -> (slots (m, 144), data buffer)
 
     def deformation(self, u: np.ndarray) -> np.ndarray:
         """F (m, 3, 3) at displacement u (n_nodes * 3,)."""
-        wp.launch(_deformation, dim=self.m, inputs=[_wp(u.reshape(-1, 3), wp.vec3d), self.cells, self.G, self.F],
-                  device=DEVICE)
+        u = _wp(u.reshape(-1, 3), wp.vec3d, self.device)
+        wp.launch(_deformation, dim=self.m, inputs=[u, self.cells, self.G, self.F], device=self.device)
         return self.F.numpy()
 
     def stress_forces(self, u: np.ndarray):
         """(F, R, fe, flagged): F and its polar factor R (m, 3, 3), element nodal forces fe (m, 4, 3)
         f_a = V P G_a, and the ids of the elements left to the caller (Newton polar not applicable)."""
         wp.launch(_stress_forces, dim=self.m,
-                  inputs=[_wp(u.reshape(-1, 3), wp.vec3d), self.cells, self.G, self.vol, self.lam, self.mu,
-                          self.tol, self.F, self.R, self.fe, self.flag], device=DEVICE)
+                  inputs=[_wp(u.reshape(-1, 3), wp.vec3d, self.device), self.cells, self.G, self.vol, self.lam,
+                          self.mu, self.tol, self.F, self.R, self.fe, self.flag], device=self.device)
         return self.F.numpy(), self.R.numpy(), self.fe.numpy(), np.flatnonzero(self.flag.numpy())
 
     def set_rotations(self, R: np.ndarray) -> None:
         """Overwrite the stored element rotations (after the caller fixed flagged elements)."""
-        self.R.numpy()[...] = R
+        self.R.assign(np.ascontiguousarray(R, dtype=np.float64))  # on the CPU: a copy into R's memory
 
     def has_slots(self, name: str) -> bool:
         return name in self._slots
@@ -206,29 +213,31 @@ class WarpCorotatedP1:
     def set_slots(self, name: str, slots: np.ndarray, nnz: int) -> None:
         """Data slot of every element-matrix entry, (m, 144) in (a i, b k) order (-1 = dropped), for a
         CSR pattern with nnz entries, stored under `name`."""
-        self._slots[name] = (_wp(np.asarray(slots, dtype=np.int32).reshape(self.m, 144), wp.int32),
-                             wp.zeros(int(nnz), dtype=wp.float64, device=DEVICE))
+        slots = np.asarray(slots, dtype=np.int32).reshape(self.m, 144)
+        data = wp.zeros(int(nnz), dtype=wp.float64, device=self.device)
+        self._slots[name] = (_wp(slots, wp.int32, self.device), data)
 
     def warped_assemble(self, name: str) -> np.ndarray:
         r"""CSR data (nnz,) of :math:`\sum_e R_e K^0_e R_e^\top` at the stored rotations, on the slots `name`."""
         slots, data = self._slots[name]
         data.zero_()
         wp.launch(_warped_assemble, dim=self.m,
-                  inputs=[self.R, self.G, self.vol, self.lam, self.mu, slots, data], device=DEVICE)
+                  inputs=[self.R, self.G, self.vol, self.lam, self.mu, slots, data], device=self.device)
         return data.numpy()
 
     def warped_matvec(self, x: np.ndarray) -> np.ndarray:
         r""":math:`\sum_e R_e K^0_e R_e^\top x` (n_nodes * 3,) at the stored rotations (a fresh array)."""
         self.y.zero_()
         wp.launch(_warped_matvec, dim=self.m,
-                  inputs=[_wp(x.reshape(-1, 3), wp.vec3d), self.cells, self.R, self.G, self.vol, self.lam,
-                          self.mu, self.y], device=DEVICE)
+                  inputs=[_wp(x.reshape(-1, 3), wp.vec3d, self.device), self.cells, self.R, self.G, self.vol,
+                          self.lam, self.mu, self.y], device=self.device)
         return self.y.numpy().reshape(-1).copy()
 
     def node_frames(self):
         r"""(Rn, acc, flagged): per-node polar factors of :math:`\sum_e V_e R_e` (n_nodes, 3, 3) at the stored
         rotations, the sums themselves, and the nodes left to the caller."""
         self.acc.zero_()
-        wp.launch(_node_accumulate, dim=self.m, inputs=[self.R, self.cells, self.vol, self.acc], device=DEVICE)
-        wp.launch(_node_polar, dim=self.n_nodes, inputs=[self.acc, self.tol, self.Rn, self.nflag], device=DEVICE)
+        d = self.device
+        wp.launch(_node_accumulate, dim=self.m, inputs=[self.R, self.cells, self.vol, self.acc], device=d)
+        wp.launch(_node_polar, dim=self.n_nodes, inputs=[self.acc, self.tol, self.Rn, self.nflag], device=d)
         return self.Rn.numpy(), self.acc.numpy(), np.flatnonzero(self.nflag.numpy())

@@ -27,6 +27,10 @@ in reverse, with fresh allocations per launch.  Without neural residuals the who
   separate grid adjoints that are summed.  By default one or two threads are chosen per sweep from measured
   wall times (:class:`ThreadChooser`): under load two threads can be slower than one.
 
+Devices: every array and launch is on ``model.device`` (:class:`physar.mpm.model.MPMModel`); tensors are moved
+there and the results returned on the device of the caller's ``x``.  On a GPU each launch runs whole (one
+"thread" in the sense above: the split into halves is for the CPU's cores).
+
 Gradients equal the generic Warp-tape path's to round-off and central differences; see tests/mpm/test_fused.py
 and tests/mpm/test_fused_paths.py.
 """
@@ -422,8 +426,11 @@ def add_vec_grid_kernel(a: wp.array3d(dtype=wp.vec3d), b: wp.array3d(dtype=wp.ve
 _STATE = (("x", wp.vec3d), ("v", wp.vec3d), ("C", wp.mat33d), ("F", wp.mat33d), ("Jp", wp.float64))
 
 
-def _alloc_state(n: int, zero: bool = True) -> list:
-    return [(wp.zeros if zero else wp.empty)(n, dtype=t) for _, t in _STATE]
+def _alloc_state(n: int, device: str, zero: bool = True) -> list:
+    """Buffers (x, v, C, F, Jp) of n particles on the Warp ``device`` (zeroed, or left uninitialised)."""
+    if zero:
+        return [wp.zeros(n, dtype=t, device=device) for _, t in _STATE]
+    return [wp.empty(n, dtype=t, device=device) for _, t in _STATE]
 
 
 def _usable_cores() -> int:
@@ -503,16 +510,19 @@ class FusedFrame:
 
     ``threads``: 1, 2, or None (default): 1 on a single usable core or below 2 x 2048 particles, else chosen per
     sweep by :class:`ThreadChooser` from measured wall times (so two threads are used only while they are
-    faster).  ``keep_bytes``: memory (bytes, over all frames alive in the graph) that the forward may use to
-    keep the states and grids of a frame's last K substeps so that the backward does not run them again
-    (default :func:`_default_keep_bytes`: min(512 MiB, 1/8 of the available memory); 0 = pure checkpointing);
-    the first T - K substeps are checkpointed every ceil(sqrt(T - K)) substeps and recomputed in the backward.
+    faster); always 1 on a GPU (``model.device`` "cuda:N").  ``keep_bytes``: memory (bytes, over all frames
+    alive in the graph) that the forward may use to keep the states and grids of a frame's last K substeps so
+    that the backward does not run them again (default :func:`_default_keep_bytes`: min(512 MiB, 1/8 of the
+    available memory); 0 = pure checkpointing); the first T - K substeps are checkpointed every
+    ceil(sqrt(T - K)) substeps and recomputed in the backward.
     """
 
     def __init__(self, model: MPMModel, threads: int | None = None, keep_bytes: int | None = None):
         self.model = model
+        self.device = model.device
         n = model.n_particles
-        if threads is None and (_usable_cores() < 2 or n < 2 * MIN_PARTICLES_PER_THREAD):
+        few = _usable_cores() < 2 or n < 2 * MIN_PARTICLES_PER_THREAD
+        if not wp.get_device(self.device).is_cpu or (threads is None and few):
             threads = 1
         self.threads = None if threads is None else max(1, min(2, int(threads)))
         h = n // 2
@@ -582,7 +592,9 @@ class FusedFrame:
         self._last_box = shape[0] * shape[1] * shape[2]
         parts = self._parts[mode]
         off = wp.vec3i(*corner)
-        grids = [(wp.zeros(shape, dtype=wp.vec3d), wp.zeros(shape, dtype=wp.float64)) for _ in parts]
+        d = self.device
+        grids = [(wp.zeros(shape, dtype=wp.vec3d, device=d), wp.zeros(shape, dtype=wp.float64, device=d))
+                 for _ in parts]
         col = a["colliders"].at(t, m.dt)
         cin = col.inputs()
 
@@ -593,16 +605,16 @@ class FusedFrame:
                 inputs=[x, v, C, F, Jp, P["E"], P["nu"], a["elastic"], a["plastic"], a["pp"], a["fiber"],
                         P["fiber_E"], a["mass"], a["volume"], P["omega"], P["x_ref"], P["v_ref"], P["f_hold"],
                         P["kp"], P["kd"], m.origin, m.dx, m.dt, nmax, off, p0],
-                outputs=list(grids[k]))
+                outputs=list(grids[k]), device=d)
 
         self._par([p2g(k) for k in range(len(parts))])
         mv, gm = grids[0]
         for k in range(1, len(grids)):
-            wp.launch(add_grid_kernel, shape, inputs=[mv, gm, grids[k][0], grids[k][1]])
-        gv = wp.zeros(shape, dtype=wp.vec3d)
+            wp.launch(add_grid_kernel, shape, inputs=[mv, gm, grids[k][0], grids[k][1]], device=d)
+        gv = wp.zeros(shape, dtype=wp.vec3d, device=d)
         g_in = [mv, gm, wp.vec3d(*m.gravity), m.dt, m.pad, m.pad + m.resolution, a["bc"], a["friction"],
                 wp.vec3i(0, 0, 0), off, m.origin, m.dx, *cin]
-        wp.launch(grid_update_kernel, shape, inputs=g_in, outputs=[gv])
+        wp.launch(grid_update_kernel, shape, inputs=g_in, outputs=[gv], device=d)
 
         def g2p(k):
             p0, cnt = parts[k]
@@ -610,7 +622,7 @@ class FusedFrame:
                 g2p_fused_kernel, cnt,
                 inputs=[gv, x, F, Jp, P["E"], P["nu"], a["plastic"], a["pp"], m.origin, m.dx, m.dt, nmax, lo, hi,
                         off, cin[0], cin[1], cin[4], cin[5], cin[6], cin[7], p0],
-                outputs=list(s_out))
+                outputs=list(s_out), device=d)
 
         self._par([g2p(k) for k in range(len(parts))])
         if box is None:
@@ -621,11 +633,10 @@ class FusedFrame:
 
     def _scratch(self) -> dict:
         if getattr(self, "_scr", None) is None:
-            n = self.model.n_particles
-            self._scr = {"tau": wp.zeros(n, dtype=wp.mat33d), "f": wp.zeros(n, dtype=wp.vec3d),
-                         "adj_tau": wp.zeros(n, dtype=wp.mat33d), "adj_f": wp.zeros(n, dtype=wp.vec3d),
-                         "x": wp.zeros(n, dtype=wp.vec3d), "F": wp.zeros(n, dtype=wp.mat33d),
-                         "Jp": wp.zeros(n, dtype=wp.float64)}
+            n, d = self.model.n_particles, self.device
+            types = {"tau": wp.mat33d, "f": wp.vec3d, "adj_tau": wp.mat33d, "adj_f": wp.vec3d, "x": wp.vec3d,
+                     "F": wp.mat33d, "Jp": wp.float64}
+            self._scr = {k: wp.zeros(n, dtype=t, device=d) for k, t in types.items()}
         return self._scr
 
     def adjoint_substep(self, s_in: list, s_out: list, adj_in: list, adj_out: list, P: dict, adjP: dict, rec: dict):
@@ -647,7 +658,8 @@ class FusedFrame:
         cin = col.inputs()
         scr = self._scratch()
         tail = self.simple_tail and cin[0] == 0
-        adj_gvs = [wp.zeros(shape, dtype=wp.vec3d) for _ in parts]
+        d = self.device
+        adj_gvs = [wp.zeros(shape, dtype=wp.vec3d, device=d) for _ in parts]
 
         def g2p_adj(k):
             p0, cnt = parts[k]
@@ -659,25 +671,25 @@ class FusedFrame:
             def run():
                 if not tail:
                     wp.launch(trial_plastic_kernel, cnt, inputs=pl_in, outputs=[scr["F"], scr["Jp"]],
-                              adj_inputs=pl_adj, adj_outputs=[adj_out[3], adj_out[4]], adjoint=True)
+                              adj_inputs=pl_adj, adj_outputs=[adj_out[3], adj_out[4]], adjoint=True, device=d)
                     wp.launch(advect_kernel, cnt, inputs=ad_in, outputs=[scr["x"]], adj_inputs=ad_adj,
-                              adj_outputs=[adj_out[0]], adjoint=True)
+                              adj_outputs=[adj_out[0]], adjoint=True, device=d)
                 wp.launch(g2p_gather_adjoint_kernel, cnt,
                           inputs=[gv, x, adj_out[1], adj_out[2], m.origin, m.dx, nmax, off, p0, int(tail), s_out[1],
                                   s_out[2], F, m.dt, lo, hi, adj_out[0], adj_out[3], adj_out[4]],
-                          outputs=[adj_in[0], adj_gvs[k], adj_in[3], adj_in[4]])
+                          outputs=[adj_in[0], adj_gvs[k], adj_in[3], adj_in[4]], device=d)
             return run
 
         self._par([g2p_adj(k) for k in range(len(parts))])
         adj_gv = adj_gvs[0]
         for k in range(1, len(adj_gvs)):
-            wp.launch(add_vec_grid_kernel, shape, inputs=[adj_gv, adj_gvs[k]])
-        adj_mv = wp.zeros(shape, dtype=wp.vec3d)
-        adj_m = wp.zeros(shape, dtype=wp.float64)
+            wp.launch(add_vec_grid_kernel, shape, inputs=[adj_gv, adj_gvs[k]], device=d)
+        adj_mv = wp.zeros(shape, dtype=wp.vec3d, device=d)
+        adj_m = wp.zeros(shape, dtype=wp.float64, device=d)
         g_in = rec["g_in"]
         g_adj = _adj(g_in, {0: adj_mv, 1: adj_m})
         wp.launch(grid_update_kernel, shape, inputs=g_in, outputs=[gv], adj_inputs=g_adj, adj_outputs=[adj_gv],
-                  adjoint=True)
+                  adjoint=True, device=d)
 
         def p2g_adj(k):
             p0, cnt = parts[k]
@@ -688,13 +700,13 @@ class FusedFrame:
                                   14: adjP["v_ref"], 15: adjP["f_hold"]})
 
             def run():
-                wp.launch(stress_force_kernel, cnt, inputs=sf_in, outputs=[scr["tau"], scr["f"]])
+                wp.launch(stress_force_kernel, cnt, inputs=sf_in, outputs=[scr["tau"], scr["f"]], device=d)
                 wp.launch(p2g_scatter_adjoint_kernel, cnt,
                           inputs=[x, v, C, scr["tau"], scr["f"], a["mass"], a["volume"], adj_mv, adj_m, m.origin,
                                   m.dx, m.dt, nmax, off, p0],
-                          outputs=[adj_in[0], adj_in[1], adj_in[2], scr["adj_tau"], scr["adj_f"]])
+                          outputs=[adj_in[0], adj_in[1], adj_in[2], scr["adj_tau"], scr["adj_f"]], device=d)
                 wp.launch(stress_force_kernel, cnt, inputs=sf_in, outputs=[scr["tau"], scr["f"]], adj_inputs=sf_adj,
-                          adj_outputs=[scr["adj_tau"], scr["adj_f"]], adjoint=True)
+                          adj_outputs=[scr["adj_tau"], scr["adj_f"]], adjoint=True, device=d)
             return run
 
         self._par([p2g_adj(k) for k in range(len(parts))])
@@ -715,8 +727,22 @@ def _adj(inputs: list, given: dict) -> list:
     return out
 
 
-def _wp(t: torch.Tensor, dtype):
-    return wp.from_torch(t.detach().contiguous(), dtype=dtype)
+def _wp(t: torch.Tensor, dtype, device: str):
+    """A Warp view of ``t`` on the Warp ``device`` (moved there first: a copy only when it is elsewhere)."""
+    return wp.from_torch(t.detach().to(wp.device_to_torch(device)).contiguous(), dtype=dtype)
+
+
+def _params(runner: FusedFrame, E, nu, omega, x_ref, v_ref, f_hold, fiber_E, kp: float, kd: float) -> dict:
+    """The per-particle parameters as Warp arrays on the runner's device, and the gains."""
+    d = runner.device
+    return {"E": _wp(E, wp.float64, d), "nu": _wp(nu, wp.float64, d), "omega": _wp(omega, wp.float64, d),
+            "x_ref": _wp(x_ref, wp.vec3d, d), "v_ref": _wp(v_ref, wp.vec3d, d), "f_hold": _wp(f_hold, wp.vec3d, d),
+            "fiber_E": _wp(fiber_E, wp.float64, d), "kp": float(kp), "kd": float(kd)}
+
+
+def _host(t: torch.Tensor) -> np.ndarray:
+    """A NumPy array of a tensor's values (a view for a contiguous CPU tensor, a host copy of a GPU one)."""
+    return t.detach().cpu().contiguous().numpy()
 
 
 class _Kept:
@@ -744,11 +770,10 @@ class FusedFrameFunction(torch.autograd.Function):
                 f_hold, fiber_E):
         m = runner.model
         n, T = m.n_particles, m.substeps
-        P = {"E": _wp(E, wp.float64), "nu": _wp(nu, wp.float64), "omega": _wp(omega, wp.float64),
-             "x_ref": _wp(x_ref, wp.vec3d), "v_ref": _wp(v_ref, wp.vec3d), "f_hold": _wp(f_hold, wp.vec3d),
-             "fiber_E": _wp(fiber_E, wp.float64), "kp": float(kp), "kd": float(kd)}
-        cur = [wp.array(t.detach().contiguous().numpy(), dtype=d) for t, (_, d) in zip((x, v, C, F, Jp), _STATE)]
-        ctx.runner, ctx.t0, ctx.kp, ctx.kd = runner, t0, kp, kd
+        P = _params(runner, E, nu, omega, x_ref, v_ref, f_hold, fiber_E, kp, kd)
+        dev = runner.device
+        cur = [wp.array(_host(t), dtype=d, device=dev) for t, (_, d) in zip((x, v, C, F, Jp), _STATE)]
+        ctx.runner, ctx.t0, ctx.kp, ctx.kd, ctx.caller = runner, t0, kp, kd, x.device
         ctx.kept, ctx.kept_released = None, False
         # the last K substeps keep their states and grids (as many as runner.keep_bytes allows): the backward
         # runs those substeps only in reverse; the first T - K are checkpointed every ceil(sqrt(T - K))
@@ -756,7 +781,7 @@ class FusedFrameFunction(torch.autograd.Function):
         K, nbytes = runner.reserve(T) if any(ctx.needs_input_grad[4:]) else (0, 0)
         tail0 = T - K
         seg = max(1, math.ceil(math.sqrt(tail0)))
-        nxt = _alloc_state(n, zero=False)
+        nxt = _alloc_state(n, dev, zero=False)
         bounds = {0: [a.numpy().copy() for a in cur]}
         boxes = []
         for s in range(tail0):
@@ -767,7 +792,7 @@ class FusedFrameFunction(torch.autograd.Function):
         if K > 0:
             states, recs = [cur], []
             for s in range(tail0, T):
-                out = _alloc_state(n, zero=False)
+                out = _alloc_state(n, dev, zero=False)
                 recs.append(runner.substep(states[-1], out, P, t0 + s * m.dt, keep=True))
                 states.append(out)
             ctx.kept = _Kept(runner, nbytes, states, recs, tail0)
@@ -776,7 +801,7 @@ class FusedFrameFunction(torch.autograd.Function):
                 bounds = {}
         ctx.bounds, ctx.boxes = bounds, boxes
         ctx.save_for_backward(E, nu, omega, x_ref, v_ref, f_hold, fiber_E)
-        return tuple(torch.from_numpy(a.numpy().copy()) for a in cur)
+        return tuple(torch.from_numpy(a.numpy().copy()).to(ctx.caller) for a in cur)
 
     @staticmethod
     def backward(ctx, *grads):
@@ -784,16 +809,15 @@ class FusedFrameFunction(torch.autograd.Function):
         m = runner.model
         n, T = m.n_particles, m.substeps
         E, nu, omega, x_ref, v_ref, f_hold, fiber_E = ctx.saved_tensors
-        P = {"E": _wp(E, wp.float64), "nu": _wp(nu, wp.float64), "omega": _wp(omega, wp.float64),
-             "x_ref": _wp(x_ref, wp.vec3d), "v_ref": _wp(v_ref, wp.vec3d), "f_hold": _wp(f_hold, wp.vec3d),
-             "fiber_E": _wp(fiber_E, wp.float64), "kp": float(ctx.kp), "kd": float(ctx.kd)}
-        adjP = {"E": wp.zeros(n, dtype=wp.float64), "nu": wp.zeros(n, dtype=wp.float64),
-                "omega": wp.zeros(n, dtype=wp.float64), "x_ref": wp.zeros(n, dtype=wp.vec3d),
-                "v_ref": wp.zeros(n, dtype=wp.vec3d), "f_hold": wp.zeros(n, dtype=wp.vec3d),
-                "fiber_E": wp.zeros(n, dtype=wp.float64)}
-        adj_next = [wp.array(np.ascontiguousarray(g.detach().numpy() if g is not None else np.zeros(sh)), dtype=d)
-                    for g, (_, d), sh in zip(grads, _STATE, [(n, 3), (n, 3), (n, 3, 3), (n, 3, 3), (n,)])]
-        adj_cur = _alloc_state(n)
+        P = _params(runner, E, nu, omega, x_ref, v_ref, f_hold, fiber_E, ctx.kp, ctx.kd)
+        dev = runner.device
+        types = {"E": wp.float64, "nu": wp.float64, "omega": wp.float64, "x_ref": wp.vec3d, "v_ref": wp.vec3d,
+                 "f_hold": wp.vec3d, "fiber_E": wp.float64}
+        adjP = {k: wp.zeros(n, dtype=t, device=dev) for k, t in types.items()}
+        shapes = [(n, 3), (n, 3), (n, 3, 3), (n, 3, 3), (n,)]
+        adj_next = [wp.array(np.ascontiguousarray(_host(g) if g is not None else np.zeros(sh)), dtype=d, device=dev)
+                    for g, (_, d), sh in zip(grads, _STATE, shapes)]
+        adj_cur = _alloc_state(n, dev)
         if ctx.kept is None and ctx.kept_released:
             raise RuntimeError("this MPM frame kept its last substeps for one backward pass, which has run: "
                                "back-propagating it again (retain_graph) needs FusedFrame(model, keep_bytes=0)")
@@ -804,10 +828,10 @@ class FusedFrameFunction(torch.autograd.Function):
             segments.append((ctx.kept.start, T, ctx.kept.states, ctx.kept.recs))
         for s0, s1, states, recs in reversed(segments):
             if states is None:
-                states = [[wp.array(a, dtype=d) for a, (_, d) in zip(ctx.bounds[s0], _STATE)]]
+                states = [[wp.array(a, dtype=d, device=dev) for a, (_, d) in zip(ctx.bounds[s0], _STATE)]]
                 recs = []
                 for s in range(s0, s1):
-                    out = _alloc_state(n, zero=False)
+                    out = _alloc_state(n, dev, zero=False)
                     recs.append(runner.substep(states[-1], out, P, ctx.t0 + s * m.dt, keep=True, box=ctx.boxes[s]))
                     states.append(out)
             for j in reversed(range(s1 - s0)):
@@ -818,7 +842,7 @@ class FusedFrameFunction(torch.autograd.Function):
         if ctx.kept is not None:
             ctx.kept.release()
             ctx.kept, ctx.kept_released = None, True
-        to_t = lambda a: torch.from_numpy(a.numpy().copy())
+        to_t = lambda a: torch.from_numpy(a.numpy().copy()).to(ctx.caller)
         g_state = [to_t(a) for a in adj_next]
         g_par = [to_t(adjP[k]) for k in ("E", "nu", "omega", "x_ref", "v_ref", "f_hold", "fiber_E")]
         return (None, None, None, None, *g_state, *g_par)

@@ -169,24 +169,27 @@ def collider_sdf(p: wp.vec3d, kind: wp.int32, c: wp.vec3d, size: wp.vec3d, axis:
 
 
 class ColliderArrays:
-    """Per-substep kernel arrays of a list of colliders (all of length max(1, n); ``count`` = n)."""
+    """Per-substep kernel arrays of a list of colliders (all of length max(1, n); ``count`` = n), on the Warp
+    ``device`` of the model (:attr:`physar.mpm.model.MPMModel.device`)."""
 
-    def __init__(self, colliders: list[Collider]):
+    def __init__(self, colliders: list[Collider], device: str = "cpu"):
+        self.device = device
         self.colliders = list(colliders)
         self.count = len(self.colliders)
         if self.count > MAX_COLLIDERS:
             raise ConfigError(f"{self.count} colliders: at most {MAX_COLLIDERS} are supported")
         k = max(1, self.count)
         geo = [c.geometry() for c in self.colliders]
-        self.kind = wp.array([g[0] for g in geo] + [0] * (k - self.count), dtype=wp.int32)
-        self.size = wp.array(np.array([g[1] for g in geo] + [np.zeros(3)] * (k - self.count)), dtype=wp.vec3d)
-        self.axis = wp.array(np.array([g[2] for g in geo] + [np.zeros(3)] * (k - self.count)), dtype=wp.vec3d)
+        self.kind = wp.array([g[0] for g in geo] + [0] * (k - self.count), dtype=wp.int32, device=device)
+        pad3 = [np.zeros(3)] * (k - self.count)
+        self.size = wp.array(np.array([g[1] for g in geo] + pad3), dtype=wp.vec3d, device=device)
+        self.axis = wp.array(np.array([g[2] for g in geo] + pad3), dtype=wp.vec3d, device=device)
         self.bc = wp.array([COLLIDER_BC[c.boundary] for c in self.colliders] + [0] * (k - self.count),
-                           dtype=wp.int32)
+                           dtype=wp.int32, device=device)
         self.friction = wp.array([float(c.friction) for c in self.colliders] + [0.0] * (k - self.count),
-                                 dtype=wp.float64)
-        self.center = wp.zeros(k, dtype=wp.vec3d)
-        self.velocity = wp.zeros(k, dtype=wp.vec3d)
+                                 dtype=wp.float64, device=device)
+        self.center = wp.zeros(k, dtype=wp.vec3d, device=device)
+        self.velocity = wp.zeros(k, dtype=wp.vec3d, device=device)
         self._t = None
 
     def at(self, t: float, dt: float) -> ColliderArrays:

@@ -28,14 +28,18 @@ plastic Jacobian :math:`J_p` of the snow law), and :class:`MPMSolver` advances
    :math:`x_p \mathrel{-}= \phi\, n` (:mod:`physar.mpm.colliders`);
 5. :math:`F = \mathcal{P}(F_\text{trial})` (:mod:`physar.mpm.constitutive`).
 
-Units: SI (m, s, kg, Pa).  All arrays are float64.  The grid covers the cube :math:`[0, \mathrm{size}]^3`
-with ``pad`` extra nodes on each side; walls sit at the faces of the cube (the ground is the face
-:math:`z = 0`).  Particles are clamped to the padded grid so that they can never index outside it (a NaN
-state is reported by :meth:`MPMSolver.simulate_frame` as a :class:`physar.errors.SolverError`).
+Units: SI (m, s, kg, Pa).  All arrays are float64 and live on the Warp device of the model
+(:attr:`MPMModel.device`, "cpu" by default, or "cuda:N"): every allocation and launch names it, so that a
+machine with a GPU does not put some arrays on Warp's default device (``cuda:0``) and others on the CPU.
+The grid covers the cube :math:`[0, \mathrm{size}]^3` with ``pad`` extra nodes on each side; walls sit at the
+faces of the cube (the ground is the face :math:`z = 0`).  Particles are clamped to the padded grid so that they
+can never index outside it (a NaN state is reported by :meth:`MPMSolver.simulate_frame` as a
+:class:`physar.errors.SolverError`).
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -61,6 +65,21 @@ _f = wp.float64
 BC_NONE, BC_STICKY, BC_SLIP, BC_SEPARATE = 0, 1, 2, 3
 BC_CODES = {"none": BC_NONE, "sticky": BC_STICKY, "slip": BC_SLIP, "separate": BC_SEPARATE}
 WALLS = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")  # z_min is the ground
+_DEVICE_NAME = re.compile(r"cpu|cuda(:\d+)?")
+
+
+def resolve_device(device) -> str:
+    """The Warp device alias ("cpu", "cuda:N") that ``device`` ("cpu", "cuda" = Warp's current CUDA device, or
+    "cuda:N") names; a :class:`ConfigError` naming the value and Warp's devices (``wp.get_devices()``) when it
+    is not one of those or Warp does not have it."""
+    available = [d.alias for d in wp.get_devices()]
+    name = device if isinstance(device, str) else None
+    if name == "cuda" and any(a.startswith("cuda") for a in available):
+        name = wp.get_device("cuda").alias
+    if name is None or not _DEVICE_NAME.fullmatch(name) or name not in available:
+        raise ConfigError(f"MPM device {device!r} is not available: Warp has {', '.join(available)} (a device is "
+                          "'cpu', 'cuda' or 'cuda:N')")
+    return name
 
 
 # ----------------------------------------------------------------------------------------------- kernels
@@ -432,6 +451,10 @@ class MPMModel:
     :math:`\tau_f = (E_f / 2)(I_4 - 1)(F a_0)(F a_0)^\top`, and the small-strain uniaxial stiffness along
     :math:`a_0` grows by :math:`E_f`.
     ``None`` (default) = zeros = isotropic.
+
+    ``device``: the Warp device of every array and launch of this model ("cpu", the default; "cuda" or
+    "cuda:N"); checked by :func:`resolve_device` and stored as Warp's alias ("cuda" -> "cuda:0").  The torch
+    bridge (:mod:`physar.mpm.torch_bridge`) moves its tensors there and its results back to the caller's device.
     """
 
     size: float
@@ -453,8 +476,10 @@ class MPMModel:
     colliders: list = field(default_factory=list)
     fiber: np.ndarray | None = None
     fiber_E: np.ndarray | None = None
+    device: str = "cpu"
 
     def __post_init__(self):
+        self.device = resolve_device(self.device)
         n = len(self.mass)
         if n == 0:
             raise ConfigError("MPM model has no particles (every body is empty or outside the domain)")
@@ -564,23 +589,26 @@ class MPMModel:
         return self.dt * self.substeps
 
     def warp_arrays(self) -> dict:
-        """Constant per-particle arrays on the Warp device (built once, cached)."""
+        """Constant per-particle arrays on the model's Warp device (built once, cached)."""
+        d = self.device
         if self._wp is None:
             self._wp = {
-                "mass": wp.array(self.mass, dtype=wp.float64),
-                "volume": wp.array(self.volume, dtype=wp.float64),
-                "E": wp.array(self.E, dtype=wp.float64),
-                "nu": wp.array(self.nu, dtype=wp.float64),
-                "elastic": wp.array(self.elastic, dtype=wp.int32),
-                "plastic": wp.array(self.plastic, dtype=wp.int32),
-                "pp": wp.array(self.plastic_params, dtype=wp.vec4d),
-                "fiber": wp.array(self.fiber, dtype=wp.vec3d),
-                "fiber_E": wp.array(self.fiber_E, dtype=wp.float64),
-                "bc": wp.array([BC_CODES[self.walls.get(w, "slip")] for w in WALLS], dtype=wp.int32),
-                "friction": wp.array([float(self.friction.get(w, 0.0)) for w in WALLS], dtype=wp.float64),
-                "zero_omega": wp.zeros(self.n_particles, dtype=wp.float64),
-                "zero_vec": wp.zeros(self.n_particles, dtype=wp.vec3d),
-                "colliders": ColliderArrays(self.colliders),
+                "mass": wp.array(self.mass, dtype=wp.float64, device=d),
+                "volume": wp.array(self.volume, dtype=wp.float64, device=d),
+                "E": wp.array(self.E, dtype=wp.float64, device=d),
+                "nu": wp.array(self.nu, dtype=wp.float64, device=d),
+                "elastic": wp.array(self.elastic, dtype=wp.int32, device=d),
+                "plastic": wp.array(self.plastic, dtype=wp.int32, device=d),
+                "pp": wp.array(self.plastic_params, dtype=wp.vec4d, device=d),
+                "fiber": wp.array(self.fiber, dtype=wp.vec3d, device=d),
+                "fiber_E": wp.array(self.fiber_E, dtype=wp.float64, device=d),
+                "bc": wp.array([BC_CODES[self.walls.get(w, "slip")] for w in WALLS], dtype=wp.int32,
+                               device=d),
+                "friction": wp.array([float(self.friction.get(w, 0.0)) for w in WALLS], dtype=wp.float64,
+                                     device=d),
+                "zero_omega": wp.zeros(self.n_particles, dtype=wp.float64, device=d),
+                "zero_vec": wp.zeros(self.n_particles, dtype=wp.vec3d, device=d),
+                "colliders": ColliderArrays(self.colliders, d),
             }
         return self._wp
 
@@ -589,7 +617,8 @@ class MPMModel:
         n = self.n_particles
         x = np.asarray(x, dtype=np.float64).reshape(n, 3)
         v = np.zeros((n, 3)) if v is None else np.broadcast_to(np.asarray(v, dtype=np.float64), (n, 3))
-        return MPMState.from_numpy(x, v, np.zeros((n, 3, 3)), np.tile(np.eye(3), (n, 1, 1)), np.ones(n))
+        return MPMState.from_numpy(x, v, np.zeros((n, 3, 3)), np.tile(np.eye(3), (n, 1, 1)), np.ones(n),
+                                   device=self.device)
 
 
 @dataclass
@@ -597,8 +626,9 @@ class MPMState:
     r"""Per-particle state :math:`s = \{x\ (\mathrm{m}), v\ (\mathrm{m/s}), C\ (1/\mathrm{s}), F\ (-)\}` of
     Alg. 1, plus the plastic Jacobian :math:`J_p`.
 
-    Fields are Warp arrays: ``state.numpy()`` returns copies, while ``state.x.numpy()`` is a view of the buffer
-    that the next step overwrites (copy it to keep a frame)."""
+    Fields are Warp arrays on the model's device: ``state.numpy()`` returns copies, while on the CPU
+    ``state.x.numpy()`` is a view of the buffer that the next step overwrites (copy it to keep a frame; on a GPU
+    it is a copy already)."""
 
     x: wp.array
     v: wp.array
@@ -607,13 +637,14 @@ class MPMState:
     Jp: wp.array
 
     @staticmethod
-    def from_numpy(x, v, C, F, Jp) -> MPMState:
+    def from_numpy(x, v, C, F, Jp, device: str = "cpu") -> MPMState:
+        """A state holding copies of the arrays, on the Warp ``device``."""
         return MPMState(
-            wp.array(np.ascontiguousarray(x, dtype=np.float64), dtype=wp.vec3d),
-            wp.array(np.ascontiguousarray(v, dtype=np.float64), dtype=wp.vec3d),
-            wp.array(np.ascontiguousarray(C, dtype=np.float64), dtype=wp.mat33d),
-            wp.array(np.ascontiguousarray(F, dtype=np.float64), dtype=wp.mat33d),
-            wp.array(np.ascontiguousarray(Jp, dtype=np.float64), dtype=wp.float64),
+            wp.array(np.ascontiguousarray(x, dtype=np.float64), dtype=wp.vec3d, device=device),
+            wp.array(np.ascontiguousarray(v, dtype=np.float64), dtype=wp.vec3d, device=device),
+            wp.array(np.ascontiguousarray(C, dtype=np.float64), dtype=wp.mat33d, device=device),
+            wp.array(np.ascontiguousarray(F, dtype=np.float64), dtype=wp.mat33d, device=device),
+            wp.array(np.ascontiguousarray(Jp, dtype=np.float64), dtype=wp.float64, device=device),
         )
 
     def numpy(self) -> dict:
@@ -621,7 +652,7 @@ class MPMState:
 
     def copy(self) -> MPMState:
         d = self.numpy()
-        return MPMState.from_numpy(d["x"], d["v"], d["C"], d["F"], d["Jp"])
+        return MPMState.from_numpy(d["x"], d["v"], d["C"], d["F"], d["Jp"], device=self.x.device.alias)
 
 
 @dataclass
@@ -651,11 +682,12 @@ class Control:
                           np.asarray(self.x_ref, dtype=np.float64), np.asarray(self.v_ref, dtype=np.float64),
                           self.kp, self.kd)
 
-    def warp(self):
+    def warp(self, device: str):
+        """(omega, x_ref, v_ref) as Warp arrays on ``device`` (the model's)."""
         return (
-            wp.array(np.asarray(self.omega, dtype=np.float64), dtype=wp.float64),
-            wp.array(np.asarray(self.x_ref, dtype=np.float64), dtype=wp.vec3d),
-            wp.array(np.asarray(self.v_ref, dtype=np.float64), dtype=wp.vec3d),
+            wp.array(np.asarray(self.omega, dtype=np.float64), dtype=wp.float64, device=device),
+            wp.array(np.asarray(self.x_ref, dtype=np.float64), dtype=wp.vec3d, device=device),
+            wp.array(np.asarray(self.v_ref, dtype=np.float64), dtype=wp.vec3d, device=device),
         )
 
 
@@ -666,12 +698,12 @@ class MPMSolver:
         """``active_box``: grid phase only on the box of nodes touched by particles (same result, faster)."""
         self.model = model
         self.active_box = active_box
-        n, g = model.n_particles, model.n_grid
-        self.tau = wp.zeros(n, dtype=wp.mat33d)
-        self.F_trial = wp.zeros(n, dtype=wp.mat33d)
-        self.grid_mv = wp.zeros((g, g, g), dtype=wp.vec3d)
-        self.grid_m = wp.zeros((g, g, g), dtype=wp.float64)
-        self.grid_v = wp.zeros((g, g, g), dtype=wp.vec3d)
+        n, g, d = model.n_particles, model.n_grid, model.device
+        self.tau = wp.zeros(n, dtype=wp.mat33d, device=d)
+        self.F_trial = wp.zeros(n, dtype=wp.mat33d, device=d)
+        self.grid_mv = wp.zeros((g, g, g), dtype=wp.vec3d, device=d)
+        self.grid_m = wp.zeros((g, g, g), dtype=wp.float64, device=d)
+        self.grid_v = wp.zeros((g, g, g), dtype=wp.vec3d, device=d)
         self._ctrl_cache = None
         self.time = 0.0  # s, start of the next substep (moves the kinematic colliders)
 
@@ -695,30 +727,34 @@ class MPMSolver:
             omega, x_ref, v_ref, kp, kd = a["zero_omega"], a["zero_vec"], a["zero_vec"], 0.0, 0.0
         else:
             if self._ctrl_cache is None or self._ctrl_cache[0] is not control:
-                self._ctrl_cache = (control, control.warp())
+                self._ctrl_cache = (control, control.warp(m.device))
             omega, x_ref, v_ref = self._ctrl_cache[1]
             kp, kd = control.kp, control.kd
-        f_hold = a["zero_vec"] if force is None else wp.array(np.asarray(force, dtype=np.float64), dtype=wp.vec3d)
+        dev = m.device
+        f_hold = (a["zero_vec"] if force is None
+                  else wp.array(np.asarray(force, dtype=np.float64), dtype=wp.vec3d, device=dev))
         nmax = g - 3
         zero = wp.vec3i(0, 0, 0)
         lo_box, shape = m.active_box(state_in.x.numpy()) if self.active_box else ((0, 0, 0), (g, g, g))
         start = wp.vec3i(*lo_box)
         wp.launch(stress_kernel, n, inputs=[state_in.F, state_in.Jp, a["E"], a["nu"], a["elastic"],
                                                   a["plastic"], a["pp"], a["fiber"], a["fiber_E"]],
-                  outputs=[self.tau])
+                  outputs=[self.tau], device=dev)
         wp.launch(p2g_kernel, n, inputs=[state_in.x, state_in.v, state_in.C, self.tau, a["mass"], a["volume"],
                                          omega, x_ref, v_ref, f_hold, kp, kd, m.origin, m.dx, dt, nmax, zero],
-                  outputs=[self.grid_mv, self.grid_m])
+                  outputs=[self.grid_mv, self.grid_m], device=dev)
         wp.launch(grid_update_kernel, shape,
                   inputs=[self.grid_mv, self.grid_m, wp.vec3d(*m.gravity), dt, m.pad, m.pad + m.resolution,
-                          a["bc"], a["friction"], start, zero, m.origin, m.dx, *col.inputs()], outputs=[self.grid_v])
+                          a["bc"], a["friction"], start, zero, m.origin, m.dx, *col.inputs()], outputs=[self.grid_v],
+                  device=dev)
         lo, hi = m.clamp_range
         wp.launch(g2p_kernel, n, inputs=[self.grid_v, state_in.x, state_in.F, m.origin, m.dx, dt, nmax, lo, hi, zero,
                                          *col.inputs()],
-                  outputs=[state_out.x, state_out.v, state_out.C, self.F_trial])
+                  outputs=[state_out.x, state_out.v, state_out.C, self.F_trial], device=dev)
         wp.launch(plastic_kernel, n, inputs=[self.F_trial, state_in.Jp, a["E"], a["nu"], a["plastic"], a["pp"]],
-                  outputs=[state_out.F, state_out.Jp])
-        wp.launch(clear_grid_kernel, shape, inputs=[start], outputs=[self.grid_mv, self.grid_m])  # grid all-zero again
+                  outputs=[state_out.F, state_out.Jp], device=dev)
+        wp.launch(clear_grid_kernel, shape, inputs=[start], outputs=[self.grid_mv, self.grid_m],
+                  device=dev)  # grid all-zero again
 
     def simulate_frame(self, state: MPMState, scratch: MPMState, control: Control | None = None,
                        check: bool = True) -> tuple[MPMState, MPMState]:

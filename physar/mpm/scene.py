@@ -2,6 +2,7 @@
 
 Example (all lengths in m, times in s, stresses in Pa, densities in kg/m^3)::
 
+    device = "cpu"         # optional, top of the file: Warp device of the simulation, cpu | cuda | cuda:N
     [grid]
     size = 1.0
     resolution = 32
@@ -215,6 +216,9 @@ class ColliderSpec(_Strict):
 class Scene(_Strict):
     """Top level of a `physar mpm run` scene file."""
 
+    device: str = Field("cpu", pattern=r"^(cpu|cuda(:\d+)?)$",
+                        description="Warp device the simulation runs on: cpu (default), cuda or cuda:N "
+                                    "(physar.mpm.model.MPMModel.device; one Warp does not have is an error)")
     grid: Grid = Field(Grid(), description="the cubic domain and its background grid")
     time: Time = Field(Time(), description="frames and MPM steps")
     gravity: Gravity = Field(Gravity(), description="the gravitational acceleration")
@@ -296,7 +300,7 @@ def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: 
     """MPM model, initial positions (N, 3) and velocities (N, 3) of a scene.
 
     ``particles_per_cell``/``substeps`` override the scene (used to make identification targets at a finer
-    sampling than the model that is fitted to them).
+    sampling than the model that is fitted to them).  The model runs on ``scene.device``.
     """
     dx = scene.grid.size / scene.grid.resolution
     cols = {k: [] for k in ("x", "v", "mass", "vol", "E", "nu", "el", "pl", "pp", "body", "fiber", "fiber_E")}
@@ -349,6 +353,6 @@ def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: 
         size=scene.grid.size, resolution=scene.grid.resolution, dt=scene.time.frame_dt / T, substeps=T,
         mass=c["mass"], volume=c["vol"], E=c["E"], nu=c["nu"], elastic=c["el"], plastic=c["pl"],
         plastic_params=c["pp"], body=c["body"], gravity=tuple(scene.gravity.g), walls=walls, friction=friction,
-        colliders=colliders, fiber=c["fiber"], fiber_E=c["fiber_E"],
+        colliders=colliders, fiber=c["fiber"], fiber_E=c["fiber_E"], device=scene.device,
     )
     return model, c["x"], c["v"]

@@ -13,6 +13,10 @@ kernels launched directly, both CPU cores); ``fused=False`` selects the generic 
 Differentiable inputs: initial state (x, v, C, F), per-particle E (Pa), nu, omega (actuation gate),
 PD references, latents l_e/l_p, the network weights and the fibre moduli fiber_E (Pa) of the anisotropic
 fibre term (:class:`physar.mpm.model.MPMModel`; directions ``model.fiber`` are constants).
+
+Devices: the Warp arrays and launches are on ``model.device``; tensors are moved there before
+``wp.from_torch`` (no copy when they are there already, e.g. CPU tensors of a CPU model) and the results are
+returned on the device of the caller's tensors, so CPU callers get CPU tensors from a model on "cuda:0".
 """
 
 from __future__ import annotations
@@ -39,9 +43,23 @@ from physar.mpm.neural import NeuralResidual
 _DT = {1: wp.float64, 2: wp.vec3d, 3: wp.mat33d}
 
 
-def _to_wp(t: torch.Tensor, grad: bool):
-    t = t.detach().contiguous()
+def _torch_device(model: MPMModel) -> torch.device:
+    """The torch device of the model's Warp device ("cpu", "cuda:N")."""
+    return torch.device(wp.device_to_torch(model.device))
+
+
+def _to_wp(t: torch.Tensor, grad: bool, device: torch.device):
+    """A Warp view of ``t`` on ``device`` (``t`` moved there first: a copy only when it is elsewhere)."""
+    t = t.detach().to(device).contiguous()
     return wp.from_torch(t, dtype=_DT[t.dim()], requires_grad=grad)
+
+
+def _from_wp(a, device: torch.device, copy: bool = False) -> torch.Tensor:
+    """A Warp array as a tensor on the caller's ``device`` (aliased when it is on that device and not ``copy``)."""
+    t = wp.to_torch(a)
+    if t.device != device:
+        return t.to(device)  # a copy
+    return t.clone() if copy else t
 
 
 class _WarpOp(torch.autograd.Function):
@@ -51,76 +69,80 @@ class _WarpOp(torch.autograd.Function):
     def forward(ctx, op, model, *inputs):
         ctx.op, ctx.model = op, model
         ctx.save_for_backward(*inputs)
+        dev, ctx.caller = _torch_device(model), inputs[0].device
         with torch.no_grad():
-            outs = op(model, *[_to_wp(t, False) for t in inputs], grad=False)
-        return tuple(wp.to_torch(o) for o in outs)  # fresh arrays, aliased (the tensor keeps them alive)
+            outs = op(model, *[_to_wp(t, False, dev) for t in inputs], grad=False)
+        return tuple(_from_wp(o, ctx.caller) for o in outs)  # fresh arrays, aliased on the model's device
 
     @staticmethod
     def backward(ctx, *grads):
         inputs = ctx.saved_tensors
-        wins = [_to_wp(t, True) for t in inputs]
-        tape = wp.Tape()
+        dev = _torch_device(ctx.model)
+        wins = [_to_wp(t, True, dev) for t in inputs]
+        tape = wp.Tape()  # records the launches below, each on the model's device
         with tape:
             outs = ctx.op(ctx.model, *wins, grad=True)
-        tape.backward(grads={o: _to_wp(g, False) for o, g in zip(outs, grads)})
-        res = [wp.to_torch(w.grad).clone() if need else None
+        tape.backward(grads={o: _to_wp(g, False, dev) for o, g in zip(outs, grads)})
+        res = [_from_wp(w.grad, ctx.caller, copy=True) if need else None
                for w, need in zip(wins, ctx.needs_input_grad[2:])]
         tape.reset()
         return (None, None, *res)
 
 
 def _stress_op(model: MPMModel, F, Jp, E, nu, fiber_E, grad=False):
-    a = model.warp_arrays()
-    tau = wp.zeros(model.n_particles, dtype=wp.mat33d, requires_grad=grad)
+    a, d = model.warp_arrays(), model.device
+    tau = wp.zeros(model.n_particles, dtype=wp.mat33d, requires_grad=grad, device=d)
     wp.launch(stress_kernel, model.n_particles,
-              inputs=[F, Jp, E, nu, a["elastic"], a["plastic"], a["pp"], a["fiber"], fiber_E], outputs=[tau])
+              inputs=[F, Jp, E, nu, a["elastic"], a["plastic"], a["pp"], a["fiber"], fiber_E], outputs=[tau],
+              device=d)
     return (tau,)
 
 
 def _sv_op(model: MPMModel, F, grad=False):
-    s = wp.zeros(F.shape[0], dtype=wp.vec3d, requires_grad=grad)
-    wp.launch(singular_values_kernel, F.shape[0], inputs=[F], outputs=[s])
+    s = wp.zeros(F.shape[0], dtype=wp.vec3d, requires_grad=grad, device=model.device)
+    wp.launch(singular_values_kernel, F.shape[0], inputs=[F], outputs=[s], device=model.device)
     return (s,)
 
 
 def _transfer_op(model: MPMModel, x, v, C, F, tau, omega, x_ref, v_ref, f_hold, gains, grad=False, t=0.0):
     r"""P2G, grid update and G2P of the substep starting at time t (s); ``gains`` = [kp, kd]
     (:math:`\mathrm{s}^{-2}`, :math:`\mathrm{s}^{-1}`) of the per-substep PD force, ``f_hold`` (N, 3) N the
-    force held over the frame (Alg. 2)."""
-    a = model.warp_arrays()
+    force held over the frame (Alg. 2); ``gains`` is a CPU tensor (it is not passed through Warp)."""
+    a, d = model.warp_arrays(), model.device
     col = a["colliders"].at(t, model.dt)
     n, g = model.n_particles, model.n_grid
     kp, kd = (float(z) for z in gains.numpy())
     # grid arrays only on the box of nodes the particles touch (a function of x alone, so the tape replay in
-    # backward() rebuilds the same box); array index = global node index - box corner
+    # backward() rebuilds the same box); array index = global node index - box corner (x.numpy(): a Warp array,
+    # copied to the host when it is on a GPU)
     corner, shape = model.active_box(x.numpy())
     off = wp.vec3i(*corner)
-    grid_mv = wp.zeros(shape, dtype=wp.vec3d, requires_grad=grad)
-    grid_m = wp.zeros(shape, dtype=wp.float64, requires_grad=grad)
-    grid_v = wp.zeros(shape, dtype=wp.vec3d, requires_grad=grad)
-    xo = wp.zeros(n, dtype=wp.vec3d, requires_grad=grad)
-    vo = wp.zeros(n, dtype=wp.vec3d, requires_grad=grad)
-    Co = wp.zeros(n, dtype=wp.mat33d, requires_grad=grad)
-    Ft = wp.zeros(n, dtype=wp.mat33d, requires_grad=grad)
+    grid_mv = wp.zeros(shape, dtype=wp.vec3d, requires_grad=grad, device=d)
+    grid_m = wp.zeros(shape, dtype=wp.float64, requires_grad=grad, device=d)
+    grid_v = wp.zeros(shape, dtype=wp.vec3d, requires_grad=grad, device=d)
+    xo = wp.zeros(n, dtype=wp.vec3d, requires_grad=grad, device=d)
+    vo = wp.zeros(n, dtype=wp.vec3d, requires_grad=grad, device=d)
+    Co = wp.zeros(n, dtype=wp.mat33d, requires_grad=grad, device=d)
+    Ft = wp.zeros(n, dtype=wp.mat33d, requires_grad=grad, device=d)
     nmax, dt = g - 3, model.dt
     wp.launch(p2g_kernel, n, inputs=[x, v, C, tau, a["mass"], a["volume"], omega, x_ref, v_ref, f_hold, kp, kd,
-                                     model.origin, model.dx, dt, nmax, off], outputs=[grid_mv, grid_m])
+                                     model.origin, model.dx, dt, nmax, off], outputs=[grid_mv, grid_m], device=d)
     wp.launch(grid_update_kernel, shape, inputs=[grid_mv, grid_m, wp.vec3d(*model.gravity), dt, model.pad,
                                                  model.pad + model.resolution, a["bc"], a["friction"],
                                                  wp.vec3i(0, 0, 0), off, model.origin, model.dx, *col.inputs()],
-              outputs=[grid_v])
+              outputs=[grid_v], device=d)
     lo, hi = model.clamp_range
     wp.launch(g2p_kernel, n, inputs=[grid_v, x, F, model.origin, model.dx, dt, nmax, lo, hi, off, *col.inputs()],
-              outputs=[xo, vo, Co, Ft])
+              outputs=[xo, vo, Co, Ft], device=d)
     return xo, vo, Co, Ft
 
 
 def _plastic_op(model: MPMModel, Ft, Jp, E, nu, grad=False):
-    a = model.warp_arrays()
+    a, d = model.warp_arrays(), model.device
     n = model.n_particles
-    F = wp.zeros(n, dtype=wp.mat33d, requires_grad=grad)
-    Jo = wp.zeros(n, dtype=wp.float64, requires_grad=grad)
-    wp.launch(plastic_kernel, n, inputs=[Ft, Jp, E, nu, a["plastic"], a["pp"]], outputs=[F, Jo])
+    F = wp.zeros(n, dtype=wp.mat33d, requires_grad=grad, device=d)
+    Jo = wp.zeros(n, dtype=wp.float64, requires_grad=grad, device=d)
+    wp.launch(plastic_kernel, n, inputs=[Ft, Jp, E, nu, a["plastic"], a["pp"]], outputs=[F, Jo], device=d)
     return F, Jo
 
 
@@ -166,11 +188,11 @@ def _fiber_E(model: MPMModel, p: Params) -> torch.Tensor:
 
 def held_force(model: MPMModel, x, v, p: Params, x_ref, v_ref) -> torch.Tensor:
     """f_ex (N, 3) of Eq. (6)-(7) at the state (x, v) (seed Alg. 2, lines 2-4; zeros without actuation)."""
-    n = model.n_particles
+    n, dev = model.n_particles, x.device
     if p.omega is None or x_ref is None:
-        return torch.zeros(n, 3, dtype=torch.float64)
-    v_ref = torch.zeros(n, 3, dtype=torch.float64) if v_ref is None else v_ref
-    m = torch.as_tensor(model.mass, dtype=torch.float64)
+        return torch.zeros(n, 3, dtype=torch.float64, device=dev)
+    v_ref = torch.zeros(n, 3, dtype=torch.float64, device=dev) if v_ref is None else v_ref
+    m = torch.as_tensor(model.mass, dtype=torch.float64, device=dev)
     return pd_held_force(m, p.omega, x, v, x_ref, v_ref, p.kp, p.kd)
 
 
@@ -183,20 +205,19 @@ def substep(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref=None, v_ref=None,
     ``truncate``: the residual outputs are truncated as in seed Eq. 12 (inference).
     """
     n = model.n_particles
+    z = lambda *sh: torch.zeros(*sh, dtype=torch.float64, device=x.device)
     (tau,) = _WarpOp.apply(_stress_op, model, F, Jp, p.E, p.nu, _fiber_E(model, p))
     if nets is not None and nets.elastic is not None:
         (sv,) = _WarpOp.apply(_sv_op, model, F)
         J = torch.linalg.det(F)
         tau = tau + J[:, None, None] * nets.stress(F, sv, p.l_e, truncate=truncate)
     if f_hold is not None or p.omega is None or x_ref is None:
-        omega = torch.zeros(n, dtype=torch.float64)
-        x_ref = torch.zeros(n, 3, dtype=torch.float64)
-        v_ref = torch.zeros(n, 3, dtype=torch.float64)
+        omega, x_ref, v_ref = z(n), z(n, 3), z(n, 3)
         kp = kd = 0.0
     else:
         omega, kp, kd = p.omega, p.kp, p.kd
-        v_ref = torch.zeros(n, 3, dtype=torch.float64) if v_ref is None else v_ref
-    f_hold = torch.zeros(n, 3, dtype=torch.float64) if f_hold is None else f_hold
+        v_ref = z(n, 3) if v_ref is None else v_ref
+    f_hold = z(n, 3) if f_hold is None else f_hold
     x, v, C, Ft = _transfer_wrapped(model, x, v, C, F, tau, omega, x_ref, v_ref, f_hold, kp, kd, t=t)
     F, Jp = _WarpOp.apply(_plastic_op, model, Ft, Jp, p.E, p.nu)
     if nets is not None and nets.plastic is not None:
@@ -214,13 +235,16 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
     references may be given per frame by a callable ``params.x_ref(frame) -> (x_ref, v_ref)``; with
     ``params.hold`` the PD force is evaluated at the start of each frame and held (seed Alg. 2).
     ``truncate``: Eq. 12 truncation of the residual outputs (inference, seed App. A.2).
+    The results are on the device of ``x0`` (CPU for NumPy input), whatever ``model.device`` is.
     """
     n = model.n_particles
     t = lambda a: torch.as_tensor(a, dtype=torch.float64)
-    x, v = t(x0), t(v0)
-    C = torch.zeros(n, 3, 3, dtype=torch.float64) if C0 is None else t(C0)
-    F = torch.eye(3, dtype=torch.float64).repeat(n, 1, 1) if F0 is None else t(F0)
-    Jp = torch.ones(n, dtype=torch.float64) if Jp0 is None else t(Jp0)
+    x = t(x0)
+    dev = x.device
+    v = t(v0).to(dev)
+    C = torch.zeros(n, 3, 3, dtype=torch.float64, device=dev) if C0 is None else t(C0)
+    F = torch.eye(3, dtype=torch.float64, device=dev).repeat(n, 1, 1) if F0 is None else t(F0)
+    Jp = torch.ones(n, dtype=torch.float64, device=dev) if Jp0 is None else t(Jp0)
     xs = [x]
     use_fused = fused and (nets is None or (nets.elastic is None and nets.plastic is None))
     for f in range(frames):
@@ -232,7 +256,7 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
         if use_fused:
             x, v, C, F, Jp = _fused_frame(model, x, v, C, F, Jp, params, x_ref, v_ref, t0 + f * model.frame_dt,
                                           f_hold)
-            check_state(model, x.detach().numpy(), v.detach().numpy(), F.detach().numpy(), where=f" at frame {f + 1}")
+            _check(model, x, v, F, f)
             xs.append(x)
             continue
 
@@ -251,9 +275,15 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
                                                                use_reentrant=False)
         else:
             x, v, C, F, Jp = frame_fn(x, v, C, F, Jp, f_hold)
-        check_state(model, x.detach().numpy(), v.detach().numpy(), F.detach().numpy(), where=f" at frame {f + 1}")
+        _check(model, x, v, F, f)
         xs.append(x)
     return xs, (x, v, C, F, Jp)
+
+
+def _check(model: MPMModel, x, v, F, f: int):
+    """:func:`physar.mpm.model.check_state` on the state after frame f (host copies of GPU tensors only)."""
+    h = lambda a: a.detach().cpu().numpy()  # .cpu() is a no-op for CPU tensors
+    check_state(model, h(x), h(v), h(F), where=f" at frame {f + 1}")
 
 
 def _fused_frame(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref, v_ref, t0: float, f_hold=None):
@@ -264,7 +294,7 @@ def _fused_frame(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref, v_ref, t0: f
     if runner is None:
         runner = model._fused = FusedFrame(model)
     n = model.n_particles
-    z = lambda *sh: torch.zeros(*sh, dtype=torch.float64)
+    z = lambda *sh: torch.zeros(*sh, dtype=torch.float64, device=x.device)
     if f_hold is not None or p.omega is None or x_ref is None:
         omega, x_ref, v_ref, kp, kd = z(n), z(n, 3), z(n, 3), 0.0, 0.0
     else:

@@ -151,6 +151,9 @@ class SynthConfig(BaseModel):
     body_spacing: float = Field(0.012, gt=0, description="spacing of the rendered body samples, m")
     seed: int = Field(0, description="recorded in scene.json; the synthesis draws no random numbers, so it "
                                      "changes nothing")
+    device: str = Field("cpu", pattern=r"^(cpu|cuda(:\d+)?)$",
+                        description="Warp device of the truth's MPM run: cpu (default), cuda or cuda:N "
+                                    "(physar.mpm.model.MPMModel.device); not recorded in scene.json")
 
     @model_validator(mode="after")
     def _check(self):
@@ -326,7 +329,7 @@ def scene_meta(cfg: SynthConfig) -> dict:
         "sim": {"size": cfg.domain_size, "resolution": cfg.grid_resolution, "substeps": cfg.substeps,
                 "origin": lay["origin"].tolist(), "gravity": [0.0, 0.0, cfg.gravity],
                 "walls": sim_walls("separate" if cfg.action == "lift" else "sticky"), "kp": cfg.kp, "kd": cfg.kd},
-        "synth_config": cfg.model_dump(),
+        "synth_config": cfg.model_dump(exclude={"device"}),  # where it ran is not part of the scene
     }
 
 
@@ -383,7 +386,8 @@ def simulate_clip(cfg: SynthConfig, meta: dict, body, poses: dict, progress=None
                      volume=np.r_[np.full(no, vol_o), np.full(nh, h**3)], E=np.r_[E, np.full(nh, cfg.human_E)],
                      nu=np.full(n, cfg.nu), elastic=elastic, plastic=plastic,
                      plastic_params=pp, body=np.r_[np.zeros(no), np.ones(nh)],
-                     gravity=(0.0, 0.0, cfg.gravity), walls=sim["walls"], **aniso)
+                     gravity=(0.0, 0.0, cfg.gravity), walls=sim["walls"], device=getattr(cfg, "device", "cpu"),
+                     **aniso)
     x0 = np.r_[Xo, ref[0]] - origin
     v0 = np.r_[np.zeros((no, 3)), vref[0]]
     solver = MPMSolver(model)
