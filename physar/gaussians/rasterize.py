@@ -33,8 +33,8 @@ pairs that cannot matter: those with, at every pixel of their tile, :math:`\alph
 (:math:`T_i < 10^{-4}`: every later pair at that pixel is terminated too, with or without them); the second
 pass, with autograd, composites the rest and gives the same image and gradients (the dropped pairs' gradients
 are exactly zero). ``backend="dense"`` evaluates all Gaussians at all pixels (the naive reference used by the
-benchmark); ``backend="gsplat"`` calls ``gsplat.rasterization`` (CUDA only; untested here: no GPU on the
-development machine).
+benchmark); ``backend="gsplat"`` calls ``gsplat.rasterization`` (CUDA only; checked against this backend on a
+lent GPU by benchmarks/gpu_check_gsplat.py, never in the test suite).
 """
 
 from __future__ import annotations
@@ -83,7 +83,7 @@ class Projected:
 def project(means: torch.Tensor, cov3d: torch.Tensor, opacities: torch.Tensor, colors: torch.Tensor,
             cam: Camera, eps2d: float = 0.3, near: float = 0.01) -> Projected:
     """EWA projection of 3-D Gaussians (means m, cov3d m^2) to the image plane (see module docstring)."""
-    R, t = cam.R.to(means.dtype), cam.t.to(means.dtype)
+    R, t = cam.R.to(means.device, means.dtype), cam.t.to(means.device, means.dtype)
     p = means @ R.T + t
     x, y, z = p.unbind(-1)
     valid = z > near
@@ -157,7 +157,7 @@ def _composite_weights(alpha: torch.Tensor, seg_start: torch.Tensor | None, seg_
 
 
 def _sh_colors(g: Gaussians, cam: Camera) -> torch.Tensor:
-    dirs = g.means - cam.center.to(g.means.dtype)
+    dirs = g.means - cam.center.to(g.means.device, g.means.dtype)
     return eval_sh(g.sh, dirs)
 
 
@@ -236,7 +236,7 @@ def rasterize_tiles(pr: Projected, width: int, height: int, background: torch.Te
 
 def _finish(rgb, dsum, alpha, background, n_pairs=0, n_composited=0) -> RenderResult:
     if background is not None:
-        rgb = rgb + (1.0 - alpha)[..., None] * background.to(rgb.dtype)
+        rgb = rgb + (1.0 - alpha)[..., None] * background.to(rgb.device, rgb.dtype)
     depth = torch.where(alpha > 0, dsum / torch.clamp_min(alpha, 1e-12), torch.zeros_like(dsum))
     return RenderResult(rgb, alpha, depth, n_pairs, n_composited)
 
@@ -267,24 +267,42 @@ def rasterize_dense(pr: Projected, width: int, height: int, background: torch.Te
 
 
 def _render_gsplat(g: Gaussians, cam: Camera, cov3d, colors, background, eps2d, near) -> RenderResult:
-    """gsplat backend (CUDA). UNTESTED: written against gsplat.rasterization's documented API
-    (means, quats, scales, opacities, colors, viewmats, Ks, width, height, covars=..., render_mode)."""
+    r"""gsplat backend (CUDA): ``gsplat.rasterization`` in "classic" mode with render_mode "RGB+ED".
+
+    gsplat's kernels are float32: inputs are cast to float32 and the outputs back to the means' dtype, so
+    autograd reaches the caller's tensors of any dtype. gsplat takes the activated values (scales in m,
+    opacities in (0, 1)), quaternions in (w, x, y, z) order (normalised by gsplat), SH coefficients (N, K, 3)
+    with the 3DGS ``+ 0.5`` convention, or post-activation colours (N, 3), and a (N, 3, 3) covariance
+    (``covars``) in place of quaternions and scales when given. One convention differs from the torch backend:
+    gsplat caps :math:`\alpha` at 0.999 instead of 0.99, so pixels under a Gaussian of peak opacity
+    :math:`\eta > 0.99` differ (measured on a lent H200: benchmarks/RESULTS.md, "Gaussians on CUDA")."""
     try:
         import gsplat
     except ImportError:
         raise PhysarError("backend='gsplat' needs the gsplat package (CUDA only); use backend='torch'") from None
-    dev = g.means.device
+    if g.means.device.type != "cuda":
+        raise PhysarError(f"backend='gsplat' needs the Gaussians on a CUDA device, got {g.means.device}; "
+                          "use backend='torch' or move them with g.to('cuda')")
+    return _gsplat_rasterize(gsplat, g, cam, cov3d, colors, background, eps2d, near)
+
+
+def _gsplat_rasterize(gsplat, g: Gaussians, cam: Camera, cov3d, colors, background, eps2d, near) -> RenderResult:
+    """The call of ``gsplat.rasterization`` and the conversion of its outputs (see :func:`_render_gsplat`)."""
+    dev, dt = g.means.device, g.means.dtype
+    f32 = lambda t: t.to(dev, torch.float32)
     kwargs = {}
     if colors is None:
         colors, kwargs["sh_degree"] = g.sh, g.sh_degree
     if cov3d is not None:
-        kwargs["covars"] = cov3d
+        kwargs["covars"] = f32(cov3d)
     out, alphas, _ = gsplat.rasterization(
-        g.means, torch.nn.functional.normalize(g.quats, dim=-1), g.scales, g.opacities, colors,
-        cam.viewmat.to(dev, g.means.dtype)[None], cam.K.to(dev, g.means.dtype)[None], cam.width, cam.height,
-        near_plane=near, eps2d=eps2d, render_mode="RGB+ED",
-        backgrounds=None if background is None else background.to(dev)[None], **kwargs)
-    return RenderResult(out[0, ..., :3], alphas[0, ..., 0], out[0, ..., 3])
+        f32(g.means), f32(g.quats), f32(g.scales), f32(g.opacities), f32(colors),
+        f32(cam.viewmat)[None], f32(cam.K)[None], cam.width, cam.height,
+        near_plane=near, eps2d=eps2d, render_mode="RGB+ED", rasterize_mode="classic", **kwargs)
+    rgb, alpha = out[0, ..., :3].to(dt), alphas[0, ..., 0].to(dt)
+    if background is not None:  # composited here: gsplat 1.5.3 rejects a background in "RGB+ED" mode
+        rgb = rgb + (1.0 - alpha)[..., None] * background.to(dev, dt)
+    return RenderResult(rgb, alpha, out[0, ..., 3].to(dt))
 
 
 def render(g: Gaussians, cam: Camera, *, F: torch.Tensor | None = None, cov3d: torch.Tensor | None = None,
@@ -297,8 +315,8 @@ def render(g: Gaussians, cam: Camera, *, F: torch.Tensor | None = None, cov3d: t
     Eq. 3); ``cov3d`` (N, 3, 3) overrides the covariance; ``colors`` (N, 3) overrides the SH colour (otherwise
     SH evaluated in the direction camera centre :math:`\to` mean). ``eps2d`` (:math:`\mathrm{px}^2`) is the
     3DGS screen-space low-pass filter (0.3); ``near`` (m) culls Gaussians with :math:`p_z \le \mathtt{near}`.
-    ``backend``: "torch" (tiles, CPU/any device), "dense" (naive reference), "gsplat" (CUDA, untested
-    here), "auto" (gsplat when the tensors are on CUDA and gsplat imports, torch otherwise).
+    ``backend``: "torch" (tiles, CPU/any device), "dense" (naive reference), "gsplat" (CUDA; see
+    :func:`_render_gsplat`), "auto" (gsplat when the tensors are on CUDA and gsplat imports, torch otherwise).
     ``max_elements``: memory guard of the tile backend (pairs x tile pixels), see :func:`rasterize_tiles`.
     """
     if backend == "auto":

@@ -70,6 +70,7 @@ from scipy.spatial import cKDTree
 
 from physar.errors import ConfigError, PhysarError, refuse_coercion
 from physar.gaussians import Camera, Gaussians, render, rgb_to_sh0, save_ply
+from physar.gaussians.rasterize import RenderResult
 from physar.mpm import torch_bridge as tb
 from physar.mpm.model import MPMModel
 from physar.output import atomic_path, check_folder, write_json, write_npz
@@ -104,6 +105,13 @@ class TrainConfig(BaseModel):
                                                          "logits and log scales (0.3 of it in the fine-tuning) [-]")
     finetune_iters: int = Field(60, ge=0, description="physics-aware fine-tuning on the spin clip (Eq. 4-5)")
     spin_stride: int = Field(1, ge=1, description="use every k-th spin frame")
+    render_device: str = Field("cpu", pattern=r"^(cpu|cuda(:[0-9]+)?)$",
+                               description="torch device of the Gaussian rasteriser: 'cpu' (tile backend) or "
+                                           "'cuda'/'cuda:N' (gsplat when installed, else the tile backend on the "
+                                           "GPU); images come back to the CPU, the rest of training stays there")
+    mpm_device: str = Field("cpu", pattern=r"^(cpu|cuda(:[0-9]+)?)$",
+                            description="Warp device of the MPM ('cpu', 'cuda' or 'cuda:N'); the torch tensors of "
+                                        "training stay on the CPU, the bridge copies them to and from it")
     flow_iters: int = Field(30, ge=0, description="per frame (Eq. 9; also the 4DGS-like baseline)")
     flow_lr: float = Field(2e-3, gt=0, description="Adam step on positions, m")
     rigidity: float = Field(1.0e3, ge=0, description="4DGS-like baseline: weight of the edge-length term, 1/m^2")
@@ -243,6 +251,15 @@ def _npz(path: Path) -> dict:
 
 
 # ----------------------------------------------------------------------------------------------- rig
+def check_render_device(device: str) -> None:
+    """ConfigError naming ``train.render_device`` when torch cannot use that CUDA device."""
+    n = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    idx = int(device.split(":")[1]) if ":" in device else 0
+    if idx >= n:
+        raise ConfigError(f"train.render_device = {device!r}: torch sees {n} CUDA device(s)"
+                          + ("" if n else " (a CPU-only torch build or no GPU); use 'cpu'"))
+
+
 class Rig:
     """Particles, MPM model, camera and LBS machinery of a scene at the reconstruction's sampling.
 
@@ -256,6 +273,8 @@ class Rig:
         if k**3 != cfg.particles_per_cell:
             raise ConfigError(f"train.particles_per_cell = {cfg.particles_per_cell} must be 1, 8, 27 or 64")
         self.cfg = cfg
+        if cfg.render_device != "cpu":
+            check_render_device(cfg.render_device)
         sim = meta["sim"]
         self.body = S.load_body(meta)
         self.origin = np.asarray(sim["origin"], dtype=np.float64)
@@ -296,7 +315,7 @@ class Rig:
             E=np.r_[np.full(self.no, cfg.E_init), np.full(self.nh, meta["body"]["E"])], nu=np.full(n, nu),
             elastic=np.zeros(n), plastic=np.zeros(n), plastic_params=np.zeros((n, 4)),
             body=np.r_[np.zeros(self.no), np.ones(self.nh)], gravity=tuple(sim["gravity"]),
-            walls=sim.get("walls", {}))
+            walls=sim.get("walls", {}), device=cfg.mpm_device)
         self.kp, self.kd = float(cfg.kp), float(cfg.kd)  # the reconstruction's gains (not the generator's)
         if cfg.pd_hold and 2.0 * self.kd * self.model.frame_dt >= 2.0:
             raise ConfigError(f"train.kd = {self.kd:g} 1/s: a PD force held over a frame of {self.model.frame_dt:.3g} s "
@@ -410,7 +429,13 @@ def render_scene(rig: Rig, app: Appearance, x_obj, F_obj, x_hum, F_hum, x_kin, A
     quats = torch.zeros(n, 4)
     quats[:, 0] = 1.0
     g = Gaussians(means, quats, app.log_scales, app.opacity_logits, app.sh)
-    return render(g, rig.cam, F=F, background=rig.background)
+    dev = rig.cfg.render_device
+    if dev == "cpu":
+        return render(g, rig.cam, F=F, background=rig.background)
+    # differentiable copies to the GPU and back (autograd carries the gradients across); backend "auto"
+    # takes gsplat there when it imports (checked against the tile backend: benchmarks/gpu_check_gsplat.py)
+    res = render(g.to(dev), rig.cam, F=F.to(dev), background=rig.background)
+    return RenderResult(res.rgb.cpu(), res.alpha.cpu(), res.depth.cpu())
 
 
 def image_loss(res, rgb_gt: torch.Tensor, mask_gt: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:

@@ -37,3 +37,24 @@ def test_key_errors_name_the_key_in_the_table(tmp_path):
     assert _error(load_train_config, p).startswith(f"{p}: train.flow_iters: Input should be greater than")
     p.write_text("[synth]\nfrmaes = 4\n")
     assert _error(load_synth_config, p).startswith(f"{p}: unknown key 'frmaes' in [synth] (allowed: ")
+
+
+def test_render_device_errors(tmp_path):
+    """train.render_device: a malformed value is a key error; a CUDA device torch cannot see is one line naming
+    the field and the value (checked where training starts, as a CPU-only machine can still read the file)."""
+    import torch
+
+    from physar.recon.train import check_render_device
+
+    p = tmp_path / "run.toml"
+    p.write_text('[train]\nrender_device = "gpu"\n')
+    assert _error(load_train_config, p).startswith(f"{p}: train.render_device: String should match pattern")
+    p.write_text('[train]\nrender_device = "cuda:0"\nmpm_device = "cuda"\n')
+    cfg = load_train_config(p)
+    assert (cfg.render_device, cfg.mpm_device) == ("cuda:0", "cuda")
+    p.write_text('[train]\nmpm_device = "cuda0"\n')
+    assert _error(load_train_config, p).startswith(f"{p}: train.mpm_device: String should match pattern")
+    n = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    with pytest.raises(ConfigError) as e:
+        check_render_device(f"cuda:{n}")
+    assert str(e.value).startswith(f"train.render_device = 'cuda:{n}': torch sees {n} CUDA device(s)")
