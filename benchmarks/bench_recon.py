@@ -107,7 +107,8 @@ def oracle_E(data_dir: Path, tcfg, grid, iters: int = 15, lr: float = 0.1,
     return rows
 
 
-def pixel_fit_diagnostics(data_dir: Path, run_dir: Path, refit_iters: int = 150) -> list[tuple[str, dict]]:
+def pixel_fit_diagnostics(data_dir: Path, run_dir: Path, refit_iters: int = 150,
+                          part: str = "recon") -> list[tuple[str, dict]]:
     """Is reconstruction PSNR a measure of 3-D accuracy here?  Metrics on the observed frames (all and the
     large-deformation subset) of the fitted appearance rendered with (a) the physics simulation, (b) the 4DGS-like
     per-frame positions, (c) the *true* object motion (the fine ground truth's displacement averaged onto the
@@ -115,30 +116,41 @@ def pixel_fit_diagnostics(data_dir: Path, run_dir: Path, refit_iters: int = 150)
     the best any physical model at this
     particle resolution could move the object -- and (d, e) (a) and (b) after one shared refit of the canonical
     appearance (colours, opacities, scales; no per-frame parameters) on the observed frames with the motion
-    fixed, applied to both methods alike."""
+    fixed, applied to both methods alike.
+
+    ``part="pred"``: the same on the prediction frames (after the observed ones), where the 4DGS-like fit holds
+    its last observed positions (as ``recon eval`` scores it), the physics simulation runs on, and the refits
+    (d, e) still use the observed frames only."""
     from physar.recon.metrics import large_deformation_frames, sequence_metrics
     from physar.recon.train import Appearance, Reconstruction, image_loss, render_scene
 
     recon, ds = Reconstruction.load(run_dir), load_dataset(data_dir)
     rig = recon.rig
     kin = rig.kinematics(ds.rotations, ds.root_t)
+    if part not in ("recon", "pred"):
+        raise ValueError(f"part must be 'recon' or 'pred', got {part!r}")
     obs = list(range(1, ds.n_obs))
-    sets = {"recon": obs, "recon_large": large_deformation_frames(ds.truth["dynamic_max_displacement"], obs)}
+    n_all = len(ds.rgb)
+    frames = obs if part == "recon" else list(range(ds.n_obs, n_all))
+    sets = {part: frames,
+            f"{part}_large": large_deformation_frames(ds.truth["dynamic_max_displacement"], frames)}
     g = cell_average_truth(rig, ds.truth)
     gt = torch.as_tensor(rig.Xo + (g - g[0]))  # the truth's displacement added to the canonical shape
+    n_sim = ds.n_obs if part == "recon" else n_all
     with torch.no_grad():
-        sim = {f: (xo, Fo, xh, Fh) for f, xo, Fo, xh, Fh in simulate_clip(rig, recon.phys, kin, ds.n_obs, grad=False)}
-    per_frame = lambda xs: {f: (xs[f], rig.deformation_from_neighbours(xs[f]), kin["ref"][f], kin["A_h"][f])
-                            for f in obs}
-    oracle = {f: (gt[f], rig.deformation_from_neighbours(gt[f]), sim[f][2], sim[f][3]) for f in obs}
+        sim = {f: (xo, Fo, xh, Fh) for f, xo, Fo, xh, Fh in simulate_clip(rig, recon.phys, kin, n_sim, grad=False)}
+    hold = lambda f: min(f, ds.n_obs - 1)  # the 4DGS-like fit has no positions after the observed frames
+    per_frame = lambda xs: {f: (xs[hold(f)], rig.deformation_from_neighbours(xs[hold(f)]), kin["ref"][f],
+                                kin["A_h"][f]) for f in obs + frames}
+    oracle = {f: (gt[f], rig.deformation_from_neighbours(gt[f]), sim[f][2], sim[f][3]) for f in frames}
     motions = {"physics simulation": sim, "4DGS-like per-frame positions": per_frame(recon.flow),
                "true object motion (oracle; body as simulated)": oracle}
 
     def score(app, motion):
         with torch.no_grad():
-            rs = {f: render_scene(rig, app, *motion[f], kin["xb"][f], kin["A_b"][f]) for f in obs}
-        rgb = np.zeros_like(ds.rgb[:ds.n_obs])
-        a = np.zeros_like(ds.mask[:ds.n_obs])
+            rs = {f: render_scene(rig, app, *motion[f], kin["xb"][f], kin["A_b"][f]) for f in frames}
+        rgb = np.zeros_like(ds.rgb)
+        a = np.zeros_like(ds.mask)
         for f, r in rs.items():
             rgb[f], a[f] = r.rgb.numpy(), r.alpha.numpy()
         return {k: sequence_metrics(rgb, a, ds.rgb, ds.mask, fr) for k, fr in sets.items()}

@@ -122,6 +122,11 @@ class TrainConfig(BaseModel):
                               "the camera rays, which the 2-D flow does not observe [1/m^2]")
     physics_iters: int = Field(40, ge=0, description="Adam iterations of the physics stage (§4.2-4.4, Alg. 2)")
     physics_lr: float = Field(0.15, gt=0, description="Adam step on log E, the nu logits and omega logits [-]")
+    appearance_refit_iters: int = Field(150, ge=0, description="after the physics stage: Adam iterations of one "
+                                        "shared appearance refit per method (physics, LBS-only, the per-frame "
+                                        "fits) on the observed dynamic frames, that method's motion held fixed; "
+                                        "0 = render every method with the spin clip's appearance (seed §4). "
+                                        "physar's stage, not in the seed")
     E_init: float = Field(6.0e3, gt=0, description="initial Young's modulus of the object, Pa")
     E_min: float = Field(5.0e2, gt=0, description="lower bound of the learned Young's moduli (object and body) "
                                                   "[Pa]")
@@ -864,8 +869,12 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
         save(st, opt)
 
     recon = Reconstruction(rig, app, st.flow, st.phys, ds.root, st.spflow)
+    if cfg.appearance_refit_iters > 0:
+        t1 = time.perf_counter()
+        recon.apps = refit_appearances(recon, ds, kin, cfg.appearance_refit_iters, progress=prog)
+        st.info["appearance_refit_seconds"] = time.perf_counter() - t1
     recon.save(run / "model.npz", cfg, st)
-    canon = render_gaussians_canonical(rig, app, kin)
+    canon = render_gaussians_canonical(rig, recon.appearance("physics"), kin)
     save_ply(run / "gaussians.ply", canon)
     renders: dict = {}
     report = evaluate(recon, ds, progress=progress, renders=renders)
@@ -876,6 +885,53 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
     write_json(run / "report.json", report)
     _preview(recon, ds, run / "preview.mp4", renders)
     return report
+
+
+def refit_appearances(recon: "Reconstruction", ds: Dataset, kin: dict, iters: int, methods=None,
+                      progress: Progress | None = None) -> dict[str, Appearance]:
+    r"""One appearance per method, refitted on the observed dynamic frames with that method's motion fixed.
+
+    Stage 1 fits the canonical appearance on the spin clip alone, and the physics stage keeps it fixed (seed §4:
+    the appearance must not absorb motion while the physics is learned). Afterwards, each method's object
+    motion on the observed frames 1..n_obs-1 (the learned simulation; the object at rest for LBS-only; the
+    per-frame positions of the 4DGS-like fit and of Eq. 9) is held fixed and the canonical colours, opacity
+    logits and log-scales (no per-frame parameter, so no motion can be encoded) are refitted by Adam on the
+    image loss of one random observed frame per iteration, from the canonical appearance, at 0.3 x
+    ``appearance_lr``. Every method gets the same treatment. physar's stage, not in the seed; measured in
+    benchmarks/RESULTS.md ("appearance refit")."""
+    rig, cfg = recon.rig, recon.rig.cfg
+    obs = list(range(1, ds.n_obs))
+    methods = [m for m in (methods or METHODS) if m != "spflow" or recon.spflow]
+    if not obs or iters <= 0:
+        return {}
+    Xo = torch.as_tensor(rig.Xo)
+    I_o = torch.eye(3, dtype=torch.float64).expand(rig.no, 3, 3)
+    with torch.no_grad():
+        sim = {f: (xo, Fo, xh, Fh) for f, xo, Fo, xh, Fh in simulate_clip(rig, recon.phys, kin, ds.n_obs, grad=False)}
+
+    def per_frame(xs):
+        return {f: (xs[min(f, len(xs) - 1)], rig.deformation_from_neighbours(xs[min(f, len(xs) - 1)]),
+                    kin["ref"][f], kin["A_h"][f]) for f in obs}
+
+    motions = {"physics": sim, "lbs": {f: (Xo, I_o, kin["ref"][f], kin["A_h"][f]) for f in obs},
+               "4dgs": per_frame(recon.flow), "spflow": per_frame(recon.spflow or recon.flow)}
+    rgb, mask = torch.as_tensor(ds.rgb), torch.as_tensor(ds.mask)
+    apps = {}
+    for m in methods:
+        app = Appearance(*[t.detach().clone().requires_grad_(True) for t in recon.app.params()])
+        opt = torch.optim.Adam(app.params(), lr=0.3 * cfg.appearance_lr)
+        gen = torch.Generator().manual_seed(cfg.seed)
+        for it in range(iters):
+            f = obs[int(torch.randint(len(obs), (1,), generator=gen))]
+            res = render_scene(rig, app, *motions[m][f], kin["xb"][f], kin["A_b"][f])
+            loss = image_loss(res, rgb[f], mask[f], cfg)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            if progress:
+                progress(f"appearance refit ({m})", it + 1, iters, float(loss.detach()))
+        apps[m] = Appearance(*[t.detach() for t in app.params()])
+    return apps
 
 
 def physics_regulariser(phys: Physics, rig: Rig, F: torch.Tensor) -> torch.Tensor:
@@ -911,6 +967,11 @@ class Reconstruction:
     phys: Physics
     data_dir: Path | None = None
     spflow: list = field(default_factory=list)
+    apps: dict = field(default_factory=dict)  # method -> Appearance refitted with its motion (refit_appearances)
+
+    def appearance(self, method: str) -> Appearance:
+        """The appearance ``method`` renders with: its refit when there is one, else the canonical one."""
+        return self.apps.get(method, self.app)
 
     def save(self, path: Path, cfg: TrainConfig, st: FitState) -> None:
         arrays = {
@@ -919,6 +980,8 @@ class Reconstruction:
             "data_dir": np.array(str(self.data_dir or "")),
             "sh": self.app.sh.numpy(), "opacity_logits": self.app.opacity_logits.numpy(),
             "log_scales": self.app.log_scales.numpy(),
+            **{f"app.{m}.{k}": t.numpy() for m, a in self.apps.items()
+               for k, t in zip(("sh", "opacity_logits", "log_scales"), a.params())},
             "flow": torch.stack(self.flow).numpy(),
             "spflow": torch.stack(self.spflow or self.flow).numpy(),
             "log_E_param": self.phys.log_E.detach().numpy(),
@@ -977,8 +1040,10 @@ class Reconstruction:
                 phys.log_E_human.copy_(torch.log(torch.as_tensor(d["E_human"])))
             if phys.nets is not None:
                 phys.nets.load_state_dict({k[4:]: torch.as_tensor(v) for k, v in d.items() if k.startswith("net.")})
+        apps = {m: Appearance(*(torch.as_tensor(d[f"app.{m}.{k}"]) for k in ("sh", "opacity_logits", "log_scales")))
+                for m in METHODS if f"app.{m}.sh" in d}
         return cls(rig, app, list(torch.as_tensor(d["flow"])), phys, Path(str(d["data_dir"])) or None,
-                   list(torch.as_tensor(d["spflow"])))
+                   list(torch.as_tensor(d["spflow"])), apps)
 
     def predict(self, rotations: np.ndarray, root: np.ndarray, method: str = "physics",
                 progress: Progress | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -1003,12 +1068,13 @@ class Reconstruction:
         Xo = torch.as_tensor(rig.Xo)
         I_o = torch.eye(3, dtype=torch.float64).expand(rig.no, 3, 3)
         out_rgb, out_a = [], []
+        app = self.appearance(method)
 
         def emit(f, xo, Fo, xh, Fh):
             if objects is not None:
                 objects.append(xo.detach().numpy())
             with torch.no_grad():
-                r = render_scene(rig, self.app, xo, Fo, xh, Fh, kin["xb"][f], kin["A_b"][f])
+                r = render_scene(rig, app, xo, Fo, xh, Fh, kin["xb"][f], kin["A_b"][f])
             out_rgb.append(r.rgb.numpy())
             out_a.append(r.alpha.numpy())
             if progress:
