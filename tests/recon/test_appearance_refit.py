@@ -88,3 +88,18 @@ def test_no_refit_when_off(refit_run, tiny_scene):
     assert refit_appearances(rec, ds, kin, 0) == {}
     rec.apps = {}
     assert rec.appearance("physics") is rec.app
+
+
+def test_colours_only_keeps_the_spin_clips_geometry(refit_run, tiny_scene):
+    """Default: the refit changes the SH colours only (opacity and scales set the silhouette, which a method
+    without the motion could otherwise grow over the moved object). Mutant caught: every parameter refitted
+    whatever the setting (and the reverse: the setting ignored when false)."""
+    run, _ = refit_run
+    rec, ds = Reconstruction.load(run), load_dataset(tiny_scene)
+    for m in METHODS:
+        assert torch.equal(rec.apps[m].opacity_logits, rec.app.opacity_logits)
+        assert torch.equal(rec.apps[m].log_scales, rec.app.log_scales)
+    kin = rec.rig.kinematics(ds.rotations, ds.root_t)
+    every = refit_appearances(rec, ds, kin, 10, methods=("lbs",), colours_only=False)["lbs"]
+    assert not torch.equal(every.opacity_logits, rec.app.opacity_logits)
+    assert not torch.equal(every.log_scales, rec.app.log_scales)
