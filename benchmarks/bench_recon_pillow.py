@@ -23,6 +23,9 @@ reconstruction PSNR of the fitted appearance rendered with the true object motio
 laws with latents, the 3-D flow term at TrainConfig's default lambda_flow, the omega = 0 surface layer at its
 default depth); after its fit, each variant refits only the physics stage on the full run's stages 1-2
 (``fit(..., reuse=)``, as in bench_recon) into OUT/RUN_<variant>, and one table row per variant is printed.
+``--variants`` picks a subset of the ablations; ``--set KEY=VALUE`` overrides any [train] field (TOML value) of
+the full model and every variant; ``--stages RUN`` makes the full model reuse OUT/RUN's stages 1-2 too, so settings
+are compared on the same appearance and Eq. 9 flow (see also ``diag_residual_pillow.py``).
 """
 
 from __future__ import annotations
@@ -104,6 +107,31 @@ def subset_errors(recon: Reconstruction, ds, sub: dict) -> dict:
             "novel_large": errors_3d(recon, ds, "novel", nv["rotations"], nv["root_t"], sub["novel_large"], None)}
 
 
+def parse_overrides(items: list[str]) -> dict:
+    """``--set key=value`` items -> a dict of [train] fields; each value is read as TOML (``1e-2``, ``30``,
+    ``true``, ``[3, 4, 4]``)."""
+    import tomllib
+
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key.strip() not in TrainConfig.model_fields:
+            raise SystemExit(f"--set {item!r}: expected KEY=VALUE with KEY a [train] field")
+        try:
+            out[key.strip()] = tomllib.loads(f"v = {value.strip()}")["v"]
+        except tomllib.TOMLDecodeError as exc:
+            raise SystemExit(f"--set {item!r}: the value is not TOML ({exc})") from None
+    return out
+
+
+def residual_summary(run_dir: Path) -> dict | None:
+    """Size of the learned residual laws of a run (None without them): mean |w| of each network's
+    zero-initialised output layer and the mean |l| of its latents (initial 0.1 * N(0, 1): 0.080)."""
+    d = np.load(run_dir / "model.npz")
+    keys = [k for k in d.files if "l3.weight" in k or k in ("l_e", "l_p")]
+    return {k: float(np.abs(d[k]).mean()) for k in keys} or None
+
+
 def full_model(tcfg: TrainConfig) -> TrainConfig:
     """The full model of the ablations: every part an ablation removes switched on."""
     return tcfg.model_copy(update={
@@ -127,6 +155,13 @@ def main() -> None:
                     "report.json): recompute the tables without fitting")
     ap.add_argument("--ablations", action="store_true", help="full model with every ablated part on, then "
                     "physics-only refits w/o latents, w/o residual law, w/o 3-D flow, w/o omega = 0 layer")
+    ap.add_argument("--variants", default=",".join(s for _, s, _ in ABLATIONS),
+                    help="with --ablations: comma-separated subset of " + ", ".join(s for _, s, _ in ABLATIONS))
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="[train] override (repeatable; a TOML value: 1e-2, 30, true, [3, 4, 4]), applied after "
+                    "--quick and, with --ablations, to the full model and every variant")
+    ap.add_argument("--stages", default=None, metavar="RUN", help="take stages 1-2 (appearance, flows) of OUT/RUN "
+                    "as they are (fit(..., reuse=)): only the physics stage is fitted")
     a = ap.parse_args()
     torch.set_num_threads(min(2, torch.get_num_threads()))
     scfg = load_anny_config(a.config, QUICK_SYNTH if a.quick else None)
@@ -136,7 +171,11 @@ def main() -> None:
         raise SystemExit("gt_particles_per_cell must exceed the reconstruction's particles_per_cell")
     if a.ablations:
         tcfg = full_model(tcfg)
-        for name, _, upd in ABLATIONS:  # each variant must differ from the full model in the config used
+    tcfg = tcfg.model_copy(update=parse_overrides(a.set))
+    TrainConfig.model_validate(tcfg.model_dump())  # the overrides checked like a TOML's
+    ablations = [x for x in ABLATIONS if x[1] in a.variants.split(",")] if a.ablations else []
+    if a.ablations:
+        for name, _, upd in ablations:  # each variant must differ from the full model in the config used
             if all(getattr(tcfg, k) == v for k, v in upd.items()):
                 raise SystemExit(f"{name}: the full model already has {upd}")
     out = Path(a.out)
@@ -178,7 +217,8 @@ def main() -> None:
     if a.eval_only:
         rep = json.loads((out / a.run / "report.json").read_text())
     else:
-        rep = fit(user / "data", out / a.run, tcfg, progress=fprog, restart=True)
+        rep = fit(user / "data", out / a.run, tcfg, progress=fprog, restart=True,
+                  reuse=out / a.stages if a.stages else None)
     t_fit = time.perf_counter() - t0
     log(f"fit + evaluation in {t_fit:.0f} s")
     if not a.eval_only:
@@ -192,18 +232,19 @@ def main() -> None:
            "novel_large": large_deformation_frames(ds.truth["novel_max_displacement"], range(1, len(ds.novel["rgb"])))}
     e3 = subset_errors(recon, ds, sub)
     abl = {}
-    for name, suffix, upd in ABLATIONS if a.ablations else ():
+    for name, suffix, upd in ablations:
         rd = out / f"{a.run}_{suffix}"
         t0 = time.perf_counter()
         if a.eval_only:
             r = json.loads((rd / "report.json").read_text())
         else:
-            log(f"ablation {name}: physics stage on {out / a.run}'s stages 1-2")
-            r = fit(user / "data", rd, tcfg.model_copy(update=upd), progress=fprog, restart=True, reuse=out / a.run)
+            log(f"ablation {name}: physics stage on {out / (a.stages or a.run)}'s stages 1-2")
+            r = fit(user / "data", rd, tcfg.model_copy(update=upd), progress=fprog, restart=True,
+                    reuse=out / (a.stages or a.run))
         abl[name] = {"update": upd, "physics": r["methods"]["physics"], "material": r["material"],
                      "errors_3d_mm": {s: v["physics"] for s, v in subset_errors(Reconstruction.load(rd), ds,
                                                                                 sub).items()},
-                     "fit_eval_s": time.perf_counter() - t0}
+                     "residual": residual_summary(rd), "fit_eval_s": time.perf_counter() - t0}
     oracle, ident = None, None
     spec = importlib.util.spec_from_file_location("bench_recon", ROOT / "benchmarks" / "bench_recon.py")
     br = importlib.util.module_from_spec(spec)
@@ -223,8 +264,8 @@ def main() -> None:
            "times_s": {"generate": t_gen, "export_import_check": t_imp, "fit_eval": t_fit,
                        "train": rep["train_seconds"], "total": time.perf_counter() - t_all},
            "oracle": oracle, "identifiability": ident, "check_problems": chk["problems"], "load_end": os.getloadavg()[0],
-           "ablations": abl, "train_config": {k: getattr(tcfg, k) for k in ("residual", "latents", "lambda_flow",
-                                                                             "surface_layer", "seed")}}
+           "ablations": abl, "residual": residual_summary(out / a.run), "overrides": a.set, "stages": a.stages,
+           "train_config": tcfg.model_dump(mode="json")}
     (out / f"results_{a.run}.json").write_text(json.dumps(res, indent=1, default=float))
     print(f"\nscene: anny + {scfg.object} ({scfg.action}), both forearms/hands ({len(res['simulated_bones'])} simulated bones), "
           f"{scfg.image_size} px, spin {scfg.spin_frames} / dynamic {scfg.frames} ({scfg.n_obs} observed) / novel "

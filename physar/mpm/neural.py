@@ -21,6 +21,13 @@ is meaningful):
 The singular values come from Warp's ``svd3`` (finite gradients at :math:`F = I`, unlike
 ``torch.linalg.svd``).
 
+Undeformed-state equilibrium (``rest_free``, off by default; physar's option, not in the seed): each network's
+output at :math:`F = I` (same latent) is subtracted, :math:`O(F, l) - O(I, l)`, so that a residual cannot
+stress the undeformed material (:math:`\mathcal{E}_\theta(I, l_e) = 0`) nor drift an undeformed deformation
+gradient (:math:`\mathcal{P}_\theta(I, l_p) = 0`): without it, an unloaded object with a learned residual moves on
+its own (measured on the quick C-pillow, issue 17: a residual freed of the Eq. 11 term learned a rest stress of
+about 1 kPa).  Truncation (below) applies to the difference.
+
 Activation truncation at inference (seed App. A.2, Eq. 12): :math:`O = 0` where
 :math:`\lVert O \rVert_\text{Fro} < \epsilon` (:math:`\epsilon = 10^{-3}`), :math:`O` the (3, 3) output matrix
 of a network.  physar applies it to the network's own (unit) output, before the output scaling above, so that
@@ -56,15 +63,27 @@ class ResidualMLP(nn.Module):
         nn.init.zeros_(self.l3.bias)
         self.act = nn.GELU()
 
-    def forward(self, feat: torch.Tensor, latent: torch.Tensor | None, eps: float | None = None) -> torch.Tensor:
-        """scale * O with O the (N, 3, 3) network output; ``eps``: O truncated by Eq. 12 first."""
+    def raw(self, feat: torch.Tensor, latent: torch.Tensor | None) -> torch.Tensor:
+        """The (N, 3, 3) network output O (unscaled, untruncated)."""
         h = self.l1(feat)
         if latent is not None:
             h = h + latent
         h = self.act(h)
         h = self.act(self.l2(h))
-        out = self.l3(h).reshape(-1, 3, 3)
+        return self.l3(h).reshape(-1, 3, 3)
+
+    def forward(self, feat: torch.Tensor, latent: torch.Tensor | None, eps: float | None = None,
+                rest_free: bool = False) -> torch.Tensor:
+        """scale * O with O the (N, 3, 3) network output; ``rest_free``: O(feat) - O(features of F = I) (same
+        latent); ``eps``: O truncated by Eq. 12 first."""
+        out = self.raw(feat, latent)
+        if rest_free:
+            out = out - self.raw(REST_FEATURES.to(feat).expand(feat.shape[0], 13), latent)
         return self.scale * (out if eps is None else truncate(out, eps))
+
+
+# invariant_features of F = I: singular values 1, F^T F = I, det 1
+REST_FEATURES = torch.tensor([1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 1.0], dtype=torch.float64)
 
 
 def truncate(O: torch.Tensor, eps: float) -> torch.Tensor:
@@ -77,21 +96,22 @@ class NeuralResidual(nn.Module):
     """The pair (E_theta, P_theta) of Eq. (8); either may be disabled (None)."""
 
     def __init__(self, elastic: bool = True, plastic: bool = True, latent_dim: int = 64,
-                 stress_scale: float = 1.0e4, F_scale: float = 1.0e-3, eps: float = 1.0e-3):
+                 stress_scale: float = 1.0e4, F_scale: float = 1.0e-3, eps: float = 1.0e-3, rest_free: bool = False):
         super().__init__()
         self.eps = float(eps)  # Eq. 12 threshold on the unit network output
+        self.rest_free = bool(rest_free)  # O(F) - O(I): no residual on undeformed material
         self.elastic = ResidualMLP(latent_dim, latent_dim, stress_scale) if elastic else None
         self.plastic = ResidualMLP(latent_dim, latent_dim, F_scale) if plastic else None
         self.latent_dim = latent_dim
 
     def stress(self, F, sv, l_e, truncate: bool = False):
         """Cauchy residual sigma_theta (N, 3, 3), symmetrised, Pa; ``truncate``: Eq. 12 (inference)."""
-        out = self.elastic(invariant_features(F, sv), l_e, self.eps if truncate else None)
+        out = self.elastic(invariant_features(F, sv), l_e, self.eps if truncate else None, self.rest_free)
         return 0.5 * (out + out.transpose(1, 2))
 
     def deformation(self, F_trial, sv, l_p, truncate: bool = False):
         """Residual added to the projected deformation gradient, (N, 3, 3); ``truncate``: Eq. 12 (inference)."""
-        return self.plastic(invariant_features(F_trial, sv), l_p, self.eps if truncate else None)
+        return self.plastic(invariant_features(F_trial, sv), l_p, self.eps if truncate else None, self.rest_free)
 
 
 def regulariser(nets: NeuralResidual | None, omega: torch.Tensor | None, F=None, l_e=None, F_trial=None, l_p=None,

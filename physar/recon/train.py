@@ -167,6 +167,9 @@ class TrainConfig(BaseModel):
     residual: bool = Field(False, description="neural residual laws E_theta, P_theta with latents (Eq. 8)")
     residual_plastic: bool = Field(True, description="with residual: the plastic residual P_theta too (Eq. 8)")
     latents: bool = Field(True, description="per-particle latents l_e, l_p of the residual laws (ablation: False)")
+    residual_rest_free: bool = Field(False, description="with residual: subtract each network's output at F = I "
+                                     "(same latent), so the residual laws neither stress undeformed material nor "
+                                     "drift its F (physar's option, not in the seed)")
     latent_dim: int = Field(16, ge=1, description="size of each particle's latents l_e, l_p (Eq. 8)")
     net_lr: float = Field(1.0e-3, gt=0, description="Adam step of the residual network and the latents [-]")
     lambda_law: float = Field(1.0e-4, ge=0, description="Eq. 11 weight of the residual magnitudes |E_theta| (a "
@@ -477,7 +480,8 @@ class Physics:
             from physar.mpm.neural import NeuralResidual
 
             torch.manual_seed(cfg.seed)
-            nets = NeuralResidual(elastic=True, plastic=cfg.residual_plastic, latent_dim=cfg.latent_dim)
+            nets = NeuralResidual(elastic=True, plastic=cfg.residual_plastic, latent_dim=cfg.latent_dim,
+                                  rest_free=cfg.residual_rest_free)
             if cfg.latents:  # small random latents break the symmetry between particles
                 g = torch.Generator().manual_seed(cfg.seed)
                 l_e = 0.1 * torch.randn(rig.no + rig.nh, cfg.latent_dim, dtype=torch.float64, generator=g)

@@ -206,3 +206,43 @@ def test_regulariser_is_eq11_by_hand(with_plastic):
     if with_plastic:
         exp += 10.0 * np.sqrt(n) * np.linalg.norm(3.0 * B_P) + np.linalg.norm(l_p.numpy())
     assert float(r.detach()) == pytest.approx(exp, rel=1e-12)
+
+
+def _random_net(rest_free: bool, seed: int = 3):
+    """Residual networks with every layer random (the last one too), so the output depends on F and the latent."""
+    torch.manual_seed(seed)
+    nets = NeuralResidual(latent_dim=8, stress_scale=50.0, F_scale=1e-3, rest_free=rest_free)
+    with torch.no_grad():
+        for mlp in (nets.elastic, nets.plastic):
+            mlp.l3.weight.normal_(0.0, 0.5)
+            mlp.l3.bias.normal_(0.0, 0.5)
+    return nets
+
+
+def test_rest_free_residual_leaves_undeformed_material_alone():
+    """``rest_free`` (undeformed-state equilibrium, issue 17): O(F, l) - O(I, l), so a particle with F = I at rest
+    stays at C = 0 and F = I after a substep (the expert stress is 0 there), while the same networks without the
+    option stress it; away from I the stress and the F residual are the plain networks' minus their values at
+    I.  Mutants caught: the option ignored (C != 0 at rest), the value at I taken with another latent or not
+    subtracted from the plastic residual (F drifts from I)."""
+    g = torch.Generator().manual_seed(1)
+    l_e = 0.3 * torch.randn(1, 8, dtype=torch.float64, generator=g)
+    l_p = 0.3 * torch.randn(1, 8, dtype=torch.float64, generator=g)
+    model, (x, v, C, F, Jp) = _one_particle(np.eye(3))
+    p = Params(E=torch.tensor(model.E), nu=torch.tensor(model.nu), l_e=l_e, l_p=l_p)
+    _, _, C1, F1, _ = substep(model, x, v, C, F, Jp, p, nets=_random_net(True))
+    assert np.abs(C1.detach().numpy()).max() < 1e-12
+    np.testing.assert_allclose(F1.detach().numpy()[0], np.eye(3), atol=1e-14)
+    _, _, C1, F1, _ = substep(model, x, v, C, F, Jp, p, nets=_random_net(False))
+    assert np.abs(C1.detach().numpy()).max() > 1e-6 and np.abs(F1.detach().numpy()[0] - np.eye(3)).max() > 1e-6
+    rf, plain = _random_net(True), _random_net(False)
+    Fd = torch.tensor(np.diag([1.10, 0.95, 1.03]))[None]
+    sv = torch.tensor([[1.10, 0.95, 1.03]], dtype=torch.float64)
+    I, one = torch.eye(3, dtype=torch.float64)[None], torch.ones(1, 3, dtype=torch.float64)
+    with torch.no_grad():
+        np.testing.assert_allclose(rf.stress(Fd, sv, l_e), plain.stress(Fd, sv, l_e) - plain.stress(I, one, l_e),
+                                   rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(rf.deformation(Fd, sv, l_p),
+                                   plain.deformation(Fd, sv, l_p) - plain.deformation(I, one, l_p), rtol=1e-12,
+                                   atol=1e-15)
+        assert torch.linalg.matrix_norm(plain.stress(I, one, l_e)).item() > 1.0  # the subtracted part matters

@@ -98,3 +98,22 @@ def test_physics_only_variant_reuses_stages(fitted, tiny_scene, tmp_path):
 
     with pytest.raises(ConfigError, match="flow_iters"):
         fit(tiny_scene, tmp_path / "abl2", abl.model_copy(update={"flow_iters": 6}), reuse=run)
+
+
+def test_rest_free_option_reaches_the_residual_laws(fitted, tiny_scene, tmp_path):
+    """[train] residual_rest_free builds (and reloads) residual laws that vanish at F = I for every particle's
+    latent (issue 17). Mutant caught: the option not passed to NeuralResidual (or lost when a model is loaded)."""
+    import torch
+
+    run, cfg, _ = fitted
+    upd = {"residual": True, "latents": True, "residual_rest_free": True, "physics_iters": 1, "net_lr": 0.1,
+           "lambda_law": 0.0}
+    fit(tiny_scene, tmp_path / "rf", cfg.model_copy(update=upd), reuse=run)
+    ph = Reconstruction.load(tmp_path / "rf").phys
+    assert ph.nets.rest_free
+    n = ph.l_e.shape[0]
+    I, one = torch.eye(3, dtype=torch.float64).repeat(n, 1, 1), torch.ones(n, 3, dtype=torch.float64)
+    with torch.no_grad():
+        assert ph.nets.elastic.l3.weight.abs().max() > 0.01  # trained: a plain network would not vanish at I
+        assert torch.linalg.matrix_norm(ph.nets.stress(I, one, ph.l_e)).max() < 1e-9
+        assert torch.linalg.matrix_norm(ph.nets.deformation(I, one, ph.l_p)).max() < 1e-12

@@ -1,0 +1,265 @@
+"""Why the residual laws of seed 002 Eq. 8 (and their latents) change nothing in the quick C-pillow ablations
+(issue 17): diagnostics on a run of ``bench_recon_pillow.py --quick --ablations`` (its OUT/user/data and the
+stages 1-2 of OUT/RUN).
+
+``landscape``: is the physics loss (Eq. 10 image + mask terms; the 3-D flow term vs the Eq. 9 target) sensitive
+to what the residual could express?  The reconstruction's own simulator (8 particles per cell) is run without
+learning with (a) the uniform initial E, (b) the true E field (isotropic fixed-corotated, what the expert law can
+express), (c) the true E *plus the truth's fibres and Hencky / von Mises plasticity* (the material a perfect
+residual would have to reproduce), and (d) the fitted E fields of the run and its ablations; (e) the true object
+motion itself (the cell-averaged fine truth, body as in (b)) is the floor of any material.  Per motion: the image
+loss on the observed frames (what training sees), the 3-D error on the observed and the future frames.
+
+``train``: the physics stage replicated with instrumentation (same loss, same optimiser groups; settings from
+``--set key=value``), logging per iteration the gradient norms reaching log E, the latents and the residual
+networks' parameters from the data term and from the Eq. 11 regulariser separately, the residual stress magnitude
+vs the expert stress, and the fraction of particles whose network output Eq. 12 would truncate.
+
+    .venv/bin/python benchmarks/diag_residual_pillow.py landscape --out /tmp/h43/rp --run s0
+    .venv/bin/python benchmarks/diag_residual_pillow.py train --out /tmp/h43/rp --run s0 --set net_lr=1e-2
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from physar.mpm.constitutive import ELASTIC_HENCKY, PLASTIC_VON_MISES
+from physar.mpm.model import MPMModel
+from physar.recon.train import (
+    Physics,
+    Reconstruction,
+    Rig,
+    _load_stages,
+    cell_average_truth,
+    image_loss,
+    load_dataset,
+    physics_regulariser,
+    render_scene,
+    simulate_clip,
+)
+
+ROOT = Path(__file__).parents[1]
+
+
+def bench():
+    spec = importlib.util.spec_from_file_location("bench_recon_pillow", ROOT / "benchmarks" / "bench_recon_pillow.py")
+    m = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(m)
+    return m
+
+
+def full_cfg(a):
+    b = bench()
+    from physar.recon.train import load_train_config
+
+    cfg = load_train_config(ROOT / "examples" / "recon_anny_cpillow.toml", {**b.QUICK_TRAIN, "seed": a.seed})
+    return b.full_model(cfg).model_copy(update=b.parse_overrides(a.set or []))
+
+
+def true_material_model(rig: Rig, truth: dict, yield_stress: float) -> MPMModel:
+    """rig.model with the truth's fibres (nearest fine particle) and Hencky / von Mises plasticity on the object."""
+    m, no = rig.model, rig.no
+    idx = cKDTree(truth["rest_positions"]).query(rig.Xo)[1]
+    n = m.n_particles
+    fib, fE = np.zeros((n, 3)), np.zeros(n)
+    fib[:no], fE[:no] = truth["fiber"][idx], truth["fiber_E"][idx]
+    el, pl, pp = m.elastic.copy(), m.plastic.copy(), m.plastic_params.copy()
+    el[:no], pl[:no], pp[:no, 0] = ELASTIC_HENCKY, PLASTIC_VON_MISES, yield_stress
+    return MPMModel(size=m.size, resolution=m.resolution, dt=m.dt, substeps=m.substeps, mass=m.mass, volume=m.volume,
+                    E=m.E, nu=m.nu, elastic=el, plastic=pl, plastic_params=pp, body=m.body, gravity=m.gravity,
+                    walls=m.walls, friction=m.friction, pad=m.pad, colliders=m.colliders, fiber=fib, fiber_E=fE)
+
+
+def landscape(a) -> None:
+    out = Path(a.out)
+    cfg = full_cfg(a)
+    ds = load_dataset(out / "user" / "data")
+    rig = Rig(ds.meta, cfg, poses=(ds.rotations, ds.root_t))
+    kin = rig.kinematics(ds.rotations, ds.root_t)
+    st = _load_stages(out / a.run, rig, cfg)
+    from physar.recon.train import Appearance
+
+    app = Appearance(*[t.detach() for t in st.app.params()])
+    n, no = len(ds.rgb), ds.n_obs
+    gt = cell_average_truth(rig, ds.truth)
+    Et = ds.truth["E"][cKDTree(ds.truth["rest_positions"]).query(rig.Xo)[1]]
+    sj = out / "data" / "scene.json"  # the generator's scene (the imported one does not carry the yield stress)
+    yield_stress = float(json.loads(sj.read_text())["synth_config"]["yield_stress"])
+    rgb, mask = torch.as_tensor(ds.rgb), torch.as_tensor(ds.mask)
+    iso = rig.model
+
+    def iso_phys(E=None, nu=None):
+        c = cfg.model_copy(update={"residual": False, "material_grid": (0, 0, 0)})
+        r2 = Rig(ds.meta, c, poses=(ds.rotations, ds.root_t))
+        ph = Physics.init(r2)
+        if E is not None:
+            ph.log_E = torch.log(torch.as_tensor(E, dtype=torch.float64))
+        return r2, ph
+
+    def sim(r2, ph, model=None):
+        r2.model = model or r2.model
+        with torch.no_grad():
+            return {f: (xo, Fo, xh, Fh) for f, xo, Fo, xh, Fh in simulate_clip(r2, ph, kin, n, grad=False)}
+
+    def score(name, motion):
+        with torch.no_grad():
+            il = [float(image_loss(render_scene(rig, app, *motion[f], kin["xb"][f], kin["A_b"][f]), rgb[f], mask[f],
+                                   cfg)) for f in range(1, n)]
+            fl = [float((motion[f][0] - st.spflow[f]).abs().mean()) for f in range(1, no)]
+        e3 = [float(np.linalg.norm(np.asarray(motion[f][0]) - gt[f], axis=1).mean() * 1e3) for f in range(1, n)]
+        row = {"name": name, "img_obs": float(np.mean(il[:no - 1])), "img_obs_frames": il[:no - 1],
+               "img_pred": float(np.mean(il[no - 1:])), "flow_l1_mm": float(np.mean(fl)) * 1e3,
+               "e3_obs": float(np.mean(e3[:no - 1])), "e3_pred": float(np.mean(e3[no - 1:])), "e3_frames": e3}
+        print(f"| {name} | {row['img_obs']:.5f} | {row['img_pred']:.5f} | {row['flow_l1_mm']:.2f} | "
+              f"{row['e3_obs']:.2f} | {row['e3_pred']:.2f} | {' / '.join(f'{e:.2f}' for e in e3)} |", flush=True)
+        return row
+
+    print(f"observed frames 1..{no - 1}, future {no}..{n - 1}; image loss = lambda_rgb L1 + lambda_mask L1 (mean per "
+          "frame); flow = mean |x - x'| vs the Eq. 9 target (mm); 3-D error mm (floor "
+          f"{np.linalg.norm(rig.Xo - gt[0], axis=1).mean() * 1e3:.2f})")
+    print("| motion | image loss obs | image loss pred | flow L1 obs (mm) | 3-D err obs | 3-D err pred | per frame |")
+    print("|---|---|---|---|---|---|---|")
+    rows = []
+    if not a.only_truth:
+        r2, ph = iso_phys()
+        rows.append(score("uniform E_init, isotropic", sim(r2, ph)))
+        r2, ph = iso_phys(Et)
+        rows.append(score("true E, isotropic (expert law)", sim(r2, ph)))
+        r2, ph = iso_phys(Et)
+        rows.append(score("true E + fibres + Hencky/von Mises (truth's law, 8/cell)", sim(r2, ph, true_material_model(
+            r2, ds.truth, yield_stress))))
+        r2, ph = iso_phys(Et)
+        m2 = true_material_model(r2, ds.truth, 0.0)
+        m2.plastic[:] = 0
+        m2.elastic[:] = iso.elastic
+        m2._wp = None
+        rows.append(score("true E + fibres (elastic fixed-corotated)", sim(r2, ph, m2)))
+        for suffix in [""] + [f"_{s}" for s in a.variants]:
+            rd = out / f"{a.run}{suffix}"
+            if (rd / "model.npz").exists():
+                rec = Reconstruction.load(rd)
+                with torch.no_grad():
+                    mo = {f: (xo, Fo, xh, Fh) for f, xo, Fo, xh, Fh in simulate_clip(rec.rig, rec.phys, kin, n,
+                                                                                      grad=False)}
+                rows.append(score(f"fitted {a.run}{suffix}", mo))
+    g = torch.as_tensor(rig.Xo + (gt - gt[0]))
+    base = sim(*iso_phys(Et))
+    rows.append(score("true object motion (body as true-E sim)",
+                      {f: (g[f], rig.deformation_from_neighbours(g[f]), base[f][2], base[f][3]) for f in range(1, n)}))
+    (out / f"landscape_{a.run}.json").write_text(json.dumps(rows, indent=1))
+
+
+def train(a) -> None:
+    out = Path(a.out)
+    cfg = full_cfg(a)
+    ds = load_dataset(out / "user" / "data")
+    torch.manual_seed(cfg.seed)
+    rig = Rig(ds.meta, cfg, poses=(ds.rotations, ds.root_t))
+    kin = rig.kinematics(ds.rotations, ds.root_t)
+    st = _load_stages(out / a.run, rig, cfg)
+    from physar.recon.train import Appearance
+
+    app = Appearance(*[t.detach() for t in st.app.params()])
+    rgb, mask = torch.as_tensor(ds.rgb), torch.as_tensor(ds.mask)
+    ph = Physics.init(rig)
+    leaves = ph.leaves()
+    for t in leaves:
+        t.requires_grad_(True)
+    k = len(ph.material_leaves())
+    opt = torch.optim.Adam([{"params": leaves[:k], "lr": cfg.physics_lr}] +
+                           ([{"params": leaves[k:], "lr": cfg.net_lr}] if len(leaves) > k else []))
+    lo_E, hi_E = math.log(cfg.E_min), math.log(cfg.E_max)
+    named = {"log_E": ph.log_E, "l_e": ph.l_e, "l_p": ph.l_p}
+    if ph.nets is not None:
+        named.update({f"net.{n}": p for n, p in ph.nets.named_parameters()})
+    named = {k_: v for k_, v in named.items() if v is not None}
+    frame_loss, log = None, []
+    print("settings: " + ", ".join(f"{k_}={getattr(cfg, k_)}" for k_ in (
+        "physics_iters", "physics_lr", "net_lr", "lambda_flow", "lambda_law", "lambda_feat", "residual", "latents",
+        "window_start", "window_grow_every", "seed")), flush=True)
+    t0 = time.perf_counter()
+    for it in range(cfg.physics_iters):
+        W = min(ds.n_obs, cfg.window_start + it // cfg.window_grow_every)
+        wts = np.ones(W)
+        if cfg.loss_balanced and frame_loss is not None and len(frame_loss) >= W - 1:
+            fl = np.asarray(frame_loss[:W - 1])
+            wts[1:] = fl / max(fl.mean(), 1e-12)
+        total, per, img = 0.0, [], 0.0
+        for f, xo, Fo, xh, Fh in simulate_clip(rig, ph, kin, W):
+            lf = image_loss(render_scene(rig, app, xo, Fo, xh, Fh, kin["xb"][f], kin["A_b"][f]), rgb[f], mask[f], cfg)
+            img += float(lf.detach()) / (W - 1)
+            if cfg.lambda_flow > 0 and f < len(st.spflow):
+                lf = lf + cfg.lambda_flow * (xo - st.spflow[f]).abs().mean()
+            per.append(float(lf.detach()))
+            total = total + wts[f] * lf / (W - 1)
+        Fall = torch.cat([Fo, Fh])
+        reg = physics_regulariser(ph, rig, Fall)
+        # the regulariser's own gradient on the networks / latents (F detached: its path into the simulation is
+        # tiny next to the data term's); data gradient = full gradient - this
+        gr = torch.autograd.grad(physics_regulariser(ph, rig, Fall.detach()), list(named.values()), allow_unused=True)
+        opt.zero_grad()
+        (total + reg).backward()
+        g_reg = {k_: float(g.norm()) if g is not None else 0.0 for k_, g in zip(named, gr)}
+        g_data = {k_: float((v.grad - (g if g is not None else 0)).norm()) if v.grad is not None else 0.0
+                  for (k_, v), g in zip(named.items(), gr)}
+        opt.step()
+        with torch.no_grad():
+            ph.log_E.clamp_(lo_E, hi_E)
+            if ph.log_E_human is not None:
+                ph.log_E_human.clamp_(lo_E, hi_E)
+        frame_loss = per + list(frame_loss or [])[len(per):]
+        row = {"it": it + 1, "W": W, "data": float(total.detach()), "img": img, "reg": float(reg.detach()),
+               "g_data": g_data, "g_reg": g_reg}
+        if ph.nets is not None:
+            with torch.no_grad():
+                from physar.mpm.neural import invariant_features
+                from physar.mpm.torch_bridge import _sv_op, _WarpOp
+
+                (sv,) = _WarpOp.apply(_sv_op, rig.model, Fall.detach())
+                el = ph.nets.elastic
+                h = el.l1(invariant_features(Fall.detach(), sv)) + (ph.l_e if ph.l_e is not None else 0)
+                raw = el.l3(el.act(el.l2(el.act(h)))).reshape(-1, 3, 3)
+                on = torch.linalg.matrix_norm(raw)
+                sig = ph.nets.stress(Fall.detach(), sv, ph.l_e)
+                row.update({"w3_mean_abs": float(ph.nets.elastic.l3.weight.abs().mean()),
+                            "sigma_theta_obj_mean_Pa": float(torch.linalg.matrix_norm(sig[:rig.no]).mean()),
+                            "frac_truncated": float((on < ph.nets.eps).double().mean()),
+                            "out_norm_median": float(on.median())})
+        log.append(row)
+        gd, grg = row["g_data"], row["g_reg"]
+        print(f"it {it + 1:3d} W {W} data {row['data']:.5f} img {img:.5f} reg {row['reg']:.5f} | |g_data| logE "
+              f"{gd['log_E']:.2e} l_e {gd.get('l_e', 0):.2e} net.elastic.l3.w {gd.get('net.elastic.l3.weight', 0):.2e}"
+              f" net.plastic.l3.w {gd.get('net.plastic.l3.weight', 0):.2e} | |g_reg| l3.w "
+              f"{grg.get('net.elastic.l3.weight', 0):.2e} l_e {grg.get('l_e', 0):.2e}"
+              + (f" | w3 {row['w3_mean_abs']:.2e} sigma_theta {row['sigma_theta_obj_mean_Pa']:.1f} Pa trunc "
+                 f"{row['frac_truncated']:.2f}" if "w3_mean_abs" in row else "")
+              + f" [{time.perf_counter() - t0:.0f} s]", flush=True)
+    (out / f"diag_train_{a.run}_{a.tag}.json").write_text(json.dumps(log, indent=1))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("what", choices=("landscape", "train"))
+    ap.add_argument("--out", default="/tmp/h43/rp")
+    ap.add_argument("--run", default="s0")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--set", action="append", help="[train] override key=value (repeatable)")
+    ap.add_argument("--tag", default="default")
+    ap.add_argument("--variants", nargs="*", default=["nolatents", "noresidual", "noflow", "nolayer"])
+    ap.add_argument("--only-truth", action="store_true", help="landscape: only the true-motion row")
+    a = ap.parse_args()
+    torch.set_num_threads(1)
+    landscape(a) if a.what == "landscape" else train(a)
+
+
+if __name__ == "__main__":
+    main()
