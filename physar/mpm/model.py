@@ -68,6 +68,14 @@ WALLS = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")  # z_min is the g
 _DEVICE_NAME = re.compile(r"cpu|cuda(:\d+)?")
 
 
+def device_name(value: str) -> str:
+    """``value`` when it is a device name ('cpu', 'cuda' or 'cuda:N'), else ValueError (the check of the configuration
+    fields that name a device; whether this machine has it is checked where it is used, :func:`resolve_device`)."""
+    if not _DEVICE_NAME.fullmatch(value):
+        raise ValueError(f"{value!r} is not a device: use 'cpu', 'cuda' or 'cuda:N'")
+    return value
+
+
 def resolve_device(device) -> str:
     """The Warp device alias ("cpu", "cuda:N") that ``device`` ("cpu", "cuda" = Warp's current CUDA device, or
     "cuda:N") names; a :class:`ConfigError` naming the value and Warp's devices (``wp.get_devices()``) when it

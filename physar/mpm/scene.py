@@ -50,7 +50,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from physar.errors import ConfigError, format_validation_error, refuse_coercion
 from physar.mpm.colliders import MAX_COLLIDERS, Collider
 from physar.mpm.constitutive import ELASTIC_CODES, PLASTIC_CODES, drucker_prager_alpha
-from physar.mpm.model import MPMModel
+from physar.mpm.model import MPMModel, device_name
 
 # material name -> (elastic law, plastic return map)
 MATERIALS = {
@@ -216,9 +216,8 @@ class ColliderSpec(_Strict):
 class Scene(_Strict):
     """Top level of a `physar mpm run` scene file."""
 
-    device: str = Field("cpu", pattern=r"^(cpu|cuda(:\d+)?)$",
-                        description="Warp device the simulation runs on: cpu (default), cuda or cuda:N "
-                                    "(physar.mpm.model.MPMModel.device; one Warp does not have is an error)")
+    device: str = Field("cpu", description="Warp device the simulation runs on: cpu (default), cuda or cuda:N "
+                                           "(physar.mpm.model.MPMModel.device; one Warp does not have is an error)")
     grid: Grid = Field(Grid(), description="the cubic domain and its background grid")
     time: Time = Field(Time(), description="frames and MPM steps")
     gravity: Gravity = Field(Gravity(), description="the gravitational acceleration")
@@ -226,6 +225,11 @@ class Scene(_Strict):
     body: list[Body] = Field(min_length=1, description="the bodies (at least one)")
     collider: list[ColliderSpec] = Field(default_factory=list, max_length=int(MAX_COLLIDERS),
                                          description=f"kinematic colliders (at most {MAX_COLLIDERS})")
+
+    @field_validator("device")
+    @classmethod
+    def _device_name(cls, value):
+        return device_name(value)
 
 
 def _lattice(lo, hi, h):

@@ -74,7 +74,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from physar.errors import ConfigError, format_validation_error, refuse_coercion
 from physar.mpm.constitutive import ELASTIC_HENCKY, PLASTIC_VON_MISES
-from physar.mpm.model import Control, MPMModel, MPMSolver
+from physar.mpm.model import Control, MPMModel, MPMSolver, device_name
 from physar.output import atomic_folder, check_folder, own_names
 from physar.recon import scene as S
 from physar.recon.pointrender import render_spheres
@@ -151,9 +151,13 @@ class SynthConfig(BaseModel):
     body_spacing: float = Field(0.012, gt=0, description="spacing of the rendered body samples, m")
     seed: int = Field(0, description="recorded in scene.json; the synthesis draws no random numbers, so it "
                                      "changes nothing")
-    device: str = Field("cpu", pattern=r"^(cpu|cuda(:\d+)?)$",
-                        description="Warp device of the truth's MPM run: cpu (default), cuda or cuda:N "
+    device: str = Field("cpu", description="Warp device of the truth's MPM run: cpu (default), cuda or cuda:N "
                                     "(physar.mpm.model.MPMModel.device); not recorded in scene.json")
+
+    @field_validator("device")
+    @classmethod
+    def _device_name(cls, value):
+        return device_name(value)
 
     @model_validator(mode="after")
     def _check(self):

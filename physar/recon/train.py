@@ -72,7 +72,7 @@ from physar.errors import ConfigError, PhysarError, refuse_coercion
 from physar.gaussians import Camera, Gaussians, render, rgb_to_sh0, save_ply
 from physar.gaussians.rasterize import RenderResult
 from physar.mpm import torch_bridge as tb
-from physar.mpm.model import MPMModel
+from physar.mpm.model import MPMModel, device_name
 from physar.output import atomic_path, check_folder, write_json, write_npz
 from physar.recon import scene as S
 from physar.recon.io import read_pngs, write_mp4
@@ -97,6 +97,11 @@ class TrainConfig(BaseModel):
     def _no_coercion(cls, value, info):  # E = true, E = "69e9" and cells = ["40", 2, 2] are errors, not numbers
         return refuse_coercion(value, cls.model_fields[info.field_name].annotation)
 
+    @field_validator("render_device", "mpm_device")
+    @classmethod
+    def _device_name(cls, value):
+        return device_name(value)
+
     particles_per_cell: int = Field(1, description="object/body MPM particles per grid cell: 1, 8 or 27")
     body_spacing: float = Field(0.03, gt=0, description="spacing of the kinematic body Gaussians, m")
     appearance_iters: int = Field(150, ge=0, description="Adam iterations of the canonical appearance fit on the "
@@ -105,13 +110,11 @@ class TrainConfig(BaseModel):
                                                          "logits and log scales (0.3 of it in the fine-tuning) [-]")
     finetune_iters: int = Field(60, ge=0, description="physics-aware fine-tuning on the spin clip (Eq. 4-5)")
     spin_stride: int = Field(1, ge=1, description="use every k-th spin frame")
-    render_device: str = Field("cpu", pattern=r"^(cpu|cuda(:[0-9]+)?)$",
-                               description="torch device of the Gaussian rasteriser: 'cpu' (tile backend) or "
-                                           "'cuda'/'cuda:N' (gsplat when installed, else the tile backend on the "
-                                           "GPU); images come back to the CPU, the rest of training stays there")
-    mpm_device: str = Field("cpu", pattern=r"^(cpu|cuda(:[0-9]+)?)$",
-                            description="Warp device of the MPM ('cpu', 'cuda' or 'cuda:N'); the torch tensors of "
-                                        "training stay on the CPU, the bridge copies them to and from it")
+    render_device: str = Field("cpu", description="torch device of the Gaussian rasteriser: 'cpu' (tile backend) "
+                               "or 'cuda'/'cuda:N' (gsplat when installed, else the tile backend on the GPU); images "
+                               "come back to the CPU, the rest of training stays there")
+    mpm_device: str = Field("cpu", description="Warp device of the MPM ('cpu', 'cuda' or 'cuda:N'); the torch tensors "
+                            "of training stay on the CPU, the bridge copies them to and from it")
     flow_iters: int = Field(30, ge=0, description="per frame (Eq. 9; also the 4DGS-like baseline)")
     flow_lr: float = Field(2e-3, gt=0, description="Adam step on positions, m")
     rigidity: float = Field(1.0e3, ge=0, description="4DGS-like baseline: weight of the edge-length term, 1/m^2")
