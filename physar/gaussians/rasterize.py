@@ -275,7 +275,7 @@ def _render_gsplat(g: Gaussians, cam: Camera, cov3d, colors, background, eps2d, 
     with the 3DGS ``+ 0.5`` convention, or post-activation colours (N, 3), and a (N, 3, 3) covariance
     (``covars``) in place of quaternions and scales when given. One convention differs from the torch backend:
     gsplat caps :math:`\alpha` at 0.999 instead of 0.99, so pixels under a Gaussian of peak opacity
-    :math:`\eta > 0.99` differ (measured on a lent H200: benchmarks/RESULTS.md, "Gaussians on CUDA")."""
+    :math:`\eta > 0.99` differ (measured on a lent H200: benchmarks/RESULTS.md, "Gaussians and MPM on CUDA")."""
     try:
         import gsplat
     except ImportError:
@@ -300,7 +300,7 @@ def _gsplat_rasterize(gsplat, g: Gaussians, cam: Camera, cov3d, colors, backgrou
         f32(cam.viewmat)[None], f32(cam.K)[None], cam.width, cam.height,
         near_plane=near, eps2d=eps2d, render_mode="RGB+ED", rasterize_mode="classic", **kwargs)
     rgb, alpha = out[0, ..., :3].to(dt), alphas[0, ..., 0].to(dt)
-    if background is not None:  # composited here: gsplat 1.5.3 rejects a background in "RGB+ED" mode
+    if background is not None:  # composited here: gsplat 1.5.3's shape check refuses a (1, 3) background (packed)
         rgb = rgb + (1.0 - alpha)[..., None] * background.to(dev, dt)
     return RenderResult(rgb, alpha, out[0, ..., 3].to(dt))
 

@@ -68,11 +68,11 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 from scipy.spatial import cKDTree
 
-from physar.errors import ConfigError, PhysarError, refuse_coercion
+from physar.errors import ConfigError, PhysarError, PhysarWarning, refuse_coercion
 from physar.gaussians import Camera, Gaussians, render, rgb_to_sh0, save_ply
 from physar.gaussians.rasterize import RenderResult
 from physar.mpm import torch_bridge as tb
-from physar.mpm.model import MPMModel, device_name
+from physar.mpm.model import MPMModel, device_name, resolve_device
 from physar.output import atomic_path, check_folder, write_json, write_npz
 from physar.recon import scene as S
 from physar.recon.io import read_pngs, write_mp4
@@ -265,6 +265,9 @@ def _npz(path: Path) -> dict:
 
 
 # ----------------------------------------------------------------------------------------------- rig
+_DEVICE_FIELDS = ("render_device", "mpm_device")
+
+
 def check_render_device(device: str) -> None:
     """ConfigError naming ``train.render_device`` when torch cannot use that CUDA device."""
     n = torch.cuda.device_count() if torch.cuda.is_available() else 0
@@ -272,6 +275,24 @@ def check_render_device(device: str) -> None:
     if idx >= n:
         raise ConfigError(f"train.render_device = {device!r}: torch sees {n} CUDA device(s)"
                           + ("" if n else " (a CPU-only torch build or no GPU); use 'cpu'"))
+
+
+def _usable_devices(cfg: TrainConfig) -> TrainConfig:
+    """``cfg`` with each device field this machine cannot use set to "cpu" (one warning line): a model fitted on a
+    GPU renders and predicts on a CPU-only machine, with the same results (to 2e-13)."""
+    upd = {}
+    for name in _DEVICE_FIELDS:
+        dev = getattr(cfg, name)
+        if dev == "cpu":
+            continue
+        try:
+            check_render_device(dev) if name == "render_device" else resolve_device(dev)
+        except ConfigError:
+            upd[name] = "cpu"
+    if upd:
+        warnings.warn(f"the model was fitted with {', '.join(f'{k} = {getattr(cfg, k)!r}' for k in upd)}, which "
+                      "this machine does not have: using the CPU", PhysarWarning, stacklevel=3)
+    return cfg.model_copy(update=upd)
 
 
 class Rig:
@@ -322,6 +343,11 @@ class Rig:
         self.nb = len(self.Xb)
         od, hd = meta["object"]["density"], meta["body"]["density"]
         nu = meta["object"]["nu"]
+        if cfg.mpm_device != "cpu":
+            try:
+                resolve_device(cfg.mpm_device)
+            except ConfigError as exc:
+                raise ConfigError(f"train.mpm_device = {cfg.mpm_device!r}: {exc}") from None
         self.model = MPMModel(
             size=sim["size"], resolution=sim["resolution"], dt=1.0 / meta["fps"] / sim["substeps"],
             substeps=sim["substeps"], mass=np.r_[np.full(self.no, vol_o * od), np.full(self.nh, h**3 * hd)],
@@ -641,6 +667,12 @@ def _state_from(d: dict, rig: Rig) -> FitState:
     return st
 
 
+def _without_devices(config: dict) -> dict:
+    """A configuration without the device fields: results do not depend on them (CUDA matches the CPU to 2e-13,
+    benchmarks/RESULTS.md "Gaussians and MPM on CUDA"), so a run may resume, or a model load, on another device."""
+    return {k: v for k, v in config.items() if k not in _DEVICE_FIELDS}
+
+
 def _load_checkpoint(run_dir: Path, cfg: TrainConfig, data_hash: str) -> dict | None:
     """RUN_DIR/checkpoint.pt checked against the configuration and the data (refused, nothing written,
     when it was made from others); None when there is none."""
@@ -648,7 +680,7 @@ def _load_checkpoint(run_dir: Path, cfg: TrainConfig, data_hash: str) -> dict | 
     if not p.exists():
         return None
     d = _read_checkpoint(p)
-    if d["config"] != cfg.model_dump():
+    if _without_devices(d["config"]) != _without_devices(cfg.model_dump()):
         raise ConfigError(f"{p}: checkpoint was made with another configuration; use a new --out folder "
                           "or --restart")
     if d.get("data_hash") != data_hash:
@@ -884,6 +916,7 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
         recon.apps = refit_appearances(recon, ds, kin, cfg.appearance_refit_iters, progress=prog,
                                        colours_only=cfg.appearance_refit_colours_only)
         st.info["appearance_refit_seconds"] = time.perf_counter() - t1
+        st.seconds += st.info["appearance_refit_seconds"]  # training time includes the refit
     recon.save(run / "model.npz", cfg, st)
     canon = render_gaussians_canonical(rig, recon.appearance("physics"), kin)
     save_ply(run / "gaussians.ply", canon)
@@ -1037,6 +1070,7 @@ class Reconstruction:
     @classmethod
     def _from_arrays(cls, d: dict) -> Reconstruction:
         meta, cfg = json.loads(str(d["meta_json"])), TrainConfig.model_validate(json.loads(str(d["config_json"])))
+        cfg = _usable_devices(cfg)
         rig = Rig(meta, cfg)
         app = Appearance(torch.as_tensor(d["sh"]), torch.as_tensor(d["opacity_logits"]),
                          torch.as_tensor(d["log_scales"]))

@@ -1,7 +1,7 @@
 """The gsplat backend's call, against gsplat.rasterization's documented contract (no GPU needed).
 
 gsplat itself runs only on CUDA; its agreement with the tile backend was measured on a lent H200 by
-benchmarks/gpu_check_gsplat.py (benchmarks/RESULTS.md, "Gaussians on CUDA"). Here a stand-in module implements
+benchmarks/gpu_check_gsplat.py (benchmarks/RESULTS.md, "Gaussians and MPM on CUDA"). Here a stand-in module implements
 ``rasterization`` as gsplat 1.5.3 documents it (activated scales and opacities, (w, x, y, z) quaternions that it
 normalises, SH coefficients (N, K, 3) with ``sh_degree`` or colours (N, D), world-to-camera ``viewmats`` (C, 4, 4),
 ``Ks`` (C, 3, 3), optional ``covars`` (N, 3, 3), "RGB+ED" output (C, H, W, 4) and alphas (C, H, W, 1), float32

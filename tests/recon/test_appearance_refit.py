@@ -103,3 +103,48 @@ def test_colours_only_keeps_the_spin_clips_geometry(refit_run, tiny_scene):
     every = refit_appearances(rec, ds, kin, 10, methods=("lbs",), colours_only=False)["lbs"]
     assert not torch.equal(every.opacity_logits, rec.app.opacity_logits)
     assert not torch.equal(every.log_scales, rec.app.log_scales)
+
+
+def test_gpu_fitted_model_loads_here(refit_run, tiny_scene, tmp_path):
+    """model.npz saved with render_device / mpm_device = 'cuda:N' (N beyond this machine's GPUs) loads, renders with
+    the same appearance and predicts on the CPU, with one warning; a fit asking for an absent MPM device is one
+    line naming train.mpm_device."""
+    import json
+    import warnings
+
+    from physar.errors import ConfigError, PhysarWarning
+    from physar.recon.train import Rig
+
+    run, cfg = refit_run
+    n = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    with np.load(run / "model.npz", allow_pickle=False) as d:
+        arrays = dict(d)
+    conf = json.loads(str(arrays["config_json"])) | {"render_device": f"cuda:{n}", "mpm_device": f"cuda:{n}"}
+    arrays["config_json"] = np.array(json.dumps(conf))
+    np.savez(tmp_path / "model.npz", **arrays)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        rec = Reconstruction.load(tmp_path / "model.npz")
+    assert any(issubclass(x.category, PhysarWarning) for x in w)
+    assert torch.equal(rec.apps["physics"].sh, Reconstruction.load(run).apps["physics"].sh)
+    ds = load_dataset(tiny_scene)
+    rgb, _ = rec.render_sequence(rec.rig.kinematics(ds.rotations, ds.root_t), "physics")
+    assert np.isfinite(rgb).all()
+    with pytest.raises(ConfigError, match=rf"^train.mpm_device = 'cuda:{n}': MPM device"):
+        Rig(ds.meta, cfg.model_copy(update={"mpm_device": f"cuda:{n}"}))
+
+
+def test_checkpoint_resumes_on_another_device(refit_run, tmp_path):
+    """The device fields do not enter the checkpoint's configuration check (a run started on the CPU may go on with
+    mpm_device = 'cuda'); any other field still does. Mutant caught: the whole configuration compared."""
+    import shutil
+
+    from physar.errors import ConfigError
+    from physar.recon.train import _load_checkpoint
+
+    run, cfg = refit_run
+    shutil.copy(run / "checkpoint.pt", tmp_path / "checkpoint.pt")
+    h = torch.load(tmp_path / "checkpoint.pt", weights_only=True)["data_hash"]
+    assert _load_checkpoint(tmp_path, cfg.model_copy(update={"mpm_device": "cuda:0", "render_device": "cuda"}), h)
+    with pytest.raises(ConfigError, match="another configuration"):
+        _load_checkpoint(tmp_path, cfg.model_copy(update={"physics_iters": 3}), h)

@@ -58,3 +58,25 @@ def test_render_device_errors(tmp_path):
     with pytest.raises(ConfigError) as e:
         check_render_device(f"cuda:{n}")
     assert str(e.value).startswith(f"train.render_device = 'cuda:{n}': torch sees {n} CUDA device(s)")
+
+
+def test_device_fields_do_not_block_loading_or_resuming(tmp_path):
+    """A model fitted with GPU devices loads on a machine without them (the devices fall back to the CPU with one
+    warning; results agree to 2e-13), a checkpoint resumes on another device, an unavailable mpm_device names the
+    field. Mutants caught: the saved devices used as they are (the load fails), devices compared when resuming."""
+    import warnings
+
+    import torch
+
+    from physar.errors import PhysarWarning
+    from physar.recon.train import TrainConfig, _usable_devices, _without_devices
+
+    n = torch.cuda.device_count() if torch.cuda.is_available() else 0
+    cfg = TrainConfig(render_device=f"cuda:{n}", mpm_device=f"cuda:{n}", seed=3)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        usable = _usable_devices(cfg)
+    assert (usable.render_device, usable.mpm_device, usable.seed) == ("cpu", "cpu", 3)
+    assert len(w) == 1 and issubclass(w[0].category, PhysarWarning) and "using the CPU" in str(w[0].message)
+    assert _without_devices(cfg.model_dump()) == _without_devices(TrainConfig(seed=3).model_dump())
+    assert _without_devices(cfg.model_dump()) != _without_devices(TrainConfig(seed=4).model_dump())
