@@ -122,7 +122,7 @@ def pixel_fit_diagnostics(data_dir: Path, run_dir: Path, refit_iters: int = 150,
     its last observed positions (as ``recon eval`` scores it), the physics simulation runs on, and the refits
     (d, e) still use the observed frames only."""
     from physar.recon.metrics import large_deformation_frames, sequence_metrics
-    from physar.recon.train import Appearance, Reconstruction, image_loss, render_scene
+    from physar.recon.train import Reconstruction, refit_appearance, render_scene
 
     recon, ds = Reconstruction.load(run_dir), load_dataset(data_dir)
     rig = recon.rig
@@ -155,18 +155,9 @@ def pixel_fit_diagnostics(data_dir: Path, run_dir: Path, refit_iters: int = 150,
             rgb[f], a[f] = r.rgb.numpy(), r.alpha.numpy()
         return {k: sequence_metrics(rgb, a, ds.rgb, ds.mask, fr) for k, fr in sets.items()}
 
-    def refit(motion):
-        app = Appearance(*[t.detach().clone().requires_grad_(True) for t in recon.app.params()])
-        opt = torch.optim.Adam(app.params(), lr=0.015)
-        gen = torch.Generator().manual_seed(0)
-        for _ in range(refit_iters):
-            f = obs[int(torch.randint(len(obs), (1,), generator=gen))]
-            res = render_scene(rig, app, *motion[f], kin["xb"][f], kin["A_b"][f])
-            loss = image_loss(res, torch.as_tensor(ds.rgb[f]), torch.as_tensor(ds.mask[f]), rig.cfg)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-        return Appearance(*[t.detach() for t in app.params()])
+    def refit(motion):  # every appearance parameter, on the observed frames
+        return refit_appearance(rig, recon.app, {f: motion[f] for f in obs}, ds, kin, refit_iters,
+                                colours_only=False, seed=0, lr=0.015)
 
     rows = [(name, score(recon.app, m)) for name, m in motions.items()]
     for name in ("physics simulation", "4DGS-like per-frame positions"):

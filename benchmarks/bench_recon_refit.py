@@ -21,11 +21,10 @@ from bench_recon import cell_average_truth
 
 from physar.recon.metrics import large_deformation_frames, sequence_metrics
 from physar.recon.train import (
-    Appearance,
     Reconstruction,
     evaluate,
-    image_loss,
     load_dataset,
+    refit_appearance,
     refit_appearances,
     render_scene,
     simulate_clip,
@@ -46,7 +45,7 @@ def main() -> None:
     for run in runs:
         t0 = time.time()
         rec = Reconstruction.load(run)
-        rig, cfg = rec.rig, rec.rig.cfg
+        rig = rec.rig
         kin = rec.kinematics(ds.rotations, ds.root_t)
         rec.apps = refit_appearances(rec, ds, kin, iters, methods=("physics", "lbs", "4dgs"), colours_only=colours_only)
         t_refit = time.time() - t0
@@ -58,18 +57,7 @@ def main() -> None:
         with torch.no_grad():
             sim = {f: (xh, Fh) for f, xo, Fo, xh, Fh in simulate_clip(rig, rec.phys, kin, n, grad=False)}
         mot = {f: (gt[f], rig.deformation_from_neighbours(gt[f]), *sim[f]) for f in range(1, n)}
-        app = Appearance(*[t.detach().clone().requires_grad_(not colours_only or k == 0)
-                           for k, t in enumerate(rec.app.params())])
-        opt = torch.optim.Adam([t for t in app.params() if t.requires_grad], lr=0.3 * cfg.appearance_lr)
-        gen = torch.Generator().manual_seed(cfg.seed)
-        obs = list(range(1, no))
-        for _ in range(iters):
-            f = obs[int(torch.randint(len(obs), (1,), generator=gen))]
-            loss = image_loss(render_scene(rig, app, *mot[f], kin["xb"][f], kin["A_b"][f]), torch.as_tensor(ds.rgb[f]),
-                              torch.as_tensor(ds.mask[f]), cfg)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
+        app = refit_appearance(rig, rec.app, {f: mot[f] for f in range(1, no)}, ds, kin, iters, colours_only)
         disp = ds.truth["dynamic_max_displacement"]
         orc = {}
         for label, a_ in (("oracle, canonical appearance", rec.app), ("oracle, own refit", app)):

@@ -97,12 +97,11 @@ def compare(ref: dict, got: dict) -> dict:
     d = (got["depth"] - ref["depth"])[m].abs()
     res["depth_alpha>0.5"] = {"max_abs_m": float(d.max()) if d.numel() else 0.0,
                               "mean_abs_m": float(d.mean()) if d.numel() else 0.0}
-    for k in ref:
+    for k, r in ref.items():
         if k.startswith("grad_"):
-            den = float(ref[k].norm())
-            res[k + "_rel_err"] = float((got[k] - ref[k]).norm()) / den if den > 0 else float(got[k].norm())
-            res[k + "_cosine"] = float(torch.nn.functional.cosine_similarity(got[k].flatten(), ref[k].flatten(),
-                                                                             dim=0))
+            den = float(r.norm())
+            res[k + "_rel_err"] = float((got[k] - r).norm()) / den if den > 0 else float(got[k].norm())
+            res[k + "_cosine"] = float(torch.nn.functional.cosine_similarity(got[k].flatten(), r.flatten(), dim=0))
     return res
 
 

@@ -27,6 +27,7 @@ import torch
 import torch.utils.checkpoint
 import warp as wp
 
+from physar.mpm.actuation import held_force as pd_held_force
 from physar.mpm.model import (
     MPMModel,
     check_state,
@@ -37,7 +38,6 @@ from physar.mpm.model import (
     singular_values_kernel,
     stress_kernel,
 )
-from physar.mpm.actuation import held_force as pd_held_force
 from physar.mpm.neural import NeuralResidual
 
 _DT = {1: wp.float64, 2: wp.vec3d, 3: wp.mat33d}

@@ -286,7 +286,10 @@ def _usable_devices(cfg: TrainConfig) -> TrainConfig:
         if dev == "cpu":
             continue
         try:
-            check_render_device(dev) if name == "render_device" else resolve_device(dev)
+            if name == "render_device":
+                check_render_device(dev)
+            else:
+                resolve_device(dev)
         except ConfigError:
             upd[name] = "cpu"
     if upd:
@@ -931,7 +934,7 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
     return report
 
 
-def refit_appearances(recon: "Reconstruction", ds: Dataset, kin: dict, iters: int, methods=None,
+def refit_appearances(recon: Reconstruction, ds: Dataset, kin: dict, iters: int, methods=None,
                       progress: Progress | None = None, colours_only: bool = False) -> dict[str, Appearance]:
     r"""One appearance per method, refitted on the observed dynamic frames with that method's motion fixed.
 
@@ -945,7 +948,7 @@ def refit_appearances(recon: "Reconstruction", ds: Dataset, kin: dict, iters: in
     refitted opacities and scales let LBS-only (the object at rest) grow its silhouette over the pressed
     object, which raised its mask IoU in a novel action above the physics model's on one of two seeds.
     physar's stage, not in the seed; measured in benchmarks/RESULTS.md ("appearance refit")."""
-    rig, cfg = recon.rig, recon.rig.cfg
+    rig = recon.rig
     obs = list(range(1, ds.n_obs))
     methods = [m for m in (methods or METHODS) if m != "spflow" or recon.spflow]
     if not obs or iters <= 0:
@@ -961,24 +964,35 @@ def refit_appearances(recon: "Reconstruction", ds: Dataset, kin: dict, iters: in
 
     motions = {"physics": sim, "lbs": {f: (Xo, I_o, kin["ref"][f], kin["A_h"][f]) for f in obs},
                "4dgs": per_frame(recon.flow), "spflow": per_frame(recon.spflow or recon.flow)}
-    rgb, mask = torch.as_tensor(ds.rgb), torch.as_tensor(ds.mask)
-    apps = {}
-    for m in methods:
-        app = Appearance(*[t.detach().clone().requires_grad_(not colours_only or k == 0)
-                           for k, t in enumerate(recon.app.params())])
-        opt = torch.optim.Adam([t for t in app.params() if t.requires_grad], lr=0.3 * cfg.appearance_lr)
-        gen = torch.Generator().manual_seed(cfg.seed)
-        for it in range(iters):
-            f = obs[int(torch.randint(len(obs), (1,), generator=gen))]
-            res = render_scene(rig, app, *motions[m][f], kin["xb"][f], kin["A_b"][f])
-            loss = image_loss(res, rgb[f], mask[f], cfg)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            if progress:
-                progress(f"appearance refit ({m})", it + 1, iters, float(loss.detach()))
-        apps[m] = Appearance(*[t.detach() for t in app.params()])
-    return apps
+    return {m: refit_appearance(rig, recon.app, motions[m], ds, kin, iters, colours_only,
+                                progress=progress and (lambda _, *a, m=m: progress(f"appearance refit ({m})", *a)))
+            for m in methods}
+
+
+def refit_appearance(rig: Rig, app: Appearance, motion: dict, ds: Dataset, kin: dict, iters: int,
+                     colours_only: bool = True, seed: int | None = None, lr: float | None = None,
+                     progress: Progress | None = None) -> Appearance:
+    """``app`` refitted by Adam on the image loss of one random frame of ``motion`` per iteration (``motion``:
+    frame -> (object positions, object F, body positions, body F), the body's kinematic Gaussians from ``kin``);
+    the SH colours only, or also the opacity logits and log-scales. Step ``lr`` (default 0.3 x
+    ``appearance_lr``), frames drawn with ``seed`` (default the configuration's). See :func:`refit_appearances`."""
+    cfg = rig.cfg
+    frames = sorted(motion)
+    new = Appearance(*[t.detach().clone().requires_grad_(not colours_only or k == 0)
+                       for k, t in enumerate(app.params())])
+    opt = torch.optim.Adam([t for t in new.params() if t.requires_grad],
+                           lr=0.3 * cfg.appearance_lr if lr is None else lr)
+    gen = torch.Generator().manual_seed(cfg.seed if seed is None else seed)
+    for it in range(iters):
+        f = frames[int(torch.randint(len(frames), (1,), generator=gen))]
+        res = render_scene(rig, new, *motion[f], kin["xb"][f], kin["A_b"][f])
+        loss = image_loss(res, torch.as_tensor(ds.rgb[f]), torch.as_tensor(ds.mask[f]), cfg)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        if progress:
+            progress("appearance refit", it + 1, iters, float(loss.detach()))
+    return Appearance(*[t.detach() for t in new.params()])
 
 
 def physics_regulariser(phys: Physics, rig: Rig, F: torch.Tensor) -> torch.Tensor:
@@ -1090,6 +1104,9 @@ class Reconstruction:
                 phys.nets.load_state_dict({k[4:]: torch.as_tensor(v) for k, v in d.items() if k.startswith("net.")})
         apps = {m: Appearance(*(torch.as_tensor(d[f"app.{m}.{k}"]) for k in ("sh", "opacity_logits", "log_scales")))
                 for m in METHODS if f"app.{m}.sh" in d}
+        for m, a in apps.items():
+            if any(t.shape != c.shape for t, c in zip(a.params(), app.params())):
+                raise ValueError(f"the appearance refit of {m} does not match the Gaussians")
         return cls(rig, app, list(torch.as_tensor(d["flow"])), phys, Path(str(d["data_dir"])) or None,
                    list(torch.as_tensor(d["spflow"])), apps)
 

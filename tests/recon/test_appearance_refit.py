@@ -60,7 +60,7 @@ def test_refit_lowers_each_methods_image_loss(refit_run, tiny_scene):
     kin = rec.rig.kinematics(ds.rotations, ds.root_t)
     obs = range(1, ds.n_obs)
     for m in ("lbs", "4dgs"):
-        def loss(app):
+        def loss(app, m=m):
             with torch.no_grad():
                 return float(np.mean([image_loss(render_scene(rec.rig, app, *_motion(rec, kin, m, f), kin["xb"][f],
                                                               kin["A_b"][f]),
@@ -148,3 +148,28 @@ def test_checkpoint_resumes_on_another_device(refit_run, tmp_path):
     assert _load_checkpoint(tmp_path, cfg.model_copy(update={"mpm_device": "cuda:0", "render_device": "cuda"}), h)
     with pytest.raises(ConfigError, match="another configuration"):
         _load_checkpoint(tmp_path, cfg.model_copy(update={"physics_iters": 3}), h)
+
+
+def test_training_time_includes_the_refit(refit_run):
+    """report.json's train_seconds = the stages' time (the last checkpoint) + the refit's. Mutant caught: the refit
+    left out of train_seconds."""
+    import json
+
+    run, _ = refit_run
+    rep = json.loads((run / "report.json").read_text())
+    stages = float(torch.load(run / "checkpoint.pt", weights_only=True)["seconds"])
+    refit = rep["canonical"]["appearance_refit_seconds"]
+    assert refit > 0 and rep["train_seconds"] == pytest.approx(stages + refit, rel=1e-9)
+
+
+def test_mismatched_refit_is_one_line(refit_run, tmp_path):
+    """A model.npz whose stored refit does not match its Gaussians is refused in one line, not at render time."""
+    from physar.errors import ConfigError
+
+    run, _ = refit_run
+    with np.load(run / "model.npz", allow_pickle=False) as d:
+        arrays = dict(d)
+    arrays["app.lbs.sh"] = arrays["app.lbs.sh"][:-1]
+    np.savez(tmp_path / "model.npz", **arrays)
+    with pytest.raises(ConfigError, match=r"not a valid physar recon model \(the appearance refit of lbs does not"):
+        Reconstruction.load(tmp_path / "model.npz")
