@@ -61,7 +61,7 @@ def full_cfg(a):
     b = bench()
     from physar.recon.train import load_train_config
 
-    cfg = load_train_config(ROOT / "examples" / "recon_anny_cpillow.toml", {**b.QUICK_TRAIN, "seed": a.seed})
+    cfg = load_train_config(a.config, {**b.QUICK_TRAIN, "seed": a.seed})
     return b.full_model(cfg).model_copy(update=b.parse_overrides(a.set or []))
 
 
@@ -113,7 +113,7 @@ def landscape(a) -> None:
     def score(name, motion):
         with torch.no_grad():
             il = [float(image_loss(render_scene(rig, app, *motion[f], kin["xb"][f], kin["A_b"][f]), rgb[f], mask[f],
-                                   cfg)) for f in range(1, n)]
+                                   score_cfg)) for f in range(1, n)]
             fl = [float((motion[f][0] - st.spflow[f]).abs().mean()) for f in range(1, no)]
         e3 = [float(np.linalg.norm(np.asarray(motion[f][0]) - gt[f], axis=1).mean() * 1e3) for f in range(1, n)]
         row = {"name": name, "img_obs": float(np.mean(il[:no - 1])), "img_obs_frames": il[:no - 1],
@@ -128,15 +128,20 @@ def landscape(a) -> None:
           f"{np.linalg.norm(rig.Xo - gt[0], axis=1).mean() * 1e3:.2f})")
     print("| motion | image loss obs | image loss pred | flow L1 obs (mm) | 3-D err obs | 3-D err pred | per frame |")
     print("|---|---|---|---|---|---|---|")
-    rows = []
+    score_cfg = cfg.model_copy(update=bench().parse_overrides(a.score_set or []))  # e.g. lambda_rgb=0: masks
+    rows, fitted = [], None
     if not a.only_truth:
         r2, ph = iso_phys()
         rows.append(score("uniform E_init, isotropic", sim(r2, ph)))
         r2, ph = iso_phys(Et)
         rows.append(score("true E, isotropic (expert law)", sim(r2, ph)))
         r2, ph = iso_phys(Et)
-        rows.append(score("true E + fibres + Hencky/von Mises (truth's law, 8/cell)", sim(r2, ph, true_material_model(
-            r2, ds.truth, yield_stress))))
+        tl = sim(r2, ph, true_material_model(r2, ds.truth, yield_stress))
+        rows.append(score("true E + fibres + Hencky/von Mises (truth's law, 8/cell)", tl))
+        if yield_stress > 0:  # the simulator's F is the elastic part F_e; the material's shape follows F_e F_p
+            rows.append(score("truth's law, Gaussians deformed by the total F (from neighbours)",
+                              {f: (xo, rig.deformation_from_neighbours(xo), xh, Fh) for f, (xo, _, xh, Fh)
+                               in tl.items()}))
         r2, ph = iso_phys(Et)
         m2 = true_material_model(r2, ds.truth, 0.0)
         m2.plastic[:] = 0
@@ -151,10 +156,24 @@ def landscape(a) -> None:
                     mo = {f: (xo, Fo, xh, Fh) for f, xo, Fo, xh, Fh in simulate_clip(rec.rig, rec.phys, kin, n,
                                                                                       grad=False)}
                 rows.append(score(f"fitted {a.run}{suffix}", mo))
+                fitted = fitted if suffix else mo
     g = torch.as_tensor(rig.Xo + (gt - gt[0]))
     base = sim(*iso_phys(Et))
-    rows.append(score("true object motion (body as true-E sim)",
-                      {f: (g[f], rig.deformation_from_neighbours(g[f]), base[f][2], base[f][3]) for f in range(1, n)}))
+    true_o = {f: (g[f], rig.deformation_from_neighbours(g[f])) for f in range(1, n)}
+    rows.append(score("true object motion (body as true-E sim)", {f: (*true_o[f], *base[f][2:]) for f in true_o}))
+    eye = torch.eye(3, dtype=torch.float64).expand(rig.no, 3, 3)
+    rows.append(score("true object motion, Gaussians not deformed (F = I: the truth renders rigid spheres)",
+                      {f: (g[f], eye, *base[f][2:]) for f in true_o}))
+    if fitted is not None:  # which of object and body makes the fitted motion's loss lower than the truth's
+        rows.append(score(f"true object motion, body of fitted {a.run}", {f: (*true_o[f], *fitted[f][2:])
+                                                                          for f in true_o}))
+        rows.append(score(f"object of fitted {a.run}, body as true-E sim", {f: (*fitted[f][:2], *base[f][2:])
+                                                                             for f in true_o}))
+        rows.append(score(f"fitted {a.run}, Gaussians deformed by F from neighbours",
+                          {f: (fitted[f][0], rig.deformation_from_neighbours(fitted[f][0]), *fitted[f][2:])
+                           for f in true_o}))
+        rows.append(score(f"fitted {a.run}, Gaussians not deformed (F = I)", {f: (fitted[f][0], eye, *fitted[f][2:])
+                                                                               for f in true_o}))
     (out / f"landscape_{a.run}.json").write_text(json.dumps(rows, indent=1))
 
 
@@ -249,10 +268,14 @@ def train(a) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("what", choices=("landscape", "train"))
+    ap.add_argument("--config", default=str(ROOT / "examples" / "recon_anny_cpillow.toml"), help="the TOML "
+                    "whose [train] the data run used")
     ap.add_argument("--out", default="/tmp/h43/rp")
     ap.add_argument("--run", default="s0")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--set", action="append", help="[train] override key=value (repeatable)")
+    ap.add_argument("--score-set", action="append", help="landscape: override of the scoring loss only, e.g. "
+                    "lambda_rgb=0 (the mask term alone; repeatable)")
     ap.add_argument("--tag", default="default")
     ap.add_argument("--variants", nargs="*", default=["nolatents", "noresidual", "noflow", "nolayer"])
     ap.add_argument("--only-truth", action="store_true", help="landscape: only the true-motion row")

@@ -41,6 +41,10 @@ Scene (``[synth]`` of a TOML such as ``examples/recon_anny_cpillow.toml``; :clas
   surface (area-uniform, ``body_spacing`` apart on average); a second flat-shaded pass gives per-pixel labels
   (person 1, object 2). The camera looks at the object from the -y side (azimuth 0, so that the imported world
   frame's axes are the generator's up to sign and the object's boxes stay on the voxel grid).
+  With ``truth_splats = "ellipsoids"`` each object sphere is carried by the total deformation of its fine
+  particle (:func:`lattice_deformation`, plastic flow included), so the drawn surface stretches with the
+  material, as the reconstruction's Gaussians do (seed Eq. 4); rigid spheres do not, which biases the image loss
+  against the true motion (measured on the release scene, issue 17).
 
 :func:`generate_anny` writes a DATA_DIR in the layout of :mod:`physar.recon.synth` (scene.json with
 ``body.model = "anny"``, poses, spin/, rgb/, mask/, novel/, truth.npz) plus ``smpl/`` (SMPL parameters of each
@@ -57,6 +61,7 @@ from __future__ import annotations
 import json
 import shutil
 from collections.abc import Callable
+from itertools import pairwise
 from pathlib import Path
 from typing import Literal
 
@@ -113,6 +118,13 @@ class AnnySceneConfig(BaseModel):
     press_pred: float = Field(0.075, ge=0, description="press depth at the end of the dynamic clip [m]")
     press_novel: float = Field(0.065, ge=0, description="press depth of the novel action [m]")
     novel_roll_deg: float = Field(6.0, ge=-30, le=30, description="roll of the body in the novel action [deg]")
+    depth_keys: list[tuple[float, float]] = Field(
+        [], description="keyframes (frame, depth [m]) of the dynamic clip's press, smoothstep between them, held "
+        "after the last; e.g. a press and a release: [[0, 0], [2, 0.05], [4, 0]] (empty: press_obs at the last "
+        "observed frame, then press_pred)")
+    novel_depth_keys: list[tuple[float, float]] = Field(
+        [], description="keyframes (frame, depth [m]) of the novel action's press (empty: press_novel, smoothstep "
+        "over the first 70 % of the clip); the roll follows depth / its largest value")
     E_soft: float = Field(3.0e3, gt=0, description="Young's modulus of the prongs [Pa]")
     E_stiff: float = Field(1.2e4, gt=0, description="Young's modulus of the spine [Pa]")
     fiber_E: float = Field(2.4e4, ge=0, description="fibre modulus [Pa]")
@@ -128,6 +140,10 @@ class AnnySceneConfig(BaseModel):
     substeps: int = Field(32, ge=1, description="MPM steps per frame")
     gravity: float = Field(-9.81, description="vertical acceleration [m/s^2]")
     gt_particles_per_cell: int = Field(27, description="particles per cell of the truth: 8, 27 or 64")
+    truth_splats: Literal["spheres", "ellipsoids"] = Field(
+        "spheres", description="how the truth's object particles are drawn: rigid spheres, or ellipsoids carried by "
+        "the material's total deformation (a surface that stretches with the object, as the reconstruction's "
+        "Gaussians are deformed by F, seed Eq. 4)")
     body_spacing: float = Field(0.008, gt=0, description="mean spacing of the rendered body surface samples [m]")
     bag_size: Vec3 = Field((0.54, 0.15, 0.12), description="bag body (x, y, z) below the handle [m]")
     bag_wall: float = Field(0.03, gt=0, description="bag: shell, posts and bar thickness [m]")
@@ -145,6 +161,15 @@ class AnnySceneConfig(BaseModel):
         if (self.object, self.action) not in (("c_pillow", "squeeze"), ("bag", "lift")):
             raise ValueError(f"action '{self.action}' is not supported for object '{self.object}' (c_pillow + "
                              "squeeze, bag + lift)")
+        for name, keys, n in (("depth_keys", self.depth_keys, self.frames),
+                              ("novel_depth_keys", self.novel_depth_keys, self.novel_frames)):
+            if not keys:
+                continue
+            f = [k[0] for k in keys]
+            if f[0] != 0 or any(b <= a for a, b in pairwise(f)) or f[-1] > n - 1:
+                raise ValueError(f"{name} frames {f} must start at 0, increase and end by frame {n - 1}")
+            if any(k[1] < 0 for k in keys):
+                raise ValueError(f"{name} depths must be >= 0 (the body sinks by the depth)")
         L, D, H = self.c_pillow_size
         if not (2 * self.c_thickness < H and self.c_thickness < D):
             raise ValueError(f"c_thickness = {self.c_thickness} m needs 2 x thickness < height ({H}) and < depth ({D})")
@@ -250,22 +275,41 @@ def smpl_to_camera(smpl: dict, R: np.ndarray, t: np.ndarray) -> dict:
             "transl": smpl["transl"] @ R.T + t}
 
 
+def keyed_depth(keys, frames: int) -> np.ndarray:
+    """Depth (frames,) through keyframes ``keys`` [(frame, depth), ...]: smoothstep from each key to the next,
+    held after the last."""
+    f = np.arange(frames, dtype=np.float64)
+    d = np.full(frames, float(keys[-1][1]))
+    for (fa, da), (fb, db) in pairwise(keys):
+        m = (f >= fa) & (f <= fb)
+        d[m] = da + (db - da) * S.smoothstep((f[m] - fa) / (fb - fa))
+    return d
+
+
 def clip_depths(cfg: AnnySceneConfig) -> dict:
     """Press depth, roll and yaw (F,) of each clip: spin, dynamic (key ""), novel."""
     f = np.arange(cfg.frames, dtype=np.float64)
-    d = cfg.press_obs * S.smoothstep(f / (cfg.n_obs - 1))
-    m = f >= cfg.n_obs
-    d[m] = cfg.press_obs + (cfg.press_pred - cfg.press_obs) * S.smoothstep((f[m] - cfg.n_obs + 1)
-                                                                           / (cfg.frames - cfg.n_obs))
+    if cfg.depth_keys:
+        d = keyed_depth(cfg.depth_keys, cfg.frames)
+    else:
+        d = cfg.press_obs * S.smoothstep(f / (cfg.n_obs - 1))
+        m = f >= cfg.n_obs
+        d[m] = cfg.press_obs + (cfg.press_pred - cfg.press_obs) * S.smoothstep((f[m] - cfg.n_obs + 1)
+                                                                               / (cfg.frames - cfg.n_obs))
     sign = -1.0 if cfg.action == "lift" else 1.0  # a lift raises the body: negative depth
     d = sign * d
     fn = np.arange(cfg.novel_frames, dtype=np.float64)
-    sn = S.smoothstep(fn / (0.7 * (cfg.novel_frames - 1)))
+    if cfg.novel_depth_keys:  # the roll follows the press
+        dn = keyed_depth(cfg.novel_depth_keys, cfg.novel_frames)
+        sn = dn / max(dn.max(), 1e-12)
+    else:
+        sn = S.smoothstep(fn / (0.7 * (cfg.novel_frames - 1)))
+        dn = cfg.press_novel * sn
     fs = np.arange(cfg.spin_frames, dtype=np.float64)
     ys = np.radians(cfg.spin_deg) * (2 * S.smoothstep(fs / max(cfg.spin_frames - 1, 1)) - 1)
     z = lambda n: np.zeros(n)
     return {"spin": (z(cfg.spin_frames), z(cfg.spin_frames), ys), "": (d, z(cfg.frames), z(cfg.frames)),
-            "novel": (sign * cfg.press_novel * sn, np.radians(cfg.novel_roll_deg) * sn, z(cfg.novel_frames))}
+            "novel": (sign * dn, np.radians(cfg.novel_roll_deg) * sn, z(cfg.novel_frames))}
 
 
 # ----------------------------------------------------------------------------------------------- layout
@@ -283,7 +327,7 @@ def scene_meta(cfg: AnnySceneConfig, body, poses0: dict) -> dict:
     torso = np.isin(own, [k for k, n in enumerate(body.skeleton.names) if n.startswith(("spine", "root",
                                                                                              "pelvis"))])
     V3 = lambda *v: np.array(v, dtype=np.float64)
-    travel = max(cfg.press_pred, cfg.press_novel)
+    travel = max(np.abs(v[0]).max() for k, v in clip_depths(cfg).items() if k != "spin")  # deepest press
     if cfg.object == "c_pillow":
         L, D, H = cfg.c_pillow_size
         t = cfg.c_thickness
@@ -395,21 +439,43 @@ def surface_layer(X: np.ndarray, h: float) -> np.ndarray:
 SKIN, SLEEVE = (0.9, 0.7, 0.55), (0.55, 0.6, 0.85)
 
 
+def lattice_deformation(X: np.ndarray, x: np.ndarray, h: float) -> np.ndarray:
+    r"""Total deformation gradients (N, 3, 3) of lattice points X (N, 3) (spacing h) moved to x: per point,
+    :math:`F = \big(\sum_j dx_j\, dX_j^\top\big)\big(\sum_j dX_j\, dX_j^\top\big)^{-1}` over its lattice
+    neighbours (distance h); the identity where the neighbours do not span 3-D. Plastic flow included (the
+    simulator's own F is the elastic part)."""
+    from scipy.spatial import cKDTree
+
+    pr = cKDTree(X).query_pairs(1.01 * h, output_type="ndarray")
+    i, j = pr[:, 0], pr[:, 1]
+    dX, dx = X[j] - X[i], x[j] - x[i]
+    B, A = np.zeros((len(X), 3, 3)), np.zeros((len(X), 3, 3))
+    for k in (i, j):
+        np.add.at(B, k, dX[:, :, None] * dX[:, None, :])
+        np.add.at(A, k, dx[:, :, None] * dX[:, None, :])
+    F = np.tile(np.eye(3), (len(X), 1, 1))
+    ok = np.linalg.matrix_rank(B, tol=1e-6 * h * h) == 3
+    F[ok] = A[ok] @ np.linalg.inv(B[ok])
+    return F
+
+
 def render_frames(meta: dict, xo: np.ndarray, col_o: np.ndarray, ro: float, xh: np.ndarray, rh: float,
-                  xb: np.ndarray, col_b: np.ndarray, rb: float) -> tuple[np.ndarray, np.ndarray]:
+                  xb: np.ndarray, col_b: np.ndarray, rb: float, Fo: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """RGB uint8 (H, W, 3) and labels uint8 (H, W) (0 background, 1 person, 2 object) of one frame: object
-    points xo (colours col_o, radius ro), simulated body particles xh (skin, rh), body surface samples xb (col_b,
-    rb)."""
+    points xo (colours col_o, radius ro; with Fo (No, 3, 3) the ellipsoids of those deformations), simulated body
+    particles xh (skin, rh), body surface samples xb (col_b, rb)."""
     K, R, t = S.camera_matrices(meta)
     W = H = int(meta["camera"]["width"])
     pts = np.concatenate([xo, xh, xb])
     rad = np.r_[np.full(len(xo), ro), np.full(len(xh), rh), np.full(len(xb), rb)]
     cols = np.concatenate([col_o, np.tile(SKIN, (len(xh), 1)), col_b])
-    rgb, mask = render_spheres(pts, cols, rad, K, R, t, W, H, background=meta["background"])
+    deform = None if Fo is None else np.concatenate([Fo, np.tile(np.eye(3), (len(xh) + len(xb), 1, 1))])
+    rgb, mask = render_spheres(pts, cols, rad, K, R, t, W, H, background=meta["background"], deform=deform)
     lab = np.zeros((len(pts), 3))
     lab[: len(xo), 1] = 1.0
     lab[len(xo):, 0] = 1.0
-    lc, _ = render_spheres(pts, lab, rad, K, R, t, W, H, background=(0, 0, 0), ambient=1.0)
+    lc, _ = render_spheres(pts, lab, rad, K, R, t, W, H, background=(0, 0, 0), ambient=1.0, deform=deform)
     labels = np.where(mask, np.where(lc[..., 1] > lc[..., 0], 2, 1), 0).astype(np.uint8)
     return (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), labels
 
@@ -476,8 +542,9 @@ def generate_anny(out_dir, cfg: AnnySceneConfig | None = None,
             (tmp / "labels" / key).mkdir(parents=True)
             frames = []
             for f in range(len(xo)):
+                Fo = lattice_deformation(Xo, xo[f], h)[surf] if cfg.truth_splats == "ellipsoids" else None
                 rgb, lab = render_frames(meta, xo[f][surf], col_o, 0.75 * h, xh[f], 0.75 * h, xb[f], col_b,
-                                         0.75 * cfg.body_spacing)
+                                         0.75 * cfg.body_spacing, Fo)
                 cv2.imwrite(str(d / "rgb" / f"{f:04d}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
                 cv2.imwrite(str(d / "mask" / f"{f:04d}.png"), (lab > 0).astype(np.uint8) * 255)
                 cv2.imwrite(str(tmp / "labels" / key / f"{f:04d}.png"), lab)

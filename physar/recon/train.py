@@ -62,6 +62,7 @@ import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import torch
@@ -174,6 +175,11 @@ class TrainConfig(BaseModel):
                                      "(same latent), so the residual laws neither stress undeformed material nor "
                                      "drift its F (physar's option, not in the seed)")
     latent_dim: int = Field(16, ge=1, description="size of each particle's latents l_e, l_p (Eq. 8)")
+    render_deformation: Literal["state", "positions", "none"] = Field(
+        "state", description="deformation gradient that shapes the object's Gaussians after the physics: state "
+        "(seed Eq. 4: the simulator's F, the elastic part after the plastic return map) | positions (the total "
+        "deformation, least squares over lattice neighbours as in the Eq. 9 flow stage; follows plastic flow) | "
+        "none (F = I: the Gaussians move with their particles, undeformed); the last two are physar's options")
     net_lr: float = Field(1.0e-3, gt=0, description="Adam step of the residual network and the latents [-]")
     lambda_law: float = Field(1.0e-4, ge=0, description="Eq. 11 weight of the residual magnitudes |E_theta| (a "
                                                         "stress, Pa) and |P_theta| (dimensionless): loss per unit "
@@ -572,8 +578,11 @@ class Physics:
 def simulate_clip(rig: Rig, phys: Physics, kin: dict, frames: int, grad: bool = True):
     """Differentiable MPM over ``frames`` frames from the rest object and the LBS body of frame 0.
 
-    Yields per frame n = 1 .. frames-1: (x_obj, F_obj, x_hum, F_hum) in world coordinates.  Without gradients
-    (inference) the residual outputs are truncated as in seed Eq. 12."""
+    Yields per frame n = 1 .. frames-1: (x_obj, F_obj, x_hum, F_hum) in world coordinates; F_obj is the
+    simulator's (seed Eq. 4) or, with ``render_deformation = "positions"``, the total deformation of the object's
+    particles (:meth:`Rig.deformation_from_neighbours`), or I (``"none"``).  Without gradients (inference) the residual outputs are
+    truncated as in seed Eq. 12."""
+    mode = rig.cfg.render_deformation
     o = torch.as_tensor(rig.origin)
     x = torch.cat([torch.as_tensor(rig.Xo), kin["ref"][0]]) - o
     v = torch.cat([torch.zeros(rig.no, 3, dtype=torch.float64), kin["vref"][0]])
@@ -587,7 +596,9 @@ def simulate_clip(rig: Rig, phys: Physics, kin: dict, frames: int, grad: bool = 
             _, (x, v, C, F, Jp) = tb.simulate(rig.model, x, v, p, 1, nets=phys.nets, checkpoint=grad,
                                               C0=C, F0=F, Jp0=Jp, truncate=not grad)
             xw = x + o
-            yield f + 1, xw[:rig.no], F[:rig.no], xw[rig.no:], F[rig.no:]
+            Fo = (rig.deformation_from_neighbours(xw[:rig.no]) if mode == "positions" else
+                  torch.eye(3, dtype=F.dtype).expand(rig.no, 3, 3) if mode == "none" else F[:rig.no])
+            yield f + 1, xw[:rig.no], Fo, xw[rig.no:], F[rig.no:]
 
 
 # ----------------------------------------------------------------------------------------------- fit
