@@ -43,8 +43,7 @@ Scene (``[synth]`` of a TOML such as ``examples/recon_anny_cpillow.toml``; :clas
   frame's axes are the generator's up to sign and the object's boxes stay on the voxel grid).
   With ``truth_splats = "ellipsoids"`` each object sphere is carried by the total deformation of its fine
   particle (:func:`lattice_deformation`, plastic flow included), so the drawn surface stretches with the
-  material, as the reconstruction's Gaussians do (seed Eq. 4); rigid spheres do not, which biases the image loss
-  against the true motion (measured on the release scene, issue 17).
+  material, as a real surface does and as the reconstruction's Gaussians are deformed (seed Eq. 4).
 
 :func:`generate_anny` writes a DATA_DIR in the layout of :mod:`physar.recon.synth` (scene.json with
 ``body.model = "anny"``, poses, spin/, rgb/, mask/, novel/, truth.npz) plus ``smpl/`` (SMPL parameters of each
@@ -169,7 +168,7 @@ class AnnySceneConfig(BaseModel):
             if f[0] != 0 or any(b <= a for a, b in pairwise(f)) or f[-1] > n - 1:
                 raise ValueError(f"{name} frames {f} must start at 0, increase and end by frame {n - 1}")
             if any(k[1] < 0 for k in keys):
-                raise ValueError(f"{name} depths must be >= 0 (the body sinks by the depth)")
+                raise ValueError(f"{name} depths must be >= 0 (how far the body sinks, or rises for a lift)")
         L, D, H = self.c_pillow_size
         if not (2 * self.c_thickness < H and self.c_thickness < D):
             raise ValueError(f"c_thickness = {self.c_thickness} m needs 2 x thickness < height ({H}) and < depth ({D})")

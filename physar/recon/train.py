@@ -175,11 +175,14 @@ class TrainConfig(BaseModel):
                                      "(same latent), so the residual laws neither stress undeformed material nor "
                                      "drift its F (physar's option, not in the seed)")
     latent_dim: int = Field(16, ge=1, description="size of each particle's latents l_e, l_p (Eq. 8)")
-    render_deformation: Literal["state", "positions", "none"] = Field(
-        "state", description="deformation gradient that shapes the object's Gaussians after the physics: state "
-        "(seed Eq. 4: the simulator's F, the elastic part after the plastic return map) | positions (the total "
-        "deformation, least squares over lattice neighbours as in the Eq. 9 flow stage; follows plastic flow) | "
-        "none (F = I: the Gaussians move with their particles, undeformed); the last two are physar's options")
+    render_deformation: Literal["none", "state", "positions"] = Field(
+        "none", description="deformation gradient that shapes the object's Gaussians when a method's motion is "
+        "rendered (physics stage, refit, evaluation, predict; every method alike): none (F = I: the Gaussians move "
+        "with their particles, undeformed; physar's default) | state (seed Eq. 4: the simulator's F, the elastic "
+        "part after the plastic return map; a per-frame fit uses its least-squares F) | positions (the total "
+        "deformation, least squares over lattice neighbours as in the Eq. 9 flow stage). The canonical Gaussians "
+        "are fitted on the spin clip at rest and come out long and thin; deformed by F they smear, and the loss "
+        "then prefers a motion 3 mm further from the truth than the true one (benchmarks/RESULTS.md, issue 17)")
     net_lr: float = Field(1.0e-3, gt=0, description="Adam step of the residual network and the latents [-]")
     lambda_law: float = Field(1.0e-4, ge=0, description="Eq. 11 weight of the residual magnitudes |E_theta| (a "
                                                         "stress, Pa) and |P_theta| (dimensionless): loss per unit "
@@ -575,14 +578,24 @@ class Physics:
                          hold=rig.cfg.pd_hold)
 
 
+def object_deformation(rig: Rig, x: torch.Tensor, F_state: torch.Tensor | None = None) -> torch.Tensor:
+    """The F (No, 3, 3) that shapes the object's Gaussians at positions x, by ``render_deformation``, one rule for
+    every method: "state": the simulator's F_state (seed Eq. 4) where there is one, otherwise (a per-frame fit)
+    the least-squares deformation of x; "positions": always that; "none": I."""
+    mode = rig.cfg.render_deformation
+    if mode == "none":
+        return torch.eye(3, dtype=x.dtype).expand(rig.no, 3, 3)
+    if mode == "state" and F_state is not None:
+        return F_state
+    return rig.deformation_from_neighbours(x)
+
+
 def simulate_clip(rig: Rig, phys: Physics, kin: dict, frames: int, grad: bool = True):
     """Differentiable MPM over ``frames`` frames from the rest object and the LBS body of frame 0.
 
-    Yields per frame n = 1 .. frames-1: (x_obj, F_obj, x_hum, F_hum) in world coordinates; F_obj is the
-    simulator's (seed Eq. 4) or, with ``render_deformation = "positions"``, the total deformation of the object's
-    particles (:meth:`Rig.deformation_from_neighbours`), or I (``"none"``).  Without gradients (inference) the residual outputs are
+    Yields per frame n = 1 .. frames-1: (x_obj, F_obj, x_hum, F_hum) in world coordinates; F_obj shapes the
+    object's Gaussians (:func:`object_deformation`).  Without gradients (inference) the residual outputs are
     truncated as in seed Eq. 12."""
-    mode = rig.cfg.render_deformation
     o = torch.as_tensor(rig.origin)
     x = torch.cat([torch.as_tensor(rig.Xo), kin["ref"][0]]) - o
     v = torch.cat([torch.zeros(rig.no, 3, dtype=torch.float64), kin["vref"][0]])
@@ -596,9 +609,7 @@ def simulate_clip(rig: Rig, phys: Physics, kin: dict, frames: int, grad: bool = 
             _, (x, v, C, F, Jp) = tb.simulate(rig.model, x, v, p, 1, nets=phys.nets, checkpoint=grad,
                                               C0=C, F0=F, Jp0=Jp, truncate=not grad)
             xw = x + o
-            Fo = (rig.deformation_from_neighbours(xw[:rig.no]) if mode == "positions" else
-                  torch.eye(3, dtype=F.dtype).expand(rig.no, 3, 3) if mode == "none" else F[:rig.no])
-            yield f + 1, xw[:rig.no], Fo, xw[rig.no:], F[rig.no:]
+            yield f + 1, xw[:rig.no], object_deformation(rig, xw[:rig.no], F[:rig.no]), xw[rig.no:], F[rig.no:]
 
 
 # ----------------------------------------------------------------------------------------------- fit
@@ -710,7 +721,8 @@ def _load_stages(reuse: Path, rig: Rig, cfg: TrainConfig) -> FitState:
         raise ConfigError(f"--reuse {reuse}: missing {p} (that run has not finished its flow stages)")
     d = _read_checkpoint(p)
     mine = cfg.model_dump()
-    bad = [k for k in _PRE_PHYSICS if d["config"].get(k) != mine[k]]
+    default = TrainConfig().model_dump()  # a field newer than the stored run: it ran at the default
+    bad = [k for k in _PRE_PHYSICS if d["config"].get(k, default[k]) != mine[k]]
     if bad:
         raise ConfigError(f"--reuse {reuse}: its stages were fitted with other settings ({', '.join(bad)})")
     st = _state_from(d, rig)
@@ -970,7 +982,7 @@ def refit_appearances(recon: Reconstruction, ds: Dataset, kin: dict, iters: int,
         sim = {f: (xo, Fo, xh, Fh) for f, xo, Fo, xh, Fh in simulate_clip(rig, recon.phys, kin, ds.n_obs, grad=False)}
 
     def per_frame(xs):
-        return {f: (xs[min(f, len(xs) - 1)], rig.deformation_from_neighbours(xs[min(f, len(xs) - 1)]),
+        return {f: (xs[min(f, len(xs) - 1)], object_deformation(rig, xs[min(f, len(xs) - 1)]),
                     kin["ref"][f], kin["A_h"][f]) for f in obs}
 
     motions = {"physics": sim, "lbs": {f: (Xo, I_o, kin["ref"][f], kin["A_h"][f]) for f in obs},
@@ -1094,7 +1106,9 @@ class Reconstruction:
 
     @classmethod
     def _from_arrays(cls, d: dict) -> Reconstruction:
-        meta, cfg = json.loads(str(d["meta_json"])), TrainConfig.model_validate(json.loads(str(d["config_json"])))
+        stored = json.loads(str(d["config_json"]))
+        stored.setdefault("render_deformation", "state")  # a model from before the option rendered as the seed does
+        meta, cfg = json.loads(str(d["meta_json"])), TrainConfig.model_validate(stored)
         cfg = _usable_devices(cfg)
         rig = Rig(meta, cfg)
         app = Appearance(torch.as_tensor(d["sh"]), torch.as_tensor(d["opacity_logits"]),
@@ -1167,7 +1181,7 @@ class Reconstruction:
                     xo, Fo = Xo, I_o
                 else:
                     xo = per_frame[min(f, len(per_frame) - 1)]
-                    Fo = rig.deformation_from_neighbours(xo)
+                    Fo = object_deformation(rig, xo)
                 emit(f, xo, Fo, kin["ref"][f], kin["A_h"][f])
         else:
             raise PhysarError(f"unknown method '{method}': use physics, lbs, 4dgs or spflow")

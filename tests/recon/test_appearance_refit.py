@@ -18,6 +18,7 @@ from physar.recon.train import (
     fit,
     image_loss,
     load_dataset,
+    object_deformation,
     refit_appearances,
     render_scene,
 )
@@ -38,7 +39,7 @@ def _motion(rec, kin, method, f):
         return torch.as_tensor(rig.Xo), torch.eye(3, dtype=torch.float64).expand(rig.no, 3, 3), kin["ref"][f], \
             kin["A_h"][f]
     xs = rec.flow if method == "4dgs" else rec.spflow
-    return xs[f], rig.deformation_from_neighbours(xs[f]), kin["ref"][f], kin["A_h"][f]
+    return xs[f], object_deformation(rig, xs[f]), kin["ref"][f], kin["A_h"][f]
 
 
 def test_refit_saved_and_read_back(refit_run):
@@ -173,3 +174,19 @@ def test_mismatched_refit_is_one_line(refit_run, tmp_path):
     np.savez(tmp_path / "model.npz", **arrays)
     with pytest.raises(ConfigError, match=r"not a valid physar recon model \(the appearance refit of lbs does not"):
         Reconstruction.load(tmp_path / "model.npz")
+
+
+def test_a_model_from_before_render_deformation_renders_as_it_was_fitted(refit_run, tmp_path):
+    """A model.npz whose configuration has no render_deformation (fitted before the option, with the seed's
+    deformed Gaussians) loads with "state", not with today's default "none"; one that has it keeps it."""
+    import json
+
+    run, _ = refit_run
+    assert Reconstruction.load(run).rig.cfg.render_deformation == "none"
+    with np.load(run / "model.npz", allow_pickle=False) as d:
+        arrays = dict(d)
+    conf = json.loads(str(arrays["config_json"]))
+    del conf["render_deformation"]
+    arrays["config_json"] = np.array(json.dumps(conf))
+    np.savez(tmp_path / "model.npz", **arrays)
+    assert Reconstruction.load(tmp_path / "model.npz").rig.cfg.render_deformation == "state"

@@ -4,8 +4,9 @@ object's particles, the least-squares fit over lattice neighbours (as the Eq. 9 
 
 import numpy as np
 import pytest
+import torch
 
-from physar.recon.train import Physics, Rig, TrainConfig, load_dataset, simulate_clip
+from physar.recon.train import Physics, Rig, TrainConfig, load_dataset, object_deformation, simulate_clip
 
 
 @pytest.fixture(scope="module")
@@ -51,3 +52,18 @@ def test_positions_mode_renders_the_total_deformation_and_state_mode_the_simulat
     for (xs, _), (xn, Fn) in zip(out["state"], out["none"], strict=True):  # "none": rigid Gaussians, same motion
         np.testing.assert_array_equal(xs, xn)
         np.testing.assert_array_equal(Fn, np.broadcast_to(np.eye(3), Fn.shape))
+
+
+def test_one_rendering_rule_for_simulated_and_per_frame_motions(data):
+    """object_deformation: "none" gives I whatever the motion; "state" gives the simulator's F when there is one
+    and the least-squares F of the positions for a per-frame fit (no simulator F); "positions" always the
+    least-squares F. Mutant caught: "state" ignoring the simulator's F, "none" falling back to neighbours."""
+    x = torch.as_tensor(Rig(data.meta, TrainConfig(material_grid=(0, 0, 0))).Xo) * 1.1  # a 10 % dilation: F = 1.1 I
+    Fs = torch.full((len(x), 3, 3), 7.0, dtype=torch.float64)
+    for mode, with_state, want in (("none", True, "I"), ("none", False, "I"), ("state", True, "state"),
+                                   ("state", False, "lsq"), ("positions", True, "lsq")):
+        rig = Rig(data.meta, TrainConfig(material_grid=(0, 0, 0), render_deformation=mode))
+        F = object_deformation(rig, x, Fs if with_state else None).numpy()
+        ref = {"I": np.broadcast_to(np.eye(3), F.shape), "state": Fs.numpy(),
+               "lsq": np.broadcast_to(1.1 * np.eye(3), F.shape)}[want]
+        np.testing.assert_allclose(F, ref, atol=1e-9, err_msg=f"{mode} {with_state}")
