@@ -122,7 +122,7 @@ def pixel_fit_diagnostics(data_dir: Path, run_dir: Path, refit_iters: int = 150,
     its last observed positions (as ``recon eval`` scores it), the physics simulation runs on, and the refits
     (d, e) still use the observed frames only."""
     from physar.recon.metrics import large_deformation_frames, sequence_metrics
-    from physar.recon.train import Reconstruction, object_deformation, refit_appearance, render_scene
+    from physar.recon.train import Reconstruction, refit_appearance, render_scene
 
     recon, ds = Reconstruction.load(run_dir), load_dataset(data_dir)
     rig = recon.rig
@@ -140,9 +140,9 @@ def pixel_fit_diagnostics(data_dir: Path, run_dir: Path, refit_iters: int = 150,
     with torch.no_grad():
         sim = {f: (xo, Fo, xh, Fh) for f, xo, Fo, xh, Fh in simulate_clip(rig, recon.phys, kin, n_sim, grad=False)}
     hold = lambda f: min(f, ds.n_obs - 1)  # the 4DGS-like fit has no positions after the observed frames
-    per_frame = lambda xs: {f: (xs[hold(f)], object_deformation(rig, xs[hold(f)]), kin["ref"][f],
-                                kin["A_h"][f]) for f in obs + frames}  # the run's rendering rule, for every motion
-    oracle = {f: (gt[f], object_deformation(rig, gt[f]), sim[f][2], sim[f][3]) for f in frames}
+    per_frame = lambda xs: {f: (xs[hold(f)], rig.deformation_from_neighbours(xs[hold(f)]), kin["ref"][f],
+                                kin["A_h"][f]) for f in obs + frames}  # render_scene applies the run's rule
+    oracle = {f: (gt[f], rig.deformation_from_neighbours(gt[f]), sim[f][2], sim[f][3]) for f in frames}
     motions = {"physics simulation": sim, "4DGS-like per-frame positions": per_frame(recon.flow),
                "true object motion (oracle; body as simulated)": oracle}
 

@@ -165,7 +165,8 @@ def main() -> None:
                     "as they are (fit(..., reuse=)): only the physics stage is fitted")
     a = ap.parse_args()
     torch.set_num_threads(min(2, torch.get_num_threads()))
-    keyed = bool(load_anny_config(a.config).depth_keys)
+    base = load_anny_config(a.config)
+    keyed = bool(base.depth_keys or base.novel_depth_keys)
     scfg = load_anny_config(a.config, (QUICK_SYNTH_KEYED if keyed else QUICK_SYNTH) if a.quick else None)
     tcfg = load_train_config(a.config, {**(QUICK_TRAIN if a.quick else {}),
                                         **({} if a.seed is None else {"seed": a.seed})})

@@ -24,7 +24,6 @@ from physar.recon.train import (
     Reconstruction,
     evaluate,
     load_dataset,
-    object_deformation,
     refit_appearance,
     refit_appearances,
     render_scene,
@@ -57,7 +56,7 @@ def main() -> None:
         gt = torch.as_tensor(rig.Xo + (g - g[0]))
         with torch.no_grad():
             sim = {f: (xh, Fh) for f, xo, Fo, xh, Fh in simulate_clip(rig, rec.phys, kin, n, grad=False)}
-        mot = {f: (gt[f], object_deformation(rig, gt[f]), *sim[f]) for f in range(1, n)}
+        mot = {f: (gt[f], rig.deformation_from_neighbours(gt[f]), *sim[f]) for f in range(1, n)}
         app = refit_appearance(rig, rec.app, {f: mot[f] for f in range(1, no)}, ds, kin, iters, colours_only)
         disp = ds.truth["dynamic_max_displacement"]
         orc = {}

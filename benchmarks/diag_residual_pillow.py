@@ -22,6 +22,7 @@ vs the expert stress, and the fraction of particles whose network output Eq. 12 
 from __future__ import annotations
 
 import argparse
+import copy
 import importlib.util
 import json
 import math
@@ -110,9 +111,14 @@ def landscape(a) -> None:
         with torch.no_grad():
             return {f: (xo, Fo, xh, Fh) for f, xo, Fo, xh, Fh in simulate_clip(r2, ph, kin, n, grad=False)}
 
-    def score(name, motion):
+    exact = copy.copy(rig)  # renders the object's F as given (rows that name their F)
+    exact.cfg = rig.cfg.model_copy(update={"render_deformation": "state"})
+
+    def score(name, motion, as_given=False):
+        """Rows render under the run's rule (render_deformation) unless as_given (the F in the motion)."""
+        r = exact if as_given else rig
         with torch.no_grad():
-            il = [float(image_loss(render_scene(rig, app, *motion[f], kin["xb"][f], kin["A_b"][f]), rgb[f], mask[f],
+            il = [float(image_loss(render_scene(r, app, *motion[f], kin["xb"][f], kin["A_b"][f]), rgb[f], mask[f],
                                    score_cfg)) for f in range(1, n)]
             fl = [float((motion[f][0] - st.spflow[f]).abs().mean()) for f in range(1, no)]
         e3 = [float(np.linalg.norm(np.asarray(motion[f][0]) - gt[f], axis=1).mean() * 1e3) for f in range(1, n)]
@@ -141,7 +147,7 @@ def landscape(a) -> None:
         if yield_stress > 0:  # the simulator's F is the elastic part F_e; the material's shape follows F_e F_p
             rows.append(score("truth's law, Gaussians deformed by the total F (from neighbours)",
                               {f: (xo, rig.deformation_from_neighbours(xo), xh, Fh) for f, (xo, _, xh, Fh)
-                               in tl.items()}))
+                               in tl.items()}, as_given=True))
         r2, ph = iso_phys(Et)
         m2 = true_material_model(r2, ds.truth, 0.0)
         m2.plastic[:] = 0
@@ -161,9 +167,11 @@ def landscape(a) -> None:
     base = sim(*iso_phys(Et))
     true_o = {f: (g[f], rig.deformation_from_neighbours(g[f])) for f in range(1, n)}
     rows.append(score("true object motion (body as true-E sim)", {f: (*true_o[f], *base[f][2:]) for f in true_o}))
+    rows.append(score("true object motion, Gaussians deformed by F from neighbours (seed Eq. 4)",
+                      {f: (*true_o[f], *base[f][2:]) for f in true_o}, as_given=True))
     eye = torch.eye(3, dtype=torch.float64).expand(rig.no, 3, 3)
     rows.append(score("true object motion, Gaussians not deformed (F = I: the truth renders rigid spheres)",
-                      {f: (g[f], eye, *base[f][2:]) for f in true_o}))
+                      {f: (g[f], eye, *base[f][2:]) for f in true_o}, as_given=True))
     if fitted is not None:  # which of object and body makes the fitted motion's loss lower than the truth's
         rows.append(score(f"true object motion, body of fitted {a.run}", {f: (*true_o[f], *fitted[f][2:])
                                                                           for f in true_o}))
@@ -171,9 +179,9 @@ def landscape(a) -> None:
                                                                              for f in true_o}))
         rows.append(score(f"fitted {a.run}, Gaussians deformed by F from neighbours",
                           {f: (fitted[f][0], rig.deformation_from_neighbours(fitted[f][0]), *fitted[f][2:])
-                           for f in true_o}))
+                           for f in true_o}, as_given=True))
         rows.append(score(f"fitted {a.run}, Gaussians not deformed (F = I)", {f: (fitted[f][0], eye, *fitted[f][2:])
-                                                                               for f in true_o}))
+                                                                               for f in true_o}, as_given=True))
     (out / f"landscape_{a.run}.json").write_text(json.dumps(rows, indent=1))
 
 

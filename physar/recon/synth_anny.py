@@ -43,7 +43,7 @@ Scene (``[synth]`` of a TOML such as ``examples/recon_anny_cpillow.toml``; :clas
   frame's axes are the generator's up to sign and the object's boxes stay on the voxel grid).
   With ``truth_splats = "ellipsoids"`` each object sphere is carried by the total deformation of its fine
   particle (:func:`lattice_deformation`, plastic flow included), so the drawn surface stretches with the
-  material, as a real surface does and as the reconstruction's Gaussians are deformed (seed Eq. 4).
+  material, as a real surface does (and as seed Eq. 4 deforms Gaussians: ``render_deformation = "state"``).
 
 :func:`generate_anny` writes a DATA_DIR in the layout of :mod:`physar.recon.synth` (scene.json with
 ``body.model = "anny"``, poses, spin/, rgb/, mask/, novel/, truth.npz) plus ``smpl/`` (SMPL parameters of each
@@ -141,8 +141,7 @@ class AnnySceneConfig(BaseModel):
     gt_particles_per_cell: int = Field(27, description="particles per cell of the truth: 8, 27 or 64")
     truth_splats: Literal["spheres", "ellipsoids"] = Field(
         "spheres", description="how the truth's object particles are drawn: rigid spheres, or ellipsoids carried by "
-        "the material's total deformation (a surface that stretches with the object, as the reconstruction's "
-        "Gaussians are deformed by F, seed Eq. 4)")
+        "the material's total deformation (a surface that stretches with the object, as a real one does)")
     body_spacing: float = Field(0.008, gt=0, description="mean spacing of the rendered body surface samples [m]")
     bag_size: Vec3 = Field((0.54, 0.15, 0.12), description="bag body (x, y, z) below the handle [m]")
     bag_wall: float = Field(0.03, gt=0, description="bag: shell, posts and bar thickness [m]")

@@ -176,8 +176,8 @@ class TrainConfig(BaseModel):
                                      "drift its F (physar's option, not in the seed)")
     latent_dim: int = Field(16, ge=1, description="size of each particle's latents l_e, l_p (Eq. 8)")
     render_deformation: Literal["none", "state", "positions"] = Field(
-        "none", description="deformation gradient that shapes the object's Gaussians when a method's motion is "
-        "rendered (physics stage, refit, evaluation, predict; every method alike): none (F = I: the Gaussians move "
+        "none", description="deformation gradient that shapes the object's Gaussians whenever the object is "
+        "rendered (every method, its fit and its evaluation: the Eq. 9 flow stages, physics, refit, predict): none (F = I: the Gaussians move "
         "with their particles, undeformed; physar's default) | state (seed Eq. 4: the simulator's F, the elastic "
         "part after the plastic return map; a per-frame fit uses its least-squares F) | positions (the total "
         "deformation, least squares over lattice neighbours as in the Eq. 9 flow stage). The canonical Gaussians "
@@ -474,7 +474,10 @@ class Appearance:
 
 
 def render_scene(rig: Rig, app: Appearance, x_obj, F_obj, x_hum, F_hum, x_kin, A_kin):
-    """Render one frame: positions (world, m) and deformation gradients of the three Gaussian groups (Eq. 3)."""
+    """Render one frame: positions (world, m) and deformation gradients of the three Gaussian groups (Eq. 3); the
+    object's F (the simulator's, or the least-squares F of per-frame positions) passes through the run's rule
+    :func:`object_deformation` first."""
+    F_obj = object_deformation(rig, x_obj, F_obj)
     means = torch.cat([x_obj, x_hum, x_kin]).float()
     F = torch.cat([F_obj, F_hum, A_kin]).float()
     n = means.shape[0]
@@ -578,24 +581,25 @@ class Physics:
                          hold=rig.cfg.pd_hold)
 
 
-def object_deformation(rig: Rig, x: torch.Tensor, F_state: torch.Tensor | None = None) -> torch.Tensor:
-    """The F (No, 3, 3) that shapes the object's Gaussians at positions x, by ``render_deformation``, one rule for
-    every method: "state": the simulator's F_state (seed Eq. 4) where there is one, otherwise (a per-frame fit)
-    the least-squares deformation of x; "positions": always that; "none": I."""
+def object_deformation(rig: Rig, x: torch.Tensor, F: torch.Tensor) -> torch.Tensor:
+    """The F (No, 3, 3) that shapes the object's Gaussians at positions x, by ``render_deformation``; one rule for
+    every render of the object (:func:`render_scene`: every method, its fit and its evaluation): "state": F as
+    given (the simulator's, seed Eq. 4, or a per-frame fit's least-squares F); "positions": the least-squares
+    deformation of x; "none": I."""
     mode = rig.cfg.render_deformation
     if mode == "none":
         return torch.eye(3, dtype=x.dtype).expand(rig.no, 3, 3)
-    if mode == "state" and F_state is not None:
-        return F_state
-    return rig.deformation_from_neighbours(x)
+    if mode == "positions":
+        return rig.deformation_from_neighbours(x)
+    return F
 
 
 def simulate_clip(rig: Rig, phys: Physics, kin: dict, frames: int, grad: bool = True):
     """Differentiable MPM over ``frames`` frames from the rest object and the LBS body of frame 0.
 
-    Yields per frame n = 1 .. frames-1: (x_obj, F_obj, x_hum, F_hum) in world coordinates; F_obj shapes the
-    object's Gaussians (:func:`object_deformation`).  Without gradients (inference) the residual outputs are
-    truncated as in seed Eq. 12."""
+    Yields per frame n = 1 .. frames-1: (x_obj, F_obj, x_hum, F_hum) in world coordinates, F the simulator's
+    (what the Eq. 11 regulariser evaluates; :func:`render_scene` applies the rendering rule).  Without gradients
+    (inference) the residual outputs are truncated as in seed Eq. 12."""
     o = torch.as_tensor(rig.origin)
     x = torch.cat([torch.as_tensor(rig.Xo), kin["ref"][0]]) - o
     v = torch.cat([torch.zeros(rig.no, 3, dtype=torch.float64), kin["vref"][0]])
@@ -609,12 +613,12 @@ def simulate_clip(rig: Rig, phys: Physics, kin: dict, frames: int, grad: bool = 
             _, (x, v, C, F, Jp) = tb.simulate(rig.model, x, v, p, 1, nets=phys.nets, checkpoint=grad,
                                               C0=C, F0=F, Jp0=Jp, truncate=not grad)
             xw = x + o
-            yield f + 1, xw[:rig.no], object_deformation(rig, xw[:rig.no], F[:rig.no]), xw[rig.no:], F[rig.no:]
+            yield f + 1, xw[:rig.no], F[:rig.no], xw[rig.no:], F[rig.no:]
 
 
 # ----------------------------------------------------------------------------------------------- fit
 # configuration fields that stages 1-2 depend on (a physics-only variant may reuse those stages)
-_PRE_PHYSICS = ("particles_per_cell", "body_spacing", "appearance_iters", "appearance_lr", "finetune_iters",
+_PRE_PHYSICS = ("particles_per_cell", "body_spacing", "render_deformation", "appearance_iters", "appearance_lr", "finetune_iters",
                 "spin_stride", "flow_iters", "flow_lr", "rigidity", "spflow_iters", "lambda_of", "lambda_arap",
                 "lambda_ray", "lambda_rgb", "lambda_mask", "seed")
 
@@ -692,6 +696,12 @@ def _state_from(d: dict, rig: Rig) -> FitState:
     return st
 
 
+def _with_pre_option_defaults(config: dict) -> dict:
+    """A stored configuration with the options added since filled in as the run behaved: render_deformation
+    "state" (the seed's rule, the only one before the option)."""
+    return {"render_deformation": "state", **config}
+
+
 def _without_devices(config: dict) -> dict:
     """A configuration without the device fields: results do not depend on them (CUDA matches the CPU to 2e-13,
     benchmarks/RESULTS.md "Gaussians and MPM on CUDA"), so a run may resume, or a model load, on another device."""
@@ -705,7 +715,7 @@ def _load_checkpoint(run_dir: Path, cfg: TrainConfig, data_hash: str) -> dict | 
     if not p.exists():
         return None
     d = _read_checkpoint(p)
-    if _without_devices(d["config"]) != _without_devices(cfg.model_dump()):
+    if _without_devices(_with_pre_option_defaults(d["config"])) != _without_devices(cfg.model_dump()):
         raise ConfigError(f"{p}: checkpoint was made with another configuration; use a new --out folder "
                           "or --restart")
     if d.get("data_hash") != data_hash:
@@ -721,8 +731,9 @@ def _load_stages(reuse: Path, rig: Rig, cfg: TrainConfig) -> FitState:
         raise ConfigError(f"--reuse {reuse}: missing {p} (that run has not finished its flow stages)")
     d = _read_checkpoint(p)
     mine = cfg.model_dump()
+    stored = _with_pre_option_defaults(d["config"])
     default = TrainConfig().model_dump()  # a field newer than the stored run: it ran at the default
-    bad = [k for k in _PRE_PHYSICS if d["config"].get(k, default[k]) != mine[k]]
+    bad = [k for k in _PRE_PHYSICS if stored.get(k, default[k]) != mine[k]]
     if bad:
         raise ConfigError(f"--reuse {reuse}: its stages were fitted with other settings ({', '.join(bad)})")
     st = _state_from(d, rig)
@@ -982,7 +993,7 @@ def refit_appearances(recon: Reconstruction, ds: Dataset, kin: dict, iters: int,
         sim = {f: (xo, Fo, xh, Fh) for f, xo, Fo, xh, Fh in simulate_clip(rig, recon.phys, kin, ds.n_obs, grad=False)}
 
     def per_frame(xs):
-        return {f: (xs[min(f, len(xs) - 1)], object_deformation(rig, xs[min(f, len(xs) - 1)]),
+        return {f: (xs[min(f, len(xs) - 1)], rig.deformation_from_neighbours(xs[min(f, len(xs) - 1)]),
                     kin["ref"][f], kin["A_h"][f]) for f in obs}
 
     motions = {"physics": sim, "lbs": {f: (Xo, I_o, kin["ref"][f], kin["A_h"][f]) for f in obs},
@@ -1106,8 +1117,7 @@ class Reconstruction:
 
     @classmethod
     def _from_arrays(cls, d: dict) -> Reconstruction:
-        stored = json.loads(str(d["config_json"]))
-        stored.setdefault("render_deformation", "state")  # a model from before the option rendered as the seed does
+        stored = _with_pre_option_defaults(json.loads(str(d["config_json"])))
         meta, cfg = json.loads(str(d["meta_json"])), TrainConfig.model_validate(stored)
         cfg = _usable_devices(cfg)
         rig = Rig(meta, cfg)
@@ -1181,7 +1191,7 @@ class Reconstruction:
                     xo, Fo = Xo, I_o
                 else:
                     xo = per_frame[min(f, len(per_frame) - 1)]
-                    Fo = object_deformation(rig, xo)
+                    Fo = rig.deformation_from_neighbours(xo)
                 emit(f, xo, Fo, kin["ref"][f], kin["A_h"][f])
         else:
             raise PhysarError(f"unknown method '{method}': use physics, lbs, 4dgs or spflow")

@@ -18,7 +18,6 @@ from physar.recon.train import (
     fit,
     image_loss,
     load_dataset,
-    object_deformation,
     refit_appearances,
     render_scene,
 )
@@ -39,7 +38,7 @@ def _motion(rec, kin, method, f):
         return torch.as_tensor(rig.Xo), torch.eye(3, dtype=torch.float64).expand(rig.no, 3, 3), kin["ref"][f], \
             kin["A_h"][f]
     xs = rec.flow if method == "4dgs" else rec.spflow
-    return xs[f], object_deformation(rig, xs[f]), kin["ref"][f], kin["A_h"][f]
+    return xs[f], rig.deformation_from_neighbours(xs[f]), kin["ref"][f], kin["A_h"][f]
 
 
 def test_refit_saved_and_read_back(refit_run):
