@@ -41,31 +41,15 @@ def render_spheres(points: np.ndarray, colors: np.ndarray, radius: float | np.nd
                                   supersample, deform)
     s = int(supersample)
     W, H = width * s, height * s
-    pts = np.asarray(points, dtype=np.float64)
-    col = np.asarray(colors, dtype=np.float64)
-    rad = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(pts),))
-    p = pts @ np.asarray(R, dtype=np.float64).T + np.asarray(t, dtype=np.float64)
+    p, col, rad, _ = _in_front(points, colors, radius, R, t)
     z = p[:, 2]
-    ok = z > 1e-3
-    p, col, rad, z = p[ok], col[ok], rad[ok], z[ok]
-    fx, fy, cx, cy = K[0, 0] * s, K[1, 1] * s, K[0, 2] * s, K[1, 2] * s
-    u = fx * p[:, 0] / z + cx
-    v = fy * p[:, 1] / z + cy
+    u, v, fx, _ = _project(p, K, s)
     rpx = fx * rad / z
     vis = (u + rpx > 0) & (u - rpx < W) & (v + rpx > 0) & (v - rpx < H)
     u, v, rpx, z, col, rad = u[vis], v[vis], rpx[vis], z[vis], col[vis], rad[vis]
-    L = np.asarray(light, dtype=np.float64)
-    L = L / np.linalg.norm(L)
-    img = np.empty((H, W, 3))
-    img[:] = np.asarray(background, dtype=np.float64)
-    cover = np.zeros((H, W))
+    L, img, cover = _canvas(light, background, W, H)
     if len(u):
-        k = int(np.ceil(rpx.max())) + 1
-        off = np.arange(-k, k + 1)
-        oi, oj = np.meshgrid(off, off, indexing="xy")
-        oi, oj = oi.reshape(-1), oj.reshape(-1)
-        i = np.floor(u)[:, None].astype(np.int64) + oi[None]
-        j = np.floor(v)[:, None].astype(np.int64) + oj[None]
+        i, j, _, _ = _window(u, v, rpx.max())
         dx = (i + 0.5 - u[:, None]) / rpx[:, None]
         dy = (j + 0.5 - v[:, None]) / rpx[:, None]
         d2 = dx * dx + dy * dy
@@ -75,17 +59,10 @@ def render_spheres(points: np.ndarray, colors: np.ndarray, radius: float | np.nd
         nz = -np.sqrt(np.clip(1.0 - d2, 0.0, 1.0))
         depth = z[pid] + rad[pid] * nz
         pix = j * W + i
-        order = np.lexsort((depth, pix))  # by pixel, then nearest first
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = pix[order][1:] != pix[order][:-1]
-        sel = order[first]
+        sel = _nearest(pix, depth)
         shade = ambient + (1 - ambient) * np.clip(-(dx[sel] * L[0] + dy[sel] * L[1] + nz[sel] * L[2]), 0, 1)
-        flat = img.reshape(-1, 3)
-        flat[pix[sel]] = np.clip(col[pid[sel]] * shade[:, None], 0, 1)
-        cover.reshape(-1)[pix[sel]] = 1.0
-    rgb = img.reshape(height, s, width, s, 3).mean(axis=(1, 3))
-    mask = cover.reshape(height, s, width, s).mean(axis=(1, 3)) >= 0.5
-    return rgb.astype(np.float32), mask
+        _paint(img, cover, pix[sel], col[pid[sel]] * shade[:, None])
+    return _downsample(img, cover, width, height, s)
 
 
 def _render_ellipsoids(points, colors, radius, K, R, t, width, height, background, light, ambient, supersample,
@@ -93,17 +70,10 @@ def _render_ellipsoids(points, colors, radius, K, R, t, width, height, backgroun
     """render_spheres with per-point deformations (module docstring)."""
     s = int(supersample)
     W, H = width * s, height * s
-    R = np.asarray(R, dtype=np.float64)
-    p = np.asarray(points, dtype=np.float64) @ R.T + np.asarray(t, dtype=np.float64)
-    col = np.asarray(colors, dtype=np.float64)
-    rad = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(p),))
-    A = rad[:, None, None] * (R @ np.asarray(deform, dtype=np.float64))  # camera-frame ellipsoid axes
-    z = p[:, 2]
-    ok = z > 1e-3
-    p, col, A, z = p[ok], col[ok], A[ok], z[ok]
-    fx, fy, cx, cy = K[0, 0] * s, K[1, 1] * s, K[0, 2] * s, K[1, 2] * s
-    u = fx * p[:, 0] / z + cx
-    v = fy * p[:, 1] / z + cy
+    p, col, rad, ok = _in_front(points, colors, radius, R, t)
+    A = rad[:, None, None] * (np.asarray(R, dtype=np.float64) @ np.asarray(deform, dtype=np.float64)[ok])
+    z = p[:, 2]  # A: the camera-frame ellipsoid axes
+    u, v, fx, fy = _project(p, K, s)
     J = np.zeros((len(p), 2, 3))
     J[:, 0, 0], J[:, 0, 2] = fx / z, -fx * p[:, 0] / z**2
     J[:, 1, 1], J[:, 1, 2] = fy / z, -fy * p[:, 1] / z**2
@@ -112,11 +82,7 @@ def _render_ellipsoids(points, colors, radius, K, R, t, width, height, backgroun
     ext = np.sqrt(np.maximum(MMt[:, 0, 0], MMt[:, 1, 1]))  # half extent of the ellipse along x or y (px)
     vis = (u + ext > 0) & (u - ext < W) & (v + ext > 0) & (v - ext < H)
     u, v, ext, z, col, A, M, MMt = u[vis], v[vis], ext[vis], z[vis], col[vis], A[vis], M[vis], MMt[vis]
-    Lgt = np.asarray(light, dtype=np.float64)
-    Lgt = Lgt / np.linalg.norm(Lgt)
-    img = np.empty((H, W, 3))
-    img[:] = np.asarray(background, dtype=np.float64)
-    cover = np.zeros((H, W))
+    Lgt, img, cover = _canvas(light, background, W, H)
     if len(u):
         Mp = np.swapaxes(M, 1, 2) @ np.linalg.inv(MMt)  # (N, 3, 2) pseudo-inverse
         n0 = np.cross(M[:, 0], M[:, 1])
@@ -124,12 +90,7 @@ def _render_ellipsoids(points, colors, radius, K, R, t, width, height, backgroun
         front = -np.sign(np.einsum("ni,ni->n", A[:, 2], n0))  # the sign of t that brings the point nearer
         front[front == 0] = -1.0
         Ainv_T = np.swapaxes(np.linalg.inv(A), 1, 2)
-        k = int(np.ceil(ext.max())) + 1
-        off = np.arange(-k, k + 1)
-        oi, oj = np.meshgrid(off, off, indexing="xy")
-        oi, oj = oi.reshape(-1), oj.reshape(-1)
-        i = np.floor(u)[:, None].astype(np.int64) + oi[None]
-        j = np.floor(v)[:, None].astype(np.int64) + oj[None]
+        i, j, oi, oj = _window(u, v, ext.max())
         inb = (i >= 0) & (i < W) & (j >= 0) & (j < H) & (np.abs(oi)[None] <= np.ceil(ext)[:, None] + 1) \
             & (np.abs(oj)[None] <= np.ceil(ext)[:, None] + 1)
         pid, c = np.nonzero(inb)
@@ -144,14 +105,59 @@ def _render_ellipsoids(points, colors, radius, K, R, t, width, height, backgroun
         nrm = np.einsum("nij,nj->ni", Ainv_T[pid], us)
         nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
         pix = j * W + i
-        order = np.lexsort((depth, pix))  # by pixel, then nearest first
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = pix[order][1:] != pix[order][:-1]
-        sel = order[first]
+        sel = _nearest(pix, depth)
         shade = ambient + (1 - ambient) * np.clip(-(nrm[sel] @ Lgt), 0, 1)
-        flat = img.reshape(-1, 3)
-        flat[pix[sel]] = np.clip(col[pid[sel]] * shade[:, None], 0, 1)
-        cover.reshape(-1)[pix[sel]] = 1.0
+        _paint(img, cover, pix[sel], col[pid[sel]] * shade[:, None])
+    return _downsample(img, cover, width, height, s)
+
+
+def _in_front(points, colors, radius, R, t):
+    """Camera-frame points (M, 3) in front of the camera (z > 1 mm), their colours and radii, and the mask (N,)."""
+    p = np.asarray(points, dtype=np.float64) @ np.asarray(R, dtype=np.float64).T + np.asarray(t, dtype=np.float64)
+    rad = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(p),))
+    ok = p[:, 2] > 1e-3
+    return p[ok], np.asarray(colors, dtype=np.float64)[ok], rad[ok], ok
+
+
+def _project(p, K, s):
+    """Pixel centres (u, v) of camera-frame points at ``s`` times the resolution of K, and the focal lengths."""
+    fx, fy, cx, cy = K[0, 0] * s, K[1, 1] * s, K[0, 2] * s, K[1, 2] * s
+    return fx * p[:, 0] / p[:, 2] + cx, fy * p[:, 1] / p[:, 2] + cy, fx, fy
+
+
+def _canvas(light, background, W, H):
+    """Unit light direction, the background image (H, W, 3) and an empty coverage (H, W)."""
+    L = np.asarray(light, dtype=np.float64)
+    img = np.empty((H, W, 3))
+    img[:] = np.asarray(background, dtype=np.float64)
+    return L / np.linalg.norm(L), img, np.zeros((H, W))
+
+
+def _window(u: np.ndarray, v: np.ndarray, radius: float):
+    """Candidate pixels (N, (2k+1)^2) around each centre (u, v) (px), k = ceil(radius) + 1, and the offsets."""
+    k = int(np.ceil(radius)) + 1
+    off = np.arange(-k, k + 1)
+    oi, oj = np.meshgrid(off, off, indexing="xy")
+    oi, oj = oi.reshape(-1), oj.reshape(-1)
+    return (np.floor(u)[:, None].astype(np.int64) + oi[None], np.floor(v)[:, None].astype(np.int64) + oj[None],
+            oi, oj)
+
+
+def _nearest(pix: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """Indices of the nearest candidate (smallest depth) at each covered pixel (hard z-buffer)."""
+    order = np.lexsort((depth, pix))  # by pixel, then nearest first
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = pix[order][1:] != pix[order][:-1]
+    return order[first]
+
+
+def _paint(img: np.ndarray, cover: np.ndarray, pix: np.ndarray, rgb: np.ndarray) -> None:
+    img.reshape(-1, 3)[pix] = np.clip(rgb, 0, 1)
+    cover.reshape(-1)[pix] = 1.0
+
+
+def _downsample(img, cover, width, height, s):
+    """Box filter of the supersampled image; mask = covered fraction >= 0.5."""
     rgb = img.reshape(height, s, width, s, 3).mean(axis=(1, 3))
     mask = cover.reshape(height, s, width, s).mean(axis=(1, 3)) >= 0.5
     return rgb.astype(np.float32), mask
