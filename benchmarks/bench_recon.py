@@ -79,25 +79,42 @@ def identifiability(data_dir: Path, tcfg, scales=(0.25, 0.5, 0.7, 1.4, 2.0, 4.0)
 
 
 def oracle_E(data_dir: Path, tcfg, grid, iters: int = 15, lr: float = 0.1,
-             targets: np.ndarray | None = None) -> list[tuple[int, float, dict]]:
+             targets: np.ndarray | None = None, from_poses: bool = False, residual: bool = False,
+             frames: str = "observed", displacement: bool = False) -> list[tuple[int, float, dict]]:
     """Learn log E from the true 3-D object trajectories (see the module docstring), or from ``targets``
-    (F, No, 3) such as a run's Eq. 9 flow; per-iteration (iteration, L1 loss mm, material_error)."""
+    (F, No, 3) such as a run's Eq. 9 flow; per-iteration (iteration, L1 loss mm, material_error).
+
+    ``from_poses``: the rig finds the simulated bones from the clip's poses (an imported scene lists none);
+    ``residual``: learn the residual laws (and latents) of seed Eq. 8 alongside E, at ``tcfg.net_lr``;
+    ``frames``: "observed" or "all" (observed + predicted frames of the clip); ``displacement``: fit the true
+    displacement added to the reconstruction's rest positions, X + (truth_f - truth_0), instead of the
+    cell-averaged true positions, whose offset at rest (27 resampled onto 8 particles per cell: the 3-D error
+    floor) the L1 loss would otherwise keep trying to close through E."""
     import math
 
     from physar.recon.train import Reconstruction, material_error
 
+    if frames not in ("observed", "all"):
+        raise ValueError(f"frames must be 'observed' or 'all', got {frames!r}")
     ds = load_dataset(data_dir)
-    rig = Rig(ds.meta, tcfg.model_copy(update={"material_grid": grid, "residual": False}))
+    rig = Rig(ds.meta, tcfg.model_copy(update={"material_grid": grid, "residual": residual}),
+              **({"poses": (ds.rotations, ds.root_t)} if from_poses else {}))
     kin = rig.kinematics(ds.rotations, ds.root_t)
-    gt = torch.as_tensor(cell_average_truth(rig, ds.truth) if targets is None else targets)
+    if targets is None:
+        g = cell_average_truth(rig, ds.truth)
+        targets = rig.Xo + (g - g[0]) if displacement else g
+    gt = torch.as_tensor(targets)
+    n = ds.n_obs if frames == "observed" else len(ds.rgb)
     ph = Physics.init(rig)
-    ph.log_E.requires_grad_(True)
-    opt = torch.optim.Adam([ph.log_E], lr=lr)
+    nets = ph.leaves()[len(ph.material_leaves()):]  # the residual networks and latents (none without residual)
+    for t in [ph.log_E, *nets]:
+        t.requires_grad_(True)
+    opt = torch.optim.Adam([{"params": [ph.log_E], "lr": lr}] + ([{"params": nets, "lr": tcfg.net_lr}] if nets else []))
     rows = []
     for it in range(iters):
         loss = 0.0
-        for f, xo, *_ in simulate_clip(rig, ph, kin, ds.n_obs):
-            loss = loss + (xo - gt[f]).abs().mean() / (ds.n_obs - 1)
+        for f, xo, *_ in simulate_clip(rig, ph, kin, n):
+            loss = loss + (xo - gt[f]).abs().mean() / (n - 1)
         opt.zero_grad()
         loss.backward()
         opt.step()

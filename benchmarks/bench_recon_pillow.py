@@ -26,6 +26,9 @@ default depth); after its fit, each variant refits only the physics stage on the
 ``--variants`` picks a subset of the ablations; ``--set KEY=VALUE`` overrides any [train] field (TOML value) of
 the full model and every variant; ``--stages RUN`` makes the full model reuse OUT/RUN's stages 1-2 too, so settings
 are compared on the same appearance and Eq. 9 flow (see also ``diag_residual_pillow.py``).
+``--oracle-e ITERS`` asks whether the learned-E goal is reachable at all: E learned from the true 3-D
+displacements, no images (``bench_recon.oracle_E``), with the expert law alone, with the residual laws, and on a
+control scene generated with the reconstruction's own law (isotropic fixed-corotated: no fibres, no yield).
 """
 
 from __future__ import annotations
@@ -43,8 +46,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from physar.errors import ConfigError
 from physar.recon.metrics import large_deformation_frames
-from physar.recon.synth_anny import attach_truth, export_user_files, generate_anny, load_anny_config
+from physar.recon.synth_anny import (
+    AnnySceneConfig,
+    attach_truth,
+    export_user_files,
+    generate_anny,
+    load_anny_config,
+)
 from physar.recon.train import (
     Reconstruction,
     TrainConfig,
@@ -108,20 +118,21 @@ def subset_errors(recon: Reconstruction, ds, sub: dict) -> dict:
             "novel_large": errors_3d(recon, ds, "novel", nv["rotations"], nv["root_t"], sub["novel_large"], None)}
 
 
-def parse_overrides(items: list[str]) -> dict:
-    """``--set key=value`` items -> a dict of [train] fields; each value is read as TOML (``1e-2``, ``30``,
-    ``true``, ``[3, 4, 4]``)."""
+def parse_overrides(items: list[str], fields=TrainConfig.model_fields, flag: str = "--set",
+                    section: str = "[train]") -> dict:
+    """``--set key=value`` items -> a dict of [train] fields (``fields``); each value is read as TOML (``1e-2``,
+    ``30``, ``true``, ``[3, 4, 4]``)."""
     import tomllib
 
     out = {}
     for item in items:
         key, sep, value = item.partition("=")
-        if not sep or key.strip() not in TrainConfig.model_fields:
-            raise SystemExit(f"--set {item!r}: expected KEY=VALUE with KEY a [train] field")
+        if not sep or key.strip() not in fields:
+            raise SystemExit(f"{flag} {item!r}: expected KEY=VALUE with KEY a {section} field")
         try:
             out[key.strip()] = tomllib.loads(f"v = {value.strip()}")["v"]
         except tomllib.TOMLDecodeError as exc:
-            raise SystemExit(f"--set {item!r}: the value is not TOML ({exc})") from None
+            raise SystemExit(f"{flag} {item!r}: the value is not TOML ({exc})") from None
     return out
 
 
@@ -152,6 +163,10 @@ def main() -> None:
     ap.add_argument("--run", default="run", help="RUN_DIR name under OUT")
     ap.add_argument("--identifiability", action="store_true", help="also run bench_recon.identifiability on the "
                     "imported scene: the reconstruction's simulator with scaled / uniform E fields vs the truth")
+    ap.add_argument("--oracle-e", type=int, default=0, metavar="ITERS",
+                    help="also learn E from the true 3-D displacements (no images; bench_recon.oracle_E, all frames, "
+                    "ITERS Adam steps at physics_lr) with the expert law alone and with the residual laws, and on a "
+                    "control scene whose truth has the reconstruction's law (no fibres, no yield; OUT/control)")
     ap.add_argument("--eval-only", action="store_true", help="reuse OUT/data, OUT/user and OUT/run (its "
                     "report.json): recompute the tables without fitting")
     ap.add_argument("--ablations", action="store_true", help="full model with every ablated part on, then "
@@ -161,13 +176,20 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="[train] override (repeatable; a TOML value: 1e-2, 30, true, [3, 4, 4]), applied after "
                     "--quick and, with --ablations, to the full model and every variant")
+    ap.add_argument("--synth-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="[synth] override of the scene (repeatable; a TOML value), e.g. fiber_E=0.0")
     ap.add_argument("--stages", default=None, metavar="RUN", help="take stages 1-2 (appearance, flows) of OUT/RUN "
                     "as they are (fit(..., reuse=)): only the physics stage is fitted")
     a = ap.parse_args()
     torch.set_num_threads(min(2, torch.get_num_threads()))
     base = load_anny_config(a.config)
     keyed = bool(base.depth_keys or base.novel_depth_keys)
-    scfg = load_anny_config(a.config, (QUICK_SYNTH_KEYED if keyed else QUICK_SYNTH) if a.quick else None)
+    try:
+        scfg = load_anny_config(a.config, {**((QUICK_SYNTH_KEYED if keyed else QUICK_SYNTH) if a.quick else {}),
+                                           **parse_overrides(a.synth_set, AnnySceneConfig.model_fields,
+                                                             "--synth-set", "[synth]")})
+    except ConfigError as exc:
+        raise SystemExit(str(exc)) from None
     tcfg = load_train_config(a.config, {**(QUICK_TRAIN if a.quick else {}),
                                         **({} if a.seed is None else {"seed": a.seed})})
     if scfg.gt_particles_per_cell <= tcfg.particles_per_cell:
@@ -258,6 +280,21 @@ def main() -> None:
         # from the poses), no residual law, the true isotropic E (nearest fine particle)
         ident = br.identifiability(user / "data", tcfg, scales=(0.5, 2.0, 4.0), true_label="true isotropic field",
                                    from_poses=True, residual=False, log=log)
+    oracle_e = {}
+    if a.oracle_e:
+        control = out / "control" / "data"
+        if not (a.reuse_data and (control / "truth.npz").exists()):
+            log("control scene: the same clip with an isotropic fixed-corotated truth (fiber_E 0, yield_stress 0)")
+            generate_anny(control, scfg.model_copy(update={"fiber_E": 0.0, "yield_stress": 0.0}))
+        for label, d, resid in (("truth as generated, expert law only", user / "data", False),
+                                ("truth as generated, expert + residual laws", user / "data", True),
+                                ("control truth (the expert law's own), expert law only", control, False)):
+            log(f"E oracle: {label}")
+            oracle_e[label] = [(it, l1, m["mean_abs_log10_error"], m["E_soft_learned_geomean"],
+                                m["E_stiff_learned_geomean"])
+                               for it, l1, m in br.oracle_E(d, tcfg, tuple(tcfg.material_grid), iters=a.oracle_e,
+                                                            lr=tcfg.physics_lr, from_poses=True, residual=resid,
+                                                            frames="all", displacement=True)]
     if not a.no_diagnostics:
         log("pixel-fit diagnostics (true-motion oracle render)")
         oracle = br.pixel_fit_diagnostics(user / "data", out / a.run)
@@ -266,7 +303,7 @@ def main() -> None:
            "methods": rep["methods"], "material": mat, "simulated_bones": recon.rig.meta["body"]["simulated_bones"],
            "times_s": {"generate": t_gen, "export_import_check": t_imp, "fit_eval": t_fit,
                        "train": rep["train_seconds"], "total": time.perf_counter() - t_all},
-           "oracle": oracle, "identifiability": ident, "check_problems": chk["problems"], "load_end": os.getloadavg()[0],
+           "oracle": oracle, "identifiability": ident, "oracle_E": oracle_e, "check_problems": chk["problems"], "load_end": os.getloadavg()[0],
            "ablations": abl, "residual": residual_summary(out / a.run), "overrides": a.set, "stages": a.stages,
            "train_config": tcfg.model_dump(mode="json")}
     (out / f"results_{a.run}.json").write_text(json.dumps(res, indent=1, default=float))
@@ -293,6 +330,17 @@ def main() -> None:
         print("|---|---|---|")
         for name, e, d in ident:
             print(f"| {name} | {e:.2f} | {d:.2f} |")
+    if oracle_e:
+        print(f"\nE learned from the true 3-D displacements (no images; all {n} frames, Adam on log E at "
+              f"{tcfg.physics_lr:g}, grid {tuple(tcfg.material_grid)}); initial E error "
+              f"{mat['initial_mean_abs_log10_error']:.3f}, 2 x below it: {mat['initial_mean_abs_log10_error'] / 2:.3f}")
+        print("| truth / law learned | iteration | L1 (mm) | E error | soft / stiff geomean (Pa) |")
+        print("|---|---|---|---|---|")
+        for label, rows in oracle_e.items():
+            best = min(rows, key=lambda r: r[2])
+            for r in sorted({rows[i] for i in (0, 9, 19, 39, len(rows) - 1) if i < len(rows)} | {best}):
+                print(f"| {label} | {r[0]}{' (lowest E error)' if r is best else ''} | {r[1]:.3f} | {r[2]:.3f} | "
+                      f"{r[3]:.0f} / {r[4]:.0f} |")
     if oracle:
         print("\n| object motion rendered (observed frames) | recon PSNR | recon_large PSNR | recon_large IoU |")
         print("|---|---|---|---|")

@@ -13,10 +13,13 @@ loss on the observed frames (what training sees), the 3-D error on the observed 
 ``train``: the physics stage replicated with instrumentation (same loss, same optimiser groups; settings from
 ``--set key=value``), logging per iteration the gradient norms reaching log E, the latents and the residual
 networks' parameters from the data term and from the Eq. 11 regulariser separately, the residual stress magnitude
-vs the expert stress, and the fraction of particles whose network output Eq. 12 would truncate.
+vs the expert stress, the fraction of particles whose network output Eq. 12 would truncate, and the learned E error;
+``--object-pixels PX`` restricts the image loss to the object's pixels (the generator's object label, dilated by PX):
+does the body's rendering steer the object's E?
 
     .venv/bin/python benchmarks/diag_residual_pillow.py landscape --out /tmp/h43/rp --run s0
     .venv/bin/python benchmarks/diag_residual_pillow.py train --out /tmp/h43/rp --run s0 --set net_lr=1e-2
+    .venv/bin/python benchmarks/diag_residual_pillow.py train --out OUT --run RUN --object-pixels 2 --tag obj
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ from physar.recon.train import (
     cell_average_truth,
     image_loss,
     load_dataset,
+    material_error,
     physics_regulariser,
     render_scene,
     simulate_clip,
@@ -210,6 +214,18 @@ def train(a) -> None:
         named.update({f"net.{n}": p for n, p in ph.nets.named_parameters()})
     named = {k_: v for k_, v in named.items() if v is not None}
     frame_loss, log = None, []
+    obj_w = None
+    if a.object_pixels is not None:  # the generator's label PNGs (OUT/data/labels/dynamic; object id 2)
+        import cv2
+
+        from physar.recon.importer import read_label_png
+
+        k = 2 * a.object_pixels + 1
+        labs = [read_label_png(out / "data" / "labels" / "dynamic" / f"{f:04d}.png") for f in range(len(ds.rgb))]
+        obj_w = torch.as_tensor(np.stack([cv2.dilate((lab == 2).astype(np.uint8), np.ones((k, k), np.uint8))
+                                          for lab in labs]).astype(np.float64))
+        if obj_w.shape[1:] != mask.shape[1:]:
+            raise SystemExit(f"labels {tuple(obj_w.shape[1:])} vs images {tuple(mask.shape[1:])}: regenerate")
     print("settings: " + ", ".join(f"{k_}={getattr(cfg, k_)}" for k_ in (
         "physics_iters", "physics_lr", "net_lr", "lambda_flow", "lambda_law", "lambda_feat", "residual", "latents",
         "window_start", "window_grow_every", "seed")), flush=True)
@@ -222,7 +238,13 @@ def train(a) -> None:
             wts[1:] = fl / max(fl.mean(), 1e-12)
         total, per, img = 0.0, [], 0.0
         for f, xo, Fo, xh, Fh in simulate_clip(rig, ph, kin, W):
-            lf = image_loss(render_scene(rig, app, xo, Fo, xh, Fh, kin["xb"][f], kin["A_b"][f]), rgb[f], mask[f], cfg)
+            res = render_scene(rig, app, xo, Fo, xh, Fh, kin["xb"][f], kin["A_b"][f])
+            if obj_w is None:
+                lf = image_loss(res, rgb[f], mask[f], cfg)
+            else:  # the same L1 terms, averaged over the object's pixels only
+                w = obj_w[f]
+                lf = (cfg.lambda_rgb * ((res.rgb - rgb[f]).abs().mean(-1) * w).sum()
+                      + cfg.lambda_mask * ((res.alpha - mask[f]).abs() * w).sum()) / w.sum()
             img += float(lf.detach()) / (W - 1)
             if cfg.lambda_flow > 0 and f < len(st.spflow):
                 lf = lf + cfg.lambda_flow * (xo - st.spflow[f]).abs().mean()
@@ -245,7 +267,8 @@ def train(a) -> None:
                 ph.log_E_human.clamp_(lo_E, hi_E)
         frame_loss = per + list(frame_loss or [])[len(per):]
         row = {"it": it + 1, "W": W, "data": float(total.detach()), "img": img, "reg": float(reg.detach()),
-               "g_data": g_data, "g_reg": g_reg}
+               "g_data": g_data, "g_reg": g_reg,
+               "E_error": material_error(Reconstruction(rig, None, [], ph), ds.truth)["mean_abs_log10_error"]}
         if ph.nets is not None:
             with torch.no_grad():
                 from physar.mpm.neural import invariant_features
@@ -263,7 +286,8 @@ def train(a) -> None:
                             "out_norm_median": float(on.median())})
         log.append(row)
         gd, grg = row["g_data"], row["g_reg"]
-        print(f"it {it + 1:3d} W {W} data {row['data']:.5f} img {img:.5f} reg {row['reg']:.5f} | |g_data| logE "
+        print(f"it {it + 1:3d} W {W} data {row['data']:.5f} img {img:.5f} reg {row['reg']:.5f} E err "
+              f"{row['E_error']:.3f} | |g_data| logE "
               f"{gd['log_E']:.2e} l_e {gd.get('l_e', 0):.2e} net.elastic.l3.w {gd.get('net.elastic.l3.weight', 0):.2e}"
               f" net.plastic.l3.w {gd.get('net.plastic.l3.weight', 0):.2e} | |g_reg| l3.w "
               f"{grg.get('net.elastic.l3.weight', 0):.2e} l_e {grg.get('l_e', 0):.2e}"
@@ -286,6 +310,8 @@ def main() -> None:
                     "lambda_rgb=0 (the mask term alone; repeatable)")
     ap.add_argument("--tag", default="default")
     ap.add_argument("--variants", nargs="*", default=["nolatents", "noresidual", "noflow", "nolayer"])
+    ap.add_argument("--object-pixels", type=int, default=None, metavar="PX", help="train: the image loss on the "
+                    "object's pixels only (the generator's object label, dilated by PX pixels), not the whole image")
     ap.add_argument("--only-truth", action="store_true", help="landscape: only the true-motion row")
     a = ap.parse_args()
     torch.set_num_threads(1)
