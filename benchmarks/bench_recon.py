@@ -82,20 +82,25 @@ def oracle_E(data_dir: Path, tcfg, grid, iters: int = 15, lr: float = 0.1,
              targets: np.ndarray | None = None, from_poses: bool = False, residual: bool = False,
              frames: str = "observed", displacement: bool = False) -> list[tuple[int, float, dict]]:
     """Learn log E from the true 3-D object trajectories (see the module docstring), or from ``targets``
-    (F, No, 3) such as a run's Eq. 9 flow; per-iteration (iteration, L1 loss mm, material_error).
+    (F, No, 3) such as a run's Eq. 9 flow; per Adam step k = 1..iters, (k, L1 loss mm, material_error), both
+    evaluated at the parameters *before* step k (k = 1: the initial guess).
 
     ``from_poses``: the rig finds the simulated bones from the clip's poses (an imported scene lists none);
-    ``residual``: learn the residual laws (and latents) of seed Eq. 8 alongside E, at ``tcfg.net_lr``;
+    ``residual``: learn the residual laws and latents of seed Eq. 8 alongside E, at ``tcfg.net_lr``, with the
+    Eq. 11 regulariser of the physics stage added to the loss (the L1 column stays the data term); omega, nu and
+    the body's E stay at their initial values (the product's physics stage learns them too);
     ``frames``: "observed" or "all" (observed + predicted frames of the clip); ``displacement``: fit the true
     displacement added to the reconstruction's rest positions, X + (truth_f - truth_0), instead of the
-    cell-averaged true positions, whose offset at rest (27 resampled onto 8 particles per cell: the 3-D error
-    floor) the L1 loss would otherwise keep trying to close through E."""
+    cell-averaged true positions, whose offset at rest (the fine truth resampled onto the reconstruction's
+    particles: the 3-D error floor) the L1 loss would otherwise keep trying to close through E."""
     import math
 
-    from physar.recon.train import Reconstruction, material_error
+    from physar.recon.train import Reconstruction, material_error, physics_regulariser
 
     if frames not in ("observed", "all"):
         raise ValueError(f"frames must be 'observed' or 'all', got {frames!r}")
+    if targets is not None and displacement:
+        raise ValueError("give targets or displacement=True, not both")
     ds = load_dataset(data_dir)
     rig = Rig(ds.meta, tcfg.model_copy(update={"material_grid": grid, "residual": residual}),
               **({"poses": (ds.rotations, ds.root_t)} if from_poses else {}))
@@ -103,8 +108,10 @@ def oracle_E(data_dir: Path, tcfg, grid, iters: int = 15, lr: float = 0.1,
     if targets is None:
         g = cell_average_truth(rig, ds.truth)
         targets = rig.Xo + (g - g[0]) if displacement else g
-    gt = torch.as_tensor(targets)
     n = ds.n_obs if frames == "observed" else len(ds.rgb)
+    if len(targets) < n:
+        raise ValueError(f"targets cover {len(targets)} frames, frames={frames!r} needs {n}")
+    gt = torch.as_tensor(targets)
     ph = Physics.init(rig)
     nets = ph.leaves()[len(ph.material_leaves()):]  # the residual networks and latents (none without residual)
     for t in [ph.log_E, *nets]:
@@ -113,14 +120,15 @@ def oracle_E(data_dir: Path, tcfg, grid, iters: int = 15, lr: float = 0.1,
     rows = []
     for it in range(iters):
         loss = 0.0
-        for f, xo, *_ in simulate_clip(rig, ph, kin, n):
+        for f, xo, Fo, xh, Fh in simulate_clip(rig, ph, kin, n):
             loss = loss + (xo - gt[f]).abs().mean() / (n - 1)
+        rows.append((it + 1, float(loss.detach()) * 1e3, material_error(Reconstruction(rig, None, [], ph), ds.truth)))
+        total = loss + physics_regulariser(ph, rig, torch.cat([Fo, Fh])) if nets else loss
         opt.zero_grad()
-        loss.backward()
+        total.backward()
         opt.step()
         with torch.no_grad():
             ph.log_E.clamp_(math.log(tcfg.E_min), math.log(tcfg.E_max))
-        rows.append((it + 1, float(loss.detach()) * 1e3, material_error(Reconstruction(rig, None, [], ph), ds.truth)))
     return rows
 
 

@@ -152,21 +152,35 @@ def full_model(tcfg: TrainConfig) -> TrainConfig:
         "surface_layer": tcfg.surface_layer or None})  # None: half the particle spacing
 
 
+def export_import(data: Path, user: Path) -> None:
+    """A generated scene written as a user's files and read back through ``physar recon import`` (subprocess)
+    into ``user/data`` and ``user/novel``, with the truth attached."""
+    args = export_user_files(data, user)
+    for key, dst in (("args", user / "data"), ("novel_args", user / "novel")):
+        if dst.exists():
+            shutil.rmtree(dst)
+        cli("recon", "import", *args[key], "--out", dst, "--json")
+    attach_truth(user / "data", user / "novel", data)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--config", default=str(ROOT / "examples" / "recon_anny_cpillow.toml"))
     ap.add_argument("--out", default="/tmp/bench_recon_pillow")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--no-diagnostics", action="store_true")
-    ap.add_argument("--reuse-data", action="store_true", help="keep OUT/data and OUT/user when present")
+    ap.add_argument("--reuse-data", action="store_true", help="keep OUT/data and OUT/user (and OUT/control) when "
+                    "present, whatever --synth-set generated them")
     ap.add_argument("--seed", type=int, default=None, help="[train] seed override (spread over runs)")
     ap.add_argument("--run", default="run", help="RUN_DIR name under OUT")
     ap.add_argument("--identifiability", action="store_true", help="also run bench_recon.identifiability on the "
                     "imported scene: the reconstruction's simulator with scaled / uniform E fields vs the truth")
     ap.add_argument("--oracle-e", type=int, default=0, metavar="ITERS",
                     help="also learn E from the true 3-D displacements (no images; bench_recon.oracle_E, all frames, "
-                    "ITERS Adam steps at physics_lr) with the expert law alone and with the residual laws, and on a "
-                    "control scene whose truth has the reconstruction's law (no fibres, no yield; OUT/control)")
+                    "ITERS Adam steps: log E at physics_lr, the residual laws at net_lr with the Eq. 11 regulariser) "
+                    "with the expert law alone and with the residual laws, and on a control scene whose truth has the "
+                    "reconstruction's law (no fibres, no yield; generated into OUT/control and read back through "
+                    "recon import like OUT/user)")
     ap.add_argument("--eval-only", action="store_true", help="reuse OUT/data, OUT/user and OUT/run (its "
                     "report.json): recompute the tables without fitting")
     ap.add_argument("--ablations", action="store_true", help="full model with every ablated part on, then "
@@ -181,15 +195,17 @@ def main() -> None:
     ap.add_argument("--stages", default=None, metavar="RUN", help="take stages 1-2 (appearance, flows) of OUT/RUN "
                     "as they are (fit(..., reuse=)): only the physics stage is fitted")
     a = ap.parse_args()
+    if a.oracle_e < 0:
+        raise SystemExit(f"--oracle-e {a.oracle_e}: give a number of iterations >= 1 (0: off)")
     torch.set_num_threads(min(2, torch.get_num_threads()))
-    base = load_anny_config(a.config)
-    keyed = bool(base.depth_keys or base.novel_depth_keys)
+    synth_over = parse_overrides(a.synth_set, AnnySceneConfig.model_fields, "--synth-set", "[synth]")
     try:
+        base = load_anny_config(a.config, synth_over)
+        keyed = bool(base.depth_keys or base.novel_depth_keys)
         scfg = load_anny_config(a.config, {**((QUICK_SYNTH_KEYED if keyed else QUICK_SYNTH) if a.quick else {}),
-                                           **parse_overrides(a.synth_set, AnnySceneConfig.model_fields,
-                                                             "--synth-set", "[synth]")})
+                                           **synth_over})
     except ConfigError as exc:
-        raise SystemExit(str(exc)) from None
+        raise SystemExit(f"{exc}{' (with --synth-set ' + ' '.join(a.synth_set) + ')' if a.synth_set else ''}") from None
     tcfg = load_train_config(a.config, {**(QUICK_TRAIN if a.quick else {}),
                                         **({} if a.seed is None else {"seed": a.seed})})
     if scfg.gt_particles_per_cell <= tcfg.particles_per_cell:
@@ -223,12 +239,7 @@ def main() -> None:
     log(f"generated in {t_gen:.0f} s")
     t0 = time.perf_counter()
     if not (a.reuse_data and (user / "data" / "truth.npz").exists()):
-        args = export_user_files(data, user)
-        for key, dst in (("args", user / "data"), ("novel_args", user / "novel")):
-            if dst.exists():
-                shutil.rmtree(dst)
-            cli("recon", "import", *args[key], "--out", dst, "--json")
-        attach_truth(user / "data", user / "novel", data)
+        export_import(data, user)
     chk = cli("recon", "check", user / "data", "--json")
     t_imp = time.perf_counter() - t0
     log(f"exported + imported in {t_imp:.0f} s; recon check problems: {chk['problems']}")
@@ -282,13 +293,15 @@ def main() -> None:
                                    from_poses=True, residual=False, log=log)
     oracle_e = {}
     if a.oracle_e:
-        control = out / "control" / "data"
-        if not (a.reuse_data and (control / "truth.npz").exists()):
+        control = out / "control"
+        if not (a.reuse_data and (control / "user" / "data" / "truth.npz").exists()):
             log("control scene: the same clip with an isotropic fixed-corotated truth (fiber_E 0, yield_stress 0)")
-            generate_anny(control, scfg.model_copy(update={"fiber_E": 0.0, "yield_stress": 0.0}))
+            generate_anny(control / "data", scfg.model_copy(update={"fiber_E": 0.0, "yield_stress": 0.0}))
+            export_import(control / "data", control / "user")
         for label, d, resid in (("truth as generated, expert law only", user / "data", False),
                                 ("truth as generated, expert + residual laws", user / "data", True),
-                                ("control truth (the expert law's own), expert law only", control, False)):
+                                ("control truth (the expert law's own), expert law only", control / "user" / "data",
+                                 False)):
             log(f"E oracle: {label}")
             oracle_e[label] = [(it, l1, m["mean_abs_log10_error"], m["E_soft_learned_geomean"],
                                 m["E_stiff_learned_geomean"])
@@ -303,14 +316,18 @@ def main() -> None:
            "methods": rep["methods"], "material": mat, "simulated_bones": recon.rig.meta["body"]["simulated_bones"],
            "times_s": {"generate": t_gen, "export_import_check": t_imp, "fit_eval": t_fit,
                        "train": rep["train_seconds"], "total": time.perf_counter() - t_all},
-           "oracle": oracle, "identifiability": ident, "oracle_E": oracle_e, "check_problems": chk["problems"], "load_end": os.getloadavg()[0],
-           "ablations": abl, "residual": residual_summary(out / a.run), "overrides": a.set, "stages": a.stages,
+           "oracle": oracle, "identifiability": ident, "oracle_E": oracle_e, "check_problems": chk["problems"],
+           "load_end": os.getloadavg()[0],
+           "ablations": abl, "residual": residual_summary(out / a.run), "overrides": a.set, "synth_overrides": a.synth_set,
+           "stages": a.stages,
            "train_config": tcfg.model_dump(mode="json")}
     (out / f"results_{a.run}.json").write_text(json.dumps(res, indent=1, default=float))
     print(f"\nscene: anny + {scfg.object} ({scfg.action}), both forearms/hands ({len(res['simulated_bones'])} simulated bones), "
           f"{scfg.image_size} px, spin {scfg.spin_frames} / dynamic {scfg.frames} ({scfg.n_obs} observed) / novel "
-          f"{scfg.novel_frames} frames; truth {scfg.gt_particles_per_cell}/cell fibres + von Mises "
-          f"({scfg.yield_stress:g} Pa), recon {tcfg.particles_per_cell}/cell")
+          f"{scfg.novel_frames} frames; truth {scfg.gt_particles_per_cell}/cell"
+          f"{f', fibres {scfg.fiber_E:g} Pa' if scfg.fiber_E > 0 else ', no fibres'}"
+          f"{f', von Mises ({scfg.yield_stress:g} Pa)' if scfg.yield_stress > 0 else ', elastic'}"
+          f", recon {tcfg.particles_per_cell}/cell")
     print(f"times: generate {t_gen:.0f} s, export+import+check {t_imp:.0f} s, fit+eval {t_fit:.0f} s (train "
           f"{rep['train_seconds']:.0f} s); load average at the end {os.getloadavg()[0]:.2f}\n")
     print(f"| subset (frames) | method | PSNR | SSIM | IoU | 3-D error (mm; floor {e3['recon_large']['floor']:.2f}) | "
@@ -331,10 +348,11 @@ def main() -> None:
         for name, e, d in ident:
             print(f"| {name} | {e:.2f} | {d:.2f} |")
     if oracle_e:
-        print(f"\nE learned from the true 3-D displacements (no images; all {n} frames, Adam on log E at "
-              f"{tcfg.physics_lr:g}, grid {tuple(tcfg.material_grid)}); initial E error "
-              f"{mat['initial_mean_abs_log10_error']:.3f}, 2 x below it: {mat['initial_mean_abs_log10_error'] / 2:.3f}")
-        print("| truth / law learned | iteration | L1 (mm) | E error | soft / stiff geomean (Pa) |")
+        print(f"\nE learned from the true 3-D displacements (no images; all {n} frames, Adam: log E at "
+              f"{tcfg.physics_lr:g}, residual laws at {tcfg.net_lr:g}; grid {tuple(tcfg.material_grid)}); initial E "
+              f"error {mat['initial_mean_abs_log10_error']:.3f}, 2 x below it: "
+              f"{mat['initial_mean_abs_log10_error'] / 2:.3f}; row k: the parameters after k - 1 steps")
+        print("| truth / law learned | k | L1 (mm) | E error | soft / stiff geomean (Pa) |")
         print("|---|---|---|---|---|")
         for label, rows in oracle_e.items():
             best = min(rows, key=lambda r: r[2])

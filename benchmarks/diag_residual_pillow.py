@@ -220,9 +220,11 @@ def train(a) -> None:
 
         from physar.recon.importer import read_label_png
 
-        k = 2 * a.object_pixels + 1
+        if a.object_pixels < 0:
+            raise SystemExit(f"--object-pixels {a.object_pixels}: give a dilation >= 0 pixels")
+        ksz = 2 * a.object_pixels + 1
         labs = [read_label_png(out / "data" / "labels" / "dynamic" / f"{f:04d}.png") for f in range(len(ds.rgb))]
-        obj_w = torch.as_tensor(np.stack([cv2.dilate((lab == 2).astype(np.uint8), np.ones((k, k), np.uint8))
+        obj_w = torch.as_tensor(np.stack([cv2.dilate((lab == 2).astype(np.uint8), np.ones((ksz, ksz), np.uint8))
                                           for lab in labs]).astype(np.float64))
         if obj_w.shape[1:] != mask.shape[1:]:
             raise SystemExit(f"labels {tuple(obj_w.shape[1:])} vs images {tuple(mask.shape[1:])}: regenerate")
@@ -244,7 +246,7 @@ def train(a) -> None:
             else:  # the same L1 terms, averaged over the object's pixels only
                 w = obj_w[f]
                 lf = (cfg.lambda_rgb * ((res.rgb - rgb[f]).abs().mean(-1) * w).sum()
-                      + cfg.lambda_mask * ((res.alpha - mask[f]).abs() * w).sum()) / w.sum()
+                      + cfg.lambda_mask * ((res.alpha - mask[f]).abs() * w).sum()) / w.sum().clamp_min(1.0)
             img += float(lf.detach()) / (W - 1)
             if cfg.lambda_flow > 0 and f < len(st.spflow):
                 lf = lf + cfg.lambda_flow * (xo - st.spflow[f]).abs().mean()
