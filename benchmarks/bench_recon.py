@@ -132,6 +132,23 @@ def oracle_E(data_dir: Path, tcfg, grid, iters: int = 15, lr: float = 0.1,
     return rows
 
 
+def grid_floor(data_dir: Path, tcfg, grid, from_poses: bool = False) -> float:
+    """The E error (mean |log10 E / E_true| at the reconstruction's particles) of the best field the voxel grid
+    ``grid`` can hold: log10 E_true fitted by least squares on the trilinear basis. No learning; the floor of the
+    E error that the representation alone sets."""
+    from scipy.spatial import cKDTree
+
+    ds = load_dataset(data_dir)
+    rig = Rig(ds.meta, tcfg.model_copy(update={"material_grid": grid}),
+              **({"poses": (ds.rotations, ds.root_t)} if from_poses else {}))
+    y = np.log10(ds.truth["E"][cKDTree(ds.truth["rest_positions"]).query(rig.Xo)[1]])
+    if rig.material_W is None:
+        return 0.0
+    W = rig.material_W.to_dense().numpy() if rig.material_W.is_sparse else rig.material_W.numpy()
+    c = np.linalg.lstsq(W, y, rcond=None)[0]
+    return float(np.abs(W @ c - y).mean())
+
+
 def pixel_fit_diagnostics(data_dir: Path, run_dir: Path, refit_iters: int = 150,
                           part: str = "recon") -> list[tuple[str, dict]]:
     """Is reconstruction PSNR a measure of 3-D accuracy here?  Metrics on the observed frames (all and the
