@@ -475,8 +475,8 @@ class Appearance:
 
 def render_scene(rig: Rig, app: Appearance, x_obj, F_obj, x_hum, F_hum, x_kin, A_kin):
     """Render one frame: positions (world, m) and deformation gradients of the three Gaussian groups (Eq. 3); the
-    object's F (the simulator's, or the least-squares F of per-frame positions) passes through the run's rule
-    :func:`object_deformation` first."""
+    object's F (the simulator's, or None for per-frame positions: their least-squares F, computed only when the
+    rule uses it) passes through the run's rule :func:`object_deformation` first."""
     F_obj = object_deformation(rig, x_obj, F_obj)
     means = torch.cat([x_obj, x_hum, x_kin]).float()
     F = torch.cat([F_obj, F_hum, A_kin]).float()
@@ -581,15 +581,15 @@ class Physics:
                          hold=rig.cfg.pd_hold)
 
 
-def object_deformation(rig: Rig, x: torch.Tensor, F: torch.Tensor) -> torch.Tensor:
+def object_deformation(rig: Rig, x: torch.Tensor, F: torch.Tensor | None) -> torch.Tensor:
     """The F (No, 3, 3) that shapes the object's Gaussians at positions x, by ``render_deformation``; one rule for
     every render of the object (:func:`render_scene`: every method, its fit and its evaluation): "state": F as
-    given (the simulator's, seed Eq. 4, or a per-frame fit's least-squares F); "positions": the least-squares
-    deformation of x; "none": I."""
+    given (the simulator's, seed Eq. 4), or for F = None (per-frame positions) the least-squares deformation of x;
+    "positions": the least-squares deformation of x; "none": I."""
     mode = rig.cfg.render_deformation
     if mode == "none":
         return torch.eye(3, dtype=x.dtype).expand(rig.no, 3, 3)
-    if mode == "positions":
+    if mode == "positions" or F is None:
         return rig.deformation_from_neighbours(x)
     return F
 
@@ -780,8 +780,7 @@ def _fit_positions(rig: Rig, app: Appearance, kin: dict, f: int, rgb_f, mask_f, 
     opt = torch.optim.Adam([x], lr=lr)
     loss = torch.zeros(())
     for _ in range(iters):
-        res = render_scene(rig, app, x, rig.deformation_from_neighbours(x), kin["ref"][f], kin["A_h"][f],
-                           kin["xb"][f], kin["A_b"][f])
+        res = render_scene(rig, app, x, None, kin["ref"][f], kin["A_h"][f], kin["xb"][f], kin["A_b"][f])
         loss = image_loss(res, rgb_f, mask_f, rig.cfg) + prior(x)
         opt.zero_grad()
         loss.backward()
@@ -878,7 +877,7 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
             xp = st.spflow[-1]
             x0 = 2 * xp - st.spflow[-2] if len(st.spflow) >= 2 else xp  # warm start: constant velocity
             with torch.no_grad():
-                r0 = render_scene(rig, app, xp, rig.deformation_from_neighbours(xp), kin["ref"][f - 1],
+                r0 = render_scene(rig, app, xp, None, kin["ref"][f - 1],
                                   kin["A_h"][f - 1], kin["xb"][f - 1], kin["A_b"][f - 1])
             uv, z = project(xp, K, Rc, tc)
             vis = visible(uv, z, r0.depth.double(), r0.alpha.double(), tol=rig.h)
@@ -993,8 +992,7 @@ def refit_appearances(recon: Reconstruction, ds: Dataset, kin: dict, iters: int,
         sim = {f: (xo, Fo, xh, Fh) for f, xo, Fo, xh, Fh in simulate_clip(rig, recon.phys, kin, ds.n_obs, grad=False)}
 
     def per_frame(xs):
-        return {f: (xs[min(f, len(xs) - 1)], rig.deformation_from_neighbours(xs[min(f, len(xs) - 1)]),
-                    kin["ref"][f], kin["A_h"][f]) for f in obs}
+        return {f: (xs[min(f, len(xs) - 1)], None, kin["ref"][f], kin["A_h"][f]) for f in obs}
 
     motions = {"physics": sim, "lbs": {f: (Xo, I_o, kin["ref"][f], kin["A_h"][f]) for f in obs},
                "4dgs": per_frame(recon.flow), "spflow": per_frame(recon.spflow or recon.flow)}
@@ -1007,7 +1005,8 @@ def refit_appearance(rig: Rig, app: Appearance, motion: dict, ds: Dataset, kin: 
                      colours_only: bool = True, seed: int | None = None, lr: float | None = None,
                      progress: Progress | None = None) -> Appearance:
     """``app`` refitted by Adam on the image loss of one random frame of ``motion`` per iteration (``motion``:
-    frame -> (object positions, object F, body positions, body F), the body's kinematic Gaussians from ``kin``);
+    frame -> (object positions, object F or None (least squares), body positions, body F), the body's kinematic
+    Gaussians from ``kin``);
     the SH colours only, or also the opacity logits and log-scales. Step ``lr`` (default 0.3 x
     ``appearance_lr``), frames drawn with ``seed`` (default the configuration's). See :func:`refit_appearances`."""
     cfg = rig.cfg
@@ -1190,8 +1189,7 @@ class Reconstruction:
                 if method == "lbs":
                     xo, Fo = Xo, I_o
                 else:
-                    xo = per_frame[min(f, len(per_frame) - 1)]
-                    Fo = rig.deformation_from_neighbours(xo)
+                    xo, Fo = per_frame[min(f, len(per_frame) - 1)], None  # render_scene: least squares if used
                 emit(f, xo, Fo, kin["ref"][f], kin["A_h"][f])
         else:
             raise PhysarError(f"unknown method '{method}': use physics, lbs, 4dgs or spflow")

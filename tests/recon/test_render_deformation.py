@@ -61,8 +61,9 @@ def test_the_simulators_F_does_not_depend_on_the_rendering_rule(data):
 
 def test_object_deformation_applies_the_rule(data):
     """object_deformation(x, F): "none" gives I, "state" gives F as passed, "positions" the least-squares F of x
-    (checked against an independent numpy fit, 1e-9) on a sheared lattice. Mutants caught: "state" replacing F,
-    "none" passing F through, "positions" fitting the rest lattice."""
+    (checked against an independent numpy fit, 1e-9) on a sheared lattice; with F = None (per-frame positions)
+    "state" too gives the least-squares F. Mutants caught: "state" replacing F, "none" passing F through,
+    "positions" fitting the rest lattice, "state" drawing I for per-frame positions."""
     rig0 = Rig(data.meta, TrainConfig(material_grid=(0, 0, 0)))
     G = np.array([[1.1, 0.2, 0.0], [0.0, 0.95, 0.1], [0.05, 0.0, 1.0]])
     x = torch.as_tensor(rig0.Xo @ G.T)
@@ -73,6 +74,10 @@ def test_object_deformation_applies_the_rule(data):
     for mode, ref in want.items():
         rig = Rig(data.meta, TrainConfig(material_grid=(0, 0, 0), render_deformation=mode))
         np.testing.assert_allclose(object_deformation(rig, x, F_given).numpy(), ref, atol=1e-9, err_msg=mode)
+        # F = None (per-frame positions, whose F is not computed unless the rule uses it): "none" gives I, the
+        # other rules the least-squares F of x
+        ref_none = want["none"] if mode == "none" else want["positions"]
+        np.testing.assert_allclose(object_deformation(rig, x, None).numpy(), ref_none, atol=1e-9, err_msg=mode)
 
 
 def test_render_scene_renders_through_the_rule(data):
