@@ -157,6 +157,8 @@ class TrainConfig(BaseModel):
     reach_margin: float | None = Field(None, ge=0, description="bones whose posed capsule comes this close to the "
                                        "object are simulated and actuated [m]; default: one grid cell")
     learn_human_E: bool = Field(True, description="learn the Young's modulus of the simulated body particles")
+    learn_omega: bool = Field(True, description="learn the LBS-impact factors omega of the actuated body particles "
+                              "(Eq. 7); false keeps omega_init (and the omega = 0 layer)")
     window_start: int = Field(3, ge=2, description="frames in the first training window (progressive)")
     window_grow_every: int = Field(4, ge=1, description="iterations between window extensions")
     loss_balanced: bool = Field(True, description="weight each frame's loss by its previous loss relative to the "
@@ -698,8 +700,8 @@ def _state_from(d: dict, rig: Rig) -> FitState:
 
 def _with_pre_option_defaults(config: dict) -> dict:
     """A stored configuration with the options added since filled in as the run behaved: render_deformation
-    "state" (the seed's rule, the only one before the option)."""
-    return {"render_deformation": "state", **config}
+    "state" (the seed's rule, the only one before the option), learn_omega true."""
+    return {"render_deformation": "state", "learn_omega": True, **config}
 
 
 def _without_devices(config: dict) -> dict:
@@ -904,7 +906,9 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
         for t in leaves:
             t.requires_grad_(True)
         k = len(st.phys.material_leaves())
-        groups = [{"params": leaves[:k], "lr": cfg.physics_lr}]
+        if not cfg.learn_omega:  # kept in the leaves (the checkpoint's layout), left out of the optimiser
+            st.phys.omega_logit.requires_grad_(False)
+        groups = [{"params": [t for t in leaves[:k] if t.requires_grad], "lr": cfg.physics_lr}]
         if len(leaves) > k:
             groups.append({"params": leaves[k:], "lr": cfg.net_lr})
         opt = torch.optim.Adam(groups)

@@ -117,3 +117,24 @@ def test_rest_free_option_reaches_the_residual_laws(fitted, tiny_scene, tmp_path
         assert ph.nets.elastic.l3.weight.abs().max() > 0.01  # trained: a plain network would not vanish at I
         assert torch.linalg.matrix_norm(ph.nets.stress(I, one, ph.l_e)).max() < 1e-9
         assert torch.linalg.matrix_norm(ph.nets.deformation(I, one, ph.l_p)).max() < 1e-12
+
+
+def test_learn_omega_false_keeps_omega_and_learns_E(fitted, tiny_scene, tmp_path):
+    """[train] learn_omega = false leaves the body's omega logits out of the optimiser (issue 17: which learned
+    parameter drives the E drift). Against the initial value omega_init / 2 in logit form (Eq. 7: omega =
+    2 sigmoid(l)): kept exactly with the option, moved without it; log E is learned in both. Mutants caught:
+    the option ignored (omega moves), every material leaf dropped with it (E stays at E_init)."""
+    import math
+
+    run, cfg, _ = fitted
+    w = cfg.omega_init / 2
+    l0 = math.log(w / (1 - w))
+    out = {}
+    for learn in (False, True):
+        c = cfg.model_copy(update={"learn_omega": learn, "physics_iters": 2})
+        fit(tiny_scene, tmp_path / f"om{learn}", c, reuse=run)
+        out[learn] = Reconstruction.load(tmp_path / f"om{learn}").phys
+    assert np.all(out[False].omega_logit.detach().numpy() == l0)
+    assert np.abs(out[True].omega_logit.detach().numpy() - l0).max() > 1e-3
+    for ph in out.values():
+        assert np.abs(ph.log_E.detach().numpy() - math.log(cfg.E_init)).max() > 1e-3
