@@ -84,6 +84,33 @@ def true_material_model(rig: Rig, truth: dict, yield_stress: float) -> MPMModel:
                     walls=m.walls, friction=m.friction, pad=m.pad, colliders=m.colliders, fiber=fib, fiber_E=fE)
 
 
+def gaussian_blur(img: torch.Tensor, sigma: float) -> torch.Tensor:
+    """(H, W) or (H, W, C) image convolved with a normalised Gaussian of ``sigma`` px (separable, reflect-padded)."""
+    if sigma <= 0:
+        return img
+    r = max(1, math.ceil(3 * sigma))
+    k = torch.exp(-0.5 * (torch.arange(-r, r + 1, dtype=img.dtype) / sigma) ** 2)
+    k = k / k.sum()
+    x = img[..., None] if img.ndim == 2 else img
+    x = x.permute(2, 0, 1)[:, None]  # (C, 1, H, W)
+    x = torch.nn.functional.pad(x, (r, r, r, r), mode="reflect")
+    x = torch.nn.functional.conv2d(x, k.view(1, 1, 1, -1))
+    x = torch.nn.functional.conv2d(x, k.view(1, 1, -1, 1))
+    x = x[:, 0].permute(1, 2, 0)
+    return x[..., 0] if img.ndim == 2 else x
+
+
+def scoring_loss(res, rgb_gt, mask_gt, cfg, blur: float = 0.0) -> torch.Tensor:
+    """The training loss of :func:`image_loss`, or with ``blur`` > 0 the same L1 terms after a Gaussian low-pass of
+    ``blur`` px on render and target alike (does the loss rank motions right once the appearance model's
+    pixel-scale texture mismatch is filtered out?)."""
+    if blur <= 0:
+        return image_loss(res, rgb_gt, mask_gt, cfg)
+    return (cfg.lambda_rgb * (gaussian_blur(res.rgb, blur) - gaussian_blur(rgb_gt.to(res.rgb.dtype), blur)).abs().mean()
+            + cfg.lambda_mask * (gaussian_blur(res.alpha, blur)
+                                 - gaussian_blur(mask_gt.to(res.alpha.dtype), blur)).abs().mean())
+
+
 def landscape(a) -> None:
     out = Path(a.out)
     cfg = full_cfg(a)
@@ -122,8 +149,8 @@ def landscape(a) -> None:
         """Rows render under the run's rule (render_deformation) unless as_given (the F in the motion)."""
         r = exact if as_given else rig
         with torch.no_grad():
-            il = [float(image_loss(render_scene(r, app, *motion[f], kin["xb"][f], kin["A_b"][f]), rgb[f], mask[f],
-                                   score_cfg)) for f in range(1, n)]
+            il = [float(scoring_loss(render_scene(r, app, *motion[f], kin["xb"][f], kin["A_b"][f]), rgb[f], mask[f],
+                                     score_cfg, a.score_blur)) for f in range(1, n)]
             fl = [float((motion[f][0] - st.spflow[f]).abs().mean()) for f in range(1, no)]
         e3 = [float(np.linalg.norm(np.asarray(motion[f][0]) - gt[f], axis=1).mean() * 1e3) for f in range(1, n)]
         row = {"name": name, "img_obs": float(np.mean(il[:no - 1])), "img_obs_frames": il[:no - 1],
@@ -186,7 +213,8 @@ def landscape(a) -> None:
                            for f in true_o}, as_given=True))
         rows.append(score(f"fitted {a.run}, Gaussians not deformed (F = I)", {f: (fitted[f][0], eye, *fitted[f][2:])
                                                                                for f in true_o}, as_given=True))
-    (out / f"landscape_{a.run}.json").write_text(json.dumps(rows, indent=1))
+    tag = "" if a.tag == "default" else f"_{a.tag}"
+    (out / f"landscape_{a.run}{tag}.json").write_text(json.dumps(rows, indent=1))
 
 
 def train(a) -> None:
@@ -206,7 +234,9 @@ def train(a) -> None:
     for t in leaves:
         t.requires_grad_(True)
     k = len(ph.material_leaves())
-    opt = torch.optim.Adam([{"params": leaves[:k], "lr": cfg.physics_lr}] +
+    if not cfg.learn_omega:  # as fit does
+        ph.omega_logit.requires_grad_(False)
+    opt = torch.optim.Adam([{"params": [t for t in leaves[:k] if t.requires_grad], "lr": cfg.physics_lr}] +
                            ([{"params": leaves[k:], "lr": cfg.net_lr}] if len(leaves) > k else []))
     lo_E, hi_E = math.log(cfg.E_min), math.log(cfg.E_max)
     named = {"log_E": ph.log_E, "l_e": ph.l_e, "l_p": ph.l_p}
@@ -310,12 +340,17 @@ def main() -> None:
     ap.add_argument("--set", action="append", help="[train] override key=value (repeatable)")
     ap.add_argument("--score-set", action="append", help="landscape: override of the scoring loss only, e.g. "
                     "lambda_rgb=0 (the mask term alone; repeatable)")
-    ap.add_argument("--tag", default="default")
+    ap.add_argument("--score-blur", type=float, default=0.0, metavar="SIGMA", help="landscape: score with the L1 "
+                    "terms after a Gaussian low-pass of SIGMA px on render and target")
+    ap.add_argument("--tag", default="default", help="names this variant's output file (OUT/diag_train_RUN_TAG.json; "
+                    "landscape: OUT/landscape_RUN_TAG.json, OUT/landscape_RUN.json for the default)")
     ap.add_argument("--variants", nargs="*", default=["nolatents", "noresidual", "noflow", "nolayer"])
     ap.add_argument("--object-pixels", type=int, default=None, metavar="PX", help="train: the image loss on the "
                     "object's pixels only (the generator's object label, dilated by PX pixels), not the whole image")
     ap.add_argument("--only-truth", action="store_true", help="landscape: only the true-motion row")
     a = ap.parse_args()
+    if a.score_blur < 0:
+        ap.error(f"--score-blur must be >= 0 px (got {a.score_blur})")
     torch.set_num_threads(1)
     landscape(a) if a.what == "landscape" else train(a)
 

@@ -125,7 +125,8 @@ class TrainConfig(BaseModel):
     lambda_ray: float = Field(3.0e5, ge=0, description="Eq. 9 addition (not in the seed): squared motion along "
                               "the camera rays, which the 2-D flow does not observe [1/m^2]")
     physics_iters: int = Field(40, ge=0, description="Adam iterations of the physics stage (§4.2-4.4, Alg. 2)")
-    physics_lr: float = Field(0.15, gt=0, description="Adam step on log E, the nu logits and omega logits [-]")
+    physics_lr: float = Field(0.15, gt=0, description="Adam step on log E, the nu logits, the omega logits (unless "
+                              "learn_omega is false) and log E of the body [-]")
     appearance_refit_iters: int = Field(150, ge=0, description="after the physics stage: Adam iterations of one "
                                         "shared appearance refit per method (physics, LBS-only, the per-frame "
                                         "fits) on the observed dynamic frames, that method's motion held fixed; "
@@ -158,7 +159,7 @@ class TrainConfig(BaseModel):
                                        "object are simulated and actuated [m]; default: one grid cell")
     learn_human_E: bool = Field(True, description="learn the Young's modulus of the simulated body particles")
     learn_omega: bool = Field(True, description="learn the LBS-impact factors omega of the actuated body particles "
-                              "(Eq. 7); false keeps omega_init (and the omega = 0 layer)")
+                              "(Eq. 7); false keeps omega_init (and the omega = 0 layer), and lambda_omega then has no effect")
     window_start: int = Field(3, ge=2, description="frames in the first training window (progressive)")
     window_grow_every: int = Field(4, ge=1, description="iterations between window extensions")
     loss_balanced: bool = Field(True, description="weight each frame's loss by its previous loss relative to the "
@@ -544,7 +545,7 @@ class Physics:
 
     def material_leaves(self) -> list:
         r""":math:`\log E`, the :math:`\omega` logits, the :math:`\nu` logits and :math:`\log E` of the body
-        (the physics_lr group)."""
+        (the physics_lr group; ``fit`` leaves the omega logits out of it when ``learn_omega`` is false)."""
         return [t for t in (self.log_E, self.omega_logit, self.nu_logit, self.log_E_human) if t is not None]
 
     def leaves(self):

@@ -138,3 +138,29 @@ def test_learn_omega_false_keeps_omega_and_learns_E(fitted, tiny_scene, tmp_path
     assert np.abs(out[True].omega_logit.detach().numpy() - l0).max() > 1e-3
     for ph in out.values():
         assert np.abs(ph.log_E.detach().numpy() - math.log(cfg.E_init)).max() > 1e-3
+
+
+def test_learn_omega_false_resumes_from_its_checkpoint(fitted, tiny_scene, tmp_path):
+    """A run with learn_omega = false stopped after its first physics iteration resumes from checkpoint.pt (the
+    optimiser state of the smaller physics_lr group loads) and ends with omega untouched. Mutant caught: the
+    freeze applied on a fresh start only (the resumed run's group holds the omega logits again, and
+    load_state_dict refuses the group size)."""
+    import math
+
+    run, cfg, _ = fitted
+    c = cfg.model_copy(update={"learn_omega": False, "physics_iters": 3, "checkpoint_every": 1})
+
+    class Stop(Exception):
+        pass
+
+    def stop_at_2(stage, i, n, loss):
+        if stage == "physics" and i == 2:
+            raise Stop
+
+    with pytest.raises(Stop):
+        fit(tiny_scene, tmp_path / "r", c, progress=stop_at_2, reuse=run)
+    fit(tiny_scene, tmp_path / "r", c, reuse=run)
+    ph = Reconstruction.load(tmp_path / "r").phys
+    w = cfg.omega_init / 2
+    assert np.all(ph.omega_logit.detach().numpy() == math.log(w / (1 - w)))
+    assert len(np.load(tmp_path / "r" / "model.npz")["loss_physics"]) == 3
