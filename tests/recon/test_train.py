@@ -144,7 +144,7 @@ def test_learn_omega_false_resumes_from_its_checkpoint(fitted, tiny_scene, tmp_p
     """A run with learn_omega = false stopped after its first physics iteration resumes from checkpoint.pt (the
     optimiser state of the smaller physics_lr group loads) and ends with omega untouched. Mutant caught: the
     freeze applied on a fresh start only (the resumed run's group holds the omega logits again, and
-    load_state_dict refuses the group size)."""
+    load_state_dict refuses the group size); a resume that restarts the stage (its iterations reported again)."""
     import math
 
     run, cfg, _ = fitted
@@ -159,7 +159,11 @@ def test_learn_omega_false_resumes_from_its_checkpoint(fitted, tiny_scene, tmp_p
 
     with pytest.raises(Stop):
         fit(tiny_scene, tmp_path / "r", c, progress=stop_at_2, reuse=run)
-    fit(tiny_scene, tmp_path / "r", c, reuse=run)
+    seen = []
+    fit(tiny_scene, tmp_path / "r", c, reuse=run, progress=lambda stage, i, n, loss: seen.append((stage, i, loss)))
+    # the physics stage's iterations (evaluate reports its renders under the method's name with loss 0): resumed
+    # after iteration 1, not restarted
+    assert [i for stage, i, loss in seen if stage == "physics" and loss != 0.0] == [2, 3]
     ph = Reconstruction.load(tmp_path / "r").phys
     w = cfg.omega_init / 2
     assert np.all(ph.omega_logit.detach().numpy() == math.log(w / (1 - w)))
