@@ -31,6 +31,7 @@ import json
 import math
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -106,9 +107,9 @@ def scoring_loss(res, rgb_gt, mask_gt, cfg, blur: float = 0.0) -> torch.Tensor:
     pixel-scale texture mismatch is filtered out?)."""
     if blur <= 0:
         return image_loss(res, rgb_gt, mask_gt, cfg)
-    return (cfg.lambda_rgb * (gaussian_blur(res.rgb, blur) - gaussian_blur(rgb_gt.to(res.rgb.dtype), blur)).abs().mean()
-            + cfg.lambda_mask * (gaussian_blur(res.alpha, blur)
-                                 - gaussian_blur(mask_gt.to(res.alpha.dtype), blur)).abs().mean())
+    low = SimpleNamespace(rgb=gaussian_blur(res.rgb, blur), alpha=gaussian_blur(res.alpha, blur))
+    return image_loss(low, gaussian_blur(rgb_gt.to(res.rgb.dtype), blur), gaussian_blur(mask_gt.to(res.alpha.dtype), blur),
+                      cfg)
 
 
 def landscape(a) -> None:
