@@ -3,6 +3,7 @@ their physics-aware fine-tuning, the structure-preserving flow, loss decrease, t
 physics-only variant reusing stages 1-2 (the ablation harness), the CLI and the model file."""
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -124,8 +125,6 @@ def test_learn_omega_false_keeps_omega_and_learns_E(fitted, tiny_scene, tmp_path
     parameter drives the E drift). Against the initial value omega_init / 2 in logit form (Eq. 7: omega =
     2 sigmoid(l)): kept exactly with the option, moved without it; log E is learned in both. Mutants caught:
     the option ignored (omega moves), every material leaf dropped with it (E stays at E_init)."""
-    import math
-
     run, cfg, _ = fitted
     w = cfg.omega_init / 2
     l0 = math.log(w / (1 - w))
@@ -145,8 +144,6 @@ def test_learn_omega_false_resumes_from_its_checkpoint(fitted, tiny_scene, tmp_p
     optimiser state of the smaller physics_lr group loads) and ends with omega untouched. Mutant caught: the
     freeze applied on a fresh start only (the resumed run's group holds the omega logits again, and
     load_state_dict refuses the group size); a resume that restarts the stage (its iterations reported again)."""
-    import math
-
     run, cfg, _ = fitted
     c = cfg.model_copy(update={"learn_omega": False, "physics_iters": 3, "checkpoint_every": 1})
 
