@@ -46,6 +46,8 @@ SCRIPT = textwrap.dedent("""
         return img
 
     def process(k, img, draw):
+        with open(progress + ".started", "w") as fh:  # frame k has begun its (slow) work
+            fh.write(str(k + 1))
         time.sleep(delay)
         with open(progress, "w") as fh:
             fh.write(str(k + 1))
@@ -75,10 +77,17 @@ def _start(tmp_path, delay):
     return p, out, progress
 
 
-def _wait_rows(p, progress, n, limit=120.0):
+def _count(path):
+    text = path.read_text().strip() if path.exists() else ""
+    return int(text) if text else 0
+
+
+def _wait_rows(p, progress, n, limit=120.0, started=None):
+    """Wait until ``n`` frames are processed (and, if given, frame ``started`` - 1 has begun its work)."""
     t = time.monotonic()
+    begun = progress.with_name(progress.name + ".started")
     while time.monotonic() - t < limit:  # a generous cap against a hang, not a timing assertion
-        if progress.exists() and progress.read_text().strip() and int(progress.read_text()) >= n:
+        if _count(progress) >= n and (started is None or _count(begun) >= started):
             return
         if p.poll() is not None:
             pytest.fail(f"the frame loop exited early: {p.stderr.read()}")
@@ -125,10 +134,13 @@ def test_signal_finalises_outputs(tmp_path, sig):
 
 def test_second_signal_aborts_without_outputs(tmp_path):
     # mutant caught: a second Ctrl-C ignored (the run would finish and write) or leaving temporaries behind
-    p, out, progress = _start(tmp_path, 1.0)
-    _wait_rows(p, progress, 1)
+    # both signals go inside frame 1's 3 s of work: the first only asks the loop to stop after that frame, the
+    # second aborts it. (Signalling as soon as frame 0 is done raced with frame 0's own end-of-frame check: a
+    # first signal landing there stopped the loop at once, and it finished cleanly before the second came.)
+    p, out, progress = _start(tmp_path, 3.0)
+    _wait_rows(p, progress, 1, started=2)
     p.send_signal(signal.SIGINT)
-    time.sleep(0.2)  # inside the 1 s frame that the first signal lets finish
+    time.sleep(0.2)
     p.send_signal(signal.SIGINT)
     p.communicate(timeout=120)
     assert p.returncode not in (0, 130)
