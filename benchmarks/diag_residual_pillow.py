@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 from types import SimpleNamespace
 
+import cv2
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
@@ -86,19 +87,14 @@ def true_material_model(rig: Rig, truth: dict, yield_stress: float) -> MPMModel:
 
 
 def gaussian_blur(img: torch.Tensor, sigma: float) -> torch.Tensor:
-    """(H, W) or (H, W, C) image convolved with a normalised Gaussian of ``sigma`` px (separable, reflect-padded)."""
+    """(H, W) or (H, W, C) image convolved with a normalised Gaussian of ``sigma`` px, kernel radius ceil(3 sigma),
+    reflect-padded (OpenCV's GaussianBlur, BORDER_REFLECT_101; scoring only, no gradient)."""
     if sigma <= 0:
         return img
     r = max(1, math.ceil(3 * sigma))
-    k = torch.exp(-0.5 * (torch.arange(-r, r + 1, dtype=img.dtype) / sigma) ** 2)
-    k = k / k.sum()
-    x = img[..., None] if img.ndim == 2 else img
-    x = x.permute(2, 0, 1)[:, None]  # (C, 1, H, W)
-    x = torch.nn.functional.pad(x, (r, r, r, r), mode="reflect")
-    x = torch.nn.functional.conv2d(x, k.view(1, 1, 1, -1))
-    x = torch.nn.functional.conv2d(x, k.view(1, 1, -1, 1))
-    x = x[:, 0].permute(1, 2, 0)
-    return x[..., 0] if img.ndim == 2 else x
+    x = img.detach().cpu().numpy()
+    y = cv2.GaussianBlur(x, (2 * r + 1, 2 * r + 1), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT_101)
+    return torch.from_numpy(y.reshape(x.shape))
 
 
 def scoring_loss(res, rgb_gt, mask_gt, cfg, blur: float = 0.0) -> torch.Tensor:
