@@ -234,6 +234,12 @@ def _example_times(html: Path) -> dict[str, float]:
         return {}
 
 
+def _kernel_died(stderr: str) -> bool:
+    """Whether a failed build's log says the notebook's kernel process died (nbclient's DeadKernelError), not that
+    an example raised."""
+    return "DeadKernelError" in stderr or "Kernel died" in stderr
+
+
 @pytest.fixture(scope="module")
 def site():
     """The site, built once for this module as ``make docs`` builds it, into docs/_build/html. A lock keeps
@@ -244,10 +250,17 @@ def site():
     with open(BUILD / ".test-site.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         env = {k: v for k, v in os.environ.items() if k not in ("PHYSAR_DOCS_EXECUTE", "PHYSAR_DOCS_FULL")}
-        t0 = time.perf_counter()
-        run = subprocess.run([sys.executable, "-m", "sphinx", *SPHINX_ARGS], cwd=ROOT, env=env, check=False,
-                             capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
-        seconds = time.perf_counter() - t0
+        for attempt in range(2):
+            t0 = time.perf_counter()
+            run = subprocess.run([sys.executable, "-m", "sphinx", *SPHINX_ARGS], cwd=ROOT, env=env, check=False,
+                                 capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
+            seconds = time.perf_counter() - t0
+            if run.returncode == 0 or not _kernel_died(run.stderr):
+                break
+            # once seen (2026-11-27): the notebook's Jupyter kernel aborted inside libzmq (signaler.cpp assertion
+            # 'pfd.revents & POLLIN') while executing an example; the rerun passed. Only a dead kernel is retried,
+            # an example that raises fails at once.
+            print(f"docs build: the Jupyter kernel died (attempt {attempt + 1}); building again")
         assert run.returncode == 0, f"the docs build failed:\n{_noise_free(run.stderr)[-6000:]}"
         assert not _noise_free(run.stderr), _noise_free(run.stderr)[-6000:]
         built = Site(HTML, seconds, sorted(HTML.rglob("*.html")), _example_times(HTML))
