@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -178,6 +179,8 @@ def _floats(text: str | None, n: int | None, option: str) -> tuple | None:
         v = tuple(float(x) for x in text.split(","))
     except ValueError:
         raise ConfigError(f"{option} must be comma-separated numbers, got {text!r}") from None
+    if not all(math.isfinite(x) for x in v):
+        raise ConfigError(f"{option} must be finite numbers, got {text!r}")
     if n is not None and len(v) != n:
         raise ConfigError(f"{option} needs {n} comma-separated numbers, got {text!r}")
     return v

@@ -90,6 +90,8 @@ seed §5.1); the rest is the dynamic clip, of which the first ``n_obs`` are obse
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import math
 import zipfile
@@ -303,7 +305,7 @@ def _load_pose_file(path: Path, what: str = "pose file") -> dict:
         for k, v in raw.items():
             try:
                 a = np.asarray(v, dtype=np.float64)
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):
                 if k in ("global_orient", "body_pose", "transl", "betas", "poses", "trans", "R", "t"):
                     raise ConfigError(f"{path}: field '{k}' is not an array of numbers") from None
                 continue
@@ -338,8 +340,15 @@ def _rotations(a: np.ndarray, n_joints: int | None, path: Path, field: str) -> n
     if not np.all(np.isfinite(a)):
         raise ConfigError(f"{path}: field '{field}' holds non-finite values")
     F = a.shape[0] if a.ndim else 0
+    if F == 0 or a.size == 0:
+        raise ConfigError(f"{path}: field '{field}' has no frames (shape {a.shape})")
     if a.ndim >= 3 and a.shape[-2:] == (3, 3):
         m = a.reshape(F, -1, 3, 3)
+        err = np.abs(np.swapaxes(m, -1, -2) @ m - np.eye(3)).max(axis=(-2, -1))
+        bad = np.argwhere((err > 1e-2) | (np.linalg.det(m) < 0))  # lenient: float32 estimator output
+        if len(bad):
+            raise ConfigError(f"{path}: field '{field}' [frame {bad[0][0]}, joint {bad[0][1]}] is not a rotation "
+                              f"matrix (orthonormal, det +1)")
     elif a.ndim == 2 and a.shape[1] % 3 == 0:
         m = axis_angle_to_matrix(torch.as_tensor(a.reshape(F, -1, 3))).numpy()
     elif a.ndim == 3 and a.shape[2] == 3:
@@ -460,21 +469,27 @@ def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: object mesh not found")
+    # the readers' own prints (meshio's PLY reader writes to stdout and exits on a bad header) are kept out of
+    # the command's output: a failure becomes one line
     try:
         import trimesh
 
-        m = trimesh.load(str(path), force="mesh", process=False)
+        with contextlib.redirect_stdout(io.StringIO()):
+            m = trimesh.load(str(path), force="mesh", process=False)
         V, T = np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
-    except Exception:  # noqa: BLE001 - any reader failure: try meshio, then one line
+    except (Exception, SystemExit):  # noqa: BLE001 - any reader failure: try meshio, then one line
+        said = io.StringIO()
         try:
             import meshio
 
-            m = meshio.read(str(path))
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(said):
+                m = meshio.read(str(path))
             V = np.asarray(m.points, dtype=np.float64)[:, :3]
             tri = [c.data for c in m.cells if c.type == "triangle"]
             T = np.concatenate(tri).astype(np.int64) if tri else np.zeros((0, 3), np.int64)
-        except Exception as e:  # noqa: BLE001
-            raise ConfigError(f"{path}: not a mesh trimesh or meshio can read ({' '.join(str(e).split())[:80]})") from None
+        except (Exception, SystemExit) as e:  # noqa: BLE001
+            why = said.getvalue().strip().replace(str(path), "it") if isinstance(e, SystemExit) else str(e)
+            raise ConfigError(f"{path}: not a mesh trimesh or meshio can read ({' '.join(why.split())[:80]})") from None
     if len(T) == 0 or len(V) < 4:
         raise ConfigError(f"{path}: the mesh has no triangle")
     if not np.all(np.isfinite(V)):
@@ -595,6 +610,42 @@ class ImportOptions:
     body_density: float = 1000.0
 
 
+MAX_GRID_RESOLUTION = 256  # MPM cells per side: 256^3 grid nodes already take gigabytes per field
+
+
+def _check_options(o: ImportOptions) -> None:
+    """One-line ConfigErrors for the options not checked elsewhere: labels (non-negative integers, 0 is the
+    background, the three sets disjoint), the grid resolution, the domain size, the pelvis offset and the
+    background colour."""
+    sets = {"--person-labels": o.person_labels, "--object-labels": o.object_labels, "--ignore-labels": o.ignore_labels}
+    for name, v in sets.items():
+        if not all(isinstance(x, (int, np.integer)) and not isinstance(x, bool) and x >= 0 for x in v):
+            raise ConfigError(f"{name} must be non-negative integers, got {list(v)}")
+    for name in ("--person-labels", "--object-labels"):
+        if not sets[name]:
+            raise ConfigError(f"{name} is empty: give the label value(s) of the masks")
+        if 0 in sets[name]:
+            raise ConfigError(f"{name} {list(sets[name])}: 0 is the background of the label PNGs")
+    names = list(sets)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            both = sorted(set(sets[a]) & set(sets[b]))
+            if both:
+                raise ConfigError(f"{a} and {b} share the label(s) {both}: each label value names one thing")
+    g = o.grid_resolution
+    if not (isinstance(g, (int, np.integer)) and 2 <= g <= MAX_GRID_RESOLUTION):
+        raise ConfigError(f"--grid-resolution must be an integer in [2, {MAX_GRID_RESOLUTION}], got {g}")
+    if o.domain_size is not None and not (math.isfinite(o.domain_size) and o.domain_size > 0):
+        raise ConfigError(f"--domain-size must be a positive length [m], got {o.domain_size}")
+    if len(o.pelvis_offset) != 3 or not all(math.isfinite(x) for x in o.pelvis_offset):
+        raise ConfigError(f"--pelvis-offset must be 3 finite numbers [m], got {list(o.pelvis_offset)}")
+    if len(o.background) != 3 or not all(math.isfinite(x) and 0 <= x <= 1 for x in o.background):
+        raise ConfigError(f"--background must be 3 numbers in [0, 1] (RGB), got {list(o.background)}")
+
+
+MAX_OBJECT_EXTENT = 5.0  # m: an object a person squeezes or lifts; larger is a mesh in other units
+
+
 def _load_cameras(path: str | Path, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Per-view camera poses of the spin clip: ``R`` (n, 3, 3) and ``t`` (n, 3), :math:`p_i = R_i p_C + t_i` from
     the reference (dynamic-clip) camera's coordinates, m; .npz (no pickles) or JSON."""
@@ -643,6 +694,7 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
             raise ConfigError(f"--{name.replace('_', '-')} must be positive, got {v}")
     if not -1 < o.nu < 0.5:
         raise ConfigError(f"--nu must be in (-1, 0.5), got {o.nu}")
+    _check_options(o)
     if (object_mesh is None) == (spin_cameras is None):
         raise ConfigError("give the object's geometry once: --object-mesh FILE, or --spin-cameras FILE (the spin "
                           "frames' camera poses) for a visual hull carved from the spin clip's object masks")
@@ -718,7 +770,13 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
         Vw = V @ R  # rows: q = R^T v
         lo, hi = Vw.min(0), Vw.max(0)
         ext = hi - lo
+        if not np.all(np.isfinite(ext)) or ext.max() > MAX_OBJECT_EXTENT:
+            raise ConfigError(f"{object_mesh}: the mesh spans {np.round(ext, 3).tolist()} (read as metres), more than "
+                              f"{MAX_OBJECT_EXTENT:g} m: is it in millimetres or centimetres? scale it to metres")
         size = float(o.domain_size) if o.domain_size is not None else float(2 * ext.max())
+        if not (size > 1.05 * ext[:2].max() and size > 1.05 * ext[2]):
+            raise ConfigError(f"--domain-size {size} m must exceed the object's extent {np.round(ext, 3).tolist()} m "
+                              f"(mesh {object_mesh})")
         cell = size / o.grid_resolution
         boxes = voxel_boxes(Vw, T, cell, lo)
         if not boxes:
@@ -812,6 +870,10 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
     miss = [k for k in ("camera", "sim", "body", "object", "n_obs", "fps") if k not in meta]
     if miss:
         return {**info, "problems": [f"{sj}: missing field '{k}'" for k in miss]}
+    try:
+        S.check_meta(meta, str(sj))
+    except ConfigError as e:
+        return {**info, "problems": [str(e)]}
     cam = meta["camera"]
     try:
         body = S.load_body(meta, str(sj))
@@ -838,6 +900,8 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
                 c["poses"] = len(rot)
                 all_rot.append((rot, rt))
             except (ConfigError, ValueError, OSError, zipfile.BadZipFile) as e:
+                if "pickle" in str(e):  # numpy's own message advises allow_pickle: never here
+                    e = "not a readable .npz file (pickled or not an npz; refused, never unpickled)"
                 problems.append(f"{pfile}: {e}" if str(pfile) not in str(e) else str(e))
         for kind in ("rgb", "mask"):
             folder = d / kind

@@ -36,6 +36,61 @@ from physar.skinning import load_body as _load_body
 FORMAT_VERSION = 1
 
 
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _array(v, shape) -> bool:
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        return False
+    return a.shape == shape and bool(np.all(np.isfinite(a)))
+
+
+#: scene.json fields the reconstruction reads: (section, key, kind) with kind "pos" (a positive number),
+#: "num" (a finite number), "int+" (a positive integer) or an array shape; "?" after the key: optional
+_META_FIELDS = (
+    ("camera", "fx", "pos"), ("camera", "fy", "pos"), ("camera", "cx", "num"), ("camera", "cy", "num"),
+    ("camera", "width", "int+"), ("camera", "height", "int+"), ("camera", "R", (3, 3)), ("camera", "t", (3,)),
+    ("sim", "size", "pos"), ("sim", "resolution", "int+"), ("sim", "substeps", "int+"), ("sim", "origin", (3,)),
+    ("sim", "gravity", (3,)), ("object", "density", "pos"), ("object", "nu", "num"), ("body", "E", "pos"),
+    ("body", "density", "pos"), ("", "fps", "pos"), ("", "n_obs", "int+"), ("", "background?", (3,)),
+)
+
+
+def check_meta(meta: dict, where: str = "scene.json") -> None:
+    """One-line ConfigError for the first scene.json field the reconstruction reads that is missing or of the
+    wrong type (a number where a number is read, an integer count, a 3-vector, a 3x3 matrix; the object's
+    boxes through :func:`object_boxes`), so that a hand-edited or damaged file fails here and not deep inside
+    a run."""
+    for sec, key, kind in _META_FIELDS:
+        opt = key.endswith("?")
+        key = key.rstrip("?")
+        d = meta.get(sec) if sec else meta
+        name = f"{sec}.{key}" if sec else key
+        if sec and not isinstance(d, dict):
+            raise ConfigError(f"{where}: field '{sec}' must be a table, got {d!r:.60}")
+        if key not in d:
+            if opt:
+                continue
+            raise ConfigError(f"{where}: missing field '{name}'")
+        v = d[key]
+        ok = (_number(v) and v > 0 if kind == "pos" else _number(v) if kind == "num"
+              else isinstance(v, int) and not isinstance(v, bool) and v > 0 if kind == "int+" else _array(v, kind))
+        if not ok:
+            what = {"pos": "a positive number", "num": "a finite number", "int+": "a positive integer"}.get(
+                kind, f"an array of shape {kind}")
+            raise ConfigError(f"{where}: field '{name}' must be {what}, got {v!r:.60}")
+    try:
+        object_boxes(meta)
+    except (TypeError, ValueError, KeyError):
+        raise ConfigError(f"{where}: field 'object.boxes' must be a list of [[x, y, z], [x, y, z]] boxes, got "
+                          f"{meta['object'].get('boxes')!r:.60}") from None
+    except ConfigError as e:
+        raise ConfigError(str(e).replace("scene.json", where, 1)) from None
+
+
 def humanoid(height: float) -> CapsuleBody:
     """The procedural capsule figure (float64) of the synthetic scenes."""
     return procedural_humanoid(height, dtype=torch.float64)
@@ -186,8 +241,12 @@ def object_boxes(meta: dict) -> list[tuple[np.ndarray, np.ndarray]]:
     """The boxes [(min, max), ...] whose union is the object at rest (one box for old single-box scenes)."""
     o = meta["object"]
     raw = o.get("boxes") or [[o["min"], o["max"]]]
+    if not isinstance(raw, list) or not raw:
+        raise ConfigError(f"scene.json: object.boxes = {raw!r:.60} must be a non-empty list of [[x, y, z], [x, y, z]]")
     out = []
     for i, b in enumerate(raw):
+        if not isinstance(b, list) or len(b) != 2:
+            raise ConfigError(f"scene.json: object.boxes[{i}] = {b!r:.60} must be [[x, y, z], [x, y, z]]")
         lo, hi = (np.asarray(v, dtype=np.float64) for v in b)
         if lo.shape != (3,) or hi.shape != (3,) or not np.all(hi > lo):
             raise ConfigError(f"scene.json: object.boxes[{i}] = {b} must be [[x, y, z], [x, y, z]] with max > min")

@@ -238,6 +238,7 @@ def load_dataset(path: str | Path, with_truth: bool = True) -> Dataset:
             raise ConfigError(f"{sj}: missing field '{key}'")
     if meta.get("format_version") != S.FORMAT_VERSION:
         raise ConfigError(f"{sj}: format_version {meta.get('format_version')} (expected {S.FORMAT_VERSION})")
+    S.check_meta(meta, str(sj))
     body = S.load_body(meta, str(sj))
     nb = body.skeleton.n_bones
     rot, rt = S.check_poses(_npz(root / "poses.npz"), nb, str(root / "poses.npz"))
@@ -791,6 +792,19 @@ def _fit_positions(rig: Rig, app: Appearance, kin: dict, f: int, rgb_f, mask_f, 
     return x.detach(), float(loss.detach())
 
 
+RUN_MARKERS = ("checkpoint.pt", "stages.pt", "model.npz")  # a folder holding one of these is an earlier run
+
+
+def _check_run_dir(run: Path) -> None:
+    """A RUN_DIR is new, empty or an earlier run's (it holds one of :data:`RUN_MARKERS`): ``fit`` resumes there and
+    replaces its outputs (report.json, preview.mp4, ...), so a folder of other files, whose report.json or
+    preview.mp4 would be the user's, is refused."""
+    if run.is_dir() and any(run.iterdir()) and not any((run / m).is_file() for m in RUN_MARKERS):
+        first = min(e.name for e in run.iterdir())
+        raise ConfigError(f"{run}: RUN_DIR holds files but no earlier run ({first}, ...; none of "
+                          f"{', '.join(RUN_MARKERS)}); choose a new or empty folder")
+
+
 def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = None,
         progress: Progress | None = None, restart: bool = False, reuse: str | Path | None = None) -> dict:
     """Run the stages on DATA_DIR and write RUN_DIR (model.npz, gaussians.ply, report.json, preview.mp4).
@@ -799,6 +813,7 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
     report dict."""
     cfg = cfg or TrainConfig()
     run = check_folder(run_dir, inputs=[data_dir], kind="RUN_DIR")
+    _check_run_dir(run)
     ds = load_dataset(data_dir)
     data_hash = data_fingerprint(ds)
     saved = None if restart else _load_checkpoint(run, cfg, data_hash)  # refused before anything is written

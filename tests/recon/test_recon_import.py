@@ -10,6 +10,7 @@ into axis-angle by scipy (a peer library), not by physar.
 """
 
 import json
+import os
 from pathlib import Path
 
 import cv2
@@ -295,15 +296,16 @@ class _Touch:  # unpickling this would create the marker file
         return (Path.touch, (Path(self.path),))
 
 
-def _refused(user, tmp_path, replace: dict, needle: str):
+def _refused(user, tmp_path, replace: dict, needle: str, extra=()):
     args = list(user["args"])
     for k, v in replace.items():
         args[args.index(k) + 1] = v
     before = _snapshot(tmp_path)
-    r = cli(*args, "--out", tmp_path / "out")
+    r = cli(*args, *extra, "--out", tmp_path / "out")
     lines = err_lines(r)
     assert r.exit_code == 2, (r.output, r.exception)
     assert len(lines) == 1 and lines[0].startswith("error: ") and needle in lines[0], lines
+    assert r.stdout == ""  # nothing printed by a reader on the way
     assert not (tmp_path / "out").exists() and _snapshot(tmp_path) == before
 
 
@@ -328,6 +330,80 @@ def test_bad_inputs_refused(user, tmp_path):
     lab[3, 5] = 7
     label_png(odd / "frame_00003.png", lab)
     _refused(user, tmp_path, {"--masks": odd}, "frame_00003.png: label value 7 is neither background (0), person [1]")
+
+
+def test_more_bad_inputs_refused(user, tmp_path):
+    """Inputs an independent probe found crashing (traceback, exit 1) or accepted: each now one line naming the
+    file or option and the value, exit 2, nothing written. Mutant per case: the check removed (a huge JSON integer:
+    OverflowError; no frames: a reshape ValueError; label nan: int(nan); a 10^5 grid or a mesh in millimetres:
+    a memory error; garbage PLY: meshio's SystemExit and its prints; the others: written without complaint)."""
+    d = user["dir"]
+    s = {k: np.asarray(v) for k, v in np.load(d / "smpl.npz").items()}
+    big = {k: v.tolist() for k, v in s.items()}
+    big["transl"] = [[10**400, 0, 0]] * len(s["transl"])
+    (tmp_path / "big.json").write_text(json.dumps(big))
+    _refused(user, tmp_path, {"--poses": tmp_path / "big.json"}, "big.json: field 'transl' is not an array of numbers")
+    np.savez(tmp_path / "none.npz", **{k: v[:0] for k, v in s.items()})
+    _refused(user, tmp_path, {"--poses": tmp_path / "none.npz"}, "none.npz: field 'global_orient' has no frames")
+    F = len(s["transl"])
+    np.savez(tmp_path / "zeros.npz", **{**s, "body_pose": np.zeros((F, 23, 3, 3))})
+    _refused(user, tmp_path, {"--poses": tmp_path / "zeros.npz"},
+             "zeros.npz: field 'body_pose' [frame 0, joint 0] is not a rotation matrix")
+    _refused(user, tmp_path, {}, "--person-labels must be finite numbers", ["--person-labels", "nan"])
+    _refused(user, tmp_path, {}, "--person-labels and --object-labels share the label(s) [2]",
+             ["--person-labels", "1,2"])
+    _refused(user, tmp_path, {}, "--person-labels [0, 1]: 0 is the background", ["--person-labels", "0,1"])
+    _refused(user, tmp_path, {}, "--grid-resolution must be an integer in [2, 256], got 100000",
+             ["--grid-resolution", "100000"])
+    _refused(user, tmp_path, {"--domain-size": 0}, "--domain-size must be a positive length [m], got 0.0")
+    _refused(user, tmp_path, {"--domain-size": 0.01}, "--domain-size 0.01 m must exceed the object's extent")
+    _refused(user, tmp_path, {}, "--background must be 3 numbers in [0, 1] (RGB), got [2.0, 2.0, 2.0]",
+             ["--background", "2,2,2"])
+    _refused(user, tmp_path, {}, "--pelvis-offset must be finite numbers", ["--pelvis-offset", "nan,0,0"])
+    import trimesh
+
+    m = trimesh.load(d / "object.obj", force="mesh")
+    m.vertices = np.asarray(m.vertices) * 1000
+    m.export(tmp_path / "mm.obj")
+    _refused(user, tmp_path, {"--object-mesh": tmp_path / "mm.obj"}, "mm.obj: the mesh spans")
+    (tmp_path / "junk.ply").write_bytes(bytes([0, 1, 2]) * 100)
+    _refused(user, tmp_path, {"--object-mesh": tmp_path / "junk.ply"},
+             "junk.ply: not a mesh trimesh or meshio can read")
+
+
+def _fit_refused(data, run, needle):
+    r = cli("recon", "fit", data, "--out", run)
+    lines = err_lines(r)
+    assert r.exit_code == 2, (r.output, r.exception)
+    assert len(lines) == 1 and lines[0].startswith("error: ") and needle in lines[0], lines
+
+
+def test_fit_refuses_a_damaged_scene_and_a_foreign_run_dir(imported, tmp_path):
+    """`recon fit` on a DATA_DIR whose scene.json has a string for camera.fx or for object.boxes: one line naming
+    the field (was a TypeError / ValueError traceback deep in the run), and `recon check` names the same field.
+    `recon fit --out` a folder of the user's own files (a report.json among them): refused, the file unchanged
+    (was silently replaced). Mutants: check_meta not called by load_dataset; _check_run_dir removed."""
+    for sec, key, value, needle in (("camera", "fx", "big", "field 'camera.fx' must be a positive number"),
+                                    ("object", "boxes", "x", "field 'object.boxes'")):
+        d = _copy(imported, tmp_path / f"d_{key}")
+        meta = json.loads((d / "scene.json").read_text())
+        meta[sec][key] = value
+        (d / "scene.json").write_text(json.dumps(meta))
+        _fit_refused(d, tmp_path / f"run_{key}", needle)
+        assert not (tmp_path / f"run_{key}").exists()
+        r = cli("recon", "check", d)
+        assert r.exit_code == 2 and any(needle in ln for ln in err_lines(r)), r.output
+    d = _copy(imported, tmp_path / "d_text")
+    (d / "poses.npz").write_text("junk\n")  # numpy's own message would advise allow_pickle=True
+    r = cli("recon", "check", d)
+    lines = [ln for ln in err_lines(r) if "poses.npz" in ln]
+    assert r.exit_code == 2 and len(lines) == 1 and "not a readable .npz file" in lines[0], r.output
+    assert "allow_pickle" not in r.output
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "report.json").write_text('{"my": "notes"}')
+    _fit_refused(imported, mine, "RUN_DIR holds files but no earlier run (report.json")
+    assert (mine / "report.json").read_text() == '{"my": "notes"}' and sorted(os.listdir(mine)) == ["report.json"]
 
 
 def test_pickle_marker_would_fire(tmp_path):
