@@ -756,6 +756,9 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
     midx = _count_match(len(mfiles), n_src, idx, "mask PNGs", masks, video)
     pidx = _count_match(len(smpl["transl"]), n_src, idx, "poses", poses, video)
     n_out = len(idx)
+    if o.fps is not None and n_out < 3 + max(o.spin_frames, 0):
+        raise ConfigError(f"--fps {o.fps:g}: keeps {n_out} of the {n_src} frames of {video} ({src_fps:g} fps); the "
+                          f"clip needs >= {3 + max(o.spin_frames, 0)} (3 dynamic + --spin-frames {o.spin_frames})")
     if o.spin_frames < 0 or (o.spin_frames and o.spin_frames < 2) or n_out - o.spin_frames < 3:
         raise ConfigError(f"--spin-frames {o.spin_frames}: needs 0 or >= 2 and leaves {n_out - o.spin_frames} of "
                           f"{n_out} frames for the dynamic clip (needs >= 3)")
@@ -856,6 +859,8 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
     :math:`\arccos((\operatorname{tr}(L_{f}^\top L_{f+1}) - 1)/2)`); camera intrinsics against the image size
     (size equal, principal point inside, :math:`0.1 W < f_x < 20 W`); whether a bone reaches the object."""
     root = Path(data_dir)
+    if not (math.isfinite(max_jump_deg) and 0 < max_jump_deg <= 180):
+        raise ConfigError(f"--max-jump-deg must be in (0, 180] degrees, got {max_jump_deg}")
     problems: list[str] = []
     info: dict = {"data_dir": str(root), "clips": {}}
     sj = root / "scene.json"

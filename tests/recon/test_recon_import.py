@@ -360,6 +360,7 @@ def test_more_bad_inputs_refused(user, tmp_path):
     _refused(user, tmp_path, {}, "--background must be 3 numbers in [0, 1] (RGB), got [2.0, 2.0, 2.0]",
              ["--background", "2,2,2"])
     _refused(user, tmp_path, {}, "--pelvis-offset must be finite numbers", ["--pelvis-offset", "nan,0,0"])
+    _refused(user, tmp_path, {"--fps": 1e-9}, "--fps 1e-09: keeps 1 of the 18 frames of")  # was: blamed --spin-frames
     import trimesh
 
     m = trimesh.load(d / "object.obj", force="mesh")
@@ -399,6 +400,10 @@ def test_fit_refuses_a_damaged_scene_and_a_foreign_run_dir(imported, tmp_path):
     lines = [ln for ln in err_lines(r) if "poses.npz" in ln]
     assert r.exit_code == 2 and len(lines) == 1 and "not a readable .npz file" in lines[0], r.output
     assert "allow_pickle" not in r.output
+    for bad in ("nan", "-5"):  # was: nan ignored (exit 0), -5 reported every bone as jitter
+        r = cli("recon", "check", imported, "--max-jump-deg", bad)
+        want = f"error: --max-jump-deg must be in (0, 180] degrees, got {float(bad)}"
+        assert r.exit_code == 2 and err_lines(r) == [want], r.output
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "report.json").write_text('{"my": "notes"}')
