@@ -94,6 +94,7 @@ import contextlib
 import io
 import json
 import math
+import warnings
 import zipfile
 import zlib
 from dataclasses import dataclass
@@ -103,7 +104,7 @@ import cv2
 import numpy as np
 import torch
 
-from physar.errors import ConfigError, PhysarError
+from physar.errors import ConfigError, PhysarError, PhysarWarning
 from physar.output import atomic_folder, check_folder, own_names
 from physar.recon import scene as S
 from physar.skinning import (
@@ -497,6 +498,18 @@ def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return V, T
 
 
+def open_edges(V: np.ndarray, T: np.ndarray) -> int:
+    """Edges used by one triangle only, after merging vertices that coincide (to 1e-7 of the mesh's size: STL and
+    per-face-normal OBJ files repeat each corner): 0 for a closed mesh."""
+    scale = max(float(np.ptp(V, axis=0).max()), 1e-12)
+    _, inv = np.unique(np.round(V / (1e-7 * scale)), axis=0, return_inverse=True)
+    f = inv.reshape(-1)[T]
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    e = e[e[:, 0] != e[:, 1]]  # degenerate triangles' collapsed edges
+    _, count = np.unique(e, axis=0, return_counts=True)
+    return int(np.sum(count == 1))
+
+
 def runs_to_boxes(inside: np.ndarray, lo: np.ndarray, cell: float) -> list[tuple[np.ndarray, np.ndarray]]:
     """Occupied voxels (nx, ny, nz) of the grid ``lo + cell * (i, j, k)`` as the union of boxes [(min, max), ...]
     made of their x-runs."""
@@ -770,6 +783,11 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
     R = world_rotation(o.up)
     if spin_cams is None:
         V, T = read_mesh(object_mesh)
+        holes = open_edges(V, T)
+        if holes:
+            warnings.warn(f"{object_mesh}: the mesh is not closed ({holes} edges border one face only): its inside "
+                          "is estimated by the winding number, which holes make uncertain; a watertight mesh gives "
+                          "the exact volume", PhysarWarning, stacklevel=2)
         Vw = V @ R  # rows: q = R^T v
         lo, hi = Vw.min(0), Vw.max(0)
         ext = hi - lo
