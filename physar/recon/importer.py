@@ -346,10 +346,12 @@ def _rotations(a: np.ndarray, n_joints: int | None, path: Path, field: str) -> n
     if a.ndim >= 3 and a.shape[-2:] == (3, 3):
         m = a.reshape(F, -1, 3, 3)
         err = np.abs(np.swapaxes(m, -1, -2) @ m - np.eye(3)).max(axis=(-2, -1))
-        bad = np.argwhere((err > 1e-2) | (np.linalg.det(m) < 0))  # lenient: float32 estimator output
+        det = np.linalg.det(m)
+        bad = np.argwhere((err > 1e-2) | (det < 0))  # lenient: float32 estimator output
         if len(bad):
-            raise ConfigError(f"{path}: field '{field}' [frame {bad[0][0]}, joint {bad[0][1]}] is not a rotation "
-                              f"matrix (orthonormal, det +1)")
+            f, j = bad[0]
+            raise ConfigError(f"{path}: field '{field}' [frame {f}, joint {j}] is not a rotation matrix (|R^T R - I| "
+                              f"= {err[f, j]:.3g}, det {det[f, j]:.3g}; expected orthonormal with det +1)")
     elif a.ndim == 2 and a.shape[1] % 3 == 0:
         m = axis_angle_to_matrix(torch.as_tensor(a.reshape(F, -1, 3))).numpy()
     elif a.ndim == 3 and a.shape[2] == 3:
@@ -623,7 +625,7 @@ class ImportOptions:
     body_density: float = 1000.0
 
 
-MAX_GRID_RESOLUTION = 256  # MPM cells per side: 256^3 grid nodes already take gigabytes per field
+MAX_GRID_RESOLUTION = S.MAX_GRID_RESOLUTION
 
 
 def _check_options(o: ImportOptions) -> None:
@@ -769,7 +771,7 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
     midx = _count_match(len(mfiles), n_src, idx, "mask PNGs", masks, video)
     pidx = _count_match(len(smpl["transl"]), n_src, idx, "poses", poses, video)
     n_out = len(idx)
-    if o.fps is not None and n_out < 3 + max(o.spin_frames, 0):
+    if o.fps is not None and n_out < n_src and n_out < 3 + max(o.spin_frames, 0):
         raise ConfigError(f"--fps {o.fps:g}: keeps {n_out} of the {n_src} frames of {video} ({src_fps:g} fps); the "
                           f"clip needs >= {3 + max(o.spin_frames, 0)} (3 dynamic + --spin-frames {o.spin_frames})")
     if o.spin_frames < 0 or (o.spin_frames and o.spin_frames < 2) or n_out - o.spin_frames < 3:

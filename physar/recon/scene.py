@@ -37,7 +37,10 @@ FORMAT_VERSION = 1
 
 
 def _number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    try:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    except OverflowError:  # an integer beyond float range
+        return False
 
 
 def _array(v, shape) -> bool:
@@ -47,6 +50,8 @@ def _array(v, shape) -> bool:
         return False
     return a.shape == shape and bool(np.all(np.isfinite(a)))
 
+
+MAX_GRID_RESOLUTION = 256  # MPM cells per side: 256^3 grid nodes already take gigabytes per field
 
 #: scene.json fields the reconstruction reads: (section, key, kind) with kind "pos" (a positive number),
 #: "num" (a finite number), "int+" (a positive integer) or an array shape; "?" after the key: optional
@@ -64,6 +69,8 @@ def check_meta(meta: dict, where: str = "scene.json") -> None:
     wrong type (a number where a number is read, an integer count, a 3-vector, a 3x3 matrix; the object's
     boxes through :func:`object_boxes`), so that a hand-edited or damaged file fails here and not deep inside
     a run."""
+    if not isinstance(meta, dict):
+        raise ConfigError(f"{where}: must hold a JSON object (a table of fields), got {type(meta).__name__}")
     for sec, key, kind in _META_FIELDS:
         opt = key.endswith("?")
         key = key.rstrip("?")
@@ -77,18 +84,23 @@ def check_meta(meta: dict, where: str = "scene.json") -> None:
             raise ConfigError(f"{where}: missing field '{name}'")
         v = d[key]
         ok = (_number(v) and v > 0 if kind == "pos" else _number(v) if kind == "num"
-              else isinstance(v, int) and not isinstance(v, bool) and v > 0 if kind == "int+" else _array(v, kind))
+              else _number(v) and isinstance(v, int) and v > 0 if kind == "int+" else _array(v, kind))
         if not ok:
             what = {"pos": "a positive number", "num": "a finite number", "int+": "a positive integer"}.get(
                 kind, f"an array of shape {kind}")
             raise ConfigError(f"{where}: field '{name}' must be {what}, got {v!r:.60}")
+    if meta["sim"]["resolution"] > MAX_GRID_RESOLUTION:
+        raise ConfigError(f"{where}: field 'sim.resolution' must be <= {MAX_GRID_RESOLUTION} cells per side, got "
+                          f"{meta['sim']['resolution']}")
+    if not isinstance(meta["object"], dict) or ("boxes" not in meta["object"] and "min" not in meta["object"]):
+        raise ConfigError(f"{where}: missing field 'object.boxes'")
     try:
         object_boxes(meta)
+    except ConfigError as e:  # (a ValueError too: first)
+        raise ConfigError(str(e).replace("scene.json", where, 1)) from None
     except (TypeError, ValueError, KeyError):
         raise ConfigError(f"{where}: field 'object.boxes' must be a list of [[x, y, z], [x, y, z]] boxes, got "
                           f"{meta['object'].get('boxes')!r:.60}") from None
-    except ConfigError as e:
-        raise ConfigError(str(e).replace("scene.json", where, 1)) from None
 
 
 def humanoid(height: float) -> CapsuleBody:
@@ -248,8 +260,8 @@ def object_boxes(meta: dict) -> list[tuple[np.ndarray, np.ndarray]]:
         if not isinstance(b, list) or len(b) != 2:
             raise ConfigError(f"scene.json: object.boxes[{i}] = {b!r:.60} must be [[x, y, z], [x, y, z]]")
         lo, hi = (np.asarray(v, dtype=np.float64) for v in b)
-        if lo.shape != (3,) or hi.shape != (3,) or not np.all(hi > lo):
-            raise ConfigError(f"scene.json: object.boxes[{i}] = {b} must be [[x, y, z], [x, y, z]] with max > min")
+        if lo.shape != (3,) or hi.shape != (3,) or not np.all(np.isfinite(lo) & np.isfinite(hi) & (hi > lo)):
+            raise ConfigError(f"scene.json: object.boxes[{i}] = {b} must be [[x, y, z], [x, y, z]] of finite numbers with max > min")
         out.append((lo, hi))
     return out
 

@@ -793,21 +793,25 @@ def _fit_positions(rig: Rig, app: Appearance, kin: dict, f: int, rgb_f, mask_f, 
 
 
 RUN_MARKERS = ("checkpoint.pt", "stages.pt", "model.npz")  # a folder holding one of these is an earlier run
+RUN_OUTPUTS = ("model.npz", "gaussians.ply", "report.json", "preview.mp4")  # what fit writes at the end
 
 
 def _check_run_dir(run: Path) -> None:
-    """A RUN_DIR is new, empty or an earlier run's (it holds one of :data:`RUN_MARKERS`): ``fit`` resumes there and
-    replaces its outputs (report.json, preview.mp4, ...), so a folder of other files, whose report.json or
-    preview.mp4 would be the user's, is refused."""
-    if run.is_dir() and any(run.iterdir()) and not any((run / m).is_file() for m in RUN_MARKERS):
-        first = min(e.name for e in run.iterdir())
-        raise ConfigError(f"{run}: RUN_DIR holds files but no earlier run ({first}, ...; none of "
-                          f"{', '.join(RUN_MARKERS)}); choose a new or empty folder")
+    """``fit`` resumes in an earlier run's RUN_DIR (one holding one of :data:`RUN_MARKERS`) and replaces its
+    outputs; in any other folder an existing file of the same name as an output (:data:`RUN_OUTPUTS`) would be
+    the user's and is refused. Other files (a config, .DS_Store, a crashed save's temporary) are left alone."""
+    if not run.is_dir() or any((run / m).is_file() for m in RUN_MARKERS):
+        return
+    theirs = [n for n in RUN_OUTPUTS if (run / n).exists()]
+    if theirs:
+        raise ConfigError(f"{run}: RUN_DIR holds {', '.join(theirs)} but no earlier run (none of "
+                          f"{', '.join(RUN_MARKERS)}): fit would replace it; choose a new or empty folder")
 
 
 def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = None,
         progress: Progress | None = None, restart: bool = False, reuse: str | Path | None = None) -> dict:
     """Run the stages on DATA_DIR and write RUN_DIR (model.npz, gaussians.ply, report.json, preview.mp4).
+    A RUN_DIR holding one of those outputs but no earlier run is refused (:func:`_check_run_dir`).
     Resumes from RUN_DIR/checkpoint.pt unless ``restart``; ``reuse`` = another RUN_DIR whose stages 1-2
     (appearance, flows) are taken as they are (physics-only variants such as the ablations).  Returns the
     report dict."""

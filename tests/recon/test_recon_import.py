@@ -10,6 +10,7 @@ into axis-angle by scipy (a peer library), not by physar.
 """
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -348,7 +349,21 @@ def test_more_bad_inputs_refused(user, tmp_path):
     F = len(s["transl"])
     np.savez(tmp_path / "zeros.npz", **{**s, "body_pose": np.zeros((F, 23, 3, 3))})
     _refused(user, tmp_path, {"--poses": tmp_path / "zeros.npz"},
-             "zeros.npz: field 'body_pose' [frame 0, joint 0] is not a rotation matrix")
+             "zeros.npz: field 'body_pose' [frame 0, joint 0] is not a rotation matrix (|R^T R - I| = 1, det 0;")
+    # float32 matrices with 1e-5 noise, as pose estimators write them: imported (mutant: a tolerance of 1e-12)
+    noisy = {k: v for k, v in s.items()}
+    rng = np.random.default_rng(0)
+    for k in ("global_orient", "body_pose"):
+        m = Rotation.from_rotvec(v := s[k].reshape(-1, 3)).as_matrix() + 1e-5 * rng.standard_normal((len(v), 3, 3))
+        noisy[k] = m.reshape(F, -1, 3, 3).astype(np.float32)
+    np.savez(tmp_path / "f32.npz", **noisy)
+    args = list(user["args"])
+    args[args.index("--poses") + 1] = tmp_path / "f32.npz"
+    r = cli(*args, "--out", tmp_path / "f32")
+    assert r.exit_code == 0, r.output
+    import shutil
+
+    shutil.rmtree(tmp_path / "f32")
     _refused(user, tmp_path, {}, "--person-labels must be finite numbers", ["--person-labels", "nan"])
     _refused(user, tmp_path, {}, "--person-labels and --object-labels share the label(s) [2]",
              ["--person-labels", "1,2"])
@@ -409,13 +424,17 @@ def test_fit_refuses_a_damaged_scene_and_a_foreign_run_dir(imported, tmp_path):
     `recon fit --out` a folder of the user's own files (a report.json among them): refused, the file unchanged
     (was silently replaced). Mutants: check_meta not called by load_dataset; _check_run_dir removed."""
     for sec, key, value, needle in (("camera", "fx", "big", "field 'camera.fx' must be a positive number"),
-                                    ("object", "boxes", "x", "field 'object.boxes'")):
-        d = _copy(imported, tmp_path / f"d_{key}")
+                                    ("camera", "fy", 10**400, "field 'camera.fy' must be a positive number"),
+                                    ("sim", "resolution", 100000, "field 'sim.resolution' must be <= 256"),
+                                    ("object", "boxes", "x", "object.boxes = 'x' must be a non-empty list"),
+                                    ("object", "boxes", [[[0, 0, 0], [math.inf, 1, 1]]],
+                                     "object.boxes[0] = [[0, 0, 0], [inf, 1, 1]] must be")):
+        d = _copy(imported, tmp_path / f"d_{key}_{len(str(value))}")
         meta = json.loads((d / "scene.json").read_text())
         meta[sec][key] = value
         (d / "scene.json").write_text(json.dumps(meta))
-        _fit_refused(d, tmp_path / f"run_{key}", needle)
-        assert not (tmp_path / f"run_{key}").exists()
+        _fit_refused(d, tmp_path / f"run_{d.name}", needle)
+        assert not (tmp_path / f"run_{d.name}").exists()
         r = cli("recon", "check", d)
         assert r.exit_code == 2 and any(needle in ln for ln in err_lines(r)), r.output
     d = _copy(imported, tmp_path / "d_text")
@@ -431,8 +450,17 @@ def test_fit_refuses_a_damaged_scene_and_a_foreign_run_dir(imported, tmp_path):
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "report.json").write_text('{"my": "notes"}')
-    _fit_refused(imported, mine, "RUN_DIR holds files but no earlier run (report.json")
+    _fit_refused(imported, mine, "RUN_DIR holds report.json but no earlier run")
     assert (mine / "report.json").read_text() == '{"my": "notes"}' and sorted(os.listdir(mine)) == ["report.json"]
+    from physar.recon.train import _check_run_dir
+
+    other = tmp_path / "other"  # a folder with a config, a .DS_Store and a crashed save's temporary: fine
+    other.mkdir()
+    for n in ("train.toml", ".DS_Store", ".checkpoint.x1y2.pt"):
+        (other / n).write_text("x")
+    _check_run_dir(other)
+    (mine / "model.npz").write_bytes(b"")  # an earlier run: fit resumes there and replaces its report
+    _check_run_dir(mine)
 
 
 def test_pickle_marker_would_fire(tmp_path):
