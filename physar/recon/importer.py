@@ -13,7 +13,7 @@ Inputs and conventions:
   single-channel label images as video segmenters write them (DAVIS / XMem / Cutie / SAM 2: palette or grey
   PNGs, 0 = background, one integer id per tracked object). ``person_labels`` and ``object_labels`` name the
   ids of the person and of the object (default 1 and 2); ``ignore_labels`` are treated as background; any other
-  value is refused. The DATA_DIR mask is the foreground :math:`M = [\ell \in P \cup O]`, resized by area
+  value is refused, and so are label sets that share a value or use 0. The DATA_DIR mask is the foreground :math:`M = [\ell \in P \cup O]`, resized by area
   averaging and thresholded at 1/2.
 * **Camera**: intrinsics in OpenCV's pixel-centre convention (pixel :math:`(0, 0)` centred at :math:`(0, 0)`)
   for the source size :math:`W \times H` — from a ``physar calibrate`` TOML or from a focal length in pixels or
@@ -73,8 +73,8 @@ Inputs and conventions:
   collars) enter through the composed global rotations; wrists, hands, feet and the face are dropped);
   ``smpl:PATH`` is exact.
 * **Object**: either a closed surface mesh (any format trimesh or meshio reads), vertices in metres in camera
-  coordinates (a scan registered to the camera), voxelised by the generalised winding number (inside:
-  :math:`w > 1/2`); or the visual hull carved from the spin clip's object masks (:func:`carve_hull`), which needs
+  coordinates (a scan registered to the camera; one larger than 5 m is refused as another unit, one with holes
+  imported with a warning), voxelised by the generalised winding number (inside: :math:`w > 1/2`); or the visual hull carved from the spin clip's object masks (:func:`carve_hull`), which needs
   the camera pose of every spin frame (``spin_cameras``: ``R`` (S, 3, 3), ``t`` (S, 3), :math:`p_i = R_i p_C +
   t_i` from the reference camera's coordinates, e.g. from a structure-from-motion run or a marker board; same
   intrinsics): with one static camera, as in seed §5.1, the spin clip shows the object from one side only and
