@@ -262,7 +262,8 @@ def read_masks(folder: str | Path, person_labels, object_labels, ignore_labels=(
     r"""Label PNGs of ``folder`` in name order, each checked (one error line for a label value that is neither
     background (0), ignored, person nor object); the foreground masks :math:`[\ell \in P \cup O]` (float32
     (H, W) in {0, 1}, through ``prepare`` when given) of the files whose index ``keep(i, n)`` accepts (all by
-    default), by index, with the object's own masks: {i: (foreground, object)}."""
+    default), by index, with the object's own masks: {i: (foreground, object)}. A person or object label that no
+    file holds is an error (a wrong ``--person-labels`` / ``--object-labels``, or masks of another clip)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise ConfigError(f"{folder}: masks folder not found")
@@ -272,9 +273,11 @@ def read_masks(folder: str | Path, person_labels, object_labels, ignore_labels=(
     fg_labels = set(person_labels) | set(object_labels)
     known = fg_labels | {0} | set(ignore_labels)
     out = {}
+    seen: set[int] = set()
     for i, p in enumerate(files):
         lab = read_label_png(p)
         vals = np.unique(lab)
+        seen.update(int(v) for v in vals)
         bad = [int(v) for v in vals if int(v) not in known]
         if bad:
             raise ConfigError(f"{p}: label value {bad[0]} is neither background (0), person "
@@ -284,6 +287,11 @@ def read_masks(folder: str | Path, person_labels, object_labels, ignore_labels=(
             m = np.isin(lab, sorted(fg_labels)).astype(np.float32)
             mo = np.isin(lab, sorted(object_labels)).astype(np.float32)
             out[i] = (prepare(p, m), prepare(p, mo)) if prepare is not None else (m, mo)
+    for what, labels, option in (("person", person_labels, "--person-labels"),
+                                 ("object", object_labels, "--object-labels")):
+        if not seen & set(labels):
+            raise ConfigError(f"{folder}: the {what} label(s) {sorted(labels)} appear in none of the {len(files)} "
+                              f"masks (labels found: {sorted(seen)}); set {option}")
     return files, out
 
 

@@ -375,6 +375,14 @@ def test_more_bad_inputs_refused(user, tmp_path):
     _refused(user, tmp_path, {}, "--background must be 3 numbers in [0, 1] (RGB), got [2.0, 2.0, 2.0]",
              ["--background", "2,2,2"])
     _refused(user, tmp_path, {}, "--pelvis-offset must be finite numbers", ["--pelvis-offset", "nan,0,0"])
+    blank = tmp_path / "blank"  # masks of another clip or of a segmenter that found nothing
+    blank.mkdir()
+    for q in sorted((d / "masks").iterdir()):
+        label_png(blank / q.name, np.zeros((64, 64), np.uint8))
+    _refused(user, tmp_path, {"--masks": blank}, "blank: the person label(s) [1] appear in none of the 18 masks "
+             "(labels found: [0]); set --person-labels")
+    _refused(user, tmp_path, {}, "the object label(s) [3] appear in none of the 18 masks (labels found: [0, 1, 2]); "
+             "set --object-labels", ["--object-labels", "3", "--ignore-labels", "2"])
     _refused(user, tmp_path, {"--fps": 1e-9}, "--fps 1e-09: keeps 1 of the 18 frames of")  # was: blamed --spin-frames
     import trimesh
 
