@@ -13,8 +13,8 @@ Inputs and conventions:
   single-channel label images as video segmenters write them (DAVIS / XMem / Cutie / SAM 2: palette or grey
   PNGs, 0 = background, one integer id per tracked object). ``person_labels`` and ``object_labels`` name the
   ids of the person and of the object (default 1 and 2); ``ignore_labels`` are treated as background; any other
-  value is refused, and so are label sets that share a value or use 0. The DATA_DIR mask is the foreground :math:`M = [\ell \in P \cup O]`, resized by area
-  averaging and thresholded at 1/2.
+  value is refused, and so are label sets that share a value or use 0. The DATA_DIR mask is the foreground
+  :math:`M = [\ell \in P \cup O]`, resized by area averaging and thresholded at 1/2.
 * **Camera**: intrinsics in OpenCV's pixel-centre convention (pixel :math:`(0, 0)` centred at :math:`(0, 0)`)
   for the source size :math:`W \times H` — from a ``physar calibrate`` TOML or from a focal length in pixels or
   a 35 mm-equivalent focal length :math:`f_{35}` (EXIF ``FocalLengthIn35mmFilm``, defined by the diagonal
@@ -74,11 +74,12 @@ Inputs and conventions:
   ``smpl:PATH`` is exact.
 * **Object**: either a closed surface mesh (any format trimesh or meshio reads), vertices in metres in camera
   coordinates (a scan registered to the camera; one larger than 5 m is refused as another unit, one with holes
-  imported with a warning), voxelised by the generalised winding number (inside: :math:`w > 1/2`); or the visual hull carved from the spin clip's object masks (:func:`carve_hull`), which needs
-  the camera pose of every spin frame (``spin_cameras``: ``R`` (S, 3, 3), ``t`` (S, 3), :math:`p_i = R_i p_C +
-  t_i` from the reference camera's coordinates, e.g. from a structure-from-motion run or a marker board; same
-  intrinsics): with one static camera, as in seed §5.1, the spin clip shows the object from one side only and
-  no hull can be carved, so give the mesh. Either way the object is voxelised on the MPM grid (cell
+  imported with a warning), voxelised by the generalised winding number (inside: :math:`w > 1/2`); or the
+  visual hull carved from the spin clip's object masks (:func:`carve_hull`), which needs the camera pose of
+  every spin frame (``spin_cameras``: ``R`` (S, 3, 3), ``t`` (S, 3), :math:`p_i = R_i p_C + t_i` from the
+  reference camera's coordinates, e.g. from a structure-from-motion run or a marker board; same intrinsics):
+  with one static camera, as in seed §5.1, the spin clip shows the object from one side only and no hull can
+  be carved, so give the mesh. Either way the object is voxelised on the MPM grid (cell
   :math:`\Delta x = \text{size}/\text{resolution}`) and written as the union of boxes (x-runs of voxels) that
   ``scene.json`` ``object.boxes`` holds, so that the recon's lattice at :math:`\Delta x / k` samples it exactly.
   A moving camera's spin frames are used for the hull only and left out of the DATA_DIR (``recon fit`` assumes
@@ -340,6 +341,11 @@ def _load_pose_file(path: Path, what: str = "pose file") -> dict:
         raise ConfigError(f"{path}: not a readable .npz or .json file ({' '.join(str(e).split())[:100]})") from None
 
 
+def _rotation_error(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    r"""Per matrix of ``m`` (..., 3, 3): :math:`\max |R^\top R - I|` and :math:`\det R` (a rotation: 0 and +1)."""
+    return np.abs(np.swapaxes(m, -1, -2) @ m - np.eye(3)).max(axis=(-2, -1)), np.linalg.det(m)
+
+
 def _rotations(a: np.ndarray, n_joints: int | None, path: Path, field: str) -> np.ndarray:
     """(F, J, 3, 3) rotations from axis-angle (F, 3J) / (F, J, 3) or matrices (F, J, 3, 3) / (F, 3, 3)."""
     a = np.asarray(a)
@@ -353,8 +359,7 @@ def _rotations(a: np.ndarray, n_joints: int | None, path: Path, field: str) -> n
         raise ConfigError(f"{path}: field '{field}' has no frames (shape {a.shape})")
     if a.ndim >= 3 and a.shape[-2:] == (3, 3):
         m = a.reshape(F, -1, 3, 3)
-        err = np.abs(np.swapaxes(m, -1, -2) @ m - np.eye(3)).max(axis=(-2, -1))
-        det = np.linalg.det(m)
+        err, det = _rotation_error(m)
         bad = np.argwhere((err > 1e-2) | (det < 0))  # lenient: float32 estimator output
         if len(bad):
             f, j = bad[0]
@@ -633,9 +638,6 @@ class ImportOptions:
     body_density: float = 1000.0
 
 
-MAX_GRID_RESOLUTION = S.MAX_GRID_RESOLUTION
-
-
 def _check_options(o: ImportOptions) -> None:
     """One-line ConfigErrors for the options not checked elsewhere: labels (non-negative integers, 0 is the
     background, the three sets disjoint), the grid resolution, the domain size, the pelvis offset and the
@@ -656,8 +658,8 @@ def _check_options(o: ImportOptions) -> None:
             if both:
                 raise ConfigError(f"{a} and {b} share the label(s) {both}: each label value names one thing")
     g = o.grid_resolution
-    if not (isinstance(g, (int, np.integer)) and 2 <= g <= MAX_GRID_RESOLUTION):
-        raise ConfigError(f"--grid-resolution must be an integer in [2, {MAX_GRID_RESOLUTION}], got {g}")
+    if not (isinstance(g, (int, np.integer)) and 2 <= g <= S.MAX_GRID_RESOLUTION):
+        raise ConfigError(f"--grid-resolution must be an integer in [2, {S.MAX_GRID_RESOLUTION}], got {g}")
     if o.domain_size is not None and not (math.isfinite(o.domain_size) and o.domain_size > 0):
         raise ConfigError(f"--domain-size must be a positive length [m], got {o.domain_size}")
     if len(o.pelvis_offset) != 3 or not all(math.isfinite(x) for x in o.pelvis_offset):
@@ -682,9 +684,11 @@ def _load_cameras(path: str | Path, n: int) -> tuple[np.ndarray, np.ndarray]:
             raise ConfigError(f"{path}: field '{k}' must be {shape} finite numbers (one per spin frame), got "
                               f"{a.shape} {a.dtype}")
     Rs = np.asarray(d["R"], dtype=np.float64)
-    err = np.abs(np.swapaxes(Rs, -1, -2) @ Rs - np.eye(3)).max(axis=(1, 2))
-    if err.max() > 1e-4 or np.any(np.linalg.det(Rs) < 0):
-        raise ConfigError(f"{path}: field 'R' [{int(err.argmax())}] is not a rotation matrix")
+    err, det = _rotation_error(Rs)
+    bad = np.flatnonzero((err > 1e-4) | (det < 0))
+    if len(bad):  # the first bad view (a reflection has err 0: not err.argmax())
+        raise ConfigError(f"{path}: field 'R' [{int(bad[0])}] is not a rotation matrix (|R^T R - I| = "
+                          f"{err[bad[0]]:.3g}, det {det[bad[0]]:.3g})")
     return Rs, np.asarray(d["t"], dtype=np.float64)
 
 

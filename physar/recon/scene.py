@@ -261,7 +261,8 @@ def object_boxes(meta: dict) -> list[tuple[np.ndarray, np.ndarray]]:
             raise ConfigError(f"scene.json: object.boxes[{i}] = {b!r:.60} must be [[x, y, z], [x, y, z]]")
         lo, hi = (np.asarray(v, dtype=np.float64) for v in b)
         if lo.shape != (3,) or hi.shape != (3,) or not np.all(np.isfinite(lo) & np.isfinite(hi) & (hi > lo)):
-            raise ConfigError(f"scene.json: object.boxes[{i}] = {b} must be [[x, y, z], [x, y, z]] of finite numbers with max > min")
+            raise ConfigError(f"scene.json: object.boxes[{i}] = {b} must be [[x, y, z], [x, y, z]] of finite numbers "
+                              "with max > min")
         out.append((lo, hi))
     return out
 

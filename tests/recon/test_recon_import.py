@@ -556,3 +556,17 @@ def test_visual_hull_from_moving_spin_cameras(user, tmp_path):
     assert 1.0 * true <= vol <= 1.6 * true, (vol, true)
     r = cli("recon", "check", out)
     assert r.exit_code == 0, r.output
+
+
+def test_spin_cameras_must_be_rotations(tmp_path):
+    """Spin-camera poses: a scaled matrix and a reflection (det -1, orthonormal) are refused naming the view;
+    float32 rotations with 1e-6 noise pass. Mutants: the orthonormality or the determinant test dropped."""
+    R = Rotation.from_rotvec(np.random.default_rng(1).normal(size=(3, 3))).as_matrix()
+    for k, bad in ((1, 2.0 * R[1]), (2, R[2] @ np.diag([1.0, 1.0, -1.0]))):
+        Rb = R.copy()
+        Rb[k] = bad
+        np.savez(tmp_path / "c.npz", R=Rb, t=np.zeros((3, 3)))
+        with pytest.raises(I.ConfigError, match=rf"field 'R' \[{k}\] is not a rotation matrix"):
+            I._load_cameras(tmp_path / "c.npz", 3)
+    np.savez(tmp_path / "ok.npz", R=(R + 1e-6).astype(np.float32), t=np.zeros((3, 3)))
+    assert np.allclose(I._load_cameras(tmp_path / "ok.npz", 3)[0], R, atol=1e-5)
