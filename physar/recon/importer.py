@@ -189,9 +189,12 @@ def read_video(path: str | Path, fps: float | None = None, prepare=None) -> tupl
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: video not found")
-    kept, n, conv, size = [], 0, None, None
+    kept, n, conv, size, fmt = [], 0, None, None, ""
     try:
         with av.open(str(path)) as c:
+            fmt = c.format.name
+            if fmt == "image2" or fmt.endswith("_pipe"):  # FFmpeg's still-image demuxers (png_pipe, jpeg_pipe, ...)
+                raise ConfigError(f"{path}: a still image (format {fmt}), not a video")
             if not c.streams.video:
                 raise ConfigError(f"{path}: holds no video stream")
             st = c.streams.video[0]
@@ -215,6 +218,8 @@ def read_video(path: str | Path, fps: float | None = None, prepare=None) -> tupl
         raise ConfigError(f"{path}: not a video PyAV can read ({' '.join(str(e).split())[:100]})") from None
     if not n:
         raise ConfigError(f"{path}: the video has no frame")
+    if n < 3:
+        raise ConfigError(f"{path}: the video has {n} frame{'s' if n > 1 else ''}; a clip needs >= 3")
     return kept, rate, n, size
 
 

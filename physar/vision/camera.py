@@ -158,6 +158,39 @@ class Camera:
     def size(self) -> tuple[int, int]:
         return self.width, self.height
 
+    def distortion_problem(self, min_inside: float = 0.5, n: int = 200) -> str | None:
+        r"""Why the distortion cannot describe a lens over this image, or None.
+
+        Two checks on :math:`p = K\,\operatorname{distort}(x)` of undistorted normalised points :math:`x`
+        (``cv2.projectPoints``, so every OpenCV coefficient counts): along the rays from the principal point to
+        the four edge midpoints the distorted radius must grow (a radius that stops growing folds the image:
+        two scene directions land on one pixel); and at least ``min_inside`` of the undistorted frame (the
+        undistortion map with the same K, as ``cv2.initUndistortRectifyMap`` builds it) must come from inside
+        the image. Calibrations of real lenses pass both; coefficients from another camera, another unit or a
+        typing slip fail them. :meth:`load` refuses such a file; ``calibration.calibration_warnings`` is the
+        stricter check of a fresh calibration (it warns)."""
+        if not np.any(self.dist):
+            return None
+        K, d, W, H = self.K, self.dist, self.width, self.height
+        cx, cy = K[0, 2], K[1, 2]
+        s = np.linspace(0.0, 1.0, n + 1)[1:]
+        for ex, ey, name in ((0.0, cy, "left"), (W - 1.0, cy, "right"), (cx, 0.0, "top"), (cx, H - 1.0, "bottom")):
+            u = cx + s * (ex - cx)
+            v = cy + s * (ey - cy)
+            xy = np.linalg.solve(K, np.stack([u, v, np.ones_like(u)]))[:2].T
+            p, _ = cv2.projectPoints(np.column_stack([xy, np.ones(len(xy))]), np.zeros(3), np.zeros(3), K, d)
+            r = np.hypot(*(p.reshape(-1, 2) - K[:2, 2]).T)
+            if not np.all(np.isfinite(r)) or np.any(np.diff(r) <= 0):
+                k = int(np.argmax(~np.isfinite(np.diff(r)) | (np.diff(r) <= 0)))
+                return (f"distortion {np.round(d, 6).tolist()} folds the image: the distorted radius stops growing "
+                        f"{s[k]:.0%} of the way to the {name} edge")
+        mx, my = cv2.initUndistortRectifyMap(K, d, None, K, (W, H), cv2.CV_32FC1)
+        inside = float(np.mean((mx >= -0.5) & (mx <= W - 0.5) & (my >= -0.5) & (my <= H - 0.5)))
+        if inside < min_inside:
+            return (f"distortion {np.round(d, 6).tolist()} maps only {inside:.0%} of the undistorted {W}x{H} image "
+                    f"inside the image (a lens keeps most of it)")
+        return None
+
     # --- geometry ---------------------------------------------------------------------------------
     def project(self, X, pose: Pose) -> np.ndarray:
         r"""Pixels (n, 2) of world points X (n, 3): :math:`p = \operatorname{distort}(K [R|t] X)`."""
@@ -247,9 +280,13 @@ class Camera:
             raise ConfigError(f"{path}: [camera] distortion must be a flat list of 0, 4, 5, 8, 12 or 14 "
                               f"numbers (k1, k2, p1, p2, k3, ...), got shape {d.shape}")
         try:
-            return cls(K, d, cam["width"], cam["height"])
+            c = cls(K, d, cam["width"], cam["height"])
         except ConfigError as e:
             raise ConfigError(f"{path}: {e}") from None
+        why = c.distortion_problem()
+        if why:
+            raise ConfigError(f"{path}: [camera] {why}: is it the calibration of this camera?")
+        return c
 
 
 _atomic_write_text = atomic_write_text  # the name physar.cli.ar imports

@@ -14,6 +14,7 @@ import math
 import os
 from pathlib import Path
 
+import av
 import cv2
 import numpy as np
 import pytest
@@ -393,6 +394,29 @@ def test_more_bad_inputs_refused(user, tmp_path):
     (tmp_path / "junk.ply").write_bytes(bytes([0, 1, 2]) * 100)
     _refused(user, tmp_path, {"--object-mesh": tmp_path / "junk.ply"},
              "junk.ply: not a mesh trimesh or meshio can read")
+    # a still image named .mp4 (PyAV opens it as a one-frame video; was blamed on --fps / --spin-frames)
+    cv2.imwrite(str(tmp_path / "still.png"), np.full((64, 64, 3), 128, np.uint8))
+    (tmp_path / "still.mp4").write_bytes((tmp_path / "still.png").read_bytes())
+    args = list(user["args"])
+    args[args.index(d / "clip.mp4")] = tmp_path / "still.mp4"
+    r = cli(*args, "--out", tmp_path / "out")
+    still = f"error: {tmp_path / 'still.mp4'}: a still image (format png_pipe), not a video"
+    assert r.exit_code == 2 and err_lines(r) == [still], r.output
+    with av.open(str(tmp_path / "two.mp4"), "w") as c:  # a real video too short for a clip
+        st = c.add_stream(mp4_encoder(), rate=25)
+        st.width, st.height, st.pix_fmt = 64, 64, "yuv420p"
+        for _ in range(2):
+            c.mux(st.encode(av.VideoFrame.from_ndarray(np.zeros((64, 64, 3), np.uint8), format="rgb24")))
+        c.mux(st.encode())
+    with pytest.raises(I.ConfigError, match="two.mp4: the video has 2 frames; a clip needs >= 3"):
+        I.read_video(tmp_path / "two.mp4")
+    # distortion coefficients no lens has (another camera's, a typing slip): the undistorted frames would be garbage
+    text = (d / "camera.toml").read_text()
+    for dist, needle in (("[1000.0, 0.0, 0.0, 0.0, 0.0]", "maps only 3% of the undistorted 64x64 image"),
+                         ("[-10.0, 0.0, 0.0, 0.0, 0.0]", "folds the image: the distorted radius stops growing 59%")):
+        (tmp_path / "wild.toml").write_text(
+            "\n".join(ln if not ln.startswith("distortion") else f"distortion = {dist}" for ln in text.splitlines()))
+        _refused(user, tmp_path, {"--camera": tmp_path / "wild.toml"}, needle)
 
 
 def test_open_mesh_imported_with_a_warning(user, imported, tmp_path):

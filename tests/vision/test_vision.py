@@ -67,6 +67,10 @@ def test_camera_toml_roundtrip_and_errors(tmp_path):
         "distortion = [0.1, 0.2, 0.3]": "distortion",
         "matrix = [[600.0, 0, 320], [0, -600.0, 240], [0, 0, 1]]": "fx, fy > 0",
         "width = -5": "width",
+        # a lens never folds its image nor pushes most of it out of the frame (the undistortion would be garbage)
+        "distortion = [-1.5, 0.0, 0.0, 0.0, 0.0]": "folds the image: the distorted radius stops growing 9",  # r=0.47
+        "distortion = [0.0, 0.0, 5.0, 5.0, 0.0]": "folds the image",
+        "distortion = [1000.0, 0.0, 0.0, 0.0, 0.0]": "maps only 2% of the undistorted 640x480",
     }
     for line, msg in bad.items():
         key = line.split(" =")[0]
@@ -75,6 +79,8 @@ def test_camera_toml_roundtrip_and_errors(tmp_path):
         g.write_text(text)
         with pytest.raises(ConfigError, match=msg):
             Camera.load(g)
+    for d in ([-0.3, 0.1, 0, 0, 0], [-0.45, 0.25, 0, 0, -0.08], [0.2, -0.5, 0.001, 0.001, 0.3], [0.5, 0.5, 0, 0, 0.5]):
+        assert _cam(np.array(d, float)).distortion_problem() is None, d  # strong but real barrel / pincushion lenses
     with pytest.raises(ConfigError, match="not found"):
         Camera.load(tmp_path / "missing.toml")
     (tmp_path / "junk.toml").write_text("[camera\nwidth=")
