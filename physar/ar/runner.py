@@ -158,7 +158,7 @@ def _loop(process, camera, reader, source, out_video, out_csv, fps, crf, csv_hea
         if not sample.n:
             if interrupted:
                 raise KeyboardInterrupt(f"{guard.name} before the first frame of {source}; nothing written")
-            raise PhysarError(f"{source}: no frames")
+            raise PhysarError(f"{getattr(source, 'path', getattr(source, 'name', source))}: no frames")
         if writer is not None:
             writer.close()
         wall, cpu_s = time.perf_counter() - t_start, time.process_time() - cpu_start

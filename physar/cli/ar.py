@@ -100,6 +100,8 @@ def ar_run(
         raise ConfigError(f"--preset must be one of {', '.join(presets)}, got {preset!r}")
     if not 0 <= crf <= 51:
         raise ConfigError(f"--crf must be within 0..51, got {crf}")
+    if max_frames is not None and max_frames < 1:
+        raise ConfigError(f"--max-frames must be >= 1, got {max_frames}")
     spec = source if source is not None else str(camera)
     summary = _run_project(project, spec, out, csv_out, field, max_frames, preset, crf)
     summary.pop("results", None)
@@ -127,7 +129,8 @@ def _open(spec: str, cam, what: str):
     from physar.errors import ConfigError
 
     src = open_source(spec, width=cam.width, height=cam.height, convert="opencv")
-    if (src.width, src.height) != cam.size:  # (not closed here: a reader's decoding thread may still use it)
+    if (src.width, src.height) != cam.size:
+        src.close()  # stops the decoding thread first: left running, it aborted the interpreter at exit
         raise ConfigError(f"{spec} is {src.width}x{src.height} but {what} is for {cam.width}x{cam.height}")
     return src
 
@@ -149,8 +152,11 @@ def _run_project(project_path, spec, out, csv_out, field, max_frames, preset, cr
         project.config.overlay.field = field
     pipe = ProjectPipeline(project)      # built before the source opens: a live source drops frames meanwhile
     src = _open(spec, project.camera, f"{project_path} [camera] file")
-    return pipe.run(src, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf,
-                    keep_results=False)  # running statistics only: bounded memory on a live source
+    try:
+        return pipe.run(src, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf,
+                        keep_results=False)  # running statistics only: bounded memory on a live source
+    finally:
+        src.close()  # the reader's thread stopped before the interpreter ends, on an error too
 
 
 def ar_serve(

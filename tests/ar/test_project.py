@@ -328,6 +328,27 @@ def test_print_markers_writes_the_projects_markers_at_true_scale(project_dir, tm
     assert abs(side - 0.05 / 0.0254 * 300) < 1.5, side
 
 
+def test_refusals_after_the_video_opened_stop_its_decoding_thread(project_dir, tmp_path):
+    """A video of another size than the camera file is found once the reader (a prefetching thread) has opened
+    it. The thread must be stopped before the error ends the command: left blocked in the decoder, it aborted
+    the interpreter at exit (exit 134, "terminate called without an active exception") in 3 of 4 runs of a probe.
+    Mutant caught: the reader not closed on that path (its thread, blocked on the full 8-frame prefetch queue of
+    this 30-frame clip, is still alive). Also: --max-frames 0 refused in one line (it printed an object's repr)."""
+    import threading
+
+    video = tmp_path / "small.mp4"
+    with VideoWriter(video, 64, 36, 10) as w:
+        for k in range(30):
+            w.write(np.full((36, 64, 3), 8 * k, np.uint8))
+    before = {t.ident for t in threading.enumerate()}
+    err = _bad(project_dir, tmp_path / "a", lambda s: s, video)
+    assert "small.mp4 is 64x36 but" in err
+    alive = [t for t in threading.enumerate() if t.ident not in before]
+    assert not alive, alive
+    r = CliRunner().invoke(_app(), ["ar", "run", str(project_dir / "project.toml"), str(video), "--max-frames", "0"])
+    assert r.exit_code == 2 and r.stderr.strip() == "error: --max-frames must be >= 1, got 0", r.output
+
+
 def test_ar_run_refuses_an_output_over_the_input(project_dir, clip, tmp_path):
     """--out equal to the input video is refused before any work; the video is intact."""
     v = tmp_path / "in.mp4"
