@@ -7,6 +7,7 @@ key, in one line.
 from __future__ import annotations
 
 import tomllib
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +24,14 @@ from pydantic import (
     model_validator,
 )
 
-from physar.errors import ConfigError, MeshError, PhysarError, format_validation_error, refuse_coercion
+from physar.errors import (
+    ConfigError,
+    MeshError,
+    PhysarError,
+    PhysarWarning,
+    format_validation_error,
+    refuse_coercion,
+)
 from physar.fem.assembly import ElasticModel
 from physar.fem.elements import FESpace
 from physar.fem.loads import (
@@ -385,8 +393,19 @@ def solve_problem(problem: Problem, progress: Callable[[int, int], None] | None 
     s = problem.config.solver
     for p in problem.probes:  # fail before the solve if a probe is outside the mesh
         probe(problem.space, np.zeros(problem.space.n_dofs), p)
-    res = solve_static(problem.model, problem.f_ext, problem.fixed, steps=s.steps, tol=s.tol,
-                       max_iter=s.max_iter, progress=progress, prescribed=problem.prescribed, linear=s.linear)
+    with np.errstate(over="ignore", invalid="ignore"):  # judged below, in one line, not as numpy warnings
+        res = solve_static(problem.model, problem.f_ext, problem.fixed, steps=s.steps, tol=s.tol,
+                           max_iter=s.max_iter, progress=progress, prescribed=problem.prescribed, linear=s.linear)
+        u = np.linalg.norm(np.asarray(res.u).reshape(-1, 3), axis=1)  # inf where it overflows
+    X = problem.space.mesh.points
+    size = float(np.linalg.norm(X.max(0) - X.min(0)))
+    if not np.all(np.isfinite(u)):
+        raise PhysarError("the displacement is not finite: the stiffness is too small for the loads (check the "
+                          "material's E, in Pa, and the loads, in N)")
+    if u.max() > size:
+        warnings.warn(f"the largest displacement, {u.max():.3g} m, exceeds the body's size ({size:.3g} m, its "
+                      "bounding-box diagonal): check the material's E (Pa, not GPa or MPa) and the loads (N)",
+                      PhysarWarning, stacklevel=2)
     return FemResult(problem, res, von_mises(problem.model, res.u))
 
 

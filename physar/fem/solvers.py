@@ -112,7 +112,8 @@ class Factor:
     def solve(self, b: np.ndarray) -> np.ndarray:
         x = self._f(b) if self.method == "cholmod" else self._f.solve(b)
         if not np.all(np.isfinite(x)):
-            raise SolverError("the linear solve produced NaN or inf (singular system?)")
+            raise SolverError("the linear solve produced NaN or inf (a singular system, or a stiffness too small for the "
+                              "loads: check the supports and E, in Pa)")
         return x
 
 
