@@ -262,6 +262,7 @@ def ar_init(
     """Write a commented AR project template (model, camera, markers, dots, overlay) to edit for your object."""
     from physar.ar.project import TEMPLATE
     from physar.errors import ConfigError
+    from physar.output import check_destination
     from physar.vision.camera import _atomic_write_text
 
     if output.exists() and not force:
@@ -270,6 +271,7 @@ def ar_init(
         raise ConfigError(f"{output} is a folder; give a file name such as {output / 'project.toml'}")
     if not output.parent.is_dir() if str(output.parent) else False:
         raise ConfigError(f"{output.parent}: folder not found")
+    check_destination(output, suffixes=[".toml"], kind="AR project file")  # `init x.json`, `init newdir/`
     _atomic_write_text(output, TEMPLATE)
     log(f"wrote {output}: edit [model], [camera], [[marker]] and [dots], then `physar ar run {output} VIDEO`")
 

@@ -138,6 +138,13 @@ def test_ar_init_writes_and_refuses_to_overwrite(tmp_path):
     (tmp_path / "p.toml").write_text("mine")
     r = CliRunner().invoke(_app(), ["ar", "init", str(tmp_path / "p.toml")])
     assert r.exit_code == 2 and "exists" in r.stderr and (tmp_path / "p.toml").read_text() == "mine"
+    # a folder meant (trailing slash, not yet made) or another format's name: refused, nothing written (mutant:
+    # no suffix check: a TOML file named "newdir" or "x.json" was written, exit 0)
+    for name, needle in ((str(tmp_path / "newdir") + "/", "unknown AR project file suffix '(none)'"),
+                         (str(tmp_path / "x.json"), "unknown AR project file suffix '.json'")):
+        r = CliRunner().invoke(_app(), ["ar", "init", name])
+        assert r.exit_code == 2 and needle in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.toml"]
 
 
 def _bad(project_dir, tmp_path, edit, video=None):
