@@ -13,6 +13,9 @@ from physar.errors import ConfigError
 _METHODS = ["symplectic_euler", "be", "si", "midpoint", "genalpha", "theta", "trbdf2"]
 
 
+HW_RANGE = (1e-6, 1e6)  # backward Euler's d/omega stays within 1e-3 of its closed form here; at 1e-8 it is 2x off
+
+
 def _parse_hw(hw: list[str] | None, extra: list[str]) -> list[float]:
     vals = []
     for tok in list(hw or []) + list(extra):
@@ -25,6 +28,9 @@ def _parse_hw(hw: list[str] | None, extra: list[str]) -> list[float]:
                 raise ConfigError(f"--hw: {part!r} is not a number") from None
             if not 0 < x < float("inf"):
                 raise ConfigError(f"--hw values must be finite and > 0, got {x}")
+            if not HW_RANGE[0] <= x <= HW_RANGE[1]:
+                raise ConfigError(f"--hw {x:g} is outside [{HW_RANGE[0]:g}, {HW_RANGE[1]:g}]: there rho is within "
+                                  "rounding of 1 or of 0, and d/omega = -(2/(h omega)) ln rho is rounding noise")
             vals.append(x)
     return vals
 

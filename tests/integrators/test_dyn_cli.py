@@ -44,6 +44,20 @@ def test_damping_genalpha_r_and_plot(app, tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_damping_range_where_double_precision_holds(app):
+    """At both ends of the accepted h*omega range backward Euler's d/omega matches its closed form
+    ln(1 + x^2) / x within 1e-3; beyond it, refused in one line (1e-320 printed d/omega inf; at 1e-8 the value is
+    2.2e-8 for a true 1e-8). Mutants: no range (exit 0, inf); a range narrower than the closed form allows."""
+    res = CliRunner().invoke(app, ["damping", "--method", "be", "--hw", "1e-6", "1e6", "--json"])
+    assert res.exit_code == 0, res.output
+    hw = np.array([1e-6, 1e6])
+    np.testing.assert_allclose(json.loads(res.stdout)["d_over_omega"], np.log1p(hw**2) / hw, rtol=1e-3)
+    for x in ("1e-320", "1e-8", "1e8", "1e300"):
+        res = CliRunner().invoke(app, ["damping", "--method", "be", "--hw", x])
+        assert res.exit_code == 2 and "is outside [1e-06, 1e+06]: there rho is within rounding" in res.output, x
+        assert len(res.output.strip().splitlines()) == 1, res.output
+
+
 @pytest.mark.parametrize("args,msg", [
     (["damping", "--method", "rk4", "--hw", "1"], "unknown"),
     (["damping", "--method", "be", "--hw", "abc"], "not a number"),
