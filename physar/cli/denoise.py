@@ -39,13 +39,13 @@ def _is_cloud(path: Path, read_ply) -> bool:
         return False
 
 
-def _check_out(out: Path, inp: Path, cloud: bool) -> None:
-    """The output checked before any work: a surface format (.ply only for a point cloud), not the input,
-    a writable place (one line naming the path)."""
+def _check_out(out: Path, inp: Path, cloud: bool, reference: Path | None = None) -> None:
+    """The output checked before any work: a surface format (.ply only for a point cloud), neither the input
+    nor the --reference mesh (both are read, never overwritten), a writable place (one line naming the path)."""
     from physar.geometry.io import SURFACE_FORMATS
     from physar.output import check_destination
 
-    check_destination(out, inputs=[inp], suffixes=[".ply"] if cloud else sorted(SURFACE_FORMATS),
+    check_destination(out, inputs=[inp, reference], suffixes=[".ply"] if cloud else sorted(SURFACE_FORMATS),
                       kind="point cloud" if cloud else "surface mesh")
 
 
@@ -184,7 +184,7 @@ def register(app: typer.Typer) -> None:
         import numpy as np
         from tqdm import tqdm
 
-        from physar.geometry.denoise import MAX_ITERATIONS, METHODS, denoise
+        from physar.geometry.denoise import MAX_ITERATIONS, METHODS, check_cloud_extent, denoise
         from physar.geometry.pointcloud import denoise_points
         from physar.output import check_destination
 
@@ -200,7 +200,7 @@ def register(app: typer.Typer) -> None:
             raise PhysarError(f"--iterations must be within 1..{MAX_ITERATIONS}, got {iterations}")
         params = _method_params(method, kappa=kappa, xi=xi, fidelity=fidelity, tau=tau, rescale=rescale,
                                 sigma_r=sigma_r)
-        _check_out(out, inp, cloud=False)
+        _check_out(out, inp, cloud=False, reference=reference)
         png = None if no_render else (render or out.with_suffix(".png"))
         if png is not None:
             check_destination(png, inputs=[inp, out, reference], suffixes=[".png"], kind="picture")
@@ -214,7 +214,7 @@ def register(app: typer.Typer) -> None:
                 raise PhysarError(f"{reference}: --reference must have the same faces as {inp} (the clean copy "
                                   f"of the noisy mesh)")
         if mesh is None:
-            _check_out(out, inp, cloud=True)
+            _check_out(out, inp, cloud=True, reference=reference)
             if method not in ("al", "msal"):
                 raise PhysarError(f"{inp}: point clouds support --method al or msal, got {method!r}")
             if k < 1:
@@ -222,6 +222,7 @@ def register(app: typer.Typer) -> None:
             if {"rescale", "sigma_r", "lam"} & set(params):
                 raise PhysarError(f"{inp}: point clouds take --kappa and --tau (al) or --kappa, --xi and "
                                   f"--fidelity (msal)")
+            check_cloud_extent(pts, str(inp))
         bar = tqdm(desc=f"{method} iterations", file=sys.stderr, disable=None if not json_out else True)
         prog = lambda i, q: bar.update(1)
         try:

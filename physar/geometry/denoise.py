@@ -75,7 +75,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from physar.errors import PhysarError
+from physar.errors import MeshError, PhysarError
 from physar.geometry.mesh import TriMesh
 from physar.geometry.quality import check_surface, unique_edges
 
@@ -92,6 +92,36 @@ def directed_edges(edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     dst = np.concatenate([edges[:, 1], edges[:, 0]])
     order = np.argsort(src, kind="stable")
     return src[order], dst[order]
+
+
+# A surface whose area is below this fraction of its bounding box's largest side squared has no extent to denoise
+# (all points coincident, or on one line): far below any real mesh (a 1 mm x 1 km strip is 1e-6).
+DEGENERATE_AREA = 1e-12
+
+
+def check_extent(mesh: TriMesh) -> None:
+    r"""Raise MeshError (one line naming the mesh's file) when the surface has no area to denoise:
+    :math:`A = \tfrac12 \sum_f |(x_1 - x_0) \times (x_2 - x_0)| \le` :data:`DEGENERATE_AREA` :math:`L^2`,
+    :math:`L` the largest side of the bounding box (all points coincident: :math:`L = A = 0`; all on a line:
+    :math:`A = 0`). Its normals, which every method here filters or moves along, are undefined."""
+    x = mesh.points[mesh.faces]
+    area = 0.5 * float(np.linalg.norm(np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), axis=1).sum())
+    side = float(np.ptp(mesh.points, axis=0).max())
+    if not area > DEGENERATE_AREA * side**2:
+        what = "all its points coincide" if side == 0 else "all its points lie on one line"
+        raise MeshError(f"{mesh.name}: the surface has zero area ({what}); there is no surface to denoise")
+
+
+def check_cloud_extent(points: np.ndarray, name: str) -> None:
+    r"""Raise MeshError (one line naming ``name``, the file) when a point cloud spans no surface: the singular
+    values :math:`s_1 \ge s_2` of its centred points have :math:`s_2 \le` :data:`DEGENERATE_AREA`
+    :math:`s_1` (all points coincident: :math:`s_1 = 0`; all on a line: :math:`s_2 = 0`), so the plane fitted to
+    a neighbourhood, whose normal AL/MSAL move a point along, is undefined."""
+    p = np.asarray(points, dtype=float)
+    s = np.linalg.svd(p - p.mean(axis=0), compute_uv=False) if len(p) > 1 else np.zeros(2)
+    if not (len(s) > 1 and s[1] > DEGENERATE_AREA * s[0]):
+        what = "all its points coincide" if not s[0] > 0 else "all its points lie on one line"
+        raise MeshError(f"{name}: the point cloud spans no surface ({what}); there is nothing to denoise")
 
 
 def heights(q: np.ndarray, n: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -191,6 +221,7 @@ class SurfaceOps:
     @classmethod
     def from_mesh(cls, mesh: TriMesh) -> SurfaceOps:
         check_surface(mesh)
+        check_extent(mesh)
         f = mesh.faces
         n, m = mesh.n_points, mesh.n_faces
         e = np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
@@ -432,6 +463,7 @@ def _umbrella(q: np.ndarray, lap: sparse.csr_matrix) -> np.ndarray:
 
 def _umbrella_matrix(mesh: TriMesh) -> sparse.csr_matrix:
     check_surface(mesh)
+    check_extent(mesh)
     e = unique_edges(mesh.faces, mesh.n_points)
     src, dst = directed_edges(e)
     deg = np.bincount(src, minlength=mesh.n_points).astype(float)
@@ -500,7 +532,8 @@ def bilateral_normal_filter(
     i, j = ff.row, ff.col
     q = mesh.points.copy()
     cen = q[f].mean(axis=1)
-    sig_s = float(np.linalg.norm(cen[i] - cen[j], axis=1)[i != j].mean())
+    dist = np.linalg.norm(cen[i] - cen[j], axis=1)[i != j]
+    sig_s = float(dist.mean()) if len(dist) else 1.0  # a lone face: no neighbour, W_s unused
     ws = np.exp(-np.einsum("ij,ij->i", cen[i] - cen[j], cen[i] - cen[j]) / (2 * sig_s**2))
     c = mesh.face_normals(normalize=False)
     area = 0.5 * np.linalg.norm(c, axis=1)

@@ -90,6 +90,22 @@ calibration meshes and 18 small cases (plate with a hole, box, sphere; 0.2-0.3 �
 evaluations of SURE where the previous one made 22-36 (the same 8-13 where the lowest is at 1-4 iterations,
 as on the scans; ``tests/geometry/test_denoise_search.py`` checks three cases against the full grid). On flat
 and smooth shapes, where both run to the cap of 100, that is 9 counts per :math:`\sigma_r` instead of 18.
+
+The input itself is the last candidate: the same estimate for the identity :math:`f(y) = y`,
+:math:`\mathrm{SURE}_0 = 2\sigma^2 (\operatorname{mean} (A b)^2 - 1) \approx 2\sigma^2` (the risk of the
+noise itself), is compared with the lowest one, and where no filtering is estimated to beat it the input comes
+back unchanged (no volume offset either). A clean mesh (a CAD export, an already denoised scan) has
+:math:`\sigma_e = 0`, or round-off (1.7e-9 ē on a clean 4 x 1 x 1 box, from the quadric fit), so every filtered
+result carries the risk :math:`|A(q - y)|^2` of the shape it changes (stage 2 alone moved the vertices of that
+box by 0.074 m, 7 % of its 0.1 m side, and its volume by -7.8 %) against :math:`\mathrm{SURE}_0 \approx 0`: it
+comes back as it was. With :math:`\sigma = 0` exactly (or :math:`\varepsilon` below the smallest float) the
+estimate cannot be formed (it divides by :math:`\varepsilon`); its limit, :math:`\mathrm{SURE}_0 = 0 \le`
+every other one, is taken without evaluating the filters. Noisy meshes are unaffected (at 0.03 and 0.1 ē on a
+box, a sphere and a cube every lowest estimate lay 2.8-17x below :math:`\mathrm{SURE}_0`, and the 0.2-0.3 ē
+protocol and search tests keep their choices); at 0.01 ē on a 20 x 4 x 4-cell box the input is
+kept, rightly for the face-tilt risk (true 2.5e-7 m² for the input, 3.9e-7 m² filtered; SURE 2.6e-7 and
+3.8e-7) though the mean face-normal angle would have gone from 1.14 to 0.73 degrees.
+
 Unlike the discrepancy principle (``rule="discrepancy"``: the first :math:`k` whose residual
 :math:`\operatorname{rms}_i((\hat q_i - x_i) \cdot n_i)` reaches ``discrepancy`` :math:`\cdot\, \sigma_e / 0.29`,
 the default before SURE), SURE weighs the noise removed against the shape removed, so it stops early on
@@ -372,7 +388,9 @@ def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None =
     With ``normal_iterations=None`` the stage-1 iteration count (and with ``sigma_r=None`` the range width)
     follows ``rule`` (SURE by default). Returns a mesh with the same faces; `progress(k, q)` is called after each
     evaluated stage-1 iteration count k; `info`, if given, receives the chosen ``sigma_r``, ``normal_iterations``
-    and (rule "sure") the list ``risk`` of (:math:`\sigma_r`, k, estimate in m²).
+    and (rule "sure") the list ``risk`` of (:math:`\sigma_r`, k, estimate in m²) and ``risk_identity``, the
+    estimate for the input itself; where that one is the lowest (a mesh without measurable noise) the input's
+    points come back unchanged and ``normal_iterations`` is 0, ``sigma_r`` None.
     """
     from physar.geometry.denoise import SurfaceOps, directed_edges
 
@@ -419,6 +437,10 @@ def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None =
         sigma = SURE_NOISE_FACTOR * noise_scale(mesh) / MAD_RATIO
         probe = np.random.default_rng(0).standard_normal(q0.shape)
         eps = EPS_FD * sigma
+        if not eps > 0:  # no measurable noise: SURE_0 = 0, no filter can estimate lower (module doc)
+            if info is not None:
+                info.update(sigma_r=None, normal_iterations=0, risk_identity=0.0, risk=[])
+            return mesh.with_points(q0)
         sr0 = st.sigma_r if st.sigma_r is not None else max(st.sigma_r_candidates)
         qref = reconstruct(q0, filt.run(nf, sr0, 1, st.guided), 1, sr0)
         tilt = FaceTilt(mesh.faces, _face_geometry(qref, mesh.faces)[0])  # normals not those of the noisy input
@@ -483,6 +505,13 @@ def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None =
             lo_k, lo_r, lo_state = seen[lowest - 1] if lowest > 0 else (0, np.inf, start)
             known = {k: (r, state) for k, r, state in seen[lowest:]}
             walk(sr, [c for c in counts if c > lo_k], st.patience, lo_state, known, lo_r)
+        risk0 = sure_tilt(tilt, q0, q0, yp, ap, eps, sigma)  # the input itself, f(y) = y (module doc)
+        if info is not None:
+            info["risk_identity"] = risk0
+        if not best["risk"] < risk0:
+            if info is not None:
+                info.update(sigma_r=None, normal_iterations=0)
+            return mesh.with_points(q0)
         q = best["q"]
     if st.preserve_volume and v0 is not None:
         n, vol, area_tot = ops.geometry((q - origin).astype(np.float32))
