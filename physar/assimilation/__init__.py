@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from physar.errors import PhysarError
+from physar.errors import PhysarError, PhysarWarning
 
 
 @dataclass
@@ -297,6 +297,10 @@ def assimilate(model, observed, mu0=None, bounds=None, alpha=0.0, prior=None, ma
     :math:`\lVert r \rVert / \lVert u_\text{obs} \rVert` stays above it; it fired on about half the frames at
     1 % noise (issue 19). When given it decides the restart (with a DeprecationWarning) and ``fit_ratio`` is
     still reported. ``alpha``, ``restart_residual``, ``noise`` and ``model_error`` must be finite and >= 0.
+
+    A :class:`~physar.errors.PhysarWarning` says when the returned fit leaves more than ``UNEXPLAINED``
+    (half) of :math:`\lVert u_\text{obs} \rVert^2` in the residual: the model then explains less of the
+    observations than it leaves unexplained, and the estimate is not to be trusted.
     """
     t0 = time.perf_counter()
     y = np.asarray(observed, float).ravel()
@@ -321,7 +325,10 @@ def assimilate(model, observed, mu0=None, bounds=None, alpha=0.0, prior=None, ma
     fast = getattr(model, "_obs_qr", None) is not None and hasattr(model, "_coeffs")
     restarted = False
     m, p = y.size, lo.size
-    yy = float(y @ y)
+    with np.errstate(over="ignore"):
+        yy = float(y @ y)
+    if not math.isfinite(yy):
+        raise PhysarError(f"observed displacements too large: their largest magnitude is {np.abs(y).max():.3g} m")
     if fast:
         Qt, R = model.observation_qr
         Fobs = model._obs
@@ -376,11 +383,31 @@ def assimilate(model, observed, mu0=None, bounds=None, alpha=0.0, prior=None, ma
     if alpha:
         A = A + alpha * np.eye(mu.size)
     rr = float(r @ r)
+    if rr > UNEXPLAINED * yy:
+        warnings.warn(PhysarWarning(
+            f"the fit leaves {_pct(rr, yy)} of the squared norm of the observed displacements unexplained "
+            f"(residual {math.sqrt(rr):.3g} m, observations {math.sqrt(yy):.3g} m): the model at this estimate "
+            "explains less than half of them (a wrong minimum, observations in another unit or of other points, "
+            "another body or load, or noise above the signal); do not trust this estimate"), stacklevel=2)
     sigma2 = rr / max(y.size - mu.size, 1)
     cov = sigma2 * _inv_small(A)
     std = np.sqrt(np.abs(np.diag(cov)))
     return AssimilationResult(mu, float(np.sqrt(rr)), it, std, cov,
                               (time.perf_counter() - t0) * 1e6, restarted, fit)
+
+
+#: fraction of :math:`\lVert u_\text{obs} \rVert^2` left in the squared residual above which :func:`assimilate`
+#: warns: the fit then explains less of the observations than it leaves unexplained (a coefficient of
+#: determination about zero, :math:`1 - \lVert r \rVert^2 / \lVert u_\text{obs} \rVert^2`, below 1/2), i.e.
+#: the observations are mostly something the model cannot produce for any parameter value in its ranges
+#: (another unit, points in the deformed instead of the reference configuration, another body or load) or
+#: noise larger than the signal. Ordinary noise on a good fit leaves a few percent.
+UNEXPLAINED = 0.5
+
+
+def _pct(rr, yy) -> str:
+    """rr / yy as a percentage ("all" when yy is 0)."""
+    return f"{100 * rr / yy:.3g} %" if yy > 0 else "all"
 
 
 def _grid(lo, hi, n_starts):
@@ -438,8 +465,16 @@ def observation_matrix(space, points):
     return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * p, space.n_dofs))
 
 
-def read_observations(path) -> tuple[np.ndarray, np.ndarray]:
-    """OBS.csv with a header x,y,z,ux,uy,uz (reference point, m; measured displacement, m)."""
+def read_observations(path, body_size=None) -> tuple[np.ndarray, np.ndarray]:
+    """OBS.csv with a header x,y,z,ux,uy,uz (reference point, m; measured displacement, m).
+
+    Read as UTF-8 with or without a byte-order mark (an Excel export); lines starting with ``#`` and empty
+    lines are skipped. Every data row must have as many values as the header (a longer row is not cut to
+    fit), each of the six a finite number. With ``body_size`` (m, e.g. the diagonal of the bounding box of
+    the model's mesh) a displacement larger than the body itself is refused: it is not a displacement of
+    the body (wrong unit, a column shifted, an overflowed value), and a fit to it would report nonsense.
+    Errors name the file, its line and the column.
+    """
     from pathlib import Path
 
     from physar.errors import ConfigError
@@ -450,16 +485,17 @@ def read_observations(path) -> tuple[np.ndarray, np.ndarray]:
     import csv
 
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
-            rows = list(csv.reader(fh))
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.reader(fh)
+            rows = [(reader.line_num, r) for r in reader]
     except (UnicodeDecodeError, csv.Error):
         raise ConfigError(f"{path}: not a text CSV file (need a header x,y,z,ux,uy,uz)") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the observation file ({exc.strerror or exc})") from None
-    rows = [r for r in rows if r and not r[0].lstrip().startswith("#")]
+    rows = [(n, r) for n, r in rows if r and not r[0].lstrip().startswith("#")]
     if not rows:
         raise ConfigError(f"{path}: empty observation file")
-    header = [h.strip().lower() for h in rows[0]]
+    header = [h.strip().lower() for h in rows[0][1]]
     cols = ["x", "y", "z", "ux", "uy", "uz"]
     missing = [c for c in cols if c not in header]
     if missing:
@@ -469,18 +505,30 @@ def read_observations(path) -> tuple[np.ndarray, np.ndarray]:
         raise ConfigError(f"{path}: column(s) {', '.join(twice)} given twice in the header")
     idx = [header.index(c) for c in cols]
     data = []
-    for i, r in enumerate(rows[1:], start=2):
-        try:
-            data.append([float(r[k]) for k in idx])
-        except (ValueError, IndexError):
-            raise ConfigError(f"{path}: line {i}: expected 6 numbers in columns {','.join(cols)}, got {r}") from None
+    for n, r in rows[1:]:
+        if len(r) != len(header):
+            raise ConfigError(f"{path}: line {n}: {len(r)} values, the header has {len(header)} columns "
+                              f"({','.join(header)}): {r}")
+        vals = []
+        for c, k in zip(cols, idx):
+            try:
+                v = float(r[k])
+            except ValueError:
+                raise ConfigError(f"{path}: line {n}, column {c}: {r[k].strip()!r} is not a number") from None
+            if not math.isfinite(v):
+                raise ConfigError(f"{path}: line {n}, column {c}: {r[k].strip()} is not a finite number")
+            vals.append(v)
+        if body_size is not None and math.hypot(*vals[3:]) > body_size:
+            c = cols[3 + int(np.argmax(np.abs(vals[3:])))]
+            raise ConfigError(
+                f"{path}: line {n}, column {c}: displacement ({', '.join(f'{v:g}' for v in vals[3:])}) m is "
+                f"larger than the body itself ({body_size:.3g} m, the diagonal of its bounding box); "
+                "displacements must be in m")
+        data.append(vals)
     data = np.array(data).reshape(-1, 6)
     if len(data) == 0:
         raise ConfigError(f"{path}: no observation rows")
-    if not np.all(np.isfinite(data)):
-        raise ConfigError(f"{path}: NaN or inf in the observations")
     return data[:, :3], data[:, 3:]
-
 
 
 __all__ = ["AssimilationResult", "Assimilator", "assimilate", "observation_matrix", "read_observations"]

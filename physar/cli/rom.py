@@ -28,6 +28,9 @@ def _parse_params(model, items: list[str], flag: str = "--param", partial: bool 
         name = name.strip()
         if not sep or name not in model.names:
             raise ConfigError(f"{flag} {it!r}: expected NAME=VALUE with NAME one of {model.names}")
+        if name in given:  # "last wins" would silently drop a value the user typed
+            first = next(i for i in items if i.partition("=")[0].strip() == name)
+            raise ConfigError(f"{flag} given twice for {name} ({first!r} and {it!r}); give each parameter once")
         try:
             given[name] = float(val)
         except ValueError:
@@ -67,6 +70,10 @@ def build(
     check_toml(config, "rom build file")
     check_destination(out, inputs=[config], suffixes=[".npz"], kind="reduced model")
     cfg = load_rom_config(config)
+    given = [f for f, v in (("--workers", workers), ("--scheduler", scheduler)) if v is not None]
+    if given and cfg.rom.method != "pgd_nonintrusive":  # silently ignored otherwise
+        raise PhysarError(f"{' and '.join(given)}: only for [rom] method = \"pgd_nonintrusive\" (its snapshot "
+                          f"solves); {config} has method = {cfg.rom.method!r}")
     bar = tqdm(desc=f"rom build ({cfg.rom.method})", file=sys.stderr, unit="mode" if cfg.rom.method == "pgd" else "solve")
 
     def progress(done: int, total: int) -> None:
@@ -290,7 +297,8 @@ def assimilate_cmd(
         log("warning: --restart-residual is deprecated: the multi-start is decided by a statistical test "
              "(--false-alarm, --noise, --model-error)")
     rom = SeparatedModel.load(model_file)
-    pts, disp = read_observations(observations)
+    lo, hi = rom.mesh().bounds
+    pts, disp = read_observations(observations, body_size=float(np.linalg.norm(hi - lo)))
     try:
         C = observation_matrix(rom.space(), pts)
     except PhysarError as exc:

@@ -234,7 +234,16 @@ class RomSection(_Strict):
     def _check_tol_needs_points(self):
         if self.check_tol is not None and self.check_points == 0:
             raise ValueError("check_tol needs check_points > 0 (the error estimate it applies to)")
+        if self.method is not None:  # else checked once RomConfig has chosen the method
+            self._check_dask_keys()
         return self
+
+    def _check_dask_keys(self, where="", why="method"):
+        """workers / scheduler would be silently ignored by any method but the non-intrusive one: refused."""
+        given = [k for k in ("workers", "scheduler") if getattr(self, k) is not None]
+        if given and self.method != "pgd_nonintrusive":
+            raise ValueError(f"{where}{' and '.join(given)}: only for method = \"pgd_nonintrusive\" (its snapshot "
+                             f"solves); {why} is {self.method!r}")
 
 
 class RomConfig(FemConfig):
@@ -267,6 +276,7 @@ class RomConfig(FemConfig):
         if self.rom.method is None:  # the default: intrusive where the model is linear
             self.rom = self.rom.model_copy(update={"method": "pgd" if self.material.model == "linear"
                                                    else "pgd_nonintrusive"})
+            self.rom._check_dask_keys("[rom] ", "the default method for this material")
         order = {"load_position": 0, "load_magnitude": 1, "load_offset": 2}
         self.parameter.sort(key=lambda p: order.get(p.kind, 3))
         return self

@@ -207,7 +207,10 @@ class SeparatedModel:
         """Read a model written by :meth:`save` (``allow_pickle=False``).
 
         Raises :class:`ReducedModelError` for a file that is not a physar reduced model, of another
-        format version, or (with ``mesh``) built on another mesh (SHA-256 checksum mismatch).
+        format version, or (with ``mesh``) built on another mesh (SHA-256 checksum mismatch); and, naming the
+        file and the array, for arrays that do not fit together: a NaN or infinite value, a grid not strictly
+        increasing, G_j not (n_modes, grid size), a stored mesh that is invalid or off its checksum, or modes F
+        without one column per DOF of the stored mesh.
         """
         try:
             z = np.load(path, allow_pickle=False)
@@ -235,23 +238,61 @@ class SeparatedModel:
                     meta = json.loads(str(z["metadata_json"]))
                 else:
                     meta = dict(zip([str(k) for k in z["meta_keys"]], [str(s) for s in z["meta_values"]]))
-                model = cls(z["F"], [z[f"grid_{j}"] for j in range(len(names))],
-                            [z[f"G_{j}"] for j in range(len(names))], names,
-                            [str(s) for s in z["units"]], meta,
-                            [str(s) for s in z["kinds"]] if v >= 2 else None)  # version 1: inferred
-                if "mesh_points" in z.files:
-                    model._mesh_arrays = (z["mesh_points"], z["mesh_cells"])
+                arrays = {k: z[k] for k in ("F", *(f"{a}_{j}" for j in range(len(names)) for a in ("grid", "G")))}
+                units = [str(s) for s in z["units"]]
+                kinds = [str(s) for s in z["kinds"]] if v >= 2 else None  # version 1: inferred
+                mesh_arrays = (z["mesh_points"], z["mesh_cells"]) if "mesh_points" in z.files else None
             except KeyError as e:
                 raise ReducedModelError(f"{path}: reduced model is incomplete (missing {e})") from None
-            except ValueError as e:  # e.g. an object array, which would need pickle
+            except (TypeError, ValueError) as e:  # e.g. an object array, which would need pickle
                 raise ReducedModelError(f"{path}: cannot read reduced model ({e})") from None
-        if model._mesh_arrays is not None:
-            stored = model.mesh()
-            if "mesh_checksum" in meta and stored.checksum() != meta["mesh_checksum"]:
-                raise ReducedModelError(f"{path}: stored mesh does not match its checksum (corrupt file)")
+        if not isinstance(meta, dict):
+            raise ReducedModelError(f"{path}: metadata_json is not a JSON object")
+        _check_arrays(path, names, units, kinds, arrays)
+        try:
+            model = cls(arrays["F"], [arrays[f"grid_{j}"] for j in range(len(names))],
+                        [arrays[f"G_{j}"] for j in range(len(names))], names, units, meta, kinds)
+        except PhysarError as e:  # whatever _check_arrays left to the constructor, named with the file
+            raise ReducedModelError(f"{path}: {str(e).removeprefix('SeparatedModel: ')}") from None
+        if mesh_arrays is not None:
+            model._attach_mesh(path, *mesh_arrays)
         if mesh is not None:
             model.check_mesh(mesh, source=str(path))
         return model
+
+    def _attach_mesh(self, path, points, cells):
+        """Validate the mesh stored in file ``path`` (finite points, integer cells, valid tetrahedra, its
+        checksum) and the modes against it (F has one column per DOF of the stored mesh and element)."""
+        from physar.errors import MeshError
+        from physar.fem import FESpace
+        from physar.geometry import TetMesh
+
+        for key, a, width in (("mesh_points", points, 3), ("mesh_cells", cells, 4)):
+            if a.ndim != 2 or a.shape[1] != width or not len(a):
+                raise ReducedModelError(f"{path}: {key} has shape {a.shape}, expected (n, {width})")
+        if points.dtype.kind not in "fiu" or not np.all(np.isfinite(points)):
+            bad = 0 if points.dtype.kind not in "fiu" else int(np.flatnonzero(~np.isfinite(points).all(axis=1))[0])
+            raise ReducedModelError(f"{path}: mesh_points: point {bad} is not a finite number ({points[bad].tolist()})")
+        if cells.dtype.kind not in "iu":
+            raise ReducedModelError(f"{path}: mesh_cells must be integer node indices, got dtype {cells.dtype}")
+        try:
+            mesh = TetMesh(points, cells, name=f"{path}: stored mesh (mesh_points, mesh_cells)")
+        except MeshError as e:
+            raise ReducedModelError(str(e)) from None
+        want = self.metadata.get("mesh_checksum")
+        if want is not None and mesh.checksum() != want:
+            raise ReducedModelError(f"{path}: stored mesh does not match its checksum (corrupt file)")
+        element = self.metadata.get("element", "P2")
+        try:
+            space = FESpace(mesh, element)
+        except PhysarError as e:
+            raise ReducedModelError(f"{path}: metadata element: {e}") from None
+        if self.F.shape[1] != space.n_dofs:
+            raise ReducedModelError(
+                f"{path}: F has {self.F.shape[1]} columns, the stored mesh ({mesh.n_points} points, {element}) "
+                f"has {space.n_dofs} DOFs (corrupt or edited file)")
+        self._mesh_arrays = (mesh.points, mesh.cells)
+        self.__dict__["_space_cache"] = [space]
 
     _mesh_arrays = None
 
@@ -282,6 +323,42 @@ class SeparatedModel:
         if not cache:
             cache.append(FESpace(self.mesh(), self.metadata.get("element", "P2")))
         return cache[0]
+
+
+def _check_arrays(path, names, units, kinds, arrays) -> None:
+    """Refuse, naming file and field, a reduced model whose arrays are not real, finite and of matching
+    shapes: F (n_modes, n_dof); per parameter j a strictly increasing grid_j (>= 2 points) and G_j
+    (n_modes, grid_j size); one unit (and kind) per name."""
+    p = len(names)
+    if p == 0:
+        raise ReducedModelError(f"{path}: names is empty (a reduced model has at least one parameter)")
+    if len(set(names)) != p:
+        raise ReducedModelError(f"{path}: names {names} has a name twice")
+    for key, vals in (("units", units), ("kinds", kinds)):
+        if vals is not None and len(vals) != p:
+            raise ReducedModelError(f"{path}: {key} has {len(vals)} entries for {p} parameters {names}")
+    for key, a in arrays.items():
+        if a.dtype.kind not in "fiu":
+            raise ReducedModelError(f"{path}: {key} must be an array of real numbers, got dtype {a.dtype}")
+        if not np.all(np.isfinite(a)):
+            i = np.unravel_index(int(np.flatnonzero(~np.isfinite(a))[0]), a.shape)
+            where = f"[{', '.join(map(str, i))}]" if a.ndim else ""
+            raise ReducedModelError(f"{path}: {key}{where} = {a[i]} is not a finite number")
+    F = arrays["F"]
+    if F.ndim != 2 or 0 in F.shape:
+        raise ReducedModelError(f"{path}: F has shape {F.shape}, expected (n_modes, n_dof), both >= 1")
+    for j, n in enumerate(names):
+        x, g = arrays[f"grid_{j}"], arrays[f"G_{j}"]
+        if x.ndim != 1 or x.size < 2:
+            raise ReducedModelError(f"{path}: grid_{j} (parameter {n!r}) has shape {x.shape}, expected (n,) "
+                                    "with n >= 2")
+        if np.any(np.diff(x) <= 0):
+            k = int(np.flatnonzero(np.diff(x) <= 0)[0])
+            raise ReducedModelError(f"{path}: grid_{j} (parameter {n!r}) must be strictly increasing; "
+                                    f"grid_{j}[{k + 1}] = {x[k + 1]} follows grid_{j}[{k}] = {x[k]}")
+        if g.shape != (F.shape[0], x.size):
+            raise ReducedModelError(f"{path}: G_{j} (parameter {n!r}) has shape {g.shape}, expected "
+                                    f"{(F.shape[0], x.size)} (n_modes of F, points of grid_{j})")
 
 
 def infer_kinds(names, units, metadata) -> list[str]:

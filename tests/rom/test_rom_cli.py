@@ -107,6 +107,7 @@ def test_assimilate_cli(built, tmp_path):
     out = json.loads(res.stdout)
     assert set(out) >= {"params", "std", "residual", "iterations", "time_us"}
     assert abs(out["params"]["s"] - s_true) < 1e-3 and out["std"]["s"] < 1e-3
+    assert "warning:" not in res.stderr  # mutant: the "explains nothing" warning on a good fit (threshold 0)
     bad = tmp_path / "bad.csv"
     bad.write_text("x,y,z,ux,uy\n0,0,0,0,0\n")
     res = _run("assimilate", tmp / "m.npz", bad)

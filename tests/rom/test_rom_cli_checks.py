@@ -155,3 +155,91 @@ def test_eval_refuses_a_bad_output_before_any_work(built, tmp_path, kind):
     size = model.stat().st_size
     _one_line_error(_run("rom", "eval", model, "--param", "s=0.5", "--param", "P=1", "--out", out), str(out))
     assert model.stat().st_size == size and sorted(p.name for p in tmp_path.iterdir()) == ["d.vtu"]
+
+
+# ------------------------------------------------------------------------------------------------ corrupt models
+OBS = "x,y,z,ux,uy,uz\n1.0,0.05,0.05,0,0,-1e-5\n0.5,0.05,0.05,0,0,-3e-6\n"
+
+
+def _edited(built, tmp_path, key, edit):
+    _, model = built
+    z = dict(np.load(model))
+    z[key] = edit(z[key].copy())
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, **z)
+    (tmp_path / "obs.csv").write_text(OBS)
+    return bad
+
+
+def _nan_first(F):
+    F[0, 0] = np.nan
+    return F
+
+
+@pytest.mark.parametrize(("key", "edit", "words"), [
+    ("F", lambda F: F[:, :100], ["bad.npz", "F has 100 columns", "DOFs"]),
+    ("F", _nan_first, ["bad.npz", "F[0, 0] = nan is not a finite number"]),
+    ("mesh_points", lambda p: p * np.nan, ["bad.npz", "mesh_points: point 0"]),
+    ("grid_0", lambda g: g[::-1], ["bad.npz", "grid_0 (parameter 's') must be strictly increasing"]),
+])
+@pytest.mark.parametrize("command", ["eval", "assimilate", "info"])
+def test_every_command_refuses_a_corrupt_model_in_one_line(built, tmp_path, key, edit, words, command):
+    """Truncated modes made `rom eval` fail on a reshape and `assimilate` on a matmul (exit 1, a traceback), and
+    `rom info` accept them; NaN modes gave `max displacement nan m`, exit 0; the mesh and grid errors did not
+    name the file. Mutant: SeparatedModel.load without the shape/finiteness checks or the file name."""
+    bad = _edited(built, tmp_path, key, edit)
+    args = {"eval": ["rom", "eval", bad, "--param", "s=0.3", "--param", "P=1", "--probe", 1, 0.05, 0.05],
+            "assimilate": ["assimilate", bad, tmp_path / "obs.csv"], "info": ["rom", "info", bad]}[command]
+    _one_line_error(_run(*args), *words)
+
+
+@pytest.mark.parametrize("args", [["rom", "eval", "{m}", "--param", "s=0.3", "--param", "P=2", "--param", "P=3"],
+                                  ["assimilate", "{m}", "{obs}", "--mu0", "s=0.5", "--mu0", "s=0.7"]])
+def test_a_parameter_given_twice_is_refused(built, tmp_path, args):
+    # mutant: the last value silently wins (P=3, s=0.7)
+    _, model = built
+    (tmp_path / "obs.csv").write_text(OBS)
+    args = [a.format(m=model, obs=tmp_path / "obs.csv") for a in args]
+    flag = args[-2]
+    name, first, last = ("P", "'P=2'", "'P=3'") if flag == "--param" else ("s", "'s=0.5'", "'s=0.7'")
+    _one_line_error(_run(*args), f"{flag} given twice for {name} ({first} and {last})")
+
+
+@pytest.mark.parametrize("uz", ["10", "-1e300"])
+def test_assimilate_refuses_a_displacement_larger_than_the_body(built, tmp_path, uz):
+    """uz = 10 m on a 1 m beam gave `s = 0 ± 6e+06 m`, uz = -1e300 overflow warnings, both exit 0. The body is the
+    1 x 0.1 x 0.1 m box of CONFIG: its bounding-box diagonal is sqrt(1.02) = 1.01 m. Mutant: the CLI does not pass
+    the body's size to read_observations."""
+    _, model = built
+    obs = tmp_path / "obs.csv"
+    obs.write_text(f"x,y,z,ux,uy,uz\n1.0,0.05,0.05,0,0,-1e-5\n0.5,0.05,0.05,0,0,{uz}\n")
+    _one_line_error(_run("assimilate", model, obs), "obs.csv", "line 3, column uz", "larger than the body",
+                    "1.01 m")
+
+
+def test_assimilate_warns_when_the_model_explains_nothing(built, tmp_path):
+    """Observations of 0.05 m (within the body's size) at the tip of a beam that bends at most ~4e-5 m for the
+    model's largest load (E = 1e9 Pa, P <= 2 N: P L^3 / (3 E I), I = 0.1^4 / 12, gives 8e-5 m): no parameter
+    value explains them. Mutant: no warning (before: `residual 5e-02 m`, nothing else)."""
+    _, model = built
+    obs = tmp_path / "obs.csv"
+    obs.write_text("x,y,z,ux,uy,uz\n1.0,0.05,0.05,0,0,-0.05\n0.5,0.05,0.05,0,0,-0.05\n")
+    res = _run("assimilate", model, obs)
+    assert res.exit_code == 0, res.output
+    warn = [ln for ln in res.stderr.splitlines() if ln.startswith("warning:")]
+    assert len(warn) == 1 and "unexplained" in warn[0] and "do not trust" in warn[0], res.stderr
+    assert "Traceback" not in res.stderr
+
+
+def test_build_refuses_dask_options_a_pgd_build_ignores(tmp_path):
+    # mutant: --workers / [rom] workers silently ignored by method = "pgd" (e.g. --workers 100000)
+    cfg = tmp_path / "rom.toml"
+    cfg.write_text(CONFIG.format(points=21))
+    _one_line_error(_run("rom", "build", cfg, "--out", tmp_path / "m.npz", "--workers", 100000),
+                    "--workers: only for [rom] method = \"pgd_nonintrusive\"", "method = 'pgd'")
+    cfg.write_text(CONFIG.format(points=21) + '\n[rom]\nmethod = "pgd"\nworkers = 4\n')
+    _one_line_error(_run("rom", "build", cfg, "--out", tmp_path / "m.npz"), "rom.toml: [rom] workers: only for")
+    cfg.write_text(CONFIG.format(points=21) + '\n[rom]\nscheduler = "tcp://x:1"\n')  # the default method: pgd
+    _one_line_error(_run("rom", "build", cfg, "--out", tmp_path / "m.npz"), "scheduler: only for",
+                    "the default method for this material is 'pgd'")
+    assert not (tmp_path / "m.npz").exists()
