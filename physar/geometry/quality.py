@@ -65,6 +65,9 @@ def vertex_normals_arrays(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return n / np.where(nn > 0, nn, 1.0)
 
 
+MAX_NOISE_SIGMA = 10.0  # x the mean edge: beyond, vertices land among non-neighbours' (the surface is gone)
+
+
 def add_noise(
     mesh: TriMesh, sigma: float = 0.2, seed: int = 0, direction: str = "normal"
 ) -> TriMesh:
@@ -78,8 +81,9 @@ def add_noise(
     :math:`\operatorname{Cov}(d) = \tfrac{s^2}{3} I` (trace :math:`s^2`). ``direction="normal"`` moves each
     vertex along its unit vertex normal by :math:`s\, t_i` (:math:`\operatorname{Cov} = s^2 n n^\top`).
     """
-    if not 0 <= sigma < np.inf:
-        raise MeshError(f"noise sigma must be a finite number >= 0, got {sigma}")
+    if not 0 <= sigma <= MAX_NOISE_SIGMA:
+        raise MeshError(f"noise sigma must be a number in [0, {MAX_NOISE_SIGMA:g}] (a fraction of the mean edge "
+                        f"length; the literature's levels are 0.1-0.5), got {sigma}")
     if isinstance(seed, bool) or int(seed) != seed or seed < 0:
         raise MeshError(f"noise seed must be an integer >= 0, got {seed}")
     if direction not in ("normal", "random"):
@@ -87,6 +91,8 @@ def add_noise(
     check_surface(mesh)
     rng = np.random.default_rng(seed)
     s = sigma * mean_edge_length(mesh)
+    if sigma > 0 and not s > 0:
+        raise MeshError(f"{mesh.name}: the mean edge length is 0 (all points coincide): no noise scale")
     t = rng.normal(0.0, s, mesh.n_points)[:, None]
     if direction == "normal":
         d = t * vertex_normals(mesh)

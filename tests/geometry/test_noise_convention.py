@@ -72,3 +72,24 @@ def test_cli_noise_default_is_random_direction(tmp_path):
     covariance_checks(noisy.points - clean.points, 0.2 * edge_mean(clean))
     h = CliRunner().invoke(app, ["noise", "--help"])
     assert "random" in h.output and "direction" in h.output
+
+
+def test_cli_noise_refuses_a_level_that_destroys_the_surface(tmp_path):
+    """--sigma 1e300 printed "noise std 1.96e+299 m", exit 0; a surface whose points all coincide got "noise"
+    of std 0. Both: one line, exit 2, nothing written. Mutants: no upper bound; no zero-scale check. 10 (the
+    bound) is still accepted."""
+    from physar.geometry.io import write_mesh
+    from physar.geometry.mesh import TriMesh
+
+    clean = plane(10)
+    write_mesh(tmp_path / "plane.ply", clean)
+    flat = TriMesh(np.zeros((3, 3)), np.array([[0, 1, 2]]), name="dot")
+    write_mesh(tmp_path / "dot.ply", flat)
+    for src, sigma, needle in (("plane.ply", "1e300", "noise sigma must be a number in [0, 10]"),
+                               ("dot.ply", "0.2", "the mean edge length is 0 (all points coincide)")):
+        r = CliRunner().invoke(app, ["noise", str(tmp_path / src), str(tmp_path / "o.ply"), "--sigma", sigma])
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert r.exit_code == 2 and len(lines) == 1 and needle in lines[0], r.output
+        assert not (tmp_path / "o.ply").exists()
+    r = CliRunner().invoke(app, ["noise", str(tmp_path / "plane.ply"), str(tmp_path / "o.ply"), "--sigma", "10"])
+    assert r.exit_code == 0, r.output
