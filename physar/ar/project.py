@@ -437,7 +437,8 @@ def load_model(cfg: ProjectConfig, source: str, progress=None, build: bool = Tru
         if not build:
             also = "".join(f" and {f.name}" for f in _config_inputs(conf))
             raise ConfigError(f"{source}: [model] file = {m.file!r} was not built from {m.config!r}{also} as they "
-                              "are now; run `physar ar build` (or delete the file)")
+                              "are now; rebuild it by running `physar synth render` or `physar ar run` on this project (or "
+                              "delete the file)")
     elif file is not None and conf is None:
         raise ConfigError(f"{source}: [model] file = {m.file!r}: file not found (give config = \"rom.toml\" to "
                           "build it)")

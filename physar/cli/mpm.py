@@ -22,15 +22,17 @@ def run(
 ) -> None:
     """Simulate a scene and write per-frame particles, diagnostics and a preview video.
 
-    Ctrl-C or SIGTERM stops after the current frame: diagnostics.csv and the preview cover the frames written
-    (exit 130)."""
+    The folder is written whole: it appears (or replaces a previous run's) only once complete. Ctrl-C or
+    SIGTERM stops after the current frame: diagnostics.csv and the preview cover the frames written (exit 130);
+    so does a run that diverges (exit 2, the error names the frames written)."""
     from tqdm import tqdm
 
-    from physar.cli._common import check_toml
+    from physar.cli._common import check_toml, created_parents, whole_folder
     from physar.mpm.runner import check_run_folder, run_scene
     from physar.output import signal_guard
 
     check_toml(scene, "scene file")
+    whole_folder(out, "a new folder such as run/")
     check_run_folder(out, inputs=[scene])
     bar = None
 
@@ -40,7 +42,7 @@ def run(
         bar.update(1)
 
     try:
-        with signal_guard() as guard:
+        with created_parents(out), signal_guard() as guard:  # parents made here go again on an error
             res = run_scene(scene, out, progress, preview=not no_preview, stop=lambda: guard.stopped)
     finally:
         if bar is not None:

@@ -32,13 +32,14 @@ grid search (the misfit separates by body); for touching bodies it is a heuristi
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 
-from physar.errors import ConfigError
+from physar.errors import ConfigError, PhysarWarning
 from physar.mpm.model import MPMModel, MPMSolver
 from physar.mpm.torch_bridge import Params, simulate
 
@@ -136,6 +137,28 @@ def _per_body_misfit(model: MPMModel, x0, v0, frames: int, tc: torch.Tensor, td:
     return out / frames
 
 
+UNCONSTRAINED_SPREAD = 1e-6  # relative change of a body's misfit over the scan below which E is unconstrained
+
+
+def _spread(m: np.ndarray) -> float:
+    """(max - min) / max of the misfits ``m`` of one body over the scan; 0 when all are 0, inf if any is not
+    finite (a diverged run: E matters)."""
+    if not np.all(np.isfinite(m)):
+        return np.inf
+    top = float(np.max(np.abs(m)))
+    return float(np.max(m) - np.min(m)) / top if top > 0 else 0.0
+
+
+def unconstrained_bodies(mis: np.ndarray) -> list[int]:
+    r"""The bodies (columns of the scan's misfits ``mis``, factors x bodies) whose misfit changes by at most
+    ``UNCONSTRAINED_SPREAD`` (relative) over the whole scan (:math:`E` times :math:`2^{-K} \dots 2^K`, 1/4 .. 4
+    by default): there the simulated motion does not depend on :math:`E` beyond round-off (an unstressed body:
+    free fall, rigid motion), so the data do not constrain :math:`E`, whatever the optimiser reports.  A
+    stressed body's deformation scales with :math:`1/E`, and its misfit changes by far more over a factor of 16.
+    """
+    return [b for b in range(mis.shape[1]) if _spread(mis[:, b]) <= UNCONSTRAINED_SPREAD]
+
+
 def identify(model: MPMModel, x0: np.ndarray, v0: np.ndarray, frames: int, target: list[dict],
              fit_nu: bool = False, iterations: int = 20, progress: Callable[[int, float], None] | None = None,
              scan_octaves: float = 2.0) -> IdentifyResult:
@@ -154,6 +177,12 @@ def identify(model: MPMModel, x0: np.ndarray, v0: np.ndarray, frames: int, targe
         ks = np.arange(-scan_octaves, scan_octaves + 1e-9, 0.25)
         mis = np.array([_per_body_misfit(replace(model, E=model.E * 2.0**k), x0, v0, frames, tc, td, moments) for k in ks])
         scan_factor = 2.0 ** ks[np.argmin(mis, axis=0)]
+        for b in unconstrained_bodies(mis):
+            scan_factor[b] = 1.0  # every factor fits alike: argmin would pick the first, 2^-K, for nothing
+            warnings.warn(f"body {b}: the target does not constrain E (its misfit changes by "
+                          f"{_spread(mis[:, b]):.1e} relative over E x {2.0 ** -scan_octaves:g} .. "
+                          f"x {2.0 ** scan_octaves:g}: is the body unstressed, e.g. in free fall?); E is left at "
+                          f"its initial {float(model.E[model.body == b].mean()):.6g} Pa", PhysarWarning, stacklevel=2)
         model = replace(model, E=model.E * scan_factor[model.body])
     E0 = np.array([model.E[model.body == b].mean() for b in range(nb)])
     nu0 = np.array([model.nu[model.body == b].mean() for b in range(nb)])

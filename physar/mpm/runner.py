@@ -14,6 +14,7 @@ folder with :func:`physar.mpm.identify.identify` (seed 002 §4.4).
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +25,7 @@ from physar.errors import SolverError
 from physar.mpm.io import read_trajectory, write_diagnostics_csv, write_particles_ply, write_preview_mp4
 from physar.mpm.model import MPMSolver, diagnostics
 from physar.mpm.scene import Scene, build_model, load_scene
-from physar.output import check_folder, own_names
+from physar.output import atomic_folder, check_folder, own_names
 
 
 @dataclass
@@ -69,17 +70,32 @@ def run_scene(scene: Scene | str | Path, out: str | Path | None, progress: Calla
 
     ``out = None`` only computes the diagnostics.  ``particles_per_cell`` overrides the scene's sampling.
     ``progress(frame, frames)`` is called after every frame; ``stop()`` is polled after every frame and ends
-    the run there when it returns True (``interrupted``). Either way, and when the state stops being finite
-    (SolverError after writing), ``diagnostics.csv`` and the preview cover exactly the frames written.
+    the run there when it returns True (``interrupted``). Either way, and when the simulation diverges (its state
+    stops being finite or blows up: SolverError after writing), ``diagnostics.csv`` and the preview cover exactly
+    the frames written.
+
+    The outputs are written into a hidden folder beside ``out`` that takes its place once they are complete
+    (:func:`physar.output.atomic_folder`): an error or a second Ctrl-C leaves ``out`` as it was (absent, or a
+    previous run's output), never a folder holding some frames without their diagnostics.
     """
     if out is not None:
         out = check_run_folder(out, inputs=[] if isinstance(scene, Scene) else [scene])
     sc, base = _scene_and_dir(scene)
-    model, x0, v0 = build_model(sc, base, particles_per_cell=particles_per_cell)
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        for old in out.glob("frame_*.ply"):  # a shorter re-run must not leave frames of an older one behind
-            old.unlink()
+    source = "scene" if isinstance(scene, Scene) else str(scene)
+    kept = 24 * (sc.time.frames + 1) if out is not None and preview else 0  # the preview's positions per frame
+    model, x0, v0 = build_model(sc, base, particles_per_cell=particles_per_cell, source=source,
+                                bytes_per_particle=kept)
+    folder = atomic_folder(out, own=OWN_FILES) if out is not None else contextlib.nullcontext(None)
+    with folder as tmp:
+        res, failure = _simulate(sc, model, x0, v0, tmp, progress, preview, stop)
+    if failure is not None:
+        wrote = f"; wrote frames 0-{res.frames} to {out}" if out is not None else ""
+        raise SolverError(f"{source}: {failure}{wrote}")
+    return res
+
+
+def _simulate(sc: Scene, model, x0, v0, out: Path | None, progress, preview: bool, stop):
+    """The frame loop of :func:`run_scene` writing into ``out``; returns (result, failure message or None)."""
     solver = MPMSolver(model)
     a, b = model.state(x0, v0), model.state(x0, v0)
     n_frames = sc.time.frames
@@ -87,14 +103,20 @@ def run_scene(scene: Scene | str | Path, out: str | Path | None, progress: Calla
     xs, failure = [], None
     for f in range(n_frames + 1):
         if f > 0:
-            a, b = solver.simulate_frame(a, b)
+            try:
+                a, b = solver.simulate_frame(a, b)
+            except SolverError as exc:  # a blow-up: the frames before it are kept and described
+                failure = f"at frame {f} (t = {f * model.frame_dt:.4g} s): {exc}"
+                break
         st = a.numpy()
         if not (np.isfinite(st["x"]).all() and np.isfinite(st["v"]).all()):
             failure = (f"the particle state is no longer finite at frame {f} (t = {f * model.frame_dt:.4g} s); "
                        "reduce frame_dt / raise substeps, or soften the material")
             break
+        with np.errstate(over="ignore", invalid="ignore"):  # a finite but huge state: inf energies, no noise
+            d = diagnostics(model, st)
         res.time.append(f * model.frame_dt)
-        res.diagnostics.append(diagnostics(model, st))
+        res.diagnostics.append(d)
         if out is not None:
             write_particles_ply(out / f"frame_{f:04d}.ply", st["x"], st["v"], model.body)
             xs.append(st["x"])
@@ -109,10 +131,7 @@ def run_scene(scene: Scene | str | Path, out: str | Path | None, progress: Calla
         if preview:
             res.preview = write_preview_mp4(out / "preview.mp4", xs, model.body, sc.grid.size,
                                             fps=1.0 / model.frame_dt)
-    if failure is not None:
-        wrote = f"; wrote frames 0-{res.frames} to {out}" if out is not None and res.time else ""
-        raise SolverError(failure + wrote)
-    return res
+    return res, failure
 
 
 def identify_scene(scene: Scene | str | Path, target: str | Path, iterations: int = 20, fit_nu: bool = False,
@@ -121,7 +140,9 @@ def identify_scene(scene: Scene | str | Path, target: str | Path, iterations: in
     from physar.mpm.identify import identify
 
     sc, base = _scene_and_dir(scene)
-    model, x0, v0 = build_model(sc, base)
+    # identification keeps each frame's state (x, v, C, F, Jp: 200 B per particle) for the backward pass
+    model, x0, v0 = build_model(sc, base, source="scene" if isinstance(scene, Scene) else str(scene),
+                                bytes_per_particle=200 * (sc.time.frames + 1))
     frames = read_trajectory(target)
     res = identify(model, x0, v0, sc.time.frames, frames, fit_nu=fit_nu, iterations=iterations, progress=progress)
     return {

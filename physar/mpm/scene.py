@@ -262,6 +262,13 @@ def sample_body(body: Body, dx: float, base_dir: Path | None = None) -> tuple[np
         c, r = np.asarray(body.center), body.radius
         pts = _lattice(c - r, c + r, h)
         return pts[np.sum((pts - c) ** 2, axis=1) <= r * r], h**3
+    mesh = _load_mesh(body, base_dir)
+    pts = _lattice(mesh.bounds[0], mesh.bounds[1], h)
+    return pts[mesh.contains(pts)], h**3
+
+
+def _load_mesh(body: Body, base_dir: Path | None):
+    """The closed surface mesh of a mesh body (trimesh); ConfigError naming the file when it cannot be used."""
     import trimesh
 
     path = Path(body.file)
@@ -275,8 +282,32 @@ def sample_body(body: Body, dx: float, base_dir: Path | None = None) -> tuple[np
         raise ConfigError(f"body.file '{path}' could not be read as a surface mesh: {exc}") from None
     if not mesh.is_watertight:
         raise ConfigError(f"body.file '{path}' is not a closed (watertight) surface; cannot sample its inside")
-    pts = _lattice(mesh.bounds[0], mesh.bounds[1], h)
-    return pts[mesh.contains(pts)], h**3
+    return mesh
+
+
+def _axis_count(a: float, b: float, h: float) -> int:
+    """Points :func:`_lattice` puts on one axis of [a, b] (spacing h, offset h/2), without making them."""
+    start = np.floor(a / h) * h + h / 2
+    return max(0, int(np.ceil((b - start) / h)))
+
+
+def particle_count(body: Body, dx: float, base_dir: Path | None = None) -> tuple[int, int]:
+    r"""(particles, lattice points) that :func:`sample_body` makes for ``body``, computed from the shape
+    without sampling: a box's count is exact; a sphere's particles are estimated as :math:`\pi / 6` of its
+    bounding lattice, a mesh's as its whole bounding lattice (an upper bound); the lattice points are those
+    the sampling allocates (the bounding lattice; a box's own)."""
+    h = dx / round(body.particles_per_cell ** (1 / 3))
+    if body.shape == "box":
+        k = np.maximum(1, np.round((np.asarray(body.max, float) - np.asarray(body.min, float)) / h))
+        n = int(np.prod([int(v) for v in k], dtype=object))
+        return n, n
+    if body.shape == "sphere":
+        c, r = np.asarray(body.center, float), body.radius
+        lat = int(np.prod([_axis_count(a - r, a + r, h) for a in c], dtype=object))
+        return int(np.ceil(lat * np.pi / 6)), lat
+    lo, hi = _load_mesh(body, base_dir).bounds
+    lat = int(np.prod([_axis_count(a, b, h) for a, b in zip(lo, hi)], dtype=object))
+    return lat, lat
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -299,14 +330,57 @@ def parse_scene(data: dict, name: str = "scene") -> Scene:
         raise ConfigError(format_validation_error(exc, name, Scene)) from None
 
 
+# Peak host memory per particle of a forward run (measured 1.40 kB per particle, the grid included, for 262,144
+# particles on a 64-cell grid): the sampled columns and their concatenation (~350 B), the model's arrays and
+# their Warp copies (~300 B), two states of x, v, C, F, Jp (2 x 200 B) with their NumPy sources, the solver's
+# tau and trial F (144 B) and a frame copied out for the diagnostics and the PLY (~250 B); rounded up.
+MPM_BYTES_PER_PARTICLE = 1500
+MPM_BYTES_PER_NODE = 3 * 8 + 8 + 3 * 8  # the solver's grids: momentum, mass, velocity (float64)
+MPM_BYTES_PER_LATTICE_POINT = 64  # sampling: the three meshgrid axes and their stacked copy (float64)
+
+
+def check_scene_memory(scene: Scene, base_dir: Path | None = None, particles_per_cell: int | None = None,
+                       bytes_per_particle: float = 0.0, source: str = "scene") -> int:
+    """Estimate, before anything is sampled, the particles and the memory of a run of ``scene`` and raise one
+    ConfigError line naming ``source`` when the memory exceeds what is available (:func:`physar.output.check_memory`,
+    as ``physar mesh box`` does for huge cell counts); returns the estimated particle count.
+    ``bytes_per_particle``: what the caller keeps per particle on top (e.g. the preview's positions of every frame).
+    """
+    from physar.output import check_memory
+
+    dx = scene.grid.size / scene.grid.resolution
+    total, lattice = 0, 0
+    for body in scene.body:
+        if particles_per_cell is not None:
+            body = body.model_copy(update={"particles_per_cell": particles_per_cell})
+        n, lat = particle_count(body, dx, base_dir)
+        total += n
+        lattice = max(lattice, lat)
+    nodes = (scene.grid.resolution + 2 * MPMModel.pad + 1) ** 3
+    need = (total * (MPM_BYTES_PER_PARTICLE + bytes_per_particle) + MPM_BYTES_PER_LATTICE_POINT * lattice
+            + MPM_BYTES_PER_NODE * nodes)
+    ppc = sorted({particles_per_cell or b.particles_per_cell for b in scene.body})
+    check_memory(need, f"{source}: about {total:.3g} particles ({', '.join(map(str, ppc))} per cell on a "
+                       f"{scene.grid.resolution}^3 grid)")
+    return total
+
+
 def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: int | None = None,
-                substeps: int | None = None) -> tuple[MPMModel, np.ndarray, np.ndarray]:
+                substeps: int | None = None, source: str = "scene",
+                bytes_per_particle: float = 0.0) -> tuple[MPMModel, np.ndarray, np.ndarray]:
     """MPM model, initial positions (N, 3) and velocities (N, 3) of a scene.
 
     ``particles_per_cell``/``substeps`` override the scene (used to make identification targets at a finer
-    sampling than the model that is fitted to them).  The model runs on ``scene.device``.
+    sampling than the model that is fitted to them).  The model runs on ``scene.device``.  ``source`` (the scene
+    file) starts every error line.  Before sampling, a scene whose run would need more memory than is
+    available is refused (:func:`check_scene_memory`, with the caller's ``bytes_per_particle`` on top); after
+    it, a body outside the domain or without particles, and an initial velocity that moves a particle more
+    than a grid cell per substep (the CFL condition of MPM's transfers; 1e300 m/s overflowed the energy).
     """
+    check_scene_memory(scene, base_dir, particles_per_cell, bytes_per_particle, source)
     dx = scene.grid.size / scene.grid.resolution
+    T = substeps or scene.time.substeps
+    dt = scene.time.frame_dt / T
     cols = {k: [] for k in ("x", "v", "mass", "vol", "E", "nu", "el", "pl", "pp", "body", "fiber", "fiber_E")}
     for b_id, body in enumerate(scene.body):
         if particles_per_cell is not None:
@@ -314,10 +388,11 @@ def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: 
         x, vol = sample_body(body, dx, base_dir)
         inside = np.all((x > 0) & (x < scene.grid.size), axis=1)
         if not np.all(inside):
-            raise ConfigError(f"body[{b_id}] extends outside the domain [0, {scene.grid.size}]^3")
+            raise ConfigError(f"{source}: body[{b_id}] extends outside the domain [0, {scene.grid.size}]^3")
         n = len(x)
         if n == 0:
-            raise ConfigError(f"body[{b_id}] contains no particles at this resolution; enlarge it or refine the grid")
+            raise ConfigError(f"{source}: body[{b_id}] contains no particles at this resolution; enlarge it or "
+                              "refine the grid")
         el, pl = MATERIALS[body.material]
         if pl == "von_mises":
             pp = (body.yield_stress, 0, 0, 0)
@@ -329,8 +404,15 @@ def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: 
             pp = (0, 0, 0, 0)
         cols["x"].append(x)
         v = np.tile(np.asarray(body.velocity, dtype=np.float64), (n, 1))
-        if body.velocity_gradient is not None:
-            v = v + (x - x.mean(0)) @ np.asarray(body.velocity_gradient, dtype=np.float64).T
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused just below
+            if body.velocity_gradient is not None:
+                v = v + (x - x.mean(0)) @ np.asarray(body.velocity_gradient, dtype=np.float64).T
+            cells = np.abs(v).max() * dt / dx  # the largest per-axis move in one substep, in cells
+        if not cells <= 1.0:
+            what = "velocity" + (" and velocity_gradient" if body.velocity_gradient is not None else "")
+            raise ConfigError(f"{source}: body[{b_id}] starts particles at up to {np.abs(v).max():.3g} m/s ({what}), "
+                              f"{cells:.3g} grid cells per substep (dt = {dt:.3g} s, dx = {dx:.3g} m); MPM needs "
+                              "at most 1: lower the velocity or raise time.substeps")
         cols["v"].append(v)
         cols["vol"].append(np.full(n, vol))
         cols["mass"].append(np.full(n, vol * body.density))
@@ -346,9 +428,8 @@ def build_model(scene: Scene, base_dir: Path | None = None, particles_per_cell: 
     for b_id in range(len(scene.body)):
         for c_id, col in enumerate(colliders):
             if np.any(col.signed_distance(cols["x"][b_id], 0.0) < 0):
-                raise ConfigError(f"body[{b_id}] overlaps collider[{c_id}] at t = 0; move one of them")
+                raise ConfigError(f"{source}: body[{b_id}] overlaps collider[{c_id}] at t = 0; move one of them")
     c = {k: np.concatenate(v) for k, v in cols.items()}
-    T = substeps or scene.time.substeps
     walls = {w: scene.boundary.walls for w in ("x_min", "x_max", "y_min", "y_max", "z_max")}
     walls["z_min"] = scene.boundary.ground
     friction = {w: 0.0 for w in walls}

@@ -58,6 +58,45 @@ def _numeric(cols: dict, source: str) -> None:
                 raise ConfigError(f"{source}: column {name}, row {i + 2}: {str(x)!r} is not a number") from None
 
 
+def _rows(cols: dict, source: str, finite: list[str]) -> None:
+    """A table with rows, finite values in the ``finite`` columns and no frame number twice (column
+    ``frame``, when present); else one ConfigError naming the file, the row and the column."""
+    if not any(len(v) for v in cols.values()):
+        raise ConfigError(f"{source}: no rows")
+    for name in finite:
+        v = np.asarray(cols[name], float)
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:
+            raise ConfigError(f"{source}: row {bad[0] + 2}, column {name}: {v[bad[0]]:g} is not a finite number")
+    if "frame" in cols:
+        seen: dict = {}
+        for i, f in enumerate(cols["frame"]):
+            if f in seen:
+                raise ConfigError(f"{source}: row {i + 2}, column frame: frame {_fmt(f)} again (first in row "
+                                  f"{seen[f] + 2})")
+            seen[f] = i
+
+
+def _fmt(v) -> str:
+    return f"{v:g}" if isinstance(v, (float, np.floating)) else str(v)
+
+
+def _same_frames(truth: dict, est: dict, n: int, truth_source: str, source: str) -> None:
+    """Rows are compared by position: when both files number their frames, the first ``n`` must agree (an
+    estimates file that skipped a frame would otherwise be scored against the wrong truth rows)."""
+    if "frame" not in truth or "frame" not in est:
+        return
+    t, e = truth["frame"][:n], est["frame"][:n]
+    if t.dtype.kind in "fiu" and e.dtype.kind in "fiu":
+        differ = np.flatnonzero(t != e)
+    else:
+        differ = np.flatnonzero(t.astype(str) != e.astype(str))
+    if differ.size:
+        i = differ[0]
+        raise ConfigError(f"{source}: row {i + 2}, column frame: frame {_fmt(e[i])} where {truth_source} has frame "
+                          f"{_fmt(t[i])}; the files must list the same frames in the same order")
+
+
 def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None = None, tol: float = 0.01,
           recovery: int = 5, source: str = "estimates", truth_source: str = "truth file") -> dict:
     r"""Per parameter: judged frames (not at rest, no occluder, what is observed in view (truth column
@@ -74,7 +113,10 @@ def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None 
     missing = [n for n in names if f"{n}_est" not in est]
     if missing:
         raise ConfigError(f"{source}: no column {missing[0]}_est (the truth has parameters {', '.join(names)})")
+    _rows(truth, truth_source, [f"{n}_true" for n in names])
+    _rows(est, source, [])
     n = min(len(truth[f"{names[0]}_true"]), len(est[f"{names[0]}_est"]))
+    _same_frames(truth, est, n, truth_source, source)
     occ = np.asarray(truth.get("occluders", np.zeros(n)), float)[:n] > 0
     occ |= np.asarray(truth.get("in_view", np.ones(n)), float)[:n] < 0.5     # what is observed left the image
     after = np.zeros(n, bool)
@@ -91,7 +133,10 @@ def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None 
         t = np.asarray(truth[f"{name}_true"], float)[:n]
         e = np.asarray(est[f"{name}_est"], float)[:n]
         lo, hi = (ranges or {}).get(name, (float(t.min()), float(t.max())))
-        lim = tol * max(hi - lo, 1e-300)
+        if not hi > lo:  # a tolerance of tol * 0: every error would be judged against ~1e-300
+            raise ConfigError(f"{truth_source}: column {name}_true is constant ({t[0]:g}), so it gives no range "
+                              f"for the tolerance; give --project (the model's parameter ranges)")
+        lim = tol * (hi - lo)
         err = np.abs(e - t)
         err[~np.isfinite(err) | ~estimated] = np.inf
         ej = err[judged]

@@ -7,7 +7,7 @@ reprojection error :math:`\sum_i \sum_k \|p_{ik} - \Pi(K, d, R_i, t_i; X_k)\|^2`
 """
 from __future__ import annotations
 
-import math
+import struct
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -30,6 +30,12 @@ def aruco_dictionary(name: str):
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, key))
 
 
+# the sides a printed ChArUco square can have: 1 mm (about 12 dots at 300 dpi) to 1 m (no sheet is larger
+# than A0, 841 x 1189 mm); outside, the value is a unit mistake (40 for 40 mm) or nonsense (1e40)
+MIN_SQUARE_M, MAX_SQUARE_M = 1e-3, 1.0
+MAX_PRINT_DPI = 1200  # the finest raster of physar.vision.printing (its dpi limit)
+
+
 @dataclass(frozen=True)
 class CharucoSpec:
     """A ChArUco board: squares_x by squares_y squares of `square` m with markers of `marker` m."""
@@ -43,13 +49,24 @@ class CharucoSpec:
     def __post_init__(self):
         if self.squares_x < 3 or self.squares_y < 3:
             raise ConfigError(f"ChArUco board needs at least 3x3 squares, got {self.squares_x}x{self.squares_y}")
-        if not 0 < self.marker < self.square < math.inf:
+        if not MIN_SQUARE_M <= self.square <= MAX_SQUARE_M:  # also NaN; OpenCV failed on 1e40 (float32)
+            raise ConfigError(f"ChArUco square side (--square) {self.square:g} m is outside {MIN_SQUARE_M:g}.."
+                              f"{MAX_SQUARE_M:g} m (a printable board; sides are in metres, e.g. 0.04 for 40 mm "
+                              "squares)")
+        if not 0 < self.marker < self.square:
             raise ConfigError(f"ChArUco marker side ({self.marker}) must be positive and smaller than the "
                               f"square side ({self.square})")
+        dictionary = aruco_dictionary(self.dictionary)
+        # the marker's cells (its bits and a one-cell border each side) must each get a printer dot at least
+        cells = int(dictionary.markerSize) + 2
+        smallest = cells * 0.0254 / MAX_PRINT_DPI
+        if self.marker < smallest:  # OpenCV failed on 1e-300 (0 in float32)
+            raise ConfigError(f"ChArUco marker side (--marker) {self.marker:g} m is too small to print: its {cells} "
+                              f"cells need at least {smallest * 1e3:.3g} mm (one dot each at {MAX_PRINT_DPI} dpi)")
         # a board carries one marker per white square, each a distinct id of its dictionary: this bounds the
         # board (and what OpenCV allocates for it) before anything is built
         markers = self.squares_x * self.squares_y // 2
-        available = aruco_dictionary(self.dictionary).bytesList.shape[0]
+        available = dictionary.bytesList.shape[0]
         if markers > available:
             raise ConfigError(f"a {self.squares_x}x{self.squares_y} ChArUco board has {markers} markers but "
                               f"{self.dictionary} has {available} ids; use fewer squares or a larger dictionary")
@@ -97,6 +114,32 @@ def detect_charuco(image: np.ndarray, spec: CharucoSpec, detector=None):
     return obj.reshape(-1, 3), img.reshape(-1, 2)
 
 
+def _png_size(path: Path) -> tuple[int, int] | None:
+    """Width and height a PNG's IHDR chunk declares (None for another format or a short file)."""
+    with open(path, "rb") as fh:
+        head = fh.read(24)
+    if len(head) == 24 and head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        return struct.unpack(">II", head[16:24])
+    return None
+
+
+def read_gray(path) -> np.ndarray:
+    """An image file as a grey array; one PhysarError naming the file when it cannot be decoded, or when its
+    header declares more pixels than OpenCV decodes (``CV_IO_MAX_IMAGE_PIXELS``, 2**30 by default: a
+    "decompression bomb" of a few bytes declaring 60000 x 60000 pixels; OpenCV raised cv2.error)."""
+    try:
+        im = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    except cv2.error as exc:
+        if "CV_IO_MAX_IMAGE_PIXELS" in str(exc):
+            wh = _png_size(Path(path))
+            size = f"{wh[0]} x {wh[1]} pixels, " if wh else ""
+            raise PhysarError(f"{path}: image too large ({size}over OpenCV's limit of 2**30 pixels)") from None
+        raise PhysarError(f"{path}: cannot decode image") from None
+    if im is None:
+        raise PhysarError(f"{path}: cannot decode image")
+    return im
+
+
 def calibrate_charuco(images: Sequence, spec: CharucoSpec = CharucoSpec(), dist_coeffs: int = 5,
                       progress: Callable[[int, int], None] | None = None) -> tuple[Camera, dict]:
     """Calibrate from ChArUco views (arrays or image paths). Returns (camera, info) with info["rms_px"].
@@ -112,9 +155,7 @@ def calibrate_charuco(images: Sequence, spec: CharucoSpec = CharucoSpec(), dist_
         if isinstance(im, (str, Path)):
             if not Path(im).is_file():
                 raise PhysarError(f"{im}: image not found")
-            im = cv2.imread(str(im), cv2.IMREAD_GRAYSCALE)
-            if im is None:
-                raise PhysarError(f"{name}: cannot decode image")
+            im = read_gray(im)
         s = im.shape[1], im.shape[0]
         if size is None:
             size = s

@@ -513,13 +513,15 @@ def test_mpm_run_signal_keeps_valid_outputs(tmp_path, sig):
     out = tmp_path / "out"
     p = _spawn(["mpm", "run", scene, "-o", out], tmp_path)
     deadline = time.time() + 120
-    while not (out / "frame_0005.ply").exists():
+    # the frames go into a hidden folder beside out/ that takes its place when the run ends (atomic_folder)
+    while not list(tmp_path.glob(".out.*/frame_0005.ply")):
         assert p.poll() is None and time.time() < deadline, p.communicate()
         time.sleep(0.05)
     p.send_signal(sig)
     _, err = p.communicate(timeout=120)
     assert p.returncode == 130, err
     assert "interrupted" in err and "Traceback" not in err
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["out", "s.toml"]  # no temporary folder left
     frames = sorted(out.glob("frame_*.ply"))
     with open(out / "diagnostics.csv") as fh:
         rows = list(csv.DictReader(fh))

@@ -37,10 +37,12 @@ def test_frames_before_the_first_estimate_count_as_outside():
 
 def test_score_json_is_strict(tmp_path):
     _truth, est = _tables()
-    est["s_est"][1] = 0.5       # without --project the tolerance is 1 % of the truth's span, here 0
-    (tmp_path / "truth.csv").write_text("frame,s_true\n" + "".join(f"{k},0.5\n" for k in range(6)))
+    # without --project the tolerance is 1 % of the truth's span (a constant truth is refused): a ramp over
+    # [0, 1], the estimates off by est - 0.5 as in _tables (frame 4 by 0.1)
+    ramp = np.arange(6) / 5
+    (tmp_path / "truth.csv").write_text("frame,s_true\n" + "".join(f"{k},{float(t)!r}\n" for k, t in enumerate(ramp)))
     (tmp_path / "est.csv").write_text("frame,status,s_est\n" + "".join(
-        f"{k},{st},{v}\n" for k, (st, v) in enumerate(zip(est["status"], est["s_est"]))))
+        f"{k},{st},{float(t + v - 0.5)!r}\n" for k, (st, t, v) in enumerate(zip(est["status"], ramp, est["s_est"]))))
     r = CliRunner().invoke(app, ["synth", "score", str(tmp_path / "truth.csv"), str(tmp_path / "est.csv"),
                                  "--json"])
     assert r.exit_code == 0, r.output
