@@ -517,7 +517,10 @@ def _read_image(path: Path, what: str) -> np.ndarray:
 
     if not path.is_file():
         raise ConfigError(f"{what} = {str(path)!r}: file not found")
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    try:
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    except cv2.error:  # OpenCV refuses a header announcing more than 2**30 pixels
+        img = None
     if img is None or min(img.shape[:2]) < 16:
         raise ConfigError(f"{what} = {str(path)!r}: not an image OpenCV reads (PNG, JPEG, ...) of at least 16 px")
     return img

@@ -108,6 +108,7 @@ import torch
 from physar.errors import ConfigError, PhysarError, PhysarWarning
 from physar.output import atomic_folder, check_folder, own_names
 from physar.recon import scene as S
+from physar.recon.io import imread
 from physar.skinning import (
     SMPL_JOINTS,
     SMPL_PARENTS,
@@ -259,7 +260,7 @@ def read_label_png(path: Path) -> np.ndarray:
                 return np.asarray(im).astype(np.int64)
             raise ConfigError(f"{path}: mask mode {im.mode} is not a label image (give single-channel PNGs: palette "
                               "or grey, one integer id per pixel)")
-    except (UnidentifiedImageError, OSError):
+    except (UnidentifiedImageError, OSError, Image.DecompressionBombError):
         raise ConfigError(f"{path}: not a readable PNG") from None
 
 
@@ -346,11 +347,6 @@ def _load_pose_file(path: Path, what: str = "pose file") -> dict:
         raise ConfigError(f"{path}: not a readable .npz or .json file ({' '.join(str(e).split())[:100]})") from None
 
 
-def _rotation_error(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    r"""Per matrix of ``m`` (..., 3, 3): :math:`\max |R^\top R - I|` and :math:`\det R` (a rotation: 0 and +1)."""
-    return np.abs(np.swapaxes(m, -1, -2) @ m - np.eye(3)).max(axis=(-2, -1)), np.linalg.det(m)
-
-
 def _rotations(a: np.ndarray, n_joints: int | None, path: Path, field: str) -> np.ndarray:
     """(F, J, 3, 3) rotations from axis-angle (F, 3J) / (F, J, 3) or matrices (F, J, 3, 3) / (F, 3, 3)."""
     a = np.asarray(a)
@@ -364,8 +360,8 @@ def _rotations(a: np.ndarray, n_joints: int | None, path: Path, field: str) -> n
         raise ConfigError(f"{path}: field '{field}' has no frames (shape {a.shape})")
     if a.ndim >= 3 and a.shape[-2:] == (3, 3):
         m = a.reshape(F, -1, 3, 3)
-        err, det = _rotation_error(m)
-        bad = np.argwhere((err > 1e-2) | (det < 0))  # lenient: float32 estimator output
+        err, det = S.rotation_error(m)
+        bad = np.argwhere((err > S.ROTATION_TOL) | (det < 0))  # lenient: float32 estimator output
         if len(bad):
             f, j = bad[0]
             raise ConfigError(f"{path}: field '{field}' [frame {f}, joint {j}] is not a rotation matrix (|R^T R - I| "
@@ -689,7 +685,7 @@ def _load_cameras(path: str | Path, n: int) -> tuple[np.ndarray, np.ndarray]:
             raise ConfigError(f"{path}: field '{k}' must be {shape} finite numbers (one per spin frame), got "
                               f"{a.shape} {a.dtype}")
     Rs = np.asarray(d["R"], dtype=np.float64)
-    err, det = _rotation_error(Rs)
+    err, det = S.rotation_error(Rs)
     bad = np.flatnonzero((err > 1e-4) | (det < 0))
     if len(bad):  # the first bad view (a reflection has err 0: not err.argmax())
         raise ConfigError(f"{path}: field 'R' [{int(bad[0])}] is not a rotation matrix (|R^T R - I| = "
@@ -957,7 +953,11 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
                 problems.append(f"{folder}: frames must be 0000.png, 0001.png, ... without gaps")
             cover = []
             for p in files:
-                img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE if kind == "mask" else cv2.IMREAD_COLOR)
+                try:
+                    img = imread(p, cv2.IMREAD_GRAYSCALE if kind == "mask" else cv2.IMREAD_COLOR)
+                except ConfigError as e:
+                    problems.append(str(e))
+                    continue
                 if img is None:
                     problems.append(f"{p}: not a readable image")
                     continue

@@ -41,18 +41,33 @@ def write_mp4(path: str | Path, frames, fps: float = 30.0) -> bool:
     return True
 
 
-def read_pngs(folder: Path, n: int, gray: bool = False) -> np.ndarray:
-    """Frames 0000.png .. (n-1).png of a folder as float32 in [0, 1]: (n, H, W, 3) or (n, H, W)."""
+def imread(path: Path, flags: int) -> np.ndarray | None:
+    """``cv2.imread`` (None when OpenCV cannot decode the file) with OpenCV's own refusals (a header announcing
+    more than 2**30 pixels, a "decompression bomb") turned into one ConfigError line naming the file."""
+    try:
+        return cv2.imread(str(path), flags)
+    except cv2.error as e:
+        why = "its header announces more than 2**30 pixels" if "MAX_IMAGE" in str(e) else "a damaged header"
+        raise ConfigError(f"'{path}': not an image OpenCV reads ({why})") from None
+
+
+def read_pngs(folder: Path, n: int, gray: bool = False, size: tuple[int, int] | None = None) -> np.ndarray:
+    """Frames 0000.png .. (n-1).png of a folder as float32 in [0, 1]: (n, H, W, 3) or (n, H, W). Every frame
+    must be ``size`` = (W, H) px when given, else the first frame's size (ConfigError naming the PNG)."""
     out = []
     for f in range(n):
         p = folder / f"{f:04d}.png"
         if not p.exists():
             raise ConfigError(f"missing frame '{p}'")
-        img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR)
+        img = imread(p, cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR)
         if img is None:
             raise ConfigError(f"'{p}' is not a readable image")
+        want = size if size is not None else ((out[0].shape[1], out[0].shape[0]) if out else None)
+        if want is not None and (img.shape[1], img.shape[0]) != tuple(want):
+            raise ConfigError(f"'{p}' is {img.shape[1]}x{img.shape[0]} px, expected {want[0]}x{want[1]} px"
+                              + (" (the camera's size in scene.json)" if size else f" (as {folder / '0000.png'})"))
         out.append(img if gray else cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
     return np.stack(out).astype(np.float32) / 255.0
 
 
-__all__ = ["read_pngs", "write_mp4"]
+__all__ = ["imread", "read_pngs", "write_mp4"]

@@ -178,7 +178,21 @@ def check_poses(poses: dict, n_bones: int, name: str = "poses") -> tuple[np.ndar
         raise ConfigError(f"{name}: 'root_translation' must have shape ({len(r)}, 3), got {t.shape}")
     if not (np.all(np.isfinite(r)) and np.all(np.isfinite(t))):
         raise ConfigError(f"{name}: non-finite values")
+    err, det = rotation_error(r)
+    bad = np.argwhere((err > ROTATION_TOL) | (det < 0))
+    if len(bad):  # a scaled or reflected matrix would skin the body inflated or inside out, silently
+        f, b = bad[0]
+        raise ConfigError(f"{name}: 'rotations' [frame {f}, bone {b}] is not a rotation matrix (|R^T R - I| = "
+                          f"{err[f, b]:.3g}, det {det[f, b]:.3g}; expected orthonormal with det +1)")
     return r, t
+
+
+ROTATION_TOL = 1e-2  # max |R^T R - I| accepted: float32 pose-estimator output passes, a scaled matrix does not
+
+
+def rotation_error(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    r"""Per matrix of ``m`` (..., 3, 3): :math:`\max |R^\top R - I|` and :math:`\det R` (a rotation: 0 and +1)."""
+    return np.abs(np.swapaxes(m, -1, -2) @ m - np.eye(3)).max(axis=(-2, -1)), np.linalg.det(m)
 
 
 def bone_transforms(body: Body, rotations: np.ndarray, root: np.ndarray) -> torch.Tensor:

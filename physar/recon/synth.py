@@ -63,10 +63,11 @@ DATA_DIR layout (written atomically: to a temporary folder renamed at the end)::
 from __future__ import annotations
 
 import json
+import math
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import cv2
 import numpy as np
@@ -80,6 +81,82 @@ from physar.recon import scene as S
 from physar.recon.pointrender import render_spheres
 
 Vec3 = tuple[float, float, float]
+Size = Annotated[float, Field(gt=0)]
+Size3 = tuple[Size, Size, Size]  # a box's extents: positive (a negative one made boxes that scene.json refused)
+
+# Bounds of the recon config tables shared by [synth] (here and synth_anny.py) and [train] (module docstrings):
+PARTICLES_PER_CELL = (1, 8, 27, 64)  # k^3 particles per cell, k = 1..4
+MAX_SUBSTEPS = 10_000  # MPM substeps per frame (32 by default; 10^4 covers elastic wave speeds of km/s)
+MAX_CFL = 2.0  # grid cells an elastic wave may cross per MPM substep (estimated from above: check_simulation)
+MAX_FPS = 1000.0  # frame rate of a (high-speed) camera, fps
+MAX_GRAVITY = 100.0  # |gravity| <= ~10 g, m/s^2
+MAX_SEED = 2**63 - 1  # the seeds are int64 (torch.manual_seed, numpy)
+MAX_BODY_SPACING = 0.1  # m: coarser body samples miss whole limbs (a forearm is ~0.08 m thick)
+MAX_BODY_SAMPLES = 2.0e6  # rendered body samples a scene may ask for (body_spacing's lower bound)
+BODY_VOLUME = 0.1  # m^3, an upper estimate of a body's volume (the procedural 1.7 m humanoid: 0.070 m^3)
+BODY_AREA = 2.5  # m^2, an upper estimate of a body's surface area (adults: 1.6-2.2 m^2)
+MIN_OBJECT_PX = 4.0  # the object must span at least this many pixels of the image
+RENDER_BYTES_PER_CANDIDATE = 64  # pointrender: i, j (int64), dx, dy, d2 (float64), keep, and temporaries
+
+
+def check_particles_per_cell(value: int) -> int:
+    """``value`` when it is one of :data:`PARTICLES_PER_CELL`, else ValueError (a field validator's message)."""
+    if value not in PARTICLES_PER_CELL:
+        raise ValueError(f"must be 1, 8, 27 or 64 (k^3 particles per cell, k = 1..4), got {value}")
+    return value
+
+
+def check_sample_count(spacing: float, extent: float, dim: int, what: str) -> float:
+    """``spacing`` (m) when the samples it makes of a body of volume (dim 3) or area (dim 2) ``extent`` stay
+    within :data:`MAX_BODY_SAMPLES`, else ValueError with the estimate and the smallest spacing allowed."""
+    n = extent / spacing**dim
+    if not n <= MAX_BODY_SAMPLES:
+        raise ValueError(f"{spacing:g} m makes about {n:.3g} {what} (a body of {extent:g} m^{dim}), more than "
+                         f"{MAX_BODY_SAMPLES:.3g}: use >= {(extent / MAX_BODY_SAMPLES) ** (1 / dim):.2g} m")
+    return spacing
+
+
+def check_simulation(cfg, feature: tuple[str, float], object_volume: float) -> None:
+    """Checks of a synthetic scene's truth run shared by :class:`SynthConfig` and the anny scene's config
+    (ValueError naming the fields): the grid cell resolves the object's thinnest part ``feature`` (name, m);
+    the explicit MPM step is not clearly unstable for the elastic waves (wave speed c = sqrt(M / rho), M =
+    lambda + 2 mu of the stiffest part plus the fibre modulus: an upper bound; c dt <= MAX_CFL dx, dt = 1 / (fps
+    substeps); the one-cell bound with a margin: examples/recon_anny_bag.toml runs at 1.06) and the PD gains (sqrt(kp) dt < 2, kd dt < 2); the run's memory,
+    estimated from ``object_volume`` (m^3) at gt_particles_per_cell, fits in the machine
+    (:func:`physar.output.check_memory`)."""
+    from physar.mpm.scene import MPM_BYTES_PER_NODE, MPM_BYTES_PER_PARTICLE
+    from physar.output import check_memory
+
+    dx = cfg.domain_size / cfg.grid_resolution
+    name, size = feature
+    if dx > size * (1 + 1e-9):
+        raise ValueError(f"the grid cell domain_size / grid_resolution = {dx:.3g} m is coarser than {name} "
+                         f"({size:g} m): the object would not be resolved; lower domain_size or raise "
+                         "grid_resolution")
+    dt = 1.0 / (cfg.fps * cfg.substeps)
+    p_mod = (1 - cfg.nu) / ((1 + cfg.nu) * (1 - 2 * cfg.nu))  # (lambda + 2 mu) / E
+    for what, M, rho, E_name, rho_name in (
+            ("the object", p_mod * max(cfg.E_soft, cfg.E_stiff) + cfg.fiber_E, cfg.density,
+             f"E_soft/E_stiff = {max(cfg.E_soft, cfg.E_stiff):.3g} Pa, fiber_E = {cfg.fiber_E:.3g} Pa", "density"),
+            ("the body", p_mod * cfg.human_E, cfg.human_density, f"human_E = {cfg.human_E:.3g} Pa", "human_density")):
+        c = math.sqrt(M / rho)
+        if c * dt > MAX_CFL * dx:
+            need = math.ceil(c / (MAX_CFL * cfg.fps * dx))
+            fix = f"raise substeps to >= {need} or lower" if need <= MAX_SUBSTEPS else "lower"
+            raise ValueError(f"elastic waves in {what} ({E_name}, nu = {cfg.nu:g}, {rho_name} = "
+                             f"{rho:.3g} kg/m^3: {c:.3g} m/s) cross {c * dt / dx:.3g} grid cells per MPM substep "
+                             f"(> {MAX_CFL:g}: the explicit step diverges; dt = 1 / (fps substeps) = {dt:.3g} s): "
+                             f"{fix} the stiffness")
+    if math.sqrt(cfg.kp) * dt >= 2 or cfg.kd * dt >= 2:
+        raise ValueError(f"PD gains kp = {cfg.kp:g} 1/s^2, kd = {cfg.kd:g} 1/s are unstable at the MPM substep "
+                         f"dt = 1 / (fps substeps) = {dt:.3g} s (needs sqrt(kp) dt < 2 and kd dt < 2): lower them "
+                         "or raise substeps")
+    k = round(cfg.gt_particles_per_cell ** (1 / 3))
+    n = object_volume / (dx / k) ** 3
+    frames = cfg.frames + cfg.novel_frames
+    check_memory(n * (MPM_BYTES_PER_PARTICLE + 36 * frames) + MPM_BYTES_PER_NODE * (cfg.grid_resolution + 7) ** 3,
+                 f"the truth run of about {n:.3g} object particles ({cfg.gt_particles_per_cell} per cell of "
+                 f"{dx:.3g} m: domain_size / grid_resolution) over {frames} frames")
 
 # supported object -> action -> default forearm travel (m): end of the observation part, end of the dynamic clip,
 # novel (tilted) action
@@ -91,9 +168,9 @@ ACTIONS = {
 
 
 class SynthConfig(BaseModel):
-    """Parameters of a synthetic scene (SI units)."""
+    """Parameters of a synthetic scene (SI units); numbers must be finite (inf is refused as nan is)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     @field_validator("*", mode="before")
     @classmethod
     def _no_coercion(cls, value, info):  # E = true, E = "69e9" and cells = ["40", 2, 2] are errors, not numbers
@@ -109,19 +186,19 @@ class SynthConfig(BaseModel):
                                                                         "seen from the object centre [deg]")
     camera_azimuth_deg: float = Field(10.0, ge=-180, le=180, description="camera azimuth about the vertical from "
                                                                         "the -y side, towards +x [deg]")
-    fps: float = Field(30.0, gt=0, description="frame rate of the clips [fps]")
+    fps: float = Field(30.0, gt=0, le=MAX_FPS, description="frame rate of the clips [fps]")
     frames: int = Field(20, ge=3, le=2000, description="frames of the dynamic clip")
     n_obs: int = Field(12, ge=2, description="observation frames (the rest is the prediction part)")
     novel_frames: int = Field(16, ge=2, le=2000, description="frames of the novel-action clip")
-    spin_frames: int = Field(10, ge=0, le=2000, description="frames of the spin clip (0: none)")
+    spin_frames: int = Field(10, ge=0, le=2000, description="frames of the spin clip (0: none, else >= 2)")
     spin_deg: float = Field(20.0, ge=0, le=180, description="yaw amplitude of the spin clip, degrees")
     height: float = Field(1.7, gt=0.5, lt=2.5, description="humanoid height, m")
-    pillow_size: Vec3 = Field((0.24, 0.20, 0.12), description="pillow box (x along the forearm, y, z), m")
-    c_pillow_size: Vec3 = Field((0.24, 0.15, 0.18), description="C pillow: length along the forearm (x), depth "
+    pillow_size: Size3 = Field((0.24, 0.20, 0.12), description="pillow box (x along the forearm, y, z), m")
+    c_pillow_size: Size3 = Field((0.24, 0.15, 0.18), description="C pillow: length along the forearm (x), depth "
                                 "(y, spine at the back) and height (z), m")
     c_thickness: float = Field(0.06, gt=0, description="C pillow: thickness of the prongs and the spine [m] "
                                "(the gap between the prongs is height - 2 thickness)")
-    bag_size: Vec3 = Field((0.21, 0.18, 0.12), description="bag body (x, y, z) below the handle, m")
+    bag_size: Size3 = Field((0.21, 0.18, 0.12), description="bag body (x, y, z) below the handle, m")
     bag_wall: float = Field(0.03, gt=0, description="bag: shell and handle thickness, m")
     handle_length: float = Field(0.09, gt=0, description="bag: extent of the handle along the forearm (x), m")
     handle_hole: float = Field(0.12, gt=0, description="bag: clear height of the tunnel under the handle bar, m")
@@ -145,11 +222,13 @@ class SynthConfig(BaseModel):
                                       "midpoint, m")
     domain_size: float = Field(0.48, gt=0, description="side of the cubic MPM domain around the object [m]")
     grid_resolution: int = Field(16, ge=4, le=256, description="MPM grid cells per side of the domain")
-    substeps: int = Field(32, ge=1, description="MPM steps per frame")
-    gravity: float = Field(-9.81, description="vertical (z) gravitational acceleration [m/s^2]")
+    substeps: int = Field(32, ge=1, le=MAX_SUBSTEPS, description="MPM steps per frame")
+    gravity: float = Field(-9.81, ge=-MAX_GRAVITY, le=MAX_GRAVITY,
+                           description="vertical (z) gravitational acceleration [m/s^2]")
     gt_particles_per_cell: int = Field(8, description="MPM particles per cell of the truth run: 1, 8, 27 or 64")
-    body_spacing: float = Field(0.012, gt=0, description="spacing of the rendered body samples, m")
-    seed: int = Field(0, description="recorded in scene.json; the synthesis draws no random numbers, so it "
+    body_spacing: float = Field(0.012, gt=0, le=MAX_BODY_SPACING, description="spacing of the rendered body samples (at most 2e6 "
+                                "samples of the body's volume: >= 3.7 mm) [m]")
+    seed: int = Field(0, ge=0, le=MAX_SEED, description="recorded in scene.json; the synthesis draws no random numbers, so it "
                                      "changes nothing")
     device: str = Field("cpu", description="Warp device of the truth's MPM run: cpu (default), cuda or cuda:N "
                                     "(physar.mpm.model.MPMModel.device); not recorded in scene.json")
@@ -159,8 +238,20 @@ class SynthConfig(BaseModel):
     def _device_name(cls, value):
         return device_name(value)
 
+    @field_validator("gt_particles_per_cell")
+    @classmethod
+    def _per_cell(cls, value):
+        return check_particles_per_cell(value)
+
+    @field_validator("body_spacing")
+    @classmethod
+    def _spacing(cls, value):
+        return check_sample_count(value, BODY_VOLUME, 3, "body samples")
+
     @model_validator(mode="after")
     def _check(self):
+        if self.spin_frames == 1:
+            raise ValueError("spin_frames = 1: the spin clip needs >= 2 frames (0: no spin clip)")
         if self.action not in ACTIONS[self.object]:
             raise ValueError(f"action '{self.action}' is not supported for object '{self.object}' (supported: "
                              + ", ".join(f"{o} + {'|'.join(a)}" for o, a in ACTIONS.items()) + ")")
@@ -179,9 +270,15 @@ class SynthConfig(BaseModel):
                                  f"handle_length = {self.handle_length} m <= bag_size x ({L})")
         if self.n_obs >= self.frames:
             raise ValueError(f"n_obs ({self.n_obs}) must be < frames ({self.frames})")
-        k = round(self.gt_particles_per_cell ** (1 / 3))
-        if k**3 != self.gt_particles_per_cell:
-            raise ValueError(f"gt_particles_per_cell = {self.gt_particles_per_cell} must be a cube")
+        if self.object == "pillow":
+            feature, volume = ("the smallest side of pillow_size", min(self.pillow_size)), math.prod(self.pillow_size)
+        elif self.object == "c_pillow":
+            feature, volume = ("c_thickness", self.c_thickness), math.prod(self.c_pillow_size)
+        else:
+            L, W, H = self.bag_size
+            feature = ("bag_wall", self.bag_wall)
+            volume = L * W * H + self.handle_length * W * (self.handle_hole + self.bag_wall)
+        check_simulation(self, feature, volume)
         return self
 
 
@@ -197,7 +294,14 @@ def load_section_config(path: str | Path | None, section: str, model, overrides:
             raw = tomllib.loads(p.read_text())
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"{p}: invalid TOML: {exc}") from None
-        data = dict(raw.get(section, {})) if ("synth" in raw or "train" in raw) else raw
+        if "synth" in raw or "train" in raw:
+            table = raw.get(section, {})
+            if not isinstance(table, dict):
+                raise ConfigError(f"{p}: '{section}' must be a table ([{section}] with its keys), got "
+                                  f"{section} = {table!r}")
+            data = dict(table)
+        else:
+            data = raw
     data.update(overrides or {})
     try:
         return model.model_validate(data)
@@ -206,8 +310,14 @@ def load_section_config(path: str | Path | None, section: str, model, overrides:
 
 
 def load_synth_config(path: str | Path | None, overrides: dict | None = None) -> SynthConfig:
-    """Config from a TOML file (table [synth] or top level) and overrides; one-line errors."""
-    return load_section_config(path, "synth", SynthConfig, overrides)
+    """Config from a TOML file (table [synth] or top level) and overrides; one-line errors, the scene's layout
+    and camera included (:func:`scene_meta`)."""
+    cfg = load_section_config(path, "synth", SynthConfig, overrides)
+    try:
+        scene_meta(cfg)
+    except ConfigError as exc:
+        raise ConfigError(f"{path or 'synth config'}: [synth] {exc}") from None
+    return cfg
 
 
 def _checker(X: np.ndarray, cell: float, c0, c1) -> np.ndarray:
@@ -318,6 +428,7 @@ def scene_meta(cfg: SynthConfig) -> dict:
     centre = 0.5 * (lay["object_min"] + lay["object_max"]) + np.array([0.0, 0.0, 0.5 * up])
     el, az = np.radians(cfg.camera_elevation_deg), np.radians(cfg.camera_azimuth_deg)
     eye = centre + cfg.camera_distance * np.array([np.sin(az) * np.cos(el), -np.cos(az) * np.cos(el), np.sin(el)])
+    check_camera(cfg, eye, lay["origin"], lay["object_max"] - lay["object_min"])
     return {
         "format_version": S.FORMAT_VERSION,
         "kind": "physar.recon synthetic scene",
@@ -335,6 +446,40 @@ def scene_meta(cfg: SynthConfig) -> dict:
                 "walls": sim_walls("separate" if cfg.action == "lift" else "sticky"), "kp": cfg.kp, "kd": cfg.kd},
         "synth_config": cfg.model_dump(exclude={"device"}),  # where it ran is not part of the scene
     }
+
+
+def check_camera(cfg, eye: np.ndarray, origin: np.ndarray, object_size: np.ndarray) -> None:
+    """ConfigError naming camera_distance when the camera is inside the MPM domain (cube ``origin`` +
+    [0, domain_size]^3, where the simulated particles are: drawn from up close they cover the image and the
+    renderer's memory grows with their size in pixels squared) or so far that the object (extents
+    ``object_size``, m) spans fewer than :data:`MIN_OBJECT_PX` pixels (every mask would be empty)."""
+    if np.all((eye > origin) & (eye < origin + cfg.domain_size)):
+        raise ConfigError(f"camera_distance = {cfg.camera_distance:g} m puts the camera inside the MPM domain (the "
+                          f"cube of domain_size = {cfg.domain_size:g} m around the object): move it farther")
+    fx = 0.5 * cfg.image_size / math.tan(math.radians(cfg.fov_deg) / 2)
+    px = fx * float(np.linalg.norm(object_size)) / cfg.camera_distance
+    if px < MIN_OBJECT_PX:
+        raise ConfigError(f"camera_distance = {cfg.camera_distance:g} m: the object would span {px:.2g} px of the "
+                          f"{cfg.image_size} px image (< {MIN_OBJECT_PX:g}): move the camera closer")
+
+
+def check_render_memory(points: np.ndarray, radius: np.ndarray, K, R, t, cfg, supersample: int = 2):
+    """ConfigError when the sphere renderer (:func:`physar.recon.pointrender.render_spheres`) would need more
+    memory than is available to draw ``points`` (F, N, 3) or (N, 3): it looks at a (2k + 3)^2 pixel window around
+    every point, k the largest sphere radius in pixels (the nearest points to the camera)."""
+    from physar.output import check_memory
+
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3) @ np.asarray(R).T + np.asarray(t)
+    rad = np.broadcast_to(np.asarray(radius, dtype=np.float64), points.shape[:-1]).reshape(-1)
+    ok = p[:, 2] > 1e-3
+    if not np.any(ok):
+        return
+    rpx = float(np.max(K[0, 0] * supersample * rad[ok] / p[ok, 2]))
+    n = int(ok.sum()) / max(1, points.shape[0] if points.ndim == 3 else 1)
+    w = 2 * math.ceil(rpx) + 3
+    check_memory(RENDER_BYTES_PER_CANDIDATE * n * w * w,
+                 f"rendering {n:.3g} spheres up to {rpx:.3g} px in radius (image_size = {cfg.image_size}, "
+                 f"camera_distance = {cfg.camera_distance:g} m: the nearest ones are drawn large)")
 
 
 def _check_in_domain(meta: dict, name: str, x_world: np.ndarray) -> None:
@@ -432,6 +577,9 @@ def _render_clip(cfg, meta, body, poses, xo, xh, Xo, h, out_dir: Path):
     (out_dir / "rgb").mkdir(parents=True, exist_ok=True)
     (out_dir / "mask").mkdir(parents=True, exist_ok=True)
     frames = []
+    check_render_memory(np.concatenate([xo, xh, xb], axis=1),
+                        np.r_[np.full(xo.shape[1] + xh.shape[1], 0.75 * h), np.full(xb.shape[1], 0.75 * cfg.body_spacing)],
+                        K, R, t, cfg)
     for f in range(len(xo)):
         pts = np.concatenate([xo[f], xh[f], xb[f]])
         cols = np.concatenate([col_o, np.tile(arm, (len(xh[f]), 1)), np.tile(skin, (len(xb[f]), 1))])

@@ -74,7 +74,25 @@ from physar.output import atomic_folder, own_names
 from physar.recon import scene as S
 from physar.recon.importer import retarget, rotation_between
 from physar.recon.pointrender import render_spheres
-from physar.recon.synth import PARTS, _checker, load_section_config, sim_walls, simulate_clip
+from physar.recon.synth import (
+    BODY_AREA,
+    MAX_BODY_SPACING,
+    MAX_FPS,
+    MAX_GRAVITY,
+    MAX_SEED,
+    MAX_SUBSTEPS,
+    PARTS,
+    Size3,
+    _checker,
+    check_camera,
+    check_particles_per_cell,
+    check_render_memory,
+    check_sample_count,
+    check_simulation,
+    load_section_config,
+    sim_walls,
+    simulate_clip,
+)
 from physar.skinning import SMPL_JOINTS, SMPL_PARENTS, SMPL_TO_BODY, load_body
 
 Vec3 = tuple[float, float, float]
@@ -82,9 +100,9 @@ ARM_BONES = ("lowerarm", "wrist", "finger", "metacarpal")  # prefixes of the bon
 
 
 class AnnySceneConfig(BaseModel):
-    """Parameters of the anny scene (SI units; module docstring)."""
+    """Parameters of the anny scene (SI units; module docstring); numbers must be finite."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     @field_validator("*", mode="before")
     @classmethod
@@ -99,7 +117,7 @@ class AnnySceneConfig(BaseModel):
     fov_deg: float = Field(40.0, gt=5, lt=120, description="vertical field of view [deg]")
     camera_distance: float = Field(0.9, gt=0.1, description="m, from the object centre")
     camera_elevation_deg: float = Field(25.0, ge=-80, le=80, description="camera elevation [deg]")
-    fps: float = Field(30.0, gt=0, description="frame rate [fps]")
+    fps: float = Field(30.0, gt=0, le=MAX_FPS, description="frame rate [fps]")
     frames: int = Field(12, ge=3, le=2000, description="frames of the dynamic clip")
     n_obs: int = Field(8, ge=2, description="observed frames of the dynamic clip")
     novel_frames: int = Field(10, ge=2, le=2000, description="frames of the novel-action clip")
@@ -109,7 +127,7 @@ class AnnySceneConfig(BaseModel):
     elbow_out: float = Field(0.21, gt=0, description="elbow distance from the body's midplane [m]")
     elbow_forward: float = Field(0.10, ge=0, description="elbow in front of the shoulder [m]")
     forearm_inward: float = Field(0.45, ge=0, description="forearm direction (-+inward, -1, 0): inward slope [-]")
-    c_pillow_size: Vec3 = Field((0.30, 0.24, 0.18), description="C pillow (x, y, z) [m]; multiples of the cell")
+    c_pillow_size: Size3 = Field((0.30, 0.24, 0.18), description="C pillow (x, y, z) [m]; multiples of the cell")
     c_thickness: float = Field(0.06, gt=0, description="prong and spine thickness [m]")
     torso_clearance: float = Field(0.05, ge=0, description="gap between the torso's front and the C's spine [m]")
     gap: float = Field(0.005, ge=0, description="gap between the lowest forearm/hand vertex and the object [m]")
@@ -136,26 +154,34 @@ class AnnySceneConfig(BaseModel):
     kd: float = Field(110.0, ge=0, description="PD gain of the truth [1/s]")
     domain_size: float = Field(0.6, gt=0, description="MPM domain side [m]")
     grid_resolution: int = Field(20, ge=4, le=256, description="MPM cells per side")
-    substeps: int = Field(32, ge=1, description="MPM steps per frame")
-    gravity: float = Field(-9.81, description="vertical acceleration [m/s^2]")
-    gt_particles_per_cell: int = Field(27, description="particles per cell of the truth: 8, 27 or 64")
+    substeps: int = Field(32, ge=1, le=MAX_SUBSTEPS, description="MPM steps per frame")
+    gravity: float = Field(-9.81, ge=-MAX_GRAVITY, le=MAX_GRAVITY, description="vertical acceleration [m/s^2]")
+    gt_particles_per_cell: int = Field(27, description="particles per cell of the truth: 1, 8, 27 or 64")
     truth_splats: Literal["spheres", "ellipsoids"] = Field(
         "spheres", description="how the truth's object particles are drawn: rigid spheres, or ellipsoids carried by "
         "the material's total deformation (a surface that stretches with the object, as a real one does)")
-    body_spacing: float = Field(0.008, gt=0, description="mean spacing of the rendered body surface samples [m]")
-    bag_size: Vec3 = Field((0.54, 0.15, 0.12), description="bag body (x, y, z) below the handle [m]")
+    body_spacing: float = Field(0.008, gt=0, le=MAX_BODY_SPACING, description="mean spacing of the rendered body "
+                                "surface samples [m] (at most 2e6 samples of the body's surface: >= 1.1 mm)")
+    bag_size: Size3 = Field((0.54, 0.15, 0.12), description="bag body (x, y, z) below the handle [m]")
     bag_wall: float = Field(0.03, gt=0, description="bag: shell, posts and bar thickness [m]")
     handle_length: float = Field(0.09, gt=0, description="bag: extent of the handle along y [m]")
     handle_hole: float = Field(0.12, gt=0, description="bag: clear height under the handle's bar [m]")
-    seed: int = Field(0, description="seed of the body surface samples")
+    seed: int = Field(0, ge=0, le=MAX_SEED, description="seed of the body surface samples")
+
+    @field_validator("gt_particles_per_cell")
+    @classmethod
+    def _per_cell(cls, value):
+        return check_particles_per_cell(value)
+
+    @field_validator("body_spacing")
+    @classmethod
+    def _spacing(cls, value):
+        return check_sample_count(value, BODY_AREA, 2, "body surface samples")
 
     @model_validator(mode="after")
     def _check(self):
         if self.n_obs >= self.frames:
             raise ValueError(f"n_obs ({self.n_obs}) must be < frames ({self.frames})")
-        k = round(self.gt_particles_per_cell ** (1 / 3))
-        if k**3 != self.gt_particles_per_cell:
-            raise ValueError(f"gt_particles_per_cell = {self.gt_particles_per_cell} must be a cube")
         if (self.object, self.action) not in (("c_pillow", "squeeze"), ("bag", "lift")):
             raise ValueError(f"action '{self.action}' is not supported for object '{self.object}' (c_pillow + "
                              "squeeze, bag + lift)")
@@ -181,6 +207,12 @@ class AnnySceneConfig(BaseModel):
             if abs(v / dx - round(v / dx)) > 1e-6:
                 raise ValueError(f"{name} = {v} m must be a multiple of the cell {dx:g} m (domain_size / "
                                  "grid_resolution): the imported voxels must give the same boxes")
+        if self.object == "c_pillow":
+            check_simulation(self, ("c_thickness", self.c_thickness), L * D * H)
+        else:
+            bl, bw, bh = self.bag_size
+            check_simulation(self, ("bag_wall", self.bag_wall),
+                             bl * bw * bh + bl * self.handle_length * (self.handle_hole + self.bag_wall))
         return self
 
 
@@ -369,6 +401,7 @@ def scene_meta(cfg: AnnySceneConfig, body, poses0: dict) -> dict:
     centre = 0.5 * (lo + hi) + V3(0.0, 0.0, 0.5 * rise)
     el = np.radians(cfg.camera_elevation_deg)
     eye = centre + cfg.camera_distance * np.array([0.0, -np.cos(el), np.sin(el)])
+    check_camera(cfg, eye, origin, hi - lo)
     return {
         "format_version": S.FORMAT_VERSION, "kind": "physar.recon synthetic scene (anny)",
         "fps": cfg.fps, "frames": cfg.frames, "n_obs": cfg.n_obs, "novel_frames": cfg.novel_frames,
@@ -539,6 +572,9 @@ def generate_anny(out_dir, cfg: AnnySceneConfig | None = None,
                 (d / sub).mkdir(parents=True, exist_ok=True)
             (tmp / "labels" / key).mkdir(parents=True)
             frames = []
+            check_render_memory(np.concatenate([xo[:, surf], xh, xb], axis=1),
+                                np.r_[np.full(int(surf.sum()) + xh.shape[1], 0.75 * h),
+                                      np.full(xb.shape[1], 0.75 * cfg.body_spacing)], *S.camera_matrices(meta), cfg)
             for f in range(len(xo)):
                 Fo = lattice_deformation(Xo, xo[f], h)[surf] if cfg.truth_splats == "ellipsoids" else None
                 rgb, lab = render_frames(meta, xo[f][surf], col_o, 0.75 * h, xh[f], 0.75 * h, xb[f], col_b,

@@ -83,16 +83,52 @@ CHECKPOINT_FORMAT = 1  # checkpoint.pt / stages.pt: _state_dict + format + data_
 Progress = Callable[[str, int, int, float], None]
 
 
+MAX_MATERIAL_NODES = 4096  # train.material_grid: nodes in all (16^3); each is a column of a dense (N, G) matrix
+MAX_LATENT_DIM = 1024  # train.latent_dim (the seed: 16); the latents are two (N, latent_dim) float64 arrays
+
+
 class TrainConfig(BaseModel):
-    """Training settings (TOML table [train]); lengths in m."""
+    """Training settings (TOML table [train]); lengths in m; numbers must be finite (inf is refused as nan is)."""
 
     @model_validator(mode="after")
     def _check_nu(self):
         if not self.nu_min < self.nu_max:
             raise ValueError(f"nu_min ({self.nu_min}) must be < nu_max ({self.nu_max})")
+        if not self.E_min < self.E_max:
+            raise ValueError(f"E_min ({self.E_min:g} Pa) must be < E_max ({self.E_max:g} Pa)")
+        if not self.E_min <= self.E_init <= self.E_max:
+            raise ValueError(f"E_init ({self.E_init:g} Pa) must be in [E_min, E_max] = [{self.E_min:g}, "
+                             f"{self.E_max:g}] Pa")
         return self
 
-    model_config = ConfigDict(extra="forbid")
+    @field_validator("particles_per_cell")
+    @classmethod
+    def _per_cell(cls, value):
+        from physar.recon.synth import check_particles_per_cell
+
+        return check_particles_per_cell(value)
+
+    @field_validator("body_spacing")
+    @classmethod
+    def _spacing(cls, value):
+        from physar.recon.synth import BODY_VOLUME, check_sample_count
+
+        return check_sample_count(value, BODY_VOLUME, 3, "kinematic body Gaussians")
+
+    @field_validator("material_grid")
+    @classmethod
+    def _material_grid(cls, value):
+        if any(k != 0 for k in value) and any(k < 1 for k in value):
+            raise ValueError(f"{list(value)}: use >= 1 node per axis, or [0, 0, 0] (one value per particle)")
+        nodes = math.prod(value)
+        if nodes > MAX_MATERIAL_NODES:
+            raise ValueError(f"{list(value)} is {nodes:.3g} nodes: the trilinear weights (a dense particles x nodes "
+                             f"float64 matrix) would take {8 * nodes / 2**20:.3g} MiB per object particle; use at "
+                             f"most {MAX_MATERIAL_NODES} nodes (a coarse material space), or [0, 0, 0] (one value "
+                             "per particle)")
+        return value
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     @field_validator("*", mode="before")
     @classmethod
     def _no_coercion(cls, value, info):  # E = true, E = "69e9" and cells = ["40", 2, 2] are errors, not numbers
@@ -103,8 +139,9 @@ class TrainConfig(BaseModel):
     def _device_name(cls, value):
         return device_name(value)
 
-    particles_per_cell: int = Field(1, description="object/body MPM particles per grid cell: 1, 8 or 27")
-    body_spacing: float = Field(0.03, gt=0, description="spacing of the kinematic body Gaussians, m")
+    particles_per_cell: int = Field(1, description="object/body MPM particles per grid cell: 1, 8, 27 or 64")
+    body_spacing: float = Field(0.03, gt=0, le=0.1, description="spacing of the kinematic body Gaussians (at most "
+                                "2e6 of them in the body's volume: >= 3.7 mm; <= 0.1 m, coarser misses limbs) [m]")
     appearance_iters: int = Field(150, ge=0, description="Adam iterations of the canonical appearance fit on the "
                                                          "spin clip (§4.1, Eq. 5)")
     appearance_lr: float = Field(0.05, gt=0, description="Adam step of the appearance fit on colours, opacity "
@@ -144,7 +181,7 @@ class TrainConfig(BaseModel):
     nu_min: float = Field(0.2, gt=-1, lt=0.5, description="lower bound of the learned Poisson ratio (seed App. B) [-]")
     nu_max: float = Field(0.4, gt=-1, lt=0.5, description="upper bound of the learned Poisson ratio (seed App. B) [-]")
     nu_init: float | None = Field(None, gt=-1, lt=0.5, description="initial Poisson ratio of the object [-] "
-                                  "(default: the scene's object.nu, clipped to [nu_min, nu_max])")
+                                  "(default: the scene's object.nu; either is clipped to [nu_min, nu_max], tests/recon/test_poisson.py)")
     material_grid: tuple[int, int, int] = Field((4, 3, 2), description="voxel nodes of the log E field per "
                                                 "axis over the object box; (0, 0, 0): one value per particle")
     omega_init: float = Field(1.0, gt=0, lt=2, description="initial LBS-impact factor omega of the actuated body "
@@ -177,7 +214,7 @@ class TrainConfig(BaseModel):
     residual_rest_free: bool = Field(False, description="with residual: subtract each network's output at F = I "
                                      "(same latent), so the residual laws neither stress undeformed material nor "
                                      "drift its F (physar's option, not in the seed)")
-    latent_dim: int = Field(16, ge=1, description="size of each particle's latents l_e, l_p (Eq. 8)")
+    latent_dim: int = Field(16, ge=1, le=MAX_LATENT_DIM, description="size of each particle's latents l_e, l_p (Eq. 8)")
     render_deformation: Literal["none", "state", "positions"] = Field(
         "none", description="deformation gradient that shapes the object's Gaussians whenever the object is "
         "rendered (every method, its fit and its evaluation: the Eq. 9 flow stages, physics, refit, predict): none (F = I: the Gaussians move "
@@ -192,7 +229,7 @@ class TrainConfig(BaseModel):
                                                         "of each")
     lambda_feat: float = Field(1.0e-4, ge=0, description="App. A weight of the latent magnitudes |l_e|, |l_p| [-]")
     checkpoint_every: int = Field(5, ge=1, description="physics iterations between checkpoints")
-    seed: int = Field(0, description="seed of torch's random draws (initial residual networks and latents, "
+    seed: int = Field(0, ge=0, le=2**63 - 1, description="seed of torch's random draws (initial residual networks and latents, "
                                      "the spin frames sampled by the appearance fit)")
 
 
@@ -245,19 +282,46 @@ def load_dataset(path: str | Path, with_truth: bool = True) -> Dataset:
     n = len(rot)
     if not 2 <= meta["n_obs"] <= n:
         raise ConfigError(f"{sj}: n_obs = {meta['n_obs']} must be in [2, {n}]")
-    rgb, mask = read_pngs(root / "rgb", n), read_pngs(root / "mask", n, gray=True)
+    wh = (meta["camera"]["width"], meta["camera"]["height"])
+    rgb, mask = read_pngs(root / "rgb", n, size=wh), read_pngs(root / "mask", n, gray=True, size=wh)
     novel = None
     if (root / "novel_poses.npz").exists():
         r2, t2 = S.check_poses(_npz(root / "novel_poses.npz"), nb, str(root / "novel_poses.npz"))
-        novel = {"rotations": r2, "root_t": t2, "rgb": read_pngs(root / "novel" / "rgb", len(r2)),
-                 "mask": read_pngs(root / "novel" / "mask", len(r2), gray=True)}
-    truth = _npz(root / "truth.npz") if with_truth and (root / "truth.npz").exists() else None
+        novel = {"rotations": r2, "root_t": t2, "rgb": read_pngs(root / "novel" / "rgb", len(r2), size=wh),
+                 "mask": read_pngs(root / "novel" / "mask", len(r2), gray=True, size=wh)}
+    truth = None
+    if with_truth and (root / "truth.npz").exists():
+        truth = check_truth(_npz(root / "truth.npz"), n, None if novel is None else len(novel["rgb"]),
+                            root / "truth.npz")
     spin = None
     if (root / "spin_poses.npz").exists():
         r3, t3 = S.check_poses(_npz(root / "spin_poses.npz"), nb, str(root / "spin_poses.npz"))
-        spin = {"rotations": r3, "root_t": t3, "rgb": read_pngs(root / "spin" / "rgb", len(r3)),
-                "mask": read_pngs(root / "spin" / "mask", len(r3), gray=True)}
+        spin = {"rotations": r3, "root_t": t3, "rgb": read_pngs(root / "spin" / "rgb", len(r3), size=wh),
+                "mask": read_pngs(root / "spin" / "mask", len(r3), gray=True, size=wh)}
     return Dataset(root, meta, rgb, mask, rot, rt, novel, truth, spin)
+
+
+def check_truth(truth: dict, n: int, n_novel: int | None, path: Path) -> dict:
+    """The arrays of a DATA_DIR's ``truth.npz`` that :func:`evaluate` reads, checked (ConfigError naming the file
+    and the array): fine rest positions (N, 3), E (N,) > 0, the per-frame maximum object displacement of the
+    dynamic clip (n,) and of the novel clip (n_novel,) when there is one, the fine object positions (n, N, 3)
+    when stored; all finite."""
+    N = np.shape(truth.get("rest_positions", np.zeros((0, 3))))[0]
+    want = {"rest_positions": (N, 3), "E": (N,), "dynamic_max_displacement": (n,)}
+    if n_novel is not None:
+        want["novel_max_displacement"] = (n_novel,)
+    if "dynamic_object_positions" in truth:
+        want["dynamic_object_positions"] = (n, N, 3)
+    for k, shape in want.items():
+        if k not in truth:
+            raise ConfigError(f"{path}: missing array '{k}' {shape}")
+        a = np.asarray(truth[k])
+        if a.dtype.kind not in "fiu" or a.shape != shape or not np.all(np.isfinite(a)):
+            raise ConfigError(f"{path}: array '{k}' must be {shape} finite numbers, got {a.shape} {a.dtype}"
+                              + (" with non-finite values" if a.dtype.kind in "fiu" and a.shape == shape else ""))
+    if N == 0 or np.any(np.asarray(truth["E"]) <= 0):
+        raise ConfigError(f"{path}: array 'E' must hold positive moduli [Pa] of at least one particle")
+    return truth
 
 
 def _npz(path: Path) -> dict:
@@ -970,7 +1034,7 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
         st.seconds = time.perf_counter() - t0
         save(st, opt)
 
-    recon = Reconstruction(rig, app, st.flow, st.phys, ds.root, st.spflow)
+    recon = Reconstruction(rig, app, st.flow, st.phys, ds.root.resolve(), st.spflow)  # eval from any folder
     if cfg.appearance_refit_iters > 0:
         t1 = time.perf_counter()
         recon.apps = refit_appearances(recon, ds, kin, cfg.appearance_refit_iters, progress=prog,
@@ -1165,7 +1229,7 @@ class Reconstruction:
         for m, a in apps.items():
             if any(t.shape != c.shape for t, c in zip(a.params(), app.params())):
                 raise ValueError(f"the appearance refit of {m} does not match the Gaussians")
-        return cls(rig, app, list(torch.as_tensor(d["flow"])), phys, Path(str(d["data_dir"])) or None,
+        return cls(rig, app, list(torch.as_tensor(d["flow"])), phys, Path(str(d["data_dir"])) if str(d["data_dir"]) else None,
                    list(torch.as_tensor(d["spflow"])), apps)
 
     def predict(self, rotations: np.ndarray, root: np.ndarray, method: str = "physics",
@@ -1223,6 +1287,25 @@ class Reconstruction:
 METHODS = ("physics", "lbs", "4dgs", "spflow")
 
 
+SCENE_KEYS = ("fps", "frames", "n_obs", "camera", "body.model", "body.height", "object", "sim")  # fitted to
+
+
+def check_same_scene(recon: Reconstruction, ds: Dataset) -> None:
+    """ConfigError when ``ds`` is not the scene ``recon`` was fitted on: its scene.json differs from the one
+    stored in the model in one of :data:`SCENE_KEYS` (the rig completes the rest of ``body``, e.g. the
+    simulated bones of an imported scene)."""
+    def get(meta: dict, key: str):
+        for k in key.split("."):
+            meta = meta.get(k) if isinstance(meta, dict) else None
+        return json.dumps(meta, sort_keys=True)
+
+    a, b = recon.rig.meta, ds.meta
+    diff = [k for k in SCENE_KEYS if get(a, k) != get(b, k)]
+    if diff:
+        raise ConfigError(f"{ds.root}: not the DATA_DIR this model was fitted on (its scene.json differs in "
+                          f"{', '.join(diff)}); pass the fit's DATA_DIR with --data")
+
+
 def evaluate(recon: Reconstruction, ds: Dataset, methods=METHODS, progress: Progress | None = None,
              renders: dict | None = None) -> dict:
     """Metrics of each method on reconstruction (observed frames 1..n_obs-1), prediction (future frames) and
@@ -1236,6 +1319,7 @@ def evaluate(recon: Reconstruction, ds: Dataset, methods=METHODS, progress: Prog
     dynamic-clip RGB (F, H, W, 3) (the preview of :func:`fit` reuses them)."""
     from physar.recon.metrics import large_deformation_frames, lpips_model, sequence_metrics
 
+    check_same_scene(recon, ds)
     try:
         lp = lpips_model()
         out = {"methods": {}, "lpips": "computed (AlexNet backbone)"}

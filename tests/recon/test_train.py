@@ -165,3 +165,101 @@ def test_learn_omega_false_resumes_from_its_checkpoint(fitted, tiny_scene, tmp_p
     w = cfg.omega_init / 2
     assert np.all(ph.omega_logit.detach().numpy() == math.log(w / (1 - w)))
     assert len(np.load(tmp_path / "r" / "model.npz")["loss_physics"]) == 3
+
+
+def _damaged(tiny_scene, tmp_path, name):
+    import shutil
+
+    d = tmp_path / name
+    shutil.copytree(tiny_scene, d)
+    return d
+
+
+def test_eval_and_predict_refuse_damaged_or_foreign_inputs(fitted, tiny_scene, tmp_path):
+    """Found by an outside probe (tracebacks or silent runs before). Each: exit 2, one line naming the file.
+    Mutants caught: no check of the PNG sizes (ValueError from np.stack); no check of truth.npz (KeyError 'E',
+    IndexError; NaN E reported as a number); no scene comparison (another scene's DATA_DIR evaluated: IndexError
+    or numbers of the wrong scene); no rotation check in the pose reader (a scaled matrix skinned silently)."""
+    import cv2
+
+    run = fitted[0]
+    app = typer.Typer()
+    register(app)
+
+    def refused(args, needle):
+        r = CliRunner().invoke(app, [str(a) for a in args])
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip() and not ln.startswith("Warp CUDA")]
+        assert r.exit_code == 2 and len(lines) == 1 and needle in lines[0], (needle, r.output, r.exception)
+
+    d = _damaged(tiny_scene, tmp_path, "big")
+    cv2.imwrite(str(d / "rgb" / "0001.png"), np.zeros((64, 64, 3), np.uint8))
+    refused(["recon", "eval", run, "--data", d], "rgb/0001.png' is 64x64 px, expected 32x32 px")
+    d = _damaged(tiny_scene, tmp_path, "small")
+    cv2.imwrite(str(d / "mask" / "0002.png"), np.zeros((16, 16), np.uint8))
+    refused(["recon", "eval", run, "--data", d], "mask/0002.png' is 16x16 px, expected 32x32 px")
+    with np.load(tiny_scene / "truth.npz") as z:
+        truth = {k: z[k] for k in z.files}
+    for name, edit, needle in (
+            ("noE", lambda t: t.pop("E"), "truth.npz: missing array 'E'"),
+            ("nanE", lambda t: t["E"].__setitem__(0, np.nan), "truth.npz: array 'E' must be"),
+            ("cut", lambda t: t.__setitem__("dynamic_object_positions", t["dynamic_object_positions"][:2]),
+             "truth.npz: array 'dynamic_object_positions' must be (5,")):
+        d = _damaged(tiny_scene, tmp_path, name)
+        t = {k: v.copy() for k, v in truth.items()}
+        edit(t)
+        np.savez(d / "truth.npz", **t)
+        refused(["recon", "eval", run, "--data", d], needle)
+    d = _damaged(tiny_scene, tmp_path, "other")  # another scene: here, another frame rate
+    meta = json.loads((d / "scene.json").read_text())
+    meta["fps"] = 2 * meta["fps"]
+    (d / "scene.json").write_text(json.dumps(meta))
+    refused(["recon", "eval", run, "--data", d], "not the DATA_DIR this model was fitted on (its scene.json "
+            "differs in fps)")
+    with np.load(tiny_scene / "novel_poses.npz") as z:
+        p = {k: z[k] for k in z.files}
+    np.savez(tmp_path / "scaled.npz", rotations=2 * p["rotations"], root_translation=p["root_translation"])
+    refused(["recon", "predict", run, "--poses", tmp_path / "scaled.npz", "--out", tmp_path / "v.mp4"],
+            "scaled.npz: 'rotations' [frame 0, bone 0] is not a rotation matrix (|R^T R - I| = 3")
+    assert not (tmp_path / "v.mp4").exists()
+
+
+def test_eval_from_another_folder(tiny_scene, tmp_path, monkeypatch):
+    """`recon fit scene` run from the scene's parent, `recon eval RUN` from elsewhere: the model keeps the DATA_DIR
+    as an absolute path (mutant: the path as typed; eval then read 'scene' in the current folder: exit 2
+    "'scene' is not a recon DATA_DIR", or another folder of that name)."""
+    cfg = TrainConfig(appearance_iters=2, finetune_iters=1, flow_iters=1, spflow_iters=1, physics_iters=1,
+                      window_start=3, material_grid=(0, 0, 0), lambda_flow=0.0)
+    monkeypatch.chdir(tiny_scene.parent)
+    fit(tiny_scene.name, tmp_path / "run", cfg)
+    monkeypatch.chdir(tmp_path)
+    assert Reconstruction.load(tmp_path / "run").data_dir == tiny_scene.resolve()
+    app = typer.Typer()
+    register(app)
+    r = CliRunner().invoke(app, ["recon", "eval", str(tmp_path / "run"), "--json"])
+    assert r.exit_code == 0, r.output
+
+
+def test_png_bomb_in_a_data_dir_refused(tiny_scene, tmp_path):
+    """A PNG whose header announces 60000 x 60000 px (a few bytes on disk): OpenCV raises cv2.error, which was a
+    traceback from `recon fit` / `recon eval` / `recon check`; PIL's DecompressionBombError likewise from the label
+    mask reader of `recon import`. Mutants: the cv2.error / DecompressionBombError not caught."""
+    import struct
+    import zlib
+
+    from physar.errors import ConfigError
+    from physar.recon.importer import check_dataset, read_label_png
+    from physar.recon.train import load_dataset
+
+    def chunk(t, d):
+        return struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d) & 0xFFFFFFFF)
+
+    bomb = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 60000, 60000, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(b"\x00" * 100)) + chunk(b"IEND", b""))
+    d = _damaged(tiny_scene, tmp_path, "bomb")
+    (d / "rgb" / "0001.png").write_bytes(bomb)
+    with pytest.raises(ConfigError, match=r"rgb/0001.png': not an image OpenCV reads \(its header announces more"):
+        load_dataset(d)
+    assert any("rgb/0001.png': not an image OpenCV reads" in p for p in check_dataset(d)["problems"])
+    with pytest.raises(ConfigError, match="bomb.png: not a readable PNG"):
+        (tmp_path / "bomb.png").write_bytes(bomb)
+        read_label_png(tmp_path / "bomb.png")
