@@ -164,28 +164,35 @@ class Camera:
         Two checks on :math:`p = K\,\operatorname{distort}(x)` of undistorted normalised points :math:`x`
         (``cv2.projectPoints``, so every OpenCV coefficient counts): along the rays from the principal point to
         the four edge midpoints the distorted radius must grow (a radius that stops growing folds the image:
-        two scene directions land on one pixel); and at least ``min_inside`` of the undistorted frame (the
-        undistortion map with the same K, as ``cv2.initUndistortRectifyMap`` builds it) must come from inside
-        the image. Calibrations of real lenses pass both; coefficients from another camera, another unit or a
-        typing slip fail them. :meth:`load` refuses such a file; ``calibration.calibration_warnings`` is the
-        stricter check of a fresh calibration (it warns)."""
+        two scene directions land on one pixel; a ray shorter than 1 px, a principal point on an edge, is
+        skipped); and at least ``min_inside`` of the undistorted frame (sampled on a grid of at most
+        ``n`` x ``n`` pixels: the undistortion map with the same K, as ``cv2.initUndistortRectifyMap`` builds it)
+        must come from inside the image. Calibrations of real lenses pass both; coefficients from another camera,
+        another unit or a typing slip fail them. :meth:`load` refuses such a file;
+        ``calibration.calibration_warnings`` warns about a fresh calibration with this and stricter rules."""
         if not np.any(self.dist):
             return None
         K, d, W, H = self.K, self.dist, self.width, self.height
         cx, cy = K[0, 2], K[1, 2]
-        s = np.linspace(0.0, 1.0, n + 1)[1:]
-        for ex, ey, name in ((0.0, cy, "left"), (W - 1.0, cy, "right"), (cx, 0.0, "top"), (cx, H - 1.0, "bottom")):
-            u = cx + s * (ex - cx)
-            v = cy + s * (ey - cy)
+
+        def distort(u, v):  # pixels of the undistorted image -> pixels of the distorted image
             xy = np.linalg.solve(K, np.stack([u, v, np.ones_like(u)]))[:2].T
             p, _ = cv2.projectPoints(np.column_stack([xy, np.ones(len(xy))]), np.zeros(3), np.zeros(3), K, d)
-            r = np.hypot(*(p.reshape(-1, 2) - K[:2, 2]).T)
-            if not np.all(np.isfinite(r)) or np.any(np.diff(r) <= 0):
-                k = int(np.argmax(~np.isfinite(np.diff(r)) | (np.diff(r) <= 0)))
+            return p.reshape(-1, 2)
+
+        s = np.linspace(0.0, 1.0, n + 1)[1:]
+        for ex, ey, name in ((0.0, cy, "left"), (W - 1.0, cy, "right"), (cx, 0.0, "top"), (cx, H - 1.0, "bottom")):
+            if math.hypot(ex - cx, ey - cy) < 1.0:
+                continue
+            r = np.hypot(*(distort(cx + s * (ex - cx), cy + s * (ey - cy)) - K[:2, 2]).T)
+            grows = np.isfinite(r[1:]) & (np.diff(r) > 0)
+            if not (np.isfinite(r[0]) and grows.all()):
+                k = int(np.argmin(grows)) if np.isfinite(r[0]) else 0
                 return (f"distortion {np.round(d, 6).tolist()} folds the image: the distorted radius stops growing "
                         f"{s[k]:.0%} of the way to the {name} edge")
-        mx, my = cv2.initUndistortRectifyMap(K, d, None, K, (W, H), cv2.CV_32FC1)
-        inside = float(np.mean((mx >= -0.5) & (mx <= W - 0.5) & (my >= -0.5) & (my <= H - 0.5)))
+        u, v = np.meshgrid(np.linspace(0, W - 1, min(W, n)), np.linspace(0, H - 1, min(H, n)))
+        p = distort(u.ravel(), v.ravel())
+        inside = float(np.mean((p[:, 0] >= -0.5) & (p[:, 0] <= W - 0.5) & (p[:, 1] >= -0.5) & (p[:, 1] <= H - 0.5)))
         if inside < min_inside:
             return (f"distortion {np.round(d, 6).tolist()} maps only {inside:.0%} of the undistorted {W}x{H} image "
                     f"inside the image (a lens keeps most of it)")

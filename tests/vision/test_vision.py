@@ -81,6 +81,8 @@ def test_camera_toml_roundtrip_and_errors(tmp_path):
             Camera.load(g)
     for d in ([-0.3, 0.1, 0, 0, 0], [-0.45, 0.25, 0, 0, -0.08], [0.2, -0.5, 0.001, 0.001, 0.3], [0.5, 0.5, 0, 0, 0.5]):
         assert _cam(np.array(d, float)).distortion_problem() is None, d  # strong but real barrel / pincushion lenses
+    edge = Camera(np.array([[620.0, 0, 639.0], [0, 615.0, 238.0], [0, 0, 1]]), [-0.2, 0, 0, 0, 0], 640, 480)
+    assert edge.distortion_problem() is None  # a principal point on the right edge: no ray to fold (mutant: 0 %)
     with pytest.raises(ConfigError, match="not found"):
         Camera.load(tmp_path / "missing.toml")
     (tmp_path / "junk.toml").write_text("[camera\nwidth=")
