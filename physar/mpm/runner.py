@@ -119,7 +119,8 @@ def _simulate(sc: Scene, model, x0, v0, out: Path | None, progress, preview: boo
         res.diagnostics.append(d)
         if out is not None:
             write_particles_ply(out / f"frame_{f:04d}.ply", st["x"], st["v"], model.body)
-            xs.append(st["x"])
+            if preview:  # kept only for the preview (the memory estimate counts them only then)
+                xs.append(st["x"])
         if progress and f > 0:
             progress(f, n_frames)
         if stop is not None and f < n_frames and stop():

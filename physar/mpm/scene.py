@@ -349,6 +349,16 @@ def check_scene_memory(scene: Scene, base_dir: Path | None = None, particles_per
     from physar.output import check_memory
 
     dx = scene.grid.size / scene.grid.resolution
+    for b_id, body in enumerate(scene.body):  # first: a body in other units is not a memory problem
+        if body.shape == "box":
+            lo, hi = np.asarray(body.min, float), np.asarray(body.max, float)
+        elif body.shape == "sphere":
+            lo, hi = np.asarray(body.center, float) - body.radius, np.asarray(body.center, float) + body.radius
+        else:
+            lo, hi = _load_mesh(body, base_dir).bounds
+        if np.any(lo < 0) or np.any(hi > scene.grid.size):
+            raise ConfigError(f"{source}: body[{b_id}] extends outside the domain [0, {scene.grid.size}]^3 "
+                              f"(its bounds {np.round(lo, 6).tolist()} - {np.round(hi, 6).tolist()})")
     total, lattice = 0, 0
     for body in scene.body:
         if particles_per_cell is not None:

@@ -120,6 +120,10 @@ def test_divergent_velocity_is_one_line_naming_the_scene(app, tmp_path, monkeypa
 
 @pytest.mark.parametrize("edit,needle", [
     (("max = [0.625, 0.625, 0.75]", "max = [0.625, 0.625, 1.5]"), "body[0] extends outside the domain"),
+    # a box in cm on a 1 m grid: 1.3e10 particles, but the unit slip is named, not the memory (mutant: the
+    # bounds checked only after the memory estimate)
+    (("min = [0.375, 0.375, 0.5]\nmax = [0.625, 0.625, 0.75]", "min = [15, 40, 40]\nmax = [40, 56, 56]"),
+     "body[0] extends outside the domain [0, 1.0]^3 (its bounds [15.0, 40.0, 40.0] - [40.0, 56.0, 56.0])"),
     (('shape = "box"\nmin = [0.375, 0.375, 0.5]\nmax = [0.625, 0.625, 0.75]',
       'shape = "sphere"\ncenter = [0.5, 0.5, 0.5]\nradius = 0.001'), "body[0] contains no particles"),
 ])
