@@ -115,6 +115,10 @@ def score(
         print_json(res)
         return
     for n, p in res["parameters"].items():
+        if p["tolerance"] is None:
+            typer.echo(f"{n}: not judged: its truth is constant ({p['constant']:.4g}), which gives no range for the "
+                       "tolerance; give --project")
+            continue
         typer.echo(f"{n}: {p['within']}/{p['judged']} judged frames within {p['tolerance']:.4g} "
                    f"(max {p['max_error']:.4g} at frame {p['worst_frame']}, mean {p['mean_error']:.4g})")
 

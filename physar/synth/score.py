@@ -129,13 +129,22 @@ def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None 
     # a row before the first frame with an estimate of its own carries the pipeline's starting value
     estimated = np.cumsum(np.isin(status, ("tracking", "rest"))) > 0
     out = {"frames": int(n), "judged": int(judged.sum()), "at_rest": int(rest.sum()), "tol": tol, "parameters": {}}
+    spans = {}
+    for name in names:
+        t = np.asarray(truth[f"{name}_true"], float)[:n]
+        spans[name] = (ranges or {}).get(name, (float(t.min()), float(t.max())))
+    if not any(hi > lo for lo, hi in spans.values()):  # a tolerance of tol * 0 for every parameter: nothing to score
+        name = names[0]
+        raise ConfigError(f"{truth_source}: column {name}_true is constant ({truth[f'{name}_true'][0]:g}), so it "
+                          "gives no range for the tolerance; give --project (the model's parameter ranges)")
     for name in names:
         t = np.asarray(truth[f"{name}_true"], float)[:n]
         e = np.asarray(est[f"{name}_est"], float)[:n]
-        lo, hi = (ranges or {}).get(name, (float(t.min()), float(t.max())))
-        if not hi > lo:  # a tolerance of tol * 0: every error would be judged against ~1e-300
-            raise ConfigError(f"{truth_source}: column {name}_true is constant ({t[0]:g}), so it gives no range "
-                              f"for the tolerance; give --project (the model's parameter ranges)")
+        lo, hi = spans[name]
+        if not hi > lo:  # held constant while others vary (a scenario's default): no tolerance without --project
+            out["parameters"][name] = {"tolerance": None, "within": None, "judged": 0, "constant": float(t[0]),
+                                       "note": "constant truth: no range for the tolerance; give --project"}
+            continue
         lim = tol * (hi - lo)
         err = np.abs(e - t)
         err[~np.isfinite(err) | ~estimated] = np.inf

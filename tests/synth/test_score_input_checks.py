@@ -56,3 +56,16 @@ def test_a_valid_table_still_scores(tmp_path, monkeypatch):
     r = _score(tmp_path, TRUTH, EST.replace("0.6\n", "0.603\n"))
     assert r.exit_code == 0, r.output
     assert "s: 3/3 judged frames within 0.004 (max 0.003 at frame 2" in r.output, r.output
+
+
+def test_a_parameter_held_constant_is_reported_the_others_scored(tmp_path, monkeypatch):
+    """A scenario sweeps s and holds P (its default): s is scored, P reported as not judged (mutant: the whole
+    table refused, as a first version of the check did; or P judged against a tolerance of ~1e-302)."""
+    monkeypatch.chdir(tmp_path)
+    truth = "frame,time_s,s_true,P_true\n0,0.0,0.2,1.0\n1,0.1,0.4,1.0\n2,0.2,0.6,1.0\n"
+    est = "frame,time_s,status,s_est,P_est\n0,0.0,tracking,0.2,1.1\n1,0.1,tracking,0.4,0.9\n2,0.2,tracking,0.603,1\n"
+    r = _score(tmp_path, truth, est)
+    assert r.exit_code == 0, r.output
+    assert "s: 3/3 judged frames within 0.004 (max 0.003 at frame 2" in r.output, r.output
+    assert "P: not judged: its truth is constant (1), which gives no range for the tolerance; give --project" \
+        in r.output, r.output
