@@ -250,6 +250,9 @@ def register(app: typer.Typer) -> None:
             warn_positional(out_arg, out_opt, "denoise")
             return
         log(f"wrote {out}: {n} points, mean displacement {moved.mean():.3g} m")
+        if mesh is not None and iterations is None and not moved.max() > 0:
+            log("the input came back unchanged: no filtering is estimated to beat it (a clean or nearly noise-free "
+                "mesh); --iterations N forces N filter iterations")
         if ref is not None:
             r = summary["reference"]
             log(f"against {reference}: mean face-normal error {r['normal_error_deg_before']:.2f} -> "

@@ -13,7 +13,8 @@ from physar.errors import ConfigError
 _METHODS = ["symplectic_euler", "be", "si", "midpoint", "genalpha", "theta", "trbdf2"]
 
 
-HW_RANGE = (1e-6, 1e6)  # backward Euler's d/omega stays within 1e-3 of its closed form here; at 1e-8 it is 2x off
+HW_RANGE = (1e-6, 1e6)  # backward Euler's d/omega stays within 1e-3 of its closed form here; at 1e-8 it is 2x off;
+# a stepper with less damping (gen-alpha, TR-BDF2 at small h omega) gives values below ~1e-9: rounding noise
 
 
 def _parse_hw(hw: list[str] | None, extra: list[str]) -> list[float]:
@@ -30,7 +31,8 @@ def _parse_hw(hw: list[str] | None, extra: list[str]) -> list[float]:
                 raise ConfigError(f"--hw values must be finite and > 0, got {x}")
             if not HW_RANGE[0] <= x <= HW_RANGE[1]:
                 raise ConfigError(f"--hw {x:g} is outside [{HW_RANGE[0]:g}, {HW_RANGE[1]:g}]: there rho is within "
-                                  "rounding of 1 or of 0, and d/omega = -(2/(h omega)) ln rho is rounding noise")
+                                  "rounding of 1 or of 0, so d/omega = -(2/(h omega)) ln rho is rounding noise "
+                                  "(inside, |d/omega| below about 1e-9 is rounding noise too)")
             vals.append(x)
     return vals
 

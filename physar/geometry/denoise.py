@@ -106,10 +106,10 @@ def check_extent(mesh: TriMesh) -> None:
     :math:`A = 0`). Its normals, which every method here filters or moves along, are undefined."""
     x = mesh.points[mesh.faces]
     area = 0.5 * float(np.linalg.norm(np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), axis=1).sum())
-    side = float(np.ptp(mesh.points, axis=0).max())
+    side = float(np.ptp(x.reshape(-1, 3), axis=0).max()) if len(x) else 0.0  # the faces' points only
     if not area > DEGENERATE_AREA * side**2:
-        what = "all its points coincide" if side == 0 else "all its points lie on one line"
-        raise MeshError(f"{mesh.name}: the surface has zero area ({what}); there is no surface to denoise")
+        what = " (all its points coincide)" if side == 0 else ""
+        raise MeshError(f"{mesh.name}: the surface has zero area{what}; there is no surface to denoise")
 
 
 def check_cloud_extent(points: np.ndarray, name: str) -> None:
