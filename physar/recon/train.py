@@ -1229,6 +1229,13 @@ class Reconstruction:
         for m, a in apps.items():
             if any(t.shape != c.shape for t, c in zip(a.params(), app.params())):
                 raise ValueError(f"the appearance refit of {m} does not match the Gaussians")
+        for k in ("flow", "spflow"):  # per observed frame object positions (4DGS-like baseline, Eq. 9)
+            a = np.asarray(d[k])
+            if a.ndim != 3 or not len(a) or a.shape[1:] != (rig.no, 3) or not np.all(np.isfinite(a)):
+                raise ValueError(f"array '{k}' must be (frames >= 1, {rig.no}, 3) finite positions, got {a.shape}")
+        for k in ("sh", "opacity_logits", "log_scales"):
+            if not np.all(np.isfinite(np.asarray(d[k]))):
+                raise ValueError(f"array '{k}' holds non-finite values")
         return cls(rig, app, list(torch.as_tensor(d["flow"])), phys, Path(str(d["data_dir"])) if str(d["data_dir"]) else None,
                    list(torch.as_tensor(d["spflow"])), apps)
 

@@ -4,6 +4,7 @@ physics-only variant reusing stages 1-2 (the ablation harness), the CLI and the 
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -263,3 +264,19 @@ def test_png_bomb_in_a_data_dir_refused(tiny_scene, tmp_path):
     with pytest.raises(ConfigError, match="bomb.png: not a readable PNG"):
         (tmp_path / "bomb.png").write_bytes(bomb)
         read_label_png(tmp_path / "bomb.png")
+
+
+def test_damaged_model_file_refused(fitted, tmp_path):
+    """A model.npz with its per-frame flows emptied (IndexError in `predict --method 4dgs` and `eval`, a silent
+    render in `predict --method physics`) or NaN in the appearance: one line naming the file and the array.
+    Mutant: the arrays' checks removed."""
+    from physar.errors import ConfigError
+
+    with np.load(fitted[0] / "model.npz") as z:
+        d = {k: z[k] for k in z.files}
+    for k, v, needle in (("flow", d["flow"][:0], "array 'flow' must be (frames >= 1,"),
+                         ("spflow", d["spflow"][:, :3], "array 'spflow' must be (frames >= 1,"),
+                         ("sh", np.full_like(d["sh"], np.nan), "array 'sh' holds non-finite values")):
+        np.savez(tmp_path / "model.npz", **{**d, k: v})
+        with pytest.raises(ConfigError, match=rf"model.npz: not a valid physar recon model \({re.escape(needle)}"):
+            Reconstruction.load(tmp_path)
