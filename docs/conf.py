@@ -84,6 +84,7 @@ nitpick_ignore_regex = [
                r"|typing|collections|pathlib|os|io|dataclasses|concurrent|threading|enum|skfem|trimesh|PIL|annotated_types"
                r"|types)(\..*)?")),
     (r"py:class", r"[-+]?[0-9.]+(e[-+]?[0-9]+)?"),  # values inside Literal[...] and Annotated[...] hints
+    (r"py:class", r"(FieldInfo|NoneType|Gt|Ge|Lt|Le)"),  # pydantic / annotated_types constraints inside Annotated
     (r"py:class", (r"(Path|Callable|Iterator|Iterable|Sequence|Mapping|Any|Literal|Self|ndarray|NDArray|ArrayLike"
                   r"|Tensor|array|optional|callable|float|int|str|bool|dict|list|tuple|None|object|type"
                   r"|function|np\.ndarray)")),
