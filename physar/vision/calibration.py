@@ -202,7 +202,8 @@ def calibration_warnings(cam: Camera, rms_px: float) -> list[str]:
       by more than ``MAX_RADIAL_CHANGE`` = 50 % (a factor f outside 0.5..1.5). This judges the coefficients by
       their effect where there are pixels: a large high-order term is harmless at small r, while k3 =
       -82,498 at r_c = 0.6 turns the corners inside out;
-    * a principal point outside the image.
+    * a principal point outside the image;
+    * what :meth:`Camera.load` refuses (:meth:`Camera.distortion_problem`, tangential terms included).
     """
     out = []
     if not rms_px <= MAX_RMS_PX:
@@ -229,4 +230,8 @@ def calibration_warnings(cam: Camera, rms_px: float) -> list[str]:
                    f"radial factor reaches {f[np.argmax(np.abs(f - 1))]:.3g} before the corners' normalised radius "
                    f"{rc:.2f}" + (", folding the image" if folds else "") + "): add views that fill the image "
                    "corners, or use --dist 2")
+    why = cam.distortion_problem()  # what Camera.load refuses (tangential terms too): said here, at calibration
+    if why:
+        out.append(f"{why}: the camera file will be refused when loaded; recalibrate with views that fill the "
+                   "image, or use --dist 2")
     return out

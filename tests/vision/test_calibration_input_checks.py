@@ -78,3 +78,18 @@ def test_board_side_limits():
     assert CharucoSpec(7, 5, 0.002, smallest * 1.01).board() is not None
     with pytest.raises(ConfigError, match=r"7 cells need at least 0\.148 mm"):
         CharucoSpec(7, 5, 0.002, smallest * 0.99)
+
+
+def test_calibration_warns_about_what_loading_will_refuse():
+    """A calibration whose tangential terms fold the image passes the radial-factor rule (k1 = k2 = k3 = 0) but
+    `Camera.load` refuses the file it is saved to: calibrate must say so at once (mutant: the
+    distortion_problem line not added). A real-lens calibration gets no such line."""
+    import numpy as np
+
+    from physar.vision.calibration import calibration_warnings
+    from physar.vision.camera import Camera
+
+    K = np.array([[620.0, 0, 322.5], [0, 615.0, 238.0], [0, 0, 1]])
+    bad = calibration_warnings(Camera(K, [0, 0, 5.0, 5.0, 0], 640, 480), 0.2)
+    assert len(bad) == 1 and "folds the image" in bad[0] and "will be refused when loaded" in bad[0], bad
+    assert calibration_warnings(Camera(K, [-0.3, 0.1, 0, 0, 0], 640, 480), 0.2) == []
