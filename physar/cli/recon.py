@@ -166,6 +166,9 @@ def eval_cmd(
     d = data_dir or rec.data_dir
     if d is None or not str(d):
         raise ConfigError("no DATA_DIR recorded in the model: pass --data")
+    if data_dir is None and not (Path(d) / "scene.json").is_file():
+        raise ConfigError(f"{run_dir}: the DATA_DIR recorded in its model ({d}) holds no scene.json (moved or "
+                          "deleted?): pass --data")
     report = evaluate(rec, load_dataset(d))
     print_json(report) if json_out else _print_table(report)
 

@@ -195,7 +195,8 @@ def read_video(path: str | Path, fps: float | None = None, prepare=None) -> tupl
         with av.open(str(path)) as c:
             fmt = c.format.name
             if fmt == "image2" or fmt.endswith("_pipe"):  # FFmpeg's still-image demuxers (png_pipe, jpeg_pipe, ...)
-                raise ConfigError(f"{path}: a still image (format {fmt}), not a video")
+                raise ConfigError(f"{path}: an image or image stream (format {fmt}), not a video: it has no frame rate; "
+                                  "give a video file (MP4, MOV, ...)")
             if not c.streams.video:
                 raise ConfigError(f"{path}: holds no video stream")
             st = c.streams.video[0]

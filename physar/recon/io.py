@@ -51,6 +51,16 @@ def imread(path: Path, flags: int) -> np.ndarray | None:
         raise ConfigError(f"'{path}': not an image OpenCV reads ({why})") from None
 
 
+def _header_size(path: Path) -> tuple[int, int] | None:
+    """(W, H) of a PNG from its IHDR chunk (bytes 16-24: big-endian width, height), read without decoding; None
+    when the file is not a PNG."""
+    with open(path, "rb") as fh:
+        head = fh.read(24)
+    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        return None
+    return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+
+
 def read_pngs(folder: Path, n: int, gray: bool = False, size: tuple[int, int] | None = None) -> np.ndarray:
     """Frames 0000.png .. (n-1).png of a folder as float32 in [0, 1]: (n, H, W, 3) or (n, H, W). Every frame
     must be ``size`` = (W, H) px when given, else the first frame's size (ConfigError naming the PNG)."""
@@ -59,12 +69,15 @@ def read_pngs(folder: Path, n: int, gray: bool = False, size: tuple[int, int] | 
         p = folder / f"{f:04d}.png"
         if not p.exists():
             raise ConfigError(f"missing frame '{p}'")
-        img = imread(p, cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR)
-        if img is None:
-            raise ConfigError(f"'{p}' is not a readable image")
         want = size if size is not None else ((out[0].shape[1], out[0].shape[0]) if out else None)
-        if want is not None and (img.shape[1], img.shape[0]) != tuple(want):
-            raise ConfigError(f"'{p}' is {img.shape[1]}x{img.shape[0]} px, expected {want[0]}x{want[1]} px"
+        got = _header_size(p) if want is not None else None  # judged before decoding (a header can lie big)
+        if got is None or tuple(got) == tuple(want):
+            img = imread(p, cv2.IMREAD_GRAYSCALE if gray else cv2.IMREAD_COLOR)
+            if img is None:
+                raise ConfigError(f"'{p}' is not a readable image")
+            got = (img.shape[1], img.shape[0])
+        if want is not None and tuple(got) != tuple(want):
+            raise ConfigError(f"'{p}' is {got[0]}x{got[1]} px, expected {want[0]}x{want[1]} px"
                               + (" (the camera's size in scene.json)" if size else f" (as {folder / '0000.png'})"))
         out.append(img if gray else cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
     return np.stack(out).astype(np.float32) / 255.0

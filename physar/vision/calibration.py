@@ -225,13 +225,16 @@ def calibration_warnings(cam: Camera, rms_px: float) -> list[str]:
     with np.errstate(all="ignore"):
         f = (1 + k[0] * r2 + k[1] * r2**2 + k[2] * r2**3) / (1 + k[3] * r2 + k[4] * r2**2 + k[5] * r2**3)
         folds = not np.all(np.diff(r * f) > 0)
-    if not np.all(np.isfinite(f)) or folds or np.abs(f - 1).max() > MAX_RADIAL_CHANGE:
+    radial = not np.all(np.isfinite(f)) or folds or np.abs(f - 1).max() > MAX_RADIAL_CHANGE
+    if radial:
         out.append(f"distortion {', '.join(f'{v:.4g}' for v in d)} is implausible within the image (its "
                    f"radial factor reaches {f[np.argmax(np.abs(f - 1))]:.3g} before the corners' normalised radius "
                    f"{rc:.2f}" + (", folding the image" if folds else "") + "): add views that fill the image "
                    "corners, or use --dist 2")
     why = cam.distortion_problem()  # what Camera.load refuses (tangential terms too): said here, at calibration
-    if why:
+    if why and radial:
+        out[-1] += "; the camera file will be refused when loaded"
+    elif why:
         out.append(f"{why}: the camera file will be refused when loaded; recalibrate with views that fill the "
                    "image, or use --dist 2")
     return out

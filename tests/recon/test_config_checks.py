@@ -162,7 +162,13 @@ def test_unstable_materials_name_their_fields(tmp_path):
     assert c > SY.MAX_CFL
     assert msg.startswith(f"{p}: [synth] elastic waves in the object (E_soft/E_stiff = 1.2e+04 Pa, fiber_E = "
                           f"2.4e+04 Pa, nu = -0.99, density = 200 kg/m^3") and f"cross {c:.3g} grid cells" in msg
-    assert f"raise substeps to >= {math.ceil(32 * c / SY.MAX_CFL)}" in msg
+    assert f"raise substeps to >= {math.ceil(32 * c / 0.9)}" in msg  # advice: 0.9 cells per substep
+    # the limit as measured (a reviewer's runs of recon_tiny, E_stiff = 1e6 Pa: 82 substeps diverged, 87 ran):
+    # 82 refused (mutant: the first limit of 2 cells, which let 46-82 substeps through to a divergence)
+    assert _courant(1e6, 2.4e4, 0.3, 200.0, substeps=82) > SY.MAX_CFL > _courant(1e6, 2.4e4, 0.3, 200.0, substeps=87)
+    assert "cross 1.12 grid cells" in _error(load_synth_config, p, base + "E_stiff = 1e6\nsubsteps = 82\n")
+    p.write_text(base + "E_stiff = 1e6\nsubsteps = 87\n")
+    load_synth_config(p)
     msg = _error(load_synth_config, p, base + "human_E = 1e30\n")
     assert "elastic waves in the body (human_E = 1e+30 Pa" in msg and "substeps" not in msg.split(": lower")[-1] \
         and msg.endswith("lower the stiffness")  # 1e12 cells per substep: no substeps <= 10^4 help

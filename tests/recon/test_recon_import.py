@@ -400,7 +400,8 @@ def test_more_bad_inputs_refused(user, tmp_path):
     args = list(user["args"])
     args[args.index(d / "clip.mp4")] = tmp_path / "still.mp4"
     r = cli(*args, "--out", tmp_path / "out")
-    still = f"error: {tmp_path / 'still.mp4'}: a still image (format png_pipe), not a video"
+    still = (f"error: {tmp_path / 'still.mp4'}: an image or image stream (format png_pipe), not a video: it has no "
+             "frame rate; give a video file (MP4, MOV, ...)")
     assert r.exit_code == 2 and err_lines(r) == [still], r.output
     with av.open(str(tmp_path / "two.mp4"), "w") as c:  # a real video too short for a clip
         st = c.add_stream(mp4_encoder(), rate=25)

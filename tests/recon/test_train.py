@@ -221,6 +221,9 @@ def test_eval_and_predict_refuse_damaged_or_foreign_inputs(fitted, tiny_scene, t
     np.savez(tmp_path / "scaled.npz", rotations=2 * p["rotations"], root_translation=p["root_translation"])
     refused(["recon", "predict", run, "--poses", tmp_path / "scaled.npz", "--out", tmp_path / "v.mp4"],
             "scaled.npz: 'rotations' [frame 0, bone 0] is not a rotation matrix (|R^T R - I| = 3")
+    np.savez(tmp_path / "mirror.npz", rotations=-p["rotations"], root_translation=p["root_translation"])
+    refused(["recon", "predict", run, "--poses", tmp_path / "mirror.npz", "--out", tmp_path / "v.mp4"],
+            "mirror.npz: 'rotations' [frame 0, bone 0] is not a rotation matrix (|R^T R - I| = 0, det -1")
     assert not (tmp_path / "v.mp4").exists()
 
 
@@ -258,8 +261,14 @@ def test_png_bomb_in_a_data_dir_refused(tiny_scene, tmp_path):
             + chunk(b"IDAT", zlib.compress(b"\x00" * 100)) + chunk(b"IEND", b""))
     d = _damaged(tiny_scene, tmp_path, "bomb")
     (d / "rgb" / "0001.png").write_bytes(bomb)
-    with pytest.raises(ConfigError, match=r"rgb/0001.png': not an image OpenCV reads \(its header announces more"):
-        load_dataset(d)
+    with pytest.raises(ConfigError, match=r"rgb/0001.png' is 60000x60000 px, expected 32x32 px"):
+        load_dataset(d)  # judged from the header, before any decoding (mutant: decoded first, cv2.error)
+    small = bomb.replace(struct.pack(">II", 60000, 60000), struct.pack(">II", 20000, 20000))
+    (d / "rgb" / "0001.png").write_bytes(small[:16] + small[16:29] + struct.pack(">I", zlib.crc32(small[12:29])
+                                                                                 & 0xFFFFFFFF) + small[33:])
+    with pytest.raises(ConfigError, match=r"rgb/0001.png' is 20000x20000 px, expected 32x32 px"):
+        load_dataset(d)  # under OpenCV's 2**30 limit: decoding first allocated 1.2 GB (mutant: "not readable")
+    (d / "rgb" / "0001.png").write_bytes(bomb)
     assert any("rgb/0001.png': not an image OpenCV reads" in p for p in check_dataset(d)["problems"])
     with pytest.raises(ConfigError, match="bomb.png: not a readable PNG"):
         (tmp_path / "bomb.png").write_bytes(bomb)
@@ -280,3 +289,20 @@ def test_damaged_model_file_refused(fitted, tmp_path):
         np.savez(tmp_path / "model.npz", **{**d, k: v})
         with pytest.raises(ConfigError, match=rf"model.npz: not a valid physar recon model \({re.escape(needle)}"):
             Reconstruction.load(tmp_path)
+
+
+def test_eval_names_a_moved_data_dir(fitted, tmp_path):
+    """The model's recorded DATA_DIR no longer there (the project moved): the line says it is the recorded one and
+    to pass --data (mutant: the reader's "not a recon DATA_DIR" for a path the user never typed)."""
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(fitted[0], run)
+    with np.load(run / "model.npz") as z:
+        d = {k: z[k] for k in z.files}
+    np.savez(run / "model.npz", **{**d, "data_dir": np.array(str(tmp_path / "gone"))})
+    app = typer.Typer()
+    register(app)
+    r = CliRunner().invoke(app, ["recon", "eval", str(run)])
+    assert r.exit_code == 2 and f"the DATA_DIR recorded in its model ({tmp_path / 'gone'}) holds no scene.json" \
+        in r.stderr and "pass --data" in r.stderr, r.output
