@@ -863,8 +863,10 @@ RUN_OUTPUTS = ("model.npz", "gaussians.ply", "report.json", "preview.mp4")  # wh
 def _check_run_dir(run: Path) -> None:
     """``fit`` resumes in an earlier run's RUN_DIR (one holding one of :data:`RUN_MARKERS`) and replaces its
     outputs; in any other folder an existing file of the same name as an output (:data:`RUN_OUTPUTS`) would be
-    the user's and is refused. Other files (a config, .DS_Store, a crashed save's temporary) are left alone."""
-    if not run.is_dir() or any((run / m).is_file() for m in RUN_MARKERS):
+    the user's and is refused. Other files (a config, .DS_Store, a crashed save's temporary) are left alone. A
+    marker counts only when it is a zip archive, as torch.save and np.savez write them (a stray text file named
+    stages.pt made a folder of the user's count as a run)."""
+    if not run.is_dir() or any((run / m).is_file() and zipfile.is_zipfile(run / m) for m in RUN_MARKERS):
         return
     theirs = [n for n in RUN_OUTPUTS if (run / n).exists()]
     if theirs:
@@ -881,6 +883,9 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
     report dict."""
     cfg = cfg or TrainConfig()
     run = check_folder(run_dir, inputs=[data_dir], kind="RUN_DIR")
+    if run.resolve().is_relative_to(Path(data_dir).resolve()):
+        raise ConfigError(f"{run_dir}: RUN_DIR inside the DATA_DIR {data_dir}: choose a folder outside it (the "
+                          "DATA_DIR holds the scene's files only)")
     _check_run_dir(run)
     ds = load_dataset(data_dir)
     data_hash = data_fingerprint(ds)

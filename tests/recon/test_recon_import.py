@@ -492,8 +492,12 @@ def test_fit_refuses_a_damaged_scene_and_a_foreign_run_dir(imported, tmp_path):
     for n in ("train.toml", ".DS_Store", ".checkpoint.x1y2.pt"):
         (other / n).write_text("x")
     _check_run_dir(other)
-    (mine / "model.npz").write_bytes(b"")  # an earlier run: fit resumes there and replaces its report
-    _check_run_dir(mine)
+    (mine / "stages.pt").write_text("x")  # a stray text file is no earlier run (mutant: any file of that name)
+    _fit_refused(imported, mine, "RUN_DIR holds report.json but no earlier run")
+    np.savez(mine / "model.npz", a=np.zeros(1))  # an earlier run (a zip archive, as np.savez / torch.save write)
+    _check_run_dir(mine)  # fit resumes there and replaces its report
+    _fit_refused(imported, imported / "run", "RUN_DIR inside the DATA_DIR")  # mutant: only RUN_DIR == DATA_DIR
+    assert not (imported / "run").exists()
 
 
 def test_pickle_marker_would_fire(tmp_path):
