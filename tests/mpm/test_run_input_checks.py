@@ -18,6 +18,7 @@ import warnings
 import numpy as np
 import pytest
 import typer
+from test_mpm_cli import TINY  # the tiny falling box of the CLI tests
 from typer.testing import CliRunner
 
 import physar.output
@@ -26,30 +27,6 @@ from physar.errors import ConfigError
 from physar.mpm import build_model, parse_scene
 from physar.mpm.identify import unconstrained_bodies
 from physar.mpm.runner import run_scene
-
-TINY = """
-[grid]
-size = 1.0
-resolution = 8
-[time]
-frame_dt = 0.02
-substeps = 20
-frames = 4
-[gravity]
-g = [0, 0, -9.81]
-[boundary]
-ground = "slip"
-[[body]]
-shape = "box"
-min = [0.375, 0.375, 0.5]
-max = [0.625, 0.625, 0.75]
-particles_per_cell = 8
-material = "fixed_corotated"
-E = 1e4
-nu = 0.3
-density = 500
-velocity = [0.3, 0, 0.5]
-"""
 
 
 @pytest.fixture()
