@@ -99,6 +99,9 @@ class TrainConfig(BaseModel):
         if not self.E_min <= self.E_init <= self.E_max:
             raise ValueError(f"E_init ({self.E_init:g} Pa) must be in [E_min, E_max] = [{self.E_min:g}, "
                              f"{self.E_max:g}] Pa")
+        if self.nu_init is not None and not self.nu_min <= self.nu_init <= self.nu_max:
+            raise ValueError(f"nu_init ({self.nu_init:g}) must be in [nu_min, nu_max] = [{self.nu_min:g}, "
+                             f"{self.nu_max:g}]")
         return self
 
     @field_validator("particles_per_cell")
@@ -181,7 +184,7 @@ class TrainConfig(BaseModel):
     nu_min: float = Field(0.2, gt=-1, lt=0.5, description="lower bound of the learned Poisson ratio (seed App. B) [-]")
     nu_max: float = Field(0.4, gt=-1, lt=0.5, description="upper bound of the learned Poisson ratio (seed App. B) [-]")
     nu_init: float | None = Field(None, gt=-1, lt=0.5, description="initial Poisson ratio of the object [-] "
-                                  "(default: the scene's object.nu; either is clipped to [nu_min, nu_max], tests/recon/test_poisson.py)")
+                                  "(default: the scene's object.nu, clipped to [nu_min, nu_max]; a value given here must lie in them)")
     material_grid: tuple[int, int, int] = Field((4, 3, 2), description="voxel nodes of the log E field per "
                                                 "axis over the object box; (0, 0, 0): one value per particle")
     omega_init: float = Field(1.0, gt=0, lt=2, description="initial LBS-impact factor omega of the actuated body "
@@ -749,14 +752,79 @@ def _read_checkpoint(p: Path) -> dict:
     return d
 
 
-def _state_from(d: dict, rig: Rig) -> FitState:
-    st = FitState(stage=d["stage"], iteration=d["iteration"], history=d["history"], frame_loss=d["frame_loss"],
-                  seconds=d["seconds"], info=d.get("info", {}))
+STAGES = ("appearance", "flow", "spflow", "physics", "done")  # fit's stages, in order (FitState.stage)
+
+
+def _check_tensors(p: Path, what: str, got, shapes: list) -> None:
+    """``got`` must be a list of finite tensors of the given shapes (a checkpoint's arrays against this run's)."""
+    if not isinstance(got, (list, tuple)) or len(got) != len(shapes):
+        raise ConfigError(f"{p}: not a checkpoint of this run ({what}: {len(got) if isinstance(got, (list, tuple)) else type(got).__name__} "
+                          f"arrays, this run has {len(shapes)}); remove it or use --restart")
+    for i, (t, shape) in enumerate(zip(got, shapes)):
+        if not isinstance(t, torch.Tensor) or tuple(t.shape) != tuple(shape) or not bool(torch.isfinite(t).all()):
+            found = tuple(t.shape) if isinstance(t, torch.Tensor) else type(t).__name__
+            raise ConfigError(f"{p}: not a checkpoint of this run ({what} array {i}: {found}, expected finite "
+                              f"{tuple(shape)}); remove it or use --restart")
+
+
+def _load_optimiser(opt: torch.optim.Optimizer, state: dict, p: Path) -> None:
+    """Adam's stored moments into ``opt``, checked against its parameters (torch accepts moments of another shape
+    and fails at the first step)."""
+    try:
+        opt.load_state_dict(state)
+        ok = all(not torch.is_tensor(v) or v.ndim == 0 or v.shape == q.shape
+                 for g in opt.param_groups for q in g["params"] for v in opt.state.get(q, {}).values())
+    except (ValueError, KeyError, TypeError, RuntimeError, IndexError):
+        ok = False
+    if not ok:
+        raise ConfigError(f"{p}: not a checkpoint of this run (optimiser state); remove it or use --restart")
+
+
+def _state_from(d: dict, rig: Rig, p: Path) -> FitState:
+    """The FitState stored in checkpoint ``p`` (read by :func:`_read_checkpoint`), its stage, counters and arrays
+    checked against this run's rig (one ConfigError line naming ``p``: a damaged or foreign file, never a crash
+    half-way through a resumed run)."""
+    stage, it = d["stage"], d["iteration"]
+    if stage not in STAGES or not isinstance(it, int) or isinstance(it, bool) or it < 0:
+        raise ConfigError(f"{p}: not a checkpoint of this run (stage {stage!r}, iteration {it!r}); remove it or use "
+                          "--restart")
+    later = STAGES.index(stage)
+    if later > 0 and d["app"] is None:
+        raise ConfigError(f"{p}: not a checkpoint of this run (stage {stage!r} without appearance); remove it or use "
+                          "--restart")
+    hist = d["history"]
+    if not isinstance(hist, dict) or any(not isinstance(hist.get(k), list) for k in FitState().history) \
+            or not isinstance(d["seconds"], (int, float)) or not isinstance(d["opt"], (dict, type(None))):
+        raise ConfigError(f"{p}: not a checkpoint of this run (history, seconds or optimiser state); remove it or "
+                          "use --restart")
+    fl = d["frame_loss"]
+    if fl is not None and (not isinstance(fl, list) or not all(isinstance(v, (int, float)) for v in fl)):
+        raise ConfigError(f"{p}: not a checkpoint of this run (frame losses); remove it or use --restart")
+    n, n_obs = rig.no + rig.nh + rig.nb, int(rig.meta["n_obs"])
+    if d["app"] is not None:
+        _check_tensors(p, "appearance", d["app"], [(n, 1, 3), (n,), (n, 3)])
+    # frames of the per-frame flows: stage "flow" ("spflow") extends flow (spflow) from its last frame; later
+    # stages read every observed frame of flow (spflow may be shorter: runs before the Eq. 9 stage had none)
+    need = {"flow": ((1, n_obs), (0, n_obs)), "spflow": ((n_obs, n_obs), (1, n_obs))}.get(
+        stage, ((0, n_obs), (0, n_obs)) if stage == "appearance" else ((n_obs, n_obs), (0, n_obs)))
+    for key, (lo, hi) in zip(("flow", "spflow"), need):
+        got = d.get(key, [])
+        if not isinstance(got, (list, tuple)) or not lo <= len(got) <= hi:
+            raise ConfigError(f"{p}: not a checkpoint of this run (stage {stage!r} with "
+                              f"{len(got) if isinstance(got, (list, tuple)) else type(got).__name__} {key} frames, "
+                              f"expected {lo}..{hi}); remove it or use --restart")
+        _check_tensors(p, key, list(got), [(rig.no, 3)] * len(got))
+    if stage == "done" and d["phys"] is None:
+        raise ConfigError(f"{p}: not a checkpoint of this run (stage 'done' without physics); remove it or use "
+                          "--restart")
+    st = FitState(stage=stage, iteration=it, history=hist, frame_loss=d["frame_loss"], seconds=d["seconds"],
+                  info=d.get("info", {}))
     if d["app"] is not None:
         st.app = Appearance(*d["app"])
     st.flow, st.spflow = list(d["flow"]), list(d.get("spflow", []))
     if d["phys"] is not None:
         st.phys = Physics.init(rig)
+        _check_tensors(p, "physics", d["phys"], [t.shape for t in st.phys.leaves()])
         with torch.no_grad():
             for a, b in zip(st.phys.leaves(), d["phys"]):
                 a.copy_(b)
@@ -804,7 +872,7 @@ def _load_stages(reuse: Path, rig: Rig, cfg: TrainConfig) -> FitState:
     bad = [k for k in _PRE_PHYSICS if stored.get(k, default[k]) != mine[k]]
     if bad:
         raise ConfigError(f"--reuse {reuse}: its stages were fitted with other settings ({', '.join(bad)})")
-    st = _state_from(d, rig)
+    st = _state_from(d, rig, p)
     st.phys, st.opt_state, st.frame_loss, st.iteration, st.stage = None, None, None, 0, "physics"
     st.history["physics"] = []
     return st
@@ -894,7 +962,7 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
     rig = Rig(ds.meta, cfg, poses=(ds.rotations, ds.root_t))
     kin = rig.kinematics(ds.rotations, ds.root_t)
     if saved is not None:
-        st = _state_from(saved, rig)
+        st = _state_from(saved, rig, run / "checkpoint.pt")
     else:
         st = _load_stages(reuse, rig, cfg) if reuse is not None else FitState()
     run.mkdir(parents=True, exist_ok=True)
@@ -1002,7 +1070,7 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
             groups.append({"params": leaves[k:], "lr": cfg.net_lr})
         opt = torch.optim.Adam(groups)
         if st.opt_state is not None:
-            opt.load_state_dict(st.opt_state)
+            _load_optimiser(opt, st.opt_state, run / "checkpoint.pt")
         lo_E, hi_E = math.log(cfg.E_min), math.log(cfg.E_max)
         while st.iteration < cfg.physics_iters:
             it = st.iteration

@@ -80,9 +80,9 @@ def test_non_finite_numbers_refused_at_read(tmp_path, value):
 
 
 def test_E_and_nu_bounds_consistent(tmp_path):
-    """E_min above E_max clamped every E; E_init outside [E_min, E_max] was accepted (nu_init outside [nu_min,
-    nu_max] stays clipped, as tests/recon/test_poisson.py requires). Mutants: each of the two checks added to
-    TrainConfig._check_nu removed."""
+    """E_min above E_max clamped every E; E_init outside [E_min, E_max] was accepted, and an explicit nu_init
+    outside [nu_min, nu_max] was silently clipped. Mutants: each of the three checks added to TrainConfig._check_nu
+    removed."""
     p = tmp_path / "t.toml"
     assert _error(load_train_config, p, "[train]\nE_min = 1e5\nE_max = 3e4\nE_init = 5e4\n") == \
         f"{p}: [train] E_min (100000 Pa) must be < E_max (30000 Pa)"
@@ -90,6 +90,10 @@ def test_E_and_nu_bounds_consistent(tmp_path):
         f"{p}: [train] E_init (100000 Pa) must be in [E_min, E_max] = [500, 30000] Pa"
     assert _error(load_train_config, p, "[train]\nE_init = 100.0\n") == \
         f"{p}: [train] E_init (100 Pa) must be in [E_min, E_max] = [500, 30000] Pa"
+    assert _error(load_train_config, p, "[train]\nnu_init = 0.45\n") == \
+        f"{p}: [train] nu_init (0.45) must be in [nu_min, nu_max] = [0.2, 0.4]"
+    assert _error(load_train_config, p, "[train]\nnu_init = 0.1\n") == \
+        f"{p}: [train] nu_init (0.1) must be in [nu_min, nu_max] = [0.2, 0.4]"
     # the bounds themselves are allowed
     cfg = load_train_config(None, {"E_init": 500.0, "nu_init": 0.4})
     assert (cfg.E_init, cfg.nu_init) == (500.0, 0.4)

@@ -306,3 +306,50 @@ def test_eval_names_a_moved_data_dir(fitted, tmp_path):
     r = CliRunner().invoke(app, ["recon", "eval", str(run)])
     assert r.exit_code == 2 and f"the DATA_DIR recorded in its model ({tmp_path / 'gone'}) holds no scene.json" \
         in r.stderr and "pass --data" in r.stderr, r.output
+
+
+def test_damaged_checkpoint_refused_before_anything_is_written(fitted, tiny_scene, tmp_path):
+    """A checkpoint.pt with this run's configuration and data but damaged contents (a stage name, a negative
+    iteration, arrays of another size, NaN positions, too few flow frames, Adam moments of another shape) crashed a
+    resume half-way (copy_ broadcasting errors, IndexError, an optimiser failing at its first step) or wrote a
+    report of NaN. Each is now one ConfigError line naming the file, and the RUN_DIR keeps only what it held.
+    Mutants caught: each check of _state_from / _check_tensors / _load_optimiser removed."""
+    import torch
+
+    from physar.errors import ConfigError
+
+    run, cfg, _ = fitted
+    good = torch.load(run / "checkpoint.pt", weights_only=True)
+    assert good["stage"] == "done"
+
+    def phys_at(d):  # a physics-stage checkpoint whose Adam moments are this run's
+        return {**d, "stage": "physics", "iteration": 1}
+
+    def shrunk_moment(d):
+        opt = {**d["opt"], "state": {k: dict(v) for k, v in d["opt"]["state"].items()}}
+        opt["state"][0]["exp_avg"] = opt["state"][0]["exp_avg"][:-1]
+        return {**phys_at(d), "opt": opt}
+
+    cases = {
+        "stage 'bogus'": {**good, "stage": "bogus"},
+        "iteration -1": {**good, "iteration": -1},
+        "appearance array 0": {**good, "app": [good["app"][0][:-1], *good["app"][1:]]},
+        "flow array 1": {**good, "flow": [good["flow"][0], good["flow"][1] * float("nan"), *good["flow"][2:]]},
+        "spflow frames": {**good, "stage": "spflow", "spflow": []},
+        "physics array 0": {**good, "phys": [good["phys"][0][:-1], *good["phys"][1:]]},
+        "optimiser state": shrunk_moment(good),
+    }
+    for i, (what, d) in enumerate(cases.items()):
+        r = tmp_path / f"r{i}"
+        r.mkdir()
+        torch.save(d, r / "checkpoint.pt")
+        with pytest.raises(ConfigError) as e:
+            fit(tiny_scene, r, cfg)
+        msg = str(e.value)
+        assert msg.startswith(f"{r / 'checkpoint.pt'}: not a checkpoint of this run (") and what in msg, msg
+        assert [p.name for p in r.iterdir()] == ["checkpoint.pt"], what
+    # the undamaged physics-stage checkpoint resumes (the cases above differ from it in one field each)
+    r = tmp_path / "ok"
+    r.mkdir()
+    torch.save(phys_at(good), r / "checkpoint.pt")
+    assert fit(tiny_scene, r, cfg)["material"]
