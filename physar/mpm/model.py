@@ -440,6 +440,25 @@ def plastic_kernel(
 
 
 # ----------------------------------------------------------------------------------------------- objects
+NU_MIN, NU_MAX = -1.0, 0.5  # open bounds of the Poisson ratio (the scene file's body.nu has the same)
+
+
+def check_material(E, nu, where: str = "") -> None:
+    r"""A :class:`ConfigError` naming the first particle whose Young's modulus ``E`` (N,) Pa is not a finite
+    number > 0 or whose Poisson ratio ``nu`` (N,) is not in the open interval (-1, 0.5) (the limits of a scene's
+    ``body.E`` and ``body.nu``: :math:`\lambda = E \nu / ((1 + \nu)(1 - 2 \nu))` is infinite at 0.5);
+    ``where`` prefixes the message (e.g. ``"Params."``)."""
+    E, nu = np.asarray(E, dtype=np.float64), np.asarray(nu, dtype=np.float64)
+    bad = ~(np.isfinite(E) & (E > 0))
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        raise ConfigError(f"{where}E[{i}] = {E[i]:g} Pa: Young's modulus must be a finite number > 0")
+    bad = ~(np.isfinite(nu) & (nu > NU_MIN) & (nu < NU_MAX))
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        raise ConfigError(f"{where}nu[{i}] = {nu[i]:g}: Poisson's ratio must be in ({NU_MIN:g}, {NU_MAX:g})")
+
+
 @dataclass
 class MPMModel:
     r"""Static description of an MPM scene (SI units).
@@ -500,8 +519,7 @@ class MPMModel:
             if a.shape != (n,) or not np.all(np.isfinite(a)):
                 raise ConfigError(f"MPM model: '{name}' must be {n} finite numbers")
             setattr(self, name, a)
-        if np.any(self.E <= 0) or np.any((self.nu <= -1) | (self.nu >= 0.5)):
-            raise ConfigError("MPM model: need E > 0 and -1 < nu < 0.5")
+        check_material(self.E, self.nu, "MPM model: ")
         for w in self.walls:
             if w not in WALLS or self.walls[w] not in BC_CODES:
                 raise ConfigError(f"boundary wall '{w}' = '{self.walls[w]}': walls are {WALLS}, "
@@ -629,6 +647,10 @@ class MPMModel:
                                    device=self.device)
 
 
+_STATE_SHAPES = {"x": (3,), "v": (3,), "C": (3, 3), "F": (3, 3), "Jp": ()}
+_STATE_DTYPES = {"x": wp.vec3d, "v": wp.vec3d, "C": wp.mat33d, "F": wp.mat33d, "Jp": wp.float64}
+
+
 @dataclass
 class MPMState:
     r"""Per-particle state :math:`s = \{x\ (\mathrm{m}), v\ (\mathrm{m/s}), C\ (1/\mathrm{s}), F\ (-)\}` of
@@ -646,14 +668,33 @@ class MPMState:
 
     @staticmethod
     def from_numpy(x, v, C, F, Jp, device: str = "cpu") -> MPMState:
-        """A state holding copies of the arrays, on the Warp ``device``."""
-        return MPMState(
-            wp.array(np.ascontiguousarray(x, dtype=np.float64), dtype=wp.vec3d, device=device),
-            wp.array(np.ascontiguousarray(v, dtype=np.float64), dtype=wp.vec3d, device=device),
-            wp.array(np.ascontiguousarray(C, dtype=np.float64), dtype=wp.mat33d, device=device),
-            wp.array(np.ascontiguousarray(F, dtype=np.float64), dtype=wp.mat33d, device=device),
-            wp.array(np.ascontiguousarray(Jp, dtype=np.float64), dtype=wp.float64, device=device),
-        )
+        """A state holding copies of the arrays, on the Warp ``device``: x, v (N, 3), C, F (N, 3, 3), Jp (N,),
+        N = ``len(x)``; a :class:`ConfigError` naming the array whose shape is not that."""
+        arrays = {"x": x, "v": v, "C": C, "F": F, "Jp": Jp}
+        x = np.asarray(x, dtype=np.float64)
+        n = len(x) if x.ndim == 2 else -1
+        out = []
+        for name, a in arrays.items():
+            a = np.ascontiguousarray(a, dtype=np.float64)
+            want = (n, *_STATE_SHAPES[name])
+            if a.shape != want:
+                shape = "(N, 3)" if name == "x" else str(want)
+                raise ConfigError(f"MPMState: '{name}' must have shape {shape}, got {a.shape}")
+            out.append(wp.array(a, dtype=_STATE_DTYPES[name], device=device))
+        return MPMState(*out)
+
+    @property
+    def n_particles(self) -> int:
+        return self.x.shape[0]
+
+    def check_fits(self, model: MPMModel, name: str = "state") -> None:
+        """A :class:`ConfigError` unless every array holds one entry per particle of ``model`` (a shorter
+        array would be read and written past its end by the kernels)."""
+        n = model.n_particles
+        for k in ("x", "v", "C", "F", "Jp"):
+            m = getattr(self, k).shape[0]
+            if m != n:
+                raise ConfigError(f"MPM {name}.{k} holds {m} particles but the model has {n}")
 
     def numpy(self) -> dict:
         return {k: getattr(self, k).numpy().copy() for k in ("x", "v", "C", "F", "Jp")}  # numpy() is a view on CPU
@@ -690,6 +731,14 @@ class Control:
                           np.asarray(self.x_ref, dtype=np.float64), np.asarray(self.v_ref, dtype=np.float64),
                           self.kp, self.kd)
 
+    def check_fits(self, model: MPMModel) -> None:
+        """A :class:`ConfigError` unless omega is (N,) and x_ref, v_ref (N, 3), N = ``model.n_particles``."""
+        n = model.n_particles
+        for name, want in (("omega", (n,)), ("x_ref", (n, 3)), ("v_ref", (n, 3))):
+            got = np.shape(getattr(self, name))
+            if got != want:
+                raise ConfigError(f"MPM Control.{name} must have shape {want} (one per particle), got {got}")
+
     def warp(self, device: str):
         """(omega, x_ref, v_ref) as Warp arrays on ``device`` (the model's)."""
         return (
@@ -722,8 +771,25 @@ class MPMSolver:
         ``t`` (s) is the time at the start of the substep (default: ``self.time``, which every step advances).
         ``force`` (N, 3), N: an external force :math:`f_\text{ex}` applied as is (the held PD force of
         Alg. 2); ``control`` adds the PD force evaluated on ``state_in`` (a one-substep frame;
-        :meth:`simulate_frame` holds it).
+        :meth:`simulate_frame` holds it).  A :class:`ConfigError` when a state, the control or the force does not
+        hold one entry per particle of the model.
         """
+        self._check_inputs(state_in, state_out, control)
+        if force is not None and np.shape(force) != (self.model.n_particles, 3):
+            raise ConfigError(f"MPM step: 'force' must have shape ({self.model.n_particles}, 3), "
+                              f"got {np.shape(force)}")
+        self._substep(state_in, state_out, control, dt, t, force)
+
+    def _check_inputs(self, state: MPMState, scratch: MPMState, control: Control | None) -> None:
+        """Shapes of the states and the control against the model (once per call, not per substep)."""
+        state.check_fits(self.model, "state")
+        scratch.check_fits(self.model, "scratch state")
+        if control is not None:
+            control.check_fits(self.model)
+
+    def _substep(self, state_in: MPMState, state_out: MPMState, control: Control | None, dt: float | None,
+                 t: float | None, force: np.ndarray | None):
+        """:meth:`step` on inputs already checked."""
         m = self.model
         a = m.warp_arrays()
         dt = float(m.dt if dt is None else dt)
@@ -770,12 +836,13 @@ class MPMSolver:
 
         With ``control.hold`` the PD force is evaluated once on ``state`` and held over the :math:`T` substeps
         (seed 002 Alg. 2, lines 2-4); otherwise it is recomputed at every substep."""
+        self._check_inputs(state, scratch, control)
         a, b = state, scratch
         force, ctrl = None, control
         if control is not None and control.hold:
             force, ctrl = control.held_force(self.model, state.x.numpy(), state.v.numpy()), None
         for _ in range(self.model.substeps):
-            self.step(a, b, ctrl, force=force)
+            self._substep(a, b, ctrl, None, None, force)
             a, b = b, a
         if check:
             check_state(self.model, a.x.numpy(), a.v.numpy(), a.F.numpy())

@@ -23,13 +23,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 import torch.utils.checkpoint
 import warp as wp
 
+from physar.errors import ConfigError
 from physar.mpm.actuation import held_force as pd_held_force
 from physar.mpm.model import (
     MPMModel,
+    check_material,
     check_state,
     g2p_kernel,
     grid_update_kernel,
@@ -236,6 +239,9 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
     ``params.hold`` the PD force is evaluated at the start of each frame and held (seed Alg. 2).
     ``truncate``: Eq. 12 truncation of the residual outputs (inference, seed App. A.2).
     The results are on the device of ``x0`` (CPU for NumPy input), whatever ``model.device`` is.
+    A :class:`physar.errors.ConfigError` names an input whose shape is not one entry per particle of the model
+    (x0, v0 (N, 3), C0, F0 (N, 3, 3), Jp0 and ``params`` fields) and a particle whose E is not > 0 or whose
+    nu is not in (-1, 0.5) (the limits of the scene file).
     """
     n = model.n_particles
     t = lambda a: torch.as_tensor(a, dtype=torch.float64)
@@ -245,11 +251,14 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
     C = torch.zeros(n, 3, 3, dtype=torch.float64, device=dev) if C0 is None else t(C0)
     F = torch.eye(3, dtype=torch.float64, device=dev).repeat(n, 1, 1) if F0 is None else t(F0)
     Jp = torch.ones(n, dtype=torch.float64, device=dev) if Jp0 is None else t(Jp0)
+    _check_inputs(model, {"x0": x, "v0": v, "C0": C, "F0": F, "Jp0": Jp}, params)
     xs = [x]
     use_fused = fused and (nets is None or (nets.elastic is None and nets.plastic is None))
     for f in range(frames):
         if callable(params.x_ref):
             x_ref, v_ref = params.x_ref(f)
+            _check_shape(n, f"params.x_ref({f})[0]", "x_ref", x_ref)
+            _check_shape(n, f"params.x_ref({f})[1]", "v_ref", v_ref)
         else:
             x_ref, v_ref = params.x_ref, params.v_ref
         f_hold = held_force(model, x, v, params, x_ref, v_ref) if params.hold else None
@@ -278,6 +287,43 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
         _check(model, x, v, F, f)
         xs.append(x)
     return xs, (x, v, C, F, Jp)
+
+
+_SHAPES = {"x0": (3,), "v0": (3,), "C0": (3, 3), "F0": (3, 3), "Jp0": (), "E": (), "nu": (), "omega": (),
+           "x_ref": (3,), "v_ref": (3,), "fiber_E": ()}  # per particle; l_e, l_p: (latent,)
+
+
+def _check_shape(n: int, label: str, key: str, a) -> None:
+    """A :class:`ConfigError` naming ``label`` unless ``a`` (tensor, array or None) has the shape (n, ...) of
+    ``key`` in ``_SHAPES`` (l_e, l_p: (n, latent), or (latent,) shared by all particles)."""
+    if a is None:
+        return
+    got = tuple(torch.as_tensor(a).shape)
+    latent = key in ("l_e", "l_p")
+    if (len(got) == 1 or (len(got) == 2 and got[0] == n)) if latent else got == (n, *_SHAPES[key]):
+        return
+    want = f"({n}, latent)" if latent else str((n, *_SHAPES[key]))
+    raise ConfigError(f"simulate: {label} must have shape {want} (one entry per particle of the model), got {got}")
+
+
+def _check_inputs(model: MPMModel, state: dict, p: Params) -> None:
+    """Shapes of the initial state and of ``p`` against the model, and E, nu, fiber_E in their ranges (once per
+    :func:`simulate`; the kernels would otherwise read past the end of a short array)."""
+    n = model.n_particles
+    for k, a in state.items():
+        _check_shape(n, k, k, a)
+    for k in ("E", "nu", "omega", "x_ref", "v_ref", "l_e", "l_p", "fiber_E"):
+        a = getattr(p, k)
+        if not callable(a):
+            _check_shape(n, f"params.{k}", k, a)
+    h = lambda a: torch.as_tensor(a).detach().cpu().numpy()
+    check_material(h(p.E), h(p.nu), "simulate: params.")
+    if p.fiber_E is not None:
+        ef = h(p.fiber_E)
+        bad = ~(np.isfinite(ef) & (ef >= 0))
+        if bad.any():
+            i = int(bad.argmax())
+            raise ConfigError(f"simulate: params.fiber_E[{i}] = {ef[i]:g} Pa: must be a finite number >= 0")
 
 
 def _check(model: MPMModel, x, v, F, f: int):

@@ -1,14 +1,20 @@
 r"""Image metrics of seed 002 §5.2: PSNR, SSIM, mask IoU (and LPIPS when its weights are available).
 
-* :math:`\mathrm{PSNR} = 10 \log_{10}(\mathrm{MAX}^2 / \mathrm{MSE})`, :math:`\mathrm{MAX} = 1` (images in
-  [0, 1]); +inf for identical images.
+* :math:`\mathrm{PSNR} = 10 \log_{10}(\mathrm{MAX}^2 / \mathrm{MSE})`; +inf for identical images.
 * SSIM: Wang, Bovik, Sheikh, Simoncelli (2004), Gaussian window :math:`\sigma = 1.5` (truncated at
-  :math:`3.5 \sigma`), :math:`K_1 = 0.01`, :math:`K_2 = 0.03`, :math:`L = 1`, averaged over pixels (valid
-  region, no padding) and channels. Own numpy/scipy implementation (scikit-image is not a dependency here);
+  :math:`3.5 \sigma`), :math:`K_1 = 0.01`, :math:`K_2 = 0.03`, :math:`L = \mathrm{MAX}`, averaged over pixels
+  (valid region, no padding) and channels.
+* MAX (``max_val``) as ``skimage.metrics`` infers its ``data_range`` from the dtype when it is not given:
+  float images are in [0, 1] (MAX = 1), unsigned-integer images span their dtype (uint8: 0..255, MAX = 255;
+  uint16: MAX = 65535). Unlike skimage, which warns and uses the first image's dtype, a float image compared
+  with an integer one (or two integer dtypes) is refused without an explicit ``max_val``, and signed-integer
+  or boolean images need one too (an ``int64`` array of 0..255 values would otherwise get MAX = 2^63 - 1).
+  With an explicit ``max_val`` both images must be on that scale. Own numpy/scipy implementation (scikit-image is not a dependency here);
   same constants as ``skimage.metrics.
   structural_similarity(..., gaussian_weights=True, sigma=1.5, use_sample_covariance=False)``.
 * :math:`\mathrm{IoU} = |A \cap B| / |A \cup B|` of boolean masks (1 when both are empty); rendered alpha is
-  thresholded at 0.5.
+  thresholded at 0.5 by :func:`sequence_metrics`. :func:`iou` itself takes boolean masks or arrays of 0 and 1
+  only, and refuses other values (a soft alpha in [0, 1] cast to bool would count every non-zero pixel).
 * LPIPS needs the backbone (AlexNet/VGG) weights, which are not reachable offline: :func:`lpips` raises
   a clear error when they are missing instead of reporting a number.
 """
@@ -18,26 +24,59 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from physar.errors import PhysarError
+from physar.errors import ConfigError, PhysarError
 
 
-def psnr(a: np.ndarray, b: np.ndarray, max_val: float = 1.0) -> float:
-    """Peak signal-to-noise ratio (dB) of two images of the same shape."""
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+def _max_val(name: str, a: np.ndarray, b: np.ndarray, max_val: float | None) -> float:
+    """MAX of two images (module docstring): ``max_val`` when given (finite, > 0), else from their dtypes."""
+    if max_val is not None:
+        if not (np.isfinite(max_val) and max_val > 0):
+            raise ConfigError(f"{name}: max_val = {max_val!r} must be a finite number > 0")
+        a_int, b_int = np.issubdtype(a.dtype, np.integer), np.issubdtype(b.dtype, np.integer)
+        if a_int != b_int:
+            raise ConfigError(f"{name}: a is {a.dtype} but b is {b.dtype}: give both images on one scale "
+                              f"(e.g. a float image * 255 as uint8, or both as float in [0, 1])")
+        return float(max_val)
+    kinds = {a.dtype.kind, b.dtype.kind}
+    if kinds <= {"f"}:
+        top = max((float(np.nanmax(np.abs(x))) for x in (a, b) if x.size), default=0.0)
+        if top > 2.0:  # renders overshoot 1 a little; 0..255 data taken as [0, 1] gave PSNRs off by 48 dB
+            raise ConfigError(f"{name}: float images are taken in [0, 1], but values reach {top:g}: pass "
+                              f"max_val (e.g. 255 for 0..255 data) or scale them")
+        return 1.0
+    if kinds == {"u"} and a.dtype == b.dtype:
+        return float(np.iinfo(a.dtype).max)
+    if "f" in kinds and kinds & {"u", "i"}:
+        raise ConfigError(f"{name}: a is {a.dtype} but b is {b.dtype}: a float image is taken in [0, 1] and "
+                          f"an integer one in 0..max of its dtype; convert one (e.g. uint8 / 255.0) or pass max_val")
+    raise ConfigError(f"{name}: cannot infer the value range of images of dtype {a.dtype} and {b.dtype} "
+                      f"(float: [0, 1], one unsigned-integer dtype: 0..its max); pass max_val (e.g. 255)")
+
+
+def _images(name: str, a, b, max_val: float | None) -> tuple[np.ndarray, np.ndarray, float]:
+    """(a, b) as float64 arrays of one shape and their MAX (:func:`_max_val`)."""
+    a, b = np.asarray(a), np.asarray(b)
     if a.shape != b.shape:
-        raise PhysarError(f"psnr: shapes differ {a.shape} vs {b.shape}")
+        raise ConfigError(f"{name}: shapes differ {a.shape} vs {b.shape}")
+    peak = _max_val(name, a, b, max_val)
+    return a.astype(np.float64), b.astype(np.float64), peak
+
+
+def psnr(a: np.ndarray, b: np.ndarray, max_val: float | None = None) -> float:
+    """Peak signal-to-noise ratio (dB) of two images of the same shape; ``max_val`` (MAX) by default from the
+    dtype: 1 for float images in [0, 1], 255 for uint8, 65535 for uint16 (module docstring)."""
+    a, b, peak = _images("psnr", a, b, max_val)
     mse = np.mean((a - b) ** 2)
-    return float("inf") if mse == 0 else float(10 * np.log10(max_val**2 / mse))
+    return float("inf") if mse == 0 else float(10 * np.log10(peak**2 / mse))
 
 
-def ssim(a: np.ndarray, b: np.ndarray, max_val: float = 1.0, sigma: float = 1.5) -> float:
-    """Mean structural similarity of two (H, W) or (H, W, C) images (see module docstring)."""
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    if a.shape != b.shape:
-        raise PhysarError(f"ssim: shapes differ {a.shape} vs {b.shape}")
+def ssim(a: np.ndarray, b: np.ndarray, max_val: float | None = None, sigma: float = 1.5) -> float:
+    """Mean structural similarity of two (H, W) or (H, W, C) images (see module docstring; ``max_val`` as in
+    :func:`psnr`)."""
+    a, b, peak = _images("ssim", a, b, max_val)
     if a.ndim == 2:
         a, b = a[..., None], b[..., None]
-    c1, c2 = (0.01 * max_val) ** 2, (0.03 * max_val) ** 2
+    c1, c2 = (0.01 * peak) ** 2, (0.03 * peak) ** 2
     trunc = 3.5
     pad = int(trunc * sigma + 0.5)
     vals = []
@@ -55,11 +94,25 @@ def ssim(a: np.ndarray, b: np.ndarray, max_val: float = 1.0, sigma: float = 1.5)
     return float(np.mean(vals))
 
 
+def _mask(name: str, arg: str, m) -> np.ndarray:
+    """``m`` as a boolean mask: a bool array, or one whose values are all 0 or 1; else a ConfigError."""
+    m = np.asarray(m)
+    if m.dtype == bool:
+        return m
+    if m.dtype.kind not in "uif" or not np.all((m == 0) | (m == 1)):
+        lo, hi = (float(np.nanmin(m)), float(np.nanmax(m))) if m.size and m.dtype.kind in "uif" else (None, None)
+        rng = f" values in [{lo:g}, {hi:g}]" if lo is not None else ""
+        raise ConfigError(f"{name}: {arg} must be a boolean mask or hold only 0 and 1 (got {m.dtype}{rng}); "
+                          f"threshold it first, e.g. {arg} >= 0.5")
+    return m != 0
+
+
 def iou(a: np.ndarray, b: np.ndarray) -> float:
-    """Intersection over union of two boolean masks (1.0 when both are empty)."""
-    a, b = np.asarray(a, bool), np.asarray(b, bool)
+    """Intersection over union of two boolean masks, or arrays of 0 and 1 (1.0 when both are empty); any other
+    value (a soft alpha) is refused: threshold it first."""
+    a, b = _mask("iou", "a", a), _mask("iou", "b", b)
     if a.shape != b.shape:
-        raise PhysarError(f"iou: shapes differ {a.shape} vs {b.shape}")
+        raise ConfigError(f"iou: shapes differ {a.shape} vs {b.shape}")
     u = np.logical_or(a, b).sum()
     return 1.0 if u == 0 else float(np.logical_and(a, b).sum() / u)
 
