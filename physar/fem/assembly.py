@@ -78,6 +78,9 @@ class ElasticModel:
     """
 
     def __init__(self, space: FESpace, material: Material, density: float = 0.0):
+        if not isinstance(space, FESpace):
+            hint = " (wrap a mesh as FESpace(mesh, 'P1') or 'P2')" if hasattr(space, "cells") else ""
+            raise ConfigError(f"space must be a physar.fem FESpace, got {type(space).__name__}{hint}")
         if not isinstance(material, Material):
             raise ConfigError(f"material must be a physar.fem Material, got {type(material).__name__}")
         if density < 0 or not np.isfinite(density):

@@ -216,6 +216,17 @@ def select_faces(space: FESpace, box=None, region=None, points=None, plane=None,
     return np.flatnonzero(hit)
 
 
+def _vector3(value, name: str, unit: str) -> np.ndarray:
+    """`value` as a finite float vector (3,), else ConfigError naming `name` and the value."""
+    try:
+        v = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"{name} must be a vector of 3 numbers [{unit}], got {value!r}") from e
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ConfigError(f"{name} must be a finite vector of 3 numbers [{unit}], got {value!r}")
+    return v
+
+
 def traction_load(space: FESpace, box: Sequence[Sequence[float]] | None = None,
                   total: Sequence[float] | None = None, *, region=None, points=None, plane=None,
                   tol=None) -> np.ndarray:
@@ -223,6 +234,7 @@ def traction_load(space: FESpace, box: Sequence[Sequence[float]] | None = None,
     :func:`select_faces` (e.g. whose centroids lie in `box`)."""
     if total is None:
         raise ConfigError("traction load needs total = [Fx, Fy, Fz]")
+    total = _vector3(total, "traction load total", "N")
     surf = _surface(space)
     kind = _one_selector(box, region, points, plane)
     faces = select_faces(space, box=box, region=region, points=points, plane=plane, tol=tol, what="traction load:")
@@ -234,7 +246,6 @@ def traction_load(space: FESpace, box: Sequence[Sequence[float]] | None = None,
             hint = "; " + plane_miss_hint(space, plane[0], plane[1], tol)
         raise ConfigError(f"traction load: no boundary face matches {_describe(kind, box, region, points, plane, tol)}"
                           + hint)
-    total = np.asarray(total, dtype=float)
     area = surf.mesh.face_areas()[faces].sum()
     cells, _, w, N = _face_quadrature(space, faces, 2)
     nodal = np.einsum("fq,fqa,i->fai", w, N, total / area)
@@ -306,7 +317,8 @@ def point_load(
     """
     if not (radius > 0 and np.isfinite(radius)):
         raise ConfigError(f"point load radius must be positive, got {radius}")
-    p = np.asarray(point, dtype=float)
+    p = _vector3(point, "point load point", "m")
+    total = _vector3(total, "point load total", "N")
     surf = _surface(space)
     c = surf.face_centroids()
     pts_face = surf.mesh.points[surf.mesh.faces]
@@ -327,7 +339,6 @@ def point_load(
             f"point load at {p.tolist()}: radius {radius} is too small for the mesh there "
             "(no surface quadrature point within it); increase the radius or refine the mesh"
         )
-    total = np.asarray(total, dtype=float)
     nodal = np.einsum("fq,fqa,i->fai", k / k.sum(), N, total)
     return _scatter(space, cells, nodal)
 
@@ -338,8 +349,12 @@ def gravity_load(space: FESpace, density: float, g: Sequence[float]) -> np.ndarr
     from physar.fem.assembly import ElasticModel  # local: avoids a cycle at import time
     from physar.fem.materials import LinearElastic
 
+    g = _vector3(g, "gravity g", "m/s²")
+    if np.ndim(density) != 0 or np.asarray(density).dtype.kind not in "iuf" \
+            or not (density >= 0 and np.isfinite(density)):
+        raise ConfigError(f"density must be a number >= 0 [kg/m³], got {density!r}")
     vol = ElasticModel(space, LinearElastic(1.0, 0.0)).volume_integrals()
-    return (density * vol[:, None] * np.asarray(g, dtype=float)[None, :]).ravel()
+    return (density * vol[:, None] * g[None, :]).ravel()
 
 
 def fixed_dofs(

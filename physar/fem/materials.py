@@ -22,6 +22,9 @@ _DIL_DJK = np.einsum("il,jk->ijkl", I3, I3)
 
 def lame(E: float, nu: float) -> tuple[float, float]:
     r"""Lamé constants :math:`(\lambda, \mu)` [Pa] from Young's modulus E [Pa] and Poisson ratio nu."""
+    for what, v in (("Young's modulus E", E), ("Poisson ratio nu", nu)):
+        if np.ndim(v) != 0 or np.asarray(v).dtype.kind not in "iuf":
+            raise ConfigError(f"{what} must be a number, got {v!r}")
     if not (np.isfinite(E) and E > 0):
         raise ConfigError(f"Young's modulus E must be positive, got {E}")
     if not (-1.0 < nu < 0.5):

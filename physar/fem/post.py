@@ -20,6 +20,14 @@ from physar.errors import ConfigError
 from physar.fem.elements import FESpace, shape_functions, shape_gradients_ref
 
 
+def _displacement(u, n_dofs: int) -> np.ndarray:
+    """`u` as a float displacement (n_dofs,) [m], else ConfigError naming the shapes."""
+    u = np.asarray(u, dtype=float)
+    if u.shape != (n_dofs,):
+        raise ConfigError(f"displacement u must have shape ({n_dofs},) (3 per node of the space), got {u.shape}")
+    return u
+
+
 def locate(space: FESpace, points: np.ndarray, tol: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Element index (p,) and barycentric coordinates (p, 4) of reference-configuration points.
 
@@ -29,7 +37,10 @@ def locate(space: FESpace, points: np.ndarray, tol: float | None = None) -> tupl
     """
     from physar.fem.loads import default_tol
 
-    points = np.atleast_2d(np.asarray(points, dtype=float))
+    given = np.asarray(points, dtype=float)
+    points = np.atleast_2d(given)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ConfigError(f"probe points must have shape (3,) or (p, 3) [m], got shape {given.shape}")
     tol = default_tol(space.mesh.points) if tol is None else float(tol)
     Jinv, _ = space.jacobians
     x0 = space.mesh.points[space.mesh.cells[:, 0]]
@@ -57,9 +68,10 @@ def locate(space: FESpace, points: np.ndarray, tol: float | None = None) -> tupl
 def probe(space: FESpace, u: np.ndarray, point: Sequence[float] | np.ndarray) -> np.ndarray:
     """Displacement interpolated at reference point(s): (3,) for one point, (p, 3) for several."""
     pts = np.asarray(point, dtype=float)
+    u = _displacement(u, space.n_dofs)
     cells, L = locate(space, pts)
     N = shape_functions(space.element, L)  # (p, nen)
-    U = np.asarray(u).reshape(-1, 3)[space.cells[cells]]  # (p, nen, 3)
+    U = u.reshape(-1, 3)[space.cells[cells]]  # (p, nen, 3)
     out = np.einsum("pa,pai->pi", N, U)
     return out[0] if pts.ndim == 1 else out
 
@@ -67,7 +79,7 @@ def probe(space: FESpace, u: np.ndarray, point: Sequence[float] | np.ndarray) ->
 def cauchy_stress(model, u: np.ndarray) -> np.ndarray:
     r"""Cauchy stress :math:`\sigma = P F^\top / J` (small-strain :math:`\sigma` for the linear material)
     averaged over each element's quadrature points: (m, 3, 3) [Pa]."""
-    sig = _cauchy(model.material, model.deformation_gradient(u))
+    sig = _cauchy(model.material, model.deformation_gradient(_displacement(u, model.n_dofs)))
     _, wdet = model._quad
     return np.einsum("mq,mqij->mij", wdet, sig) / wdet.sum(axis=1)[:, None, None]
 
@@ -119,7 +131,7 @@ def nodal_stress(model, u: np.ndarray, vertices: np.ndarray | None = None,
         elems = np.flatnonzero(wanted[cells].any(axis=1))
     Jinv, detJ = space.jacobians
     dref = shape_gradients_ref(space.element, np.eye(4))  # (4 vertices, nen, 3)
-    ue = np.asarray(u, dtype=float).reshape(-1, 3)[space.cells[elems]]  # (m, nen, 3)
+    ue = _displacement(u, space.n_dofs).reshape(-1, 3)[space.cells[elems]]  # (m, nen, 3)
     H = np.einsum("mbi,vbk,mkj->mvij", ue, dref, Jinv[elems], optimize=True)  # ∇u at the 4 vertices
     sig = _cauchy(model.material, np.eye(3) + H)  # (m, 4, 3, 3)
     if cell_scale is not None:

@@ -226,8 +226,44 @@ def choose_linear(linear: str, n: int, nnz: int) -> str:
 _MODE_NAMES = ["translation x", "translation y", "translation z", "rotation x", "rotation y", "rotation z"]
 
 
+def dof_indices(dofs, n_dofs: int, name: str = "fixed") -> np.ndarray:
+    """`dofs` as sorted unique int64 dof indices in [0, `n_dofs`): the one reading of constrained dofs.
+
+    Accepts integer indices (a list or array of any shape, or integer-valued floats such as 3.0) or a boolean
+    mask of shape (`n_dofs`,), which selects the dofs where it is True. Raises ConfigError naming `name`, the
+    offending value and `n_dofs` for a negative or too large index (no wrap-around, nothing dropped), a
+    fractional or non-finite float, a mask of another length, or anything else (strings, None entries).
+    """
+    try:
+        a = np.asarray(dofs)
+    except (TypeError, ValueError) as e:  # ragged nesting
+        raise ConfigError(f"{name} must be dof indices or a boolean mask of {n_dofs} dofs, got {dofs!r}") from e
+    if a.dtype == bool:
+        if a.shape != (n_dofs,):
+            raise ConfigError(f"{name}: a boolean mask must have shape ({n_dofs},) (one entry per dof), "
+                              f"got shape {a.shape}")
+        return np.flatnonzero(a).astype(np.int64)
+    if a.size == 0:
+        return np.zeros(0, np.int64)
+    if not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
+        raise ConfigError(f"{name} must be integer dof indices or a boolean mask, got {a.dtype} values "
+                          f"({a.ravel()[0].item()!r}, ...)")
+    a = a.ravel()
+    if np.issubdtype(a.dtype, np.floating):
+        frac = ~np.isfinite(a) | (a != np.round(a))
+        if frac.any():
+            raise ConfigError(f"{name} must be integer dof indices, got {a[frac][0].item()!r}")
+    out = (a < 0) | (a >= n_dofs)
+    if out.any():
+        raise ConfigError(f"{name}: dof index {a[out][0].item():.0f} is out of range 0..{n_dofs - 1} "
+                          f"(the model has {n_dofs} dofs)")
+    return np.unique(a.astype(np.int64))
+
+
 def check_constraints(nodes: np.ndarray, fixed: np.ndarray) -> None:
-    """Raise SolverError if the fixed dofs leave a rigid-body motion unconstrained."""
+    """Raise SolverError if the fixed dofs leave a rigid-body motion unconstrained (ConfigError if `fixed` is
+    not a valid dof selection, see :func:`dof_indices`)."""
+    fixed = dof_indices(fixed, 3 * len(nodes))
     R = rigid_body_modes(nodes)
     if len(fixed) == 0:
         raise SolverError(
@@ -247,6 +283,12 @@ def check_constraints(nodes: np.ndarray, fixed: np.ndarray) -> None:
             f"the model is not fully constrained: {len(free)} rigid-body mode(s) free "
             f"({', '.join(sorted(set(names)))}); fix more nodes"
         )
+
+
+def _check_finite_force(f_ext: np.ndarray) -> None:
+    bad = np.flatnonzero(~np.isfinite(f_ext.reshape(len(f_ext), -1)).all(axis=1))
+    if len(bad):
+        raise SolverError(f"external force contains NaN or inf (first at dof {bad[0]}: {f_ext[bad[0]]})")
 
 
 def _free_dofs(n: int, fixed: np.ndarray) -> np.ndarray:
@@ -274,7 +316,7 @@ class LinearSolver:
 
     def __init__(self, model, fixed: np.ndarray, method: str = "auto", linear: str = "direct",
                  rtol: float = 1e-10):
-        fixed = np.unique(np.asarray(fixed, dtype=np.int64))
+        fixed = dof_indices(fixed, model.n_dofs)
         check_constraints(model.space.nodes, fixed)
         self.n = model.n_dofs
         self.fixed = fixed
@@ -290,6 +332,9 @@ class LinearSolver:
 
     def solve(self, f_ext: np.ndarray) -> np.ndarray:
         f_ext = np.asarray(f_ext, dtype=float)
+        if f_ext.ndim not in (1, 2) or f_ext.shape[0] != self.n:
+            raise SolverError(f"external force must have shape ({self.n},) or ({self.n}, k), got {f_ext.shape}")
+        _check_finite_force(f_ext)
         squeeze = f_ext.ndim == 1
         F = f_ext.reshape(self.n, -1)
         U = np.zeros_like(F)
@@ -367,7 +412,7 @@ class _Tangent:
         return x
 
 
-def _line_search(model, f, u, du, free, r, rn, growth: float = None):
+def _line_search(model, f, u, du, free, r, rn, growth: float | None = None):
     r"""Step length :math:`\alpha` along the Newton direction :math:`\Delta u`: (u, f_int, r, |r_free|) at
     :math:`u + \alpha \Delta u`, or a reason string.
 
@@ -544,10 +589,11 @@ def solve_static(
     Raises SolverError naming the cause if even a small load increment does not converge.
     """
     f_ext = np.asarray(f_ext, dtype=float)
-    fixed = np.unique(np.asarray(fixed, dtype=np.int64))
     n = model.n_dofs
+    fixed = dof_indices(fixed, n)
     if f_ext.shape != (n,):
         raise SolverError(f"external force must have shape ({n},), got {f_ext.shape}")
+    _check_finite_force(f_ext)
     if steps < 1:
         raise SolverError(f"load steps must be >= 1, got {steps}")
     if linear not in LINEAR_METHODS:
@@ -563,6 +609,9 @@ def solve_static(
     check_constraints(model.space.nodes, fixed)
     free = _free_dofs(n, fixed)
     u = np.zeros(n) if u0 is None else np.array(u0, dtype=float)
+    if u.shape != (n,) or not np.all(np.isfinite(u)):
+        raise SolverError(f"u0 must be a finite displacement of shape ({n},), got shape {u.shape}"
+                          + ("" if u.shape != (n,) else " with NaN or inf"))
     u[fixed] = 0.0
     tangent = _Tangent(linear, model, free)
     if model.linear:

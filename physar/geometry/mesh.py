@@ -38,6 +38,16 @@ def _check_points(points: np.ndarray, name: str) -> np.ndarray:
     return points
 
 
+def _frozen(a: np.ndarray) -> np.ndarray:
+    """`a` made read-only for storing in a mesh: a private copy unless `a` is already read-only (and so is the
+    array it views), never the caller's writable array (freezing that would break the caller's code)."""
+    base = a.base if isinstance(a.base, np.ndarray) else None
+    if a.flags.writeable or (base is not None and base.flags.writeable):
+        a = a.copy()
+    a.setflags(write=False)
+    return a
+
+
 def _check_cells(cells: np.ndarray, npts: int, width: int, name: str) -> np.ndarray:
     cells = np.asarray(cells)
     if cells.ndim != 2 or cells.shape[1] != width:
@@ -87,10 +97,8 @@ class TetMesh:
         if degenerate.any():
             e = int(np.flatnonzero(degenerate)[0])
             raise MeshError(f"{self.name}: element {e} is degenerate (volume {vol[e]:.3e})")
-        object.__setattr__(self, "points", pts)
-        object.__setattr__(self, "cells", cells)
-        pts.setflags(write=False)
-        cells.setflags(write=False)
+        object.__setattr__(self, "points", _frozen(pts))
+        object.__setattr__(self, "cells", _frozen(cells))
 
     @classmethod
     def reoriented(cls, points: np.ndarray, cells: np.ndarray, name: str = "mesh",
@@ -142,10 +150,8 @@ class TriMesh:
     def __post_init__(self) -> None:
         pts = _check_points(self.points, self.name)
         faces = _check_cells(self.faces, len(pts), 3, self.name)
-        object.__setattr__(self, "points", pts)
-        object.__setattr__(self, "faces", faces)
-        pts.setflags(write=False)
-        faces.setflags(write=False)
+        object.__setattr__(self, "points", _frozen(pts))
+        object.__setattr__(self, "faces", _frozen(faces))
 
     @property
     def n_points(self) -> int:
@@ -310,11 +316,14 @@ def box_mesh(
     refused with a ConfigError before anything is allocated.
     """
     size = np.asarray(size, dtype=float)
-    n = np.asarray(cells, dtype=int)
+    given = np.asarray(cells)
     if size.shape != (3,) or np.any(size <= 0) or not np.all(np.isfinite(size)):
         raise MeshError(f"box size must be three positive lengths, got {[float(v) for v in np.atleast_1d(size)]}")
-    if n.shape != (3,) or np.any(n < 1):
-        raise MeshError(f"box cells must be three positive integers, got {np.atleast_1d(n).tolist()}")
+    whole = (np.issubdtype(given.dtype, np.integer) or np.issubdtype(given.dtype, np.floating)) and np.all(np.isfinite(given)) \
+        and np.all(given == np.round(given))
+    if given.shape != (3,) or not whole or np.any(given < 1):
+        raise MeshError(f"box cells must be three positive integers, got {np.atleast_1d(given).tolist()}")
+    n = given.astype(int)
     nx, ny, nz = (int(v) for v in n)
     n_cells = nx * ny * nz  # Python ints: no overflow for absurd requests
     check_memory(BOX_BYTES_PER_CELL * n_cells, f"a box mesh of {nx} x {ny} x {nz} cells ({6 * n_cells:.3g} tetrahedra)")

@@ -27,6 +27,7 @@ import scipy.sparse as sp
 from physar.errors import ConfigError
 from physar.fem.assembly import CSRPattern, ElasticModel
 from physar.fem.materials import Corotated, lame, polar
+from physar.fem.solvers import dof_indices
 from physar.integrators.linalg import BlockRotation, FreePattern
 
 
@@ -122,8 +123,14 @@ class LinearDynamics(DynamicsModel):
             raise ConfigError(f"M, K, D must all be {n} x {n}")
         self.n_dofs = n
         self.f_ext = np.zeros(n) if f_ext is None else np.asarray(f_ext, dtype=float)
-        fixed = np.asarray(fixed, dtype=np.int64)
-        self.free = np.setdiff1d(np.arange(n), fixed)
+        if self.f_ext.shape != (n,) or not np.all(np.isfinite(self.f_ext)):
+            raise ConfigError(f"f_ext must be a finite array of shape ({n},), got shape {self.f_ext.shape}")
+        self.free = np.setdiff1d(np.arange(n), dof_indices(fixed, n))
+        m_diag = self.mass.diagonal()[self.free]
+        if not np.all(m_diag > 0):  # also catches NaN
+            k = int(np.flatnonzero(~(m_diag > 0))[0])
+            raise ConfigError(f"M must be positive definite: M[{self.free[k]}, {self.free[k]}] = {m_diag[k]:g} "
+                              "(a free dof needs a positive mass)")
         self.q_fixed = np.zeros(n)
         self._lin = None
 
@@ -555,7 +562,7 @@ class SolidModel(DynamicsModel):
         self.mass = elastic.mass_matrix(lumped=(mass == "lumped"))
         self.mass_kind = mass
         self.alpha, self.beta = alpha, beta
-        fixed = np.unique(np.asarray(fixed, dtype=np.int64))
+        fixed = dof_indices(fixed, n)
         self.fixed = fixed
         self.free = np.setdiff1d(np.arange(n), fixed)
         self.q_fixed = np.zeros(n) if q_fixed is None else np.asarray(q_fixed, dtype=float).copy()
@@ -563,6 +570,8 @@ class SolidModel(DynamicsModel):
         if self.f_ext.shape != (n,) or self.q_fixed.shape != (n,):
             raise ConfigError(f"f_ext and q_fixed must have shape ({n},)")
         self.gravity = None if gravity is None else np.asarray(gravity, dtype=float)
+        if self.gravity is not None and (self.gravity.shape != (3,) or not np.all(np.isfinite(self.gravity))):
+            raise ConfigError(f"gravity must be a finite vector (gx, gy, gz) [m/s²], got {gravity!r}")
         if self.gravity is not None:
             self.f_ext = self.f_ext + self.mass @ np.tile(self.gravity, n // 3)
         self.ground = ground

@@ -56,6 +56,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse.linalg as spla
 
 from physar.errors import ConfigError, SolverError
 from physar.integrators.linalg import SparseSolver
@@ -419,6 +420,68 @@ METHODS: dict[str, type[Integrator]] = {
 }
 
 
+def explicit_step_limit(model: DynamicsModel, q=None, v=None, iterations: int = 30) -> float:
+    r"""Estimate of the stability limit :math:`h < 2 / \omega_\max` [s] of an explicit step at (q, v).
+
+    :math:`\omega_\max^2` is the largest eigenvalue of :math:`M^{-1} K` on the free dofs (K the tangent
+    stiffness at (q, v)); the estimate is the largest Rayleigh quotient :math:`x^\top K x / x^\top M x` of
+    `iterations` power iterations from a fixed random start, a lower bound of :math:`\omega_\max^2`, so the
+    returned limit is never below the true one for a linear model: ``h`` above it is certainly unstable.
+    ``inf`` when the model has no stiffness (free flight).
+    """
+    q, v = model.initial_state(q, v)
+    K = model.linearize(q, v).K
+    M = model.mass_ff.tocsc()
+    if K is None or K.shape[0] == 0 or not K.nnz:
+        return np.inf
+    if M.nnz == M.shape[0] and np.all(M.diagonal() > 0):  # lumped: diagonal
+        d = M.diagonal()
+
+        def solve(b):
+            return b / d
+    else:
+        solve = spla.factorized(M)
+    x = np.random.default_rng(0).standard_normal(K.shape[0])
+    lam = 0.0
+    for _ in range(int(iterations)):
+        Kx = K @ x
+        den = float(x @ (M @ x))
+        if not den > 0:
+            break
+        lam = max(lam, float(x @ Kx) / den)
+        x = solve(Kx)
+        nx = np.linalg.norm(x)
+        if not (nx > 0 and np.isfinite(nx)):
+            break
+        x /= nx
+    return 2.0 / np.sqrt(lam) if lam > 0 else np.inf
+
+
+class _RunawayCheck:
+    r"""Post-hoc blow-up test of an explicit step: :math:`\omega_\text{eff}^2 = \delta q^\top (f_{n-1} - f_n) /
+    \delta q^\top M \delta q` (:math:`\delta q = q_n - q_{n-1}`, so :math:`f_{n-1} - f_n \approx K \delta q`)
+    measures the frequency of the motion the step makes; :math:`h \omega_\text{eff} > 2` with :math:`|\delta q|`
+    growing for `RUNS` steps in a row is a mode past the stability limit growing geometrically (finite long
+    before it overflows). Uses only forces the stepper needs anyway (cached in ``State.f``)."""
+
+    RUNS = 3
+
+    def __init__(self, model, h):
+        self.model, self.h, self.count, self.dq_norm, self.hw = model, h, 0, 0.0, 0.0
+
+    def __call__(self, old: State, new: State) -> bool:
+        fr = self.model.free
+        dq = (new.q - old.q)[fr]
+        df = (old.f - new.f)[fr]
+        den = float(dq @ (self.model.mass_ff @ dq))
+        nrm = float(np.linalg.norm(dq))
+        hw2 = self.h * self.h * float(dq @ df) / den if den > 0 else 0.0
+        growing = hw2 > 4.0 and nrm > self.dq_norm
+        self.count = self.count + 1 if growing else 0
+        self.dq_norm, self.hw = nrm, np.sqrt(max(hw2, 0.0))
+        return self.count >= self.RUNS
+
+
 def make_integrator(method: str, r: float | None = None, theta: float | None = None, **kw) -> Integrator:
     """An integrator by name: symplectic_euler | be | si | midpoint | genalpha (r) | theta (theta) | trbdf2."""
     if method not in METHODS:
@@ -443,13 +506,29 @@ def simulate(model: DynamicsModel, integrator: Integrator, h: float, steps: int,
     if steps < 0:
         raise ConfigError(f"steps must be >= 0, got {steps}")
     state = integrator.init(model, q0, v0)
+    runaway = None
+    if not integrator.implicit and steps > 0:
+        limit = explicit_step_limit(model, state.q, state.v)
+        if h > limit:
+            raise SolverError(f"{integrator.name}: time step h = {h:.4g} s is beyond the explicit stability limit "
+                              f"2/omega_max = {limit:.3g} s (omega_max >= {2 / limit:.4g} rad/s); use h < "
+                              f"{limit:.3g} s or an implicit method")
+        runaway = _RunawayCheck(model, h)
+        state.f = model.force(state.q, state.v)
     if callback:
         callback(0, state)
     for k in range(1, steps + 1):
-        state = integrator.step(model, state, h)
-        if not (np.all(np.isfinite(state.q)) and np.all(np.isfinite(state.v))):
-            raise SolverError(f"{integrator.name}: the solution blew up at step {k} (t = {state.t:.4g} s); "
-                              "reduce h or use an implicit method")
+        prev = state
+        with np.errstate(over="ignore", invalid="ignore"):
+            state = integrator.step(model, state, h)
+            if runaway is not None:
+                state.f = model.force(state.q, state.v)
+        finite = np.all(np.isfinite(state.q)) and np.all(np.isfinite(state.v))
+        if not finite or (runaway is not None and runaway(prev, state)):
+            why = "is no longer finite" if not finite else (
+                f"grows geometrically (h omega = {runaway.hw:.3g} > 2 for {runaway.RUNS} steps)")
+            raise SolverError(f"{integrator.name}: the solution blew up at step {k} (t = {state.t:.4g} s): it "
+                              f"{why}; reduce h or use an implicit method")
         if callback:
             callback(k, state)
         if progress:
@@ -468,6 +547,7 @@ __all__ = [
     "State",
     "SymplecticEuler",
     "ThetaMethod",
+    "explicit_step_limit",
     "genalpha_coefficients",
     "make_integrator",
     "simulate",

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from physar.errors import ConfigError
-from physar.fem import factorize, point_load
+from physar.fem import check_constraints, dof_indices, factorize, point_load
 from physar.geometry.path import as_path, path_length, path_point
 from physar.rom._threads import blas_single_threaded
 from physar.rom.pgd import pgd_linear
@@ -58,6 +58,7 @@ def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radi
     (the check points are then random (s, t)); ``group_parameters`` is its ``grouped`` (space separated from
     (s, t) together, ``max_modes`` then counts spatial modes).
     """
+    fixed = _checked_inputs(model, fixed, points, load)
     if offset_range is not None:
         return _build_patch_load_pgd(model, fixed, path, points, load, radius, max_modes, tol,
                                      magnitude_range, n_check, progress, seed, offset_range, offset_dir,
@@ -108,6 +109,20 @@ def build_moving_load_pgd(model, fixed, path, points=60, load=(0, 0, -1.0), radi
     if r is not None:
         out.metadata["svd_rank"] = info["svd_rank"] = r
     return out, info
+
+
+def _checked_inputs(model, fixed, points, load) -> np.ndarray:
+    """`fixed` as dof indices, after the checks a solve would make (supports, load, grid): the PGD of a singular
+    K or of a zero load would otherwise run and return meaningless modes."""
+    fixed = dof_indices(fixed, model.n_dofs)
+    check_constraints(model.space.nodes, fixed)
+    whole = isinstance(points, (int, np.integer, float, np.floating)) and float(points).is_integer()
+    if isinstance(points, (bool, np.bool_)) or not whole or points < 2:
+        raise ConfigError(f"points (grid positions along the load path) must be an integer >= 2, got {points!r}")
+    f = np.asarray(load, dtype=float)
+    if f.shape != (3,) or not np.all(np.isfinite(f)) or not np.any(f):
+        raise ConfigError(f"load must be a finite, non-zero force vector (fx, fy, fz) [N], got {load!r}")
+    return fixed
 
 
 def _checker(Uc, mus):
