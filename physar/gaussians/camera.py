@@ -18,7 +18,12 @@ from physar.errors import PhysarError
 
 @dataclass(frozen=True)
 class Camera:
-    """Pinhole camera: intrinsics fx, fy, cx, cy (px), image size, world-to-camera rotation R and t (m)."""
+    """Pinhole camera: intrinsics fx, fy, cx, cy (px), image size, world-to-camera rotation R and t (m).
+
+    Pixel convention: pixel (i, j) covers [i, i + 1) x [j, j + 1), its centre at (i + 0.5, j + 0.5) (gsplat's
+    and OpenGL's), so an image's centre is (width / 2, height / 2). OpenCV (and :class:`physar.vision.Camera`,
+    ``physar calibrate``) puts pixel centres at integers: from an OpenCV K use ``cx = cx_cv + 0.5``,
+    ``cy = cy_cv + 0.5`` (``physar recon import`` does so)."""
 
     fx: float
     fy: float

@@ -28,33 +28,78 @@ def mat3(X: np.ndarray, M: np.ndarray) -> np.ndarray:
     return X[:, :1] * M[:, 0] + X[:, 1:2] * M[:, 1] + X[:, 2:3] * M[:, 2]
 
 
+ROTATION_TOL = 1e-5
+r"""Largest :math:`\max |R^\top R - I|` a :class:`Pose` accepts: float32 rotations (round-off ~1e-7) pass, a
+scaled matrix does not (a scale of 1 + e moves a pixel 700 px from the principal point by ~350 e px). Vision is
+below recon in the layers, so ``physar.recon.scene.ROTATION_TOL`` (1e-2, for float32 skeleton poses) could
+import this name, or keep its own more lenient value."""
+
+
+def _finite_vector(v, n: int, name: str) -> np.ndarray:
+    """``v`` as a float array of ``n`` finite values, or ConfigError naming ``name`` and the value."""
+    try:
+        a = np.asarray(v, float)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name} must be {n} numbers, got {v!r}") from None
+    if a.size != n:
+        raise ConfigError(f"{name} must have {n} values, got shape {a.shape}")
+    a = a.reshape(n)
+    if not math.isfinite(sum(a.tolist())):  # NaN or inf in any value (Python floats: cheap for n <= 9)
+        raise ConfigError(f"{name} must be finite, got {a.tolist()}")
+    return a
+
+
+def _rotation_error(R: np.ndarray) -> tuple[float, float]:
+    r""":math:`\max |R^\top R - I|` and :math:`\det R` of one (3, 3) matrix (a rotation: 0 and +1); scalar
+    arithmetic, as a Pose is built in inner loops where NumPy's per-call overhead would dominate."""
+    a, b, c, d, e, f, g, h, i = R.ravel().tolist()
+    cols = ((a, d, g), (b, e, h), (c, f, i))
+    err = max(abs(sum(u * v for u, v in zip(cols[j], cols[k])) - (j == k)) for j in range(3) for k in range(j, 3))
+    return err, a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+
+
 @dataclass(frozen=True)
 class Pose:
-    """Rigid transform world -> camera: :math:`x_c = R x_w + t` (R (3, 3) rotation, t (3,) in m)."""
+    """Rigid transform world -> camera: :math:`x_c = R x_w + t` (R (3, 3) rotation, t (3,) in m).
+
+    R must be orthonormal with det +1 (:data:`ROTATION_TOL`) and both finite; anything else (a scaled
+    matrix, a reflection, NaN) is refused with a ConfigError naming the field."""
 
     R: np.ndarray
     t: np.ndarray
 
     def __post_init__(self):
-        R = np.asarray(self.R, float).reshape(3, 3)
-        t = np.asarray(self.t, float).reshape(3)
+        R = _finite_vector(self.R, 9, "Pose: R").reshape(3, 3)
+        t = _finite_vector(self.t, 3, "Pose: t")
+        err, det = _rotation_error(R)
+        if err > ROTATION_TOL or det < 0:
+            raise ConfigError(f"Pose: R is not a rotation matrix (|R^T R - I| = {err:.3g}, det {det:.3g}; "
+                              f"expected orthonormal with det +1), got {np.round(R, 6).tolist()}")
         object.__setattr__(self, "R", R)
         object.__setattr__(self, "t", t)
 
     @classmethod
     def from_rvec(cls, rvec, tvec) -> Pose:
-        R, _ = cv2.Rodrigues(np.asarray(rvec, float).reshape(3, 1))
-        return cls(R, np.asarray(tvec, float).reshape(3))
+        """Pose of an OpenCV rotation vector (axis * angle, rad) and translation (m)."""
+        R, _ = cv2.Rodrigues(_finite_vector(rvec, 3, "Pose.from_rvec: rvec").reshape(3, 1))
+        return cls(R, _finite_vector(tvec, 3, "Pose.from_rvec: tvec"))
 
     @classmethod
     def look_at(cls, eye, target, up=(0.0, 0.0, 1.0)) -> Pose:
-        """Camera at `eye` looking at `target` with world `up` pointing up in the image."""
-        eye, target, up = (np.asarray(v, float) for v in (eye, target, up))
+        """Camera at `eye` looking at `target` with world `up` pointing up in the image; refuses eye == target
+        and an `up` parallel to the viewing direction (no unique pose)."""
+        eye, target, up = (_finite_vector(v, 3, f"Pose.look_at: {n}")
+                           for v, n in ((eye, "eye"), (target, "target"), (up, "up")))
         z = target - eye
+        if np.linalg.norm(z) == 0:
+            raise ConfigError(f"Pose.look_at: eye and target coincide ({eye.tolist()}): no viewing direction")
+        if np.linalg.norm(up) == 0:
+            raise ConfigError("Pose.look_at: up must be a non-zero vector, got [0, 0, 0]")
         z /= np.linalg.norm(z)
-        x = np.cross(z, up)
+        x = np.cross(z, up / np.linalg.norm(up))
         if np.linalg.norm(x) < 1e-12:
-            raise ConfigError("look_at: viewing direction is parallel to up")
+            raise ConfigError(f"Pose.look_at: viewing direction {np.round(z, 6).tolist()} is parallel to up "
+                              f"{up.tolist()}: choose another up")
         x /= np.linalg.norm(x)
         y = np.cross(z, x)
         R = np.stack([x, y, z])
@@ -97,7 +142,8 @@ class Pose:
 
 @dataclass(frozen=True)
 class Camera:
-    """Intrinsics K (3, 3) [px], distortion coefficients (OpenCV order), image size (width, height) [px]."""
+    """Intrinsics K (3, 3) [px] = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (OpenCV's model: no skew), distortion
+    coefficients (OpenCV order), image size (width, height) [px]."""
 
     K: np.ndarray
     dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
@@ -114,8 +160,11 @@ class Camera:
         if not (np.all(np.isfinite(K)) and np.all(np.isfinite(d))):
             raise ConfigError("camera matrix/distortion contain NaN or inf")
         if K[0, 0] <= 0 or K[1, 1] <= 0 or abs(K[2, 2] - 1) > 1e-9 or np.any(K[1:, 0] != 0) or K[2, 1] != 0:
-            raise ConfigError(f"camera matrix must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, "
+            raise ConfigError(f"camera matrix must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, "
                               f"got {K.tolist()}")
+        if K[0, 1] != 0:  # cv2.projectPoints/solvePnP/undistortPoints would silently drop it
+            raise ConfigError(f"camera matrix skew K[0, 1] must be 0 (OpenCV's camera model, which projection, "
+                              f"pose estimation and undistortion use, has none), got {float(K[0, 1])!r}")
         if int(self.width) <= 0 or int(self.height) <= 0:
             raise ConfigError(f"image size must be positive, got {self.width}x{self.height}")
         object.__setattr__(self, "K", K)
@@ -126,6 +175,14 @@ class Camera:
     # --- construction / conversion ---------------------------------------------------------------
     @classmethod
     def from_fov(cls, width: int, height: int, hfov_deg: float, dist=None) -> Camera:
+        r"""Camera of horizontal field of view ``hfov_deg`` in (0, 180) degrees, square pixels, principal point at
+        the image centre: :math:`f = (w / 2) / \tan(\mathrm{hfov} / 2)` px."""
+        for name, v in (("width", width), ("height", height)):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
+                raise ConfigError(f"Camera.from_fov: {name} must be a positive integer (px), got {v!r}")
+        if isinstance(hfov_deg, bool) or not isinstance(hfov_deg, (int, float, np.number)) \
+                or not 0 < hfov_deg < 180:
+            raise ConfigError(f"Camera.from_fov: hfov_deg must be in (0, 180) degrees, got {hfov_deg!r}")
         f = 0.5 * width / math.tan(math.radians(hfov_deg) / 2)
         K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])
         return cls(K, np.zeros(5) if dist is None else dist, width, height)
@@ -200,14 +257,28 @@ class Camera:
 
     # --- geometry ---------------------------------------------------------------------------------
     def project(self, X, pose: Pose) -> np.ndarray:
-        r"""Pixels (n, 2) of world points X (n, 3): :math:`p = \operatorname{distort}(K [R|t] X)`."""
-        X = np.asarray(X, float).reshape(-1, 3)
+        r"""Pixels (n, 2) of world points X (..., 3): :math:`p = \operatorname{distort}(K [R|t] X)`.
+
+        The last axis of X must be 3 (one point per row; a transposed (3, n) array is refused). A point at depth
+        :math:`z_c \le 0` (behind the camera or in its centre plane) has no image: its row is NaN, where
+        ``cv2.projectPoints`` would return a mirrored pixel that may well lie inside the image. Test
+        ``np.isfinite(p).all(1)`` before drawing or fitting with the result."""
+        X = np.asarray(X, float)
+        if X.ndim == 0 or X.shape[-1] != 3:
+            raise ConfigError(f"project: X must have shape (n, 3) (points in rows), got shape {X.shape}")
+        if not isinstance(pose, Pose):
+            raise ConfigError(f"project: pose must be a Pose, got {type(pose).__name__}")
+        X = X.reshape(-1, 3)
         if not np.any(self.dist):
             Xc = mat3(X, pose.R) + pose.t
-            uv = Xc[:, :2] / Xc[:, 2:3]
+            uv = Xc[:, :2] / np.where(Xc[:, 2:3] > 0, Xc[:, 2:3], np.nan)  # NaN behind, no warning
             return uv[:, :1] * self.K[:2, 0] + uv[:, 1:] * self.K[:2, 1] + self.K[:2, 2]
+        if not len(X):
+            return np.zeros((0, 2))
         p, _ = cv2.projectPoints(X, pose.rvec, pose.t, self.K, self.dist)
-        return p.reshape(-1, 2)
+        p = p.reshape(-1, 2)
+        p[X @ pose.R[2] + pose.t[2] <= 0] = np.nan
+        return p
 
     def normalized(self, pixels) -> np.ndarray:
         """Undistorted normalised image coordinates (n, 2) of pixels (n, 2)."""

@@ -509,8 +509,10 @@ class MarkerTracker:
             pose, err = best
             if pred is not None and self._missed == 0:
                 # gate: a jump larger than gate_px at the markers is an outlier unless the full search agrees
+                # (a corner behind the camera in either pose projects to NaN: that is a jump, not a NaN gain)
                 d = np.abs(self.camera.project(self.board.corners.reshape(-1, 3), pose)
-                           - self.camera.project(self.board.corners.reshape(-1, 3), pred)).max()
+                           - self.camera.project(self.board.corners.reshape(-1, 3), pred))
+                d = float(d.max()) if np.isfinite(d).all() else np.inf
                 a = float(np.clip(d / (3 * self.noise_px), self.alpha, 1.0))
             else:
                 a = 1.0
