@@ -1,8 +1,9 @@
 """The layer rule of ARCHITECTURE.md: data flows one way, a layer imports only the layers before it.
 
 geometry -> fem -> (integrators | rom) -> assimilation -> vision/ar, and
-geometry -> mpm -> gaussians/skinning -> recon. The CLI may import everything; `errors` and `output` (the one
-module that writes files: destination checks, atomic writes, signals) are shared.
+geometry -> mpm -> gaussians/skinning -> recon. The CLI may import everything; `errors`, `output` (the one
+module that writes files: destination checks, atomic writes, signals) and `media` (the one video decoder) are
+shared, and import no layer.
 """
 import ast
 from pathlib import Path
@@ -10,6 +11,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1] / "physar"
+SHARED = {"errors", "output", "media"}
 
 ALLOWED = {
     "geometry": set(),
@@ -32,6 +34,8 @@ def _physar_imports(path: Path):
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module == "physar":
+            names = [f"physar.{a.name}" for a in node.names]  # from physar import media
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
             names = [node.module]
         else:
@@ -57,5 +61,18 @@ def test_every_subpackage_has_a_layer():
 def test_layer_imports_only_earlier_layers(layer, path):
     bad = [f"{path.relative_to(ROOT.parent)}:{line} imports physar.{dep}"
            for dep, line in _physar_imports(path)
-           if dep not in ALLOWED[layer] | {layer, "errors", "output"}]
+           if dep not in ALLOWED[layer] | {layer} | SHARED]
     assert not bad, "layer rule broken (ARCHITECTURE.md): " + "; ".join(bad)
+
+
+@pytest.mark.parametrize("name", sorted(SHARED))
+def test_shared_modules_import_no_layer(name):
+    bad = [f"physar/{name}.py:{line} imports physar.{dep}"
+           for dep, line in _physar_imports(ROOT / f"{name}.py") if dep not in SHARED]
+    assert not bad, "a shared module depends on a layer: " + "; ".join(bad)
+
+
+def test_from_physar_import_form_is_seen(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text("from physar import recon\nimport physar.fem.solvers\nfrom physar.vision import camera\n")
+    assert sorted(d for d, _ in _physar_imports(f)) == ["fem", "recon", "vision"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
 import cv2
@@ -47,10 +47,15 @@ def run_video(process: Callable, camera, source, out_video=None, out_csv=None, f
     the MP4 closed (playable), the CSV holds one row per processed frame and both are renamed; the summary
     then has ``interrupted``: True and ``signal`` (its name). A second signal aborts (KeyboardInterrupt, no
     outputs); a signal before the first frame raises KeyboardInterrupt with nothing written. Outputs:
-    ``out_video`` (H.264 at ``fps``, default the source's, libx264 ``crf``/``preset``/``encoder_threads``,
+    ``out_video`` (H.264 at ``fps``, default the source's; a file's frames are stored at their own timestamps,
+    so a variable-frame-rate clip keeps its timing and duration; libx264 ``crf``/``preset``/``encoder_threads``,
     ``convert`` as in :class:`physar.ar.video.VideoWriter`, also used to open a path source) and ``out_csv``
-    (columns frame, time_s, status, then ``csv_header``; a row per frame: k, k / fps, status, then
-    ``csv_row(result)``; for a live source time_s is its timestamp relative to the first frame's).
+    (columns frame, time_s, status, then ``csv_header``; a row per frame: k, t_k, status, then
+    ``csv_row(result)``; t_k is the frame's timestamp (``source.last_time``: the presentation time of a file,
+    so that a variable-frame-rate clip is timed right; the capture time of a live source) relative to the
+    first frame's, or k / fps for a source without timestamps). A source that fails mid-way (a frame of
+    another size: :class:`physar.media.VideoChanged`, a frame that does not decode) stops the loop like a
+    signal: the outputs of the frames before it are kept, then its PhysarError is raised, with what was kept.
     ``time_io``: record in each result's stages_ms the wait for the frame ("decode")
     and for the writer ("encode"). Stops after ``max_frames`` frames; ``progress(done, total hint)``.
 
@@ -105,19 +110,23 @@ def _loop(process, camera, reader, source, out_video, out_csv, fps, crf, csv_hea
     from physar.ar.video import clip_outputs
 
     w, h = getattr(reader, "width", None), getattr(reader, "height", None)
+    name = getattr(reader, "path", None) or getattr(reader, "name", None) or source
     if (w, h) != (None, None) and (w, h) != camera.size:
-        raise ConfigError(f"video is {w}x{h} but the camera is for {camera.width}x{camera.height}")
+        turned = f" as displayed (stored turned {reader.rotation} deg)" if getattr(reader, "rotation", 0) else ""
+        raise ConfigError(f"{name}: video is {w}x{h}{turned} but the camera is for {camera.width}x{camera.height}")
     live = bool(getattr(reader, "live", False))
     fps = fps or getattr(reader, "fps", 30.0)
     total = getattr(reader, "frames_hint", 0)
     sample = _Sample(keep_results, stats_sample)
     counts: dict[str, int] = {}
     t_first = None
+    failed: list[PhysarError] = []
     with guard_cm as guard, clip_outputs(out_video, out_csv, camera.size, fps, ["frame", "time_s", "status", *csv_header], crf=crf,
-                      preset=preset, threaded=True, threads=encoder_threads, convert=convert) as (writer, rows):
+                      preset=preset, threaded=True, threads=encoder_threads, convert=convert,
+                      timestamps=not live and hasattr(reader, "last_time")) as (writer, rows):
         t_start, cpu_start = time.perf_counter(), time.process_time()
         t_prev = t_start
-        for k, item in enumerate(frames(reader) if frames else reader):
+        for k, item in enumerate(_until_failure(frames(reader) if frames else reader, failed)):
             if max_frames is not None and k >= max_frames:
                 break
             if guard is not None and guard.stopped:  # the signal came while waiting for this frame
@@ -135,8 +144,12 @@ def _loop(process, camera, reader, source, out_video, out_csv, fps, crf, csv_hea
                     img = _saving(img, snap)
                 else:
                     cv2.imwrite(str(snap), img)
+            t_src = getattr(reader, "last_time", None)
+            if t_src is not None and t_first is None:
+                t_first = t_src
+            t_k = t_src - t_first if t_src is not None else k / fps
             if writer is not None:
-                writer.write(img)
+                writer.write(img, t_k)
             t_prev = time.perf_counter()
             if time_io:
                 r.stages_ms["encode"] = (t_prev - t_out) * 1e3  # waiting for the encoder queue
@@ -144,10 +157,6 @@ def _loop(process, camera, reader, source, out_video, out_csv, fps, crf, csv_hea
             status = getattr(r, "status", None)
             if status is not None:
                 counts[status] = counts.get(status, 0) + 1
-            t_src = getattr(reader, "last_time", None) if live else None
-            if t_src is not None and t_first is None:
-                t_first = t_src
-            t_k = t_src - t_first if t_src is not None else k / fps
             if rows:
                 rows.writerow([k, f"{t_k:.4f}", r.status, *(csv_row(r) if csv_row else ())])
             if progress:
@@ -155,6 +164,8 @@ def _loop(process, camera, reader, source, out_video, out_csv, fps, crf, csv_hea
             if guard is not None and guard.stopped:
                 break
         interrupted = guard is not None and guard.stopped
+        if failed and not sample.n:
+            raise failed[0]
         if not sample.n:
             if interrupted:
                 raise KeyboardInterrupt(f"{guard.name} before the first frame of {source}; nothing written")
@@ -162,6 +173,10 @@ def _loop(process, camera, reader, source, out_video, out_csv, fps, crf, csv_hea
         if writer is not None:
             writer.close()
         wall, cpu_s = time.perf_counter() - t_start, time.process_time() - cpu_start
+    if failed:
+        kept = [str(p) for p in (out_video, out_csv) if p]
+        raise type(failed[0])(f"{failed[0]}; stopped after {sample.n} frames"
+                              + (f" (kept for them: {', '.join(kept)})" if kept else ""))
     results, n = sample.items, sample.n
     lat = np.array([r.latency_ms for r in results])
     names = stage_names if stage_names is not None else sorted({s for r in results for s in r.stages_ms})
@@ -182,6 +197,21 @@ def _loop(process, camera, reader, source, out_video, out_csv, fps, crf, csv_hea
     else:
         summary["stats_sample"] = len(results)
     return summary
+
+
+def _until_failure(items: Iterable, failed: list) -> Iterator:
+    """``items`` until the iteration raises a PhysarError (a source failing mid-way), which is appended to
+    ``failed`` instead of propagating, so that the loop can close its outputs on what was done."""
+    it = iter(items)
+    while True:
+        try:
+            item = next(it)
+        except StopIteration:
+            return
+        except PhysarError as e:
+            failed.append(e)
+            return
+        yield item
 
 
 def pipeline_stats(summary: dict) -> dict:

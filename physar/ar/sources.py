@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from physar import media
 from physar.errors import ConfigError, PhysarError
 from physar.output import stop_requested
 
@@ -145,19 +146,22 @@ class LiveSource:
         self.close()
 
 
-def _frames_of(container, stream, convert: str) -> Iterator:
-    from physar.ar.video import _to_bgr
-
-    for f in container.decode(stream):
-        yield (*_to_bgr(f, convert), f.time)
+def _frames_of(frames: Iterator, convert: str) -> Iterator:
+    """(BGR, luma, time s) of the checked frames (displayed orientation; the first frame already taken)."""
+    for f in frames:
+        yield (*media.to_bgr(f, convert), f.time)
 
 
 def _open_av(spec: str, what: str, timeout: float, options: dict | None):
     """(container, stream, first decoded frame) of ``spec``; PhysarError naming it on failure."""
     import av
 
+    waited = (av.ExitError, TimeoutError)  # PyAV's interrupt callback ended a read after ``timeout`` s
     try:
         c = av.open(spec, options=dict(options or {}), timeout=(timeout, timeout))
+    except waited:
+        raise PhysarError(f"{spec}: cannot open {what}: nothing arrived within the {timeout:g} s timeout (is the "
+                          "sender running, sending to this address and port?)") from None
     except (av.FFmpegError, OSError, ValueError) as e:
         raise PhysarError(f"{spec}: cannot open {what} ({type(e).__name__}: {e})") from None
     try:
@@ -172,6 +176,9 @@ def _open_av(spec: str, what: str, timeout: float, options: dict | None):
     except StopIteration:
         c.close()
         raise PhysarError(f"{spec}: the {what} ended before its first frame") from None
+    except waited:
+        c.close()
+        raise PhysarError(f"{spec}: no frame of the {what} arrived within the {timeout:g} s timeout") from None
     except (av.FFmpegError, OSError, ValueError) as e:
         c.close()
         raise PhysarError(f"{spec}: cannot decode the {what} ({type(e).__name__}: {e})") from None
@@ -199,18 +206,21 @@ def open_stream(url: str, *, convert: str = "opencv", live: bool = True, timeout
     """A :class:`LiveSource` of an FFmpeg URL (or, with ``live=True``, a file replayed at its frame rate).
 
     ``timeout`` (s) bounds opening and each read (PyAV's interrupt callback), so a URL that does not answer
-    fails within it with a PhysarError naming the URL; ``options``: FFmpeg format/protocol options."""
-    from physar.ar.video import _to_bgr
-
+    fails within it with a PhysarError naming the URL; ``options``: FFmpeg format/protocol options. Frames are
+    in their displayed orientation (:mod:`physar.media`); a frame of another size than the first ends the
+    source (``ended_by`` says which frame and both sizes)."""
     c, s, first = _open_av(url, "stream", timeout, options)
     rate = s.average_rate or s.guessed_rate
     fps = float(rate) if rate else 30.0
-    frames = _frames_of(c, s, convert)
+    checked = media.Checked(c.decode(s), url, "stream", first=first)
+    it = iter(checked)
+    next(it)  # the first frame: the size the others are checked against
+    frames = _frames_of(it, convert)
     holder: dict = {}
     if not is_url(url):
         frames = _paced(frames, lambda: "src" in holder and holder["src"]._stop.is_set())  # set once built
-    src = LiveSource(frames, width=first.width, height=first.height, fps=fps, name=url, latest=live,
-                     first=(*_to_bgr(first, convert), first.time), on_close=c.close)
+    src = LiveSource(frames, width=checked.size[0], height=checked.size[1], fps=fps, name=url, latest=live,
+                     first=(*media.to_bgr(first, convert), first.time), on_close=c.close)
     holder["src"] = src
     return src
 

@@ -1,16 +1,20 @@
 """Video input/output: PyAV (FFmpeg) H.264 in yuv420p (plays in browsers), live cameras via OpenCV,
-background threads so that decoding and encoding overlap computing, atomic output files."""
+background threads so that decoding and encoding overlap computing, atomic output files. Decoding goes through
+:mod:`physar.media`: frames in their displayed orientation (a phone's portrait clip is portrait), each frame's
+size checked, a truncated file reported."""
 from __future__ import annotations
 
 import contextlib
 import queue
 import threading
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
-from physar.errors import PhysarError
+from physar import media
+from physar.errors import PhysarError, PhysarWarning
 from physar.output import atomic_path  # moved to physar.output; re-exported for its users
 
 
@@ -28,7 +32,8 @@ def clip_outputs(video, table, size: tuple[int, int], fps: float, header: Sequen
     with contextlib.ExitStack() as stack:
         vtmp = stack.enter_context(atomic_path(video)) if video else None
         ctmp = stack.enter_context(atomic_path(table)) if table else None
-        writer = stack.enter_context(VideoWriter(vtmp, *size, fps, **writer_options)) if vtmp else None
+        writer = (stack.enter_context(VideoWriter(vtmp, *size, fps, name=str(video), **writer_options)) if vtmp
+                  else None)
         rows = csv.writer(stack.enter_context(open(ctmp, "w", newline="", buffering=1))) if ctmp else None
         if rows is not None and header:
             rows.writerow(header)
@@ -60,13 +65,23 @@ def write_clip(out_dir, video_name: str, camera, fps: float, crf: int, header: l
 class VideoWriter:
     """H.264 (libx264, yuv420p) writer. ``threaded=True`` encodes in a background thread (bounded queue).
 
+    yuv420p stores colour at half resolution, so H.264 needs an even width and height: frames of an odd size
+    (a 641x479 camera) are padded by one column / row, replicating the last one (the video is then 642x480;
+    the frames given keep their size). ``name``: the path messages name (default ``path``; e.g. the final
+    path when ``path`` is a temporary).
+
+    ``timestamps=True``: each frame is stored at the time given to :meth:`write` (s from the first frame; a
+    variable-frame-rate source keeps its timing and duration), in a 1/90000 s time base; a frame without a time,
+    or not later than the previous one, gets the next tick. Else frame k is at k / ``fps``.
+
     ``threads``: libx264 threads (0: its default, 1.5 per core). ``convert``: BGR -> yuv420p by FFmpeg's
     swscale ("ffmpeg") or by ``cv2.cvtColor(COLOR_BGR2YUV_I420)`` ("opencv": BT.601 limited range like
     swscale, within one grey level of it, about a third of its CPU time here).
     """
 
     def __init__(self, path, width: int, height: int, fps: float, crf: int = 20, preset: str = "veryfast",
-                 threaded: bool = False, threads: int = 0, convert: str = "ffmpeg"):
+                 threaded: bool = False, threads: int = 0, convert: str = "ffmpeg", name: str | None = None,
+                 timestamps: bool = False):
         from fractions import Fraction
 
         import av
@@ -74,16 +89,22 @@ class VideoWriter:
         if convert not in ("ffmpeg", "opencv"):
             raise PhysarError(f"colour conversion must be 'ffmpeg' or 'opencv', got {convert!r}")
         self.convert = convert
-        if width % 2 or height % 2:
-            raise PhysarError(f"H.264 yuv420p needs an even frame size, got {width}x{height}")
         self.path = str(path)
+        self.name = str(name) if name is not None else self.path
+        if not (int(width) >= 1 and int(height) >= 1):
+            raise PhysarError(f"{self.name}: video frame size must be positive, got {width}x{height}")
+        self._pad = (int(width) % 2, int(height) % 2)  # columns, rows replicated to an even size
         self._c = av.open(self.path, "w", format="mp4")
         rate = Fraction(fps).limit_denominator(1001)
         self._s = self._c.add_stream("libx264", rate=rate)
-        self._s.width, self._s.height, self._s.pix_fmt = width, height, "yuv420p"
+        self._s.width, self._s.height, self._s.pix_fmt = width + self._pad[0], height + self._pad[1], "yuv420p"
         self._s.options = {"preset": preset, "crf": str(int(crf))}
         if threads:
             self._s.codec_context.thread_count = int(threads)
+        self._tb = Fraction(1, 90000) if timestamps else None
+        if self._tb is not None:
+            self._s.codec_context.time_base = self._tb
+        self._fps, self._pts = float(fps), -1
         self.size = (width, height)
         self.frames = 0
         self._q = queue.Queue(maxsize=16) if threaded else None
@@ -93,40 +114,50 @@ class VideoWriter:
             self._thread = threading.Thread(target=self._run, daemon=True)
             self._thread.start()
 
-    def _encode(self, img):
+    def _encode(self, img, t=None):
         import av
 
+        if any(self._pad):
+            import cv2
+
+            img = cv2.copyMakeBorder(img, 0, self._pad[1], 0, self._pad[0], cv2.BORDER_REPLICATE)
         if self.convert == "opencv":
             import cv2
 
             f = av.VideoFrame.from_ndarray(cv2.cvtColor(img, cv2.COLOR_BGR2YUV_I420), format="yuv420p")
         else:
             f = av.VideoFrame.from_ndarray(img, format="bgr24")
+        if self._tb is not None:
+            pts = round(float(t) * 90000) if t is not None else self._pts + round(90000 / self._fps)
+            self._pts = f.pts = max(pts, self._pts + 1)
+            f.time_base = self._tb
         for p in self._s.encode(f):
             self._c.mux(p)
 
     def _run(self):
         while True:
-            img = self._q.get()
-            if img is None:
+            item = self._q.get()
+            if item is None:
                 return
+            img, t = item
             if self._err is None:
                 try:
                     if callable(img):  # deferred frame (e.g. an overlay to draw in this thread)
                         img = self._check(img())
-                    self._encode(img)
+                    self._encode(img, t)
                 except Exception as e:  # noqa: BLE001 - re-raised in the caller's thread
                     self._err = e
 
     def _check(self, img):
         if img.shape[:2] != (self.size[1], self.size[0]) or img.dtype != np.uint8:
-            raise PhysarError(f"frame of shape {img.shape} {img.dtype} does not match the video "
-                              f"{self.size[0]}x{self.size[1]} uint8")
+            raise PhysarError(f"{self.name}: frame {self.frames} of shape {img.shape} {img.dtype} does not match the "
+                              f"video's {self.size[0]}x{self.size[1]} uint8 (BGR)")
         return np.ascontiguousarray(img)
 
-    def write(self, img) -> None:
+    def write(self, img, t: float | None = None) -> None:
         """Queue a frame (BGR uint8) or, on a threaded writer, a callable returning one: it is called in the
-        encoder thread, so drawing can overlap the caller's next frame."""
+        encoder thread, so drawing can overlap the caller's next frame. ``t``: its time (s from the first
+        frame), used with ``timestamps=True``."""
         if self._err is not None:
             raise self._err
         if callable(img):
@@ -134,14 +165,14 @@ class VideoWriter:
                 img = img()
             else:
                 self.frames += 1
-                self._q.put(img)
+                self._q.put((img, t))
                 return
         img = self._check(img)
         self.frames += 1
         if self._q is not None:
-            self._q.put(img)
+            self._q.put((img, t))
         else:
-            self._encode(img)
+            self._encode(img, t)
 
     def close(self) -> None:
         if self._c is None:
@@ -186,39 +217,29 @@ def bits_per_pixel(path) -> tuple[float, float, int, int, float] | None:
     return rate / (w * h * fps), float(rate), w, h, fps
 
 
-def _to_bgr(frame, convert: str) -> tuple[np.ndarray, np.ndarray | None]:
-    """(BGR, luma) of a decoded frame. ``convert="opencv"`` converts 8-bit yuv420p with
-    ``cv2.cvtColor(COLOR_YUV2BGR_I420)`` (BT.601, about half the CPU time of FFmpeg's swscale here; values
-    within 3 grey levels of it), anything else with swscale."""
-    if convert == "opencv" and frame.format.name == "yuv420p" and frame.width % 2 == 0 and frame.height % 2 == 0:
-        import cv2
-
-        yuv = frame.to_ndarray()  # (3h/2, w): Y, then U and V
-        return cv2.cvtColor(yuv, cv2.COLOR_YUV2BGR_I420), yuv[:frame.height]
-    return frame.to_ndarray(format="bgr24"), _luma(frame)
-
-
-def _luma(frame) -> np.ndarray | None:
-    """The decoded frame's luma plane Y (h, w) uint8 when it is stored planar 8-bit YUV (a copy of the plane,
-    no colour conversion), else None."""
-    if frame.format.name not in ("yuv420p", "yuvj420p", "yuv422p", "yuvj422p", "yuv444p", "yuvj444p", "nv12"):
-        return None
-    p = frame.planes[0]
-    return np.frombuffer(p, np.uint8).reshape(p.height, p.line_size)[:, :frame.width].copy()
+_to_bgr = media.to_bgr  # moved to physar.media (frames in their displayed orientation); kept for its users
+_luma = media.luma
 
 
 class VideoReader:
-    """Frames (BGR uint8) of a video file; ``threaded=True`` decodes ahead in a background thread.
+    """Frames (BGR uint8) of a video file in their displayed orientation (:mod:`physar.media`: a rotated phone
+    clip comes out as it plays); ``threaded=True`` decodes ahead in a background thread.
 
     Iterating yields BGR frames; :meth:`frames_with_luma` yields (BGR, Y) pairs, Y being the decoder's own
     luma plane (h, w) (limited range, 16-235; None for non-YUV streams), so that grey-level work needs no
-    colour conversion.
+    colour conversion. ``width``, ``height``: the displayed size; ``rotation``: the display rotation applied
+    (degrees counter-clockwise); ``grey``: the stream holds grey levels only (no colour); ``duration``: the
+    header's duration (s) or None.
 
     ``last_time``: the presentation time (s) of the frame last yielded (None before the first, or when the
-    stream has no timestamps); ``live`` is False and ``dropped`` 0 (a file is read frame by frame; see
-    :func:`physar.ar.sources.open_source` for live sources with the same interface).
+    stream has no timestamps: variable frame rate clips are timed by it); ``live`` is False and ``dropped`` 0
+    (a file is read frame by frame; see :func:`physar.ar.sources.open_source` for live sources with the same
+    interface).
 
-    Raises PhysarError for a missing, empty or undecodable file (checked on open: the first frame is decoded).
+    Raises PhysarError for a missing, empty or undecodable file (checked on open: the first frame is decoded);
+    while iterating, :class:`physar.media.VideoChanged` at a frame whose size differs from the first's (the
+    frames before it were yielded), PhysarError naming the frame when decoding fails; a file that ends
+    clearly before its header's duration gives a PhysarWarning (truncated?).
     """
 
     live = False
@@ -244,18 +265,24 @@ class VideoReader:
                 raise PhysarError(f"{path}: no video stream in the file")
             self._s = streams[0]
             self._s.thread_type = "AUTO"
-            self._it = self._c.decode(self._s)
-            first = next(self._it)
+            dec = self._c.decode(self._s)
+            first = next(dec)
         except PhysarError:
             raise
         except StopIteration:
             raise PhysarError(f"{path}: the video has no decodable frame") from None
         except (av.FFmpegError, OSError, ValueError) as e:  # av.error.InvalidDataError and friends
             raise PhysarError(f"{path}: cannot decode video ({type(e).__name__}: {e})") from None
-        self.width, self.height = first.width, first.height
+        self._frames = media.Checked(dec, self.path, first=first)
+        self._it = iter(self._frames)
+        next(self._it)  # the first frame: sets the size the others are checked against
+        self.width, self.height = self._frames.size
+        self.rotation = self._frames.rotation
+        self.grey = first.format.name.startswith("gray")
         rate = self._s.average_rate or self._s.guessed_rate
         self.fps = float(rate) if rate else 30.0
         self.frames_hint = int(self._s.frames or 0)
+        self.duration = media.duration_of(self._c, self._s)
         self._first = (*_to_bgr(first, convert), first.time)
         self.last_time = None
         self._q = queue.Queue(maxsize=prefetch) if threaded else None
@@ -280,6 +307,9 @@ class VideoReader:
                 self._q.put(img)
                 if img is None:
                     return
+        except PhysarError as e:  # a size change, a frame that does not decode: named already
+            self._err = e
+            self._q.put(None)
         except Exception as e:  # noqa: BLE001 - re-raised in the consumer's thread
             self._err = PhysarError(f"{self.path}: decoding failed ({type(e).__name__}: {e})")
             self._q.put(None)
@@ -301,6 +331,9 @@ class VideoReader:
         if self._err is not None:
             raise self._err
         self._c.close()
+        short = media.shortfall(self._frames, self.duration, self.fps)
+        if short:
+            warnings.warn(short, PhysarWarning, stacklevel=2)
 
     def close(self):
         """Stop the decoding thread (it may be blocked on the full prefetch queue: drained here), then close

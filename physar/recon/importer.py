@@ -105,8 +105,9 @@ import cv2
 import numpy as np
 import torch
 
+from physar import media
 from physar.errors import ConfigError, PhysarError, PhysarWarning
-from physar.output import atomic_folder, check_folder, own_names
+from physar.output import atomic_folder, check_folder, check_memory, own_names
 from physar.recon import scene as S
 from physar.recon.io import imread
 from physar.skinning import (
@@ -180,17 +181,72 @@ def source_indices(n_src: int, src_fps: float, fps: float | None) -> np.ndarray:
     return np.minimum(np.round(k * src_fps / fps).astype(np.int64), n_src - 1)
 
 
-def read_video(path: str | Path, fps: float | None = None, prepare=None) -> tuple[list, float, int, tuple[int, int]]:
-    """Decode a video PyAV reads, keeping only the source frames that the output rate ``fps`` uses
-    (:func:`source_indices`), each passed through ``prepare(W, H)(frame)`` (built on the first frame; default:
-    unchanged RGB uint8), so that memory holds the output frames, not the whole video. Returns (kept frames,
-    source frame rate, source frame count, source size (W, H))."""
+#: frame intervals spreading more than this fraction of their median make a clip variable-frame-rate
+VFR_SPREAD = 0.1
+
+
+def nearest_indices(times: np.ndarray, fps: float) -> np.ndarray:
+    r"""Source frames of the output frames of a variable-frame-rate clip: for each output time
+    :math:`\tau_k = t_0 + k/f \le t_\text{last}`, the index of the source frame whose presentation time
+    :math:`t_i` (s, increasing) is nearest (the earlier one on a tie)."""
+    t = np.asarray(times, dtype=np.float64)
+    tau = t[0] + np.arange(math.floor((t[-1] - t[0]) * fps + 1e-9) + 1) / fps
+    j = np.clip(np.searchsorted(t, tau), 1, len(t) - 1)
+    return np.where(tau - t[j - 1] <= t[j] - tau, j - 1, j)
+
+
+def _packet_times(path: Path) -> np.ndarray | None:
+    """Presentation times (s, sorted) of the video packets of ``path`` (demuxed, not decoded: a pass over the
+    file's bytes); None when a packet has no timestamp."""
+    import av
+
+    pts = []
+    with av.open(str(path)) as c:
+        st = c.streams.video[0]
+        for pkt in c.demux(st):
+            if pkt.size == 0:  # the demuxer's flush packet
+                continue
+            if pkt.pts is None:
+                return None
+            pts.append(pkt.pts)
+        tb = st.time_base
+    return np.sort(np.asarray(pts, dtype=np.float64)) * float(tb) if pts and tb else None
+
+
+@dataclass
+class VideoClip:
+    """What :func:`read_video` keeps: ``frames`` (one per output frame, prepared; a source frame used twice is
+    the same object), ``fps`` (source rate: the stream's, or for a variable-frame-rate clip its mean rate
+    :math:`(n-1)/(t_\text{last}-t_0)`), ``n_src`` (source frames), ``size`` (displayed (W, H) px),
+    ``indices`` (the source frame of each output frame), ``out_fps`` (the output rate), ``variable`` (VFR)."""
+
+    frames: list
+    fps: float
+    n_src: int
+    size: tuple[int, int]
+    indices: np.ndarray
+    out_fps: float
+    variable: bool = False
+
+
+def read_video(path: str | Path, fps: float | None = None, prepare=None, budget=None) -> VideoClip:
+    """Decode a video PyAV reads, in its displayed orientation (:mod:`physar.media`: a phone's rotated clip as it
+    plays), keeping only the source frames that the output rate ``fps`` uses, each passed through
+    ``prepare(W, H)(frame)`` (built on the first frame, W x H the displayed size; default: unchanged RGB uint8),
+    so that memory holds the output frames, not the whole video. ``budget(n)`` is called with the number of
+    frames to keep once ``prepare`` is built, before any is kept (e.g. to refuse a job too large for memory).
+
+    The clip's timestamps are read first (demuxing, no decoding). A constant-rate clip keeps the frames
+    :func:`source_indices` picks (all without ``fps``); a variable-frame-rate one (frame intervals spreading
+    more than :data:`VFR_SPREAD` of their median: phones record so) is resampled by timestamp,
+    :func:`nearest_indices`, at ``fps`` or, without it, at its mean rate (a PhysarWarning says so). A frame
+    of another size than the first (:class:`physar.media.VideoChanged`) is an error; a clip that ends clearly
+    before its header's duration a PhysarWarning (truncated?)."""
     import av
 
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: video not found")
-    kept, n, conv, size, fmt = [], 0, None, None, ""
     try:
         with av.open(str(path)) as c:
             fmt = c.format.name
@@ -204,17 +260,55 @@ def read_video(path: str | Path, fps: float | None = None, prepare=None) -> tupl
             if rate is None or float(rate) <= 0:
                 raise ConfigError(f"{path}: the video has no frame rate")
             rate = float(rate)
-            if fps is not None and not (math.isfinite(fps) and 0 < fps <= rate * (1 + 1e-9)):
-                raise ConfigError(f"--fps {fps} must be in (0, {rate:g}] (the video's rate; frames are not invented)")
-            r = 1.0 if fps is None else rate / fps
-            for frame in c.decode(st):
-                img = frame.to_ndarray(format="rgb24")
+        times = _packet_times(path)
+    except av.FFmpegError as e:
+        raise ConfigError(f"{path}: not a video PyAV can read ({' '.join(str(e).split())[:100]})") from None
+    n_pkt = len(times) if times is not None else None
+    variable = False
+    if times is not None and n_pkt >= 3:
+        dt = np.diff(times)
+        med = float(np.median(dt))
+        variable = med > 0 and float(dt.max() - dt.min()) > VFR_SPREAD * med
+    if variable:
+        rate = (n_pkt - 1) / float(times[-1] - times[0])
+        if fps is None:
+            warnings.warn(f"{path}: variable frame rate (frame intervals {dt.min() * 1e3:.0f}-{dt.max() * 1e3:.0f} ms, "
+                          f"median {med * 1e3:.0f} ms): resampled by timestamp at its mean rate {rate:.4g} fps "
+                          "(set --fps to choose the rate)", PhysarWarning, stacklevel=2)
+    if fps is not None and not (math.isfinite(fps) and 0 < fps <= rate * (1 + 1e-9)):
+        what = "mean rate of this variable-rate video" if variable else "video's rate"
+        raise ConfigError(f"--fps {fps} must be in (0, {rate:.4g}] (the {what}; frames are not invented)")
+    out_fps = rate if fps is None else float(fps)
+    if variable:
+        want = nearest_indices(times, out_fps)
+        slots: dict[int, list[int]] = {}
+        for k, i in enumerate(want.tolist()):
+            slots.setdefault(i, []).append(k)
+        n_keep = len(want)
+    else:
+        r = 1.0 if fps is None else rate / fps
+        n_keep = len(source_indices(n_pkt, rate, fps)) if n_pkt else None
+    kept: list = [None] * n_keep if variable else []
+    n, conv, dur = 0, None, None
+    try:
+        with av.open(str(path)) as c:
+            st = c.streams.video[0]
+            dur = media.duration_of(c, st)
+            checked = media.Checked(c.decode(st), path)
+            for frame in checked:
                 if conv is None:
-                    size = (img.shape[1], img.shape[0])
-                    conv = prepare(*size) if prepare is not None else (lambda x: x)
-                k = round(n / r)
-                if any(round(j * r) == n for j in (k - 1, k, k + 1) if j >= 0):
-                    kept.append(conv(img))
+                    conv = prepare(*checked.size) if prepare is not None else (lambda x: x)
+                    if budget is not None and n_keep:
+                        budget(n_keep)
+                if variable:
+                    if n in slots:
+                        x = conv(media.to_rgb(frame))
+                        for k in slots[n]:
+                            kept[k] = x
+                else:
+                    k = round(n / r)
+                    if any(round(j * r) == n for j in (k - 1, k, k + 1) if j >= 0):
+                        kept.append(conv(media.to_rgb(frame)))
                 n += 1
     except av.FFmpegError as e:
         raise ConfigError(f"{path}: not a video PyAV can read ({' '.join(str(e).split())[:100]})") from None
@@ -222,7 +316,19 @@ def read_video(path: str | Path, fps: float | None = None, prepare=None) -> tupl
         raise ConfigError(f"{path}: the video has no frame")
     if n < 3:
         raise ConfigError(f"{path}: the video has {n} frame{'s' if n > 1 else ''}; a clip needs >= 3")
-    return kept, rate, n, size
+    short = media.shortfall(checked, dur, rate)
+    if short:
+        warnings.warn(short, PhysarWarning, stacklevel=2)
+    if variable:
+        if n != n_pkt:
+            raise ConfigError(f"{path}: decoded {n} frames of its {n_pkt} packets (damaged?); cannot resample it by "
+                              "timestamp")
+        idx = want
+    else:
+        idx = source_indices(n, rate, fps)
+        if len(kept) != len(idx):
+            raise ConfigError(f"{path}: kept {len(kept)} frames for {len(idx)} output frames (timestamps broken?)")
+    return VideoClip(kept, rate, n, checked.size, idx, out_fps, variable)
 
 
 def parse_size(size: str | None, width: int, height: int) -> tuple[int, int]:
@@ -755,18 +861,31 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
                 if dist.size and np.any(dist != 0) else None)
         geo.update(cam=cam, W=W, H=H, W0=W0, H0=H0, maps=maps)
 
-        def conv(img):
+        def conv(img):  # kept as uint8 (3 bytes a pixel): converted where the images are composed
             if maps is not None:
                 img = cv2.remap(img, *maps, cv2.INTER_LINEAR)
-            return _resize(img.astype(np.float32) / 255.0, W, H)
+            return _resize(img, W, H)
 
         return conv
 
-    frames, src_fps, n_src, _ = read_video(video, o.fps, prepare_frames)
-    fps = src_fps if o.fps is None else float(o.fps)
-    idx = source_indices(n_src, src_fps, o.fps)
-    if len(frames) != len(idx):  # read_video keeps the frames source_indices picks
-        raise ConfigError(f"{video}: kept {len(frames)} frames for {len(idx)} output frames (variable frame rate?)")
+    def budget(n_keep: int) -> None:
+        """Refuse before keeping anything when the kept frames and masks would not fit in memory."""
+        W, H, W0, H0 = geo["W"], geo["H"], geo["W0"], geo["H0"]
+        per = W * H * (3 + 2)  # RGB and two masks, uint8
+        # + the undistortion maps (two float32 planes) + transient buffers of a source frame (decoded RGB, its
+        # remapped copy, a label image: 16 bytes a source pixel, generously)
+        need = n_keep * per + (W0 * H0 * 8 if geo["maps"] is not None else 0) + 16 * W0 * H0
+        try:
+            check_memory(need, f"{video}: {n_keep} frames of {W}x{H} px")
+        except ConfigError as e:
+            from physar.output import available_memory
+
+            side = 16 * max(1, int(max(W, H) * math.sqrt(0.5 * available_memory() / need) // 16))
+            raise ConfigError(f"{e}; give a smaller --size (e.g. --size {side}: longer side in px) or a lower "
+                              "--fps") from None
+
+    clip = read_video(video, o.fps, prepare_frames, budget)
+    frames, src_fps, n_src, idx, fps = clip.frames, clip.fps, clip.n_src, clip.indices, clip.out_fps
     cam, W, H, W0, H0, maps = (geo[k] for k in ("cam", "W", "H", "W0", "H0", "maps"))
 
     def prepare_mask(p: Path, m: np.ndarray) -> np.ndarray:
@@ -777,7 +896,7 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
             m = cv2.resize(m, (W0, H0), interpolation=cv2.INTER_NEAREST)
         if maps is not None:
             m = cv2.remap(m, *maps, cv2.INTER_NEAREST)
-        return (_resize(m, W, H) >= 0.5).astype(np.float32)
+        return (_resize(m, W, H) >= 0.5).astype(np.uint8)  # {0, 1}
 
     wanted = set(idx.tolist())
     mfiles, mdict = read_masks(masks, o.person_labels, o.object_labels, o.ignore_labels,
@@ -854,19 +973,20 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
                 "walls": {**{k: "slip" for k in ("x_min", "x_max", "y_min", "y_max", "z_max")}, "z_min": o.floor},
                 "kp": 3.0e3, "kd": 110.0},
         "import": {"video": str(video), "source_fps": src_fps, "source_frames": n_src,
+                   "source_variable_rate": bool(clip.variable),
                    "source_size": [W0, H0], "source_indices": idx.tolist(), "masks": str(masks), "poses": str(poses),
                    "object_mesh": None if object_mesh is None else str(object_mesh),
                    "spin_cameras": None if spin_cameras is None else str(spin_cameras), "up_camera": [float(v) for v in o.up],
                    "spin_frames": int(o.spin_frames)},
     }
     # ---- images: the background outside the masks set to the renderer's constant colour
-    bg = np.asarray(o.background, dtype=np.float32)
-    rgbs, fgs = [], []
-    for k in range(n_out):
+    bg = (np.clip(np.asarray(o.background, dtype=np.float64), 0, 1) * 255 + 0.5).astype(np.uint8)
+
+    def composed(k: int) -> tuple[np.ndarray, np.ndarray]:  # (BGR, mask) uint8 of output frame k, made as written
         fg = mdict[midx[k]][0]
         rgb = np.where(fg[..., None] > 0, frames[k], bg)
-        rgbs.append((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8))
-        fgs.append((fg * 255).astype(np.uint8))
+        return cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), (fg > 0).astype(np.uint8) * 255
+
     sp = o.spin_frames if spin_cams is None else 0  # a moving camera's spin frames carve the hull, not written
     with atomic_folder(out, own=DATA_DIR_FILES) as tmp:
         (tmp / "scene.json").write_text(json.dumps(meta, indent=1))
@@ -877,8 +997,9 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
             (d / "rgb").mkdir(parents=True)
             (d / "mask").mkdir(parents=True)
             for f, k in enumerate(range(n_out)[sl]):
-                cv2.imwrite(str(d / "rgb" / f"{f:04d}.png"), cv2.cvtColor(rgbs[k], cv2.COLOR_RGB2BGR))
-                cv2.imwrite(str(d / "mask" / f"{f:04d}.png"), fgs[k])
+                bgr, fg = composed(k)
+                cv2.imwrite(str(d / "rgb" / f"{f:04d}.png"), bgr)
+                cv2.imwrite(str(d / "mask" / f"{f:04d}.png"), fg)
     return {"data_dir": str(out), "frames": n_dyn, "spin_frames": sp, "n_obs": int(n_obs), "fps": fps,
             "object": "mesh" if spin_cams is None else f"visual hull of {o.spin_frames} views",
             "size": [W, H], "body": body_spec, "object_boxes": len(boxes), "object_volume_m3": float(sum(np.prod(b - a) for a, b in boxes))}
