@@ -48,7 +48,9 @@ class LiveSource:
     dropped). ``first``: a frame already produced (e.g. decoded on open to learn the size), delivered first.
     ``on_close()`` is called in the reader thread when the producer stops (e.g. closes the container).
     ``produced`` counts the frames the producer gave, ``delivered`` those yielded; ``ended_by`` says why the
-    producer stopped early (an error of the stream, as text) or is None.
+    producer stopped early (an error of the stream, as text) or is None. A producer that fails ends the
+    iteration with a PhysarError naming the source and the error, after the frames it gave (a frame loop
+    keeps its outputs for them and exits non-zero: a network drop is not the end of a clip).
     """
 
     live = True
@@ -62,6 +64,7 @@ class LiveSource:
         self.dropped = self.produced = self.delivered = 0
         self.last_time = None
         self.ended_by: str | None = None
+        self._error: Exception | None = None
         self._producer = producer
         self._cap = 1 if latest else max(1, int(queue_size))
         self._buf: collections.deque = collections.deque()
@@ -98,6 +101,7 @@ class LiveSource:
                     self._cond.notify_all()
         except Exception as e:  # noqa: BLE001 - a live stream that fails ends; the reason is kept
             self.ended_by = f"{type(e).__name__}: {e}"
+            self._error = e
         finally:
             if self._on_close is not None:
                 with contextlib.suppress(Exception):  # best effort, like closing a file twice
@@ -116,6 +120,7 @@ class LiveSource:
                         return
                     self._cond.wait(0.1)
                 if not self._buf:
+                    self._raise_error()
                     return
                 bgr, luma, t = self._buf.popleft()
                 self._cond.notify_all()
@@ -124,6 +129,16 @@ class LiveSource:
             yield bgr, luma
             if self._stop.is_set():
                 return
+
+    def _raise_error(self) -> None:
+        """Raise the producer's error once (a PhysarError as it is, e.g. :class:`physar.media.VideoChanged`,
+        anything else as a PhysarError naming the source), unless the source was closed or asked to stop."""
+        e, self._error = self._error, None
+        if e is None or self._stop.is_set():
+            return
+        if isinstance(e, PhysarError):
+            raise e
+        raise PhysarError(f"{self.name}: the stream failed after {self.produced} frames ({self.ended_by})")
 
     def __iter__(self):
         for bgr, _ in self.frames_with_luma():
@@ -208,7 +223,7 @@ def open_stream(url: str, *, convert: str = "opencv", live: bool = True, timeout
     ``timeout`` (s) bounds opening and each read (PyAV's interrupt callback), so a URL that does not answer
     fails within it with a PhysarError naming the URL; ``options``: FFmpeg format/protocol options. Frames are
     in their displayed orientation (:mod:`physar.media`); a frame of another size than the first ends the
-    source (``ended_by`` says which frame and both sizes)."""
+    source with :class:`physar.media.VideoChanged` after the frames before it."""
     c, s, first = _open_av(url, "stream", timeout, options)
     rate = s.average_rate or s.guessed_rate
     fps = float(rate) if rate else 30.0

@@ -159,6 +159,8 @@ def test_slow_consumer_over_live_source_via_run_video(tmp_path):
     # mutants caught: run_video ignoring keep_results (results kept), the sample growing past stats_sample,
     # time_s computed as k / fps for live sources.
     produced = []
+    started = threading.Event()  # the producer runs ahead only once the loop took its first frame (run_video's
+    # start-up, e.g. first imports, would otherwise let all 60 frames pass before the loop begins)
 
     def produce():
         for k in range(60):
@@ -166,6 +168,8 @@ def test_slow_consumer_over_live_source_via_run_video(tmp_path):
             img = np.zeros((48, 64, 3), np.uint8)
             img[:, :, 0] = k
             yield img, 10.0 + k / 100
+            if k == 0:
+                started.wait(30)
             time.sleep(0.002)
 
     seen = []
@@ -175,6 +179,7 @@ def test_slow_consumer_over_live_source_via_run_video(tmp_path):
 
     def process(k, img, draw):
         seen.append(int(img[0, 0, 0]))
+        started.set()
         time.sleep(0.02)
         r = R()
         r.latency_ms = float(len(seen))
@@ -266,3 +271,38 @@ def test_check_destination_and_atomic_path(tmp_path):
         tmp.write_text("partial")
         raise KeyboardInterrupt
     assert not any(p.name.startswith(".p.") or p.name == "p.txt" for p in tmp_path.iterdir())
+
+
+def test_a_live_stream_that_fails_stops_the_run_with_its_frames_kept(tmp_path):
+    # A network drop mid-stream is an error (exit 2 at the CLI), not the end of a clip: the frames before it
+    # are in the CSV and the message names the source, the error and the count.
+    # mutants caught: the producer's error swallowed (run ends normally, exit 0); the error raised before the
+    # buffered frames are delivered (fewer rows); the CSV removed on the error.
+    def produce():
+        for k in range(4):
+            yield np.full((48, 64, 3), k, np.uint8), float(k)
+        raise ConnectionResetError("peer closed the connection")
+
+    class R:
+        status, latency_ms, stages_ms = "tracking", 1.0, {}
+
+    src = from_frames(produce(), fps=100.0, name="rtsp://cam/live", latest=False)
+    with pytest.raises(PhysarError) as e:
+        run_video(lambda k, img, draw: (img, R()), Camera.from_fov(64, 48, 60), src, None, tmp_path / "e.csv")
+    src.close()
+    msg = str(e.value)
+    assert "rtsp://cam/live" in msg and "peer closed the connection" in msg and "stopped after 4 frames" in msg
+    assert len((tmp_path / "e.csv").read_text().splitlines()) == 1 + 4
+
+
+def test_a_closed_live_source_ends_without_error():
+    # closing the source (the user stopping it) is not a failure, even if the producer then raises
+    def produce():
+        yield np.zeros((4, 6, 3), np.uint8), 0.0
+        raise ConnectionResetError("gone")
+
+    src = from_frames(produce(), fps=100.0, latest=False)
+    it = src.frames_with_luma()
+    next(it)
+    src.close()
+    assert list(it) == []
