@@ -597,6 +597,32 @@ class ProjectPipeline:
                 "estimates worse than the dots alone (measured on examples/ar/bracket: benchmarks/RESULTS.md, "
                 "\"H.264 bitrate\")"), stacklevel=3)
 
+    def _warn_grey(self, source) -> None:
+        """One warning when coloured dots are to be found in a video of grey levels only (a file whose stream
+        is a grey pixel format, or an opened reader with ``grey``): their colour is not in the frames, so the
+        dot score sees only luma contrast and a dark blue dot looks like any dark texture."""
+        from pathlib import Path
+
+        from physar.ar.sources import is_url
+
+        if not self.use_dots or np.ptp(np.asarray(self.colour, float)) < 40:  # grey-ish dots: luma is enough
+            return
+        grey = getattr(source, "grey", None)
+        if grey is None and isinstance(source, (str, Path)) and not is_url(str(source)) and Path(source).is_file():
+            import av
+
+            try:
+                with av.open(str(source)) as c:
+                    grey = c.streams.video[0].codec_context.pix_fmt.startswith("gray")
+            except (av.FFmpegError, OSError, ValueError, IndexError, AttributeError):
+                grey = None  # the reader names what is wrong with the file
+        if grey:
+            name = getattr(source, "path", source)
+            warnings.warn(PhysarWarning(
+                f"{name}: the video holds grey levels only but the [dots] colour is {list(self.colour)} (RGB): "
+                "coloured dots cannot be told from dark or bright texture in it; record in colour, or print "
+                "black or white dots and set [dots] colour to match"), stacklevel=3)
+
     def run(self, source, out_video=None, out_csv=None, fps: float | None = None, crf: int = 20,
             preset: str = "ultrafast", progress: Callable[[int, int], None] | None = None,
             max_frames: int | None = None, snapshots: dict | None = None, **kw) -> dict:
@@ -612,6 +638,7 @@ class ProjectPipeline:
             return ((f, None) for f in reader)
 
         self._warn_bitrate(source)
+        self._warn_grey(source)
         prev = cv2.getNumThreads()
         cv2.setNumThreads(1)
         try:

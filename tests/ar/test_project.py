@@ -363,3 +363,43 @@ def test_ar_run_refuses_an_output_over_the_input(project_dir, clip, tmp_path):
     size = v.stat().st_size
     r = CliRunner().invoke(_app(), ["ar", "run", str(project_dir / "project.toml"), str(v), "-o", str(v)])
     assert r.exit_code == 2 and v.stat().st_size == size, r.output
+
+
+def _grey_copy(src, dst, n):
+    """The first ``n`` frames of ``src`` as a grey-level (ffv1 gray) video: a monochrome camera's file."""
+    import av
+
+    with av.open(str(dst), "w") as out:
+        s = out.add_stream("ffv1", rate=30)
+        s.pix_fmt = "gray"
+        for k, bgr in zip(range(n), VideoReader(src)):
+            if k == 0:
+                s.width, s.height = bgr.shape[1], bgr.shape[0]
+            f = av.VideoFrame.from_ndarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY), format="gray")
+            for p in s.encode(f):
+                out.mux(p)
+        for p in s.encode():
+            out.mux(p)
+
+
+def test_coloured_dots_in_a_grey_video_are_warned_about(project_dir, clip, tmp_path):
+    # A monochrome camera's file with the project's blue dots: one warning naming the file, the colour and
+    # what to do; the colour clip itself gives none, and neither do black dots in the grey file.
+    # mutants caught: the check skipped (no warning), the pixel format ignored (the colour clip warns too),
+    # the dot colour ignored (black dots warned about).
+    from physar.errors import PhysarWarning
+
+    grey = tmp_path / "grey.mkv"
+    _grey_copy(clip / "video.mp4", grey, 2)
+    project = load_project(project_dir / "project.toml")
+    with pytest.warns(PhysarWarning, match=r"grey levels only but the \[dots\] colour is \[25, 70, 170\]") as w:
+        ProjectPipeline(project, overlay=False).run(grey, max_frames=1)
+    assert sum("grey levels" in str(x.message) for x in w) == 1 and str(grey) in str(w[0].message)
+    import warnings
+
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        ProjectPipeline(project, overlay=False).run(clip / "video.mp4", max_frames=1)
+        project.config.dots.colour = (10, 10, 10)
+        ProjectPipeline(project, overlay=False).run(grey, max_frames=1)
+    assert not [x for x in w if "grey levels" in str(x.message)]
