@@ -38,16 +38,34 @@ def print_json(obj: Any) -> None:
     sys.stdout.flush()
 
 
+def _open_bars() -> list:
+    """The tqdm progress bars still open (drawn on stderr without a newline), none if tqdm is not loaded."""
+    tq = sys.modules.get("tqdm")
+    return [b for b in list(getattr(getattr(tq, "tqdm", None), "_instances", ())) if not b.disable]
+
+
 def log(msg: str) -> None:
-    """Human-readable progress/info to stderr (stdout stays clean for --json)."""
-    typer.echo(msg, err=True)
+    """Human-readable progress/info to stderr (stdout stays clean for --json), on a line of its own: an open
+    progress bar is cleared, the line printed and the bar drawn again below it (tqdm.write)."""
+    if _open_bars():
+        sys.modules["tqdm"].tqdm.write(msg, file=sys.stderr)
+    else:
+        typer.echo(msg, err=True)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None, _default=warnings.showwarning):
     if issubclass(category, PhysarWarning):
-        typer.echo(f"warning: {message}", err=True)
+        log(f"warning: {message}")
     else:
         _default(message, category, filename, lineno, file, line)
+
+
+def _close_bars() -> None:
+    """Close the open progress bars, so that an error line starts a line of its own (a bar left open had the
+    error printed after its last frame count, on the same line)."""
+    for b in _open_bars():
+        with contextlib.suppress(Exception):  # a bar whose stream is already gone
+            b.close()
 
 
 def user_errors(fn: Callable) -> Callable:
@@ -62,6 +80,7 @@ def user_errors(fn: Callable) -> Callable:
             try:
                 return fn(*args, **kwargs)
             except PhysarError as exc:
+                _close_bars()
                 typer.echo(f"error: {exc}", err=True)
                 raise typer.Exit(code=2) from None
 
