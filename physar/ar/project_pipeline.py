@@ -274,7 +274,8 @@ class ProjectPipeline:
         """Weighted residuals (k, m) of k vectors TH (k, 6 + p) = (pose increment, mu) at once (the frame's
         residual and the finite-difference Jacobian's columns in one pass): marker corners / sc, then the
         observed surface points (dots, then features) / sig, pixels of their deformed positions P + c(mu) Fp
-        under the increment's pose (:meth:`_pose_of`) minus their detected pixels tgt."""
+        under the increment's pose (:meth:`_pose_of`) minus their detected pixels tgt. A point behind the camera
+        gives NaN (with or without lens distortion), so that the step leading there is rejected."""
         TH = np.atleast_2d(TH)
         p = self.lo.size
         E = _rotations(TH[:, :3])                                                               # (k, 3, 3)
@@ -291,7 +292,8 @@ class ProjectPipeline:
             q = np.array([self.camera.project(Wi, Pose(Ri, ti)) for Wi, Ri, ti in zip(W, R, t)])
         else:
             Xcam = np.einsum("kij,knj->kni", R, W) + t[:, None]
-            uv = Xcam[..., :2] / Xcam[..., 2:3]
+            z = np.where(Xcam[..., 2:3] > 0, Xcam[..., 2:3], np.nan)  # behind the camera: NaN, as Camera.project
+            uv = Xcam[..., :2] / z
             K = self.camera.K
             q = uv[..., :1] * K[:2, 0] + uv[..., 1:] * K[:2, 1] + K[:2, 2]
         nc = 0 if Xc is None else len(Xc)
@@ -309,7 +311,7 @@ class ProjectPipeline:
         W = self.dots[valid][None] + np.einsum("gm,mnk->gnk", cs, self.Fd[:, valid])
         q = self.camera.project(W.reshape(-1, 3), pose).reshape(len(mus), -1, 2)
         cost = np.sum((q - px[valid][None]) ** 2, (1, 2))
-        return mus[int(np.argmin(cost))]
+        return mus[int(np.argmin(np.where(np.isfinite(cost), cost, np.inf)))]  # NaN: a dot behind the camera
 
     def _inliers(self, pose, mu, px, valid) -> np.ndarray:
         """Dots whose reprojection error is below max(1 px, 4 x 1.4826 MAD of the errors): a detection

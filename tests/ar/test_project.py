@@ -403,3 +403,29 @@ def test_coloured_dots_in_a_grey_video_are_warned_about(project_dir, clip, tmp_p
         project.config.dots.colour = (10, 10, 10)
         ProjectPipeline(project, overlay=False).run(grey, max_frames=1)
     assert not [x for x in w if "grey levels" in str(x.message)]
+
+
+def test_residuals_are_nan_behind_the_camera_with_and_without_distortion(project_dir):
+    # The joint solve's projection (vectorised, without distortion) and Camera.project (with it) agree: a dot
+    # in front of the camera gives the same pixel both ways, one behind it gives NaN both ways (the
+    # vectorised one mirrored it to a finite pixel, so a step through the camera could be accepted).
+    # mutants caught: the depth check dropped in the vectorised branch; the pixel formula's axes swapped.
+    from dataclasses import replace
+
+    from physar.vision.camera import Pose
+
+    pipe = ProjectPipeline(load_project(project_dir / "project.toml"), overlay=False)
+    P, Fp = pipe.dots[:6], pipe.Fd[:, :6]
+    th = np.r_[np.zeros(6), (pipe.lo + pipe.hi) / 2]
+    tgt, sig = np.zeros((6, 2)), np.ones(6)
+    c = pipe.centre
+    front = Pose(np.eye(3), np.array([0.02, -0.01, 1.5]) - c)
+    behind = Pose(np.eye(3), np.array([0.0, 0.0, -1.5]) - c)
+    W = P + np.tensordot(pipe.rom._coeffs(list(th[6:]))[0], Fp, 1)
+    ref = pipe.camera.project(W, front).ravel()
+    cams = [replace(pipe.camera, dist=np.zeros(5)), replace(pipe.camera, dist=np.array([1e-9, 0, 0, 0, 0]))]
+    for cam in cams:
+        pipe.camera = cam
+        r = pipe._residuals(front, th, None, None, P, Fp, tgt, 1.0, sig)[0]
+        np.testing.assert_allclose(r, ref, atol=1e-4)
+        assert np.isnan(pipe._residuals(behind, th, None, None, P, Fp, tgt, 1.0, sig)).all()
