@@ -86,7 +86,7 @@ def damping(
 
 @user_errors
 def simulate(
-    config: Path = typer.Argument(..., help="problem file (TOML): the fem tables plus [dynamics]"),  # noqa: B008 - typer idiom
+    config: Path = typer.Argument(..., help="problem file (TOML): the fem tables plus \\[dynamics]"),  # noqa: B008 - typer idiom
     out: Path = typer.Option(..., "--out", "-o", help="trajectory (.xdmf + .h5) with displacement, velocity"),  # noqa: B008 - typer idiom
     video: Path | None = typer.Option(None, "--video", help="MP4 of the deformed surface (H.264)"),  # noqa: B008 - typer idiom
     energy_csv: Path | None = typer.Option(None, "--energy", help="energy per step CSV (default: OUT with .csv)"),  # noqa: B008 - typer idiom

@@ -50,7 +50,7 @@ def _parse_params(model, items: list[str], flag: str = "--param", partial: bool 
 @rom_app.command("build")
 @user_errors
 def build(
-    config: Path = typer.Argument(..., help="FEM problem file (TOML) with [[parameter]] tables and [rom]"),  # noqa: B008 - typer idiom
+    config: Path = typer.Argument(..., help="FEM problem file (TOML) with [\\[parameter]] tables and \\[rom]"),  # noqa: B008 - typer idiom
     out: Path = typer.Option(..., "--out", "-o", help="reduced model file (.npz)"),  # noqa: B008 - typer idiom
     workers: int | None = typer.Option(None, "--workers",
                                           help="non-intrusive: start a Dask LocalCluster with N workers"),
@@ -270,7 +270,7 @@ def assimilate_cmd(
     observations: Path = typer.Argument(..., help="CSV with header x,y,z,ux,uy,uz (m)"),  # noqa: B008 - typer idiom
     mu0: list[str] = typer.Option([], "--mu0", help="start NAME=VALUE (default: centre of the ranges)"),  # noqa: B008 - typer idiom
     alpha: float = typer.Option(0.0, "--alpha", help="Tikhonov weight towards --mu0 (>= 0)"),
-    noise: float | None = typer.Option(None, "--noise", help="std of the observation noise [m] if known "
+    noise: float | None = typer.Option(None, "--noise", help="std of the observation noise \\[m] if known "
                                                             "(default: estimated from the residual)"),
     false_alarm: float = typer.Option(1e-3, "--false-alarm", help="false-alarm rate of the test that decides "
                                                                   "a multi-start (0: never)"),
