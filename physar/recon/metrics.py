@@ -30,6 +30,12 @@ from physar.errors import ConfigError, PhysarError
 def _max_val(name: str, a: np.ndarray, b: np.ndarray, max_val: float | None) -> float:
     """MAX of two images (module docstring): ``max_val`` when given (finite, > 0), else from their dtypes."""
     if max_val is not None:
+        try:
+            if isinstance(max_val, (str, bytes, bool)):
+                raise TypeError
+            max_val = float(max_val)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{name}: max_val = {max_val!r} must be a number (e.g. 255 or 1.0)") from None
         if not (np.isfinite(max_val) and max_val > 0):
             raise ConfigError(f"{name}: max_val = {max_val!r} must be a finite number > 0")
         a_int, b_int = np.issubdtype(a.dtype, np.integer), np.issubdtype(b.dtype, np.integer)
@@ -95,21 +101,27 @@ def ssim(a: np.ndarray, b: np.ndarray, max_val: float | None = None, sigma: floa
 
 
 def _mask(name: str, arg: str, m) -> np.ndarray:
-    """``m`` as a boolean mask: a bool array, or one whose values are all 0 or 1; else a ConfigError."""
+    """``m`` as a boolean mask: a bool array, or a numeric one holding 0 and at most one other value (0/1,
+    0/255 as OpenCV and PNG masks hold), True where it is not 0; else (a soft alpha, a label image, NaN) a
+    ConfigError."""
     m = np.asarray(m)
     if m.dtype == bool:
         return m
-    if m.dtype.kind not in "uif" or not np.all((m == 0) | (m == 1)):
+    ok = m.dtype.kind in "uif"
+    if ok:
+        on = m[m != 0]
+        ok = bool(np.isfinite(on).all()) and (on.size == 0 or bool(np.all(on == on.flat[0])))
+    if not ok:
         lo, hi = (float(np.nanmin(m)), float(np.nanmax(m))) if m.size and m.dtype.kind in "uif" else (None, None)
         rng = f" values in [{lo:g}, {hi:g}]" if lo is not None else ""
-        raise ConfigError(f"{name}: {arg} must be a boolean mask or hold only 0 and 1 (got {m.dtype}{rng}); "
-                          f"threshold it first, e.g. {arg} >= 0.5")
+        raise ConfigError(f"{name}: {arg} must be a boolean mask or hold 0 and one other value, e.g. 0/1 or 0/255 "
+                          f"(got {m.dtype}{rng}); threshold it first, e.g. {arg} >= 0.5")
     return m != 0
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
-    """Intersection over union of two boolean masks, or arrays of 0 and 1 (1.0 when both are empty); any other
-    value (a soft alpha) is refused: threshold it first."""
+    """Intersection over union of two boolean masks, or arrays of 0 and one other value (0/1, 0/255), 1.0 when
+    both are empty; anything else (a soft alpha, a label image) is refused: threshold it first."""
     a, b = _mask("iou", "a", a), _mask("iou", "b", b)
     if a.shape != b.shape:
         raise ConfigError(f"iou: shapes differ {a.shape} vs {b.shape}")

@@ -90,8 +90,8 @@ def test_iou_refuses_a_soft_alpha():
     a = np.zeros((10, 10), bool)
     a[0:4, 0:5] = True
     alpha = np.where(a, 0.9, 0.1)  # cast to bool, every pixel would be inside: IoU 0.2 instead of 1
-    with pytest.raises(ConfigError, match=r"iou: b must be a boolean mask or hold only 0 and 1 "
-                                          r"\(got float64 values in \[0.1, 0.9\]\); threshold it first"):
+    with pytest.raises(ConfigError, match=r"iou: b must be a boolean mask or hold 0 and one other value, e.g. "
+                                          r"0/1 or 0/255 \(got float64 values in \[0.1, 0.9\]\); threshold it"):
         M.iou(a, alpha)
     assert M.iou(a, alpha >= 0.5) == 1.0
 
@@ -106,3 +106,29 @@ def test_float_images_in_0_255_need_max_val():
     assert M.psnr(a, b, max_val=255) == pytest.approx(10 * np.log10(255**2 / 9))
     assert M.psnr(a / 255, b / 255) == pytest.approx(10 * np.log10(255**2 / 9))
     assert np.isfinite(M.psnr(np.full((4, 4), 1.05), np.ones((4, 4))))  # a render's small overshoot is fine
+
+
+def test_iou_takes_0_255_masks_as_opencv_and_png_write_them():
+    # cv2.threshold / cv2.inRange / mask PNGs hold 0 and 255: the same IoU as the boolean masks; a label image
+    # (0, 1, 2) is refused. mutants caught: only 0/1 accepted (0/255 refused); any integer cast to bool (labels
+    # 1 and 2 merged silently)
+    import cv2
+
+    a = np.zeros((10, 10), np.uint8)
+    a[0:4, 0:5] = 200
+    _, a255 = cv2.threshold(a, 127, 255, cv2.THRESH_BINARY)
+    b = np.zeros((10, 10), bool)
+    b[2:6, 0:5] = True
+    assert M.iou(a255, b) == pytest.approx(10 / 30) and M.iou(a255, a255) == 1.0
+    labels = a255 // 255 + b.astype(np.uint8) * 2
+    with pytest.raises(ConfigError, match=r"iou: a must be a boolean mask .*uint8 values in \[0, 3\]"):
+        M.iou(labels, b)
+
+
+@pytest.mark.parametrize("bad", ["255", None.__class__, [255]])
+def test_max_val_that_is_not_a_number_is_one_line(bad):
+    # mutant caught: max_val passed to np.isfinite unchecked (a TypeError traceback for "255")
+    a = np.zeros((16, 16), np.uint8)
+    with pytest.raises(ConfigError, match=r"psnr: max_val = .* must be a number"):
+        M.psnr(a, a + 1, max_val=bad)
+    assert M.psnr(a, a + 1, max_val=np.float32(255)) == pytest.approx(10 * np.log10(255**2))
