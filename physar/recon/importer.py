@@ -238,7 +238,8 @@ def read_video(path: str | Path, fps: float | None = None, prepare=None, budget=
 
     The clip's timestamps are read first (demuxing, no decoding). A constant-rate clip keeps the frames
     :func:`source_indices` picks (all without ``fps``); a variable-frame-rate one (frame intervals spreading
-    more than :data:`VFR_SPREAD` of their median: phones record so) is resampled by timestamp,
+    more than :data:`VFR_SPREAD` of their median and 2.5 ticks of the stream's clock: phones record so) is
+    resampled by timestamp,
     :func:`nearest_indices`, at ``fps`` or, without it, at its mean rate (a PhysarWarning says so). A frame
     of another size than the first (:class:`physar.media.VideoChanged`) is an error; a clip that ends clearly
     before its header's duration a PhysarWarning (truncated?)."""
@@ -260,6 +261,7 @@ def read_video(path: str | Path, fps: float | None = None, prepare=None, budget=
             if rate is None or float(rate) <= 0:
                 raise ConfigError(f"{path}: the video has no frame rate")
             rate = float(rate)
+            tick = float(st.time_base) if st.time_base else 0.0  # MKV/WebM: 1 ms
         times = _packet_times(path)
     except av.FFmpegError as e:
         raise ConfigError(f"{path}: not a video PyAV can read ({' '.join(str(e).split())[:100]})") from None
@@ -268,7 +270,8 @@ def read_video(path: str | Path, fps: float | None = None, prepare=None, budget=
     if times is not None and n_pkt >= 3:
         dt = np.diff(times)
         med = float(np.median(dt))
-        variable = med > 0 and float(dt.max() - dt.min()) > VFR_SPREAD * med
+        # a constant rate stored on a coarse clock (120 fps in 1 ms ticks: 8, 8, 9 ms) is not variable
+        variable = med > 0 and float(dt.max() - dt.min()) > max(VFR_SPREAD * med, 2.5 * tick)
     if variable:
         rate = (n_pkt - 1) / float(times[-1] - times[0])
         if fps is None:

@@ -61,6 +61,15 @@ def test_variable_frame_rate_is_resampled_by_timestamp(tmp_path):
         I.read_video(p, fps=20.0)
 
 
+def test_constant_120_fps_on_a_millisecond_clock_is_not_variable(tmp_path):
+    # Matroska stores times in 1 ms ticks: 120 fps reads back as 8, 8, 9 ms intervals, a spread of 12 % of the
+    # median that is rounding, not a variable rate (it was resampled at 119.8 fps and --fps 120 refused).
+    # mutant caught: the clock's tick ignored in the VFR test
+    p = write_clip(tmp_path / "c120.mkv", _levels(12), rate=120, fmt="matroska", codec="ffv1", pix="yuv444p")
+    clip = I.read_video(p, fps=120.0)
+    assert not clip.variable and clip.fps == 120.0 and clip.indices.tolist() == list(range(12))
+
+
 def test_constant_rate_clips_keep_the_index_rule(tmp_path):
     p = write_clip(tmp_path / "c.mkv", _levels(10), rate=30, fmt="matroska", codec="ffv1", pix="yuv444p")
     clip = I.read_video(p, fps=12.0)
