@@ -159,14 +159,23 @@ class Camera:
             raise ConfigError(f"distortion must have 0, 4, 5, 8, 12 or 14 coefficients, got {d.size}")
         if not (np.all(np.isfinite(K)) and np.all(np.isfinite(d))):
             raise ConfigError("camera matrix/distortion contain NaN or inf")
-        if K[0, 0] <= 0 or K[1, 1] <= 0 or abs(K[2, 2] - 1) > 1e-9 or np.any(K[1:, 0] != 0) or K[2, 1] != 0:
+        # zeros up to rounding (a K from cv2.decomposeProjectionMatrix has a skew of 7e-15): 1e-9 of the focal
+        tol = 1e-9 * max(abs(K[0, 0]), abs(K[1, 1]), 1.0)
+        if K[0, 0] <= 0 or K[1, 1] <= 0 or abs(K[2, 2] - 1) > 1e-9 or np.any(np.abs(K[1:, 0]) > tol) \
+                or abs(K[2, 1]) > tol:
             raise ConfigError(f"camera matrix must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, "
                               f"got {K.tolist()}")
-        if K[0, 1] != 0:  # cv2.projectPoints/solvePnP/undistortPoints would silently drop it
+        if abs(K[0, 1]) > tol:  # cv2.projectPoints/solvePnP/undistortPoints would silently drop it
             raise ConfigError(f"camera matrix skew K[0, 1] must be 0 (OpenCV's camera model, which projection, "
                               f"pose estimation and undistortion use, has none), got {float(K[0, 1])!r}")
-        if int(self.width) <= 0 or int(self.height) <= 0:
-            raise ConfigError(f"image size must be positive, got {self.width}x{self.height}")
+        K = K.copy()
+        K[1:, 0] = K[2, 1] = K[0, 1] = 0.0
+        K[2, 2] = 1.0
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.number)) or not np.isfinite(v) \
+                    or v <= 0 or v != int(v):
+                raise ConfigError(f"image {name} must be a positive whole number of pixels, got {v!r}")
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", d if d.size else np.zeros(5))
         object.__setattr__(self, "width", int(self.width))
@@ -178,8 +187,10 @@ class Camera:
         r"""Camera of horizontal field of view ``hfov_deg`` in (0, 180) degrees, square pixels, principal point at
         the image centre: :math:`f = (w / 2) / \tan(\mathrm{hfov} / 2)` px."""
         for name, v in (("width", width), ("height", height)):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
-                raise ConfigError(f"Camera.from_fov: {name} must be a positive integer (px), got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.number)) or not np.isfinite(v) or v <= 0 \
+                    or v != int(v):
+                raise ConfigError(f"Camera.from_fov: {name} must be a positive whole number of pixels, got {v!r}")
+        width, height = int(width), int(height)
         if isinstance(hfov_deg, bool) or not isinstance(hfov_deg, (int, float, np.number)) \
                 or not 0 < hfov_deg < 180:
             raise ConfigError(f"Camera.from_fov: hfov_deg must be in (0, 180) degrees, got {hfov_deg!r}")

@@ -201,10 +201,10 @@ def test_from_rvec_names_the_bad_argument(rvec, tvec, match):
     ((640, 480, -30.0), r"hfov_deg .* got -30.0"),
     ((640, 480, float("nan")), r"hfov_deg .* got nan"),
     ((640, 480, "60"), r"hfov_deg .* got '60'"),
-    ((0, 480, 60), r"Camera.from_fov: width must be a positive integer \(px\), got 0"),
-    ((-640, 480, 60), r"width must be a positive integer \(px\), got -640"),
-    ((640, 0, 60), r"height must be a positive integer \(px\), got 0"),
-    ((640.5, 480, 60), r"width must be a positive integer \(px\), got 640.5"),
+    ((0, 480, 60), r"Camera.from_fov: width must be a positive whole number of pixels, got 0"),
+    ((-640, 480, 60), r"width must be a positive whole number of pixels, got -640"),
+    ((640, 0, 60), r"height must be a positive whole number of pixels, got 0"),
+    ((640.5, 480, 60), r"width must be a positive whole number of pixels, got 640.5"),
 ], ids=["fov-0", "fov-180", "fov-neg", "fov-nan", "fov-str", "w-0", "w-neg", "h-0", "w-float"])
 def test_from_fov_refuses_bad_sizes_and_angles(args, match):
     """from_fov(640, 480, 0) used to raise ZeroDivisionError; 180 degrees gave f ~ 2e-14 px silently.
@@ -212,3 +212,21 @@ def test_from_fov_refuses_bad_sizes_and_angles(args, match):
     the argument, or a silently truncated width)."""
     with pytest.raises(ConfigError, match=match):
         Camera.from_fov(*args)
+
+
+def test_rounding_noise_in_K_and_whole_float_sizes_are_accepted():
+    """A K computed through matrix products (cv2.decomposeProjectionMatrix of K [R|t]) has a skew of ~1e-14:
+    rounding, not skew; it is taken as 0. A width of 640.0 is 640 px; 640.5 is refused, not truncated.
+    Mutants: an exact != 0 skew test (the decomposed K refused); sizes truncated with int()."""
+    import cv2
+
+    K0 = np.array([[800.0, 0, 320], [0, 810.0, 240], [0, 0, 1]])
+    R, _ = cv2.Rodrigues(np.array([0.3, -0.2, 0.1]))
+    K, _, _, _, _, _, _ = cv2.decomposeProjectionMatrix(K0 @ np.c_[R, [[0.1], [0.2], [1.0]]])
+    K = K / K[2, 2]
+    cam = Camera(K, np.zeros(5), 640, 480)
+    assert cam.K[0, 1] == 0.0 and np.allclose(cam.K, K0, atol=1e-9)
+    f = Camera.from_fov(640.0, 480.0, 60)
+    assert f.width == 640 and isinstance(f.width, int) and f.K[0, 0] == pytest.approx(320 / np.tan(np.pi / 6))
+    with pytest.raises(ConfigError, match=r"image width must be a positive whole number of pixels, got 640.5"):
+        Camera(K0, np.zeros(5), 640.5, 480)
