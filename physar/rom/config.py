@@ -531,7 +531,7 @@ def build_parametric_problem(cfg: RomConfig, problem, source: str = "config") ->
     fixed = np.unique(np.concatenate(fixed + [region_dofs])).astype(np.int64)
     if len(fixed) < space.n_dofs:
         try:
-            check_constraints(space.nodes, fixed)
+            check_constraints(space.nodes, fixed, space.cells)
         except SolverError as exc:
             raise ConfigError(f"{source}: [[fix]] and the prescribed [[parameter]] regions: {exc}") from None
     mask = np.zeros(space.n_dofs, bool)

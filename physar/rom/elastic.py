@@ -115,7 +115,7 @@ def _checked_inputs(model, fixed, points, load) -> np.ndarray:
     """`fixed` as dof indices, after the checks a solve would make (supports, load, grid): the PGD of a singular
     K or of a zero load would otherwise run and return meaningless modes."""
     fixed = dof_indices(fixed, model.n_dofs)
-    check_constraints(model.space.nodes, fixed)
+    check_constraints(model.space.nodes, fixed, model.space.cells)
     whole = isinstance(points, (int, np.integer, float, np.floating)) and float(points).is_integer()
     if isinstance(points, (bool, np.bool_)) or not whole or points < 2:
         raise ConfigError(f"points (grid positions along the load path) must be an integer >= 2, got {points!r}")

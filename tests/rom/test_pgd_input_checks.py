@@ -56,3 +56,20 @@ def test_mask_supports_match_index_supports_and_the_full_solve(beam):
     np.testing.assert_array_equal(rom_m.evaluate([s]), rom_i.evaluate([s]))
     u = solve_linear(model, point_load(model.space, [s, W / 2, W], [0, 0, -1.0], R), fixed)
     np.testing.assert_allclose(rom_m.evaluate([s]), u, atol=1e-3 * np.abs(u).max())
+
+
+def test_a_second_free_body_is_refused_before_the_pgd(beam):
+    # A beam fixed at x = 0 plus a loose cube beside it (two pieces): the whole mesh's rigid modes are held,
+    # the cube's are not; the PGD of that singular K used to run. mutant caught: cells not passed to
+    # check_constraints (the whole-mesh test only)
+    from physar.geometry.mesh import TetMesh
+
+    model, _ = beam
+    m = model.space.mesh
+    cube = box_mesh((0.05, 0.05, 0.05), (1, 1, 1))
+    two = TetMesh(np.vstack([m.points, cube.points + [0.0, 0.2, 0.0]]), np.vstack([m.cells, cube.cells + m.n_points]))
+    model2 = ElasticModel(FESpace(two, "P1"), LinearElastic(1e9, 0.3))
+    fixed = fixed_dofs(model2.space, box=[[0, 0, 0], [0, W, W]])  # the beam's end only
+    with pytest.raises(SolverError, match=r"2 separate pieces.*1 of them is not fully constrained.*6 elements "
+                                          r"and 8 nodes"):
+        build_moving_load_pgd(model2, fixed, PATH, points=11, radius=R)
