@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from physar.errors import ConfigError
 from physar.integrators.model import LinearDynamics
 from physar.integrators.steppers import Integrator, make_integrator
 from physar.output import check_destination, save_figure
@@ -58,7 +59,14 @@ def damping_curve(method: str, hw, r: float | None = None, theta: float | None =
     :math:`\rho = 0` (an L-stable method at :math:`h\omega = \infty`) gives :math:`d/\omega = \infty`.
     """
     integ = make_integrator(method, r=r, theta=theta)
-    hw = np.atleast_1d(np.asarray(hw, dtype=float))
+    try:
+        hw = np.atleast_1d(np.asarray(hw, dtype=float))
+    except (TypeError, ValueError):
+        raise ConfigError(f"damping_curve: hw must be numbers (h omega > 0), got {hw!r}") from None
+    bad = ~(np.isfinite(hw) & (hw > 0))
+    if bad.any() or hw.ndim != 1:
+        raise ConfigError(f"damping_curve: hw must be a 1-D list of finite values > 0 (h omega of a mode; d/omega "
+                          f"is odd in h omega and 0/0 at 0), got {hw[bad][0] if bad.any() else hw.shape!r}")
     rho = np.array([spectral_radius(amplification_matrix(integ, x)) for x in hw])
     with np.errstate(divide="ignore"):
         d = -2.0 / hw * np.log(rho)

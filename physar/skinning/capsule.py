@@ -140,7 +140,11 @@ def procedural_humanoid(height: float = 1.7, dtype: torch.dtype = torch.float32)
     Bones: root (no volume), pelvis, spine, head, upper/lower arms and legs (left and right). Bone
     frames have identity rotation at the rest pose and sit at the bone heads (the joints).
     """
-    h = height / 1.7
+    if isinstance(height, bool) or not isinstance(height, (int, float, np.number)) or not np.isfinite(height) \
+            or not 0.3 <= height <= 3.0:
+        raise PhysarError(f"procedural_humanoid: height = {height!r} must be a person's height in metres, "
+                          "0.3 to 3.0")
+    h = float(height) / 1.7
     P = lambda *v: [h * c for c in v]
     bones = [  # name, parent, head, tail, radius
         ("root", -1, P(0, 0, 0.95), P(0, 0, 0.95), 0.0),

@@ -105,3 +105,16 @@ def test_symplectic_euler_stability_limit():
     c = damping_curve("symplectic_euler", [0.5, 1.9, 2.1])
     np.testing.assert_allclose(c["rho"][:2], 1.0, atol=1e-12)
     assert c["rho"][2] > 1.0
+
+
+@pytest.mark.parametrize("bad", [0.0, -0.5, float("nan"), float("inf"), "fast"])
+def test_damping_curve_refuses_h_omega_outside_its_domain(bad):
+    # d/omega = -2 ln(rho) / (h omega) is 0/0 at 0 and negative (energy gain) for h omega < 0: both were
+    # returned as numbers (NaN, -d). mutant caught: no domain check
+    from physar.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"damping_curve: hw must be"):
+        damping_curve("be", [0.1, bad])
+    c = damping_curve("be", [0.1, 2.0])
+    hw = np.array([0.1, 2.0])  # h = 1 s: omega = hw, d / omega = ln(1 + hw^2) / hw (seed Eq. 2.9)
+    np.testing.assert_allclose(c["d_over_omega"], d_backward_euler(hw, 1.0) / hw, rtol=1e-10)

@@ -211,3 +211,19 @@ def test_smpl_npz_template(tmp_path):
     np.savez(tmp_path / "bad.npz", v_template=v)
     with pytest.raises(PhysarError, match="lacks array 'f'"):
         load_smpl_npz(tmp_path / "bad.npz")
+
+
+@pytest.mark.parametrize("bad", [0, -1.7, float("nan"), 17.0, "1.7"])
+def test_procedural_humanoid_refuses_a_height_no_person_has(bad):
+    # height 0 built a body of zero-length bones (NaN frames downstream); 17 (cm typed as dm) a giant.
+    # mutant caught: no height check
+    with pytest.raises(PhysarError, match=r"procedural_humanoid: height = .* must be a person's height in metres"):
+        procedural_humanoid(bad)
+
+
+def test_procedural_humanoid_scales_with_its_height():
+    # the top of the head (tip at 1.60 m, radius 0.10 m for 1.7 m) scales linearly: 1.6 (1.5 / 1.7) + 0.1 (1.5 / 1.7)
+    # mutant caught: the height ignored in the check's conversion (float(height) dropped for h)
+    b = procedural_humanoid(1.5, dtype=torch.float64)
+    top = float((b.tails[:, 2] + b.radii).max())
+    assert top == pytest.approx(1.7 * 1.5 / 1.7, abs=1e-9)
