@@ -85,9 +85,17 @@ class SeparatedModel:
         return [(float(x[0]), float(x[-1])) for x in self.grids]
 
     def _check_mu(self, mu):
-        mu = np.atleast_1d(np.asarray(mu, float))
+        try:
+            mu = np.atleast_1d(np.asarray(mu, float))
+        except (TypeError, ValueError):
+            raise PhysarError(f"expected {self.n_params} numbers for the parameters {self.names}, got {mu!r}") from None
         if mu.shape != (self.n_params,):
             raise PhysarError(f"expected {self.n_params} parameter values {self.names}, got {mu.shape}")
+        bad = ~np.isfinite(mu)
+        if bad.any():  # NaN gave a NaN field silently (the spline's interval search put it in the first one)
+            j = int(np.flatnonzero(bad)[0])
+            raise PhysarError(f"parameter {self.names[j]!r} = {mu[j]} must be a finite number "
+                              f"(its grid spans {self.ranges[j][0]:g} to {self.ranges[j][1]:g})")
         return mu
 
     def coefficients(self, mu):

@@ -7,7 +7,7 @@ and as indices. Each test names the mutant it catches.
 import numpy as np
 import pytest
 
-from physar.errors import ConfigError, SolverError
+from physar.errors import ConfigError, PhysarError, SolverError
 from physar.fem import ElasticModel, FESpace, LinearElastic, fixed_dofs, point_load, solve_linear
 from physar.geometry import box_mesh
 from physar.rom import build_moving_load_pgd
@@ -73,3 +73,13 @@ def test_a_second_free_body_is_refused_before_the_pgd(beam):
     with pytest.raises(SolverError, match=r"2 separate pieces.*1 of them is not fully constrained.*6 elements "
                                           r"and 8 nodes"):
         build_moving_load_pgd(model2, fixed, PATH, points=11, radius=R)
+
+
+def test_evaluate_refuses_a_nan_parameter_and_names_it(beam):
+    # mutant caught: no finiteness check (evaluate([nan]) returned a NaN field; sensitivities too)
+    model, fixed = beam
+    rom, _ = build_moving_load_pgd(model, fixed, PATH, points=11, radius=R)
+    for fn in (rom.evaluate, rom.sensitivities, rom.coefficients):
+        with pytest.raises(PhysarError, match=rf"parameter {rom.names[0]!r} = nan must be a finite number"):
+            fn([float("nan")])
+    assert np.isfinite(rom.evaluate([0.5])).all()
