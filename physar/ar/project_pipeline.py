@@ -107,6 +107,25 @@ class ProjectFrame:
     n_features: int = 0
 
 
+def _grey_levels_only(path) -> bool | None:
+    """Whether a video file holds grey levels only: a grey pixel format, or (a monochrome camera's H.264) colour
+    planes within 3 levels of neutral (128) all over its first frame; None when it cannot be read here."""
+    import av
+
+    try:
+        with av.open(str(path)) as c:
+            s = c.streams.video[0]
+            if (s.codec_context.pix_fmt or "").startswith("gray"):
+                return True
+            f = next(c.decode(s))
+            if f.format.name not in ("yuv420p", "yuvj420p", "yuv422p", "yuvj422p", "yuv444p", "yuvj444p"):
+                return False
+            uv = [np.frombuffer(p, np.uint8).reshape(p.height, p.line_size)[:, :p.width] for p in f.planes[1:3]]
+            return all(int(np.abs(x.astype(np.int16) - 128).max()) <= 3 for x in uv)
+    except (av.FFmpegError, OSError, ValueError, IndexError, AttributeError, StopIteration):
+        return None  # the reader names what is wrong with the file
+
+
 class ProjectPipeline:
     """The frame loop on an :class:`physar.ar.project.ARProject` (see the module doc). ``overlay``: draw the
     augmented frames (False: estimation only)."""
@@ -601,8 +620,9 @@ class ProjectPipeline:
 
     def _warn_grey(self, source) -> None:
         """One warning when coloured dots are to be found in a video of grey levels only (a file whose stream
-        is a grey pixel format, or an opened reader with ``grey``): their colour is not in the frames, so the
-        dot score sees only luma contrast and a dark blue dot looks like any dark texture."""
+        is a grey pixel format or whose first frame has neutral colour planes, or an opened reader with
+        ``grey``): their colour is not in the frames, so the dot score sees only luma contrast and a dark blue
+        dot looks like any dark texture."""
         from pathlib import Path
 
         from physar.ar.sources import is_url
@@ -610,14 +630,9 @@ class ProjectPipeline:
         if not self.use_dots or np.ptp(np.asarray(self.colour, float)) < 40:  # grey-ish dots: luma is enough
             return
         grey = getattr(source, "grey", None)
-        if grey is None and isinstance(source, (str, Path)) and not is_url(str(source)) and Path(source).is_file():
-            import av
-
-            try:
-                with av.open(str(source)) as c:
-                    grey = c.streams.video[0].codec_context.pix_fmt.startswith("gray")
-            except (av.FFmpegError, OSError, ValueError, IndexError, AttributeError):
-                grey = None  # the reader names what is wrong with the file
+        path = source if isinstance(source, (str, Path)) else getattr(source, "path", None)
+        if not grey and isinstance(path, (str, Path)) and not is_url(str(path)) and Path(path).is_file():
+            grey = _grey_levels_only(path)
         if grey:
             name = getattr(source, "path", source)
             warnings.warn(PhysarWarning(

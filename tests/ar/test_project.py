@@ -365,13 +365,14 @@ def test_ar_run_refuses_an_output_over_the_input(project_dir, clip, tmp_path):
     assert r.exit_code == 2 and v.stat().st_size == size, r.output
 
 
-def _grey_copy(src, dst, n):
-    """The first ``n`` frames of ``src`` as a grey-level (ffv1 gray) video: a monochrome camera's file."""
+def _grey_copy(src, dst, n, codec="ffv1", pix="gray"):
+    """The first ``n`` frames of ``src`` as a grey-level video: a monochrome camera's file (ffv1 gray, or H.264
+    yuv420p with neutral colour planes as such cameras record)."""
     import av
 
     with av.open(str(dst), "w") as out:
-        s = out.add_stream("ffv1", rate=30)
-        s.pix_fmt = "gray"
+        s = out.add_stream(codec, rate=30)
+        s.pix_fmt = pix
         for k, bgr in zip(range(n), VideoReader(src)):
             if k == 0:
                 s.width, s.height = bgr.shape[1], bgr.shape[0]
@@ -386,7 +387,7 @@ def test_coloured_dots_in_a_grey_video_are_warned_about(project_dir, clip, tmp_p
     # A monochrome camera's file with the project's blue dots: one warning naming the file, the colour and
     # what to do; the colour clip itself gives none, and neither do black dots in the grey file.
     # mutants caught: the check skipped (no warning), the pixel format ignored (the colour clip warns too),
-    # the dot colour ignored (black dots warned about).
+    # the dot colour ignored (black dots warned about), only grey pixel formats checked (the H.264 file passes).
     from physar.errors import PhysarWarning
 
     grey = tmp_path / "grey.mkv"
@@ -395,6 +396,10 @@ def test_coloured_dots_in_a_grey_video_are_warned_about(project_dir, clip, tmp_p
     with pytest.warns(PhysarWarning, match=r"grey levels only but the \[dots\] colour is \[25, 70, 170\]") as w:
         ProjectPipeline(project, overlay=False).run(grey, max_frames=1)
     assert sum("grey levels" in str(x.message) for x in w) == 1 and str(grey) in str(w[0].message)
+    h264 = tmp_path / "grey.mp4"  # the usual case: H.264 yuv420p whose colour planes are all 128
+    _grey_copy(clip / "video.mp4", h264, 2, codec="libx264", pix="yuv420p")
+    with pytest.warns(PhysarWarning, match=r"grey levels only"):
+        ProjectPipeline(project, overlay=False).run(h264, max_frames=1)
     import warnings
 
     with warnings.catch_warnings(record=True) as w:
