@@ -10,13 +10,14 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import warnings
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
 
-from physar.errors import MeshError, PhysarError
-from physar.geometry.mesh import TetMesh, TriMesh
+from physar.errors import MeshError, PhysarError, PhysarWarning
+from physar.geometry.mesh import TetMesh, TriMesh, tet_signed_volumes
 from physar.geometry.regions import MeshTags
 from physar.output import atomic_path, check_destination
 
@@ -28,44 +29,148 @@ def _block_tags(m, i: int) -> np.ndarray | None:
     for key in TAG_KEYS:
         data = m.cell_data.get(key)
         if data is not None and i < len(data) and data[i] is not None and len(data[i]) == len(m.cells[i].data):
-            return np.asarray(data[i]).astype(np.int64).ravel()
+            t = np.asarray(data[i]).astype(np.int64).ravel()
+            return None if len(t) and (t < 0).all() else t  # -1: an untagged gmsh entity (_read_gmsh_api)
     return None
 
 
-def _mesh_tags(m, remap: np.ndarray | None) -> MeshTags | None:
-    """MeshTags of the tetra and triangle blocks of a meshio mesh (None when it carries no tags)."""
-    cell_tags, faces, face_tags, any_tag, n_tets = [], [], [], False, 0
+VOLUME_FORMATS = {".vtu", ".xdmf", ".xmf", ".msh", ".mesh", ".vtk"}
+SURFACE_FORMATS = {".ply", ".obj", ".stl", ".off", ".vtu", ".vtk", ".msh", ".mesh", ".xdmf"}
+
+# corner nodes of each linear cell type (meshio/VTK node order: corners first, also for higher orders)
+_CORNERS = {"tetra": 4, "hexahedron": 8, "wedge": 6, "pyramid": 5, "triangle": 3, "quad": 4}
+_PLURAL = {"tetra": "tetrahedra", "hexahedron": "hexahedra", "wedge": "wedges (prisms)", "pyramid": "pyramids",
+           "triangle": "triangles", "quad": "quadrilaterals", "polygon": "polygons"}
+# faces (local corner ids) of the cells split into tetrahedra
+_CELL_FACES = {
+    "hexahedron": [[0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]],
+    "wedge": [[0, 1, 2], [3, 4, 5], [0, 1, 4, 3], [1, 2, 5, 4], [2, 0, 3, 5]],
+    "pyramid": [[0, 1, 2, 3], [0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]],
+}
+
+
+def _base_type(t: str) -> str | None:
+    """The linear cell type of a meshio cell type ("tetra" of "tetra10"); None for lines and vertices, and the
+    type itself (unknown) for anything else."""
+    if t.startswith(("line", "vertex")):
+        return None
+    if t.startswith("polygon"):
+        return "polygon"
+    for base in ("tetra", "hexahedron", "wedge", "pyramid", "triangle", "quad"):
+        if t == base or (t.startswith(base) and t[len(base):].isdigit()):
+            return base
+    return t
+
+
+def _split_polygons(conn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles of convex polygons (n, k): each split along the diagonals from its smallest node index (the same
+    diagonal as a neighbour cell's split of a shared quadrilateral); returns (triangles, polygon of each)."""
+    conn = np.asarray(conn, np.int64)
+    n, k = conn.shape
+    first = np.argmin(conn, axis=1)
+    rolled = np.take_along_axis(conn, (first[:, None] + np.arange(k)) % k, axis=1)
+    tris = np.stack([np.stack([rolled[:, 0], rolled[:, j], rolled[:, j + 1]], axis=1) for j in range(1, k - 1)],
+                    axis=1)  # (n, k-2, 3)
+    return tris.reshape(-1, 3), np.repeat(np.arange(n), k - 2)
+
+
+def _split_cells(conn: np.ndarray, cell_type: str, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Tetrahedra of hexahedra, wedges or pyramids (corner nodes, VTK order), positively oriented, and the cell of
+    each. A conforming split: each cell is a cone from its smallest global node over the triangles of its faces
+    that do not hold that node, and every quadrilateral face is cut along the diagonal through its smallest node,
+    so two cells sharing a face cut it the same way (no gaps, no overlaps)."""
+    conn = np.asarray(conn, np.int64)
+    apex = conn.min(axis=1)
+    tets, owner = [], []
+    for face in _CELL_FACES[cell_type]:
+        tris, which = _split_polygons(conn[:, face])
+        keep = (tris != apex[which, None]).all(axis=1)
+        tets.append(np.column_stack([apex[which][keep], tris[keep]]))
+        owner.append(which[keep])
+    tets, owner = np.concatenate(tets), np.concatenate(owner)
+    order = np.argsort(owner, kind="stable")
+    tets, owner = tets[order], owner[order]
+    neg = tet_signed_volumes(points, tets) < 0
+    tets[neg, 2], tets[neg, 3] = tets[neg, 3].copy(), tets[neg, 2].copy()
+    return tets, owner
+
+
+def _blocks(m, path: Path) -> tuple[list, list, list]:
+    """(volume blocks, surface blocks, warnings) of a meshio mesh: each block (connectivity, tags or None) of
+    linear tetrahedra or triangles; hexahedra, wedges and pyramids are split into tetrahedra, quadrilaterals and
+    polygons into triangles, higher-order cells keep their corner nodes. A cell type that cannot be split is one
+    MeshError naming the file, the type and the count."""
+    points = np.asarray(m.points, float)
+    vol, surf, notes = [], [], []
+    counts: dict = {}
     for i, c in enumerate(m.cells):
-        t = _block_tags(m, i)
-        if c.type in ("tetra", "tetra10"):
-            n_tets += len(c.data)
-            cell_tags.append(t if t is not None else np.zeros(len(c.data), np.int64))
-            any_tag |= t is not None
-        elif c.type in ("triangle", "triangle6") and t is not None:
-            f = np.asarray(c.data[:, :3], np.int64)
-            if remap is not None:
-                f = remap[f]
-                keep = (f >= 0).all(axis=1)
-                f, t = f[keep], t[keep]
-            faces.append(f)
-            face_tags.append(t)
-            any_tag = True
+        base = _base_type(c.type)
+        if base is None or len(c.data) == 0:
+            continue
+        if base not in _CORNERS and base != "polygon":
+            raise MeshError(f"{path}: {len(c.data)} cells of type {c.type!r} cannot be read (physar reads "
+                            "tetrahedra, hexahedra, wedges, pyramids, triangles, quadrilaterals and polygons)")
+        tags = _block_tags(m, i)
+        conn = np.asarray(c.data, np.int64)
+        conn = conn[:, :_CORNERS[base]] if base in _CORNERS else conn
+        key = (c.type, base)
+        if base in ("tetra", "triangle"):
+            (vol if base == "tetra" else surf).append((conn, tags))
+            n_new = len(conn)
+        elif base in _CELL_FACES:
+            tets, owner = _split_cells(conn, base, points)
+            vol.append((tets, None if tags is None else tags[owner]))
+            n_new = len(tets)
+        else:
+            tris, owner = _split_polygons(conn)
+            surf.append((tris, None if tags is None else tags[owner]))
+            n_new = len(tris)
+        old = counts.get(key, (0, 0))
+        counts[key] = (old[0] + len(conn), old[1] + n_new)
+    for (t, base), (n_old, n_new) in counts.items():
+        is_vol = base in ("tetra", *_CELL_FACES)
+        if t != base and base in _CORNERS:
+            msg = (f"{path}: {n_old} second-order {t} cells read as linear {_PLURAL[base]} (corner nodes only; "
+                   "physar builds its own P2 nodes)")
+            notes.append((is_vol, msg))
+        if base not in ("tetra", "triangle"):
+            into = "tetrahedra" if base in _CELL_FACES else "triangles"
+            notes.append((is_vol, f"{path}: split {n_old} {_PLURAL[base]} into {n_new} {into}"))
+    return vol, surf, notes
+
+
+def _names(m) -> dict:
     names = {}
     for name, v in (getattr(m, "field_data", None) or {}).items():
         v = np.asarray(v).ravel()
         if v.size >= 1:
             names[str(name)] = (int(v[0]), int(v[1]) if v.size > 1 else 3)
+    return names
+
+
+def _mesh_tags(vol: list, surf: list, names: dict, remap: np.ndarray | None) -> MeshTags | None:
+    """MeshTags of the tetrahedron and triangle blocks (None when they carry no tags and there are no names)."""
+    any_tag = any(t is not None for _, t in vol)
+    cell_tags = [t if t is not None else np.zeros(len(c), np.int64) for c, t in vol]
+    faces, face_tags = [], []
+    for f, t in surf:
+        if t is None:
+            continue
+        if remap is not None:
+            f = remap[f]
+            keep = (f >= 0).all(axis=1)
+            f, t = f[keep], t[keep]
+        faces.append(f)
+        face_tags.append(t)
+        any_tag = True
     if not any_tag and not names:
         return None
     return MeshTags(
-        cell_tags=np.concatenate(cell_tags) if cell_tags and any(len(t) for t in cell_tags) else None,
+        cell_tags=np.concatenate(cell_tags) if any(t is not None for _, t in vol) else None,
         face_nodes=np.concatenate(faces) if faces else np.zeros((0, 3), np.int64),
         face_tags=np.concatenate(face_tags) if face_tags else np.zeros(0, np.int64),
         names=names,
     )
-
-VOLUME_FORMATS = {".vtu", ".xdmf", ".xmf", ".msh", ".mesh", ".vtk"}
-SURFACE_FORMATS = {".ply", ".obj", ".stl", ".off", ".vtu", ".vtk", ".msh", ".mesh", ".xdmf"}
 
 
 def _meshio():
@@ -74,41 +179,206 @@ def _meshio():
     return meshio
 
 
+def _read_text(path: Path) -> list[str]:
+    try:
+        return path.read_text(encoding="utf-8", errors="replace").splitlines()
+    except OSError as e:
+        raise MeshError(f"cannot read mesh {path}: {e.strerror}") from None
+
+
+def _read_obj(path: Path):
+    """Positions and faces of a Wavefront OBJ (``v`` and ``f`` lines; ``f`` entries ``v``, ``v/vt``, ``v//vn`` or
+    ``v/vt/vn``, negative indices counted back from the last vertex read; texture coordinates and normals are
+    ignored). Polygons become one ``polygon<k>`` block per size. Bad lines are one MeshError naming the line."""
+    import meshio
+
+    pts, polys, refs = [], {}, []
+    for no, line in enumerate(_read_text(path), 1):
+        tok = line.split("#", 1)[0].split()
+        if not tok:
+            continue
+        try:
+            if tok[0] == "v":
+                pts.append([float(x) for x in tok[1:4]])
+                if len(pts[-1]) != 3:
+                    raise ValueError("a vertex needs x y z")
+            elif tok[0] == "f":
+                idx = []
+                for t in tok[1:]:
+                    j = int(t.split("/")[0])
+                    if j == 0 or -j > len(pts):
+                        raise ValueError(f"vertex index {j}: 0 is not an OBJ index, and a negative one counts "
+                                         f"back over the {len(pts)} vertices read so far")
+                    idx.append(j - 1 if j > 0 else len(pts) + j)
+                if len(idx) < 3:
+                    raise ValueError("a face needs at least 3 vertices")
+                polys.setdefault(len(idx), []).append(idx)
+                refs.append((max(idx), no, line.strip()[:60]))
+        except ValueError as e:
+            raise MeshError(f"{path}: line {no} ({line.strip()[:60]!r}): {e}") from None
+    if not pts:
+        raise MeshError(f"{path}: no vertices (v lines) in the OBJ file")
+    # forward indices are checked against all vertices (OBJ allows faces before their vertices)
+    n = len(pts)
+    bad = next((r for r in refs if r[0] >= n), None)
+    if bad is not None:
+        raise MeshError(f"{path}: line {bad[1]} ({bad[2]!r}): a face refers to vertex {bad[0] + 1}, the file has "
+                        f"{n} vertices")
+    cells = []
+    for k, rows in sorted(polys.items()):
+        cells.append(("triangle" if k == 3 else "quad" if k == 4 else "polygon", np.asarray(rows, np.int64)))
+    return meshio.Mesh(np.asarray(pts, float), cells)
+
+
+def _read_ascii_stl(path: Path):
+    """Positions and triangles of an ASCII STL (``vertex`` lines, three per facet; blank lines, several solids and
+    any other lines are ignored); coincident vertices are merged."""
+    import meshio
+
+    verts = []
+    for no, line in enumerate(_read_text(path), 1):
+        tok = line.split()
+        if tok and tok[0].lower() == "vertex":
+            try:
+                verts.append([float(x) for x in tok[1:4]])
+                if len(verts[-1]) != 3:
+                    raise ValueError
+            except ValueError:
+                raise MeshError(f"{path}: line {no} ({line.strip()[:60]!r}): a vertex needs x y z") from None
+    if not verts or len(verts) % 3:
+        raise MeshError(f"{path}: {len(verts)} vertex lines in the ASCII STL file (need 3 per facet, at least one "
+                        "facet)")
+    pts, inv = np.unique(np.asarray(verts, float), axis=0, return_inverse=True)
+    return meshio.Mesh(pts, [("triangle", inv.reshape(-1, 3))])
+
+
+def _read_gmsh_api(path: Path):
+    """A Gmsh .msh read through gmsh itself (any version; meshio fails on some, e.g. SaveAll=1 files): every
+    element block with the physical tag of its entity (the first, when several) and the physical names."""
+    import meshio
+
+    from physar.geometry.tetra import _Gmsh
+
+    with _Gmsh() as g:
+        g.open(str(path))
+        tags, coords, _ = g.model.mesh.getNodes()
+        order = np.argsort(np.asarray(tags, np.int64), kind="stable")  # the file's node order (by node tag)
+        tags, coords = np.asarray(tags, np.int64)[order], np.asarray(coords, float).reshape(-1, 3)[order]
+        inv = np.full(int(tags.max()) + 1 if len(tags) else 1, -1, np.int64)
+        inv[tags] = np.arange(len(tags))
+        kinds = {(3, 4): "tetra", (3, 8): "hexahedron", (3, 6): "wedge", (3, 5): "pyramid", (2, 3): "triangle",
+                 (2, 4): "quad"}
+        cells, phys = [], []
+        for dim, ent in g.model.getEntities():
+            groups = g.model.getPhysicalGroupsForEntity(dim, ent)
+            for et, _, nodes in zip(*g.model.mesh.getElements(dim, ent), strict=True):
+                name, edim, order, nn, _, nprim = g.model.mesh.getElementProperties(et)
+                if edim < 2:
+                    continue
+                base = kinds.get((edim, nprim))
+                if base is None:
+                    raise MeshError(f"{path}: gmsh elements {name!r} cannot be read")
+                conn = inv[np.asarray(nodes, np.int64).reshape(-1, nn)]
+                cells.append((base if order == 1 else f"{base}{nn}", conn))
+                phys.append(np.full(len(conn), int(groups[0]) if len(groups) else -1, np.int64))
+        names = {g.model.getPhysicalName(d, t): np.array([t, d]) for d, t in g.model.getPhysicalGroups()}
+        names = {k: v for k, v in names.items() if k}
+        has = bool(g.model.getPhysicalGroups())
+    return meshio.Mesh(coords, cells,
+                       cell_data={"gmsh:physical": phys} if has else {}, field_data=names)
+
+
+def _read_meshio(path: Path):
+    """The meshio mesh of a file, with physar's own readers for OBJ and ASCII STL (meshio fails on negative OBJ
+    indices, texture/normal counts unlike the vertex count, blank lines in STL) and gmsh's for .msh files meshio
+    cannot read. Every failure is one MeshError line naming the file."""
+    meshio = _meshio()
+    suffix = path.suffix.lower()
+    if suffix == ".obj":
+        return _read_obj(path)
+    if suffix == ".stl":
+        with open(path, "rb") as f:
+            head = f.read(84)
+        size = path.stat().st_size
+        binary = len(head) == 84 and 84 + 50 * int.from_bytes(head[80:84], "little") == size
+        if not binary and head.lstrip()[:5].lower() == b"solid":
+            return _read_ascii_stl(path)
+    sink = io.StringIO()
+    try:  # meshio raises many types for corrupt files, and calls sys.exit for unreadable ones
+        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+            return meshio.read(path)
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - meshio raises arbitrary types
+        detail = str(exc) if not isinstance(exc, SystemExit) else sink.getvalue().strip()
+        detail = " ".join(detail.split()) or type(exc).__name__
+    if suffix == ".msh":
+        try:
+            return _read_gmsh_api(path)
+        except MeshError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - gmsh raises plain Exceptions
+            detail += f"; gmsh: {' '.join(str(exc).split())}"
+    raise MeshError(f"cannot read mesh {path}: {detail}"[:300])
+
+
+def _tet_mesh(points: np.ndarray, cells: np.ndarray, path: Path, tags: MeshTags | None) -> TetMesh:
+    """TetMesh of a file's tetrahedra: a mesh written in the other orientation convention (every tetrahedron
+    negative) is reoriented with a warning; a mesh with some tetrahedra inverted is one MeshError."""
+    vol = tet_signed_volumes(points, cells)
+    neg = vol < 0
+    if neg.all():
+        warnings.warn(f"{path}: all {len(cells)} tetrahedra have negative orientation (the other node-order "
+                      "convention); reoriented them (swapped two nodes of each)", PhysarWarning, stacklevel=3)
+        cells = cells.copy()
+        cells[:, [2, 3]] = cells[:, [3, 2]]
+    elif neg.any():
+        scale = np.abs(vol).mean()
+        bad = vol < -1e-12 * scale
+        if bad.any():
+            e = int(np.flatnonzero(bad)[0])
+            raise MeshError(f"{path}: {int(bad.sum())} of {len(cells)} tetrahedra are inverted (negative "
+                            f"orientation, e.g. element {e}) and the others are not: the mesh is tangled or "
+                            "written inconsistently; regenerate it or fix it in the mesher")
+    return TetMesh(points, cells, name=path.name, tags=tags)
+
+
 def read_mesh(path: str | os.PathLike, kind: str = "auto") -> TetMesh | TriMesh:
     """Read a tetrahedral (`kind="tet"`) or triangle (`kind="tri"`) mesh; `auto` prefers tetrahedra.
 
-    Second-order tetrahedra (tetra10) are read as their four corner nodes (physar builds P2 nodes itself).
-    A tet mesh keeps the region tags of its tetrahedra and triangles (meshio cell_data "gmsh:physical",
-    "medit:ref" or "cell_tags") and the group names (field_data) as ``mesh.tags`` (:class:`MeshTags`).
+    Hexahedra, wedges (prisms) and pyramids are split into tetrahedra (conforming: neighbours cut a shared face
+    alike) and quadrilaterals and polygons into triangles, with one :class:`PhysarWarning` per cell type naming the
+    file and the counts; second-order cells (tetra10, hexahedron20, triangle6, ...) are read as their corner nodes
+    (physar builds P2 nodes itself), also with a warning. A file whose tetrahedra all have negative orientation
+    is reoriented (warning); a mix of orientations is a MeshError.
+    A tet mesh keeps the region tags of its cells and triangles (meshio cell_data "gmsh:physical",
+    "medit:ref" or "cell_tags"; through splits, every piece keeps its cell's tag) and the group names
+    (field_data) as ``mesh.tags`` (:class:`MeshTags`).
     """
     path = Path(path)
     if not path.exists():
         raise PhysarError(f"mesh file not found: {path}")
-    meshio = _meshio()
-    sink = io.StringIO()
-    try:  # meshio raises many types for corrupt files, and calls sys.exit for unreadable ones
-        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
-            m = meshio.read(path)
-    except (Exception, SystemExit) as exc:  # noqa: BLE001 - meshio raises arbitrary types
-        detail = str(exc) if not isinstance(exc, SystemExit) else sink.getvalue().strip()
-        detail = " ".join(detail.split()) or type(exc).__name__
-        raise MeshError(f"cannot read mesh {path}: {detail}"[:300]) from None
-    tets = [c.data[:, :4] for c in m.cells if c.type in ("tetra", "tetra10")]
-    tris = [c.data[:, :3] for c in m.cells if c.type in ("triangle", "triangle6")]
+    if path.is_dir():
+        raise PhysarError(f"{path}: the mesh is a folder; give the mesh file")
+    m = _read_meshio(path)
+    vol, surf, notes = _blocks(m, path)
     points = np.asarray(m.points, dtype=float)
     if points.ndim == 2 and points.shape[1] == 2:
         points = np.column_stack([points, np.zeros(len(points))])
-    if kind in ("auto", "tet") and tets:
-        cells = np.concatenate(tets)
+    use_vol = kind in ("auto", "tet") and vol
+    use_surf = not use_vol and kind in ("auto", "tri") and surf
+    for is_vol, note in notes:
+        if (is_vol and use_vol) or (not is_vol and use_surf):
+            warnings.warn(note, PhysarWarning, stacklevel=2)
+    if use_vol:
+        cells = np.concatenate([c for c, _ in vol])
         used = np.unique(cells)
         remap = None
-        if len(used) < len(points):  # drop points not used by tets (e.g. gmsh geometry points)
+        if len(used) < len(points):  # drop points not used by tets (e.g. gmsh geometry points, mid-side nodes)
             remap = -np.ones(len(points), dtype=np.int64)
             remap[used] = np.arange(len(used))
             points, cells = points[used], remap[cells]
-        return TetMesh(points, cells, name=path.name, tags=_mesh_tags(m, remap))
-    if kind in ("auto", "tri") and tris:
-        return TriMesh(points, np.concatenate(tris), name=path.name)
+        return _tet_mesh(points, cells, path, _mesh_tags(vol, surf, _names(m), remap))
+    if use_surf:
+        return TriMesh(points, np.concatenate([f for f, _ in surf]), name=path.name)
     want = {"auto": "tetrahedra or triangles", "tet": "tetrahedra", "tri": "triangles"}.get(kind, kind)
     found = sorted({c.type for c in m.cells}) or ["no cells"]
     raise MeshError(f"{path}: expected {want}, found {', '.join(found)}")
@@ -134,7 +404,9 @@ def write_mesh(
 ) -> Path:
     """Write `mesh` with optional nodal and per-element fields; the format follows the file suffix.  STL is
     written binary, whose coordinates are float32 (use PLY, OBJ, OFF or VTU for exact float64 round trips);
-    a TetMesh needs a volume format (VTU, XDMF, Gmsh .msh, Medit .mesh)."""
+    a TetMesh needs a volume format (VTU, XDMF, Gmsh .msh, Medit .mesh). A TetMesh's tags are written as a tag
+    per tetrahedron (``gmsh:physical`` in .msh, ``medit:ref`` in .mesh, else ``cell_tags``) and, when no cell
+    field is given (a mesh file, not a results file), its tagged boundary triangles as a second block."""
     path = Path(path)
     suffix = path.suffix.lower()
     if isinstance(mesh, TetMesh) and suffix in _SURFACE_ONLY:
@@ -147,11 +419,32 @@ def write_mesh(
         conn = np.asarray(conn, dtype=np.int32)  # PLY has no 64-bit integers (meshio would warn and cast)
     cells = [("tetra" if isinstance(mesh, TetMesh) else "triangle", conn)]
     cd = {k: [np.asarray(v)] for k, v in (cell_data or {}).items()}
+    for k, v in cd.items():
+        if len(v[0]) != len(conn):
+            raise PhysarError(f"cell field {k!r} has {len(v[0])} rows, the mesh has {len(conn)} cells")
     pd = {k: np.asarray(v) for k, v in (point_data or {}).items()}
     for k, v in pd.items():
         if len(v) != mesh.n_points:
             raise PhysarError(f"point field {k!r} has {len(v)} rows, the mesh has {mesh.n_points} points")
-    m = meshio.Mesh(mesh.points, cells, point_data=pd, cell_data=cd)
+    tags = getattr(mesh, "tags", None) if isinstance(mesh, TetMesh) else None
+    field_data = {}
+    if tags is not None:  # physical groups: a tag per tetrahedron, the tagged triangles as a second block, names
+        key = {".msh": "gmsh:physical", ".mesh": "medit:ref"}.get(suffix, "cell_tags")
+        tet_tags = tags.cell_tags if tags.cell_tags is not None else np.zeros(len(conn), np.int64)
+        blocks = [np.asarray(tet_tags, np.int64)]
+        # the tagged triangles only in a mesh file: in a results file (cell fields given) they would lie on the
+        # boundary with NaN fields, drawn over the tetrahedra's faces by viewers such as ParaView
+        if len(tags.face_nodes) and not cd:
+            cells.append(("triangle", np.asarray(tags.face_nodes, np.int64)))
+            blocks.append(np.asarray(tags.face_tags, np.int64))
+        cd[key] = blocks
+        if suffix == ".msh":
+            cd["gmsh:geometrical"] = [b.copy() for b in blocks]
+        field_data = {n: np.array([int(i), int(d)]) for n, (i, d) in tags.names.items()}
+    m = meshio.Mesh(mesh.points, cells, point_data=pd, cell_data=cd, field_data=field_data)
     with atomic_path(path, companions=suffix in (".xdmf", ".xmf")) as tmp:
-        m.write(tmp, **({"binary": True} if suffix == ".stl" else {}))  # binary STL: compact, standard
+        opts = {".stl": {"binary": True},  # binary STL: compact, standard
+                ".msh": {"file_format": "gmsh22"}}.get(suffix, {})  # .msh alone: meshio writes ANSYS
+        with contextlib.redirect_stdout(io.StringIO()):  # meshio prints notes (e.g. zero gmsh tags)
+            m.write(tmp, **opts)
     return path
