@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Annotated
 
@@ -9,15 +10,21 @@ import numpy as np
 import typer
 
 from physar.cli._common import log, output_path, print_json, user_errors, warn_positional
-from physar.errors import PhysarError
+from physar.errors import PhysarError, PhysarWarning
 
 DEPRECATED = "(deprecated: give it as --out; still accepted)"
 
 
-def _load(path: Path):
-    """Return (TriMesh, None) for a surface or (None, points) for a PLY point cloud."""
+def _load(path: Path, role: str = "input"):
+    """Return (TriMesh, None) for a surface or (None, points) for a PLY point cloud.
+
+    A file holding tetrahedra (.vtu/.msh/.mesh/.xdmf volume mesh) gives the tet mesh's whole boundary surface
+    (:func:`physar.geometry.mesh.boundary_surface`: outward, compact vertex numbering, no unused points), never
+    the tagged triangle blocks the file may also hold (a patch of the boundary), with one PhysarWarning naming
+    the file. ``role`` is "input" (the output is then a surface mesh) or "reference" (a --reference volume file
+    gets the same surface, so its faces match those of the same tet mesh given as the input)."""
     from physar.geometry.io import read_mesh
-    from physar.geometry.mesh import TriMesh
+    from physar.geometry.mesh import TetMesh, TriMesh, boundary_surface
     from physar.geometry.pointcloud import read_ply
 
     if path.suffix.lower() == ".ply":
@@ -25,7 +32,14 @@ def _load(path: Path):
         if faces is None:
             return None, pts
         return TriMesh(pts, faces, name=str(path)), None
-    m = read_mesh(path, kind="tri")
+    m = read_mesh(path, kind="auto")  # tetrahedra first: their boundary, not the file's tagged triangles
+    if isinstance(m, TetMesh):
+        surf = boundary_surface(m).mesh
+        use = ("the output is a surface mesh (tetrahedralise it again as the [mesh] file of a problem)"
+               if role == "input" else "it is compared as the reference surface")
+        warnings.warn(f"{path}: holds a volume mesh ({m.n_cells} tetrahedra); its boundary surface "
+                      f"({surf.n_faces} triangles) is used and {use}", PhysarWarning, stacklevel=2)
+        return TriMesh(surf.points, surf.faces, name=m.name), None
     if not isinstance(m, TriMesh):
         raise PhysarError(f"{path}: expected a triangle surface mesh")
     return m, None
@@ -148,7 +162,7 @@ def register(app: typer.Typer) -> None:
     @app.command("denoise")
     @user_errors
     def denoise_cmd(
-        inp: Annotated[Path, typer.Argument(help="input mesh (PLY/OBJ/STL/OFF) or PLY point cloud")],
+        inp: Annotated[Path, typer.Argument(help="input surface mesh (PLY/OBJ/STL/OFF; a volume mesh file: its whole boundary surface) or PLY point cloud")],
         out_arg: Annotated[Path | None, typer.Argument(metavar="OUT", show_default=False,
                                                        help="output file " + DEPRECATED)] = None,
         out_opt: Annotated[Path | None, typer.Option("--out", "-o", show_default=False,
@@ -170,8 +184,8 @@ def register(app: typer.Typer) -> None:
                                                               "stopping scale follows the remaining noise)"),
         sigma_r: float = typer.Option(None, "--sigma-r", help="two-stage/bnf: range kernel width on normals"),
         reference: Annotated[Path | None, typer.Option(
-            "--reference", help="clean mesh with the same faces: print the mean face-normal angle error, mean "
-                                "vertex distance, volume change")] = None,
+            "--reference", help="clean mesh with the same faces (a volume mesh file: its boundary surface, as for the "
+                                "input): print the mean face-normal angle error, mean vertex distance, volume change")] = None,
         render: Annotated[Path | None, typer.Option(
             "--render", help="before/after shaded picture (PNG; default: --out with suffix .png)")] = None,
         no_render: bool = typer.Option(False, "--no-render", help="write no picture"),
@@ -209,7 +223,7 @@ def register(app: typer.Typer) -> None:
         if reference is not None:
             if mesh is None:
                 raise PhysarError(f"{inp}: --reference needs a surface mesh (faces), got a point cloud")
-            ref, _ = _load(reference)
+            ref, _ = _load(reference, role="reference")
             if ref is None or ref.faces.shape != mesh.faces.shape or not np.array_equal(ref.faces, mesh.faces):
                 raise PhysarError(f"{reference}: --reference must have the same faces as {inp} (the clean copy "
                                   f"of the noisy mesh)")
@@ -266,7 +280,7 @@ def register(app: typer.Typer) -> None:
     @app.command("noise")
     @user_errors
     def noise_cmd(
-        inp: Annotated[Path, typer.Argument(help="input surface mesh")],
+        inp: Annotated[Path, typer.Argument(help="input surface mesh (a volume mesh file: its whole boundary surface)")],
         out_arg: Annotated[Path | None, typer.Argument(metavar="OUT", show_default=False,
                                                        help="output surface mesh " + DEPRECATED)] = None,
         out_opt: Annotated[Path | None, typer.Option("--out", "-o", show_default=False,

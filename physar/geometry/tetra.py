@@ -109,12 +109,36 @@ def boundary_edge_count(mesh: TriMesh) -> int:
     return int(np.sum(counts == 1))
 
 
+FLAT_RTOL = 1e-6  # plane-fit tolerance of is_flat, relative to the bounding-box diagonal (float32 STL: ~1e-7)
+
+
+def is_flat(mesh: TriMesh, rtol: float = FLAT_RTOL) -> bool:
+    """True when all the vertices used by ``mesh``'s faces lie in one plane (a 2-D mesh, a single sheet).
+
+    The plane is the least-squares fit of the centred vertices: its normal is the right singular vector of
+    the smallest singular value; the surface is flat when every vertex is within ``rtol`` times the
+    bounding-box diagonal of that plane (collinear or coincident vertices count as flat)."""
+    p = mesh.points[np.unique(mesh.faces)]
+    if len(p) == 0:
+        return False
+    diag = float(np.linalg.norm(np.ptp(p, axis=0)))
+    c = p - p.mean(axis=0)
+    normal = np.linalg.svd(c, full_matrices=False)[2][-1]
+    return bool(np.abs(c @ normal).max() <= rtol * diag)
+
+
 def check_closed(mesh: TriMesh, source: str | None = None) -> None:
-    """MeshError "<source>: surface is not closed (N boundary edges)" unless every edge has two faces."""
+    """MeshError unless every edge has two faces: "<source>: surface is not closed (N boundary edges)", or, for
+    an open surface whose vertices all lie in one plane (:func:`is_flat`, e.g. a 2-D mesh), "<source>: the
+    surface is flat ..." saying that a volume needs a closed 3-D surface. A closed surface is never called flat."""
     from physar.geometry.quality import check_surface
 
     check_surface(mesh)  # empty, repeated vertices, non-manifold edges
     n = boundary_edge_count(mesh)
+    if n and is_flat(mesh):
+        raise MeshError(f"{source or mesh.name}: the surface is flat (all its points lie in one plane, e.g. a 2-D "
+                        f"mesh; {n} boundary edges); a volume mesh needs a closed 3-D surface that encloses "
+                        "the solid")
     if n:
         raise MeshError(f"{source or mesh.name}: surface is not closed ({n} boundary edges); "
                         "a volume mesh needs a watertight surface")
@@ -318,6 +342,7 @@ __all__ = [
     "boundary_edge_count",
     "check_closed",
     "default_size",
+    "is_flat",
     "l_bracket_surface",
     "plate_with_hole_surface",
     "tet_quality",
