@@ -32,7 +32,7 @@ from physar.errors import PhysarError
 from physar.output import write_npz
 from physar.skinning.base import Body, boxes_distance
 from physar.skinning.capsule import procedural_humanoid
-from physar.skinning.lbs import lbs
+from physar.skinning.lbs import check_weights, lbs
 from physar.skinning.skeleton import Skeleton, rigid
 
 CACHE_FORMAT = 1
@@ -214,7 +214,8 @@ def surface_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray
 @dataclass
 class BodyModel(Body):
     """A skinned triangle mesh: rest vertices (V, 3) m, faces (F, 3), skeleton, sparse skinning weights
-    (indices (V, m) into the bones, values (V, m) summing to 1); a :class:`physar.skinning.Body` (module
+    (indices (V, m) into the bones, values (V, m) summing to 1, checked on construction by
+    :func:`physar.skinning.lbs.check_weights`); a :class:`physar.skinning.Body` (module
     docstring). ``smpl_map``/``tpose``: the retargeting tables (:mod:`physar.skinning.base`)."""
 
     vertices: torch.Tensor
@@ -225,6 +226,10 @@ class BodyModel(Body):
     source: str = ""
     smpl_map: dict = field(default_factory=dict)
     tpose: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        check_weights((self.weight_indices, self.weight_values), self.skeleton.n_bones, len(self.vertices),
+                      "BodyModel: weight_indices, weight_values")
 
     def inside(self, points: torch.Tensor) -> torch.Tensor:
         r"""(N,) bool: :math:`|w| \ge 1` for the signed ray-crossing count :math:`w` (:func:`ray_crossings`; the
@@ -360,9 +365,12 @@ def _body_from_npz(path: Path) -> BodyModel:
                           "delete it to rebuild")
     sk = Skeleton(torch.from_numpy(d["parents"]), torch.from_numpy(d["rest_global"]),
                   [str(s) for s in d["names"]])
-    return BodyModel(torch.from_numpy(d["vertices"]), torch.from_numpy(d["faces"]).long(), sk,
-                     torch.from_numpy(d["weight_indices"]).long(), torch.from_numpy(d["weight_values"]),
-                     str(d["source"]))
+    try:
+        return BodyModel(torch.from_numpy(d["vertices"]), torch.from_numpy(d["faces"]).long(), sk,
+                         torch.from_numpy(d["weight_indices"]).long(), torch.from_numpy(d["weight_values"]),
+                         str(d["source"]))
+    except PhysarError as e:
+        raise PhysarError(f"{path}: {e}; delete it to rebuild") from None
 
 
 def load_anny(cache: str | os.PathLike | None = None, rebuild: bool = False) -> BodyModel:
@@ -434,6 +442,7 @@ def load_smpl_npz(path: str | os.PathLike) -> BodyModel:
     rest = rigid(torch.eye(3, dtype=torch.float64).expand(len(parents), 3, 3), torch.from_numpy(J))
     sk = Skeleton(torch.from_numpy(parents), rest)
     idx = torch.arange(len(parents)).expand(v.shape[0], -1).clone()
+    check_weights(torch.from_numpy(W), len(parents), name=f"{path}: weights")
     return BodyModel(torch.from_numpy(v), torch.from_numpy(d["f"].astype(np.int64)), sk, idx,
                      torch.from_numpy(W), f"SMPL npz {path.name}")
 

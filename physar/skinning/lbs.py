@@ -17,19 +17,80 @@ from physar.errors import PhysarError
 
 Weights = torch.Tensor | tuple[torch.Tensor, torch.Tensor]
 
+WEIGHT_SUM_TOL = 1e-3  # accepted |sum_k W_k - 1| per point (float16 or rounded weights pass, a lost bone does not)
+
+
+def check_weights(weights: Weights, n_bones: int, n_points: int | None = None, name: str = "lbs: weights") -> None:
+    r"""Refuse skinning weights that Eq. 1 cannot use, in one PhysarError line starting with ``name`` and naming
+    the first bad point (row) and value: dense weights not of shape (N, ``n_bones``), sparse (indices, values)
+    not of one shape (N, m) or with an index outside ``0..n_bones-1``, N differing from ``n_points`` (when
+    given), a weight that is NaN, infinite or negative, or a row whose sum is not 1 within ``WEIGHT_SUM_TOL``
+    (:math:`\sum_k W_k = 1` keeps a point on its bones; a row of zeros would move it to the origin).
+    Good weights cost a minimum and a row sum of (N, m) (and the indices' range) and one host synchronisation."""
+    sparse = isinstance(weights, tuple)
+    if sparse:
+        if len(weights) != 2 or not all(isinstance(t, torch.Tensor) for t in weights):
+            raise PhysarError(f"{name}: sparse weights must be a tuple (indices, values) of tensors")
+        idx, w = weights
+        if idx.shape != w.shape or w.ndim != 2:
+            raise PhysarError(f"{name}: sparse indices {tuple(idx.shape)} and values {tuple(w.shape)} must have "
+                              "one shape (N, m)")
+        if idx.dtype.is_floating_point or idx.dtype.is_complex or idx.dtype == torch.bool:
+            raise PhysarError(f"{name}: sparse indices must be integers, got {idx.dtype}")
+    else:
+        if not isinstance(weights, torch.Tensor):
+            raise PhysarError(f"{name}: must be a tensor (N, {n_bones}) or a tuple (indices, values), "
+                              f"got {type(weights).__name__}")
+        w = weights
+        if w.ndim != 2 or w.shape[1] != n_bones:
+            raise PhysarError(f"{name}: must have shape (N, {n_bones}) for {n_bones} bones, got {tuple(w.shape)}")
+    if n_points is not None and w.shape[0] != n_points:
+        raise PhysarError(f"{name}: {w.shape[0]} rows for {n_points} points")
+    w = w.detach()
+    if w.numel() == 0:
+        if len(w):
+            raise PhysarError(f"{name}: row 0 has no weight on any bone (Eq. 1 would move the point to the origin)")
+        return
+    # fast pass: the minimum is NaN or < 0 for a NaN, -inf or negative weight; a row sum is off 1 (or NaN) for
+    # +inf and for rows not summing to 1
+    sums_ok = (w.sum(1) - 1).abs() <= WEIGHT_SUM_TOL
+    ok = (w.min() >= 0) & sums_ok.all()
+    if sparse:
+        lo, hi = torch.aminmax(idx)
+        ok &= (lo >= 0) & (hi < n_bones)
+    if bool(ok):
+        return
+    if sparse:
+        out = (idx < 0) | (idx >= n_bones)
+        if bool(out.any()):
+            i, k = torch.nonzero(out)[0].tolist()
+            raise PhysarError(f"{name}: row {i} has bone index {int(idx[i, k])}, outside 0..{n_bones - 1}")
+    bad_val = ~torch.isfinite(w) | (w < 0)
+    if bool(bad_val.any()):
+        i, k = torch.nonzero(bad_val)[0].tolist()
+        what = "negative" if torch.isfinite(w[i, k]) else "not finite"
+        raise PhysarError(f"{name}: row {i} has weight {float(w[i, k]):g} ({what}) in column {k}")
+    i = int(torch.nonzero(~sums_ok)[0, 0])
+    total = float(w[i].sum())
+    if total == 0:
+        raise PhysarError(f"{name}: row {i} has no weight on any bone (Eq. 1 would move the point to the origin)")
+    raise PhysarError(f"{name}: row {i} sums to {total:.6g}, not 1 (within {WEIGHT_SUM_TOL:g}); "
+                      "normalize_weights rescales the rows")
+
 
 def blend_transforms(weights: Weights, bone_transforms: torch.Tensor) -> torch.Tensor:
     r"""The blended transforms :math:`A^i = \sum_k W_k^i B_k`, (N, 4, 4). ``weights`` is dense (N, B) or
-    sparse (indices (N, m), w (N, m)); ``bone_transforms`` (B, 4, 4)."""
+    sparse (indices (N, m), w (N, m)); ``bone_transforms`` (B, 4, 4). Weights that Eq. 1 cannot use (NaN,
+    negative, rows not summing to 1, indices out of range, mismatched shapes) raise PhysarError
+    (:func:`check_weights`)."""
+    if not isinstance(bone_transforms, torch.Tensor) or bone_transforms.ndim != 3 \
+            or bone_transforms.shape[1:] != (4, 4):
+        raise PhysarError(f"lbs: bone_transforms must have shape (B, 4, 4), got "
+                          f"{tuple(getattr(bone_transforms, 'shape', ()))}")
+    check_weights(weights, bone_transforms.shape[0])
     if isinstance(weights, tuple):
         idx, w = weights
-        if idx.shape != w.shape:
-            raise PhysarError(f"lbs: sparse weight indices {tuple(idx.shape)} and values {tuple(w.shape)} "
-                              "must have the same shape")
         return (w[..., None, None] * bone_transforms[idx]).sum(-3)
-    if weights.ndim != 2 or weights.shape[1] != bone_transforms.shape[-3]:
-        raise PhysarError(f"lbs: weights must have shape (N, {bone_transforms.shape[-3]}), "
-                          f"got {tuple(weights.shape)}")
     return torch.einsum("nk,kij->nij", weights, bone_transforms)
 
 
@@ -40,9 +101,15 @@ def lbs(points: torch.Tensor, weights: Weights, bone_transforms: torch.Tensor,
     .. math:: A^i = \sum_k W_k^i B_k, \qquad \mu_\text{lbs}^i = A_\text{rot}^i \mu^i + A_t^i, \qquad
               R_\text{lbs}^i = A_\text{rot}^i R^i.
 
-    Returns (mu_lbs (N, 3), R_lbs (N, 3, 3) or None, A (N, 4, 4)).
+    Returns (mu_lbs (N, 3), R_lbs (N, 3, 3) or None, A (N, 4, 4)). The weights must have one row per point
+    (:func:`check_weights`).
     """
     A = blend_transforms(weights, bone_transforms)
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) != len(A):
+        raise PhysarError(f"lbs: points must have shape ({len(A)}, 3) (one per weight row), "
+                          f"got {tuple(points.shape)}")
+    if rotations is not None and tuple(rotations.shape) != (len(A), 3, 3):
+        raise PhysarError(f"lbs: rotations must have shape ({len(A)}, 3, 3), got {tuple(rotations.shape)}")
     mu = (A[:, :3, :3] @ points[..., None])[..., 0] + A[:, :3, 3]
     R = None if rotations is None else A[:, :3, :3] @ rotations
     return mu, R, A
@@ -57,8 +124,14 @@ def lbs_gaussians(g, weights: Weights, bone_transforms: torch.Tensor):
 
 
 def normalize_weights(w: torch.Tensor, dim: int = -1) -> torch.Tensor:
-    """Weights rescaled to sum to 1 along ``dim``; raises PhysarError if any row has zero total."""
+    """Weights rescaled to sum to 1 along ``dim``; raises PhysarError naming the first bad entry if a weight is
+    NaN, infinite or negative, or if a row has zero total (a point on no bone)."""
+    bad = ~torch.isfinite(w) | (w < 0)
+    if bool(bad.any()):
+        at = tuple(torch.nonzero(bad)[0].tolist())
+        raise PhysarError(f"skinning weights: entry {at} is {float(w[at]):g}; weights must be finite and >= 0")
     s = w.sum(dim, keepdim=True)
     if torch.any(s <= 0):
-        raise PhysarError("skinning weights: a point has no positive weight on any bone")
+        at = tuple(torch.nonzero(s <= 0)[0].tolist())
+        raise PhysarError(f"skinning weights: the row at {at} (dim {dim}) has no positive weight on any bone")
     return w / s

@@ -14,6 +14,9 @@ prediction is refined by the colour-weighted centroid of the blob in a small win
 (:math:`c_i` the "blueness" of pixel :math:`i`).
 The refined pixels are back-projected onto the object's plane (ray-plane intersection, :class:`Camera`),
 giving 3-D positions :math:`x` and displacements :math:`u^* = x - X_{\mathrm{ref}}`.
+A dot whose projection is NaN (behind the camera, :meth:`Camera.project`) or farther than ``FAR_PX`` from the
+image origin (just in front of the camera's centre plane) is not visible in that frame: it is neither searched
+nor measured, and comes out invalid (NaN); the other dots are tracked as if it were not there.
 """
 from __future__ import annotations
 
@@ -24,6 +27,13 @@ import numpy as np
 
 from physar.errors import ConfigError
 from physar.vision.camera import Camera, Pose
+
+FAR_PX = 1e7  # |pixel| beyond which a projected dot counts as not visible (keeps the integer crops in range)
+
+
+def _visible(pixels) -> np.ndarray:
+    """(n,) bool: rows of `pixels` (n, 2) that are finite and within ``FAR_PX`` (False for NaN, no warning)."""
+    return np.all(np.abs(pixels) < FAR_PX, axis=1)
 
 
 @dataclass
@@ -126,12 +136,19 @@ class DotTracker:
 
     def detect_blobs(self, frame, pred, search_px):
         """Blob detection: connected components of the colour mask in the region around `pred` (n, 2);
-        each prediction takes the nearest blob centroid within `search_px` (else stays NaN)."""
+        each prediction takes the nearest blob centroid within `search_px` (else stays NaN). Rows of `pred` that
+        are not visible (NaN, or beyond ``FAR_PX``) stay NaN, as do all rows when `search_px` is not in
+        (0, ``FAR_PX``)."""
         h, w = frame.shape[:2]
-        lo = np.floor(np.nanmin(pred, 0) - search_px).astype(int)
-        hi = np.ceil(np.nanmax(pred, 0) + search_px).astype(int)
-        x0, y0, x1, y1 = max(lo[0], 0), max(lo[1], 0), min(hi[0], w), min(hi[1], h)
+        pred = np.asarray(pred, float)
         out = np.full_like(pred, np.nan)
+        seen = _visible(pred)
+        if not (seen.any() and 0 < search_px < FAR_PX):
+            return out
+        q = pred[seen]
+        lo = np.floor(q.min(0) - search_px).astype(int)
+        hi = np.ceil(q.max(0) + search_px).astype(int)
+        x0, y0, x1, y1 = max(lo[0], 0), max(lo[1], 0), min(hi[0], w), min(hi[1], h)
         if x1 <= x0 or y1 <= y0:
             return out
         roi = frame[y0:y1, x0:x1].astype(np.int16)
@@ -143,11 +160,35 @@ class DotTracker:
         cents = cents[1:][(area >= 3) & (area <= 4 * (2 * self.r + 1) ** 2)] + (x0, y0)
         if len(cents) == 0:
             return out
-        d = np.linalg.norm(pred[:, None, :] - cents[None], axis=2)
+        d = np.linalg.norm(q[:, None, :] - cents[None], axis=2)
         j = np.argmin(d, axis=1)
-        ok = d[np.arange(len(pred)), j] < search_px
-        out[ok] = cents[j[ok]]
+        ok = d[np.arange(len(q)), j] < search_px
+        found = np.full_like(q, np.nan)
+        found[ok] = cents[j[ok]]
+        out[seen] = found
         return out
+
+    def _spacing(self, proj):
+        """Smallest distance between consecutive projected dots (n, 2) (reference order), skipping the pairs
+        with a dot that is not visible (NaN); ``4 r`` without such a pair."""
+        gaps = np.linalg.norm(np.diff(proj, axis=0), axis=1)  # NaN where one of the pair is not visible
+        gaps = gaps[np.isfinite(gaps)]
+        return gaps.min() if gaps.size else 4 * self.r
+
+    def _measure(self, frame, pred, gray):
+        """Centroids around visible predictions (m, 2), re-centred once on the blob (only the dots whose window
+        moved: the others would give the same result); returns (pixels, mass, bad), `bad` where no centroid
+        was found (its pixel is then the prediction)."""
+        px, mass = self._centroid(frame, pred, gray)
+        bad = ~np.isfinite(px).all(1)
+        px[bad] = pred[bad]
+        moved = np.any(self._window_centre(px, frame.shape) != self._window_centre(pred, frame.shape), 1)
+        if moved.any():
+            px2, mass[moved] = self._centroid(frame, px[moved], gray)
+            bad2 = ~np.isfinite(px2).all(1)
+            px2[bad2] = pred[moved][bad2]
+            px[moved], bad[moved] = px2, bad2
+        return px, mass, bad
 
     def update(self, frame, gray, pose: Pose | None, use_flow: bool = True) -> DotObservation:
         """Track the dots in a BGR frame (uint8 (h, w, 3)) with its grey image and the camera pose."""
@@ -157,19 +198,23 @@ class DotTracker:
             self._prev_gray = None
             return DotObservation(np.full((n, 2), np.nan), np.zeros(n, bool), nan, nan.copy())
         proj = self.camera.project(self.reference + self.displacement, pose)
+        seen = _visible(proj)  # not visible this frame: NaN (behind the camera) or far beyond the image
+        proj[~seen] = np.nan
         proj0, pred = proj.copy(), proj.copy()
         if self.flow == "auto":
             use_flow = use_flow and self._need_flow
         elif not self.flow:
             use_flow = False
-        if use_flow and self._prev_gray is not None and self._prev_valid.any():
+        track = np.zeros(n, bool) if self._prev_gray is None else self._prev_valid & seen
+        if use_flow and track.any():
             self.n_flow += 1
-            idx = np.flatnonzero(self._prev_valid)
+            idx = np.flatnonzero(track)
             p0 = self._prev_px[idx].astype(np.float32).reshape(-1, 1, 2)
-            # pyramids of the region around the dots only (not the whole frame)
+            # pyramids of the region around the dots only (not the whole frame); the crop holds p0, which
+            # lies inside the image (a valid dot), so it is never empty
             h, w = gray.shape[:2]
             m = 3 * self.r + 20
-            both = np.vstack([p0.reshape(-1, 2), proj])
+            both = np.vstack([p0.reshape(-1, 2), proj[seen]])
             x0, y0 = np.maximum(np.floor(both.min(0) - m).astype(int), 0)
             x1, y1 = np.ceil(both.max(0) + m).astype(int)
             x1, y1 = min(x1, w), min(y1, h)
@@ -181,24 +226,18 @@ class DotTracker:
         # dots without a flow track: blob detection within half the dot spacing of their projection
         lost = np.ones(n, bool) if self._prev_gray is None else ~self._prev_valid
         if lost.any():
-            spacing = np.min(np.linalg.norm(np.diff(proj, axis=0), axis=1)) if n > 1 else 4 * self.r
-            found = self.detect_blobs(frame, proj[lost], 0.45 * spacing)
+            found = self.detect_blobs(frame, proj[lost], 0.45 * self._spacing(proj))
             ok = np.isfinite(found).all(1)
             idx = np.flatnonzero(lost)[ok]
             pred[idx] = found[ok]
             proj[idx] = found[ok]  # accept the blob as the new prediction (gate below)
-        # measure, then re-centre the window on the blob and measure again (only the dots whose window
-        # moved: the others would give the same result)
-        px, mass = self._centroid(frame, pred, gray)
-        bad = ~np.isfinite(px).all(1)
-        px[bad] = pred[bad]
-        moved = np.any(self._window_centre(px, frame.shape) != self._window_centre(pred, frame.shape), 1)
-        if moved.any():
-            px2, mass[moved] = self._centroid(frame, px[moved], gray)
-            bad2 = ~np.isfinite(px2).all(1)
-            px2[bad2] = pred[moved][bad2]
-            px[moved], bad[moved] = px2, bad2
-        valid = (mass >= self.min_mass) & (np.linalg.norm(px - proj, axis=1) < self.gate_px) & ~bad
+        # measure the visible dots, then re-centre the window on the blob and measure again
+        px, mass, bad = np.full((n, 2), np.nan), np.zeros(n), ~seen
+        valid = np.zeros(n, bool)
+        if seen.any():
+            px[seen], mass[seen], bad[seen] = self._measure(frame, pred[seen], gray)
+            valid[seen] = ((mass[seen] >= self.min_mass) & ~bad[seen]
+                           & (np.linalg.norm(px[seen] - proj[seen], axis=1) < self.gate_px))
         h, w = gray.shape[:2]
         valid &= (px[:, 0] > self.r) & (px[:, 0] < w - self.r - 1) & (px[:, 1] > self.r) & (px[:, 1] < h - self.r - 1)
         world = nan.copy()
