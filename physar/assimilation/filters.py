@@ -2,7 +2,37 @@
 the filter weighs each frame by its own uncertainty)."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+from physar.errors import PhysarError
+
+
+def _vector(value, name: str, n: int | None = None, where: str = "IMMFilter") -> np.ndarray:
+    """``value`` as a 1-D float array (of ``n`` values when given), else a PhysarError naming ``name``."""
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise PhysarError(f"{where}: {name} must be numbers, got {value!r}") from None
+    if n is not None:
+        if a.size != n or a.ndim > 1:
+            raise PhysarError(f"{where}: {name} must have {n} value(s) (one per parameter), got shape {a.shape}")
+        a = a.reshape(n)
+    elif a.ndim != 1:
+        raise PhysarError(f"{where}: {name} must be a 1-D array (one value per parameter), got shape {a.shape}")
+    return a
+
+
+def _number(value, name: str, ok, want: str) -> float:
+    """``value`` as a float satisfying ``ok``, else a PhysarError naming ``name`` and ``want``."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if isinstance(value, bool) or not ok(v):
+        raise PhysarError(f"IMMFilter: {name} must be {want}, got {value!r}")
+    return v
 
 
 class IMMFilter:
@@ -20,13 +50,37 @@ class IMMFilter:
     of moves (worst 1.35 mm); on the ten cantilever clips 3310/3310 within 1 % (worst 3.9 mm of 0.5 m; 4.5 mm
     with (0.2, 0.1)); the foam and seal clips are unchanged (mean 1.20 vs 1.19 mm, median 0.074 vs 0.072 deg).
     ``update(z, std)`` returns the filtered (mu, std); ``reset()`` makes the next measurement start the filter
-    again."""
+    again.
+
+    Checked (a PhysarError names the argument and value): ``lo``, ``hi`` 1-D of one length, finite, hi > lo;
+    ``dwell_sigma``, ``motion_accel`` finite and >= 0; ``switch`` two probabilities in [0, 1]; ``jump_sigma``
+    > 0 (inf: never re-initialise); in ``update``, ``z`` one finite value per parameter and ``std`` one value
+    (or one for all) >= 0 and finite, NaN meaning unknown (the floor is then used)."""
 
     def __init__(self, lo, hi, dwell_sigma: float = 1e-4, motion_accel: float = 5e-3,
                  switch: tuple = (0.3, 0.05), jump_sigma: float = 4.0):
-        self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
-        self.dwell_sigma, self.motion_accel, self.switch, self.jump_sigma = dwell_sigma, motion_accel, switch, \
-            jump_sigma
+        self.lo = _vector(lo, "lo")
+        self.hi = _vector(hi, "hi", self.lo.size)
+        if not (np.all(np.isfinite(self.lo)) and np.all(np.isfinite(self.hi))):
+            raise PhysarError(f"IMMFilter: lo and hi must be finite, got lo={self.lo.tolist()}, hi={self.hi.tolist()}")
+        if np.any(self.hi <= self.lo):
+            i = int(np.argmax(self.hi <= self.lo))
+            raise PhysarError(f"IMMFilter: hi must be > lo (the noises are fractions of the range), got lo[{i}]="
+                              f"{self.lo[i]:g}, hi[{i}]={self.hi[i]:g}")
+        finite_nonneg = lambda v: 0 <= v < math.inf
+        self.dwell_sigma = _number(dwell_sigma, "dwell_sigma", finite_nonneg,
+                                   "a finite number >= 0 (fraction of the range)")
+        self.motion_accel = _number(motion_accel, "motion_accel", finite_nonneg,
+                                    "a finite number >= 0 (fraction of the range per frame^2)")
+        try:
+            p01, p10 = (float(p) for p in switch)
+        except (TypeError, ValueError):
+            p01 = p10 = math.nan
+        if not (0 <= p01 <= 1 and 0 <= p10 <= 1):
+            raise PhysarError(f"IMMFilter: switch must be two probabilities in [0, 1] (dwell -> moving, moving -> "
+                              f"dwell), got {switch!r}")
+        self.switch = (p01, p10)
+        self.jump_sigma = _number(jump_sigma, "jump_sigma", lambda v: v > 0, "a number > 0 (standard deviations)")
         self.fresh = True
 
     def reset(self):
@@ -34,10 +88,17 @@ class IMMFilter:
 
     def update(self, z, std) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = self.lo, self.hi
-        z = np.asarray(z, float)
+        n = lo.size
+        z = _vector(z, "z", n, "IMMFilter.update")
+        if not np.all(np.isfinite(z)):
+            i = int(np.argmax(~np.isfinite(z)))
+            raise PhysarError(f"IMMFilter.update: z[{i}] = {z[i]} is not a finite measurement")
+        std = np.broadcast_to(_vector(std, "std", 1 if np.size(std) == 1 else n, "IMMFilter.update"), (n,))
+        if np.any(std < 0) or np.any(np.isinf(std)):
+            i = int(np.argmax((std < 0) | np.isinf(std)))
+            raise PhysarError(f"IMMFilter.update: std[{i}] = {std[i]} must be >= 0 and finite (NaN: unknown)")
         rng = hi - lo
         R = np.maximum(np.nan_to_num(std, nan=0.0), 2e-4 * rng) ** 2
-        n = z.size
         if self.fresh:
             self._x = np.zeros((2, n, 2))          # (model, parameter, [value, rate])
             self._x[:, :, 0] = z

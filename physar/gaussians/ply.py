@@ -6,7 +6,10 @@ binary little endian. ``f_rest`` is channel-major (all R coefficients of bands >
 ``opacity`` is the logit, ``scale_*`` the log standard deviation, ``rot_*`` the quaternion (w, x, y, z).
 Normals are written as zeros and ignored on reading. Files are written atomically (temp name + rename).
 Reading accepts binary little/big endian and ASCII files with any property order and extra properties,
-float or double; missing properties raise a :class:`PhysarError` naming the file and the property.
+float or double; missing properties raise a :class:`PhysarError` naming the file and every missing property
+(a mesh or point-cloud PLY lacks the 3DGS ones), as do a property declared twice, a binary body shorter
+than the header declares or longer by at least one vertex record (a wrong vertex count), and a NaN, an
+infinite value or a zero quaternion. An empty file (0 vertices) reads as 0 Gaussians.
 """
 
 from __future__ import annotations
@@ -39,19 +42,27 @@ def attribute_names(sh_degree: int) -> list[str]:
 def save_ply(path: str | os.PathLike, g: Gaussians) -> Path:
     """Write ``g`` to ``path`` in the standard 3DGS PLY layout (float32, binary little endian).
 
-    Written to a temporary file in the same folder and renamed, so no half-written file is left.
+    Written to a temporary file in the same folder and renamed, so no half-written file is left. Values that
+    are NaN, infinite, or beyond the float32 range of the file (they would be written as inf) are refused
+    before anything is written.
     """
     path = Path(path)
+    if not isinstance(g, Gaussians):
+        raise PhysarError(f"{path}: save_ply needs physar.gaussians.Gaussians, got {type(g).__name__}")
     if not path.parent.exists():
         raise PhysarError(f"{path}: folder {path.parent} does not exist")
     t = {k: v.detach().cpu().double().numpy() for k, v in g.tensors().items()}
     n = t["means"].shape[0]
+    f32max = float(np.finfo(np.float32).max)
     for k, v in t.items():
         if not np.all(np.isfinite(v)):
             raise PhysarError(f"{path}: Gaussians.{k} contains NaN or infinite values; not written")
+        if v.size and np.abs(v).max() > f32max:
+            raise PhysarError(f"{path}: Gaussians.{k} has values up to {np.abs(v).max():.3g}, beyond float32 "
+                              f"({f32max:.3g}) of the 3DGS PLY layout; not written")
     names = attribute_names(g.sh_degree)
     cols = [t["means"], np.zeros((n, 3)), t["sh"][:, 0, :],
-            t["sh"][:, 1:, :].transpose(0, 2, 1).reshape(n, -1),
+            t["sh"][:, 1:, :].transpose(0, 2, 1).reshape(n, 3 * (t["sh"].shape[1] - 1)),
             t["opacity_logits"][:, None], t["log_scales"], t["quats"]]
     data = np.concatenate(cols, axis=1).astype("<f4")
     rec = np.empty(n, dtype=[(name, "<f4") for name in names])
@@ -96,6 +107,8 @@ def _parse_header(path: Path, f) -> tuple[str, list[tuple[str, int, list[tuple[s
                     "in a 3DGS Gaussian file")
             if len(words) != 3 or words[1] not in _PLY_TYPES:
                 raise PhysarError(f"{path}: malformed PLY property line {line.strip()!r}")
+            if any(name == words[2] for name, _ in elements[-1][2]):
+                raise PhysarError(f"{path}: property {words[2]!r} declared twice in element {elements[-1][0]!r}")
             elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
         else:
             raise PhysarError(f"{path}: unknown PLY header keyword {words[0]!r}")
@@ -105,8 +118,11 @@ def _parse_header(path: Path, f) -> tuple[str, list[tuple[str, int, list[tuple[s
 
 
 def load_ply(path: str | os.PathLike, dtype: torch.dtype = torch.float32) -> Gaussians:
-    """Read 3DGS Gaussians from a PLY file (see the module docstring for the layout)."""
+    """Read 3DGS Gaussians from a PLY file (see the module docstring for the layout and the checks) as
+    tensors of the floating ``dtype``."""
     path = Path(path)
+    if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
+        raise PhysarError(f"{path}: load_ply needs a floating dtype, got {dtype}")
     if not path.is_file():
         raise PhysarError(f"{path}: Gaussian PLY file not found")
     with open(path, "rb") as f:
@@ -115,10 +131,12 @@ def load_ply(path: str | os.PathLike, dtype: torch.dtype = torch.float32) -> Gau
             raise PhysarError(f"{path}: the first PLY element must be 'vertex', got "
                               f"{elements[0][0] if elements else 'none'!r}")
         _, n, props = elements[0]
+        extra = 0  # binary bytes after the declared data
         if fmt == "ascii":
             names = [p[0] for p in props]
             try:
-                arr = np.loadtxt(f, dtype=np.float64, max_rows=n, ndmin=2)
+                arr = (np.loadtxt(f, dtype=np.float64, max_rows=n, ndmin=2) if n
+                       else np.zeros((0, len(names))))
             except ValueError as e:
                 raise PhysarError(f"{path}: malformed ASCII PLY body ({e})") from None
             if arr.shape != (n, len(names)):
@@ -128,6 +146,12 @@ def load_ply(path: str | os.PathLike, dtype: torch.dtype = torch.float32) -> Gau
         else:
             endian = "<" if fmt == "binary_little_endian" else ">"
             dt = np.dtype([(name, endian + t) for name, t in props])
+            left = os.fstat(f.fileno()).st_size - f.tell()
+            if left < dt.itemsize * n:
+                raise PhysarError(f"{path}: truncated PLY body: expected {n} vertices of {dt.itemsize} bytes "
+                                  f"({dt.itemsize * n} bytes), found {left} bytes")
+            rest = sum(m * sum(np.dtype(t).itemsize for _, t in pr) for _, m, pr in elements[1:])
+            extra = left - dt.itemsize * n - rest
             raw = f.read(dt.itemsize * n)
             if len(raw) != dt.itemsize * n:
                 raise PhysarError(f"{path}: truncated PLY body: expected {n} vertices of {dt.itemsize} bytes "
@@ -140,9 +164,19 @@ def load_ply(path: str | os.PathLike, dtype: torch.dtype = torch.float32) -> Gau
             raise PhysarError(f"{path}: missing property {name!r} of the 3DGS layout in element 'vertex'")
         return cols[name]
 
+    missing = [a for a in attribute_names(0) if a not in cols and not a.startswith("n")]
+    if missing:
+        which = "property" if len(missing) == 1 else "properties"
+        raise PhysarError(f"{path}: missing {which} {', '.join(map(repr, missing))} of the 3DGS layout in element "
+                          "'vertex' (a mesh or point-cloud PLY? a 3DGS file has x y z f_dc_0..2 opacity "
+                          "scale_0..2 rot_0..3)")
     n_rest = sum(1 for k in cols if k.startswith("f_rest_"))
     if n_rest % 3 or (n_rest // 3 + 1) not in (1, 4, 9, 16):
         raise PhysarError(f"{path}: {n_rest} f_rest_* properties; expected 0, 9, 24 or 45 (SH degree 0..3)")
+    per = sum(np.dtype(t).itemsize for _, t in props)  # bytes of one binary vertex record
+    if extra >= per > 0:
+        raise PhysarError(f"{path}: {extra} bytes after the {n} vertices the header declares ({per} bytes each, "
+                          f"{extra // per} more whole vertices): the vertex count in the header is wrong")
     k = n_rest // 3 + 1
     means = np.stack([col("x"), col("y"), col("z")], 1)
     dc = np.stack([col(f"f_dc_{i}") for i in range(3)], 1)
@@ -159,4 +193,10 @@ def load_ply(path: str | os.PathLike, dtype: torch.dtype = torch.float32) -> Gau
     if np.any(np.linalg.norm(out["quats"], axis=1) == 0):
         bad = int(np.argmax(np.linalg.norm(out["quats"], axis=1) == 0))
         raise PhysarError(f"{path}: zero quaternion (rot_0..3) at vertex {bad}")
-    return Gaussians(**{name: torch.from_numpy(np.ascontiguousarray(v)).to(dtype) for name, v in out.items()})
+    tensors = {name: torch.from_numpy(np.ascontiguousarray(v)).to(dtype) for name, v in out.items()}
+    for name, t in tensors.items():  # finite in float64, beyond the range of dtype (a double property)
+        if not bool(torch.isfinite(t).all()):
+            bad = int(torch.nonzero(~torch.isfinite(t.reshape(n, -1)))[0, 0])
+            raise PhysarError(f"{path}: {name} of vertex {bad} is beyond the range of {dtype} "
+                              f"({torch.finfo(dtype).max:.3g}); load with dtype=torch.float64")
+    return Gaussians(**tensors)

@@ -40,14 +40,15 @@ lent GPU by benchmarks/gpu_check_gsplat.py, never in the test suite).
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import torch
 
 from physar.errors import PhysarError
 from physar.gaussians.camera import Camera
-from physar.gaussians.model import Gaussians
-from physar.gaussians.sh import eval_sh
+from physar.gaussians.model import Gaussians, _check_finite, _first_bad, _floating
+from physar.gaussians.sh import _eval_sh
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
@@ -80,9 +81,99 @@ class Projected:
     extents: torch.Tensor | None = None
 
 
+# ---- input checks (once per call, on whole arrays; never inside the per-tile code) -------------------------
+def _whole(value, name: str, where: str, minimum: int = 1, none: bool = False) -> int | None:
+    """``value`` as an int >= ``minimum`` (None passes when ``none``), else a PhysarError naming it."""
+    if value is None and none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) \
+            or value != int(value) or value < minimum:
+        raise PhysarError(f"{where}: {name} must be a whole number >= {minimum}{' or None' if none else ''}, "
+                          f"got {value!r}")
+    return int(value)
+
+
+def _check_options(where: str, eps2d=0.3, near=0.01, max_elements=2e8) -> None:
+    """eps2d finite >= 0 (px^2), near finite > 0 (m), max_elements > 0."""
+    for name, v, ok, want in (("eps2d", eps2d, lambda x: 0 <= x < math.inf, "a finite number >= 0 (px^2)"),
+                              ("near", near, lambda x: 0 < x < math.inf, "a finite number > 0 (m)"),
+                              ("max_elements", max_elements, lambda x: x > 0, "a number > 0")):
+        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not ok(v):
+            raise PhysarError(f"{where}: {name} must be {want}, got {v!r}")
+
+
+def _check_camera(cam, where: str) -> None:
+    if not isinstance(cam, Camera):
+        raise PhysarError(f"{where}: cam must be a physar.gaussians.Camera, got {type(cam).__name__}")
+
+
+def _background(background, where: str, width: int, height: int) -> torch.Tensor | None:
+    """``background`` as a finite tensor of shape (3,) or (height, width, 3) (a list is converted), or None."""
+    if background is None:
+        return None
+    try:
+        bg = torch.as_tensor(background)
+    except (TypeError, ValueError, RuntimeError):
+        raise PhysarError(f"{where}: background must be an RGB triple (3,) or an image ({height}, {width}, 3), "
+                          f"got {type(background).__name__}") from None
+    if tuple(bg.shape) not in ((3,), (height, width, 3)):
+        raise PhysarError(f"{where}: background must have shape (3,) or ({height}, {width}, 3), got "
+                          f"{tuple(bg.shape)}")
+    if not bool(torch.isfinite(bg).all()):
+        raise PhysarError(f"{where}: background contains NaN or infinite values")
+    return bg
+
+
+def _per_gaussian(t, name: str, where: str, shape: tuple, dtype: torch.dtype) -> None:
+    """``t`` a floating tensor of exactly ``shape`` and ``dtype`` with finite values (PhysarError naming it)."""
+    _floating(t, name, where)
+    if tuple(t.shape) != shape:
+        raise PhysarError(f"{where}: {name} must have shape {shape}, got {tuple(t.shape)}")
+    if t.dtype != dtype:
+        raise PhysarError(f"{where}: {name} is {t.dtype}, the means {dtype}; give them one dtype (use .to())")
+    _check_finite(t, name, where)
+
+
+def _check_cov3d(cov3d: torch.Tensor, where: str) -> None:
+    r"""Each (3, 3) a covariance: symmetric and positive semi-definite within :math:`10^{-4}` of its largest
+    eigenvalue (float32 products such as :math:`F R S S^\top R^\top F^\top` pass)."""
+    with torch.no_grad():
+        c = cov3d.detach()
+        scale = c.abs().amax((-1, -2))
+        tol = 1e-4 * scale
+        sym = (c - c.transpose(-1, -2)).abs().amax((-1, -2)) <= tol
+        ev = torch.linalg.eigvalsh(0.5 * (c + c.transpose(-1, -2))) if c.numel() else c.new_zeros(0, 3)
+        bad = _first_bad(sym & (ev[:, 0] >= -tol))
+    if bad is not None:
+        raise PhysarError(f"{where}: cov3d[{bad}] is not a covariance (symmetric positive semi-definite): "
+                          f"eigenvalues {[round(v, 9) for v in ev[bad].tolist()]} m^2, "
+                          f"{[[round(v, 9) for v in r] for r in c[bad].tolist()]}")
+
+
 def project(means: torch.Tensor, cov3d: torch.Tensor, opacities: torch.Tensor, colors: torch.Tensor,
             cam: Camera, eps2d: float = 0.3, near: float = 0.01) -> Projected:
-    """EWA projection of 3-D Gaussians (means m, cov3d m^2) to the image plane (see module docstring)."""
+    """EWA projection of 3-D Gaussians (means m, cov3d m^2) to the image plane (see module docstring).
+
+    ``means`` (N, 3), ``cov3d`` (N, 3, 3) symmetric positive semi-definite, ``opacities`` (N,) in [0, 1],
+    ``colors`` (N, 3), one floating dtype, finite; ``eps2d`` >= 0, ``near`` > 0. A PhysarError names the first
+    argument (and Gaussian) that is not."""
+    where = "project"
+    _check_camera(cam, where)
+    _check_options(where, eps2d, near)
+    _floating(means, "means", where, (3,))
+    n = means.shape[0]
+    _per_gaussian(means, "means", where, (n, 3), means.dtype)
+    _per_gaussian(cov3d, "cov3d", where, (n, 3, 3), means.dtype)
+    _check_cov3d(cov3d, where)
+    _per_gaussian(opacities, "opacities", where, (n,), means.dtype)
+    if not bool(((opacities >= 0) & (opacities <= 1)).all()):
+        raise PhysarError(f"{where}: opacities must lie in [0, 1]")
+    _per_gaussian(colors, "colors", where, (n, 3), means.dtype)
+    return _project(means, cov3d, opacities, colors, cam, eps2d, near)
+
+
+def _project(means, cov3d, opacities, colors, cam: Camera, eps2d: float, near: float) -> Projected:
+    """:func:`project` without the input checks."""
     R, t = cam.R.to(means.device, means.dtype), cam.t.to(means.device, means.dtype)
     p = means @ R.T + t
     x, y, z = p.unbind(-1)
@@ -158,7 +249,7 @@ def _composite_weights(alpha: torch.Tensor, seg_start: torch.Tensor | None, seg_
 
 def _sh_colors(g: Gaussians, cam: Camera) -> torch.Tensor:
     dirs = g.means - cam.center.to(g.means.device, g.means.dtype)
-    return eval_sh(g.sh, dirs)
+    return _eval_sh(g.sh, dirs)
 
 
 def rasterize_tiles(pr: Projected, width: int, height: int, background: torch.Tensor | None = None,
@@ -167,7 +258,21 @@ def rasterize_tiles(pr: Projected, width: int, height: int, background: torch.Te
 
     Memory grows with (pairs x tile pixels), about the total footprint area; more than ``max_elements``
     raises a PhysarError instead of exhausting memory. ``cull``: with autograd, drop the pairs that cannot
-    contribute before the differentiable pass (exact; see the module docstring)."""
+    contribute before the differentiable pass (exact; see the module docstring). ``width``, ``height``,
+    ``tile_size`` positive whole numbers, ``background`` (3,) or (height, width, 3)."""
+    where = "rasterize_tiles"
+    if not isinstance(pr, Projected):
+        raise PhysarError(f"{where}: pr must be the Projected of project(), got {type(pr).__name__}")
+    width, height = _whole(width, "width", where), _whole(height, "height", where)
+    tile_size = _whole(tile_size, "tile_size", where)
+    _check_options(where, max_elements=max_elements)
+    background = _background(background, where, width, height)
+    return _rasterize_tiles(pr, width, height, background, tile_size, max_elements, cull)
+
+
+def _rasterize_tiles(pr: Projected, width: int, height: int, background, tile_size: int, max_elements: float,
+                     cull: bool) -> RenderResult:
+    """:func:`rasterize_tiles` without the input checks."""
     dtype, dev = pr.means2d.dtype, pr.means2d.device
     ts = tile_size
     tx, ty = -(-width // ts), -(-height // ts)
@@ -245,8 +350,20 @@ def rasterize_dense(pr: Projected, width: int, height: int, background: torch.Te
                     pixel_chunk: int | None = None, max_elements: float = 2e8) -> RenderResult:
     """Naive reference: every visible Gaussian evaluated at every pixel, sorted by depth (no tiles).
 
-    ``pixel_chunk`` bounds memory (pixels per chunk); differentiable by autograd.
+    ``pixel_chunk`` bounds memory (pixels per chunk, a whole number >= 1; None: all at once); differentiable by
+    autograd. ``max_elements`` is not used (kept for the signature of :func:`rasterize_tiles`).
     """
+    where = "rasterize_dense"
+    if not isinstance(pr, Projected):
+        raise PhysarError(f"{where}: pr must be the Projected of project(), got {type(pr).__name__}")
+    width, height = _whole(width, "width", where), _whole(height, "height", where)
+    pixel_chunk = _whole(pixel_chunk, "pixel_chunk", where, none=True)
+    background = _background(background, where, width, height)
+    return _rasterize_dense(pr, width, height, background, pixel_chunk)
+
+
+def _rasterize_dense(pr: Projected, width: int, height: int, background, pixel_chunk) -> RenderResult:
+    """:func:`rasterize_dense` without the input checks."""
     dtype, dev = pr.means2d.dtype, pr.means2d.device
     vis = torch.nonzero(pr.radii > 0).squeeze(1)
     vis = vis[torch.argsort(pr.depths.detach()[vis], stable=True)]
@@ -318,7 +435,22 @@ def render(g: Gaussians, cam: Camera, *, F: torch.Tensor | None = None, cov3d: t
     ``backend``: "torch" (tiles, CPU/any device), "dense" (naive reference), "gsplat" (CUDA; see
     :func:`_render_gsplat`), "auto" (gsplat when the tensors are on CUDA and gsplat imports, torch otherwise).
     ``max_elements``: memory guard of the tile backend (pairs x tile pixels), see :func:`rasterize_tiles`.
+
+    Checked once per call (a PhysarError names the argument, and the Gaussian): ``g`` a :class:`Gaussians`
+    with finite values (:meth:`Gaussians.check_finite`), ``cam`` a :class:`Camera`, ``F`` / ``cov3d``
+    (N, 3, 3) and ``colors`` (N, 3) finite and of the means' dtype (``cov3d`` symmetric positive
+    semi-definite), ``background`` (3,) or (H, W, 3) finite, ``tile_size`` and ``pixel_chunk`` whole numbers
+    >= 1, ``eps2d`` >= 0, ``near`` > 0.
     """
+    where = "render"
+    if not isinstance(g, Gaussians):
+        raise PhysarError(f"{where}: g must be physar.gaussians.Gaussians, got {type(g).__name__}")
+    _check_camera(cam, where)
+    tile_size = _whole(tile_size, "tile_size", where)
+    pixel_chunk = _whole(pixel_chunk, "pixel_chunk", where, none=True)
+    _check_options(where, eps2d, near, max_elements)
+    background = _background(background, where, cam.width, cam.height)
+    g.check_finite(where)
     if backend == "auto":
         backend = "torch"
         if g.means.is_cuda:
@@ -332,17 +464,22 @@ def render(g: Gaussians, cam: Camera, *, F: torch.Tensor | None = None, cov3d: t
         raise PhysarError(f"render: unknown backend {backend!r}; use 'auto', 'torch', 'dense' or 'gsplat'")
     if F is not None and cov3d is not None:
         raise PhysarError("render: give either F or cov3d, not both")
-    if F is not None and tuple(F.shape) != (len(g), 3, 3):
-        raise PhysarError(f"render: F must have shape ({len(g)}, 3, 3), got {tuple(F.shape)}")
+    n, dt = len(g), g.means.dtype
     if F is not None:
+        _per_gaussian(F, "F", where, (n, 3, 3), dt)
         cov3d = g.covariance(F)
+    elif cov3d is not None:
+        _per_gaussian(cov3d, "cov3d", where, (n, 3, 3), dt)
+        _check_cov3d(cov3d, where)
+    if colors is not None:
+        _per_gaussian(colors, "colors", where, (n, 3), dt)
     if backend == "gsplat":
         return _render_gsplat(g, cam, cov3d, colors, background, eps2d, near)
     if cov3d is None:
         cov3d = g.covariance()
     if colors is None:
         colors = _sh_colors(g, cam)
-    pr = project(g.means, cov3d, g.opacities, colors, cam, eps2d, near)
+    pr = _project(g.means, cov3d, g.opacities, colors, cam, eps2d, near)
     if backend == "dense":
-        return rasterize_dense(pr, cam.width, cam.height, background, pixel_chunk)
-    return rasterize_tiles(pr, cam.width, cam.height, background, tile_size, max_elements)
+        return _rasterize_dense(pr, cam.width, cam.height, background, pixel_chunk)
+    return _rasterize_tiles(pr, cam.width, cam.height, background, tile_size, max_elements, True)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import torch
 
+from physar.errors import PhysarError
+
 C0 = 0.28209479177387814
 C1 = 0.4886025119029199
 C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792,
@@ -42,12 +44,37 @@ def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
 def eval_sh(sh: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
     r"""RGB (N, 3) from SH coefficients ``sh`` (N, K, 3) at view directions ``dirs`` (N, 3, need not be unit).
 
-    :math:`\mathrm{rgb} = \max\big(\sum_k Y_k(d)\, \mathtt{sh}[:, k] + 0.5, 0\big)` (3DGS convention).
+    :math:`\mathrm{rgb} = \max\big(\sum_k Y_k(d)\, \mathtt{sh}[:, k] + 0.5, 0\big)` (3DGS convention),
+    :math:`K = (\mathrm{degree} + 1)^2 \in \{1, 4, 9, 16\}`. A zero direction (a mean at the camera centre)
+    gives the DC colour, the mean over all directions (every band :math:`l \ge 1` is a homogeneous polynomial
+    of degree :math:`l` in :math:`d`). Shapes, floating dtypes and finite values are checked (a PhysarError
+    names the argument).
     """
-    k = sh.shape[1]
-    degree = {1: 0, 4: 1, 9: 2, 16: 3}[k]
+    for name, t in (("sh", sh), ("dirs", dirs)):
+        if not isinstance(t, torch.Tensor) or not t.is_floating_point():
+            raise PhysarError(f"eval_sh: {name} must be a floating torch tensor, got "
+                              f"{getattr(t, 'dtype', type(t).__name__)}")
+    if sh.ndim != 3 or sh.shape[2] != 3 or sh.shape[1] not in _DEGREE:
+        raise PhysarError(f"eval_sh: sh must have shape (N, K, 3) with K in (1, 4, 9, 16) (degree <= 3), got "
+                          f"{tuple(sh.shape)}")
+    if tuple(dirs.shape) != (sh.shape[0], 3):
+        raise PhysarError(f"eval_sh: dirs must have shape ({sh.shape[0]}, 3) (one per sh row), got "
+                          f"{tuple(dirs.shape)}")
+    for name, t in (("sh", sh), ("dirs", dirs)):
+        if not bool(torch.isfinite(t.detach()).all()):
+            raise PhysarError(f"eval_sh: {name} contains NaN or infinite values")
+    return _eval_sh(sh, dirs)
+
+
+_DEGREE = {1: 0, 4: 1, 9: 2, 16: 3}
+
+
+def _eval_sh(sh: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+    """:func:`eval_sh` without the input checks (the renderer checks its Gaussians once per call)."""
+    degree = _DEGREE[sh.shape[1]]
     if degree == 0:
         return torch.clamp_min(C0 * sh[:, 0] + 0.5, 0.0)
-    d = dirs / torch.linalg.vector_norm(dirs, dim=-1, keepdim=True)
+    norm = torch.linalg.vector_norm(dirs, dim=-1, keepdim=True)
+    d = dirs / torch.clamp_min(norm, torch.finfo(norm.dtype).tiny)  # zero direction -> 0: the DC colour
     basis = sh_basis(degree, d)  # (N, K)
     return torch.clamp_min((basis[..., None] * sh).sum(1) + 0.5, 0.0)
