@@ -112,6 +112,12 @@ class ElasticModel:
     def n_dofs(self) -> int:
         return self.space.n_dofs
 
+    def __repr__(self) -> str:
+        """One line: the space (element, mesh, counts), the material and the density (no arrays)."""
+        sp_ = self.space
+        return (f"{type(self).__name__}({sp_.element} on {sp_.mesh.name!r}, {len(sp_.cells)} tetrahedra, "
+                f"{sp_.n_dofs} dofs, {self.material!r}, density {self.density:g} kg/m^3)")
+
     def deformation_gradient(self, u: np.ndarray, sl: slice = slice(None)) -> np.ndarray:
         r""":math:`F = I + \sum_a u_a \otimes \partial N_a / \partial X` at each quadrature point:
         (m, q, 3, 3)."""

@@ -247,7 +247,7 @@ def load_config(path: str | Path, model: type[BaseModel] = FemConfig):
     return cfg
 
 
-@dataclass
+@dataclass(repr=False)
 class Problem:
     """A static problem built from a FemConfig."""
 
@@ -258,6 +258,13 @@ class Problem:
     probes: np.ndarray  # (p, 3)
     config: FemConfig
     prescribed: np.ndarray | None = None  # Dirichlet values on `fixed` (n_dofs,), None = all zero
+
+    def __repr__(self) -> str:
+        """One line: the model, fixed dofs, total external force [N], probes (no arrays)."""
+        total = np.asarray(self.f_ext, dtype=float).reshape(-1, 3).sum(axis=0)
+        force = ", ".join(f"{v:.4g}" for v in total.tolist())
+        return (f"Problem({self.model!r}, {len(self.fixed)} fixed dofs, total load [{force}] N, "
+                f"{len(self.probes)} probe{'' if len(self.probes) == 1 else 's'})")
 
 
 def check_mesh_size(size: float | None, points, name: str, what: str = "[mesh] size") -> None:
@@ -356,11 +363,20 @@ def build_problem(cfg: FemConfig, base_dir: Path | None = None, mesh=None) -> Pr
     return Problem(space, model, f_ext, fixed, probes, cfg, prescribed)
 
 
-@dataclass
+@dataclass(repr=False)
 class FemResult:
     problem: Problem
     static: StaticResult
     von_mises: np.ndarray  # per element [Pa]
+
+    def __repr__(self) -> str:
+        """One line: element, elements, dofs, largest displacement [m] and von Mises stress [Pa] (no arrays)."""
+        sp_ = self.problem.space
+        u = np.asarray(self.static.u, dtype=float).reshape(-1, 3)
+        vm = np.asarray(self.von_mises, dtype=float)
+        return (f"FemResult({sp_.element} on {sp_.mesh.name!r}, {sp_.mesh.n_cells} tetrahedra, {sp_.n_dofs} dofs, "
+                f"max |u| {float(np.sqrt((u ** 2).sum(axis=1)).max()):.4g} m, "
+                f"max von Mises {float(vm.max()) if vm.size else float('nan'):.4g} Pa)")
 
     def summary(self) -> dict:
         u = self.static.u.reshape(-1, 3)

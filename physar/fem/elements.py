@@ -17,7 +17,7 @@ from skfem.quadrature import get_quadrature
 from skfem.refdom import RefTet, RefTri
 
 from physar.errors import ConfigError
-from physar.geometry.mesh import TetMesh, row_keys
+from physar.geometry.mesh import TetMesh, _bounds_text, row_keys
 
 P2_EDGES = np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]], dtype=np.int64)
 N_NODES = {"P1": 4, "P2": 10}
@@ -76,7 +76,7 @@ def p2_nodes(mesh: TetMesh) -> tuple[np.ndarray, np.ndarray]:
     return nodes, conn
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, repr=False)
 class FESpace:
     """Vector-valued Lagrange space on a tet mesh; dof of node :math:`a`, component :math:`i` is
     :math:`3a + i`.
@@ -111,6 +111,11 @@ class FESpace:
     @property
     def nen(self) -> int:
         return N_NODES[self.element]
+
+    def __repr__(self) -> str:
+        """One line: element, mesh name, tetrahedra, nodes, dofs and bounding box [m] (no arrays)."""
+        return (f"FESpace({self.element} on {self.mesh.name!r}, {len(self.cells)} tetrahedra, {self.n_nodes} nodes, "
+                f"{self.n_dofs} dofs, bounds {_bounds_text(self.mesh.points)})")
 
     @cached_property
     def cell_dofs(self) -> np.ndarray:

@@ -552,7 +552,7 @@ def solve_linear(model, f_ext: np.ndarray, fixed: np.ndarray, linear: str = "dir
     return LinearSolver(model, fixed, linear=linear).solve(f_ext)
 
 
-@dataclass
+@dataclass(repr=False)
 class StaticResult:
     r"""Result of a static solve: displacement and Newton history per accepted load step.
 
@@ -570,6 +570,15 @@ class StaticResult:
     rejected_iterations: int = 0
     linear_solver: str = "direct"
     cg_iterations: list[int] = field(default_factory=list)
+
+    def __repr__(self) -> str:
+        """One line: dofs, convergence, load steps, Newton iterations, largest nodal displacement [m]."""
+        u = np.asarray(self.u, dtype=float)
+        umax = float(np.sqrt((u.reshape(-1, 3) ** 2).sum(axis=1)).max()) if u.size % 3 == 0 < u.size else np.nan
+        return (f"StaticResult({u.size} dofs, {'converged' if self.converged else 'not converged'}, "
+                f"{_plural(len(self.newton_iterations), 'load step')}, "
+                f"{_plural(sum(self.newton_iterations), 'Newton iteration')}, "
+                f"max |u| {umax:.4g} m, {self.linear_solver})")
 
 
 _EPS = float(np.finfo(float).eps)

@@ -28,6 +28,20 @@ def tet_signed_volumes(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return np.linalg.det(d) / 6.0
 
 
+def _bounds_text(points: np.ndarray, unit: str = "m") -> str:
+    """``[xmin, xmax] x [ymin, ymax] x [zmin, zmax] m`` of `points` (n, 3) for a summary (4 significant digits;
+    ``empty`` for no points): one min/max pass, no copy."""
+    if len(points) == 0:
+        return "empty"
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    return " x ".join(f"[{a:.4g}, {b:.4g}]" for a, b in zip(lo.tolist(), hi.tolist())) + (f" {unit}" if unit else "")
+
+
+def _plural(n: int, word: str, many: str | None = None) -> str:
+    """``1 node``, ``2 nodes`` (``many``: the plural when it is not `word` + s)."""
+    return f"{n} {word}" if n == 1 else f"{n} {many or word + 's'}"
+
+
 def _check_points(points: np.ndarray, name: str) -> np.ndarray:
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3:
@@ -63,7 +77,7 @@ def _check_cells(cells: np.ndarray, npts: int, width: int, name: str) -> np.ndar
     return cells
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class TetMesh:
     """A linear tetrahedral mesh: `points` (n, 3) in metres, `cells` (m, 4) node indices.
 
@@ -138,8 +152,18 @@ class TetMesh:
     def boundary(self) -> BoundarySurface:
         return boundary_surface(self)
 
+    def __repr__(self) -> str:
+        """One line: name, node and tetrahedron counts, bounding box [m], and the tag names if any (no arrays)."""
+        text = (f"TetMesh({self.name!r}, {_plural(self.n_points, 'node')}, "
+                f"{_plural(self.n_cells, 'tetrahedron', 'tetrahedra')}, bounds {_bounds_text(self.points)}")
+        if self.tags is not None and self.tags.names:
+            names = sorted(self.tags.names)
+            more = f", ... ({len(names)} in all)" if len(names) > 6 else ""
+            text += f", regions {', '.join(names[:6])}{more}"
+        return text + ")"
 
-@dataclass(frozen=True)
+
+@dataclass(frozen=True, repr=False)
 class TriMesh:
     """A triangle surface mesh: `points` (n, 3), `faces` (m, 3); validated for NaN and index range."""
 
@@ -177,8 +201,13 @@ class TriMesh:
     def with_points(self, points: np.ndarray) -> TriMesh:
         return TriMesh(points, self.faces, name=self.name)
 
+    def __repr__(self) -> str:
+        """One line: name, node and triangle counts, bounding box (no unit: a surface file's own) (no arrays)."""
+        return (f"TriMesh({self.name!r}, {_plural(self.n_points, 'node')}, {_plural(self.n_faces, 'triangle')}, "
+                f"bounds {_bounds_text(self.points, unit='')})")
 
-@dataclass(frozen=True)
+
+@dataclass(frozen=True, repr=False)
 class BoundarySurface:
     """Boundary of a tet mesh.
 
@@ -199,6 +228,12 @@ class BoundarySurface:
 
     def face_centroids(self) -> np.ndarray:
         return self.mesh.points[self.mesh.faces].mean(axis=1)
+
+    def __repr__(self) -> str:
+        """One line: the surface's name, node and triangle counts, bounding box [m] (no arrays)."""
+        m = self.mesh
+        return (f"BoundarySurface({m.name!r}, {_plural(m.n_points, 'node')}, {_plural(m.n_faces, 'triangle')}, "
+                f"bounds {_bounds_text(m.points)})")
 
 
 def row_keys(rows: np.ndarray, n: int) -> np.ndarray:

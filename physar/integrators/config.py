@@ -45,6 +45,7 @@ from pydantic import Field, model_validator
 from physar.errors import ConfigError, SolverError
 from physar.fem.config import FemConfig, Problem, _Strict, build_problem, load_config
 from physar.fem.solvers import solve_static
+from physar.geometry.mesh import _plural
 from physar.integrators.model import Ground, SolidModel
 from physar.integrators.steppers import Integrator, State, make_integrator
 from physar.output import atomic_path
@@ -130,14 +131,21 @@ def load_dynamics_config(path: str | Path) -> DynamicsConfig:
     return load_config(path, DynamicsConfig)
 
 
-@dataclass
+@dataclass(repr=False)
 class Simulation:
+    """A dynamics run built from a configuration: the static problem, the model, the integrator, q0 and v0."""
+
     problem: Problem
     model: SolidModel
     integrator: Integrator
     q0: np.ndarray
     v0: np.ndarray
     config: DynamicsConfig
+
+    def __repr__(self):
+        """One line: the model, the integrator, the time step [s] and the number of steps."""
+        d = self.config.dynamics
+        return f"Simulation({self.model!r}, {self.integrator!r}, h={d.h:g} s, {_plural(d.steps, 'step')})"
 
 
 def build_simulation(cfg: DynamicsConfig, base_dir: Path | None = None) -> Simulation:
@@ -168,7 +176,7 @@ def build_simulation(cfg: DynamicsConfig, base_dir: Path | None = None) -> Simul
     return Simulation(problem, model, integ, q0, v0, cfg)
 
 
-@dataclass
+@dataclass(repr=False)
 class Trajectory:
     """Frames (every `output_every` steps) of vertex displacements/velocities and the energy per step."""
 
@@ -177,6 +185,12 @@ class Trajectory:
     v: list = field(default_factory=list)
     energy: list = field(default_factory=list)  # dicts: step, t, kinetic, elastic, potential, total, newton
     interrupted: bool = False  # stopped early on request (a signal); the frames end at the last step done
+
+    def __repr__(self):
+        """One line: frames, their time span [s], energy records, interrupted (no arrays)."""
+        span = f", t {self.times[0]:.6g}..{self.times[-1]:.6g} s" if self.times else ""
+        return (f"Trajectory({_plural(len(self.times), 'frame')}{span}, {_plural(len(self.energy), 'energy record')}"
+                f"{', interrupted' if self.interrupted else ''})")
 
 
 # A node displaced by more than RUNAWAY times the body's bounding-box diagonal means the integration ran

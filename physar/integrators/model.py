@@ -31,7 +31,7 @@ from physar.fem.solvers import dof_indices
 from physar.integrators.linalg import BlockRotation, FreePattern
 
 
-@dataclass
+@dataclass(repr=False)
 class Linearization:
     r"""Total force :math:`f` (n,) at (q, v) and, on the free dofs, :math:`K = -\partial f / \partial q` and
     :math:`D = -\partial f / \partial v` (or None = 0).
@@ -45,6 +45,14 @@ class Linearization:
     D: sp.csr_matrix | None = None
     scale: float = 0.0  # magnitude of the largest force term (for relative Newton tolerances)
     floor: float = 0.0  # round-off level of f [N] (absolute Newton tolerance)
+
+    def __repr__(self):
+        """One line: dofs of f, the matrices' shapes and non-zeros, scale and floor [N] (no arrays)."""
+        def mat(A):
+            return "none" if A is None else f"{A.shape[0]}x{A.shape[1]} ({A.nnz} non-zeros)"
+
+        return (f"Linearization({np.size(self.f)} dofs, K {mat(self.K)}, D {mat(self.D)}, scale {self.scale:.4g} N, "
+                f"floor {self.floor:.4g} N)")
 
 
 class DynamicsModel:
@@ -133,6 +141,11 @@ class LinearDynamics(DynamicsModel):
                               "(a free dof needs a positive mass)")
         self.q_fixed = np.zeros(n)
         self._lin = None
+
+    def __repr__(self):
+        """One line: dofs (free), non-zeros of M and K, whether there is damping (no arrays)."""
+        return (f"LinearDynamics({self.n_dofs} dofs, {len(self.free)} free, M {self.mass.nnz} non-zeros, "
+                f"K {self.K.nnz} non-zeros, D {'none' if self.D is None else f'{self.D.nnz} non-zeros'})")
 
     def force(self, q, v):
         f = self.f_ext - self.K @ q
@@ -579,6 +592,13 @@ class SolidModel(DynamicsModel):
         self._floor = None
         self._fp = None
         self._mass_data = None
+
+    def __repr__(self):
+        """One line: the elastic model, fixed dofs, mass, Rayleigh damping, gravity [m/s^2], ground (no arrays)."""
+        g = "none" if self.gravity is None else "[" + ", ".join(f"{v + 0.0:.4g}" for v in self.gravity.tolist()) + "]"
+        ground = "none" if self.ground is None else f"z0={self.ground.z0:g} m"
+        return (f"SolidModel({self.elastic!r}, {len(self.fixed)} fixed dofs, {self.mass_kind} mass, "
+                f"rayleigh ({self.alpha:g}, {self.beta:g}), gravity {g} m/s^2, ground {ground})")
 
     # -- pieces ------------------------------------------------------------------------------------
     def _ground(self, q):

@@ -59,11 +59,18 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from physar.errors import ConfigError, SolverError
+from physar.geometry.mesh import _plural
 from physar.integrators.linalg import SparseSolver
 from physar.integrators.model import DynamicsModel
 
 
-@dataclass
+def _absmax(a) -> float:
+    """Largest absolute entry of `a` (0 for an empty array): one pass, for the one-line summaries."""
+    a = np.asarray(a, dtype=float)
+    return float(np.abs(a).max()) if a.size else 0.0
+
+
+@dataclass(repr=False)
 class State:
     r"""Time t [s], displacement q [m], velocity v [m/s] and the method's memory.
 
@@ -81,12 +88,24 @@ class State:
     f: np.ndarray | None = field(default=None, repr=False)
     newton_iterations: int = 0
 
+    def __repr__(self):
+        """One line: time [s], dofs, largest displacement [m] and velocity [m/s] entries, Newton iterations."""
+        return (f"State(t={self.t:.6g} s, {np.size(self.q)} dofs, max |q| {_absmax(self.q):.4g} m, "
+                f"max |v| {_absmax(self.v):.4g} m/s, {_plural(self.newton_iterations, 'Newton iteration')})")
 
-@dataclass
+
+@dataclass(repr=False)
 class StepStats:
+    """Counters of an integrator: Newton iterations of each step, factorizations and CG iterations in all."""
+
     newton_iterations: list[int] = field(default_factory=list)
     factorizations: int = 0
     cg_iterations: int = 0
+
+    def __repr__(self):
+        return (f"StepStats({_plural(len(self.newton_iterations), 'step')}, "
+                f"{_plural(sum(self.newton_iterations), 'Newton iteration')}, "
+                f"{_plural(self.factorizations, 'factorization')}, {_plural(self.cg_iterations, 'CG iteration')})")
 
 
 class Integrator:

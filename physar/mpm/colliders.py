@@ -63,7 +63,11 @@ SHAPE_CODES = {"box": SHAPE_BOX, "capsule": SHAPE_CAPSULE}
 COLLIDER_BC = {"sticky": 1, "slip": 2, "separate": 3}
 
 
-@dataclass
+def _vec(v) -> str:
+    return "[" + ", ".join(f"{x + 0.0:.4g}" for x in np.asarray(v, dtype=np.float64).ravel().tolist()) + "]"
+
+
+@dataclass(repr=False)
 class Collider:
     """A kinematic box or capsule (SI units).
 
@@ -107,6 +111,18 @@ class Collider:
             if np.any(np.diff(p[:, 0]) <= 0):
                 raise ConfigError(f"collider path times {p[:, 0].tolist()} must increase strictly")
             self.path = p
+
+    def __repr__(self) -> str:
+        """One line: shape and size [m], motion (centre and velocity, or the keyframes' count and time span),
+        boundary and friction (no arrays)."""
+        size = (f"half extents {_vec(self.half_extents)} m" if self.shape == "box" else
+                f"radius {self.radius:g} m, half length {self.half_length:g} m, axis {_vec(self._axis)}")
+        if self.path is None:
+            motion = f"center {_vec(self.center)} m, velocity {_vec(self.velocity)} m/s"
+        else:
+            p = self.path
+            motion = f"path of {len(p)} keyframes, t {p[0, 0]:g}..{p[-1, 0]:g} s"
+        return f"Collider({self.shape}, {size}, {motion}, {self.boundary}, friction {self.friction:g})"
 
     def position(self, t: float) -> np.ndarray:
         """Centre c(t) (m)."""

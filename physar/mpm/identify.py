@@ -44,13 +44,23 @@ from physar.mpm.model import MPMModel, MPMSolver
 from physar.mpm.torch_bridge import Params, simulate
 
 
-@dataclass
+@dataclass(repr=False)
 class IdentifyResult:
     E: np.ndarray  # identified Young's modulus per body, Pa
     nu: np.ndarray
     loss: float
     history: list
     scan_factor: np.ndarray | None = None  # per body, the E factor chosen by the scan
+
+    def __repr__(self) -> str:
+        """One line: E [Pa] and nu per body (the first 4), final loss and iterations (no history)."""
+        def values(a, unit=""):
+            a = np.asarray(a, dtype=np.float64).ravel()
+            text = ", ".join(f"{v:.4g}" for v in a[:4].tolist()) + (f", ... ({a.size} bodies)" if a.size > 4 else "")
+            return f"[{text}]" + (f" {unit}" if unit else "")
+
+        return (f"IdentifyResult(E {values(self.E, 'Pa')}, nu {values(self.nu)}, loss {self.loss:.4g}, "
+                f"{len(self.history)} iterations)")
 
 
 def lattice_moment(x0: np.ndarray, body: np.ndarray, n_bodies: int) -> np.ndarray:

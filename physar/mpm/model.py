@@ -68,6 +68,29 @@ WALLS = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")  # z_min is the g
 _DEVICE_NAME = re.compile(r"cpu|cuda(:\d+)?")
 
 
+def _span(a, unit: str = "") -> str:
+    """``5e+04 Pa`` (one value) or ``1e+04..5e+04 Pa`` (min..max) of an array, for a summary (one pass each)."""
+    a = np.asarray(a, dtype=np.float64)
+    if a.size == 0:
+        return "none"
+    lo, hi = float(a.min()), float(a.max())
+    text = f"{lo:.4g}" if lo == hi else f"{lo:.4g}..{hi:.4g}"
+    return f"{text} {unit}" if unit else text
+
+
+def _box(x) -> str:
+    """``[0, 1] x [0, 0.5] x [0.2, 0.3] m``: the bounding box of positions x (N, 3) (``empty`` for none)."""
+    x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
+    if len(x) == 0:
+        return "empty"
+    return " x ".join(f"[{a:.4g}, {b:.4g}]" for a, b in zip(x.min(axis=0).tolist(), x.max(axis=0).tolist())) + " m"
+
+
+def _count(n: int, word: str, many: str | None = None) -> str:
+    """``1 particle``, ``2 particles`` (``many``: the plural when it is not `word` + s)."""
+    return f"{n} {word}" if n == 1 else f"{n} {many or word + 's'}"
+
+
 def device_name(value: str) -> str:
     """``value`` when it is a device name ('cpu', 'cuda' or 'cuda:N'), else ValueError (the check of the configuration
     fields that name a device; whether this machine has it is checked where it is used, :func:`resolve_device`)."""
@@ -459,7 +482,7 @@ def check_material(E, nu, where: str = "") -> None:
         raise ConfigError(f"{where}nu[{i}] = {nu[i]:g}: Poisson's ratio must be in ({NU_MIN:g}, {NU_MAX:g})")
 
 
-@dataclass
+@dataclass(repr=False)
 class MPMModel:
     r"""Static description of an MPM scene (SI units).
 
@@ -567,6 +590,16 @@ class MPMModel:
         """True if any particle has a fibre term (fiber_E > 0)."""
         return bool(np.any(self.fiber_E > 0))
 
+    def __repr__(self) -> str:
+        """One line: particles and bodies, total mass, E and nu ranges, grid, time step, colliders, device."""
+        bodies = int(self.body.max()) + 1 if self.body.size else 0
+        extra = (", anisotropic" if self.anisotropic else "") + (
+            f", {_count(len(self.colliders), 'collider')}" if self.colliders else "")
+        return (f"MPMModel({_count(self.n_particles, 'particle')} in {_count(bodies, 'body', 'bodies')}, "
+                f"mass {float(self.mass.sum()):.4g} kg, E {_span(self.E, 'Pa')}, nu {_span(self.nu)}, "
+                f"grid {self.resolution}^3 cells of {self.dx:.4g} m on [0, {self.size:g}]^3 m, "
+                f"dt {self.dt:.4g} s x {self.substeps} substeps{extra}, device {self.device})")
+
     # grid geometry
     @property
     def n_particles(self) -> int:
@@ -651,7 +684,7 @@ _STATE_SHAPES = {"x": (3,), "v": (3,), "C": (3, 3), "F": (3, 3), "Jp": ()}
 _STATE_DTYPES = {"x": wp.vec3d, "v": wp.vec3d, "C": wp.mat33d, "F": wp.mat33d, "Jp": wp.float64}
 
 
-@dataclass
+@dataclass(repr=False)
 class MPMState:
     r"""Per-particle state :math:`s = \{x\ (\mathrm{m}), v\ (\mathrm{m/s}), C\ (1/\mathrm{s}), F\ (-)\}` of
     Alg. 1, plus the plastic Jacobian :math:`J_p`.
@@ -687,6 +720,13 @@ class MPMState:
     def n_particles(self) -> int:
         return self.x.shape[0]
 
+    def __repr__(self) -> str:
+        """One line: particles, device, bounding box of the positions [m], largest speed [m/s] (no arrays)."""
+        x, v = self.x.numpy(), self.v.numpy()  # views on the CPU, copies from a GPU
+        speed = float(np.sqrt((v.reshape(-1, 3) ** 2).sum(axis=1)).max()) if len(v) else 0.0
+        return (f"MPMState({_count(self.n_particles, 'particle')} on {self.x.device.alias}, bounds {_box(x)}, "
+                f"max |v| {speed:.4g} m/s)")
+
     def check_fits(self, model: MPMModel, name: str = "state") -> None:
         """A :class:`ConfigError` unless every array holds one entry per particle of ``model`` (a shorter
         array would be read and written past its end by the kernels)."""
@@ -704,7 +744,7 @@ class MPMState:
         return MPMState.from_numpy(d["x"], d["v"], d["C"], d["F"], d["Jp"], device=self.x.device.alias)
 
 
-@dataclass
+@dataclass(repr=False)
 class Control:
     r"""PD actuation of seed Eq. (6)-(7): gate :math:`\omega` (N,), references :math:`x_\text{ref}`, :math:`v_\text{ref}`
     (N, 3), gains :math:`k_p`, :math:`k_d`,
@@ -723,6 +763,13 @@ class Control:
     kp: float = 2.0e2
     kd: float = 2.0e1
     hold: bool = True
+
+    def __repr__(self) -> str:
+        """One line: particles, how many are actuated (omega != 0), omega's range, gains, held or not."""
+        omega = np.asarray(self.omega, dtype=np.float64).ravel()
+        return (f"Control({_count(omega.size, 'particle')}, {int(np.count_nonzero(omega))} actuated, "
+                f"omega {_span(omega)}, kp={self.kp:g} 1/s^2, kd={self.kd:g} 1/s, "
+                f"{'held over a frame' if self.hold else 'per substep'})")
 
     def held_force(self, model: MPMModel, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         r""":math:`f_\text{ex}` (N, 3) of Eq. (6)-(7) at positions x and velocities v (N, 3) (Alg. 2,

@@ -28,7 +28,7 @@ from physar.mpm.scene import Scene, build_model, load_scene
 from physar.output import atomic_folder, check_folder, own_names
 
 
-@dataclass
+@dataclass(repr=False)
 class RunResult:
     frames: int
     time: list = field(default_factory=list)  # s, frame 0 included
@@ -36,6 +36,12 @@ class RunResult:
     n_particles: int = 0
     preview: bool = False  # whether preview.mp4 was written
     interrupted: bool = False  # stopped early on request; the outputs cover frames 0..frames
+
+    def __repr__(self) -> str:
+        """One line: frames, their time span [s], particles, preview and interruption (no per-frame data)."""
+        span = f", t {self.time[0]:.6g}..{self.time[-1]:.6g} s" if self.time else ""
+        return (f"RunResult({self.frames} frames{span}, {self.n_particles} particles"
+                f"{', preview.mp4' if self.preview else ''}{', interrupted' if self.interrupted else ''})")
 
     def summary(self) -> dict:
         """The ``--json`` record of ``physar mpm run`` (per frame, frame 0 included)."""

@@ -158,7 +158,7 @@ def _transfer_wrapped(model, x, v, C, F, tau, omega, x_ref, v_ref, f_hold, kp, k
     return _WarpOp.apply(op, model, x, v, C, F, tau, omega, x_ref, v_ref, f_hold)
 
 
-@dataclass
+@dataclass(repr=False)
 class Params:
     r"""Differentiable per-particle parameters (torch float64 tensors; ``None`` = not used).
 
@@ -183,6 +183,28 @@ class Params:
     kd: float = 2.0e1
     fiber_E: torch.Tensor | None = None
     hold: bool = True
+
+    def __repr__(self) -> str:
+        """One line: particles, E [Pa] and nu ranges, which optional fields are set (latents by shape), gains, and
+        the fields that require a gradient (no tensors printed)."""
+        def span(t, unit=""):
+            t = torch.as_tensor(t).detach()
+            lo, hi = float(t.min()), float(t.max())
+            text = f"{lo:.4g}" if lo == hi else f"{lo:.4g}..{hi:.4g}"
+            return f"{text} {unit}" if unit else text
+
+        names = ("E", "nu", "omega", "x_ref", "v_ref", "l_e", "l_p", "fiber_E")
+        parts = [f"{len(self.E)} particles", f"E {span(self.E, 'Pa')}", f"nu {span(self.nu)}"]
+        for name in names[2:]:
+            v = getattr(self, name)
+            if v is None:
+                continue
+            parts.append(f"{name} (callable)" if callable(v) and not isinstance(v, torch.Tensor)
+                         else f"{name} {tuple(v.shape)}" if name in ("l_e", "l_p") else name)
+        grad = [n for n in names if isinstance(getattr(self, n), torch.Tensor) and getattr(self, n).requires_grad]
+        parts += [f"kp={float(self.kp):g} 1/s^2", f"kd={float(self.kd):g} 1/s",
+                  "held over a frame" if self.hold else "per substep", f"grad {', '.join(grad) or 'none'}"]
+        return f"Params({', '.join(parts)})"
 
 
 def _fiber_E(model: MPMModel, p: Params) -> torch.Tensor:

@@ -335,7 +335,7 @@ def pgd_linear_tensor(K, B, grids, max_modes=40, tol=1e-4, max_fp=50, fp_tol=Non
                       progress=progress, check=check, check_tol=check_tol, **options)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class SeparatedTerm:
     r"""One term of a separated operator or load: ``value`` times 1-D functions of the parameters.
 
@@ -350,6 +350,12 @@ class SeparatedTerm:
     value: object
     axes: tuple = ()
     factors: dict = field(default_factory=dict)
+
+    def __repr__(self) -> str:
+        """One line: the value's kind and shape, the tensor-grid axes and the parameters with factors."""
+        kind = "sparse" if sp.issparse(self.value) else "dense"
+        shape = "x".join(map(str, np.shape(self.value) if kind == "dense" else self.value.shape))
+        return f"SeparatedTerm({kind} {shape}, axes {tuple(self.axes)}, factors on {sorted(self.factors)})"
 
 
 def pgd_affine(ops, loads, grids, max_modes=40, tol=1e-4, max_fp=50, fp_tol=None, factor=None, names=None,

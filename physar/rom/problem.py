@@ -58,7 +58,12 @@ class CellScaledModel(ElasticModel):
         self.__dict__["_quad"] = (G, wdet * scale[:, None])  # the cached property of ElasticModel
 
 
-@dataclass(frozen=True)
+def _vec(v) -> str:
+    """``[1, 0, -0.5]``: a short vector for a summary (4 significant digits)."""
+    return "[" + ", ".join(f"{x + 0.0:.4g}" for x in np.asarray(v, float).ravel().tolist()) + "]"
+
+
+@dataclass(frozen=True, repr=False)
 class MovingLoad:
     """A point load ``load`` (3,) [N] of radius ``radius`` [m] at path(s) (+ t ``offset_dir``)."""
 
@@ -71,6 +76,12 @@ class MovingLoad:
     def length(self) -> float:
         return path_length(self.path)
 
+    def __repr__(self) -> str:
+        """One line: path points and length [m], load [N], radius [m] (and the offset direction)."""
+        off = "" if self.offset_dir is None else f", offset along {_vec(self.offset_dir)}"
+        return (f"MovingLoad(path of {len(self.path)} points, {self.length:.4g} m long, load {_vec(self.load)} N, "
+                f"radius {self.radius:.4g} m{off})")
+
     def point(self, s, t=0.0) -> np.ndarray:
         x = path_point(self.path, s)
         return x if self.offset_dir is None else x + t * self.offset_dir
@@ -81,7 +92,7 @@ class MovingLoad:
         return point_load(space, self.point(s, t), load, self.radius)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class Translation:
     """u = d e on the nodes ``nodes`` (indices into space.nodes), e = ``direction`` (unit), d in m."""
 
@@ -97,8 +108,11 @@ class Translation:
     def factors(self, d) -> np.ndarray:
         return np.atleast_1d(np.asarray(d, float))[None, :]
 
+    def __repr__(self) -> str:
+        return f"Translation({len(self.nodes)} nodes, direction {_vec(self.direction)})"
 
-@dataclass(frozen=True)
+
+@dataclass(frozen=True, repr=False)
 class Rotation:
     r""":math:`u = R(\theta)(X - c) + c - X` on ``nodes``, about the unit ``axis`` :math:`a` through ``point``
     :math:`c` (right hand); :math:`\theta` in degrees (``degrees=False``: radians)."""
@@ -123,16 +137,27 @@ class Rotation:
         th = np.atleast_1d(np.asarray(theta, float)) * (np.pi / 180.0 if self.degrees else 1.0)
         return np.stack([np.cos(th) - 1.0, np.sin(th)])
 
+    def __repr__(self) -> str:
+        return (f"Rotation({len(self.nodes)} nodes, axis {_vec(self.axis)} through {_vec(self.point)} m, "
+                f"angle in {'deg' if self.degrees else 'rad'})")
 
-@dataclass(frozen=True)
+
+@dataclass(frozen=True, repr=False)
 class Modulus:
     """Young's modulus E [Pa] on the cells ``cells`` (bool mask); ``E_ref`` [Pa] of the material."""
 
     cells: np.ndarray
     E_ref: float
 
+    def __repr__(self) -> str:
+        """One line: the cells it acts on (of all, for a mask) and E_ref [Pa]."""
+        cells = np.asarray(self.cells)
+        mask = cells.dtype == bool
+        n, of = (int(np.count_nonzero(cells)), f" of {cells.size}") if mask else (cells.size, "")
+        return f"Modulus({n}{of} cells, E_ref {self.E_ref:.4g} Pa)"
 
-@dataclass(frozen=True)
+
+@dataclass(frozen=True, repr=False)
 class ParametricProblem:
     """The full FE model of a parametric problem; ``problem(mu)`` solves it (a picklable black box).
 
@@ -156,6 +181,12 @@ class ParametricProblem:
 
     def index(self, kind):
         return self.kinds.index(kind) if kind in self.kinds else None
+
+    def __repr__(self) -> str:
+        """One line: the model, fixed dofs, parameter kinds, load steps (no arrays)."""
+        steps = f"{self.steps} load step{'' if self.steps == 1 else 's'}"
+        return (f"ParametricProblem({self.model!r}, {len(self.fixed)} fixed dofs, parameters "
+                f"{', '.join(map(str, self.kinds)) or 'none'}, {steps})")
 
     @property
     def free(self) -> np.ndarray:

@@ -56,7 +56,7 @@ from physar.rom.separated import ReducedModelError
 GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class DiscretisationCheck:
     """Errors of a reduced model against the finer check solve at ``params`` (k, p) (order of ``names``).
 
@@ -84,6 +84,16 @@ class DiscretisationCheck:
     dofs: int
     fine_dofs: int
     time_s: float
+
+    def __repr__(self) -> str:
+        """One line: refinement, points, dofs of both meshes, the worst relative errors (%), wall time (no arrays)."""
+        def worst(a):
+            a = np.asarray(a, float)
+            return f"{np.nanmax(a) * 100:.3g} %" if np.isfinite(a).any() else "n/a"
+
+        return (f"DiscretisationCheck(refine {self.refine}, {len(self.params)} points, {self.dofs} -> "
+                f"{self.fine_dofs} dofs, worst displacement_l2 {worst(self.displacement_l2)}, stress_l2 "
+                f"{worst(self.stress_l2)}, away_l2 {worst(self.away_l2)}, {self.time_s:.3g} s)")
 
     def summary(self) -> dict:
         """JSON-ready: the worst value over the points of each error, and every point."""

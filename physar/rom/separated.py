@@ -84,6 +84,14 @@ class SeparatedModel:
     def ranges(self):
         return [(float(x[0]), float(x[-1])) for x in self.grids]
 
+    def __repr__(self):
+        """One line: modes, dofs, each parameter's name, grid range and unit, and the build method if recorded."""
+        params = ", ".join(f"{n} in [{lo:.4g}, {hi:.4g}]" + (f" {u}" if u else "")
+                           for n, u, (lo, hi) in zip(self.names, self.units, self.ranges))
+        method = self.metadata.get("method")
+        return (f"SeparatedModel({self.n_modes} mode{'' if self.n_modes == 1 else 's'}, {self.F.shape[1]} dofs, "
+                f"{params}{'' if method is None else f', method {method}'})")
+
     def _check_mu(self, mu):
         try:
             mu = np.atleast_1d(np.asarray(mu, float))

@@ -58,7 +58,7 @@ def _rotation_error(R: np.ndarray) -> tuple[float, float]:
     return err, a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class Pose:
     """Rigid transform world -> camera: :math:`x_c = R x_w + t` (R (3, 3) rotation, t (3,) in m).
 
@@ -139,8 +139,18 @@ class Pose:
         M[:3, :3], M[:3, 3] = self.R, self.t
         return M
 
+    def __repr__(self) -> str:
+        """One line: the rotation as an angle [deg] about a unit axis (of :attr:`rvec`) and t [m]."""
+        rvec = self.rvec
+        angle = float(np.linalg.norm(rvec))
+        t = ", ".join(f"{v + 0.0:.4g}" for v in self.t.tolist())  # + 0.0: no "-0"
+        if angle == 0.0:
+            return f"Pose(rotation 0 deg, t=[{t}] m)"
+        axis = ", ".join(f"{(v if abs(v) > 1e-12 else 0.0) + 0.0:.4g}" for v in (rvec / angle).tolist())
+        return f"Pose(rotation {math.degrees(angle):.4g} deg about [{axis}], t=[{t}] m)"
 
-@dataclass(frozen=True)
+
+@dataclass(frozen=True, repr=False)
 class Camera:
     """Intrinsics K (3, 3) [px] = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (OpenCV's model: no skew), distortion
     coefficients (OpenCV order), image size (width, height) [px]."""
@@ -225,6 +235,12 @@ class Camera:
     @property
     def size(self) -> tuple[int, int]:
         return self.width, self.height
+
+    def __repr__(self) -> str:
+        """One line: image size, focal lengths and principal point [px], distortion (``none`` when all zero)."""
+        dist = ", ".join(f"{v:.4g}" for v in self.dist.tolist()) if np.any(self.dist) else None
+        return (f"Camera({self.width}x{self.height}, fx={self.fx:.1f}, fy={self.fy:.1f}, cx={self.K[0, 2]:.1f}, "
+                f"cy={self.K[1, 2]:.1f}, dist={'none' if dist is None else '[' + dist + ']'})")
 
     def distortion_problem(self, min_inside: float = 0.5, n: int = 200) -> str | None:
         r"""Why the distortion cannot describe a lens over this image, or None.
