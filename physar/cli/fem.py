@@ -8,6 +8,9 @@ import typer
 
 from physar.cli._common import log, print_json, user_errors
 
+_OUT_HELP = ("result mesh (.vtu/.xdmf): displacement and von Mises at the vertices (stress recovered there), "
+             "von Mises of each element's mean stress per element")
+
 fem_app = typer.Typer(help="Finite-element statics.", no_args_is_help=True)
 
 
@@ -15,7 +18,7 @@ fem_app = typer.Typer(help="Finite-element statics.", no_args_is_help=True)
 @user_errors
 def solve(
     config: Path = typer.Argument(..., help="problem file (TOML), see README"),  # noqa: B008 - typer idiom
-    out: Path = typer.Option(..., "--out", "-o", help="result mesh (.vtu/.xdmf) with displacement, von Mises"),  # noqa: B008 - typer idiom
+    out: Path = typer.Option(..., "--out", "-o", help=_OUT_HELP),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json", help="print results as JSON on stdout"),
 ) -> None:
     """Solve a static problem and write the deformed fields."""
@@ -51,8 +54,10 @@ def solve(
         print_json(summary)
     else:
         log(f"wrote {out}")
+        at = ", ".join(f"{v:.4g}" for v in summary["max_von_mises_point"])
         log(f"max displacement {summary['max_displacement']:.6e} m, "
-            f"max von Mises {summary['max_von_mises']:.4e} Pa, Newton iterations {summary['newton_iterations']}")
+            f"max von Mises {summary['max_von_mises']:.4e} Pa at the vertex [{at}] (element means: "
+            f"{summary['max_von_mises_element_mean']:.4e} Pa), Newton iterations {summary['newton_iterations']}")
         for p in summary["probes"]:
             log(f"probe {p['point']}: u = {p['u']}")
 

@@ -11,7 +11,7 @@ from physar.fem.assembly import ElasticModel
 from physar.fem.elements import FESpace
 from physar.fem.loads import fixed_dofs, traction_load
 from physar.fem.materials import LinearElastic
-from physar.fem.post import nodal_average, probe, von_mises
+from physar.fem.post import nodal_von_mises, probe, von_mises
 from physar.fem.reference import timoshenko_cantilever_tip
 from physar.fem.solvers import solve_static
 from physar.geometry import TriMesh, box_mesh, write_mesh
@@ -44,16 +44,22 @@ def cantilever(
 
 
 def run_cantilever_demo(out: str | os.PathLike) -> dict:
-    """Solve the cantilever, write cantilever.vtu, cantilever.png and report.json into `out`."""
+    """Solve the cantilever, write cantilever.vtu, cantilever.png and report.json into `out`.
+
+    The VTU's point field ``von_mises`` is the stress recovered at the vertices
+    (:func:`physar.fem.post.nodal_von_mises`), its cell field the von Mises stress of each element's mean
+    stress; the report's ``max_von_mises_pa`` is the peak of the vertex field (next to the clamp) and
+    ``max_von_mises_element_mean_pa`` that of the element means."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     space, model, u, tip, ref = cantilever()
     vm = von_mises(model, u)
+    vm_nodal = nodal_von_mises(model, u)
     uv = space.vertex_values(u)
     mag = np.linalg.norm(uv, axis=1)
     write_mesh(out / "cantilever.vtu", space.mesh,
                point_data={"displacement": uv, "displacement_magnitude": mag,
-                           "von_mises": nodal_average(space, vm)},
+                           "von_mises": vm_nodal},
                cell_data={"von_mises": vm})
     surf = space.mesh.boundary()
     scale = 0.1 * 1.0 / max(mag.max(), 1e-300)  # show the deflection as 10 % of the length
@@ -66,7 +72,8 @@ def run_cantilever_demo(out: str | os.PathLike) -> dict:
         "tip_deflection_m": tip,
         "timoshenko_m": ref,
         "relative_error": abs(tip - ref) / ref,
-        "max_von_mises_pa": float(vm.max()),
+        "max_von_mises_pa": float(vm_nodal.max()),
+        "max_von_mises_element_mean_pa": float(vm.max()),
         "dofs": space.n_dofs,
         "files": ["cantilever.vtu", "cantilever.png", "report.json"],
     }

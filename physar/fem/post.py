@@ -7,7 +7,12 @@ Two stress fields at the mesh vertices:
   top fibre is half the fibre stress);
 * :func:`nodal_stress`: the stress of each element evaluated at its own vertices from the shape-function
   gradients there (exact for the linear strain field of P2), then averaged at shared vertices: the value a
-  user should read at a surface.
+  user should read at a surface. Its von Mises stress, :func:`nodal_von_mises`, is the field `physar fem
+  solve` writes at the vertices and whose peak it reports (the AR overlay and `rom info --check` use
+  :func:`nodal_stress` too).
+
+:func:`probe` / :func:`locate` accept a point on the exact surface of a curved part, outside the mesh's
+chords, by snapping it to the nearest boundary point (see :func:`locate` for the bound).
 """
 
 from __future__ import annotations
@@ -28,12 +33,28 @@ def _displacement(u, n_dofs: int) -> np.ndarray:
     return u
 
 
-def locate(space: FESpace, points: np.ndarray, tol: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Element index (p,) and barycentric coordinates (p, 4) of reference-configuration points.
+SNAP_FRACTION = 0.5  # a probe outside a curved surface is accepted at most this fraction of the element size out
+FEATURE_ANGLE = 60.0  # degrees: boundary faces turning more than this meet at a sharp edge, not a curved surface
 
-    A point outside every element by at most `tol` [m] (default :func:`physar.fem.loads.default_tol`:
-    a point on a boundary face of a float32 STL mesh, read 1 ulp inside) is accepted and projected onto
-    the nearest element (its barycentric coordinates clipped at 0).
+
+def locate(space: FESpace, points: np.ndarray, tol: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    r"""Element index (p,) and barycentric coordinates (p, 4) of reference-configuration points.
+
+    A point inside an element, or outside every element by at most `tol` [m] (default
+    :func:`physar.fem.loads.default_tol`: a point on a boundary face of a float32 STL mesh, read 1 ulp inside),
+    is located in the element nearest to it (barycentric coordinates clipped at 0).
+
+    A point farther out is snapped to the nearest point of the mesh's boundary surface (exact point-triangle
+    distance), in the element of that boundary face, when its distance ``d`` is within what the faceted surface
+    may cut inside a curved one there (a probe on the CAD surface of a curved part lies outside the chords):
+    ``d <= min(SNAP_FRACTION * h, 2 s)``, with ``h`` the mean edge length of that element and ``s`` the
+    sagitta the face's vertex normals imply, the largest over its edges of :math:`(n_i - n_j) \cdot (x_i - x_j)
+    / 8` (the normal curvature along the edge, :math:`(n_i - n_j) \cdot (x_i - x_j) / |x_i - x_j|^2`, times
+    :math:`|x_i - x_j|^2 / 8`: :math:`h^2 / 8R` for a chord of length :math:`h` on a circle of radius :math:`R`;
+    0 along a straight generator and on a concave surface, whose chords lie outside the body). The vertex
+    normals average the neighbouring faces within :data:`FEATURE_ANGLE` of the face, so a flat face, also one
+    next to a sharp edge, has ``s = 0`` and accepts only ``tol``. Anything farther is refused in one
+    ConfigError line with its distance and the accepted one.
     """
     from physar.fem.loads import default_tol
 
@@ -58,15 +79,98 @@ def locate(space: FESpace, points: np.ndarray, tol: float | None = None) -> tupl
         dist = (L / gnorm).min(axis=1)
         e = int(np.argmax(dist))
         if dist[e] < -tol:
-            raise ConfigError(f"probe point {p.tolist()} lies outside the mesh (by {-dist[e]:.3g} m at least; "
-                              f"points within {tol:.3g} m of it are accepted)")
-        Le = np.clip(L[e], 0.0, None)
+            e, Le = _snap_outside(space, p, tol)
+        else:
+            Le = L[e]
+        Le = np.clip(Le, 0.0, None)
         cells[i], bary[i] = e, Le / Le.sum()
     return cells, bary
 
 
+def _snap_outside(space: FESpace, p: np.ndarray, tol: float) -> tuple[int, np.ndarray]:
+    """(element, barycentric coordinates (4,)) of the nearest boundary point to `p`, a point outside every
+    element by more than `tol`, when within the curved-surface slack of :func:`locate`; else ConfigError."""
+    surf, tree, tri, reach, normal, area, vf_ptr, vf_idx = _boundary_search(space)
+    dc, _ = tree.query(p)
+    cand = np.asarray(tree.query_ball_point(p, dc + reach * (1 + 1e-9) + 1e-12), dtype=np.int64)
+    q, d = _closest_on_triangles(np.broadcast_to(p, (len(cand), 3)), tri[cand])
+    k = int(np.argmin(d))
+    f, q, d = int(cand[k]), q[k], float(d[k])
+    # the sagitta of face f from its vertex normals (neighbouring faces within FEATURE_ANGLE of its normal)
+    nf = normal[f]
+    cos_feat = np.cos(np.radians(FEATURE_ANGLE))
+    vn = np.empty((3, 3))
+    for j, v in enumerate(surf.mesh.faces[f]):
+        around = vf_idx[vf_ptr[v]:vf_ptr[v + 1]]
+        around = around[normal[around] @ nf >= cos_feat]
+        n = (area[around, None] * normal[around]).sum(axis=0)
+        vn[j] = n / np.linalg.norm(n)  # `around` holds f itself: never zero
+    x = tri[f]
+    sag = max(0.0, *((vn[a] - vn[b]) @ (x[a] - x[b]) / 8.0 for a, b in ((0, 1), (1, 2), (2, 0))))
+    e = int(surf.face_cell[f])
+    X = space.mesh.points[space.mesh.cells[e]]
+    h = float(np.mean([np.linalg.norm(X[a] - X[b]) for a in range(4) for b in range(a + 1, 4)]))
+    allowed = max(tol, min(SNAP_FRACTION * h, 2.0 * sag))
+    if d > allowed:
+        why = ("the mesh's surface is flat there" if allowed == tol else
+               f"about twice the sagitta of the facets of the curved surface there, elements of {h:.3g} m")
+        raise ConfigError(f"probe point {p.tolist()} lies outside the mesh by {d:.3g} m (the nearest boundary "
+                          f"point is {np.round(q, 9).tolist()}; accepted there: {allowed:.3g} m, {why})")
+    Jinv, _ = space.jacobians
+    xi = Jinv[e] @ (q - X[0])
+    return e, np.concatenate([[1.0 - xi.sum()], xi])
+
+
+def _boundary_search(space: FESpace):
+    """Cached per space: the boundary surface, a KD-tree of its face centroids, its triangles (f, 3, 3), the
+    largest centroid-to-vertex distance, unit face normals, face areas, vertex -> faces (CSR ptr, idx)."""
+    from scipy.spatial import cKDTree
+
+    cache = space.__dict__.setdefault("_physar_cache", {})
+    if "boundary_search" not in cache:
+        surf = cache["boundary"] if "boundary" in cache else space.mesh.boundary()
+        cache["boundary"] = surf
+        tri = surf.mesh.points[surf.mesh.faces]
+        c = tri.mean(axis=1)
+        nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        area = 0.5 * np.linalg.norm(nrm, axis=1)
+        nrm = nrm / np.maximum(2.0 * area, 1e-300)[:, None]
+        flat = surf.mesh.faces.ravel()
+        order = np.argsort(flat, kind="stable")
+        ptr = np.concatenate([[0], np.cumsum(np.bincount(flat, minlength=surf.mesh.n_points))])
+        reach = float(np.linalg.norm(tri - c[:, None], axis=2).max())
+        cache["boundary_search"] = (surf, cKDTree(c), tri, reach, nrm, area, ptr, order // 3)
+    return cache["boundary_search"]
+
+
+def _closest_on_triangles(P: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest points (m, 3) on triangles T (m, 3, 3) to points P (m, 3), pairwise, and their distances (m,):
+    the projection onto the plane when it falls inside the triangle, else the nearest point of its edges."""
+    A, B, C = T[:, 0], T[:, 1], T[:, 2]
+    e0, e1, v = B - A, C - A, P - A
+    d00, d01, d11 = (e0 * e0).sum(1), (e0 * e1).sum(1), (e1 * e1).sum(1)
+    d20, d21 = (v * e0).sum(1), (v * e1).sum(1)
+    den = d00 * d11 - d01 * d01
+    with np.errstate(divide="ignore", invalid="ignore"):
+        b1 = (d11 * d20 - d01 * d21) / den
+        b2 = (d00 * d21 - d01 * d20) / den
+    inside = (den > 0) & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1)
+    Q = A + np.nan_to_num(b1)[:, None] * e0 + np.nan_to_num(b2)[:, None] * e1
+    d = np.where(inside, np.linalg.norm(P - Q, axis=1), np.inf)
+    for a, b in ((A, B), (B, C), (C, A)):
+        ab = b - a
+        t = np.clip(((P - a) * ab).sum(1) / np.maximum((ab * ab).sum(1), 1e-300), 0.0, 1.0)
+        qe = a + t[:, None] * ab
+        de = np.linalg.norm(P - qe, axis=1)
+        better = de < d
+        Q[better], d[better] = qe[better], de[better]
+    return Q, d
+
+
 def probe(space: FESpace, u: np.ndarray, point: Sequence[float] | np.ndarray) -> np.ndarray:
-    """Displacement interpolated at reference point(s): (3,) for one point, (p, 3) for several."""
+    """Displacement interpolated at reference point(s): (3,) for one point, (p, 3) for several. A point
+    outside the mesh is placed by :func:`locate`: on a curved surface within about twice the facets' sagitta it
+    is snapped to the nearest boundary point, else refused in one ConfigError line."""
     pts = np.asarray(point, dtype=float)
     u = _displacement(u, space.n_dofs)
     cells, L = locate(space, pts)
@@ -145,12 +249,27 @@ def nodal_stress(model, u: np.ndarray, vertices: np.ndarray | None = None,
     return (out / w[:, None]).reshape(-1, 3, 3)
 
 
-def von_mises(model, u: np.ndarray) -> np.ndarray:
-    r"""Per-element von Mises stress :math:`\sqrt{\tfrac32\, s : s}`, :math:`s` = deviatoric Cauchy stress
+def von_mises_of(stress: np.ndarray) -> np.ndarray:
+    r"""Von Mises stress :math:`\sqrt{\tfrac32\, s : s}` of stresses (..., 3, 3), :math:`s` the deviatoric part
     [Pa]."""
-    sig = cauchy_stress(model, u)
-    s = sig - np.trace(sig, axis1=1, axis2=2)[:, None, None] * np.eye(3) / 3
-    return np.sqrt(1.5 * np.einsum("mij,mij->m", s, s))
+    sig = np.asarray(stress, dtype=float)
+    s = sig - np.trace(sig, axis1=-2, axis2=-1)[..., None, None] * np.eye(3) / 3
+    return np.sqrt(1.5 * np.einsum("...ij,...ij->...", s, s))
+
+
+def von_mises(model, u: np.ndarray) -> np.ndarray:
+    r"""Per-element von Mises stress :math:`\sqrt{\tfrac32\, s : s}` of the element-averaged Cauchy stress
+    (:func:`cauchy_stress`), :math:`s` its deviatoric part [Pa]. Reads low where the stress varies across an
+    element (bending); :func:`nodal_von_mises` is the value at the vertices."""
+    return von_mises_of(cauchy_stress(model, u))
+
+
+def nodal_von_mises(model, u: np.ndarray, vertices: np.ndarray | None = None,
+                    cell_scale: np.ndarray | None = None) -> np.ndarray:
+    """Von Mises stress [Pa] at the mesh vertices (default all, else ``vertices``) of the stress recovered by
+    :func:`nodal_stress` (each element's stress at its own vertices, volume-averaged at shared vertices): the
+    field `physar fem solve` writes and whose peak it reports."""
+    return von_mises_of(nodal_stress(model, u, vertices, cell_scale))
 
 
 def nodal_average(space: FESpace, per_element: np.ndarray) -> np.ndarray:
