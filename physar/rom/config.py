@@ -16,7 +16,7 @@ Example (see README, "Reduced models")::
     range = [-0.1, 0.1]
     direction = [0, 1, 0]
     points = 11
-    [[parameter]]                             # optional: the load magnitude |load| in N
+    [[parameter]]                             # optional: the load magnitude P = |load| in N (see below)
     name = "P"
     kind = "load_magnitude"
     range = [0.5, 2.0]
@@ -47,6 +47,16 @@ load_position parameter), see :mod:`physar.rom.problem` for what each does::
     range = [1e6, 1e7]
     box = [[0, 0, 0], [0.5, 0.1, 0.1]]
 
+The load magnitude :math:`P` [N] is the size of the load_position parameter's force: the force at :math:`P` is
+:math:`P\, \mathtt{load} / |\mathtt{load}|`, its direction and sign those of ``load`` (``load = [0, 0, -1000]``
+and :math:`P = 1200` push 1200 N downwards), so the reduced model at :math:`P = |\mathtt{load}|` is the full
+solve with the configured ``load``. ``range`` is therefore in N and >= 0 (a negative :math:`P` would reverse
+the configured direction: refused; reverse ``load`` instead), and either ``load`` is a unit vector (a
+direction only, any range) or the range contains :math:`|\mathtt{load}|` (``load = [0, 0, -1000]`` with
+``range = [0.5, 2]`` reads :math:`P` as a factor of the load, which it is not: refused). A ``[[load]]`` table
+is a constant load on top of it at every :math:`P` (a warning says so: the fem file's own load kept next to
+the load_position parameter counts twice).
+
 `points` is the grid of each parameter (intrusive PGD, POD; its initial samples non-intrusively), an integer
 3..2001, so the point-set selector of a region is ``at`` here. Nodes of a prescribed region are driven by it
 (all three components), not by a [[fix]] they also lie in; [[fix]] values and [[load]] tables apply at every
@@ -66,13 +76,14 @@ solve the same problem.
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from typing import Literal
 
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from physar.errors import ConfigError, SolverError
+from physar.errors import ConfigError, PhysarWarning, SolverError
 from physar.fem.config import Box, FemConfig, PlaneSelector, Vec3, _Strict, build_problem, load_config
 from physar.fem.loads import select_cells_mask, select_nodes_mask
 from physar.fem.solvers import check_constraints
@@ -102,11 +113,14 @@ class ParameterSection(_Strict):
     path: list[Vec3] | None = Field(None, min_length=2, description="load_position: the load's path, a "
                                                                      "polyline [[x0,y0,z0],[x1,y1,z1],...] (m)")
     points: int = Field(60, description=f"grid points of the parameter, an integer 3..{MAX_POINTS}")
-    load: Vec3 | None = Field(None, description="total force (N)")
+    load: Vec3 | None = Field(None, description="load_position: total force (N) of the point load; with a "
+                                                "load_magnitude parameter P its direction and sign, the force "
+                                                "being P load / |load|")
     radius: float | None = Field(None, gt=0, description="radius of the point load's bump kernel (as a fem "
                                                          "point load), m")
     range: tuple[float, float] | None = Field(
-        None, description="[low, high] in the parameter's unit: N for load_magnitude, m for load_offset and "
+        None, description="[low, high] in the parameter's unit: N for load_magnitude (>= 0, containing |load| "
+                          "unless load is a unit direction), m for load_offset and "
                           "displacement, deg or rad for rotation, Pa for youngs_modulus (load_position spans "
                           "its path)")
     direction: Vec3 | None = Field(None, description="offset direction (load_offset), translation (displacement); "
@@ -160,7 +174,8 @@ class ParameterSection(_Strict):
                 i = int(np.flatnonzero(seg <= 0)[0])
                 raise ValueError(f"path segment {i} (points {i} and {i + 1}) has zero length")
         if self.kind == "load_position" and np.linalg.norm(self.load) <= 0:
-            raise ValueError("load must be non-zero")
+            raise ValueError(f"load = {[float(v) for v in self.load]} N has zero magnitude: it is the load's "
+                             "direction and size (a load_magnitude parameter P rescales it to |load| = P)")
         for k in ("direction", "axis"):
             if getattr(self, k) is not None and np.linalg.norm(getattr(self, k)) <= 0:
                 raise ValueError(f"{k} must be non-zero")
@@ -178,6 +193,10 @@ class ParameterSection(_Strict):
             raise ValueError(f"give at most one of box, region (the cells of E; got {', '.join(given)})")
         if self.tol is not None and self.at is None and self.kind != "load_position":
             raise ValueError("tol applies to at (a plane takes its own tol)")
+        if self.kind == "load_magnitude" and self.range[0] < 0:
+            raise ValueError(f"range = {list(self.range)} N: a load_magnitude is |load| >= 0 (the load's direction "
+                             "and sign are those of the load_position parameter's load: reverse that vector to "
+                             "reverse the load)")
         if self.kind == "youngs_modulus" and self.range[0] <= 0:
             raise ValueError(f"range of Young's modulus must be > 0 Pa, got {list(self.range)}")
         if self.kind == "rotation":
@@ -266,6 +285,9 @@ class RomConfig(FemConfig):
                 name = self.parameter[kinds.index(k)].name
                 raise ValueError(f"[[parameter]] {name!r}: a {k} parameter acts on the load of a "
                                  "kind = \"load_position\" [[parameter]]; there is none")
+        if "load_magnitude" in kinds:
+            _check_magnitude_range(self.parameter[kinds.index("load_position")],
+                                   self.parameter[kinds.index("load_magnitude")])
         names = [p.name for p in self.parameter]
         if len(set(names)) != len(names):
             raise ValueError(f"parameter names must be distinct, got {names}")
@@ -280,6 +302,20 @@ class RomConfig(FemConfig):
         order = {"load_position": 0, "load_magnitude": 1, "load_offset": 2}
         self.parameter.sort(key=lambda p: order.get(p.kind, 3))
         return self
+
+
+def _check_magnitude_range(pos: ParameterSection, mag: ParameterSection) -> None:
+    """Refuse a load_magnitude range without the configured |load| unless that load is a unit direction: P is
+    |load| in N, not a factor of the load (``load = [0, 0, -1000]``, ``range = [0.5, 2]`` would give 0.5-2 N)."""
+    size = float(np.linalg.norm(pos.load))
+    lo, hi = map(float, mag.range)
+    slack = 1e-9 * max(size, hi)
+    if abs(size - 1.0) <= 1e-6 or lo - slack <= size <= hi + slack:
+        return
+    raise ValueError(f"[[parameter]] {mag.name!r}: range = {[lo, hi]} N does not contain |load| = {size:.6g} N of "
+                     f"[[parameter]] {pos.name!r} (load = {[float(v) for v in pos.load]}): a load_magnitude is "
+                     f"|load| in N, not a factor; give its range in N (e.g. [{0.5 * size:.6g}, {1.5 * size:.6g}]) "
+                     "or load as a unit direction")
 
 
 def load_rom_config(path) -> RomConfig:
@@ -304,6 +340,7 @@ def build_rom(cfg: RomConfig, progress: Callable[[int, int], None] | None = None
     if pos is not None:     # before any solve: a path off the object fails late and with the wrong hint
         check_load_path(problem.space, pos, source,
                         next((p for p in cfg.parameter if p.kind == "load_offset"), None))
+    _warn_constant_loads(cfg, source)
     r = cfg.rom
     workers = workers if workers is not None else r.workers
     scheduler = scheduler if scheduler is not None else r.scheduler
@@ -337,6 +374,23 @@ def build_rom(cfg: RomConfig, progress: Callable[[int, int], None] | None = None
     if "amplitudes" in info:
         rom.metadata["mode_amplitudes"] = [float(a) for a in info["amplitudes"]]
     return rom, problem.space, info
+
+
+def _warn_constant_loads(cfg: RomConfig, source: str) -> None:
+    """One PhysarWarning per [[load]] table (not gravity) of a file with a load_magnitude parameter: it is applied
+    at every P on top of the load P scales, so the fem file's own load kept next to the load_position parameter
+    counts twice."""
+    mag = next((p for p in cfg.parameter if p.kind == "load_magnitude"), None)
+    if mag is None:
+        return
+    pos = next(p for p in cfg.parameter if p.kind == "load_position")
+    for i, ld in enumerate(cfg.load):
+        if ld.type == "gravity":
+            continue
+        warnings.warn(PhysarWarning(
+            f"{source}: [[load]] #{i + 1} ({ld.type}, total {[float(v) for v in ld.total]} N) is a constant load, "
+            f"applied at every {mag.name} on top of the load of [[parameter]] {pos.name!r} that {mag.name} scales "
+            f"(load = {[float(v) for v in pos.load]} N); remove it if it is that same load"), stacklevel=3)
 
 
 def check_load_path(space, pos: ParameterSection, source: str = "config",
