@@ -45,6 +45,72 @@ def _load(path: Path, role: str = "input"):
     return m, None
 
 
+_NORMALS = ("nx", "ny", "nz")
+_POINT_DATA_FORMATS = {".ply", ".vtu", ".vtk", ".xdmf", ".xmf"}  # surface formats meshio writes point_data to
+
+
+def _ply_vertex_fields(path: Path, mesh) -> dict:
+    """The per-vertex properties of a surface PLY other than x, y, z, in file order: {name: (n,) array in the
+    file's type} (colours red/green/blue/alpha, texture coordinates, labels, normals nx/ny/nz, ...); {} for
+    another format or a PLY without them. Face properties cannot be written (meshio's PLY writer writes none)
+    and get one PhysarWarning naming them."""
+    import trimesh
+
+    if path.suffix.lower() != ".ply" or mesh is None:
+        return {}
+    try:
+        raw = trimesh.load(path, process=False, force=None).metadata.get("_ply_raw", {})
+    except Exception:  # noqa: BLE001 - read_ply already read this file; a second parser failure loses no points
+        return {}
+
+    def columns(element) -> dict:
+        data = (raw.get(element) or {}).get("data")
+        if data is None:
+            return {}
+        if isinstance(data, np.ndarray) and data.dtype.names:
+            return {k: data[k] for k in data.dtype.names}
+        return dict(data)
+
+    fields = {}
+    for name, col in columns("vertex").items():
+        col = np.asarray(col)
+        if col.ndim == 2 and col.shape[1] == 1:  # an ASCII PLY's columns: (n, 1)
+            col = col[:, 0]
+        if name in ("x", "y", "z") or col.ndim != 1 or len(col) != mesh.n_points or col.dtype.kind not in "iuf":
+            continue
+        fields[str(name)] = col.astype(col.dtype.newbyteorder("="), copy=False)
+    face_props = [k for k in columns("face") if k not in ("vertex_indices", "vertex_index")]
+    if face_props:
+        warnings.warn(f"{path}: the face properties {', '.join(face_props)} are not carried to the output (only "
+                      "per-vertex properties are)", PhysarWarning, stacklevel=2)
+    return fields
+
+
+def _output_fields(fields: dict, before, after, out: Path) -> dict | None:
+    """Point data of the denoised (or noised) mesh ``after`` from the input's per-vertex ``fields``: every
+    property copied unchanged (vertex count and order are the same), except normals nx, ny, nz, which are
+    recomputed on the moved vertices (area-weighted face normals, :func:`physar.geometry.quality.vertex_normals`),
+    unit length, in the input's type, and flipped as a whole when the input's normals point against the face
+    winding (so they keep the file's inside/outside convention). An output format that stores no per-vertex
+    data drops them with one PhysarWarning naming the output and the properties."""
+    from physar.geometry.quality import vertex_normals
+
+    if not fields:
+        return None
+    if out.suffix.lower() not in _POINT_DATA_FORMATS:
+        warnings.warn(f"{out}: {out.suffix} stores no per-vertex data: the input's {', '.join(fields)} are not "
+                      "written (write .ply to keep them)", PhysarWarning, stacklevel=2)
+        return None
+    fields = dict(fields)
+    if all(k in fields for k in _NORMALS):
+        given = np.column_stack([fields[k] for k in _NORMALS]).astype(float)
+        sign = -1.0 if np.einsum("ij,ij->", given, vertex_normals(before)) < 0 else 1.0
+        n = sign * vertex_normals(after)
+        for j, k in enumerate(_NORMALS):
+            fields[k] = n[:, j].astype(fields[k].dtype if fields[k].dtype.kind == "f" else float)
+    return fields
+
+
 def _is_cloud(path: Path, read_ply) -> bool:
     """True when the PLY file holds no faces (a point cloud); unreadable files are left to _load."""
     try:
@@ -63,14 +129,14 @@ def _check_out(out: Path, inp: Path, cloud: bool, reference: Path | None = None)
                       kind="point cloud" if cloud else "surface mesh")
 
 
-def _save(path: Path, mesh, pts) -> None:
+def _save(path: Path, mesh, pts, point_data: dict | None = None) -> None:
     from physar.geometry.io import write_mesh
     from physar.geometry.pointcloud import write_ply
 
     if mesh is None:
         write_ply(path, pts)
     else:
-        write_mesh(path, mesh)
+        write_mesh(path, mesh, point_data=point_data)
 
 
 # CLI option -> keyword of each method (None: the option does not apply to that method)
@@ -192,7 +258,10 @@ def register(app: typer.Typer) -> None:
         k: int = typer.Option(10, "--k", help="neighbours for point clouds"),
         json_out: bool = typer.Option(False, "--json", help="print a JSON summary on stdout"),
     ) -> None:
-        """Denoise a surface mesh or point cloud (seed 001 §3.2.1 AL/MSAL, or the two-stage default)."""
+        """Denoise a surface mesh or point cloud (seed 001 §3.2.1 AL/MSAL, or the two-stage default).
+
+        Surface PLY input: per-vertex colours and other properties are kept
+        (.ply, .vtu, .vtk or .xdmf output); normals nx, ny, nz are recomputed."""
         import sys
 
         import numpy as np
@@ -243,7 +312,7 @@ def register(app: typer.Typer) -> None:
             if mesh is not None:
                 res = denoise(mesh, method, iterations, progress=prog, **params)
                 moved = np.linalg.norm(res.points - mesh.points, axis=1)
-                _save(out, res, None)
+                _save(out, res, None, _output_fields(_ply_vertex_fields(inp, mesh), mesh, res, out))
                 n = mesh.n_points
             else:
                 q = denoise_points(pts, method, iterations, k=k, progress=prog, **params)
@@ -299,6 +368,9 @@ def register(app: typer.Typer) -> None:
         Default (the convention of the mesh normal-filtering papers, e.g. Zheng et al. 2011, Zhang et al.
         2015): vertex i moves by s·t_i·u_i, t_i ~ N(0, 1), u_i uniform on the unit sphere, s = sigma·ē,
         so the mean squared displacement is s² (not 3s² as for N(0, s²I) per coordinate).
+
+        Surface PLY input: per-vertex colours and other properties are kept,
+        normals recomputed (as in `denoise`).
         """
         from physar.geometry.quality import add_noise, mean_edge_length
 
@@ -310,7 +382,7 @@ def register(app: typer.Typer) -> None:
         if mesh is None:
             raise PhysarError(f"{inp}: `noise` needs a surface mesh (faces), got a point cloud")
         noisy = add_noise(mesh, sigma, seed, direction)
-        _save(out, noisy, None)
+        _save(out, noisy, None, _output_fields(_ply_vertex_fields(inp, mesh), mesh, noisy, out))
         summary = {"input": str(inp), "output": str(out), "sigma_m": sigma * mean_edge_length(mesh),
                    "seed": seed, "direction": direction}
         if json_out:

@@ -41,7 +41,10 @@ def convert(
     dst_opt: Path | None = typer.Option(None, "--out", "-o", show_default=False,  # noqa: B008 - typer idiom
                                         help="output mesh; format from the suffix"),
 ) -> None:
-    """Convert a tetrahedral or triangle mesh between formats (validated on the way)."""
+    """Convert a tetrahedral or triangle mesh between formats (validated on the way).
+
+    Region tags and physical-group names are kept in .msh, .vtu and .xdmf;
+    .mesh and .vtk keep the tag numbers only (one warning names the regions)."""
     from physar.cli._common import output_path, warn_positional
     from physar.geometry.io import SURFACE_FORMATS, VOLUME_FORMATS
     from physar.output import check_destination

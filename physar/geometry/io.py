@@ -140,12 +140,93 @@ def _blocks(m, path: Path) -> tuple[list, list, list]:
 
 
 def _names(m) -> dict:
+    """Region names of a meshio mesh: its ``field_data`` entries {name: [tag, dim]} (the gmsh convention, also
+    what :func:`write_mesh` stores in VTU FieldData and XDMF Information). Entries that are not one or two
+    integers with a dimension 0..3 (e.g. ParaView's float ``TimeValue``) are other field data, not names."""
     names = {}
     for name, v in (getattr(m, "field_data", None) or {}).items():
-        v = np.asarray(v).ravel()
-        if v.size >= 1:
-            names[str(name)] = (int(v[0]), int(v[1]) if v.size > 1 else 3)
+        v = np.asarray(v)
+        if v.dtype.kind not in "iu" or v.size not in (1, 2):
+            continue
+        v = v.ravel()
+        dim = int(v[1]) if v.size > 1 else 3
+        if 0 <= dim <= 3:
+            names[str(name)] = (int(v[0]), dim)
     return names
+
+
+def _msh_volume_entities(path: Path) -> int | None:
+    """Number of volumes in the ``$Entities`` section of a Gmsh 4 file (the model's, whether or not their
+    elements were saved); None for Gmsh 2 files (no such section) or an unreadable header."""
+    try:
+        with open(path, "rb") as f:
+            binary, size_t = False, 8
+            for _ in range(100_000):  # header sections only: $Entities comes before $Nodes
+                line = f.readline()
+                if not line or line.startswith((b"$Nodes", b"$Elements")):
+                    return None
+                if line.startswith(b"$MeshFormat"):
+                    head = f.readline().split()
+                    binary, size_t = head[1:2] == [b"1"], int(head[2]) if len(head) > 2 else 8
+                elif line.startswith(b"$Entities"):
+                    if binary:
+                        raw = f.read(4 * size_t)
+                        return int(np.frombuffer(raw, dtype=f"<u{size_t}")[3])
+                    return int(f.readline().split()[3])
+    except (OSError, ValueError, IndexError, TypeError):
+        return None
+    return None
+
+
+_DIM_OF = {"triangle": 2, "quad": 2, "polygon": 2}
+_GROUP_WORD = {2: "surface", 1: "curve", 0: "point"}
+
+
+def _check_gmsh_groups(m, path: Path, surf: list, kind: str) -> None:
+    """MeshError when a .msh has no volume cells because gmsh saved only the elements of physical groups and
+    none of them is a volume (gmsh's default ``Mesh.SaveAll=0``: the tetrahedra are simply not written).
+
+    Applies when every saved element carries a physical tag > 0 (with SaveAll=1 elements outside groups are
+    saved with tag 0) and no group has dimension 3. For ``kind="tet"`` that is enough; for ``kind="auto"``
+    the file must also show that it came from a 3-D model: a Gmsh 4 ``$Entities`` section listing volumes,
+    named surface groups ($PhysicalNames of dimension 2), or saved triangles that form an open surface whose
+    nodes are not in one plane (a part of a solid's boundary). A complete surface model saved without names
+    by gmsh 2 is read as a surface."""
+    phys = m.cell_data.get("gmsh:physical")
+    if phys is None or kind not in ("tet", "auto"):
+        return
+    by_dim: dict = {}
+    for block, t in zip(m.cells, phys, strict=False):
+        t = np.asarray(t if t is not None else [0]).ravel()
+        if not len(block.data):
+            continue
+        if len(t) != len(block.data) or not (t > 0).all():
+            return  # elements outside physical groups were saved: nothing was dropped
+        dim = 1 if block.type.startswith("line") else 0 if block.type.startswith("vertex") else \
+            _DIM_OF.get(_base_type(block.type) or "")
+        if dim is None:
+            return  # a volume cell type
+        by_dim.setdefault(dim, set()).update(np.unique(t).tolist())
+    names = _names(m)
+    if not by_dim or any(d == 3 for _, d in names.values()):
+        return
+    if kind == "auto":
+        evidence = bool(_msh_volume_entities(path)) or any(d == 2 for _, d in names.values())
+        if not evidence and surf:
+            from physar.geometry.mesh import TriMesh
+            from physar.geometry.tetra import boundary_edge_count, is_flat
+
+            part = TriMesh(np.asarray(m.points, float), np.concatenate([f for f, _ in surf]), name=path.name)
+            evidence = boundary_edge_count(part) > 0 and not is_flat(part)
+        if not evidence:
+            return
+    groups = []
+    for dim in sorted(by_dim, reverse=True):
+        named = {i: n for n, (i, d) in names.items() if d == dim}
+        items = [repr(named[i]) if i in named else str(i) for i in sorted(by_dim[dim])]
+        groups.append(f"{_GROUP_WORD[dim]} group{'s' if len(items) > 1 else ''} {', '.join(items)}")
+    raise MeshError(f"{path}: no tetrahedra: gmsh saved only the elements of physical groups ({'; '.join(groups)}"
+                    "; no volume group); add a volume physical group or set Mesh.SaveAll=1")
 
 
 def _mesh_tags(vol: list, surf: list, names: dict, remap: np.ndarray | None) -> MeshTags | None:
@@ -351,7 +432,11 @@ def read_mesh(path: str | os.PathLike, kind: str = "auto") -> TetMesh | TriMesh:
     is reoriented (warning); a mix of orientations is a MeshError.
     A tet mesh keeps the region tags of its cells and triangles (meshio cell_data "gmsh:physical",
     "medit:ref" or "cell_tags"; through splits, every piece keeps its cell's tag) and the group names
-    (field_data) as ``mesh.tags`` (:class:`MeshTags`).
+    (field_data: .msh $PhysicalNames, VTU FieldData, XDMF Information) as ``mesh.tags`` (:class:`MeshTags`).
+    A .msh without volume cells whose saved elements all belong to physical groups, none of them a volume
+    (gmsh's default saves only the elements of physical groups), is one MeshError saying so when tetrahedra
+    are asked for (``kind="tet"``, or ``"auto"`` for a file evidently from a 3-D model: see
+    :func:`_check_gmsh_groups`).
     """
     path = Path(path)
     if not path.exists():
@@ -363,6 +448,8 @@ def read_mesh(path: str | os.PathLike, kind: str = "auto") -> TetMesh | TriMesh:
     points = np.asarray(m.points, dtype=float)
     if points.ndim == 2 and points.shape[1] == 2:
         points = np.column_stack([points, np.zeros(len(points))])
+    if not vol and path.suffix.lower() == ".msh":
+        _check_gmsh_groups(m, path, surf, kind)
     use_vol = kind in ("auto", "tet") and vol
     use_surf = not use_vol and kind in ("auto", "tri") and surf
     for is_vol, note in notes:
@@ -396,6 +483,45 @@ def check_mesh_destination(path: str | os.PathLike, *, volume: bool = True, inpu
                              suffixes=sorted(VOLUME_FORMATS if volume else SURFACE_FORMATS))
 
 
+_NAMES_KEPT = {".msh", ".vtu", ".xdmf", ".xmf"}  # formats that store region names (others: numbers only)
+
+
+def _vtu_add_names(path: Path, names: Mapping[str, tuple[int, int]]) -> None:
+    """Add the region names to a VTU file meshio wrote (meshio reads VTU FieldData but writes none): one
+    ``<FieldData>`` Int64 array [tag, dim] per name in the ``<UnstructuredGrid>`` element, where VTK and
+    ParaView keep dataset field data and meshio.read returns it as ``field_data`` (the gmsh convention)."""
+    from xml.sax.saxutils import quoteattr
+
+    data = path.read_bytes()
+    marker = b"<UnstructuredGrid>"
+    at = data.find(marker)
+    if at < 0:
+        raise MeshError(f"{path}: cannot store the region names (no <UnstructuredGrid> element written)")
+    arrays = "".join(f'<DataArray type="Int64" Name={quoteattr(str(n))} NumberOfTuples="2" format="ascii">'
+                     f"{int(i)} {int(d)}</DataArray>\n" for n, (i, d) in names.items())
+    at += len(marker)
+    path.write_bytes(data[:at] + f"\n<FieldData>\n{arrays}</FieldData>".encode() + data[at:])
+
+
+def _xdmf_add_names(path: Path, names: Mapping[str, tuple[int, int]]) -> None:
+    """Add the region names to an XDMF file meshio wrote, in the layout meshio's XDMF reader reads into
+    ``field_data`` (and its own writer leaves out): an ``<Information>`` element of the Grid whose text is
+    ``<main><map key="name" dim="dim">tag</map>...</main>``."""
+    import xml.etree.ElementTree as ET
+
+    tree = ET.parse(path)
+    grid = tree.getroot().find("Domain/Grid")
+    if grid is None:
+        raise MeshError(f"{path}: cannot store the region names (no Domain/Grid element written)")
+    main = ET.Element("main")
+    for n, (i, d) in names.items():
+        ET.SubElement(main, "map", key=str(n), dim=str(int(d))).text = str(int(i))
+    info = ET.Element("Information", Name="Information", Value=str(len(names)))
+    info.text = ET.tostring(main, encoding="unicode")
+    grid.insert(0, info)
+    tree.write(path, encoding="utf-8", xml_declaration=False)
+
+
 def write_mesh(
     path: str | os.PathLike,
     mesh: TetMesh | TriMesh,
@@ -406,7 +532,11 @@ def write_mesh(
     written binary, whose coordinates are float32 (use PLY, OBJ, OFF or VTU for exact float64 round trips);
     a TetMesh needs a volume format (VTU, XDMF, Gmsh .msh, Medit .mesh). A TetMesh's tags are written as a tag
     per tetrahedron (``gmsh:physical`` in .msh, ``medit:ref`` in .mesh, else ``cell_tags``) and, when no cell
-    field is given (a mesh file, not a results file), its tagged boundary triangles as a second block."""
+    field is given (a mesh file, not a results file), its tagged boundary triangles as a second block.
+    The region names ({name: (tag, dim)}) go with them, so :func:`read_mesh` resolves the same names: .msh
+    ``$PhysicalNames``, VTU ``<FieldData>`` Int64 arrays [tag, dim], XDMF ``<Information>`` maps (the layouts
+    meshio reads as ``field_data``). Medit .mesh and legacy .vtk keep the numbers only: one PhysarWarning names
+    the file and the regions written as numbers."""
     path = Path(path)
     suffix = path.suffix.lower()
     if isinstance(mesh, TetMesh) and suffix in _SURFACE_ONLY:
@@ -441,10 +571,19 @@ def write_mesh(
         if suffix == ".msh":
             cd["gmsh:geometrical"] = [b.copy() for b in blocks]
         field_data = {n: np.array([int(i), int(d)]) for n, (i, d) in tags.names.items()}
+    if field_data and suffix not in _NAMES_KEPT:
+        lost = ", ".join(f"{n!r} = {i}" for n, (i, _) in sorted(tags.names.items(), key=lambda kv: kv[1][0]))
+        warnings.warn(f"{path}: {path.suffix} stores region numbers, not names: the regions {lost} are written as "
+                      "numbers only (refer to them by number, or write .vtu, .xdmf or .msh to keep the names)",
+                      PhysarWarning, stacklevel=2)
     m = meshio.Mesh(mesh.points, cells, point_data=pd, cell_data=cd, field_data=field_data)
     with atomic_path(path, companions=suffix in (".xdmf", ".xmf")) as tmp:
         opts = {".stl": {"binary": True},  # binary STL: compact, standard
                 ".msh": {"file_format": "gmsh22"}}.get(suffix, {})  # .msh alone: meshio writes ANSYS
         with contextlib.redirect_stdout(io.StringIO()):  # meshio prints notes (e.g. zero gmsh tags)
             m.write(tmp, **opts)
+        if field_data and suffix == ".vtu":
+            _vtu_add_names(Path(tmp), tags.names)
+        elif field_data and suffix in (".xdmf", ".xmf"):
+            _xdmf_add_names(Path(tmp), tags.names)
     return path
