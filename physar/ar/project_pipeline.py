@@ -52,6 +52,16 @@ from physar.vision.observation import surface_observation_matrix
 STAGES = ("decode", "markers_pose", "dots", "assimilate", "overlay", "encode")
 
 
+BOUND_TOL = 0.005
+"""An estimate within this fraction of its range's width from a bound is "at the bound" (the ``at_bound``
+column of :meth:`ProjectPipeline.run`'s CSV): the solve clips the parameters to the model's box, so an
+estimate that stays there says the true value is probably outside the box (or in other units)."""
+
+PINNED_FRACTION = 0.25
+"""Fraction of the tracked frames at one bound of a parameter from which :meth:`ProjectPipeline.run` warns
+(once, at the end of the run). A value that truly dwells at a range end a quarter of the time also warns."""
+
+
 LOW_BITS_PER_PIXEL = 0.15
 """Bits per pixel and frame below which :meth:`ProjectPipeline.run` warns that texture features suffer from the
 codec: the bracket example's clips at 0.09 (2.4 Mbit/s, 1280x720, 30 fps) made the dots + features project worse
@@ -83,8 +93,12 @@ class ProjectFrame:
         frame: index of the frame.
         status: "tracking" (parameters updated), "hold" (pose known, parameters held), "lost" (no pose), or,
             with markerless features, "reference" (the reference view being taken) and "rest".
-        mu: (p,) current estimate of the project's parameters, in their units.
-        std: (p,) its standard deviation.
+        mu: (p,) current estimate of the project's parameters, in their units: the frame's ("tracking") or the
+            last one held ("hold", "rest"); NaN in a "lost" frame and in every frame before the first estimate
+            (since the start or a :meth:`ProjectPipeline.reset`: the starting value is no estimate).
+        std: (p,) its standard deviation (NaN where ``mu`` is).
+        at_bound: (name, "lower" | "upper") of each parameter whose ``mu`` is within :data:`BOUND_TOL` of the
+            range's width from a bound of the model's range.
         residual_px: RMS reprojection residual of the frame's fit (nan where none was made).
         n_markers: markers found.
         n_dots: observations used: dots (or tracked feature points) and directly measured levers.
@@ -105,6 +119,7 @@ class ProjectFrame:
     stages_ms: dict = field(default_factory=dict)
     cpu_ms: float = float("nan")
     n_features: int = 0
+    at_bound: tuple = ()
 
 
 def _grey_levels_only(path) -> bool | None:
@@ -185,6 +200,7 @@ class ProjectPipeline:
         self.std = np.full(self.lo.size, np.nan)
         self.at_rest = self.features is not None      # texture features: the first frames show the object at rest
         self._fresh = True
+        self._estimated = False                       # a frame has been tracked since the start / reset
         self._res_hist: list[float] = []
         self.overlay = None
         self.last_pose, self.last_status = None, "lost"
@@ -222,6 +238,7 @@ class ProjectPipeline:
         self.std = np.full(self.lo.size, np.nan)
         self.at_rest = self.features is not None
         self._fresh = True
+        self._estimated = False
         self._res_hist = []
 
     def view_coefficients(self) -> np.ndarray:
@@ -564,6 +581,7 @@ class ProjectPipeline:
                     self.mu, self.std = mu, std
                 self._fresh = False
                 self.at_rest = False
+                self._estimated = True
                 status = "tracking"
             st["assimilate"] = (time.perf_counter() - t2) * 1e3
         else:
@@ -581,19 +599,42 @@ class ProjectPipeline:
                                     status if draw_pose is not None else "lost", info, self.names, self.units)
         t4 = time.perf_counter()
         st["overlay"] = (t4 - t3) * 1e3
-        return out, ProjectFrame(index, status, self.mu.copy(), self.std.copy(), rms, pe.n_markers, n_obs + n_bars,
-                                 (t4 - t0) * 1e3, st, (time.thread_time() - c0) * 1e3, n_feat)
+        if status == "lost" or not self._estimated:   # no estimate: not the held or the starting value
+            mu_out, std_out = np.full(self.lo.size, np.nan), np.full(self.lo.size, np.nan)
+        else:
+            mu_out, std_out = self.mu.copy(), self.std.copy()
+        return out, ProjectFrame(index, status, mu_out, std_out, rms, pe.n_markers, n_obs + n_bars,
+                                 (t4 - t0) * 1e3, st, (time.thread_time() - c0) * 1e3, n_feat,
+                                 self.bounds_reached(mu_out))
+
+    def bounds_reached(self, mu) -> tuple:
+        """(name, "lower" | "upper") of each parameter of ``mu`` within :data:`BOUND_TOL` of its range's width
+        from a bound of the model's range (beyond it too; NaN: none)."""
+        mu = np.asarray(mu, float)
+        tol = BOUND_TOL * (self.hi - self.lo)
+        out = []
+        for j, name in enumerate(self.names):
+            if mu[j] <= self.lo[j] + tol[j]:
+                out.append((name, "lower"))
+            elif mu[j] >= self.hi[j] - tol[j]:
+                out.append((name, "upper"))
+        return tuple(out)
 
     # -- whole videos --------------------------------------------------------------------------------------
     def csv_header(self) -> list[str]:
+        """The CSV columns after frame, time_s, status: ``{name}_est`` and ``{name}_std`` of each parameter
+        ("nan" in a lost frame and before the first estimate), residual_px, markers, dots, features (with
+        ``[features] mode = "points"``), latency_ms, and at_bound: ``name:lower`` / ``name:upper`` of each
+        estimate at a bound of the model's range (:data:`BOUND_TOL`), ";"-separated, empty when none."""
         return ([f"{n}_est" for n in self.names] + [f"{n}_std" for n in self.names]
                 + ["residual_px", "markers", "dots"] + (["features"] if self.points is not None else [])
-                + ["latency_ms"])
+                + ["latency_ms", "at_bound"])
 
     def csv_row(self, r: ProjectFrame) -> list:
         return ([f"{v:.6g}" for v in r.mu] + [f"{v:.6g}" for v in r.std]
                 + [f"{r.residual_px:.4f}", r.n_markers, r.n_dots]
-                + ([r.n_features] if self.points is not None else []) + [f"{r.latency_ms:.3f}"])
+                + ([r.n_features] if self.points is not None else []) + [f"{r.latency_ms:.3f}"]
+                + [";".join(f"{n}:{side}" for n, side in r.at_bound)])
 
     def _warn_bitrate(self, source) -> None:
         """One warning when texture features are tracked in a video file (a path or an opened
@@ -644,10 +685,24 @@ class ProjectPipeline:
             preset: str = "ultrafast", progress: Callable[[int, int], None] | None = None,
             max_frames: int | None = None, snapshots: dict | None = None, **kw) -> dict:
         """Process a source (path, or a frame source from :mod:`physar.ar.sources`); outputs as in
-        :func:`physar.ar.runner.run_video`. Returns its summary."""
+        :func:`physar.ar.runner.run_video` (the CSV's columns: :meth:`csv_header`). Returns its summary, with
+        also ``marker_frames`` (frames where at least one of the project's markers was found; with a learned
+        ``[registration] method = "plane"``, frames with plane-feature inliers) and ``at_bound``
+        ({name: {"bound": "lower" | "upper", "value", "frames", "tracked", "fraction"}}: each parameter whose
+        estimate was at a bound of the model's range in a tracked frame, the bound it was at most often, in how
+        many of the tracked frames). A parameter at one bound in at least :data:`PINNED_FRACTION` of the
+        tracked frames gives one PhysarWarning at the end (all such parameters in one line)."""
+        tally = {"tracked": 0, "markers": 0, "bounds": {}}
+
         def step(k, item, draw):
             frame, luma = item
-            return self.process(frame, k, draw=draw and self.overlay is not None, gray=luma)
+            img, r = self.process(frame, k, draw=draw and self.overlay is not None, gray=luma)
+            tally["markers"] += r.n_markers > 0
+            if r.status == "tracking":
+                tally["tracked"] += 1
+                for key in r.at_bound:
+                    tally["bounds"][key] = tally["bounds"].get(key, 0) + 1
+            return img, r
 
         def frames(reader):
             if hasattr(reader, "frames_with_luma"):
@@ -659,11 +714,47 @@ class ProjectPipeline:
         prev = cv2.getNumThreads()
         cv2.setNumThreads(1)
         try:
-            return run_video(step, self.camera, source, out_video, out_csv, fps, crf, self.csv_header(),
-                             self.csv_row, progress, snapshots, max_frames, STAGES, preset=preset,
-                             convert="opencv", frames=frames, time_io=True, cpu=True, **kw)
+            summary = run_video(step, self.camera, source, out_video, out_csv, fps, crf, self.csv_header(),
+                                self.csv_row, progress, snapshots, max_frames, STAGES, preset=preset,
+                                convert="opencv", frames=frames, time_io=True, cpu=True, **kw)
         finally:
             cv2.setNumThreads(prev)
+        summary["marker_frames"] = tally["markers"]
+        summary["at_bound"] = self._pinned(tally["tracked"], tally["bounds"])
+        self._warn_pinned(summary["at_bound"])
+        return summary
+
+    def _pinned(self, tracked: int, bounds: dict) -> dict:
+        """The summary's ``at_bound`` entry from the tracked frames' count and {(name, side): frames}."""
+        out = {}
+        for j, name in enumerate(self.names):
+            k, side = max((bounds.get((name, sd), 0), sd) for sd in ("upper", "lower"))
+            if k:
+                out[name] = {"bound": side, "value": float(self.hi[j] if side == "upper" else self.lo[j]),
+                             "frames": int(k), "tracked": int(tracked), "fraction": k / tracked}
+        return out
+
+    def _warn_pinned(self, at_bound: dict) -> None:
+        """One PhysarWarning naming each parameter at one bound in at least :data:`PINNED_FRACTION` of the tracked
+        frames, the bound, the fraction and the model file's field that sets the range."""
+        params = {p["name"]: p for p in self.project.parameters()}
+        cfg = self.project.config
+        where = cfg.model.config or cfg.model.file or "the model"
+        parts = []
+        for name, b in at_bound.items():
+            if b["fraction"] < PINNED_FRACTION:
+                continue
+            p = params.get(name, {})
+            unit = p.get("unit") or ""
+            lo, hi = self.lo[self.names.index(name)], self.hi[self.names.index(name)]
+            field = (f"`path`, {hi - lo:g} {unit} long".rstrip() if p.get("kind") == "load_position"
+                     else f"`range` = [{lo:g}, {hi:g}]")
+            parts.append(f"{name} pinned at its {b['bound']} bound {b['value']:g}{' ' + unit if unit else ''} in "
+                         f"{100 * b['fraction']:.0f} % of the tracked frames ({b['frames']} of {b['tracked']}): "
+                         f"unless the object truly stays there, the true value is probably outside the model's "
+                         f"range ({where} [[parameter]] {name} {field}) or in other units")
+        if parts:
+            warnings.warn(PhysarWarning(f"{self.project.source}: " + "; ".join(parts)), stacklevel=3)
 
 
 __all__ = ["ProjectFrame", "ProjectPipeline"]

@@ -3,8 +3,9 @@ mean estimate, |difference|) and the plot of every parameter's estimate ± 2 sd 
 error below, for any project (the parameters' names and units come from the model).
 
 Inputs are the columns of ``truth.csv`` (``{name}_true``, ``time_s``, optional ``at_rest`` and
-``occluders``) and of the pipeline's ``estimates.csv`` (``{name}_est``, ``{name}_std``, ``status``), as
-read by :func:`physar.synth.score.read_columns` or any CSV reader.
+``occluders``) and of the pipeline's ``estimates.csv`` (``{name}_est``, ``{name}_std``, ``status``, optional
+``at_bound``), as read by :func:`physar.synth.score.read_columns` or any CSV reader. An estimate of NaN (a
+"lost" frame, a frame before the first estimate) is a gap in the plot and left out of the table.
 """
 from __future__ import annotations
 
@@ -39,8 +40,9 @@ def dwell_table(truth: dict, est: dict, name: str, settle: int = 3, min_frames: 
 
 def plot_estimates(truth: dict, est: dict, names, units, path, title: str = "", tol: float = 0.01,
                    ranges=None) -> None:
-    """One panel pair per parameter: truth and estimate ± 2 sd over time, and the error with the ±tol x range
-    band; frames at rest and with occluders shaded. Written atomically to ``path`` (PNG)."""
+    """One panel pair per parameter: truth and estimate ± 2 sd over time (NaN estimates: gaps), and the error
+    with the ±tol x range band; frames at rest and with occluders shaded, estimates at a bound of the model's
+    range (column ``at_bound``) marked. Written atomically to ``path`` (PNG)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -70,6 +72,9 @@ def plot_estimates(truth: dict, est: dict, names, units, path, title: str = "", 
         a1.plot(t, ev, "-", color="tab:blue", lw=1.2, label="estimate")
         sd = np.minimum(sd, 0.1 * (hi - lo))
         a1.fill_between(t, ev - 2 * sd, ev + 2 * sd, color="tab:blue", alpha=0.25, lw=0, label="estimate ± 2 sd")
+        pinned = _at_bound(est, name, n)
+        if pinned.any():
+            a1.plot(t[pinned], ev[pinned], "x", color="tab:red", ms=4, label="at a bound of the model's range")
         a1.set_ylabel(f"{name} [{unit}]")
         a1.legend(loc="upper right", fontsize=8, ncol=3)
         err = np.where(status == "tracking", ev - tv, np.nan)
@@ -85,6 +90,16 @@ def plot_estimates(truth: dict, est: dict, names, units, path, title: str = "", 
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
+
+
+def _at_bound(est: dict, name: str, n: int) -> np.ndarray:
+    """Frames (bool, n) whose ``at_bound`` cell (``name:lower;other:upper``) names the parameter ``name``."""
+    col = est.get("at_bound")
+    if col is None:
+        return np.zeros(n, bool)
+    cells = [str(v) for v in np.asarray(col)[:n]]
+    out = np.array([name in {x.split(":")[0] for x in c.split(";") if x} for c in cells], bool)
+    return np.r_[out, np.zeros(n - out.size, bool)]
 
 
 __all__ = ["dwell_table", "plot_estimates"]

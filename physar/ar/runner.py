@@ -215,8 +215,12 @@ def _until_failure(items: Iterable, failed: list) -> Iterator:
 
 
 def pipeline_stats(summary: dict) -> dict:
-    """The entries of a pipeline summary that a demo's report.json carries."""
-    return {k: summary[k] for k in ("frames", "fps", "latency_ms_median", "latency_ms_p95", "stages_ms_median")}
+    """The entries of a pipeline summary that a demo's report.json carries: frames, fps, latency_ms_median,
+    latency_ms_p95, stages_ms_median, and at_bound when the summary has it (a project pipeline's: the
+    parameters whose estimate was at a bound of the model's range, :meth:`physar.ar.project_pipeline.
+    ProjectPipeline.run`)."""
+    keys = ("frames", "fps", "latency_ms_median", "latency_ms_p95", "stages_ms_median")
+    return {k: summary[k] for k in keys} | ({"at_bound": summary["at_bound"]} if "at_bound" in summary else {})
 
 
 __all__ = ["run_video"]

@@ -103,7 +103,7 @@ def ar_run(
     if max_frames is not None and max_frames < 1:
         raise ConfigError(f"--max-frames must be >= 1, got {max_frames}")
     spec = source if source is not None else str(camera)
-    summary = _run_project(project, spec, out, csv_out, field, max_frames, preset, crf)
+    summary, dictionary = _run_project(project, spec, out, csv_out, field, max_frames, preset, crf)
     summary.pop("results", None)
     if json_out:
         print_json(summary)
@@ -114,8 +114,12 @@ def ar_run(
             + (f" and {csv_out}" if csv_out else ""))
     counts = summary.get("status_counts", {})
     if summary["frames"] and not counts.get("tracking", 0):
+        unseen = dictionary is not None and summary.get("marker_frames", 1) == 0
         log(f"warning: no frame was tracked ({', '.join(f'{v} {k}' for k, v in sorted(counts.items()))}): "
-            + ("no pose from the markers: check each [[marker]] id, size (m), center, normal and up against the "
+            + (f"no marker of the project was found in any frame: check [[marker]] dictionary = \"{dictionary}\" "
+               "(the ArUco dictionary of the printed markers; `physar ar print-markers` prints the project's) and "
+               "each [[marker]] id and size (m); " if unseen and counts.get("lost", 0) else
+               "no pose from the markers: check each [[marker]] id, size (m), center, normal and up against the "
                "printed markers; " if counts.get("lost", 0) else "")
             + ("too few dots or features found: check [dots] colour, diameter and points, [tracking] min_dots"
                if counts.get("hold", 0) else "").rstrip("; "))
@@ -153,10 +157,11 @@ def _run_project(project_path, spec, out, csv_out, field, max_frames, preset, cr
     pipe = ProjectPipeline(project)      # built before the source opens: a live source drops frames meanwhile
     src = _open(spec, project.camera, f"{project_path} [camera] file")
     try:
-        return pipe.run(src, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf,
-                        keep_results=False)  # running statistics only: bounded memory on a live source
+        summary = pipe.run(src, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf,
+                           keep_results=False)  # running statistics only: bounded memory on a live source
     finally:
         src.close()  # the reader's thread stopped before the interpreter ends, on an error too
+    return summary, (project.config.marker[0].dictionary if project.config.marker else None)
 
 
 def ar_serve(

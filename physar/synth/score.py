@@ -97,6 +97,18 @@ def _same_frames(truth: dict, est: dict, n: int, truth_source: str, source: str)
                           f"{_fmt(t[i])}; the files must list the same frames in the same order")
 
 
+def _hold_lost(e: np.ndarray, status: np.ndarray) -> np.ndarray:
+    """A "lost" / "hold" row written without an estimate (nan) takes the last estimate before it: the value
+    the pipeline holds on screen; rows before any estimate stay nan."""
+    e = e.copy()
+    gap = ~np.isfinite(e) & np.isin(status, ("lost", "hold"))
+    idx = np.where(np.isfinite(e), np.arange(e.size), -1)
+    last = np.maximum.accumulate(idx)
+    fill = gap & (last >= 0)
+    e[fill] = e[last[fill]]
+    return e
+
+
 def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None = None, tol: float = 0.01,
           recovery: int = 5, source: str = "estimates", truth_source: str = "truth file") -> dict:
     r"""Per parameter: judged frames (not at rest, no occluder, what is observed in view (truth column
@@ -139,7 +151,7 @@ def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None 
                           "gives no range for the tolerance; give --project (the model's parameter ranges)")
     for name in names:
         t = np.asarray(truth[f"{name}_true"], float)[:n]
-        e = np.asarray(est[f"{name}_est"], float)[:n]
+        e = _hold_lost(np.asarray(est[f"{name}_est"], float)[:n], status)
         lo, hi = spans[name]
         if not hi > lo:  # held constant while others vary (a scenario's default): no tolerance without --project
             out["parameters"][name] = {"tolerance": None, "within": None, "judged": 0, "constant": float(t[0]),
