@@ -252,9 +252,9 @@ def traction_load(space: FESpace, box: Sequence[Sequence[float]] | None = None,
     return _scatter(space, cells, nodal)
 
 
-def _point_triangle_distance(P: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """Exact distance of points P (m, 3) to triangles T (m, 3, 3), pairwise: the projection onto the plane when
-    it falls inside the triangle, else the nearest of the three edges (segments)."""
+def closest_on_triangles(P: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest points (m, 3) on triangles T (m, 3, 3) to points P (m, 3), pairwise, and their distances (m,):
+    the projection onto the plane when it falls inside the triangle, else the nearest point of its edges."""
     A, B, C = T[:, 0], T[:, 1], T[:, 2]
     e0, e1, v = B - A, C - A, P - A
     d00, d01, d11 = (e0 * e0).sum(1), (e0 * e1).sum(1), (e1 * e1).sum(1)
@@ -264,13 +264,21 @@ def _point_triangle_distance(P: np.ndarray, T: np.ndarray) -> np.ndarray:
         b1 = (d11 * d20 - d01 * d21) / den
         b2 = (d00 * d21 - d01 * d20) / den
     inside = (den > 0) & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1)
-    d = np.where(inside, np.linalg.norm(v - np.nan_to_num(b1)[:, None] * e0 - np.nan_to_num(b2)[:, None] * e1,
-                                        axis=1), np.inf)
+    Q = A + np.nan_to_num(b1)[:, None] * e0 + np.nan_to_num(b2)[:, None] * e1
+    d = np.where(inside, np.linalg.norm(P - Q, axis=1), np.inf)
     for a, b in ((A, B), (B, C), (C, A)):
         ab = b - a
         t = np.clip(((P - a) * ab).sum(1) / np.maximum((ab * ab).sum(1), 1e-300), 0.0, 1.0)
-        d = np.minimum(d, np.linalg.norm(P - a - t[:, None] * ab, axis=1))
-    return d
+        qe = a + t[:, None] * ab
+        de = np.linalg.norm(P - qe, axis=1)
+        better = de < d
+        Q[better], d[better] = qe[better], de[better]
+    return Q, d
+
+
+def _point_triangle_distance(P: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """Exact distance of points P (m, 3) to triangles T (m, 3, 3), pairwise (:func:`closest_on_triangles`)."""
+    return closest_on_triangles(P, T)[1]
 
 
 def surface_distance(space: FESpace, points) -> np.ndarray:

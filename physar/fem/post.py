@@ -23,6 +23,7 @@ import numpy as np
 
 from physar.errors import ConfigError
 from physar.fem.elements import FESpace, shape_functions, shape_gradients_ref
+from physar.fem.loads import closest_on_triangles as _closest_on_triangles
 
 
 def _displacement(u, n_dofs: int) -> np.ndarray:
@@ -141,30 +142,6 @@ def _boundary_search(space: FESpace):
         reach = float(np.linalg.norm(tri - c[:, None], axis=2).max())
         cache["boundary_search"] = (surf, cKDTree(c), tri, reach, nrm, area, ptr, order // 3)
     return cache["boundary_search"]
-
-
-def _closest_on_triangles(P: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Closest points (m, 3) on triangles T (m, 3, 3) to points P (m, 3), pairwise, and their distances (m,):
-    the projection onto the plane when it falls inside the triangle, else the nearest point of its edges."""
-    A, B, C = T[:, 0], T[:, 1], T[:, 2]
-    e0, e1, v = B - A, C - A, P - A
-    d00, d01, d11 = (e0 * e0).sum(1), (e0 * e1).sum(1), (e1 * e1).sum(1)
-    d20, d21 = (v * e0).sum(1), (v * e1).sum(1)
-    den = d00 * d11 - d01 * d01
-    with np.errstate(divide="ignore", invalid="ignore"):
-        b1 = (d11 * d20 - d01 * d21) / den
-        b2 = (d00 * d21 - d01 * d20) / den
-    inside = (den > 0) & (b1 >= 0) & (b2 >= 0) & (b1 + b2 <= 1)
-    Q = A + np.nan_to_num(b1)[:, None] * e0 + np.nan_to_num(b2)[:, None] * e1
-    d = np.where(inside, np.linalg.norm(P - Q, axis=1), np.inf)
-    for a, b in ((A, B), (B, C), (C, A)):
-        ab = b - a
-        t = np.clip(((P - a) * ab).sum(1) / np.maximum((ab * ab).sum(1), 1e-300), 0.0, 1.0)
-        qe = a + t[:, None] * ab
-        de = np.linalg.norm(P - qe, axis=1)
-        better = de < d
-        Q[better], d[better] = qe[better], de[better]
-    return Q, d
 
 
 def probe(space: FESpace, u: np.ndarray, point: Sequence[float] | np.ndarray) -> np.ndarray:
