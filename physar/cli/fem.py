@@ -43,11 +43,17 @@ def solve(
 
     try:
         result = run_config(config, progress)
+        write_mesh(out, result.problem.space.mesh, point_data=result.point_data(),
+                   cell_data={"von_mises": result.von_mises})
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM (meshing, assembly, solve or the write: atomic, so no file)
+        if bar is not None:
+            bar.close()
+            bar = None
+        log(f"interrupted: nothing written ({out} is as it was)")
+        raise typer.Exit(code=130) from None
     finally:
         if bar is not None:
             bar.close()
-    write_mesh(out, result.problem.space.mesh, point_data=result.point_data(),
-               cell_data={"von_mises": result.von_mises})
     summary = result.summary()
     summary["output"] = str(out)
     if json_out:

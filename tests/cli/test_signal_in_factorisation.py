@@ -147,4 +147,5 @@ def test_fem_solve_stops_on_a_sigterm_in_the_ordering(tmp_path):
     p = _run(CLI, "fem", "solve", cfg, "-o", tmp_path / "u.vtu", cwd=tmp_path)
     assert p.returncode == 130, (p.returncode, p.stderr)
     assert "Traceback" not in p.stderr, p.stderr
+    assert "interrupted: nothing written" in p.stderr, p.stderr  # one line saying so (it exited silently)
     assert sorted(os.listdir(tmp_path)) == ["c.toml"]
