@@ -74,6 +74,9 @@ class MeshSection(_Strict):
     cells: tuple[int, int, int] | None = Field(None, description="hexahedra [nx, ny, nz] along the sides of "
                                                                  "`box`, 6 tetrahedra each")
     size: float | None = Field(None, gt=0, description="element size [m] when tetrahedralising a surface file")
+    max_elements: int | None = Field(None, gt=0, description="refuse a surface file whose tetrahedralisation at "
+                                                             "`size` is estimated above this many elements "
+                                                             "(default 2 million, about 10 min of gmsh)")
 
     @model_validator(mode="after")
     def _one_source(self):
@@ -81,6 +84,8 @@ class MeshSection(_Strict):
             raise ValueError("give either file = \"...\" or box = [L, W, H] with cells = [nx, ny, nz]")
         if self.box is not None and self.cells is None:
             raise ValueError("box needs cells = [nx, ny, nz]")
+        if self.max_elements is not None and self.file is None:
+            raise ValueError("max_elements applies to a surface file (file = \"part.stl\"), not to box")
         if self.size is not None and self.file is None:
             raise ValueError("size applies to a surface file (file = \"part.stl\"), not to box")
         return self
@@ -305,7 +310,8 @@ def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
         if isinstance(mesh, TriMesh):
             check_mesh_size(section.size, mesh.points, p.name)
             try:
-                return tetrahedralize(mesh, size=section.size, source=f"[mesh] file {p.name}")
+                return tetrahedralize(mesh, size=section.size, source=f"[mesh] file {p.name}",
+                                      max_elements=section.max_elements)
             except MeshError as exc:
                 raise ConfigError(str(exc)) from None
         if section.size is not None:
