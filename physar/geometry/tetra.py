@@ -447,6 +447,23 @@ def _child_main(conn, parent: int, fn: Callable, args: tuple) -> None:
     conn.close()
 
 
+def _in_process(fn: Callable, args: tuple):
+    """``fn(*args)`` in this process, serialised with every other gmsh use, gmsh finalised and Python's signal
+    handlers restored afterwards (gmsh's initialize resets them in C)."""
+    import gmsh
+
+    with _GMSH_LOCK:
+        handlers = _signal_handlers()
+        try:
+            return fn(*args)
+        finally:
+            try:
+                if gmsh.isInitialized():
+                    gmsh.finalize()
+            finally:
+                _restore_handlers(handlers)
+
+
 def _in_child(fn: Callable, args: tuple, name: str):
     """``fn(*args)`` run in a child process (:data:`START_METHOD`), its result returned; a MeshError raised
     there is raised here. Ctrl-C, or SIGTERM under :func:`physar.output.sigterm_as_interrupt`, raises
@@ -456,6 +473,8 @@ def _in_child(fn: Callable, args: tuple, name: str):
     import multiprocessing as mp
     import warnings
 
+    if mp.current_process().daemon:  # a Pool or Dask worker may not start a child: mesh here (as before;
+        return _in_process(fn, args)  # Ctrl-C then waits for gmsh)
     ctx = mp.get_context(START_METHOD)
     recv, send = ctx.Pipe(duplex=False)
     proc = ctx.Process(target=_child_main, args=(send, os.getpid(), fn, args), daemon=True, name="physar-gmsh")

@@ -360,3 +360,22 @@ def test_sigterm_after_an_in_process_gmsh_session_unwinds():
     r = subprocess.run([sys.executable, "-c", SESSION], check=False, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, (r.returncode, r.stderr[-2000:])
     assert r.stdout.strip() == "unwound True", r.stdout
+
+
+def _mesh_volume_in_worker(size: float) -> float:
+    m = tetrahedralize(l_bracket_surface(), size=size)
+    p = m.points[m.cells]
+    return float(np.abs(np.einsum("ij,ij->i", p[:, 1] - p[:, 0],
+                                  np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]))).sum() / 6)
+
+
+def test_meshing_inside_a_pool_worker():
+    """A multiprocessing Pool (or Dask) worker is daemonic and may not start the gmsh child: meshing there runs
+    in the worker itself. Catches: the child started anyway (AssertionError 'daemonic processes are not allowed
+    to have children'). Reference: the bracket's volume from its surface (divergence theorem)."""
+    surf = l_bracket_surface()
+    tri = surf.points[surf.faces]
+    v_ref = float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6)
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        v = pool.apply(_mesh_volume_in_worker, (0.01,))
+    assert abs(v - abs(v_ref)) <= 1e-9 * abs(v_ref), (v, v_ref)
