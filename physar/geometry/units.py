@@ -50,7 +50,7 @@ def check_length_units(points, source: str, scale_hint: str = "") -> bool:
     if not hint:
         return False
     message = (f"{source}: the mesh's largest extent is {extent:.4g} m (coordinates are read as metres): "
-               f"{hint}{scale_hint}")
+               f"{hint}{scale_hint} (if the part really is this size, nothing is wrong)")
     if message in _WARNED:  # a command that reads the same mesh twice (a check solve, a rebuilt model) warns once
         return False
     _WARNED.add(message)
