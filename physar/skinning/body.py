@@ -316,9 +316,11 @@ class BodyModel(Body):
         return out
 
     def skin_vertices(self, bone_transforms: torch.Tensor) -> torch.Tensor:
-        """Posed vertices (V, 3) for bone transforms :math:`B_k` (B, 4, 4) by Eq. 1."""
+        """Posed vertices (V, 3) for bone transforms :math:`B_k` (B, 4, 4) by Eq. 1 (the weights' values were
+        checked when the body was built, so only shapes are checked per call)."""
         return lbs(self.vertices.to(bone_transforms.dtype),
-                   (self.weight_indices, self.weight_values.to(bone_transforms.dtype)), bone_transforms)[0]
+                   (self.weight_indices, self.weight_values.to(bone_transforms.dtype)), bone_transforms,
+                   check_values=False)[0]
 
     def volume(self) -> float:
         r"""Volume (m^3) enclosed by the mesh by the divergence theorem:

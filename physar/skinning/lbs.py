@@ -20,13 +20,8 @@ Weights = torch.Tensor | tuple[torch.Tensor, torch.Tensor]
 WEIGHT_SUM_TOL = 1e-3  # accepted |sum_k W_k - 1| per point (float16 or rounded weights pass, a lost bone does not)
 
 
-def check_weights(weights: Weights, n_bones: int, n_points: int | None = None, name: str = "lbs: weights") -> None:
-    r"""Refuse skinning weights that Eq. 1 cannot use, in one PhysarError line starting with ``name`` and naming
-    the first bad point (row) and value: dense weights not of shape (N, ``n_bones``), sparse (indices, values)
-    not of one shape (N, m) or with an index outside ``0..n_bones-1``, N differing from ``n_points`` (when
-    given), a weight that is NaN, infinite or negative, or a row whose sum is not 1 within ``WEIGHT_SUM_TOL``
-    (:math:`\sum_k W_k = 1` keeps a point on its bones; a row of zeros would move it to the origin).
-    Good weights cost a minimum and a row sum of (N, m) (and the indices' range) and one host synchronisation."""
+def _check_weight_shapes(weights: Weights, n_bones: int, n_points: int | None, name: str) -> torch.Tensor:
+    """The shape part of :func:`check_weights` (no pass over the values); returns the weight values."""
     sparse = isinstance(weights, tuple)
     if sparse:
         if len(weights) != 2 or not all(isinstance(t, torch.Tensor) for t in weights):
@@ -46,6 +41,20 @@ def check_weights(weights: Weights, n_bones: int, n_points: int | None = None, n
             raise PhysarError(f"{name}: must have shape (N, {n_bones}) for {n_bones} bones, got {tuple(w.shape)}")
     if n_points is not None and w.shape[0] != n_points:
         raise PhysarError(f"{name}: {w.shape[0]} rows for {n_points} points")
+    return w
+
+
+def check_weights(weights: Weights, n_bones: int, n_points: int | None = None, name: str = "lbs: weights") -> None:
+    r"""Refuse skinning weights that Eq. 1 cannot use, in one PhysarError line starting with ``name`` and naming
+    the first bad point (row) and value: dense weights not of shape (N, ``n_bones``), sparse (indices, values)
+    not of one shape (N, m) or with an index outside ``0..n_bones-1``, N differing from ``n_points`` (when
+    given), a weight that is NaN, infinite or negative, or a row whose sum is not 1 within ``WEIGHT_SUM_TOL``
+    (:math:`\sum_k W_k = 1` keeps a point on its bones; a row of zeros would move it to the origin).
+    Good weights cost a minimum and a row sum of (N, m) (and the indices' range) and one host synchronisation."""
+    w = _check_weight_shapes(weights, n_bones, n_points, name)
+    sparse = isinstance(weights, tuple)
+    if sparse:
+        idx = weights[0]
     w = w.detach()
     if w.numel() == 0:
         if len(w):
@@ -78,16 +87,21 @@ def check_weights(weights: Weights, n_bones: int, n_points: int | None = None, n
                       "normalize_weights rescales the rows")
 
 
-def blend_transforms(weights: Weights, bone_transforms: torch.Tensor) -> torch.Tensor:
+def blend_transforms(weights: Weights, bone_transforms: torch.Tensor, *, check_values: bool = True) -> torch.Tensor:
     r"""The blended transforms :math:`A^i = \sum_k W_k^i B_k`, (N, 4, 4). ``weights`` is dense (N, B) or
     sparse (indices (N, m), w (N, m)); ``bone_transforms`` (B, 4, 4). Weights that Eq. 1 cannot use (NaN,
     negative, rows not summing to 1, indices out of range, mismatched shapes) raise PhysarError
-    (:func:`check_weights`)."""
+    (:func:`check_weights`). ``check_values=False`` (as scipy's ``check_finite=False``) keeps only the shape
+    checks, for weights checked once already (a :class:`~physar.skinning.Body` checks its own when built): the
+    value pass costs a reduction over (N, m) and, on a GPU, a host synchronisation per call."""
     if not isinstance(bone_transforms, torch.Tensor) or bone_transforms.ndim != 3 \
             or bone_transforms.shape[1:] != (4, 4):
         raise PhysarError(f"lbs: bone_transforms must have shape (B, 4, 4), got "
                           f"{tuple(getattr(bone_transforms, 'shape', ()))}")
-    check_weights(weights, bone_transforms.shape[0])
+    if check_values:
+        check_weights(weights, bone_transforms.shape[0])
+    else:
+        _check_weight_shapes(weights, bone_transforms.shape[0], None, "lbs: weights")
     if isinstance(weights, tuple):
         idx, w = weights
         return (w[..., None, None] * bone_transforms[idx]).sum(-3)
@@ -95,16 +109,16 @@ def blend_transforms(weights: Weights, bone_transforms: torch.Tensor) -> torch.T
 
 
 def lbs(points: torch.Tensor, weights: Weights, bone_transforms: torch.Tensor,
-        rotations: torch.Tensor | None = None):
+        rotations: torch.Tensor | None = None, *, check_values: bool = True):
     r"""Skin points (N, 3) (m) and optionally per-point rotations (N, 3, 3) by Eq. 1 (seed 002):
 
     .. math:: A^i = \sum_k W_k^i B_k, \qquad \mu_\text{lbs}^i = A_\text{rot}^i \mu^i + A_t^i, \qquad
               R_\text{lbs}^i = A_\text{rot}^i R^i.
 
     Returns (mu_lbs (N, 3), R_lbs (N, 3, 3) or None, A (N, 4, 4)). The weights must have one row per point
-    (:func:`check_weights`).
+    (:func:`check_weights`; ``check_values=False`` keeps only the shape checks, see :func:`blend_transforms`).
     """
-    A = blend_transforms(weights, bone_transforms)
+    A = blend_transforms(weights, bone_transforms, check_values=check_values)
     if points.ndim != 2 or points.shape[1] != 3 or len(points) != len(A):
         raise PhysarError(f"lbs: points must have shape ({len(A)}, 3) (one per weight row), "
                           f"got {tuple(points.shape)}")

@@ -112,6 +112,45 @@ def test_shapes_that_do_not_match_are_refused():
     assert lbs(P[:0], (torch.zeros(0, 0, dtype=torch.long), torch.zeros(0, 0, dtype=D)), B2)[0].shape == (0, 3)
 
 
+def test_check_values_false_keeps_the_shape_checks_and_the_closed_form():
+    """For weights checked once already (a Body's, on construction), ``check_values=False`` skips the pass over
+    the values and keeps the shape checks. Catches: the flag ignored (the row summing to 2 below would raise),
+    the shape checks dropped with it (a (2, 3) matrix for 2 bones would blend garbage or raise an IndexError),
+    a different blend on the unchecked path (the closed form of the module docstring)."""
+    mu = lbs(P, GOOD, B2, check_values=False)[0]
+    np.testing.assert_allclose(mu.numpy(), [[1.0, 1.5, 0.0], [1.0, 1.0, 0.0]], atol=1e-15)
+    idx, val = torch.tensor([[1, 0], [0, 1]]), torch.tensor([[0.5, 0.5], [1.0, 0.0]], dtype=D)
+    np.testing.assert_allclose(lbs(P, (idx, val), B2, check_values=False)[0].numpy(),
+                               [[1.0, 1.5, 0.0], [1.0, 1.0, 0.0]], atol=1e-15)
+    # the values are the caller's responsibility: a row summing to 2 doubles the blend instead of raising
+    twice = torch.tensor([[1.0, 1.0], [1.0, 0.0]], dtype=D)
+    np.testing.assert_allclose(blend_transforms(twice, B2, check_values=False)[0, :3, 3].numpy(), [1.0, 2.0, 0.0])
+    with pytest.raises(PhysarError, match=r"row 0 sums to 2"):
+        blend_transforms(twice, B2)
+    with pytest.raises(PhysarError, match=r"^lbs: weights: must have shape \(N, 2\) for 2 bones, got \(2, 3\)$"):
+        lbs(P, torch.full((2, 3), 1 / 3, dtype=D), B2, check_values=False)
+    with pytest.raises(PhysarError, match=r"^lbs: weights: sparse indices \(2, 2\) and values \(2, 1\)"):
+        lbs(P, (idx, val[:, :1]), B2, check_values=False)
+
+
+def test_body_skin_vertices_use_the_weights_checked_on_construction():
+    """A Body checks its weights once when built and skins per frame without the value pass; a rigid motion of
+    every bone moves every vertex rigidly (weights summing to 1), the closed form. Catches: Body construction no
+    longer refusing bad weights (the test above of load_smpl_npz/BodyModel covers the messages), skin_vertices
+    blending with unnormalised weights."""
+    sk = Skeleton(torch.tensor([-1, 0]), torch.eye(4, dtype=D).expand(2, 4, 4).clone(), ["root", "child"])
+    V = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], dtype=D)
+    F = torch.tensor([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    idx = torch.tensor([[0, 1]] * 4)
+    val = torch.tensor([[1.0, 0.0], [0.5, 0.5], [0.25, 0.75], [0.0, 1.0]], dtype=D)
+    body = BodyModel(V, F, sk, idx, val)
+    B = rigid(RZ90.expand(2, 3, 3), torch.tensor([[0.1, 0.2, 0.3]] * 2, dtype=D))
+    np.testing.assert_allclose(body.skin_vertices(B).numpy(), (V @ RZ90.T + torch.tensor([0.1, 0.2, 0.3], dtype=D))
+                               .numpy(), atol=1e-15)
+    with pytest.raises(PhysarError, match=r"^BodyModel: weight_indices, weight_values: row 1 sums to 2"):
+        BodyModel(V, F, sk, idx, val + torch.tensor([[0.0, 0.0], [0.5, 0.5], [0.0, 0.0], [0.0, 0.0]], dtype=D))
+
+
 def test_normalize_weights_closed_form_and_refusals():
     np.testing.assert_allclose(normalize_weights(torch.tensor([[1.0, 3.0], [2.0, 0.0]], dtype=D)).numpy(),
                                [[0.25, 0.75], [1.0, 0.0]])
