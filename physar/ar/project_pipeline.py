@@ -576,6 +576,9 @@ class ProjectPipeline:
                 if self.filter is not None:
                     if self._fresh:
                         self.filter.reset()
+                    # a parameter the frame does not constrain (flat cost: std NaN) enters with the range as
+                    # its std, not as a certain measurement (IMMFilter refuses NaN)
+                    std = np.where(np.isfinite(std), std, self.hi - self.lo)
                     self.mu, self.std = self.filter.update(mu, std)
                 else:
                     self.mu, self.std = mu, std

@@ -55,7 +55,8 @@ class IMMFilter:
     Checked (a PhysarError names the argument and value): ``lo``, ``hi`` 1-D of one length, finite, hi > lo;
     ``dwell_sigma``, ``motion_accel`` finite and >= 0; ``switch`` two probabilities in [0, 1]; ``jump_sigma``
     > 0 (inf: never re-initialise); in ``update``, ``z`` one finite value per parameter and ``std`` one value
-    (or one for all) >= 0 and finite, NaN meaning unknown (the floor is then used)."""
+    (or one for all) >= 0 and finite: a NaN std is refused too (taking it as the floor would make an unknown
+    uncertainty the most trusted measurement); a std below the floor, 0 included, is floored."""
 
     def __init__(self, lo, hi, dwell_sigma: float = 1e-4, motion_accel: float = 5e-3,
                  switch: tuple = (0.3, 0.05), jump_sigma: float = 4.0):
@@ -94,11 +95,13 @@ class IMMFilter:
             i = int(np.argmax(~np.isfinite(z)))
             raise PhysarError(f"IMMFilter.update: z[{i}] = {z[i]} is not a finite measurement")
         std = np.broadcast_to(_vector(std, "std", 1 if np.size(std) == 1 else n, "IMMFilter.update"), (n,))
-        if np.any(std < 0) or np.any(np.isinf(std)):
-            i = int(np.argmax((std < 0) | np.isinf(std)))
-            raise PhysarError(f"IMMFilter.update: std[{i}] = {std[i]} must be >= 0 and finite (NaN: unknown)")
+        bad = ~(np.isfinite(std) & (std >= 0))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise PhysarError(f"IMMFilter.update: std[{i}] = {std[i]} must be >= 0 and finite (the measurement's "
+                              f"standard deviation)")
         rng = hi - lo
-        R = np.maximum(np.nan_to_num(std, nan=0.0), 2e-4 * rng) ** 2
+        R = np.maximum(std, 2e-4 * rng) ** 2
         if self.fresh:
             self._x = np.zeros((2, n, 2))          # (model, parameter, [value, rate])
             self._x[:, :, 0] = z

@@ -232,8 +232,10 @@ class Gaussians:
         """Build from activated values: scales s (m, (N, 3) or (N,) isotropic), opacities in (0, 1) ((N,)),
         colours in [0, 1] (N, 3) (DC term; higher SH bands zero), rotations (N, 4) (identity when None),
         ``sh_degree`` 0..3. Tensors, arrays or lists; the dtype is the means' (the default dtype for integer
-        means). Every value must be finite, scales > 0, quaternions non-zero; a PhysarError names the first
-        offending argument and Gaussian."""
+        means). Every value must be finite, scales > 0, colours within [0, 1], quaternions non-zero; a
+        PhysarError names the first offending argument and Gaussian. (The stored SH coefficients ``sh`` are
+        not bounded: higher bands may take a rendered colour out of [0, 1]; the renderer clamps it at 0, as
+        3DGS does.)"""
         where = "Gaussians.from_values"
         means = torch.as_tensor(means)
         dt = means.dtype if means.is_floating_point() else torch.get_default_dtype()
@@ -265,6 +267,9 @@ class Gaussians:
             raise PhysarError(f"{where}: scales must be > 0")
         if torch.any((opacities <= 0) | (opacities >= 1)):
             raise PhysarError(f"{where}: opacities must lie strictly between 0 and 1")
+        bad = _first_bad((colors >= 0) & (colors <= 1))
+        if bad is not None:
+            raise PhysarError(f"{where}: colors[{bad}] = {colors[bad].detach().tolist()} must lie in [0, 1] (RGB; not 0-255)")
         bad = _first_bad(torch.linalg.vector_norm(quats, dim=-1) > 0)
         if bad is not None:
             raise PhysarError(f"{where}: quats[{bad}] is zero (no rotation)")

@@ -192,8 +192,67 @@ def denoise_points(
                       sigma_e=sig_e, shrink_correction=shrink_correction)
 
 
-def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
-    """Read a PLY file: (points, faces) with faces None for a point cloud (trimesh loader, no pickle)."""
+_COLOUR_NAMES = (("red", "green", "blue"), ("diffuse_red", "diffuse_green", "diffuse_blue"))
+
+
+def _vertex_columns(obj) -> dict:
+    """{name: (n,) array in the file's type} of the PLY vertex properties trimesh read (its ``_ply_raw``; an
+    ASCII file's columns come as (n, 1))."""
+    data = (obj.metadata.get("_ply_raw", {}).get("vertex") or {}).get("data")
+    if data is None:
+        return {}
+    if isinstance(data, np.ndarray) and data.dtype.names:
+        data = {k: data[k] for k in data.dtype.names}
+    out = {}
+    for k, v in dict(data).items():
+        v = np.asarray(v)
+        if v.ndim == 2 and v.shape[1] == 1:
+            v = v[:, 0]
+        if v.ndim == 1:  # list properties (none on vertices in practice) are not columns
+            out[str(k)] = v
+    return out
+
+
+def _vertex_colours(path: Path, obj, n: int) -> np.ndarray | None:
+    """(n, 3) float64 RGB in [0, 1] from the vertex properties red, green, blue (or diffuse_red, ...), None
+    when there are none: unsigned integers divided by their type's maximum (255 for uchar, 65535 for ushort),
+    floats kept and required within [0, 1]; anything else is a PhysarError naming the property."""
+    cols = _vertex_columns(obj)
+    for names in _COLOUR_NAMES:
+        have = [k for k in names if k in cols]
+        if not have:
+            continue
+        if len(have) < 3:
+            raise PhysarError(f"{path}: PLY vertex colours need {', '.join(names)}; the file has only "
+                              f"{', '.join(have)}")
+        rgb = np.empty((n, 3))
+        for j, k in enumerate(names):
+            c = cols[k]
+            if len(c) != n:
+                raise PhysarError(f"{path}: PLY vertex property {k} has {len(c)} values for {n} vertices")
+            if c.dtype.kind == "u":
+                rgb[:, j] = c / np.iinfo(c.dtype).max
+            elif c.dtype.kind == "f":
+                if not (np.isfinite(c).all() and (c >= 0).all() and (c <= 1).all()):
+                    bad = c[~(np.isfinite(c) & (c >= 0) & (c <= 1))][0]
+                    raise PhysarError(f"{path}: PLY vertex property {k} = {bad:g} is a float colour outside "
+                                      f"[0, 1] (0-255 colours must be stored as uchar)")
+                rgb[:, j] = c
+            else:
+                raise PhysarError(f"{path}: PLY vertex property {k} is {c.dtype}; colours must be uchar, ushort "
+                                  f"or float in [0, 1]")
+        return rgb
+    return None
+
+
+def read_ply(path: str | os.PathLike, *, colors: bool = False):
+    """Read a PLY file: (points, faces) with faces None for a point cloud (trimesh loader, no pickle).
+
+    With ``colors=True``: (points, faces, colours), ``colours`` the (n, 3) per-vertex RGB as float64 in
+    [0, 1] (uchar 0-255 divided by 255, ushort by 65535, float properties kept and checked within [0, 1]),
+    from the properties red, green, blue (or diffuse_red, diffuse_green, diffuse_blue), or None when the file
+    has none; an alpha property is not read. Vertex order is the file's (no merging).
+    """
     import trimesh
 
     path = Path(path)
@@ -207,17 +266,40 @@ def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
     pts = np.asarray(getattr(obj, "vertices", np.zeros((0, 3))), dtype=float)
     if len(pts) == 0:
         raise MeshError(f"{path}: PLY file has no vertices")
-    return pts, (np.asarray(faces, dtype=np.int64) if faces is not None and len(faces) else None)
+    faces = np.asarray(faces, dtype=np.int64) if faces is not None and len(faces) else None
+    if colors:
+        return pts, faces, _vertex_colours(path, obj, len(pts))
+    return pts, faces
 
 
-def write_ply(path: str | os.PathLike, points: np.ndarray) -> Path:
-    """Write a binary PLY point cloud atomically (temp file + rename)."""
+def _colour_bytes(colors, n: int) -> np.ndarray:
+    """(n, 3) uint8 of ``colors``: uint8 kept, floats in [0, 1] times 255 rounded; else a PhysarError."""
+    c = np.asarray(colors)
+    if c.shape != (n, 3):
+        raise PhysarError(f"point colours must have shape ({n}, 3) (RGB per point), got {c.shape}")
+    if c.dtype == np.uint8:
+        return c
+    if c.dtype.kind not in "iuf":
+        raise PhysarError(f"point colours must be numbers (floats in [0, 1] or uint8), got {c.dtype}")
+    c = c.astype(float)
+    ok = np.isfinite(c) & (c >= 0) & (c <= 1)
+    if not ok.all():
+        i = int(np.argmax(~ok.all(axis=1)))
+        raise PhysarError(f"point colours[{i}] = {c[i].tolist()} must lie in [0, 1] (or give uint8 0-255)")
+    return np.round(c * 255).astype(np.uint8)
+
+
+def write_ply(path: str | os.PathLike, points: np.ndarray, colors: np.ndarray | None = None) -> Path:
+    """Write a binary PLY point cloud atomically (temp file + rename): float x, y, z and, when ``colors``
+    (n, 3) is given (floats in [0, 1], as :func:`read_ply` returns them, or uint8 0-255), uchar red, green,
+    blue (floats times 255, rounded) and alpha 255."""
     import trimesh
 
     path = Path(path)
     p = _check_cloud(points, 0)
+    rgb = None if colors is None else _colour_bytes(colors, len(p))
     check_destination(path, suffixes=[".ply"], kind="point cloud")
-    data = trimesh.PointCloud(p).export(file_type="ply")
+    data = trimesh.PointCloud(p, colors=rgb).export(file_type="ply")
     try:
         write_bytes(path, data)
     except OSError as exc:

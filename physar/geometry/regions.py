@@ -20,7 +20,13 @@ import numpy as np
 from physar.errors import MeshError
 
 
-@dataclass(frozen=True)
+def _some(items: list, k: int = 4) -> str:
+    """The first ``k`` of ``items`` joined by commas, then ``... (n in all)`` when there are more."""
+    more = f", ... ({len(items)} in all)" if len(items) > k else ""
+    return ", ".join(str(i) for i in items[:k]) + more
+
+
+@dataclass(frozen=True, repr=False)
 class MeshTags:
     """Tags of a tet mesh: `cell_tags` (m,) or None, `face_nodes` (k, 3) vertex ids of tagged triangles
     with `face_tags` (k,), `names` {name: (id, dim)} (dim 2: triangles, 3: tetrahedra)."""
@@ -64,6 +70,21 @@ class MeshTags:
             avail = ", ".join(repr(a) for a in self.available()) or "none: the mesh file has no tags"
             raise MeshError(f"{what} {region!r} not in mesh (available: {avail})")
         return self.face_nodes[faces], cells
+
+    def __repr__(self) -> str:
+        """One line: how many tetrahedra and triangles are tagged and with which ids, and the tag names with
+        their ids (at most 4 of each list; no arrays)."""
+        def tagged(tags: np.ndarray, word: str, many: str) -> str:
+            count = f"{len(tags)} {word if len(tags) == 1 else many}"
+            ids = np.unique(tags).tolist()
+            return f"{count} tagged (ids {_some(ids)})" if ids else f"{count} tagged"
+
+        cells = "no tetrahedron tags" if self.cell_tags is None else tagged(self.cell_tags, "tetrahedron",
+                                                                            "tetrahedra")
+        text = f"MeshTags({cells}, {tagged(self.face_tags, 'triangle', 'triangles')}"
+        if self.names:
+            text += f", names {_some([f'{k}={v[0]}' for k, v in sorted(self.names.items())])}"
+        return text + ")"
 
 
 def _tol(points: np.ndarray, tol: float | None) -> float:

@@ -36,7 +36,7 @@ def _visible(pixels) -> np.ndarray:
     return np.all(np.abs(pixels) < FAR_PX, axis=1)
 
 
-@dataclass
+@dataclass(repr=False)
 class DotObservation:
     r"""The dots of one frame (:meth:`DotTracker.update`).
 
@@ -51,6 +51,18 @@ class DotObservation:
     valid: np.ndarray         # (n,) bool
     world: np.ndarray         # (n, 3) back-projected positions [m] (NaN where not seen)
     displacement: np.ndarray  # (n, 3) world - reference [m] (NaN where not seen)
+
+    def __repr__(self) -> str:
+        """One line: how many dots were seen, and the mean and largest displacement norm of those [m]; no arrays."""
+        seen = np.asarray(self.valid, bool)
+        n = len(seen)
+        text = f"DotObservation({int(seen.sum())} of {n} dot{'' if n == 1 else 's'} seen"
+        d = np.asarray(self.displacement, float)
+        u = np.linalg.norm(d[seen], axis=1) if d.ndim == 2 and len(d) == n else np.zeros(0)
+        u = u[np.isfinite(u)]
+        if len(u):
+            text += f", |displacement| mean {u.mean():.3g} m, max {u.max():.3g} m"
+        return text + ")"
 
 
 class DotTracker:

@@ -67,7 +67,7 @@ class MarkerBoard:
         return int(k[0]) if k.size else None
 
 
-@dataclass
+@dataclass(repr=False)
 class PoseEstimate:
     """The camera pose of one frame (:meth:`MarkerTracker.update`).
 
@@ -91,6 +91,22 @@ class PoseEstimate:
     image_corners: np.ndarray | None = None
     full_search: bool = False
     rotation_std: np.ndarray | None = None  # (3,) std of the pose's rotation about the world axes [rad]
+
+    def __repr__(self) -> str:
+        """One line: status, marker count (and the first 4 ids), RMS reprojection error [px], the largest
+        rotation std [deg], ``full search`` when set, and the pose (:class:`Pose`'s one line); no arrays."""
+        ids = [int(i) for i in self.ids]
+        text = f"PoseEstimate({self.status}, {self.n_markers} marker{'' if self.n_markers == 1 else 's'}"
+        if ids:
+            text += f" (ids {', '.join(map(str, ids[:4]))}{', ...' if len(ids) > 4 else ''})"
+        if np.isfinite(self.reprojection_px):
+            text += f", rms {self.reprojection_px:.3g} px"
+        rot = np.ravel(self.rotation_std) if self.rotation_std is not None else np.zeros(0)
+        if np.isfinite(rot).any():
+            text += f", rotation std {np.degrees(np.max(rot[np.isfinite(rot)])):.2g} deg"
+        if self.full_search:
+            text += ", full search"
+        return text + f", {'no pose' if self.pose is None else repr(self.pose)})"
 
 
 def rotation_std(camera: Camera, pose: Pose, points, sigma_px: float, centre=None) -> np.ndarray:

@@ -10,8 +10,8 @@
 
 Each now raises one :class:`PhysarError` naming the argument, its value or shape and what is expected. The valid
 neighbours are checked against closed forms: the first frame returns the measurement and its std (floored at
-2e-4 of the range; NaN = unknown), and with ``switch=(0, 1)`` (the "moving" model never entered) and
-``jump_sigma=inf`` the second frame is the scalar random-walk Kalman update
+2e-4 of the range; a NaN std is refused: tests/assimilation/test_filter_nan_std.py), and with ``switch=(0, 1)``
+(the "moving" model never entered) and ``jump_sigma=inf`` the second frame is the scalar random-walk Kalman update
 :math:`x = z_1 + K (z_2 - z_1)`, :math:`K = (R_1 + q) / (R_1 + q + R_2)`, :math:`P = (1 - K)(R_1 + q)`.
 """
 import math
@@ -71,7 +71,7 @@ def test_first_frame_refuses_nan_measurement():
 
 def test_first_frame_returns_measurement_and_floored_std():
     f = IMMFilter([0.0, 10.0], [1.0, 30.0])
-    z, s = f.update([0.25, 12.0], [0.5, math.nan])   # NaN std: unknown, the floor 2e-4 * range is used
+    z, s = f.update([0.25, 12.0], [0.5, 1e-6])   # std below the floor: the floor 2e-4 * range is used
     np.testing.assert_array_equal(z, [0.25, 12.0])
     np.testing.assert_allclose(s, [0.5, 2e-4 * 20.0], rtol=1e-15)
     z, s = IMMFilter([0.0], [1.0]).update(0.25, 0.0)  # one parameter: scalars pass; std 0 floored
