@@ -68,7 +68,9 @@ class _Strict(BaseModel):
 class MeshSection(_Strict):
     file: str | None = Field(None, description="mesh file, relative to the problem file: a volume mesh (VTU, "
                                                "XDMF, Gmsh .msh, Medit .mesh; its tags are the regions) or a "
-                                               "closed surface (STL, OBJ, PLY, OFF) tetrahedralised at `size`")
+                                               "closed surface (STL, OBJ, PLY, OFF, or a surface .msh/VTU) "
+                                               "tetrahedralised at `size`; a surface's tags (physical groups, "
+                                               "OBJ groups) become regions of its boundary")
     box: Vec3 | None = Field(None, description="instead of a file: the box [0, L] x [0, W] x [0, H] given as "
                                                "[L, W, H] [m]")
     cells: tuple[int, int, int] | None = Field(None, description="hexahedra [nx, ny, nz] along the sides of "
@@ -296,7 +298,9 @@ _SCALE_HINT = " (physar has no unit option: export the mesh in metres)"
 def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
     """The [mesh] of a problem file: a box, a volume mesh file (with its tags), or a closed surface file
     (STL, OBJ, PLY, OFF, or any file with triangles only) tetrahedralised by
-    :func:`physar.geometry.tetrahedralize` at `size` (default: half the smallest bounding-box extent).
+    :func:`physar.geometry.tetrahedralize` at `size` (default: half the smallest bounding-box extent); the
+    surface's region tags and names (physical groups of a .msh, cell tags of a VTU, OBJ groups) tag the
+    tetrahedral mesh's boundary triangles, so ``region = "name"`` selects them in [[fix]] and [[load]].
 
     Coordinates are metres: a mesh whose largest extent is above 20 m or below 1 mm
     (:func:`physar.geometry.units.check_length_units`) gets one PhysarWarning naming the file and its extent

@@ -188,10 +188,11 @@ def _check_gmsh_groups(m, path: Path, surf: list, kind: str) -> None:
 
     Applies when every saved element carries a physical tag > 0 (with SaveAll=1 elements outside groups are
     saved with tag 0) and no group has dimension 3. For ``kind="tet"`` that is enough; for ``kind="auto"``
-    the file must also show that it came from a 3-D model: a Gmsh 4 ``$Entities`` section listing volumes,
-    named surface groups ($PhysicalNames of dimension 2), or saved triangles that form an open surface whose
-    nodes are not in one plane (a part of a solid's boundary). A complete surface model saved without names
-    by gmsh 2 is read as a surface."""
+    the file must also show that it came from a 3-D model: a Gmsh 4 ``$Entities`` section listing volumes, or
+    saved triangles that form an open surface with named surface groups ($PhysicalNames of dimension 2) or
+    with nodes not in one plane (a part of a solid's boundary). A closed surface without volumes in
+    ``$Entities`` (any gmsh 2 file) is a complete surface model, named groups or not, and is read as a surface
+    with its tags (:func:`read_mesh`)."""
     phys = m.cell_data.get("gmsh:physical")
     if phys is None or kind not in ("tet", "auto"):
         return
@@ -211,13 +212,18 @@ def _check_gmsh_groups(m, path: Path, surf: list, kind: str) -> None:
     if not by_dim or any(d == 3 for _, d in names.values()):
         return
     if kind == "auto":
-        evidence = bool(_msh_volume_entities(path)) or any(d == 2 for _, d in names.values())
-        if not evidence and surf:
-            from physar.geometry.mesh import TriMesh
+        evidence = bool(_msh_volume_entities(path))
+        if not evidence:
             from physar.geometry.tetra import boundary_edge_count, is_flat
 
-            part = TriMesh(np.asarray(m.points, float), np.concatenate([f for f, _ in surf]), name=path.name)
-            evidence = boundary_edge_count(part) > 0 and not is_flat(part)
+            named = any(d == 2 for _, d in names.values())
+            part = TriMesh(np.asarray(m.points, float), np.concatenate([f for f, _ in surf]), name=path.name) \
+                if surf else None
+            # an open surface with named groups, or one whose nodes are not in one plane: part of a solid's
+            # boundary. A closed one is a whole solid's boundary, named faces or not: a surface model, which
+            # tetrahedralize fills, carrying its tags to the volume mesh's boundary
+            is_open = part is None or boundary_edge_count(part) > 0
+            evidence = is_open and (named or (part is not None and not is_flat(part)))
         if not evidence:
             return
     groups = []
@@ -254,6 +260,20 @@ def _mesh_tags(vol: list, surf: list, names: dict, remap: np.ndarray | None) -> 
     )
 
 
+def _tri_mesh(points: np.ndarray, surf: list, names: dict, path: Path, zero_untagged: bool) -> TriMesh:
+    """TriMesh of a file's triangle blocks with their region tags (``face_tags``; -1 for the faces of a block
+    without tags, and for tag 0 when ``zero_untagged``: gmsh's and Medit's "no group") and the names of surface
+    groups (dim 2) as ``tag_names``; no tags when no face has one."""
+    faces = np.concatenate([f for f, _ in surf])
+    tags = None
+    if any(t is not None for _, t in surf):
+        tags = np.concatenate([t if t is not None else np.full(len(f), -1, np.int64) for f, t in surf])
+        tags = np.where(tags <= 0, -1, tags) if zero_untagged else tags
+        tags = tags if (tags >= 0).any() else None
+    names = {n: (i, d) for n, (i, d) in names.items() if d == 2} if tags is not None else {}
+    return TriMesh(points, faces, name=path.name, face_tags=tags, tag_names=names)
+
+
 def _meshio():
     import meshio
 
@@ -270,16 +290,21 @@ def _read_text(path: Path) -> list[str]:
 def _read_obj(path: Path):
     """Positions and faces of a Wavefront OBJ (``v`` and ``f`` lines; ``f`` entries ``v``, ``v/vt``, ``v//vn`` or
     ``v/vt/vn``, negative indices counted back from the last vertex read; texture coordinates and normals are
-    ignored). Polygons become one ``polygon<k>`` block per size. Bad lines are one MeshError naming the line."""
+    ignored). Polygons become one ``polygon<k>`` block per size. Bad lines are one MeshError naming the line.
+    Groups (``g`` and ``o`` lines; ``g`` alone is the group ``default``) are region tags 1, 2, ... in the order
+    of their first line, with their names (cell_data ``cell_tags``, field_data ``{name: [tag, 2]}``; faces before
+    the first group get -1); a file without groups has no tags."""
     import meshio
 
-    pts, polys, refs = [], {}, []
+    pts, polys, refs, groups, group = [], {}, [], {}, -1
     for no, line in enumerate(_read_text(path), 1):
         tok = line.split("#", 1)[0].split()
         if not tok:
             continue
         try:
-            if tok[0] == "v":
+            if tok[0] in ("g", "o"):
+                group = groups.setdefault(" ".join(tok[1:]) or "default", len(groups) + 1)
+            elif tok[0] == "v":
                 pts.append([float(x) for x in tok[1:4]])
                 if len(pts[-1]) != 3:
                     raise ValueError("a vertex needs x y z")
@@ -293,7 +318,7 @@ def _read_obj(path: Path):
                     idx.append(j - 1 if j > 0 else len(pts) + j)
                 if len(idx) < 3:
                     raise ValueError("a face needs at least 3 vertices")
-                polys.setdefault(len(idx), []).append(idx)
+                polys.setdefault(len(idx), []).append((idx, group))
                 refs.append((max(idx), no, line.strip()[:60]))
         except ValueError as e:
             raise MeshError(f"{path}: line {no} ({line.strip()[:60]!r}): {e}") from None
@@ -305,10 +330,15 @@ def _read_obj(path: Path):
     if bad is not None:
         raise MeshError(f"{path}: line {bad[1]} ({bad[2]!r}): a face refers to vertex {bad[0] + 1}, the file has "
                         f"{n} vertices")
-    cells = []
+    cells, tags = [], []
     for k, rows in sorted(polys.items()):
-        cells.append(("triangle" if k == 3 else "quad" if k == 4 else "polygon", np.asarray(rows, np.int64)))
-    return meshio.Mesh(np.asarray(pts, float), cells)
+        cells.append(("triangle" if k == 3 else "quad" if k == 4 else "polygon", np.asarray([r for r, _ in rows],
+                                                                                            np.int64)))
+        tags.append(np.asarray([g for _, g in rows], np.int64))
+    if not groups:
+        return meshio.Mesh(np.asarray(pts, float), cells)
+    return meshio.Mesh(np.asarray(pts, float), cells, cell_data={"cell_tags": tags},
+                       field_data={name: np.array([tag, 2]) for name, tag in groups.items()})
 
 
 def _read_ascii_stl(path: Path):
@@ -433,6 +463,10 @@ def read_mesh(path: str | os.PathLike, kind: str = "auto") -> TetMesh | TriMesh:
     A tet mesh keeps the region tags of its cells and triangles (meshio cell_data "gmsh:physical",
     "medit:ref" or "cell_tags"; through splits, every piece keeps its cell's tag) and the group names
     (field_data: .msh $PhysicalNames, VTU FieldData, XDMF Information) as ``mesh.tags`` (:class:`MeshTags`).
+    A surface (TriMesh) keeps the same tags of its triangles as ``face_tags`` (also through splits of
+    quadrilaterals and polygons; -1 for untagged triangles: those of a block without tags, and those of gmsh
+    physical tag or Medit reference 0) and the names of surface groups (dim 2) as ``tag_names``; an OBJ file's
+    ``g``/``o`` groups are such tags too (see :func:`_read_obj`).
     A .msh without volume cells whose saved elements all belong to physical groups, none of them a volume
     (gmsh's default saves only the elements of physical groups), is one MeshError saying so when tetrahedra
     are asked for (``kind="tet"``, or ``"auto"`` for a file evidently from a 3-D model: see
@@ -465,7 +499,7 @@ def read_mesh(path: str | os.PathLike, kind: str = "auto") -> TetMesh | TriMesh:
             points, cells = points[used], remap[cells]
         return _tet_mesh(points, cells, path, _mesh_tags(vol, surf, _names(m), remap))
     if use_surf:
-        return TriMesh(points, np.concatenate([f for f, _ in surf]), name=path.name)
+        return _tri_mesh(points, surf, _names(m), path, zero_untagged=any(k in m.cell_data for k in TAG_KEYS[:2]))
     want = {"auto": "tetrahedra or triangles", "tet": "tetrahedra", "tri": "triangles"}.get(kind, kind)
     found = sorted({c.type for c in m.cells}) or ["no cells"]
     raise MeshError(f"{path}: expected {want}, found {', '.join(found)}")
@@ -536,7 +570,8 @@ def write_mesh(
     The region names ({name: (tag, dim)}) go with them, so :func:`read_mesh` resolves the same names: .msh
     ``$PhysicalNames``, VTU ``<FieldData>`` Int64 arrays [tag, dim], XDMF ``<Information>`` maps (the layouts
     meshio reads as ``field_data``). Medit .mesh and legacy .vtk keep the numbers only: one PhysarWarning names
-    the file and the regions written as numbers."""
+    the file and the regions written as numbers. A TriMesh's ``face_tags`` and ``tag_names`` are written alike
+    (a tag per triangle); STL, PLY, OBJ and OFF store none: one PhysarWarning names the regions not written."""
     path = Path(path)
     suffix = path.suffix.lower()
     if isinstance(mesh, TetMesh) and suffix in _SURFACE_ONLY:
@@ -571,8 +606,23 @@ def write_mesh(
         if suffix == ".msh":
             cd["gmsh:geometrical"] = [b.copy() for b in blocks]
         field_data = {n: np.array([int(i), int(d)]) for n, (i, d) in tags.names.items()}
+    names = tags.names if tags is not None else {}
+    if isinstance(mesh, TriMesh) and mesh.face_tags is not None:  # a surface's region tags: one per triangle
+        names = mesh.tag_names
+        if suffix in _SURFACE_ONLY:
+            what = ", ".join(repr(n) for n in sorted(names)) or \
+                ", ".join(str(t) for t in np.unique(mesh.face_tags[mesh.face_tags >= 0]).tolist())
+            warnings.warn(f"{path}: {path.suffix} stores no region tags: the surface's regions {what} are not "
+                          "written (write .vtu, .xdmf or .msh to keep them)", PhysarWarning, stacklevel=2)
+        else:
+            key = {".msh": "gmsh:physical", ".mesh": "medit:ref"}.get(suffix, "cell_tags")
+            t = np.asarray(mesh.face_tags, np.int64)
+            cd[key] = [np.maximum(t, 0) if key != "cell_tags" else t]  # gmsh / Medit: 0 is "no group"
+            if suffix == ".msh":
+                cd["gmsh:geometrical"] = [np.maximum(t, 0)]
+            field_data = {n: np.array([int(i), int(d)]) for n, (i, d) in names.items()}
     if field_data and suffix not in _NAMES_KEPT:
-        lost = ", ".join(f"{n!r} = {i}" for n, (i, _) in sorted(tags.names.items(), key=lambda kv: kv[1][0]))
+        lost = ", ".join(f"{n!r} = {i}" for n, (i, _) in sorted(names.items(), key=lambda kv: kv[1][0]))
         warnings.warn(f"{path}: {path.suffix} stores region numbers, not names: the regions {lost} are written as "
                       "numbers only (refer to them by number, or write .vtu, .xdmf or .msh to keep the names)",
                       PhysarWarning, stacklevel=2)
@@ -583,7 +633,7 @@ def write_mesh(
         with contextlib.redirect_stdout(io.StringIO()):  # meshio prints notes (e.g. zero gmsh tags)
             m.write(tmp, **opts)
         if field_data and suffix == ".vtu":
-            _vtu_add_names(Path(tmp), tags.names)
+            _vtu_add_names(Path(tmp), names)
         elif field_data and suffix in (".xdmf", ".xmf"):
-            _xdmf_add_names(Path(tmp), tags.names)
+            _xdmf_add_names(Path(tmp), names)
     return path

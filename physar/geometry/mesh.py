@@ -163,19 +163,51 @@ class TetMesh:
         return text + ")"
 
 
+def _check_face_tags(tags, n_faces: int, name: str) -> np.ndarray | None:
+    """`tags` as a read-only int64 array (n_faces,), or None; anything else is one MeshError line."""
+    if tags is None:
+        return None
+    t = np.asarray(tags)
+    if t.shape != (n_faces,) or not (np.issubdtype(t.dtype, np.integer) or t.size == 0):
+        raise MeshError(f"{name}: face_tags must be {n_faces} integers (one per face), got shape {t.shape} "
+                        f"dtype {t.dtype}")
+    return _frozen(t.astype(np.int64))
+
+
+def _check_tag_names(names, name: str) -> dict:
+    """`names` as {str: (int tag, int dim)} (the gmsh $PhysicalNames convention); else one MeshError line."""
+    out = {}
+    for k, v in dict(names or {}).items():
+        pair = np.asarray(v).ravel()
+        if not isinstance(k, str) or pair.size != 2 or pair.dtype.kind not in "iu":
+            raise MeshError(f"{name}: tag_names[{k!r}] must be (tag, dim), two integers, got {v!r}")
+        out[k] = (int(pair[0]), int(pair[1]))
+    return out
+
+
 @dataclass(frozen=True, repr=False)
 class TriMesh:
-    """A triangle surface mesh: `points` (n, 3), `faces` (m, 3); validated for NaN and index range."""
+    """A triangle surface mesh: `points` (n, 3), `faces` (m, 3); validated for NaN and index range.
+
+    `face_tags` (optional, (m,) integers): the region tag of each face (a physical group of a mesh file, an OBJ
+    group); a negative tag marks an untagged face. `tag_names` {name: (tag, dim)}: the names of those tags
+    (dim 2 for faces, the gmsh ``$PhysicalNames`` convention). :func:`physar.geometry.tetrahedralize` carries
+    both to the boundary triangles of the tetrahedral mesh it builds (``TetMesh.tags``).
+    """
 
     points: np.ndarray
     faces: np.ndarray
     name: str = field(default="surface", compare=False)
+    face_tags: np.ndarray | None = field(default=None, compare=False, repr=False)
+    tag_names: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         pts = _check_points(self.points, self.name)
         faces = _check_cells(self.faces, len(pts), 3, self.name)
         object.__setattr__(self, "points", _frozen(pts))
         object.__setattr__(self, "faces", _frozen(faces))
+        object.__setattr__(self, "face_tags", _check_face_tags(self.face_tags, len(faces), self.name))
+        object.__setattr__(self, "tag_names", _check_tag_names(self.tag_names, self.name))
 
     @property
     def n_points(self) -> int:
@@ -199,12 +231,19 @@ class TriMesh:
         return 0.5 * np.linalg.norm(self.face_normals(normalize=False), axis=1)
 
     def with_points(self, points: np.ndarray) -> TriMesh:
-        return TriMesh(points, self.faces, name=self.name)
+        """The same faces (and face tags) on new `points` (n, 3)."""
+        return TriMesh(points, self.faces, name=self.name, face_tags=self.face_tags, tag_names=self.tag_names)
 
     def __repr__(self) -> str:
-        """One line: name, node and triangle counts, bounding box (no unit: a surface file's own) (no arrays)."""
-        return (f"TriMesh({self.name!r}, {_plural(self.n_points, 'node')}, {_plural(self.n_faces, 'triangle')}, "
-                f"bounds {_bounds_text(self.points, unit='')})")
+        """One line: name, node and triangle counts, bounding box (no unit: a surface file's own), and the tag
+        names if any (no arrays)."""
+        text = (f"TriMesh({self.name!r}, {_plural(self.n_points, 'node')}, {_plural(self.n_faces, 'triangle')}, "
+                f"bounds {_bounds_text(self.points, unit='')}")
+        if self.tag_names:
+            names = sorted(self.tag_names)
+            more = f", ... ({len(names)} in all)" if len(names) > 6 else ""
+            text += f", regions {', '.join(names[:6])}{more}"
+        return text + ")"
 
 
 @dataclass(frozen=True, repr=False)

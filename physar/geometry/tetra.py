@@ -53,6 +53,7 @@ import numpy as np
 
 from physar.errors import MeshError
 from physar.geometry.mesh import TetMesh, TriMesh
+from physar.geometry.regions import MeshTags
 
 _GMSH_LOCK = threading.Lock()  # gmsh keeps one global model: serialise every use
 
@@ -105,11 +106,12 @@ def _restore_handlers(handlers: dict) -> None:
 
 def _add_discrete_surface(gmsh, surface: TriMesh) -> int:
     """Add ``surface``'s triangles to the current gmsh model as one discrete surface (gmsh node tags = vertex
-    index + 1, unused vertices left out); returns its entity tag."""
+    index + 1, unused vertices left out; element tags = face index + 1); returns its entity tag."""
     used = np.unique(surface.faces)
     s = gmsh.model.addDiscreteEntity(2)
     gmsh.model.mesh.addNodes(2, s, (used + 1).tolist(), surface.points[used].ravel().tolist())
-    gmsh.model.mesh.addElementsByType(s, 2, [], (surface.faces + 1).ravel().tolist())
+    gmsh.model.mesh.addElementsByType(s, 2, np.arange(1, surface.n_faces + 1).tolist(),
+                                      (surface.faces + 1).ravel().tolist())
     return s
 
 
@@ -505,11 +507,43 @@ def _in_child(fn: Callable, args: tuple, name: str):
     return payload
 
 
+def _tag_edges(faces: np.ndarray, face_tags: np.ndarray) -> np.ndarray:
+    """Edges (e, 2) of a closed triangle surface whose two faces carry different tags: the boundaries of its
+    tagged regions (vertex ids, smaller first)."""
+    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    order = np.lexsort((e[:, 1], e[:, 0]))
+    a, b = order[0::2], order[1::2]  # the two faces of each edge (check_closed: exactly two)
+    t = np.repeat(face_tags, 3)
+    return e[a[t[a] != t[b]]]
+
+
+def _patch_tags(gmsh, faces: np.ndarray, face_tags: np.ndarray) -> dict[int, int]:
+    """{surface entity: tag} of the patches classifySurfaces made of the input triangles (element tag = face
+    index + 1, :func:`_add_discrete_surface`; classifySurfaces moves triangles between patches, keeping them):
+    the tag most of its triangles carry (all of them, as the tag boundaries are patch boundaries)."""
+    out = {}
+    for _, t in gmsh.model.getEntities(2):
+        elements, nodes = gmsh.model.mesh.getElementsByType(2, t)
+        f = np.asarray(elements, np.int64) - 1
+        ok = (f >= 0) & (f < len(faces))
+        ok[ok] = (np.sort(faces[f[ok]] + 1, axis=1)
+                  == np.sort(np.asarray(nodes, np.int64).reshape(-1, 3)[ok], axis=1)).all(axis=1)
+        if ok.any():
+            values, counts = np.unique(face_tags[f[ok]], return_counts=True)
+            out[t] = int(values[np.argmax(counts)])
+    return out
+
+
 def _gmsh_volume_mesh(points: np.ndarray, faces: np.ndarray, labels: np.ndarray, regions: list, size: float,
-                      angle: float, optimize: bool, name: str) -> tuple[np.ndarray, np.ndarray]:
+                      angle: float, optimize: bool, name: str, face_tags: np.ndarray | None = None) -> tuple:
     """In the gmsh child: the tetrahedra (points, cells; only the nodes they use) of the solid regions
     ``regions`` (``(outer body, [cavity bodies])``, bodies as ``labels`` of the faces) of the closed surface
-    (points, faces)."""
+    (points, faces), and the boundary triangles (k, 3) of the tetrahedra with their tags (k,) when
+    ``face_tags`` (one per face) are given, else None, None.
+
+    The edges between faces of different tags are added as a discrete curve before ``classifySurfaces``, which
+    keeps every existing curve's edges as patch boundaries; so no patch, and no remeshed triangle, straddles two
+    tags, and each remeshed boundary triangle takes the tag of its patch's input triangles."""
     import gmsh
 
     gmsh.initialize(readConfigFiles=False, interruptible=False)
@@ -517,13 +551,21 @@ def _gmsh_volume_mesh(points: np.ndarray, faces: np.ndarray, labels: np.ndarray,
     gmsh.option.setNumber("General.Verbosity", 0)
     body_of_node = np.full(len(points) + 1, -1, np.int64)
     body_of_node[faces.ravel() + 1] = np.repeat(labels, 3)
+    seams = _tag_edges(faces, face_tags) if face_tags is not None else np.zeros((0, 2), np.int64)
+    patch_tag: dict[int, int] = {}
 
     def attempt(reparametrize: bool) -> None:
         gmsh.clear()
         gmsh.model.add("physar")
         _add_discrete_surface(gmsh, TriMesh(points, faces, name=name))
+        if len(seams):  # tag boundaries: kept as patch boundaries by classifySurfaces
+            c = gmsh.model.addDiscreteEntity(1)
+            gmsh.model.mesh.addElementsByType(c, 1, [], (seams + 1).ravel().tolist())
         gmsh.model.mesh.classifySurfaces(np.radians(angle), True, reparametrize, np.pi)
         gmsh.model.mesh.createGeometry()
+        if face_tags is not None:
+            patch_tag.clear()
+            patch_tag.update(_patch_tags(gmsh, faces, face_tags))
         patches: dict[int, list[int]] = {}  # body -> its patches (by the original nodes of their triangles)
         for _, t in gmsh.model.getEntities(2):
             _, nodes = gmsh.model.mesh.getElementsByType(2, t)
@@ -562,12 +604,20 @@ def _gmsh_volume_mesh(points: np.ndarray, faces: np.ndarray, labels: np.ndarray,
     xyz = np.asarray(xyz, float).reshape(-1, 3)
     tags = np.asarray(tags, np.int64)
     if len(tet_nodes) == 0:
-        return np.zeros((0, 3)), np.zeros((0, 4), np.int64)
+        return np.zeros((0, 3)), np.zeros((0, 4), np.int64), None, None
     lookup = np.full(int(tags.max()) + 1, -1, np.int64)
     lookup[tags] = np.arange(len(tags))
     cells = lookup[np.asarray(tet_nodes, np.int64).reshape(-1, 4)]
     used, cells = np.unique(cells, return_inverse=True)
-    return xyz[used], cells.reshape(-1, 4)
+    if face_tags is None:
+        return xyz[used], cells.reshape(-1, 4), None, None
+    tri, tri_tags = [], []
+    for t, tag in patch_tag.items():
+        _, nodes = gmsh.model.mesh.getElementsByType(2, t)
+        tri.append(lookup[np.asarray(nodes, np.int64).reshape(-1, 3)])
+        tri_tags.append(np.full(len(tri[-1]), tag, np.int64))
+    tri = np.searchsorted(used, np.concatenate(tri)) if tri else np.zeros((0, 3), np.int64)
+    return xyz[used], cells.reshape(-1, 4), tri, np.concatenate(tri_tags) if tri_tags else np.zeros(0, np.int64)
 
 
 def _bytes_text(n: float) -> str:
@@ -597,6 +647,14 @@ def tetrahedralize(surface: TriMesh, size: float | None = None, angle: float = 4
     :data:`MAX_ELEMENTS`) or when gmsh's memory for it (:data:`GMSH_BYTES_PER_TET`) exceeds the memory
     available. gmsh runs in a child process (:func:`_in_child`): Ctrl-C (or SIGTERM under
     :func:`physar.output.sigterm_as_interrupt`) stops it at once with a KeyboardInterrupt here.
+
+    Region tags: when ``surface.face_tags`` is given (e.g. a .msh or VTU surface with physical groups, an OBJ
+    with groups, read by :func:`physar.geometry.read_mesh`), the mesh gets ``tags`` (:class:`MeshTags`): every
+    boundary triangle of the tetrahedra carries the tag of the input triangles it was remeshed from, and the
+    names of ``surface.tag_names`` (dim 2). Exact, not a nearest-face guess: the edges between differently
+    tagged faces are made patch boundaries before gmsh remeshes the patches, so no boundary triangle straddles
+    two regions (a tag boundary across a flat face gets a row of mesh edges along it; an untagged surface
+    meshes exactly as before). Faces tagged negative (untagged) stay untagged.
 
     Raises MeshError for an open surface, a non-manifold one, a self-intersecting one (as gmsh reports it),
     crossing bodies, a non-positive size or too many elements.
@@ -630,11 +688,17 @@ def tetrahedralize(surface: TriMesh, size: float | None = None, angle: float = 4
     except ImportError as exc:  # pragma: no cover - gmsh is a dependency
         raise MeshError(f"tetrahedralisation needs the gmsh Python package (pip install gmsh): {exc}") from None
 
-    xyz, cells = _in_child(_gmsh_volume_mesh, (surface.points, surface.faces, bodies["labels"], bodies["volumes"],
-                                               float(size), float(angle), bool(optimize), name), name)
+    xyz, cells, tri, tri_tags = _in_child(
+        _gmsh_volume_mesh, (surface.points, surface.faces, bodies["labels"], bodies["volumes"], float(size),
+                            float(angle), bool(optimize), name, surface.face_tags), name)
     if len(cells) == 0:
         raise MeshError(f"{name}: gmsh produced no tetrahedra (is the surface self-intersecting or inside out?)")
-    return TetMesh.reoriented(xyz, cells, name=name)
+    tags = None
+    if surface.face_tags is not None:
+        keep = tri_tags >= 0  # faces of untagged input triangles stay untagged
+        tags = MeshTags(face_nodes=tri[keep], face_tags=tri_tags[keep],
+                        names={n: (i, 2) for n, (i, _) in surface.tag_names.items()})
+    return TetMesh.reoriented(xyz, cells, name=name, tags=tags)
 
 
 def _occ_surface(build: Callable, size: float, name: str) -> TriMesh:

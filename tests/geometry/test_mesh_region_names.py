@@ -222,8 +222,12 @@ def test_hand_written_msh22_auto_evidence(tmp_path):
         read_mesh(closed, kind="tet")  # asked for tetrahedra: say why there are none
 
     named = _msh22(tmp_path / "named.msh", *TET_SURFACE, names=[(1, "skin")])
-    with pytest.raises(MeshError, match=r"named.msh: no tetrahedra: .*\(surface group 'skin'; no volume group\)"):
-        read_mesh(named, kind="auto")  # a named surface group: evidently a part of a 3-D model's groups
+    # a closed surface with a named group is a whole surface model (a CAD export with named faces): read as a
+    # tagged surface, its group kept for tetrahedralize; tetrahedra asked for are still refused
+    m, _ = _read_quiet(named, kind="auto")
+    assert isinstance(m, TriMesh) and m.tag_names == {"skin": (1, 2)} and m.face_tags.tolist() == [1, 1, 1, 1]
+    with pytest.raises(MeshError, match=r"named.msh: no tetrahedra"):
+        read_mesh(named, kind="tet")
 
     flat = _msh22(tmp_path / "flat.msh", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(0, 1, 2), (0, 2, 3)])
     m, _ = _read_quiet(flat, kind="auto")  # a 2-D model: read as the surface it is
