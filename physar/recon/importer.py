@@ -310,7 +310,8 @@ def read_video(path: str | Path, fps: float | None = None, prepare=None, budget=
                             kept[k] = x
                 else:
                     k = round(n / r)
-                    if any(round(j * r) == n for j in (k - 1, k, k + 1) if j >= 0):
+                    last = n_keep if n_keep is not None else k + 2   # the frames source_indices keeps
+                    if any(round(j * r) == n for j in (k - 1, k, k + 1) if 0 <= j < last):
                         kept.append(conv(media.to_rgb(frame)))
                 n += 1
     except av.FFmpegError as e:

@@ -997,7 +997,7 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
                                        ("finetune", cfg.finetune_iters if sk is not None else 0, True)):
             opt = torch.optim.Adam(st.app.params(), lr=cfg.appearance_lr if name == "appearance"
                                    else 0.3 * cfg.appearance_lr)
-            if name == "finetune":
+            if name == "finetune" and sk is not None:  # no spin clip (the importer's default): no finetune
                 st.info["spin_psnr_lbs_F"] = _spin_psnr(rig, st.app, sk, False)
                 st.info["spin_psnr_physics_F_before_finetune"] = _spin_psnr(rig, st.app, sk, True)
             for it in range(iters):
