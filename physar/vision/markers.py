@@ -318,6 +318,15 @@ class MarkerTracker:
                 if k in det:
                     found[k] = det[k]
                     self.n_detected += 1
+            if self.track and periodic and self._missed == 0 and len(found) < len(proj) - len(self.rejected):
+                # a marker that the periodic re-detection misses (ArUco rejects its candidate now and then while
+                # it is in plain view) is followed from its prediction as in the other frames, not dropped from
+                # this frame's pose: a pose from fewer markers moves every estimate of that one frame
+                rest = proj.copy()
+                rest[list(found)] = np.nan
+                more = self._track(gray, rest)
+                self.n_tracked += len(more)
+                found.update(more)
             if len(found) >= self.min_markers and (self._missed == 0 or len(found) == len(proj) - len(self.rejected)):
                 return found, False
             # markers back after a hold: the drifted prediction's ROIs may miss some of them, so the frame is

@@ -66,11 +66,11 @@ def test_bracket_load_position_along_the_curved_path(bracket, clip, tmp_path):
     s = res["parameters"]["s"]
     assert abs(ranges["s"][1] - 0.1278) < 1e-3                       # arc length of the curved path
     assert res["tracking"] == res["frames"] == 48
-    # every judged frame within 1 % of the path was issue 16's line (measured max 0.91 mm = 0.71 %, median
-    # 0.43 mm). With the 2026-11-29 package set one frame of 48 is at 1.36 mm (1.07 %), identically at the code
-    # of 2026-11-27, so from a dependency, not the code (not yet found: not opencv 5.0/4.14, gmsh 4.15/4.14,
-    # av 18/17, numpy 2.4/2.3 alone); at least 47 frames within 1 % and every frame within 1.5 %
-    assert s["judged"] == 48 and s["within"] >= 47 and s["max_error"] <= 0.015 * 0.1278, s
+    # every judged frame within 1 % of the path (issue 16's line; measured max 0.91 mm = 0.71 %, median 0.43 mm).
+    # The rendered clip depends on the CPU (AVX-512 OpenBLAS kernels move truth values by 5e-12 m, x264 then
+    # encodes a different clip); on such a clip ArUco missed marker 4 on the periodic re-detection frame 30 and
+    # that frame's pose from 4 markers was 1.36 mm off, until a marker missed there is tracked as on other frames
+    assert s["judged"] == 48 and s["within"] == 48 and s["max_error"] <= 0.01 * 0.1278, s
     assert s["median_error"] <= 0.005 * 0.1278, s
     # the sideways offset is weakly observable (plate twist): within 2.5 mm of its 4 mm (measured 4.5-6 mm);
     # catches the offset direction flipped in the model or the truth (the estimate would sit near -3 mm)

@@ -281,3 +281,48 @@ def test_markers_detected_again_after_a_hold():
             for c, i in zip(corners, ids.ravel()))
     assert d < 0.02, d
     assert np.linalg.norm(est.pose.center - pose.center) < 2e-3
+
+
+@pytest.mark.parametrize("covered", [False, True])
+def test_marker_missed_by_the_periodic_redetection_is_tracked(covered):
+    """ArUco now and then rejects the candidate of a marker in plain view; on a periodic re-detection frame
+    that marker is followed from its prediction as on the other frames (corners of OpenCV's full-frame
+    detection to < 0.02 px), so that frame's pose keeps every marker (a real clip: a pose from 4 of 5
+    markers moved the bracket's load estimate by 1.36 mm on that one frame). A marker covered by a grey card
+    on that frame fails the bit check and stays out. Catches: the missed marker dropped (3 markers), tracked
+    without the bit check (the covered one used)."""
+    cam, board, tex, s, shift, tr, ref = _tracking_setup()
+    tr.track, tr.redetect_every = True, 5
+    missed = 2
+    detect = tr._detect
+
+    def aruco_misses_one(gray, x0=0, y0=0, detector=None):   # ArUco's miss on the re-detection frames
+        out = detect(gray, x0, y0, detector)
+        if tr._frame % tr.redetect_every == 0:
+            out.pop(missed, None)
+        return out
+
+    tr._detect = aruco_misses_one
+    tex = tex.copy()
+    for k in range(11):
+        pose = Pose(rotation_x(3 + 0.1 * k) @ rotation_y(-5 + 0.15 * k), [0.0005 * k, -0.0003 * k, 0.58])
+        texture = tex
+        if covered and k == 10:
+            texture = tex.copy()
+            c = board.corners[missed]
+            u0, v0, n = round((c[0, 0] + 0.3) * s), round((c[0, 1] + 0.2) * s), round(0.05 * s)
+            texture[v0:v0 + n, u0:u0 + n] = 150
+        img = cv2.GaussianBlur(render_plane(cam, pose.compose(shift), texture.astype(np.uint8), s, background=90),
+                               (0, 0), 0.6)
+        img = np.clip(img + np.random.default_rng(k).normal(0, 1.0, img.shape), 0, 255).astype(np.uint8)
+        est = tr.update(img)
+        assert est.status == "measured"
+        if k in (5, 10):   # periodic re-detection frames (frame 0 has no prediction: full-frame search)
+            if covered and k == 10:
+                assert sorted(est.ids) == [0, 1, 3], est.ids
+                continue
+            assert est.n_markers == 4, (k, est.ids)
+            corners, ids, _ = ref.detectMarkers(img)
+            c = corners[list(ids.ravel()).index(board.ids[missed])].reshape(4, 2)
+            d = np.abs(est.image_corners.reshape(-1, 4, 2)[est.ids.index(missed)] - c).max()
+            assert d < 0.02, d
