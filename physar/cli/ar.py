@@ -28,13 +28,13 @@ def calibrate(
     images: list[Path] = typer.Argument(None, help="ChArUco board images (PNG/JPG)"),  # noqa: B008 - typer idiom
     output: Path = typer.Option(Path("camera.toml"), "--out", "--output", "-o", help="camera file to write"),  # noqa: B008 - typer idiom
     squares: str = typer.Option("7x5", help="board squares, COLSxROWS"),
-    square: float = typer.Option(0.04, help="square side [m]"),
-    marker: float = typer.Option(0.03, help="marker side [m]"),
+    square: float = typer.Option(0.04, help="square side \\[m]"),
+    marker: float = typer.Option(0.03, help="marker side \\[m]"),
     dictionary: str = typer.Option("DICT_5X5_100", help="ArUco dictionary of the board"),
     dist: int = typer.Option(5, help="distortion coefficients: 0, 2, 5 or 8"),
     print_board: Path | None = typer.Option(None, "--print-board", help="write this board at true scale (.pdf "  # noqa: B008
                                                                           "or .png, print at 100 %) and stop"),
-    dpi: float = typer.Option(300, help="--print-board: raster resolution [dots per inch]"),
+    dpi: float = typer.Option(300, help="--print-board: raster resolution \\[dots per inch]"),
     json_out: bool = typer.Option(False, "--json", help="print the result as JSON"),
 ) -> None:
     """Calibrate a camera from ChArUco images; writes intrinsics + distortion as TOML. With --print-board,
@@ -243,7 +243,7 @@ def ar_serve(
 def ar_print_markers(
     project: Path = typer.Argument(..., help="AR project file"),  # noqa: B008 - typer idiom
     output: Path = typer.Option(Path("markers.pdf"), "--out", "-o", help="sheet to write (.pdf or .png)"),  # noqa: B008 - typer idiom
-    dpi: float = typer.Option(300, help="resolution of the raster [dots per inch]"),
+    dpi: float = typer.Option(300, help="resolution of the raster \\[dots per inch]"),
 ) -> None:
     """Write the project's markers at true size (print at 100 %, no scaling) with their ids and sides."""
     from physar.ar.project import parse_project, read_project_toml

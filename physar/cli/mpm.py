@@ -15,7 +15,7 @@ mpm_app = typer.Typer(help="Material Point Method simulation and identification.
 @mpm_app.command("run")
 @user_errors
 def run(
-    scene: Path = typer.Argument(..., help="scene file (TOML): [grid] [time] [gravity] [boundary] [[body]]"),  # noqa: B008 - typer idiom
+    scene: Path = typer.Argument(..., help="scene file (TOML): \\[grid] \\[time] \\[gravity] \\[boundary] \\[\\[body]]"),  # noqa: B008 - typer idiom
     out: Path = typer.Option(..., "--out", "-o", help="folder for frame_NNNN.ply, diagnostics.csv, preview.mp4"),  # noqa: B008 - typer idiom
     json_out: bool = typer.Option(False, "--json", help="print per-frame time, COM, momentum, kinetic energy"),
     no_preview: bool = typer.Option(False, "--no-preview", help="skip the MP4 preview"),

@@ -14,8 +14,16 @@ from typer.testing import CliRunner
 from physar.cli.main import app
 
 runner = CliRunner()
-COMMANDS = [("rom", "build"), ("rom", "eval"), ("assimilate",), ("simulate",),
-            ("fem", "solve"), ("damping",)]
+
+
+def _leaves(cmd, path=()):
+    subs = getattr(cmd, "commands", None)
+    if subs is None:
+        return [path]
+    return [p for name, c in sorted(subs.items()) for p in _leaves(c, (*path, name))]
+
+
+COMMANDS = _leaves(typer.main.get_command(app))    # every command of `physar`
 
 
 def _help(*args: str) -> str:
@@ -48,10 +56,9 @@ def test_every_bracketed_word_of_a_parameter_help_is_shown(path):
     cmd = _command(path)
     if cmd is None:
         pytest.skip(f"no command {' '.join(path)}")
-    out = _help(*path)
+    out = " ".join(_help(*path).replace("\u2502", " ").split())   # rich's box edges and line wraps removed
     words = set()
-    for p in cmd.params:
-        text = getattr(p, "help", None) or ""
-        words |= set(re.findall(r"\[+[a-z_][^\[\]]*\]+", text.replace("\\[", "[")))
-    for w in sorted(words):
-        assert w in out, f"{w!r} missing from `physar {' '.join(path)} --help`"
+    for text in [cmd.help or ""] + [getattr(p, "help", None) or "" for p in cmd.params]:
+        words |= {" ".join(w.split()) for w in re.findall(r"\[+[a-z_][^\[\]]*\]+", text.replace("\\[", "["))}
+    missing = [w for w in sorted(words) if w not in out]
+    assert not missing, f"{missing} missing from `physar {' '.join(path)} --help`"
