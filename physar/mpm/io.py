@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from physar.errors import ConfigError
+from physar.media import frame_order
 from physar.output import atomic_path, write_bytes
 
 _PLY_DTYPE = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("vx", "<f8"), ("vy", "<f8"), ("vz", "<f8"),
@@ -55,9 +56,9 @@ def read_particles_ply(path: str | Path) -> dict:
 
 
 def read_trajectory(folder: str | Path) -> list[dict]:
-    """All ``frame_*.ply`` of a folder, in frame order."""
+    """All ``frame_*.ply`` of a folder, in frame order (:func:`physar.media.frame_order`: frame_2 before frame_10)."""
     folder = Path(folder)
-    files = sorted(folder.glob("frame_*.ply"))
+    files = sorted(folder.glob("frame_*.ply"), key=frame_order)
     if not files:
         raise ConfigError(f"target folder '{folder}' has no frame_*.ply files (write them with `physar mpm run`)")
     return [read_particles_ply(f) for f in files]

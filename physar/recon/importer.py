@@ -39,7 +39,9 @@ Inputs and conventions:
   ``allow_pickle=False``: pickled objects are refused, never executed) or JSON (a table of arrays, or a list of
   per-frame tables): ``global_orient`` (F, 3) axis-angle (or (F, 3, 3) matrices), ``body_pose`` (F, 63 | 69),
   (F, 21 | 23, 3) or matrices (F, 21 | 23, 3, 3), ``transl`` (F, 3) m, ``betas`` (checked, not used: the body's
-  size is ``height``); AMASS-style ``poses`` (F, >= 66) and ``trans`` are accepted too. The body is in camera
+  size is ``height``); AMASS-style ``poses`` (F, >= 66: SMPL 72, SMPL+H 156, SMPL-X 165 values, the root's
+  first) and ``trans``, or AMASS stage-ii ``root_orient``, ``pose_body`` and ``trans``, are accepted too; a
+  ``body_pose`` of more than 23 joints (a whole pose, root first, would shift every joint) is refused. The body is in camera
   coordinates: a point of SMPL's canonical frame (y up, facing +z, x = the body's left) is posed as
   :math:`G_0 (x - J_0) + J_0 + \text{transl}`; :math:`J_0` (the pelvis joint of the template for the user's
   betas) is ``pelvis_offset`` (default 0: ``transl`` is the pelvis position).
@@ -377,15 +379,15 @@ def read_label_png(path: Path) -> np.ndarray:
 
 def read_masks(folder: str | Path, person_labels, object_labels, ignore_labels=(), keep=None,
                prepare=None) -> tuple[list[Path], dict]:
-    r"""Label PNGs of ``folder`` in name order, each checked (one error line for a label value that is neither
-    background (0), ignored, person nor object); the foreground masks :math:`[\ell \in P \cup O]` (float32
+    r"""Label PNGs of ``folder`` in frame order (:func:`physar.media.frame_order`), each checked (one error line
+    for a label value that is neither background (0), ignored, person nor object); the foreground masks :math:`[\ell \in P \cup O]` (float32
     (H, W) in {0, 1}, through ``prepare`` when given) of the files whose index ``keep(i, n)`` accepts (all by
     default), by index, with the object's own masks: {i: (foreground, object)}. A person or object label that no
     file holds is an error (a wrong ``--person-labels`` / ``--object-labels``, or masks of another clip)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise ConfigError(f"{folder}: masks folder not found")
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png")
+    files = sorted((p for p in folder.iterdir() if p.suffix.lower() == ".png"), key=media.frame_order)
     if not files:
         raise ConfigError(f"{folder}: no PNG masks in the folder")
     fg_labels = set(person_labels) | set(object_labels)
@@ -494,11 +496,14 @@ def load_smpl(path: str | Path) -> dict:
     rotations (joints past SMPL-X's 21 body joints set to identity) and "transl" (F, 3)."""
     path = Path(path)
     d = _load_pose_file(path)
-    if "global_orient" not in d and "poses" in d:  # AMASS layout
+    full = False   # body_pose cut from a full pose vector: its hand / face joints follow the body joints
+    if "global_orient" not in d and "root_orient" in d and "pose_body" in d:  # AMASS / SOMA stage-ii names
+        d["global_orient"], d["body_pose"] = d["root_orient"], d["pose_body"]
+    elif "global_orient" not in d and "poses" in d:  # AMASS layout: the root's 3 values, then the body's
         p = np.asarray(d["poses"])
         if p.ndim != 2 or p.shape[1] < 3 * N_MAPPED:
             raise ConfigError(f"{path}: field 'poses' must be (F, >= {3 * N_MAPPED}) axis-angle, got {p.shape}")
-        d["global_orient"], d["body_pose"] = p[:, :3], p[:, 3:]
+        d["global_orient"], d["body_pose"], full = p[:, :3], p[:, 3:], True
     if "transl" not in d and "trans" in d:
         d["transl"] = d["trans"]
     for k in ("global_orient", "body_pose", "transl"):
@@ -506,6 +511,9 @@ def load_smpl(path: str | Path) -> dict:
             raise ConfigError(f"{path}: missing field '{k}' (SMPL parameters: global_orient, body_pose, betas, transl)")
     g = _rotations(d["global_orient"], 1, path, "global_orient")[:, :1]
     b = _rotations(d["body_pose"], N_MAPPED - 1, path, "body_pose")
+    if not full and b.shape[1] > len(SMPL_JOINTS) - 1:  # a whole pose (root first) would shift every joint by one
+        raise ConfigError(f"{path}: field 'body_pose' has {b.shape[1]} joints (SMPL: 23, SMPL-X: 21, without the "
+                          "root); a whole pose vector with the root first belongs in 'poses' (AMASS layout)")
     F = len(g)
     t = np.asarray(d["transl"])
     if t.dtype.kind not in "fiu" or t.size != 3 * F or t.ndim < 2 or len(t) != F:
@@ -672,25 +680,33 @@ def carve_hull(views, R: np.ndarray, cell: float | None = None, far: float = 5.0
     ``views``: [(K (3, 3) OpenCV px, :math:`R_i`, :math:`t_i`, mask (H, W) bool), ...] with view coordinates
     :math:`p_i = R_i p_C + t_i`; the object must be whole inside every view. A voxel is kept when its centre
     projects inside every image onto the mask: :math:`H = \bigcap_i \{q : \pi_i(q) \in M_i\}`. Coarse to fine:
-    ``n_coarse`` cells per axis over view 0's frustum up to ``far`` m (masks dilated by a coarse voxel's
-    projected radius), twice, then the final ``cell`` (default: twice the hull's largest extent / ``resolution``,
+    ``n_coarse`` cells per axis over view 0's frustum up to ``far`` m (a coarse voxel kept when its centre is
+    within the voxel's projected radius of every mask: a distance transform, at each voxel's own depth), three
+    times, then the final ``cell`` (default: twice the hull's largest extent / ``resolution``,
     the importer's MPM cell) over the coarse hull's box. Returns (occupancy (nx, ny, nz), grid origin, cell)."""
+    # distance (px) from each pixel to the nearest mask pixel (0 on the mask), once per view
+    dist = [cv2.distanceTransform((~np.asarray(m, bool)).astype(np.uint8), cv2.DIST_L2, 5) for *_, m in views]
+
     def keep(Q: np.ndarray, radius: float) -> np.ndarray:
+        """Voxel centres ``Q`` whose ball of ``radius`` (m) may meet the object: in every view the projected
+        centre lies within the ball's projected radius :math:`f r / z` of the mask (centre's own depth; 0: on
+        the mask)."""
         pc = Q @ R.T
         ok = np.ones(len(Q), dtype=bool)
-        for K, Ri, ti, m in views:
+        for (K, Ri, ti, m), dm in zip(views, dist):
             p = pc @ np.asarray(Ri).T + np.asarray(ti)
+            front = p[:, 2] > 1e-6
             z = np.maximum(p[:, 2], 1e-9)
-            if radius > 0:
-                rpx = int(min(64, math.ceil(K[0, 0] * radius / max(float(z[p[:, 2] > 0].min()) if np.any(p[:, 2] > 0)
-                                                                     else 1.0, 1e-3))))
-                m = cv2.dilate(m.astype(np.uint8), np.ones((2 * rpx + 1, 2 * rpx + 1), np.uint8)) > 0 if rpx else m
-            u = np.round(K[0, 0] * p[:, 0] / z + K[0, 2]).astype(np.int64)
-            v = np.round(K[1, 1] * p[:, 1] / z + K[1, 2]).astype(np.int64)
+            uf, vf = K[0, 0] * p[:, 0] / z + K[0, 2], K[1, 1] * p[:, 1] / z + K[1, 2]
             H, W = m.shape
-            vis = (p[:, 2] > 1e-6) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
-            ok &= vis
-            ok[ok] &= m[v[ok], u[ok]]
+            if radius > 0:
+                u, v = np.clip(np.round(uf), 0, W - 1).astype(np.int64), np.clip(np.round(vf), 0, H - 1).astype(np.int64)
+                off = np.hypot(np.maximum(np.abs(uf - u) - 0.5, 0), np.maximum(np.abs(vf - v) - 0.5, 0))  # outside
+                ok &= front & (dm[v, u] + off <= K[0, 0] * radius / z + 0.5)
+            else:
+                u, v = np.round(uf).astype(np.int64), np.round(vf).astype(np.int64)
+                ok &= front & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+                ok[ok] &= np.asarray(m, bool)[v[ok], u[ok]]
         return ok
 
     K0, R0, t0, m0 = views[0]
@@ -702,7 +718,7 @@ def carve_hull(views, R: np.ndarray, cell: float | None = None, far: float = 5.0
     pc = (np.asarray(corners) - t0) @ np.asarray(R0)  # view 0 -> reference camera
     q = pc @ R
     lo, hi = q.min(0), q.max(0)
-    for _ in range(2):
+    for _ in range(3):
         c = float((hi - lo).max() / n_coarse)
         P, n = _grid(lo, hi, c)
         ok = keep(P, 0.87 * c)
@@ -1138,6 +1154,11 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
             if not reach and not meta["body"].get("simulated_bones"):
                 problems.append(f"{sj}: no bone of the body comes within {dx:.3f} m of the object in the dynamic clip "
                                 "(poses, camera or object placement wrong?)")
+            elif reach:  # the bones `recon fit` simulates: those whose particles stay in the MPM domain
+                bones, leaving = S.simulated_bones(body, meta, rot, rt, dx, dx)
+                info["simulated_bones"], info["kinematic_bones"] = bones, sorted(leaving)
+                if not bones:
+                    problems.append(f"{sj}: " + S.domain_problem(body, meta, leaving, rot, rt, dx))
         except (ConfigError, KeyError, TypeError, ValueError) as e:
             problems.append(f"{sj}: object/sim: {e}")
     info["problems"] = problems

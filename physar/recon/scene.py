@@ -227,6 +227,64 @@ def reaching_bones(body: Body, rotations: np.ndarray, root: np.ndarray, boxes, m
     return [name for name, dk in zip(body.skeleton.names, d.tolist()) if dk <= margin]
 
 
+def frame_leaving_domain(body: Body, bone: str, rotations: np.ndarray, root: np.ndarray, sim: dict,
+                         h: float) -> int | None:
+    """The first frame in which a particle of ``bone`` (its rest lattice at spacing ``h``, skinned by Eq. 1) lies
+    outside the MPM domain ``sim`` (origin, size), or None when the bone stays inside over the whole sequence (or
+    has no particle). A reaching bone that leaves the domain cannot be simulated and stays kinematic."""
+    P = body_points(body, [bone], h)
+    if len(P) == 0:
+        return None
+    x = skin_sequence(body, P, rotations, root)[0] - np.asarray(sim["origin"], dtype=np.float64)
+    out = np.flatnonzero(~np.all((x >= 0) & (x <= sim["size"]), axis=(1, 2)))
+    return int(out[0]) if len(out) else None
+
+
+def domain_side_holding(body: Body, bones: list[str], rotations: np.ndarray, root: np.ndarray, sim: dict,
+                        h: float) -> float:
+    """The smallest side (m) of a domain with the centre (x, y) and floor z of ``sim``'s that holds the particles of
+    ``bones`` over the whole pose sequence (inf when one goes below the floor)."""
+    P = body_points(body, bones, h)
+    if len(P) == 0:
+        return 0.0
+    o = np.asarray(sim["origin"], dtype=np.float64)
+    x = skin_sequence(body, P, rotations, root)[0] - np.array([o[0] + sim["size"] / 2, o[1] + sim["size"] / 2, o[2]])
+    if x[..., 2].min() < 0:
+        return math.inf
+    return float(max(2 * np.abs(x[..., :2]).max(), x[..., 2].max()))
+
+
+def simulated_bones(body: Body, meta: dict, rotations: np.ndarray, root: np.ndarray, margin: float,
+                    h: float) -> tuple[list[str], dict[str, int]]:
+    """The bones a reconstruction simulates and actuates: those ``meta`` lists plus every bone whose LBS impact
+    reaches the object within ``margin`` (:func:`reaching_bones`) and whose particles (spacing ``h``) stay in the
+    MPM domain over the clip, in skeleton order; and {reaching bone left kinematic: the first frame it leaves the
+    domain}."""
+    listed = list(meta["body"].get("simulated_bones", []))
+    sim, reach, leaving = meta["sim"], [], {}
+    for b in reaching_bones(body, rotations, root, object_boxes(meta), margin):
+        f = None if b in listed else frame_leaving_domain(body, b, rotations, root, sim, h)
+        if f is not None:
+            leaving[b] = f
+        elif b in listed or len(body_points(body, [b], h)):
+            reach.append(b)
+    return [b for b in body.skeleton.names if b in listed or b in reach], leaving
+
+
+def domain_problem(body: Body, meta: dict, leaving: dict[str, int], rotations: np.ndarray, root: np.ndarray,
+                   h: float) -> str:
+    """One line: no bone can be simulated because the reaching bones ``leaving`` leave the domain, and the
+    ``--domain-size`` that would hold them."""
+    sim = meta["sim"]
+    need = domain_side_holding(body, list(leaving), rotations, root, sim, h)
+    hint = (f"import with --domain-size {math.ceil(need * 105) / 100:g} or more" if math.isfinite(need)
+            else "they go below the floor: check the up vector")
+    o = np.round(np.asarray(sim["origin"], dtype=np.float64), 3).tolist()
+    return (f"the bones reaching the object ({', '.join(leaving)}) leave the MPM domain (a {sim['size']:g} m cube "
+            f"at {o}) from frame(s) {', '.join(map(str, leaving.values()))} of the dynamic clip, so no bone can be "
+            f"simulated: {hint}, or cut the clip to the interaction")
+
+
 def central_velocities(x: np.ndarray, dt: float) -> np.ndarray:
     """v_n = (x_{n+1} - x_{n-1}) / (2 dt) (seed Eq. 4), one-sided at the ends; x (F, N, 3)."""
     v = np.zeros_like(x)

@@ -403,9 +403,13 @@ class Rig:
         bones = list(meta["body"]["simulated_bones"])
         if poses is not None:
             margin = dx if cfg.reach_margin is None else cfg.reach_margin
-            reach = [b for b in S.reaching_bones(self.body, *poses, S.object_boxes(meta), margin)
-                     if b in bones or self._stays_in_domain(b, h, poses, sim)]
-            bones = [b for b in self.body.skeleton.names if b in bones or b in reach]
+            bones, leaving = S.simulated_bones(self.body, meta, *poses, margin, h)
+            if not bones:
+                if leaving:
+                    raise ConfigError("scene.json: " + S.domain_problem(self.body, meta, leaving, *poses, h))
+                raise ConfigError("scene.json: no bone of the body comes within the reach margin "
+                                  f"({margin:.3f} m) of the object in the dynamic clip (poses, camera or object "
+                                  "placement wrong? `physar recon check` lists the reaching bones)")
         self.meta = {**meta, "body": {**meta["body"], "simulated_bones": bones}}
         self.Xh = S.capsule_points(self.body, bones, h)
         if len(self.Xh) == 0:
@@ -458,15 +462,6 @@ class Rig:
         B.index_add_(0, self.pairs[:, 1], dd)
         self.B_inv = torch.linalg.inv(B + 1e-12 * torch.eye(3, dtype=torch.float64))
         self.material_W = _trilinear_matrix(self.Xo, lo, hi, cfg.material_grid)
-
-    def _stays_in_domain(self, bone: str, h: float, poses, sim: dict) -> bool:
-        """True if the particles of ``bone`` stay inside the MPM domain over the clip (a reaching bone that would
-        leave it, e.g. an upper arm reaching past the domain's side, stays kinematic)."""
-        P = S.capsule_points(self.body, [bone], h)
-        if len(P) == 0:
-            return False
-        x = S.skin_sequence(self.body, P, *poses)[0] - self.origin
-        return bool(np.all((x >= 0) & (x <= sim["size"])))
 
     def _in_view(self, X: np.ndarray, margin: float = 0.3) -> np.ndarray:
         K, R, t = S.camera_matrices(self.meta)

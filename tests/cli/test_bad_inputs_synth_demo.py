@@ -367,10 +367,12 @@ PREDICT_CASES = {
     "words": (lambda w: ["-p", _poses(w, "p.npz", rotations=np.array(["a", "b"]))],
               "p.npz: array 'rotations' holds <U1 values, not numbers"),
     # mutant: the library's shape error printed with its label "poses" instead of the file's name
-    "shape": (lambda w: ["-p", _poses(w, "p.npz", rotations=np.zeros((3, 2, 3, 3)))],
+    "shape": (lambda w: ["-p", _poses(w, "p.npz", rotations=np.zeros((3, 2, 3, 3)),
+                                                 root_translation=np.zeros((3, 3)))],
               "p.npz: 'rotations' must have shape (F >= 2, 12, 3, 3), got (3, 2, 3, 3)"),
     # mutant: --method left to the library (its message names no option, after the model is loaded)
-    "method": (lambda w: ["-p", _poses(w, "p.npz", rotations=np.zeros((3, 12, 3, 3))),
+    "method": (lambda w: ["-p", _poses(w, "p.npz", rotations=np.zeros((3, 12, 3, 3)),
+                                                  root_translation=np.zeros((3, 3))),
                           "--method", "bogus"], "--method 'bogus' is unknown"),
 }
 

@@ -12,6 +12,7 @@ into axis-angle by scipy (a peer library), not by physar.
 import json
 import math
 import os
+import re
 from pathlib import Path
 
 import av
@@ -266,7 +267,8 @@ def _copy(src: Path, dst: Path) -> Path:
 
 def test_check_reports_problems(imported, tmp_path):
     """One line per problem, exit 2: a mask removed (frame counts), an empty mask (coverage), a 90 deg jump of
-    the forearm (jitter), the camera's width off the images' (camera vs image size)."""
+    the forearm (jitter; it also takes the forearm out of the MPM domain: no bone left to simulate), the
+    camera's width off the images' (camera vs image size)."""
     d = _copy(imported, tmp_path / "d")
     (d / "mask" / "0004.png").unlink()
     cv2.imwrite(str(d / "spin" / "mask" / "0001.png"), np.zeros((32, 32), np.uint8))
@@ -279,11 +281,59 @@ def test_check_reports_problems(imported, tmp_path):
     r = cli("recon", "check", d)
     lines = [ln for ln in err_lines(r) if ln.startswith("error: ")]  # after the per-clip summary lines
     assert r.exit_code == 2
-    assert len(lines) == 5, lines
+    assert len(lines) == 6, lines
     assert any("frame counts differ: rgb 5, mask 4, poses 5" in ln for ln in lines), lines
     assert any("spin/mask/0001.png: mask coverage 0.0000: empty" in ln for ln in lines), lines
     assert sum("pose jitter: bone forearm.R" in ln for ln in lines) == 2, lines  # into and out of frame 2
+    # the turned forearm leaves the MPM domain in frame 2 (the upper arm does from frame 0 in this import)
+    assert any("bones reaching the object (upperarm.R, forearm.R) leave the MPM domain" in ln and
+               "from frame(s) 0, 2 of the dynamic clip" in ln for ln in lines), lines
     assert any("camera.width/height 48x32 px, but 17 images are 32x32 px" in ln for ln in lines), lines
+
+
+TINY_FIT = ("[train]\npd_hold = false\nkp = 3000.0\nkd = 110.0\nsurface_layer = 0.0\nappearance_iters = 20\n"
+            "finetune_iters = 5\nflow_iters = 3\nspflow_iters = 3\nphysics_iters = 3\nwindow_start = 3\n"
+            "material_grid = [0, 0, 0]\nlambda_flow = 0.0\n")
+
+
+def test_no_spin_clip_domain_hint_then_fit(user, tmp_path):
+    """A clip without a spin part (all 9 frames dynamic, at 15 fps: 5), imported with the 0.48 m domain of the
+    spin import: in the first frames the reaching arm is outside that domain, so no bone can be simulated.
+    `recon check` and `recon fit` both say so in one line with the --domain-size that holds the arm; imported at
+    that size the fit runs to its report (no finetune stage without a spin clip), both arm bones simulated; at
+    15 % less the upper arm leaves the domain (kinematic). Catches: check listing the reaching bones while fit
+    finds "no body particles inside []" (the former behaviour), a hint too small (a factor 2 dropped: the fit
+    fails) or loose by more than 15 %, the finetune stage run without a spin clip (a TypeError traceback)."""
+
+    def imp(size, out):
+        args = list(user["args"])
+        for k, v in (("--fps", 15), ("--n-obs", 2), ("--domain-size", size)):
+            args[args.index(k) + 1] = v
+        i = args.index("--spin-frames")
+        r = cli(*args[:i], *args[i + 2:], "--out", out)
+        assert r.exit_code == 0, (r.output, r.exception)
+        return out
+
+    cfg = tmp_path / "t.toml"
+    cfg.write_text(TINY_FIT)
+    d = imp(0.48, tmp_path / "small")
+    r = cli("recon", "check", d)
+    lines = [ln for ln in err_lines(r) if ln.startswith("error: ")]
+    assert r.exit_code == 2 and len(lines) == 1 and "leave the MPM domain (a 0.48 m cube" in lines[0], r.output
+    assert "bones reaching the object: upperarm.R, forearm.R" in r.stderr + r.stdout, r.output
+    hint = float(re.search(r"--domain-size ([0-9.]+) or more", lines[0]).group(1))
+    r = cli("recon", "fit", d, "--out", tmp_path / "run0", "-c", cfg)
+    assert r.exit_code == 2 and err_lines(r) == [lines[0].replace(str(d / "scene.json"), "scene.json")], r.output
+    assert not (tmp_path / "run0").exists()
+    r = cli("recon", "check", imp(hint / 1.15, tmp_path / "tight"), "--json")  # the hint holds every reaching bone
+    assert r.exit_code == 0 and json.loads(r.stdout)["kinematic_bones"] == ["upperarm.R"], r.output
+    d = imp(hint, tmp_path / "hinted")
+    r = cli("recon", "check", d, "--json")
+    assert r.exit_code == 0 and json.loads(r.stdout)["simulated_bones"] == ["upperarm.R", "forearm.R"], r.output
+    r = cli("recon", "fit", d, "--out", tmp_path / "run", "-c", cfg, "--json")
+    assert r.exit_code == 0, (r.output, r.exception)
+    rep = json.loads(r.stdout)
+    assert rep["history_final"]["finetune"] is None and np.isfinite(rep["methods"]["physics"]["recon"]["psnr"])
 
 
 def _snapshot(root: Path) -> dict:
@@ -519,7 +569,8 @@ def test_35mm_focal_keeps_the_diagonal_field_of_view():
     assert (c.cx, c.cy) == (2015.5, 1511.5)
 
 
-def test_visual_hull_from_moving_spin_cameras(user, tmp_path):
+@pytest.mark.parametrize("size", [64, 32])
+def test_visual_hull_from_moving_spin_cameras(user, tmp_path, size):
     """No mesh: the spin clip is 8 views of the object from a camera circling it (azimuths 45 deg apart,
     elevations 35 / 5 deg alternating, rendered by the sphere renderer), their poses in --spin-cameras; the
     carved hull must hold the true box (>= 97 % of a 1 cm lattice of it, shrunk by half a voxel, inside the
@@ -527,7 +578,10 @@ def test_visual_hull_from_moving_spin_cameras(user, tmp_path):
     the DATA_DIR (one static camera there). A 6 px ring of person label around the object in every view (hands)
     must not enter the hull. Mutants caught: view poses used inverted (R_i^T) -> no common volume; the whole
     foreground (person + object) carved instead of the object's masks -> volume above; a voxel kept when it
-    projects onto the mask of any one view (union) -> volume far above."""
+    projects onto the mask of any one view (union) -> volume far above. At 64 and 32 px (--size) the default MPM
+    cell is within 25 % of 2 x the box's largest side / 16 (the hull exceeds the box): a coarse pass that
+    dilates every mask by the radius of the voxel nearest the camera (capped at 64 px: the whole of a small
+    image) carved too little, and the cell came out 32-45 % above."""
     from physar.recon.pointrender import render_spheres
     from physar.recon.scene import look_at, union_lattice
 
@@ -565,7 +619,7 @@ def test_visual_hull_from_moving_spin_cameras(user, tmp_path):
     out = tmp_path / "d"
     r = cli("recon", "import", tmp_path / "v.mp4", "--out", out, "--masks", tmp_path / "m", "--poses",
             tmp_path / "p.npz", "--camera", user["dir"] / "camera.toml", f"--up={up}", "--spin-cameras",
-            tmp_path / "cams.npz", "--spin-frames", 8, "--n-obs", 3, "--size", 64)
+            tmp_path / "cams.npz", "--spin-frames", 8, "--n-obs", 3, "--size", size)
     assert r.exit_code == 0, (r.output, r.exception)
     d = json.loads((out / "scene.json").read_text())
     assert d["object"]["kind"] == "visual_hull" and not (out / "spin").exists()
@@ -583,6 +637,7 @@ def test_visual_hull_from_moving_spin_cameras(user, tmp_path):
     true = float(np.prod(hi - lo))
     assert covered.mean() >= 0.97, covered.mean()
     assert 1.0 * true <= vol <= 1.6 * true, (vol, true)
+    assert cell <= 1.25 * 2 * (hi - lo).max() / 16, (cell, (hi - lo).max())
     r = cli("recon", "check", out)
     assert r.exit_code == 0, r.output
 

@@ -224,6 +224,10 @@ def test_eval_and_predict_refuse_damaged_or_foreign_inputs(fitted, tiny_scene, t
     np.savez(tmp_path / "mirror.npz", rotations=-p["rotations"], root_translation=p["root_translation"])
     refused(["recon", "predict", run, "--poses", tmp_path / "mirror.npz", "--out", tmp_path / "v.mp4"],
             "mirror.npz: 'rotations' [frame 0, bone 0] is not a rotation matrix (|R^T R - I| = 0, det -1")
+    # the root's path left out: refused (it was taken as zeros: the body at the camera's centre, every frame)
+    np.savez(tmp_path / "noroot.npz", rotations=p["rotations"])
+    refused(["recon", "predict", run, "--poses", tmp_path / "noroot.npz", "--out", tmp_path / "v.mp4"],
+            "noroot.npz: missing array 'root_translation' (F, 3)")
     assert not (tmp_path / "v.mp4").exists()
 
 

@@ -1,0 +1,73 @@
+"""Files as users' tools write them: unpadded frame numbers in mask names, SMPL / SMPL+H / SMPL-X pose layouts.
+
+References: the frame number written into each file (masks), scipy's Rodrigues formula on the raw axis-angle
+values (poses).
+"""
+
+import numpy as np
+import pytest
+from PIL import Image
+from scipy.spatial.transform import Rotation
+
+from physar.errors import ConfigError
+from physar.mpm.io import read_trajectory, write_particles_ply
+from physar.recon.importer import load_smpl, read_masks
+
+
+def test_masks_with_unpadded_frame_numbers_are_read_in_frame_order(tmp_path):
+    # a segmenter writing mask_1.png ... mask_12.png: frame i's object covers i + 1 columns. Catches: names
+    # sorted as text (mask_1, mask_10, mask_11, mask_12, mask_2, ...: frames 10-12 read as frames 2-4)
+    H, W = 8, 16
+    for i in range(12):
+        lab = np.zeros((H, W), np.uint8)
+        lab[:, : i + 1] = 2
+        lab[0, -1] = 1  # a person pixel
+        Image.fromarray(lab, mode="L").save(tmp_path / f"mask_{i + 1}.png")
+    files, masks = read_masks(tmp_path, [1], [2])
+    assert [f.name for f in files] == [f"mask_{i + 1}.png" for i in range(12)]
+    assert [int(masks[i][1].sum()) for i in range(12)] == [(i + 1) * H for i in range(12)]
+
+
+def test_particle_frames_with_unpadded_numbers_are_read_in_frame_order(tmp_path):
+    # another tool's trajectory frame_0.ply ... frame_10.ply; frame i's particle at x = i. Catches: text order
+    for i in range(11):
+        x = np.array([[float(i), 0.0, 0.0]])
+        write_particles_ply(tmp_path / f"frame_{i}.ply", x, np.zeros_like(x), np.zeros(1, np.int32))
+    assert [f["x"][0, 0] for f in read_trajectory(tmp_path)] == [float(i) for i in range(11)]
+
+
+def _aa(rng, F, J):
+    return rng.uniform(-0.6, 0.6, (F, 3 * J))
+
+
+def _matrices(aa):
+    F = len(aa)
+    return Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(F, -1, 3, 3)
+
+
+@pytest.mark.parametrize("layout", ["smpl", "smplx", "amass_smpl", "amass_smplh", "amass_smplx", "stage_ii"])
+def test_pose_layouts_give_the_rodrigues_rotations(tmp_path, layout):
+    # joints 0..21 (root to the wrists: the joints retargeted) against scipy's Rodrigues. Catches: the root's 3
+    # values of an AMASS 'poses' vector read as a body joint (every joint shifted by one), stage-ii names ignored
+    rng = np.random.default_rng(3)
+    F = 4
+    root, body = _aa(rng, F, 1), _aa(rng, F, {"smpl": 23, "amass_smpl": 23}.get(layout, 21))
+    hands = _aa(rng, F, {"amass_smplh": 30, "amass_smplx": 33}.get(layout, 0))
+    t = rng.normal(size=(F, 3))
+    fields = {"smpl": {"global_orient": root, "body_pose": body, "transl": t},
+              "smplx": {"global_orient": root, "body_pose": body, "transl": t, "betas": np.zeros(10)},
+              "stage_ii": {"root_orient": root, "pose_body": body, "trans": t, "mocap_frame_rate": np.array(120.0)}}
+    d = fields.get(layout, {"poses": np.concatenate([root, body, hands], 1), "trans": t})
+    np.savez(tmp_path / "p.npz", **d)
+    out = load_smpl(tmp_path / "p.npz")
+    np.testing.assert_allclose(out["rotations"][:, 0], _matrices(root)[:, 0], atol=1e-6)
+    np.testing.assert_allclose(out["rotations"][:, 1:22], _matrices(body)[:, :21], atol=1e-6)
+    np.testing.assert_allclose(out["transl"], t)
+
+
+def test_a_whole_pose_in_body_pose_is_refused(tmp_path):
+    # (F, 72) in body_pose: the root's 3 values first would shift every joint by one; it was cut to 23 joints
+    rng = np.random.default_rng(4)
+    np.savez(tmp_path / "p.npz", global_orient=_aa(rng, 2, 1), body_pose=_aa(rng, 2, 24), transl=np.zeros((2, 3)))
+    with pytest.raises(ConfigError, match=r"p\.npz: field 'body_pose' has 24 joints .*belongs in 'poses'"):
+        load_smpl(tmp_path / "p.npz")
