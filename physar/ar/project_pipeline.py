@@ -95,7 +95,8 @@ class ProjectFrame:
             with markerless features, "reference" (the reference view being taken) and "rest".
         mu: (p,) current estimate of the project's parameters, in their units: the frame's ("tracking") or the
             last one held ("hold", "rest"); NaN in a "lost" frame and in every frame before the first estimate
-            (since the start or a :meth:`ProjectPipeline.reset`: the starting value is no estimate).
+            (since the start, a :meth:`ProjectPipeline.reset` or a "lost" frame: the starting value, or an estimate
+            from before the object was lost from sight, is no estimate).
         std: (p,) its standard deviation (NaN where ``mu`` is).
         at_bound: (name, "lower" | "upper") of each parameter whose ``mu`` is within :data:`BOUND_TOL` of the
             range's width from a bound of the model's range.
@@ -592,6 +593,8 @@ class ProjectPipeline:
             if self.features is not None:
                 self.features.reset()
             status = "hold" if pe.status == "predicted" else "lost"
+            if status == "lost":   # the object was out of sight for longer than the hold: its estimate is stale
+                self._estimated = False
         t3 = time.perf_counter()
         out = frame
         self.last_pose, self.last_status = draw_pose, status      # what the frame's overlay is drawn with
