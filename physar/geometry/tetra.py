@@ -245,8 +245,10 @@ def _meet(p0: np.ndarray, p1: np.ndarray, t0: np.ndarray, t1: np.ndarray, t2: np
     """True when, for some row, the segment (p0, p1) crosses or touches the triangle (t0, t1, t2), up to the
     length ``tol``: its ends strictly on both sides of the triangle's plane (farther than ``tol``) with the
     crossing point in the triangle, or an end within ``tol`` of the plane with its projection in the
-    triangle ("in": at most ``tol`` outside each of its edges). Edge-on-edge contacts, and coplanar ones where
-    no vertex lies in the other's face, are not seen."""
+    triangle ("in": at most ``tol`` outside each of its edges). A segment lying in the triangle's plane is only
+    tested by its ends; for two closed bodies, faces in contact with no vertex in the other's face (bars
+    stacked crosswise) and edges touching edges are still seen, where an edge of one crosses a side face of the
+    other at that face's border (the ``tol`` margin)."""
     n = np.cross(t1 - t0, t2 - t0)
     nn = np.linalg.norm(n, axis=1)
     lim = tol * nn

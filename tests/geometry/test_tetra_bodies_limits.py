@@ -87,19 +87,25 @@ def test_body_in_the_notch_of_an_l_is_a_second_solid():
     assert m.volumes.sum() == pytest.approx(vol_l + 1e-6, rel=1e-9)
 
 
-@pytest.mark.parametrize("case", ["overlap", "plus", "face_touch", "corner_touch", "offset_stack"])
+@pytest.mark.parametrize("case", ["overlap", "plus", "face_touch", "corner_touch", "offset_stack", "stacked_plus",
+                                  "edge_touch"])
 def test_crossing_or_touching_bodies_are_one_line(case):
     """Overlapping solids cannot be meshed (and meshed one by one they would count the overlap twice), touching
     ones would be unconnected parts: one line naming both bodies' boxes. "plus": two bars crossing where
     no vertex of either lies inside the other (only edges pierce faces).
     Mutants caught: no crossing test ("overlap"/"plus" meshed, volume 2.0 / 0.16); the edge-through-face
-    test alone, no vertex-on-face test ("face_touch", "corner_touch" meshed as separate parts)."""
+    test alone, no vertex-on-face test ("face_touch", "corner_touch" meshed as separate parts); a crossing point
+    on a triangle's border not counted as in it (no tolerance: "stacked_plus", two bars stacked crosswise that
+    touch on a square where no vertex of either lies in the other's face, and "edge_touch", a box against
+    another's edge, meshed as unconnected parts)."""
     parts = {
         "overlap": [_box((0, 0, 0), (1, 1, 1)), _box((0.5, 0.5, 0.5), (1, 1, 1))],
         "plus": [_box((-2, -0.1, -0.1), (4, 0.2, 0.2)), _box((-0.1, -2, -0.05), (0.2, 4, 0.1))],
         "face_touch": [_box((0, 0, 0), (1, 1, 1)), _box((0, 0, 1), (1, 1, 1))],
         "corner_touch": [_box((0, 0, 0), (1, 1, 1)), _box((1, 1, 1), (1, 1, 1))],
         "offset_stack": [_box((0, 0, 0), (1, 1, 1)), _box((0.5, 0.5, 1), (1, 1, 1))],
+        "stacked_plus": [_box((0, 1, 0), (3, 1, 1)), _box((1, 0, 1), (1, 3, 1))],
+        "edge_touch": [_box((0, 0, 0), (1, 1, 1)), _box((1, 1, 0.25), (1, 1, 0.5))],
     }[case]
     s = _join(*parts, name="two.stl")
     with pytest.raises(MeshError) as e:
@@ -116,6 +122,9 @@ def test_bodies_a_gap_apart_are_meshed():
     tolerance in absolute units or bounding boxes that merely overlap refused."""
     s = _join(_box((0, 0, 0), (1, 1, 1)), _box((1.001, 0, 0), (1, 1, 1)))
     assert tetrahedralize(s, size=0.5).volumes.sum() == pytest.approx(2.0, rel=1e-9)
+    # bars stacked crosswise 1e-3 apart: their edges cross at that distance, no touch (edge test's tolerance)
+    s = _join(_box((0, 1, 0), (3, 1, 1)), _box((1, 0, 1.001), (1, 3, 1)))
+    assert tetrahedralize(s, size=0.5).volumes.sum() == pytest.approx(6.0, rel=1e-9)
 
 
 def test_smooth_closed_surface_meshes():
