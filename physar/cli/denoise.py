@@ -49,14 +49,14 @@ _NORMALS = ("nx", "ny", "nz")
 _POINT_DATA_FORMATS = {".ply", ".vtu", ".vtk", ".xdmf", ".xmf"}  # surface formats meshio writes point_data to
 
 
-def _ply_vertex_fields(path: Path, mesh) -> dict:
-    """The per-vertex properties of a surface PLY other than x, y, z, in file order: {name: (n,) array in the
-    file's type} (colours red/green/blue/alpha, texture coordinates, labels, normals nx/ny/nz, ...); {} for
-    another format or a PLY without them. Face properties cannot be written (meshio's PLY writer writes none)
-    and get one PhysarWarning naming them."""
+def _ply_vertex_fields(path: Path, n_points: int) -> dict:
+    """The per-vertex properties of a PLY of ``n_points`` vertices other than x, y, z, in file order: {name: (n,)
+    array in the file's type} (colours red/green/blue/alpha, texture coordinates, labels, normals nx/ny/nz, ...);
+    {} for another format or a PLY without them. Face properties cannot be written (meshio's PLY writer writes
+    none) and get one PhysarWarning naming them."""
     import trimesh
 
-    if path.suffix.lower() != ".ply" or mesh is None:
+    if path.suffix.lower() != ".ply":
         return {}
     try:
         raw = trimesh.load(path, process=False, force=None).metadata.get("_ply_raw", {})
@@ -76,7 +76,7 @@ def _ply_vertex_fields(path: Path, mesh) -> dict:
         col = np.asarray(col)
         if col.ndim == 2 and col.shape[1] == 1:  # an ASCII PLY's columns: (n, 1)
             col = col[:, 0]
-        if name in ("x", "y", "z") or col.ndim != 1 or len(col) != mesh.n_points or col.dtype.kind not in "iuf":
+        if name in ("x", "y", "z") or col.ndim != 1 or len(col) != n_points or col.dtype.kind not in "iuf":
             continue
         fields[str(name)] = col.astype(col.dtype.newbyteorder("="), copy=False)
     face_props = [k for k in columns("face") if k not in ("vertex_indices", "vertex_index")]
@@ -84,6 +84,28 @@ def _ply_vertex_fields(path: Path, mesh) -> dict:
         warnings.warn(f"{path}: the face properties {', '.join(face_props)} are not carried to the output (only "
                       "per-vertex properties are)", PhysarWarning, stacklevel=2)
     return fields
+
+
+_CLOUD_COLOURS = {"red", "green", "blue", "diffuse_red", "diffuse_green", "diffuse_blue"}
+
+
+def _cloud_colours(path: Path, n_points: int) -> np.ndarray | None:
+    """The (n, 3) RGB colours in [0, 1] of a PLY point cloud (:func:`physar.geometry.pointcloud.read_ply` with
+    ``colors=True``: red, green, blue or diffuse_red, ...; a float colour outside [0, 1] is a PhysarError naming
+    the file and property), None when it has none. The output stores them as uchar (exact for uchar input)
+    with alpha 255; every other vertex property (normals, intensity, an alpha that is not everywhere opaque,
+    ...) is not carried and gets one PhysarWarning naming the file and the properties."""
+    from physar.geometry.pointcloud import read_ply
+
+    rgb = read_ply(path, colors=True)[2]
+    fields = _ply_vertex_fields(path, n_points)
+    alpha = fields.get("alpha")
+    opaque = alpha is not None and (alpha == (np.iinfo(alpha.dtype).max if alpha.dtype.kind in "iu" else 1)).all()
+    lost = [k for k in fields if k not in _CLOUD_COLOURS and not (k == "alpha" and opaque)]
+    if lost:
+        warnings.warn(f"{path}: the point properties {', '.join(lost)} are not carried to the output (a point "
+                      "cloud keeps x, y, z and its colours red, green, blue)", PhysarWarning, stacklevel=2)
+    return rgb
 
 
 def _output_fields(fields: dict, before, after, out: Path) -> dict | None:
@@ -129,12 +151,14 @@ def _check_out(out: Path, inp: Path, cloud: bool, reference: Path | None = None)
                       kind="point cloud" if cloud else "surface mesh")
 
 
-def _save(path: Path, mesh, pts, point_data: dict | None = None) -> None:
+def _save(path: Path, mesh, pts, point_data: dict | None = None, colors: np.ndarray | None = None) -> None:
+    """Write the surface ``mesh`` with its per-vertex ``point_data``, or (``mesh`` None) the point cloud ``pts``
+    with its (n, 3) ``colors`` (None: none), atomically."""
     from physar.geometry.io import write_mesh
     from physar.geometry.pointcloud import write_ply
 
     if mesh is None:
-        write_ply(path, pts)
+        write_ply(path, pts, colors=colors)
     else:
         write_mesh(path, mesh, point_data=point_data)
 
@@ -261,7 +285,9 @@ def register(app: typer.Typer) -> None:
         """Denoise a surface mesh or point cloud (seed 001 §3.2.1 AL/MSAL, or the two-stage default).
 
         Surface PLY input: per-vertex colours and other properties are kept
-        (.ply, .vtu, .vtk or .xdmf output); normals nx, ny, nz are recomputed."""
+        (.ply, .vtu, .vtk or .xdmf output); normals nx, ny, nz are recomputed.
+        PLY point cloud input: the points are moved, none removed or reordered,
+        and each keeps its colour (red, green, blue)."""
         import sys
 
         import numpy as np
@@ -306,18 +332,19 @@ def register(app: typer.Typer) -> None:
                 raise PhysarError(f"{inp}: point clouds take --kappa and --tau (al) or --kappa, --xi and "
                                   f"--fidelity (msal)")
             check_cloud_extent(pts, str(inp))
+            rgb = _cloud_colours(inp, len(pts))  # the denoiser moves points in place: same order, same count
         bar = tqdm(desc=f"{method} iterations", file=sys.stderr, disable=None if not json_out else True)
         prog = lambda i, q: bar.update(1)
         try:
             if mesh is not None:
                 res = denoise(mesh, method, iterations, progress=prog, **params)
                 moved = np.linalg.norm(res.points - mesh.points, axis=1)
-                _save(out, res, None, _output_fields(_ply_vertex_fields(inp, mesh), mesh, res, out))
+                _save(out, res, None, _output_fields(_ply_vertex_fields(inp, mesh.n_points), mesh, res, out))
                 n = mesh.n_points
             else:
                 q = denoise_points(pts, method, iterations, k=k, progress=prog, **params)
                 moved = np.linalg.norm(q - pts, axis=1)
-                _save(out, None, q)
+                _save(out, None, q, colors=rgb)
                 n = len(pts)
         finally:
             bar.close()
@@ -382,7 +409,7 @@ def register(app: typer.Typer) -> None:
         if mesh is None:
             raise PhysarError(f"{inp}: `noise` needs a surface mesh (faces), got a point cloud")
         noisy = add_noise(mesh, sigma, seed, direction)
-        _save(out, noisy, None, _output_fields(_ply_vertex_fields(inp, mesh), mesh, noisy, out))
+        _save(out, noisy, None, _output_fields(_ply_vertex_fields(inp, mesh.n_points), mesh, noisy, out))
         summary = {"input": str(inp), "output": str(out), "sigma_m": sigma * mean_edge_length(mesh),
                    "seed": seed, "direction": direction}
         if json_out:

@@ -290,8 +290,31 @@ def row_keys(rows: np.ndarray, n: int) -> np.ndarray:
     return rows.view(np.dtype((np.void, rows.dtype.itemsize * w))).ravel()
 
 
+def _boundary_tags(mesh: TetMesh, faces: np.ndarray) -> tuple[np.ndarray | None, dict]:
+    """(face_tags, tag_names) of the boundary `faces` (k, 3) (volume node ids) from ``mesh.tags``: each face the
+    tag of the tagged triangle with the same three vertices (any order; a triangle tagged more than once keeps
+    its first tag), -1 where none is; the names of surface groups (dim 2) whose tag some face carries.
+    (None, {}) when no boundary face is tagged (tagged triangles inside the volume are not boundary faces)."""
+    tags = mesh.tags
+    if tags is None or len(tags.face_nodes) == 0 or len(faces) == 0:
+        return None, {}
+    n = mesh.n_points
+    tagged, first = np.unique(row_keys(np.sort(tags.face_nodes, axis=1), n), return_index=True)
+    key = row_keys(np.sort(faces, axis=1), n)
+    at = np.searchsorted(tagged, key).clip(0, len(tagged) - 1)
+    out = np.where(tagged[at] == key, np.asarray(tags.face_tags, np.int64)[first[at]], -1)
+    if not (out >= 0).any():
+        return None, {}
+    present = set(np.unique(out[out >= 0]).tolist())
+    return out, {k: (i, d) for k, (i, d) in tags.names.items() if d == 2 and i in present}
+
+
 def boundary_surface(mesh: TetMesh) -> BoundarySurface:
-    """Faces that belong to exactly one tetrahedron, outward oriented (vectorised, O(m log m))."""
+    """Faces that belong to exactly one tetrahedron, outward oriented (vectorised, O(m log m)).
+
+    A tagged mesh (``mesh.tags`` with tagged triangles, e.g. physical groups of a .msh file or the regions
+    :func:`physar.geometry.tetrahedralize` carries) gives a surface with ``face_tags`` (one per surface face, in
+    its face order; -1 for an untagged face) and ``tag_names`` (the surface groups, dim 2, present on it)."""
     cells = mesh.cells
     all_faces = cells[:, TET_FACES].reshape(-1, 3)  # (4m, 3), outward for each tet
     _, inverse, counts = np.unique(row_keys(np.sort(all_faces, axis=1), mesh.n_points),
@@ -303,7 +326,9 @@ def boundary_surface(mesh: TetMesh) -> BoundarySurface:
     idx = np.flatnonzero(is_bnd)
     faces = all_faces[idx]
     node_map, local = np.unique(faces, return_inverse=True)
-    tri = TriMesh(mesh.points[node_map], local.reshape(-1, 3), name=f"{mesh.name}-boundary")
+    face_tags, tag_names = _boundary_tags(mesh, faces)
+    tri = TriMesh(mesh.points[node_map], local.reshape(-1, 3), name=f"{mesh.name}-boundary", face_tags=face_tags,
+                  tag_names=tag_names)
     return BoundarySurface(tri, node_map, idx // 4, idx % 4)
 
 

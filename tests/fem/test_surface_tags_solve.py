@@ -8,41 +8,18 @@ import importlib.util
 
 import numpy as np
 import pytest
+from _gmsh_beam import H, L, W, gmsh_beam_surface  # tests/_gmsh_beam.py
 
 from physar.errors import ConfigError
 from physar.fem.config import build_problem, load_config, run_config
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("gmsh") is None, reason="needs the gmsh package")
 
-L, W, H = 0.2, 0.02, 0.02  # slender steel beam (m), L/H = 10
-E, NU, P = 200e9, 0.3, 100.0  # Pa, -, N (tip shear, -z)
-
-
-def _beam_surface_msh(path, size=0.01):
-    """The beam's closed surface meshed by gmsh (OpenCASCADE box, volume removed) with physical groups 'clamp'
-    (x = 0), 'load' (x = L), 'rest' (the sides), written by gmsh as a Gmsh 4.1 surface-only file."""
-    from physar.geometry.tetra import _Gmsh
-
-    with _Gmsh() as g:
-        g.model.add("beam")
-        v = g.model.occ.addBox(0, 0, 0, L, W, H)
-        g.model.occ.synchronize()
-        x = {t: g.model.occ.getCenterOfMass(2, t)[0] for _, t in g.model.getEntities(2)}
-        g.model.occ.remove([(3, v)])
-        g.model.occ.synchronize()
-        clamp = [t for t, c in x.items() if np.isclose(c, 0)]
-        load = [t for t, c in x.items() if np.isclose(c, L)]
-        g.model.addPhysicalGroup(2, clamp, 1, name="clamp")
-        g.model.addPhysicalGroup(2, load, 2, name="load")
-        g.model.addPhysicalGroup(2, [t for t in x if t not in clamp + load], 3, name="rest")
-        g.option.setNumber("Mesh.MeshSizeMax", size)
-        g.model.mesh.generate(2)
-        g.write(str(path))
-    return path
+E, NU, P = 200e9, 0.3, 100.0  # Pa, -, N (tip shear, -z); the slender steel beam L x W x H of _gmsh_beam, L/H = 10
 
 
 def _problem(tmp_path, fix_region="clamp"):
-    _beam_surface_msh(tmp_path / "beam.msh")
+    gmsh_beam_surface(tmp_path / "beam.msh")  # gmsh writes the surface .msh (Gmsh 4.1)
     toml = tmp_path / "beam.toml"
     toml.write_text(f"""
 [mesh]
