@@ -186,7 +186,7 @@ class LiveSession:
         """The frame's overlay for a page that draws it: float32 vertex pixels (v, 2), uint32 visible face
         ids far to near, uint8 colour levels; (None, b"") when there is nothing to draw."""
         ov, pose = self.pipe.overlay, self.pipe.last_pose
-        if ov is None or pose is None or self.pipe.last_status == "lost":
+        if ov is None or pose is None or self.pipe.last_status == "lost" or not self.pipe.has_estimate:
             return None, b""
         mu = self.pipe.mu
         p, ids, lev, vmax = ov.geometry(self.camera, pose, self.pipe.view_coefficients(), mu)

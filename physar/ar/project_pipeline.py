@@ -242,6 +242,12 @@ class ProjectPipeline:
         self._estimated = False
         self._res_hist = []
 
+    @property
+    def has_estimate(self) -> bool:
+        """Whether a frame was tracked since the start, a :meth:`reset` or the last "lost" frame: the rows and
+        the overlay show an estimate only then."""
+        return self._estimated
+
     def view_coefficients(self) -> np.ndarray:
         """The mode coefficients the overlay draws: the estimate's, or zero while the object is at rest."""
         return np.zeros(self.rom.n_modes) if self.at_rest else self.rom.coefficients(self.mu)[0]
@@ -596,19 +602,19 @@ class ProjectPipeline:
             if status == "lost":   # the object was out of sight for longer than the hold: its estimate is stale
                 self._estimated = False
         t3 = time.perf_counter()
-        out = frame
-        self.last_pose, self.last_status = draw_pose, status      # what the frame's overlay is drawn with
-        if draw and self.overlay is not None:
-            info = {"markers": pe.n_markers, "pose_from": self.pose_from, "observed": self._observed(n_obs, n_bars, n_feat)}
-            c = self.view_coefficients()
-            out = self.overlay.draw(frame, self.camera, draw_pose, c, self.mu, self.std,
-                                    status if draw_pose is not None else "lost", info, self.names, self.units)
-        t4 = time.perf_counter()
-        st["overlay"] = (t4 - t3) * 1e3
         if status == "lost" or not self._estimated:   # no estimate: not the held or the starting value
             mu_out, std_out = np.full(self.lo.size, np.nan), np.full(self.lo.size, np.nan)
         else:
             mu_out, std_out = self.mu.copy(), self.std.copy()
+        out = frame
+        self.last_pose, self.last_status = draw_pose, status      # what the frame's overlay is drawn with
+        if draw and self.overlay is not None:   # the overlay shows what the CSV row says (no estimate: none drawn)
+            info = {"markers": pe.n_markers, "pose_from": self.pose_from, "observed": self._observed(n_obs, n_bars, n_feat)}
+            c = self.view_coefficients()
+            out = self.overlay.draw(frame, self.camera, draw_pose, c, mu_out, std_out,
+                                    status if draw_pose is not None else "lost", info, self.names, self.units)
+        t4 = time.perf_counter()
+        st["overlay"] = (t4 - t3) * 1e3
         return out, ProjectFrame(index, status, mu_out, std_out, rms, pe.n_markers, n_obs + n_bars,
                                  (t4 - t0) * 1e3, st, (time.thread_time() - c0) * 1e3, n_feat,
                                  self.bounds_reached(mu_out))

@@ -207,8 +207,9 @@ class SurfaceOverlay:
 
     def draw(self, img: np.ndarray, camera: Camera, pose: Pose, c: np.ndarray, mu, std, status: str,
              info: dict, names=(), units=()) -> np.ndarray:
-        """Draw onto ``img`` (BGR, in place) and return it."""
-        if pose is not None and status != "lost":
+        """Draw onto ``img`` (BGR, in place) and return it. No estimate (``mu`` NaN: before the first one, or after
+        the object was lost from sight): the panel says so and no surface is drawn."""
+        if pose is not None and status != "lost" and np.all(np.isfinite(mu)):
             info = dict(info, field_max=float(self._surface(img, camera, pose, c, mu)))
             self._arrow(img, camera, pose, c, mu)
         self._hud(img, mu, std, status, info, names, units)
@@ -290,6 +291,9 @@ class SurfaceOverlay:
         else:
             col = (255, 255, 255) if status == "tracking" else (150, 200, 255)
             for j in self.show:
+                if not np.isfinite(mu[j]):
+                    lines.append((f"{names[j]}: no estimate yet", col))
+                    continue
                 unit = units[j] if j < len(units) else ""
                 f, u = (1e3, "mm") if unit == "m" else (np.degrees(1.0), "deg") if unit == "rad" else (1.0, unit)
                 sd = f"+/- {2 * std[j] * f:.3g} {u} (2 sd)" if np.isfinite(std[j]) else u

@@ -197,3 +197,27 @@ def test_rows_before_the_first_estimate_have_none(live_clip, tmp_path):
     rows = _rows(out)
     assert [r["status"] for r in rows] == ["hold"] * 5 and s["marker_frames"] == 5 and s["at_bound"] == {}
     assert all(math.isnan(float(r["s_est"])) and math.isnan(float(r["s_std"])) for r in rows), rows
+
+
+def test_overlay_draws_no_surface_without_an_estimate(live_clip):
+    """Markers found, dots not (first frame): the augmented frame leaves the object's pixels as the camera gave
+    them (the panel says "no estimate yet"); the next frame, tracked, paints the surface there. Reference: the
+    input frame. Catches: the overlay drawn with the starting value (the box centre) or a pre-loss estimate
+    while the CSV row says NaN."""
+    project, _clip, frames = live_clip
+    pipe = ProjectPipeline(load_project(project))
+    assert not pipe.has_estimate
+    dots = pipe._dots
+    pipe._dots = lambda *a: (None, 0)
+    f = frames[5]
+    img0, r0 = pipe.process(f.copy(), 0)
+    pipe._dots = dots
+    img1, r1 = pipe.process(f.copy(), 1)
+    assert r0.status == "hold" and math.isnan(r0.mu[0]) and r1.status == "tracking" and pipe.has_estimate
+    h, w = f.shape[:2]
+    panel = np.zeros((h, w), bool)      # the text panel (top left) and the colour bar (right) are drawn on both
+    panel[: h // 3, : int(600 * h / 720)] = True
+    panel[:, int(0.75 * w):] = True
+    surface = np.any(img1 != f, axis=2) & ~panel
+    assert surface.sum() > 2000, surface.sum()                      # the tracked frame's painted surface
+    assert not np.any((img0 != f)[surface]), np.sum(np.any(img0 != f, axis=2) & surface)
