@@ -245,7 +245,7 @@ def train(a) -> None:
     if a.object_pixels is not None:  # the generator's label PNGs (OUT/data/labels/dynamic; object id 2)
         import cv2
 
-        from physar.recon.importer import read_label_png
+        from physar.recon.masks import read_label_png
 
         if a.object_pixels < 0:
             raise SystemExit(f"--object-pixels {a.object_pixels}: give a dilation >= 0 pixels")

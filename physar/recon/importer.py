@@ -9,12 +9,26 @@ Inputs and conventions:
   :math:`i_k = \operatorname{round}(k\, f_\text{src} / f)` (all frames when ``fps`` is not given), resized to
   ``size`` (area averaging when shrinking). The background (outside the masks) is replaced by the constant
   ``background`` colour that the Gaussian renderer composites over.
-* **Masks**: a folder of PNGs, one per frame in name order (one per *source* frame, or one per output frame),
-  single-channel label images as video segmenters write them (DAVIS / XMem / Cutie / SAM 2: palette or grey
-  PNGs, 0 = background, one integer id per tracked object). ``person_labels`` and ``object_labels`` name the
-  ids of the person and of the object (default 1 and 2); ``ignore_labels`` are treated as background; any other
-  value is refused, and so are label sets that share a value or use 0. The DATA_DIR mask is the foreground
-  :math:`M = [\ell \in P \cup O]`, resized by area averaging and thresholded at 1/2.
+* **Masks**: PNGs, one per frame in frame order (:func:`physar.media.frame_order`: the numbers in the names
+  compared as numbers; one per *source* frame, or one per output frame), in one of the formats video segmenters
+  write (``masks`` or ``person_masks`` + ``object_masks``, not both):
+
+  - *label PNGs* (``masks``; DAVIS / XMem / Cutie / SAM 2): 0 = background, one integer id per tracked object,
+    as palette PNGs (the indices), grey PNGs (the values), or RGB(A) PNGs coloured with the DAVIS / PASCAL VOC
+    palette (:data:`VOC_PALETTE`: label :math:`k` has the colour of :math:`k`'s bits interleaved,
+    1 = (128, 0, 0), 2 = (0, 128, 0), 3 = (128, 128, 0); each colour is mapped back to its label, a colour off
+    the palette is refused naming it and its pixel count; alpha ignored). ``person_labels`` and ``object_labels`` name the ids
+    of the person and of the object (default 1 and 2); ``ignore_labels`` are treated as background; any other
+    value is refused, and so are label sets that share a value or use 0.
+  - *per-object binary PNGs* (``person_masks``, ``object_masks``: two folders, as SAM / SAM 2 /
+    Track-Anything save one mask per object; the same number of files, paired in frame order): grey, palette or
+    RGB (the largest colour channel), foreground :math:`v \ge s/2` with :math:`s` = 1 for a 0/1 file (its
+    largest value 1), else 255 (8-bit) or 65535 (16-bit): anti-aliased or lossy edges are cut at half
+    intensity. :math:`P` = the person's foreground, :math:`O` = the object's.
+
+  The DATA_DIR mask is the foreground :math:`M = [\ell \in P \cup O]` (binary: :math:`P \cup O`), resized by
+  area averaging and thresholded at 1/2. When the mask and video frame counts differ, the error names the frame
+  numbers without a mask (from the names' last numbers).
 * **Camera**: intrinsics in OpenCV's pixel-centre convention (pixel :math:`(0, 0)` centred at :math:`(0, 0)`)
   for the source size :math:`W \times H` — from a ``physar calibrate`` TOML or from a focal length in pixels or
   a 35 mm-equivalent focal length :math:`f_{35}` (EXIF ``FocalLengthIn35mmFilm``, defined by the diagonal
@@ -112,6 +126,7 @@ from physar.errors import ConfigError, PhysarError, PhysarWarning
 from physar.output import atomic_folder, check_folder, check_memory, own_names
 from physar.recon import scene as S
 from physar.recon.io import imread
+from physar.recon.masks import check_mask_inputs, missing_frames, read_binary_masks, read_masks
 from physar.skinning import (
     SMPL_JOINTS,
     SMPL_PARENTS,
@@ -360,59 +375,6 @@ def _resize(img: np.ndarray, w: int, h: int) -> np.ndarray:
         return img
     shrink = w < img.shape[1] or h < img.shape[0]
     return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
-
-
-# ----------------------------------------------------------------------------------------------- masks
-def read_label_png(path: Path) -> np.ndarray:
-    """Integer labels (H, W) of a palette or grey PNG (palette indices, not colours)."""
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as im:
-            if im.mode in ("P", "L", "I", "I;16", "1"):
-                return np.asarray(im).astype(np.int64)
-            raise ConfigError(f"{path}: mask mode {im.mode} is not a label image (give single-channel PNGs: palette "
-                              "or grey, one integer id per pixel)")
-    except (UnidentifiedImageError, OSError, Image.DecompressionBombError):
-        raise ConfigError(f"{path}: not a readable PNG") from None
-
-
-def read_masks(folder: str | Path, person_labels, object_labels, ignore_labels=(), keep=None,
-               prepare=None) -> tuple[list[Path], dict]:
-    r"""Label PNGs of ``folder`` in frame order (:func:`physar.media.frame_order`), each checked (one error line
-    for a label value that is neither background (0), ignored, person nor object); the foreground masks :math:`[\ell \in P \cup O]` (float32
-    (H, W) in {0, 1}, through ``prepare`` when given) of the files whose index ``keep(i, n)`` accepts (all by
-    default), by index, with the object's own masks: {i: (foreground, object)}. A person or object label that no
-    file holds is an error (a wrong ``--person-labels`` / ``--object-labels``, or masks of another clip)."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise ConfigError(f"{folder}: masks folder not found")
-    files = sorted((p for p in folder.iterdir() if p.suffix.lower() == ".png"), key=media.frame_order)
-    if not files:
-        raise ConfigError(f"{folder}: no PNG masks in the folder")
-    fg_labels = set(person_labels) | set(object_labels)
-    known = fg_labels | {0} | set(ignore_labels)
-    out = {}
-    seen: set[int] = set()
-    for i, p in enumerate(files):
-        lab = read_label_png(p)
-        vals = np.unique(lab)
-        seen.update(int(v) for v in vals)
-        bad = [int(v) for v in vals if int(v) not in known]
-        if bad:
-            raise ConfigError(f"{p}: label value {bad[0]} is neither background (0), person "
-                              f"{sorted(person_labels)} nor object {sorted(object_labels)} (set --person-labels, "
-                              "--object-labels or --ignore-labels)")
-        if keep is None or keep(i, len(files)):
-            m = np.isin(lab, sorted(fg_labels)).astype(np.float32)
-            mo = np.isin(lab, sorted(object_labels)).astype(np.float32)
-            out[i] = (prepare(p, m), prepare(p, mo)) if prepare is not None else (m, mo)
-    for what, labels, option in (("person", person_labels, "--person-labels"),
-                                 ("object", object_labels, "--object-labels")):
-        if not seen & set(labels):
-            raise ConfigError(f"{folder}: the {what} label(s) {sorted(labels)} appear in none of the {len(files)} "
-                              f"masks (labels found: {sorted(seen)}); set {option}")
-    return files, out
 
 
 # ----------------------------------------------------------------------------------------------- poses
@@ -820,26 +782,33 @@ def _load_cameras(path: str | Path, n: int) -> tuple[np.ndarray, np.ndarray]:
     return Rs, np.asarray(d["t"], dtype=np.float64)
 
 
-def _count_match(n: int, n_src: int, idx: np.ndarray, what: str, where, video) -> np.ndarray:
+def _count_match(n: int, n_src: int, idx: np.ndarray, what: str, where, video, files=None) -> np.ndarray:
     """Which of ``n`` per-frame entries feed the output frames: one per source frame (select ``idx``) or one per
-    output frame."""
+    output frame. On a mismatch, ``files`` (the entries' files, when given) name the frame numbers missing, of
+    the source frames or of the output frames, whichever count is nearer ``n``."""
     if n == n_src:
         return idx
     if n == len(idx):
         return np.arange(n)
+    lack = ""
+    if files is not None:
+        lack = missing_frames(files, n_src if abs(n - n_src) <= abs(n - len(idx)) else len(idx))
     raise ConfigError(f"{where}: {n} {what} for {n_src} video frames ({video}, {len(idx)} after resampling): "
-                      "frame count mismatch")
+                      f"frame count mismatch{lack}")
 
 
-def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, poses: str | Path,
+def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path | None = None, poses: str | Path,
+                 person_masks: str | Path | None = None, object_masks: str | Path | None = None,
                  intrinsics: Intrinsics | None = None, focal_px: float | None = None, focal_35mm: float | None = None,
                  object_mesh: str | Path | None = None, spin_cameras: str | Path | None = None,
                  opts: ImportOptions | None = None) -> dict:
-    """Write a DATA_DIR for ``physar recon fit`` from a video, label masks, a pose file, a camera and an object
-    mesh (module docstring). Everything is read and checked before anything is written; the folder appears
+    """Write a DATA_DIR for ``physar recon fit`` from a video, masks (``masks``: label PNGs, or ``person_masks`` and
+    ``object_masks``: binary PNGs, :func:`check_mask_inputs`), a pose file, a camera and an object mesh (module
+    docstring). Everything is read and checked before anything is written; the folder appears
     whole (``physar.output.atomic_folder``). Returns a summary."""
     o = opts or ImportOptions()
-    out = check_folder(out_dir, own=DATA_DIR_FILES, inputs=[video, masks, poses, object_mesh, spin_cameras],
+    out = check_folder(out_dir, own=DATA_DIR_FILES, inputs=[video, masks, person_masks, object_masks, poses,
+                                                               object_mesh, spin_cameras],
                        kind="DATA_DIR")
     if o.floor not in ("sticky", "slip", "separate"):
         raise ConfigError(f"--floor {o.floor!r}: use sticky, slip or separate")
@@ -856,8 +825,7 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
     if spin_cameras is not None and o.spin_frames < 2:
         raise ConfigError("--spin-cameras needs the spin clip: --spin-frames N (N >= 2 views of the object)")
     spin_cams = _load_cameras(spin_cameras, o.spin_frames) if spin_cameras is not None else None
-    if not Path(masks).is_dir():
-        raise ConfigError(f"{masks}: masks folder not found")
+    check_mask_inputs(masks, person_masks, object_masks)
     smpl = load_smpl(poses)  # the small inputs first: their errors come before the video is decoded
     body_spec = o.body.strip()
     if body_spec.lower().startswith("smpl:"):  # stored absolute: scene.json is read from any folder
@@ -919,9 +887,13 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
         return (_resize(m, W, H) >= 0.5).astype(np.uint8)  # {0, 1}
 
     wanted = set(idx.tolist())
-    mfiles, mdict = read_masks(masks, o.person_labels, o.object_labels, o.ignore_labels,
-                               keep=lambda i, n: n != n_src or i in wanted, prepare=prepare_mask)
-    midx = _count_match(len(mfiles), n_src, idx, "mask PNGs", masks, video)
+    keep = lambda i, n: n != n_src or i in wanted
+    if masks is not None:
+        mfiles, mdict = read_masks(masks, o.person_labels, o.object_labels, o.ignore_labels, keep, prepare_mask)
+    else:
+        mfiles, mdict = read_binary_masks(person_masks, object_masks, keep, prepare_mask)
+    midx = _count_match(len(mfiles), n_src, idx, "mask PNGs", masks if masks is not None else person_masks, video,
+                        mfiles)
     pidx = _count_match(len(smpl["transl"]), n_src, idx, "poses", poses, video)
     n_out = len(idx)
     if o.fps is not None and n_out < n_src and n_out < 3 + max(o.spin_frames, 0):
@@ -994,7 +966,9 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path, p
                 "kp": 3.0e3, "kd": 110.0},
         "import": {"video": str(video), "source_fps": src_fps, "source_frames": n_src,
                    "source_variable_rate": bool(clip.variable),
-                   "source_size": [W0, H0], "source_indices": idx.tolist(), "masks": str(masks), "poses": str(poses),
+                   "source_size": [W0, H0], "source_indices": idx.tolist(), "masks": None if masks is None else str(masks),
+                   "person_masks": None if person_masks is None else str(person_masks),
+                   "object_masks": None if object_masks is None else str(object_masks), "poses": str(poses),
                    "object_mesh": None if object_mesh is None else str(object_mesh),
                    "spin_cameras": None if spin_cameras is None else str(spin_cameras), "up_camera": [float(v) for v in o.up],
                    "spin_frames": int(o.spin_frames)},

@@ -11,7 +11,8 @@ from scipy.spatial.transform import Rotation
 
 from physar.errors import ConfigError
 from physar.mpm.io import read_trajectory, write_particles_ply
-from physar.recon.importer import load_smpl, read_masks
+from physar.recon.importer import load_smpl
+from physar.recon.masks import read_masks
 
 
 def test_masks_with_unpadded_frame_numbers_are_read_in_frame_order(tmp_path):

@@ -255,7 +255,8 @@ def test_png_bomb_in_a_data_dir_refused(tiny_scene, tmp_path):
     import zlib
 
     from physar.errors import ConfigError
-    from physar.recon.importer import check_dataset, read_label_png
+    from physar.recon.importer import check_dataset
+    from physar.recon.masks import read_label_png
     from physar.recon.train import load_dataset
 
     def chunk(t, d):
