@@ -103,7 +103,9 @@ def _cloud_colours(path: Path, n_points: int) -> np.ndarray | None:
     opaque = alpha is not None and (alpha == (np.iinfo(alpha.dtype).max if alpha.dtype.kind in "iu" else 1)).all()
     lost = [k for k in fields if k not in _CLOUD_COLOURS and not (k == "alpha" and opaque)]
     if lost:
-        warnings.warn(f"{path}: the point properties {', '.join(lost)} are not carried to the output (a point "
+        what = "property" if len(lost) == 1 else "properties"
+        warnings.warn(f"{path}: the point {what} {', '.join(lost)} {'is' if len(lost) == 1 else 'are'} not carried "
+                      "to the output (a point "
                       "cloud keeps x, y, z and its colours red, green, blue)", PhysarWarning, stacklevel=2)
     return rgb
 

@@ -104,7 +104,9 @@ def fit_cmd(
 @user_errors
 def predict_cmd(
     run_dir: Path = typer.Argument(..., help="RUN_DIR written by `physar recon fit`"),  # noqa: B008 - typer idiom
-    poses: Path = typer.Option(..., "--poses", "-p", help="npz with rotations (F, B, 3, 3) and root_translation (F, 3)"),  # noqa: B008 - typer idiom
+    poses: Path = typer.Option(..., "--poses", "-p", help="npz with rotations (F, B, 3, 3) and root_translation (F, 3), "  # noqa: B008 - typer idiom
+                               "or SMPL/SMPL-X/AMASS parameters (.npz or .json, as recon import reads) in the "
+                               "imported clip's camera coordinates"),
     out: Path = typer.Option(..., "--out", "-o", help="output MP4"),  # noqa: B008 - typer idiom
     method: str = typer.Option("physics", "--method", help="physics | lbs | 4dgs | spflow"),
     frames_npz: Path | None = typer.Option(None, "--frames", help="also save rgb/alpha arrays (npz)"),  # noqa: B008 - typer idiom
@@ -127,7 +129,16 @@ def predict_cmd(
     if mp4_encoder() is None:
         raise PhysarError(f"{out}: PyAV offers no MP4 encoder (libx264 or mpeg4); install a PyAV wheel with one")
     rec = Reconstruction.load(run_dir)
-    p = _npz(poses)
+    from physar.recon.importer import is_smpl_file, retarget_to_scene
+
+    if poses.is_file() and is_smpl_file(poses):
+        if "import" not in rec.rig.meta:
+            raise ConfigError(f"{poses}: SMPL parameters need a model fitted on a `recon import` DATA_DIR (its "
+                              "camera); this one was not: give rotations and root_translation")
+        rot, root = retarget_to_scene(poses, rec.rig.meta, rec.rig.body)
+        p = {"rotations": rot, "root_translation": root}
+    else:
+        p = _npz(poses)
     if "rotations" not in p:
         raise ConfigError(f"{poses}: missing array 'rotations' (F, B, 3, 3)")
     for name in ("rotations", "root_translation"):
@@ -149,7 +160,7 @@ def predict_cmd(
     if not write_mp4(out, (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8), rec.rig.meta["fps"]):
         raise PhysarError(f"{out}: no frame to write")
     if frames_npz is not None:
-        write_npz(frames_npz, rgb=rgb, alpha=alpha)
+        write_npz(frames_npz, rgb=np.clip(rgb, 0, 1), alpha=alpha)
     log(f"{len(rgb)} frames -> {out}" + (f", {frames_npz}" if frames_npz is not None else ""))
 
 
@@ -208,7 +219,9 @@ def import_cmd(
     poses: Path = typer.Option(..., "--poses", help="SMPL/SMPL-X parameters (.npz without pickles, or .json): "  # noqa: B008
                                "global_orient, body_pose (axis-angle), betas, transl, camera coordinates"),
     object_mesh: Path | None = typer.Option(None, "--object-mesh", help="closed surface mesh of the object "  # noqa: B008
-                                            "(metres, camera coordinates)"),
+                                            "(camera coordinates, in --mesh-units)"),
+    mesh_units: str = typer.Option("m", "--mesh-units", help="length unit of --object-mesh: m, cm or mm (scans are "
+                                   "often in mm)"),
     spin_cameras: Path | None = typer.Option(None, "--spin-cameras", help="instead of --object-mesh: camera poses "  # noqa: B008
                                              "of the spin frames (R (S, 3, 3), t (S, 3); .npz or .json) for a "
                                              "visual hull of the object"),
@@ -239,8 +252,8 @@ def import_cmd(
     grid_resolution: int = typer.Option(16, "--grid-resolution", help="MPM cells per side (also the voxel size)"),
     density: float = typer.Option(200.0, "--density", help="object density \\[kg/m^3]"),
     nu: float = typer.Option(0.3, "--nu", help="object Poisson ratio"),
-    floor: str = typer.Option("sticky", "--floor", help="the support under the object: sticky (it stays put) or "
-                              "separate (it can be lifted off)"),
+    floor: str = typer.Option("sticky", "--floor", help="the support under the object: sticky (it stays put), "
+                              "slip (it slides without friction, never lifted) or separate (it can be lifted off)"),
     json_out: bool = typer.Option(False, "--json", help="print a summary as JSON"),
 ) -> None:
     """Import a video of a person acting on a soft object (label masks or per-object binary masks, SMPL poses, a
@@ -275,8 +288,8 @@ def import_cmd(
     for t, o in ((person_labels, "--person-labels"), (object_labels, "--object-labels"), (ignore_labels, "--ignore-labels")):
         if t and any(v != int(v) or v < 0 for v in _floats(t, None, o)):
             raise ConfigError(f"{o} must be non-negative integers, got {t!r}")
-    if floor not in ("sticky", "separate"):
-        raise ConfigError(f"--floor must be sticky or separate, got {floor!r}")
+    if floor not in ("sticky", "slip", "separate"):
+        raise ConfigError(f"--floor must be sticky, slip or separate, got {floor!r}")
     intr = None
     if camera is not None:
         from physar.vision.camera import Camera
@@ -294,7 +307,8 @@ def import_cmd(
                          ignore_labels=labels(ignore_labels, "--ignore-labels"), up=_floats(up, 3, "--up"),
                          height=height, body=body, pelvis_offset=_floats(pelvis_offset, 3, "--pelvis-offset"),
                          background=_floats(background, 3, "--background"), domain_size=domain_size,
-                         grid_resolution=grid_resolution, density=density, nu=nu, floor=floor)
+                         grid_resolution=grid_resolution, density=density, nu=nu, floor=floor,
+                         mesh_units=mesh_units)
     summary = import_video(video, out, masks=masks, person_masks=person_masks, object_masks=object_masks,
                            poses=poses, intrinsics=intr, focal_px=focal_px,
                            focal_35mm=focal_35mm, object_mesh=object_mesh, spin_cameras=spin_cameras, opts=opts)
@@ -309,13 +323,15 @@ def import_cmd(
 def check_cmd(
     data_dir: Path = typer.Argument(..., help="DATA_DIR to check"),  # noqa: B008 - typer idiom
     max_jump_deg: float = typer.Option(30.0, "--max-jump-deg", help="pose jitter: largest joint turn per frame"),
+    max_root_speed: float = typer.Option(5.0, "--max-root-speed", help="pose jitter: largest speed of the body's "
+                                         "root \[m/s]"),
     json_out: bool = typer.Option(False, "--json", help="print the findings as JSON"),
 ) -> None:
     """Report what is missing or inconsistent in a DATA_DIR (frame counts, mask coverage, pose jitter, camera vs
     image size); exit 2 with one line per problem."""
     from physar.recon.importer import check_dataset
 
-    info = check_dataset(data_dir, max_jump_deg=max_jump_deg)
+    info = check_dataset(data_dir, max_jump_deg=max_jump_deg, max_root_speed=max_root_speed)
     if json_out:
         print_json(info)
     else:

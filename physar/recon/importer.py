@@ -21,9 +21,10 @@ Inputs and conventions:
     of the person and of the object (default 1 and 2); ``ignore_labels`` are treated as background; any other
     value is refused, and so are label sets that share a value or use 0.
   - *per-object binary PNGs* (``person_masks``, ``object_masks``: two folders, as SAM / SAM 2 /
-    Track-Anything save one mask per object; the same number of files, paired in frame order): grey, palette or
-    RGB (the largest colour channel), foreground :math:`v \ge s/2` with :math:`s` = 1 for a 0/1 file (its
-    largest value 1), else 255 (8-bit) or 65535 (16-bit): anti-aliased or lossy edges are cut at half
+    Track-Anything save one mask per object; the same number of files, paired in frame order; not the same
+    folder twice): grey, palette (by the palette's colours) or RGB (the largest colour channel; with alpha, the
+    smaller of that and the alpha), foreground :math:`v \ge s/2` with :math:`s` = 1 for a folder of 0/1 files
+    (its largest value 1), else 255 (8-bit) or 65535 (16-bit): anti-aliased or lossy edges are cut at half
     intensity. :math:`P` = the person's foreground, :math:`O` = the object's.
 
   The DATA_DIR mask is the foreground :math:`M = [\ell \in P \cup O]` (binary: :math:`P \cup O`), resized by
@@ -55,7 +56,9 @@ Inputs and conventions:
   (F, 21 | 23, 3) or matrices (F, 21 | 23, 3, 3), ``transl`` (F, 3) m, ``betas`` (checked, not used: the body's
   size is ``height``); AMASS-style ``poses`` (F, >= 66: SMPL 72, SMPL+H 156, SMPL-X 165 values, the root's
   first) and ``trans``, or AMASS stage-ii ``root_orient``, ``pose_body`` and ``trans``, are accepted too; a
-  ``body_pose`` of more than 23 joints (a whole pose, root first, would shift every joint) is refused. The body is in camera
+  ``body_pose`` of more than 23 joints (a whole pose, root first, would shift every joint) is refused. One pose
+  per video frame, or AMASS's ``mocap_framerate``: the pose nearest in time to each frame (both start together).
+  The body is in camera
   coordinates: a point of SMPL's canonical frame (y up, facing +z, x = the body's left) is posed as
   :math:`G_0 (x - J_0) + J_0 + \text{transl}`; :math:`J_0` (the pelvis joint of the template for the user's
   betas) is ``pelvis_offset`` (default 0: ``transl`` is the pelvis position).
@@ -88,8 +91,9 @@ Inputs and conventions:
   capsule figure rests in SMPL's T-pose (exact for its 12 bones: intermediate SMPL joints (spine1-2, neck,
   collars) enter through the composed global rotations; wrists, hands, feet and the face are dropped);
   ``smpl:PATH`` is exact.
-* **Object**: either a closed surface mesh (any format trimesh or meshio reads), vertices in metres in camera
-  coordinates (a scan registered to the camera; one larger than 5 m is refused as another unit, one with holes
+* **Object**: either a closed surface mesh (any format trimesh or meshio reads), vertices in metres (or
+  ``mesh_units`` ``cm`` / ``mm``) in camera coordinates (a scan registered to the camera; one larger than 5 m is
+  refused as another unit, one with holes
   imported with a warning), voxelised by the generalised winding number (inside: :math:`w > 1/2`); or the
   visual hull carved from the spin clip's object masks (:func:`carve_hull`), which needs the camera pose of
   every spin frame (``spin_cameras``: ``R`` (S, 3, 3), ``t`` (S, 3), :math:`p_i = R_i p_C + t_i` from the
@@ -389,6 +393,10 @@ def _load_pose_file(path: Path, what: str = "pose file") -> dict:
         if isinstance(raw, list):  # one table per frame
             if not raw or not all(isinstance(r, dict) for r in raw):
                 raise ConfigError(f"{path}: a JSON list must hold one table per frame")
+            for f, r in enumerate(raw):
+                lack = [k for k in raw[0] if k not in r]
+                if lack:
+                    raise ConfigError(f"{path}: frame {f} lacks field '{lack[0]}' (the first frame has it)")
             raw = {k: [r.get(k) for r in raw] for k in raw[0]}
         if not isinstance(raw, dict):
             raise ConfigError(f"{path}: the JSON must be a table of arrays or a list of per-frame tables")
@@ -455,7 +463,8 @@ def _rotations(a: np.ndarray, n_joints: int | None, path: Path, field: str) -> n
 
 def load_smpl(path: str | Path) -> dict:
     """SMPL / SMPL-X parameters of a pose file (module docstring): "rotations" (F, 24, 3, 3) local joint
-    rotations (joints past SMPL-X's 21 body joints set to identity) and "transl" (F, 3)."""
+    rotations (SMPL's hand joints 22, 23 set to identity unless the file holds SMPL's 23 body joints) and
+    "transl" (F, 3)."""
     path = Path(path)
     d = _load_pose_file(path)
     full = False   # body_pose cut from a full pose vector: its hand / face joints follow the body joints
@@ -468,6 +477,13 @@ def load_smpl(path: str | Path) -> dict:
         d["global_orient"], d["body_pose"], full = p[:, :3], p[:, 3:], True
     if "transl" not in d and "trans" in d:
         d["transl"] = d["trans"]
+    fps = None
+    for k in ("mocap_framerate", "mocap_frame_rate"):  # AMASS: the sequence's own rate
+        if k in d:
+            v = np.asarray(d[k])
+            if v.size != 1 or v.dtype.kind not in "fiu" or not (np.isfinite(v.ravel()[0]) and v.ravel()[0] > 0):
+                raise ConfigError(f"{path}: field '{k}' must be one positive frame rate, got {v.ravel()[:3].tolist()}")
+            fps = float(v.ravel()[0])
     for k in ("global_orient", "body_pose", "transl"):
         if k not in d:
             raise ConfigError(f"{path}: missing field '{k}' (SMPL parameters: global_orient, body_pose, betas, transl)")
@@ -492,10 +508,12 @@ def load_smpl(path: str | Path) -> dict:
     R = np.tile(np.eye(3), (F, len(SMPL_JOINTS), 1, 1))
     R[:, :1] = g
     nb = min(b.shape[1], len(SMPL_JOINTS) - 1)
+    if full and b.shape[1] != len(SMPL_JOINTS) - 1:  # SMPL+H / SMPL-X vectors: fingers, jaw, eyes after joint 21,
+        nb = min(nb, 21)                            # not SMPL's hands (22, 23): those stay identity
     R[:, 1:1 + nb] = b[:, :nb]
-    if nb < len(SMPL_JOINTS) - 1 and b.shape[1] != 21:  # SMPL-X has 21 body joints; hands are not used
+    if not full and b.shape[1] not in (21, len(SMPL_JOINTS) - 1):  # SMPL-X has 21 body joints; SMPL 23
         raise ConfigError(f"{path}: field 'body_pose' has {b.shape[1]} joints (SMPL: 23, SMPL-X: 21)")
-    return {"rotations": R, "transl": t}
+    return {"rotations": R, "transl": t, "fps": fps}
 
 
 def smpl_global_rotations(local: np.ndarray) -> np.ndarray:
@@ -551,6 +569,35 @@ def retarget(smpl: dict, body, R: np.ndarray, t: np.ndarray, pelvis_offset=(0.0,
     pelvis_c = smpl["transl"] + np.asarray(pelvis_offset, dtype=np.float64)
     root_t = (pelvis_c - t) @ R - heads[iroot]  # R^T (p - t) - h, row-wise
     return {"rotations": L, "root_translation": root_t}
+
+
+#: keys that make a pose file SMPL parameters (:func:`load_smpl`) rather than a recon pose sequence
+SMPL_KEYS = ("global_orient", "poses", "root_orient")
+
+
+def is_smpl_file(path: str | Path) -> bool:
+    """Whether ``path`` holds SMPL / SMPL-X / AMASS parameters (a JSON file, or an npz with one of
+    :data:`SMPL_KEYS`) rather than recon poses (``rotations``, ``root_translation``)."""
+    path = Path(path)
+    if path.suffix.lower() == ".json":
+        return True
+    try:
+        with np.load(path, allow_pickle=False) as d:
+            return isinstance(d, np.lib.npyio.NpzFile) and any(k in d.files for k in SMPL_KEYS)
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error, AttributeError, TypeError):
+        return False
+
+
+def retarget_to_scene(path: str | Path, meta: dict, body) -> tuple[np.ndarray, np.ndarray]:
+    """SMPL parameters of ``path`` (camera coordinates of the imported clip's camera, :func:`load_smpl`)
+    retargeted onto ``body`` in the world of an imported scene ``meta`` (its camera's (R, t) and the import's
+    ``pelvis_offset``), as :func:`import_video` does for the clip: (rotations (F, B, 3, 3), root translations
+    (F, 3)) for ``physar recon predict``."""
+    smpl = load_smpl(path)
+    c = meta["camera"]
+    R, t = np.asarray(c["R"], dtype=np.float64), np.asarray(c["t"], dtype=np.float64)
+    pose = retarget(smpl, body, R, t, meta.get("import", {}).get("pelvis_offset", (0.0, 0.0, 0.0)))
+    return pose["rotations"], pose["root_translation"]
 
 
 def import_body(spec: str, height: float):
@@ -724,6 +771,7 @@ class ImportOptions:
     density: float = 200.0
     nu: float = 0.3
     floor: str = "sticky"
+    mesh_units: str = "m"
     body_E: float = 1.0e4
     body_density: float = 1000.0
 
@@ -754,11 +802,14 @@ def _check_options(o: ImportOptions) -> None:
         raise ConfigError(f"--domain-size must be a positive length [m], got {o.domain_size}")
     if len(o.pelvis_offset) != 3 or not all(math.isfinite(x) for x in o.pelvis_offset):
         raise ConfigError(f"--pelvis-offset must be 3 finite numbers [m], got {list(o.pelvis_offset)}")
+    if o.mesh_units not in MESH_UNITS:
+        raise ConfigError(f"--mesh-units {o.mesh_units!r}: use {', '.join(MESH_UNITS)}")
     if len(o.background) != 3 or not all(math.isfinite(x) and 0 <= x <= 1 for x in o.background):
         raise ConfigError(f"--background must be 3 numbers in [0, 1] (RGB), got {list(o.background)}")
 
 
 MAX_OBJECT_EXTENT = 5.0  # m: an object a person squeezes or lifts; larger is a mesh in other units
+MESH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}  # --mesh-units: the object mesh's length unit, in metres
 
 
 def _load_cameras(path: str | Path, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -780,6 +831,17 @@ def _load_cameras(path: str | Path, n: int) -> tuple[np.ndarray, np.ndarray]:
         raise ConfigError(f"{path}: field 'R' [{int(bad[0])}] is not a rotation matrix (|R^T R - I| = "
                           f"{err[bad[0]]:.3g}, det {det[bad[0]]:.3g})")
     return Rs, np.asarray(d["t"], dtype=np.float64)
+
+
+def mocap_indices(mocap_fps: float, n: int, src_fps: float, idx: np.ndarray, where, video) -> np.ndarray:
+    r"""The pose of a mocap sequence (``n`` poses at ``mocap_fps``, starting with the video) nearest in time to each
+    kept video frame :math:`k` (time :math:`k / f_{src}`): :math:`j = \mathrm{round}(k f_{mocap} / f_{src})`;
+    one ConfigError line when the sequence ends before the video."""
+    j = np.round(np.asarray(idx, dtype=np.float64) * mocap_fps / src_fps).astype(np.int64)
+    if j.max() >= n:
+        raise ConfigError(f"{where}: {n} poses at {mocap_fps:g} fps (mocap_framerate) cover {n / mocap_fps:.2f} s, "
+                          f"the video {video} {(idx.max() + 1) / src_fps:.2f} s: the poses must span the clip")
+    return j
 
 
 def _count_match(n: int, n_src: int, idx: np.ndarray, what: str, where, video, files=None) -> np.ndarray:
@@ -894,7 +956,11 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path | 
         mfiles, mdict = read_binary_masks(person_masks, object_masks, keep, prepare_mask)
     midx = _count_match(len(mfiles), n_src, idx, "mask PNGs", masks if masks is not None else person_masks, video,
                         mfiles)
-    pidx = _count_match(len(smpl["transl"]), n_src, idx, "poses", poses, video)
+    n_pose = len(smpl["transl"])
+    if n_pose not in (n_src, len(idx)) and smpl.get("fps"):  # a mocap sequence at its own rate (AMASS)
+        pidx = mocap_indices(smpl["fps"], n_pose, src_fps, idx, poses, video)
+    else:
+        pidx = _count_match(n_pose, n_src, idx, "poses", poses, video)
     n_out = len(idx)
     if o.fps is not None and n_out < n_src and n_out < 3 + max(o.spin_frames, 0):
         raise ConfigError(f"--fps {o.fps:g}: keeps {n_out} of the {n_src} frames of {video} ({src_fps:g} fps); the "
@@ -910,6 +976,7 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path | 
     R = world_rotation(o.up)
     if spin_cams is None:
         V, T = read_mesh(object_mesh)
+        V = V * MESH_UNITS[o.mesh_units]  # camera coordinates in the mesh's unit: positions and sizes scale alike
         holes = open_edges(V, T)
         if holes:
             warnings.warn(f"{object_mesh}: the mesh is not closed ({holes} edges border one face only): its inside "
@@ -919,12 +986,13 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path | 
         lo, hi = Vw.min(0), Vw.max(0)
         ext = hi - lo
         if not np.all(np.isfinite(ext)) or ext.max() > MAX_OBJECT_EXTENT:
-            raise ConfigError(f"{object_mesh}: the mesh spans {np.round(ext, 3).tolist()} (read as metres), more than "
-                              f"{MAX_OBJECT_EXTENT:g} m: is it in millimetres or centimetres? scale it to metres")
+            unit = {"m": "metres", "cm": "centimetres", "mm": "millimetres"}[o.mesh_units]
+            raise ConfigError(f"{object_mesh}: the mesh spans {np.round(ext, 3).tolist()} m (read in {unit}), more "
+                              f"than {MAX_OBJECT_EXTENT:g} m: is it in other units? give --mesh-units mm or cm")
         size = float(o.domain_size) if o.domain_size is not None else float(2 * ext.max())
         if not (size > 1.05 * ext[:2].max() and size > 1.05 * ext[2]):
-            raise ConfigError(f"--domain-size {size} m must exceed the object's extent {np.round(ext, 3).tolist()} m "
-                              f"(mesh {object_mesh})")
+            raise ConfigError(f"--domain-size {size:g} m: give at least {1.05 * ext.max():.3g} m (1.05 x the "
+                              f"object's extent {np.round(ext, 3).tolist()} m, mesh {object_mesh})")
         cell = size / o.grid_resolution
         boxes = voxel_boxes(Vw, T, cell, lo)
         if not boxes:
@@ -942,7 +1010,8 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path | 
     hi = np.max([b[1] for b in boxes], axis=0)
     ext = hi - lo
     if not (math.isfinite(size) and size > 1.05 * ext[:2].max() and size > 1.05 * ext[2]):
-        raise ConfigError(f"--domain-size {size} m must exceed the object's extent {np.round(ext, 3).tolist()} m")
+        raise ConfigError(f"--domain-size {size:g} m: give at least {1.05 * ext.max():.3g} m (1.05 x the object's "
+                          f"extent {np.round(ext, 3).tolist()} m)")
     org = np.array([0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), lo[2]])
     t = R @ org  # p_C = R (p_W + org) = R p_W + t
     boxes = [(a - org, b - org) for a, b in boxes]
@@ -971,7 +1040,7 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path | 
                    "object_masks": None if object_masks is None else str(object_masks), "poses": str(poses),
                    "object_mesh": None if object_mesh is None else str(object_mesh),
                    "spin_cameras": None if spin_cameras is None else str(spin_cameras), "up_camera": [float(v) for v in o.up],
-                   "spin_frames": int(o.spin_frames)},
+                   "spin_frames": int(o.spin_frames), "pelvis_offset": [float(v) for v in o.pelvis_offset]},
     }
     # ---- images: the background outside the masks set to the renderer's constant colour
     bg = (np.clip(np.asarray(o.background, dtype=np.float64), 0, 1) * 255 + 0.5).astype(np.uint8)
@@ -1001,20 +1070,23 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path | 
 
 # ----------------------------------------------------------------------------------------------- check
 def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage: float = 0.001,
-                  max_coverage: float = 0.99) -> dict:
+                  max_coverage: float = 0.99, max_root_speed: float = 5.0) -> dict:
     r"""Problems of a DATA_DIR, one line each (empty list: fine), and what was found: missing files; frame counts of
     rgb/, mask/ and the poses of each clip; per-frame mask coverage outside [``min_coverage``, ``max_coverage``];
     pose jitter (a bone's local rotation turning by more than ``max_jump_deg`` between frames:
-    :math:`\arccos((\operatorname{tr}(L_{f}^\top L_{f+1}) - 1)/2)`); camera intrinsics against the image size
+    :math:`\arccos((\operatorname{tr}(L_{f}^\top L_{f+1}) - 1)/2)`, or the body's root moving faster than
+    ``max_root_speed`` m/s: :math:`\|t_{f+1} - t_f\| \cdot` fps); camera intrinsics against the image size
     (size equal, principal point inside, :math:`0.1 W < f_x < 20 W`); whether a bone reaches the object."""
     root = Path(data_dir)
     if not (math.isfinite(max_jump_deg) and 0 < max_jump_deg <= 180):
         raise ConfigError(f"--max-jump-deg must be in (0, 180] degrees, got {max_jump_deg}")
+    if not (math.isfinite(max_root_speed) and max_root_speed > 0):
+        raise ConfigError(f"--max-root-speed must be a positive speed [m/s], got {max_root_speed}")
     problems: list[str] = []
     info: dict = {"data_dir": str(root), "clips": {}}
     sj = root / "scene.json"
     if not root.is_dir():
-        return {**info, "problems": [f"{root}: not a folder"]}
+        return {**info, "problems": [f"{root}: {'not a folder' if root.exists() else 'DATA_DIR not found'}"]}
     if not sj.is_file():
         return {**info, "problems": [f"{sj}: missing (not a recon DATA_DIR)"]}
     try:
@@ -1098,6 +1170,14 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
             for f, b in zip(*np.nonzero(ang > max_jump_deg)):
                 problems.append(f"{pfile}: pose jitter: bone {body.skeleton.names[b]} turns {ang[f, b]:.1f} deg "
                                 f"between frames {f} and {f + 1} (above {max_jump_deg:g})")
+            step = np.linalg.norm(np.diff(rt, axis=0), axis=1)
+            fps = meta.get("fps")
+            if isinstance(fps, (int, float)) and fps > 0:
+                c["max_root_speed_m_s"] = float(step.max() * fps)
+                for f in np.flatnonzero(step * fps > max_root_speed):
+                    problems.append(f"{pfile}: pose jitter: the body's root moves {100 * step[f]:.1f} cm between "
+                                    f"frames {f} and {f + 1} ({step[f] * fps:.1f} m/s at {fps:g} fps, above "
+                                    f"{max_root_speed:g})")
     for wh, files in off.items():
         problems.append(f"{sj}: camera.width/height {cam.get('width')}x{cam.get('height')} px, but {len(files)} "
                         f"images are {wh} px (first: {files[0]})")
@@ -1130,7 +1210,7 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
                                 "(poses, camera or object placement wrong?)")
             elif reach:  # the bones `recon fit` simulates: those whose particles stay in the MPM domain
                 bones, leaving = S.simulated_bones(body, meta, rot, rt, dx, dx)
-                info["simulated_bones"], info["kinematic_bones"] = bones, sorted(leaving)
+                info["simulated_bones"], info["kinematic_bones"] = bones, list(leaving)
                 if not bones:
                     problems.append(f"{sj}: " + S.domain_problem(body, meta, leaving, rot, rt, dx))
         except (ConfigError, KeyError, TypeError, ValueError) as e:

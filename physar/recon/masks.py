@@ -72,27 +72,42 @@ def read_label_png(path: Path) -> np.ndarray:
         raise ConfigError(f"{path}: not a readable PNG") from None
 
 
-def read_binary_png(path: Path) -> np.ndarray:
-    r"""Foreground (H, W) bool of a binary mask PNG: :math:`v \ge s/2` with :math:`v` the grey value (palette
-    index; for colour PNGs the largest colour channel, alpha ignored) and :math:`s` = 1 when the file's largest
-    value is 1 (0/1 masks), else 255 (8-bit), else 65535 (16-bit): anti-aliased or lossy-compressed edges are
-    cut at half intensity, and an empty mask (all 0) is background."""
+def binary_values(path: Path) -> np.ndarray:
+    r"""Intensity (H, W) int64 of a binary mask PNG: the grey value; for palette PNGs the colour of each index
+    (its largest channel: a palette may put white at index 0); for colour PNGs the largest colour channel; with
+    an alpha channel, the smaller of that and the alpha (a cut-out: white everywhere, the mask in alpha)."""
     from PIL import Image, UnidentifiedImageError
 
     try:
         with Image.open(path) as im:
-            if im.mode in ("1", "L", "P", "I", "I;16"):
-                v = np.asarray(im).astype(np.int64)
-            elif im.mode in ("LA", "RGB", "RGBA"):
+            if im.mode in ("1", "L", "I", "I;16"):
+                return np.asarray(im).astype(np.int64)
+            if im.mode == "P":
+                im = im.convert("RGBA" if "transparency" in im.info else "RGB")
+            if im.mode in ("LA", "RGB", "RGBA", "PA"):
                 a = np.asarray(im).astype(np.int64)
-                v = a[..., : 1 if im.mode == "LA" else 3].max(-1)
-            else:
-                raise ConfigError(f"{path}: mask mode {im.mode} is not a binary mask (give grey, palette or RGB PNGs, "
-                                  "0 = background)")
+                c = 1 if im.mode in ("LA", "PA") else 3
+                v = a[..., :c].max(-1)
+                return np.minimum(v, a[..., c]) if a.shape[-1] > c else v
+            raise ConfigError(f"{path}: mask mode {im.mode} is not a binary mask (give grey, palette or RGB PNGs, "
+                              "0 = background)")
     except (UnidentifiedImageError, OSError, Image.DecompressionBombError):
         raise ConfigError(f"{path}: not a readable PNG") from None
-    top = int(v.max()) if v.size else 0
-    scale = 1 if top <= 1 else 255 if top <= 255 else 65535
+
+
+def binary_scale(top: int) -> int:
+    """Full intensity of binary masks whose largest value is ``top``: 1 (0/1 masks), 255 (8-bit) or 65535."""
+    return 1 if top <= 1 else 255 if top <= 255 else 65535
+
+
+def read_binary_png(path: Path, scale: int | None = None) -> np.ndarray:
+    r"""Foreground (H, W) bool of a binary mask PNG: :math:`v \ge s/2` with :math:`v` its intensity
+    (:func:`binary_values`) and :math:`s` the full intensity (``scale``; default :func:`binary_scale` of the
+    file's own largest value, :func:`read_binary_masks` takes one for the whole folder): anti-aliased or
+    lossy-compressed edges are cut at half intensity, and an empty mask (all 0) is background."""
+    v = binary_values(path)
+    if scale is None:
+        scale = binary_scale(int(v.max()) if v.size else 0)
     return 2 * v >= scale
 
 
@@ -125,9 +140,11 @@ def read_masks(folder: str | Path, person_labels, object_labels, ignore_labels=(
         seen.update(int(v) for v in vals)
         bad = [int(v) for v in vals if int(v) not in known]
         if bad:
+            hint = (": binary masks (one object per file)? give --person-masks DIR and --object-masks DIR"
+                    if 255 in bad or 65535 in bad else "")
             raise ConfigError(f"{p}: label value {bad[0]} is neither background (0), person "
                               f"{sorted(person_labels)} nor object {sorted(object_labels)} (set --person-labels, "
-                              "--object-labels or --ignore-labels)")
+                              f"--object-labels or --ignore-labels){hint}")
         if keep is None or keep(i, len(files)):
             m = np.isin(lab, sorted(fg_labels)).astype(np.float32)
             mo = np.isin(lab, sorted(object_labels)).astype(np.float32)
@@ -146,12 +163,19 @@ def read_binary_masks(person_folder: str | Path, object_folder: str | Path, keep
     the object, one PNG per frame each (:func:`read_binary_png`), paired in frame order
     (:func:`physar.media.frame_order`). Returns the person folder's files and, for the files whose index
     ``keep(i, n)`` accepts, {i: (foreground :math:`P \cup O`, object :math:`O`)} as float32 (H, W) in {0, 1}
-    (through ``prepare`` when given), as :func:`read_masks` does. One error line for folders of different
+    (through ``prepare`` when given), as :func:`read_masks` does; one full intensity per folder
+    (:func:`binary_scale` of its largest value). One error line for the same folder twice, folders of different
     counts (naming the frame numbers one lacks), masks of one frame of different sizes, or a person or object
     empty in every frame."""
     folders = {"person": Path(person_folder), "object": Path(object_folder)}
+    if folders["person"].resolve() == folders["object"].resolve():
+        raise ConfigError(f"{folders['object']}: the same folder for the person's and the object's masks (give each "
+                          "its own)")
     files = {k: _png_files(f, f"{k} masks") for k, f in folders.items()}
     fp, fo = files["person"], files["object"]
+    # one full intensity per folder: a 0/255 series whose empty frame holds a few 1s (soft-mask rounding) is not
+    # a 0/1 mask there
+    scale = {k: binary_scale(max(int(binary_values(f).max(initial=0)) for f in fs)) for k, fs in files.items()}
     if len(fp) != len(fo):
         lack = _lacking(fp, fo)
         raise ConfigError(f"{folders['object']}: {len(fo)} object masks for {len(fp)} person masks "
@@ -159,7 +183,7 @@ def read_binary_masks(person_folder: str | Path, object_folder: str | Path, keep
     out = {}
     found = {"person": False, "object": False}
     for i, (p, q) in enumerate(zip(fp, fo)):
-        mp, mo = read_binary_png(p), read_binary_png(q)
+        mp, mo = read_binary_png(p, scale["person"]), read_binary_png(q, scale["object"])
         if mp.shape != mo.shape:
             raise ConfigError(f"{q}: object mask {mo.shape[1]}x{mo.shape[0]} px, but the person mask {p.name} of "
                               f"the same frame is {mp.shape[1]}x{mp.shape[0]} px")
@@ -248,5 +272,5 @@ def check_mask_inputs(masks, person_masks, object_masks) -> None:
             raise ConfigError(f"{folder}: {what} folder not found")
 
 
-__all__ = ["VOC_PALETTE", "check_mask_inputs", "frame_number", "missing_frames", "number_ranges", "palette_labels",
+__all__ = ["VOC_PALETTE", "binary_scale", "binary_values", "check_mask_inputs", "frame_number", "missing_frames", "number_ranges", "palette_labels",
            "read_binary_masks", "read_binary_png", "read_label_png", "read_masks", "voc_palette"]

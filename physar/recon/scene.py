@@ -280,9 +280,9 @@ def domain_problem(body: Body, meta: dict, leaving: dict[str, int], rotations: n
     hint = (f"import with --domain-size {math.ceil(need * 105) / 100:g} or more" if math.isfinite(need)
             else "they go below the floor: check the up vector")
     o = np.round(np.asarray(sim["origin"], dtype=np.float64), 3).tolist()
-    return (f"the bones reaching the object ({', '.join(leaving)}) leave the MPM domain (a {sim['size']:g} m cube "
-            f"at {o}) from frame(s) {', '.join(map(str, leaving.values()))} of the dynamic clip, so no bone can be "
-            f"simulated: {hint}, or cut the clip to the interaction")
+    when = ", ".join(f"{b} from frame {f}" for b, f in leaving.items())
+    return (f"the bones reaching the object leave the MPM domain, a {sim['size']:g} m cube at {o} ({when} of the "
+            f"dynamic clip), so no bone can be simulated: {hint}, or cut the clip to the interaction")
 
 
 def central_velocities(x: np.ndarray, dt: float) -> np.ndarray:

@@ -57,16 +57,28 @@ def save_mask(path: Path, truth: np.ndarray, kind: str, rng) -> None:
         Image.fromarray(soft(truth, rng, 65535)).save(path)
     elif kind == "rgb":
         Image.fromarray(np.repeat(soft(truth, rng)[..., None], 3, -1), mode="RGB").save(path)
+    elif kind == "palette_white0":   # PIL's adaptive 2-colour palette puts white at index 0 (by frequency)
+        q = Image.fromarray(np.where(truth, 0, 1).astype(np.uint8), mode="P")
+        q.putpalette([255, 255, 255, 0, 0, 0] + [0] * 762)
+        q.save(path)
+    elif kind == "rgba_cutout":       # white everywhere, the mask in alpha (a cut-out)
+        a = np.full(truth.shape + (4,), 255, np.uint8)
+        a[..., 3] = soft(truth, rng)
+        Image.fromarray(a, mode="RGBA").save(path)
     else:
         im = Image.fromarray(truth.astype(np.uint8), mode="P")
         im.putpalette([0, 0, 0, 255, 255, 255] + [0] * 762)
         im.save(path)
 
 
-def test_binary_folders_give_the_thresholded_truth(tmp_path):
+@pytest.mark.parametrize("kind", ["grey", "01", "16bit", "rgb", "palette", "palette_white0", "rgba_cutout"])
+def test_binary_folders_give_the_thresholded_truth(tmp_path, kind):
     # 12 frames named 1.png .. 12.png (unpadded); frame i: a person disc at column 8 + 2i, an object bar i + 3 px
-    # wide, overlapping the disc; five binary formats in turn. Mutants caught: foreground at > 0 (the halo and
-    # the noise enter), the person and object folders swapped, names sorted as text (frames 10-12 read as 2-4)
+    # wide, overlapping the disc (none in frame 12: an empty mask; in 0/255 folders it holds three 1s, soft-mask
+    # rounding); one binary format per folder. Mutants caught: foreground at > 0 (the halo and the noise enter),
+    # the person and object folders swapped, names sorted as text (frames 10-12 read as 2-4), a palette read by
+    # index (white at index 0: inverted), the alpha of a cut-out ignored (all foreground), the full intensity
+    # decided per file (the three 1s of the empty frame read as a 0/1 mask's foreground)
     rng = np.random.default_rng(0)
     H, W = 24, 40
     yy, xx = np.mgrid[:H, :W]
@@ -76,10 +88,15 @@ def test_binary_folders_give_the_thresholded_truth(tmp_path):
     for i in range(12):
         p = (yy - 8) ** 2 + (xx - 8 - 2 * i) ** 2 <= 25
         o = np.zeros((H, W), bool)
-        o[12:20, 10 : 13 + i] = True
-        kind = ("grey", "01", "16bit", "rgb", "palette")[i % 5]
+        if i < 11:
+            o[12:20, 10 : 13 + i] = True
         save_mask(tmp_path / "person" / f"{i + 1}.png", p, kind, rng)
-        save_mask(tmp_path / "object" / f"{i + 1}.png", o, kind, rng)
+        if i == 11 and kind == "grey":
+            stray = np.zeros((H, W), np.uint8)
+            stray[[3, 9, 15], [4, 20, 33]] = 1
+            Image.fromarray(stray, mode="L").save(tmp_path / "object" / f"{i + 1}.png")
+        else:
+            save_mask(tmp_path / "object" / f"{i + 1}.png", o, kind, rng)
         truth.append((p | o, o))
     files, masks = M.read_binary_masks(tmp_path / "person", tmp_path / "object")
     assert [f.name for f in files] == [f"{i + 1}.png" for i in range(12)]
@@ -336,3 +353,18 @@ def test_visual_hull_from_binary_object_masks(user, tmp_path):  # noqa: F811
     true = float(np.prod(hi - lo))
     assert covered.mean() >= 0.97, covered.mean()
     assert 1.0 * true <= vol <= 1.6 * true, (vol, true)
+
+
+def test_same_folder_twice_and_binary_masks_as_labels(tmp_path):
+    # the person's folder given as the object's too: refused (it imported the whole person as the object);
+    # 0/255 binary masks given to --masks: the refusal points to --person-masks / --object-masks
+    t = np.zeros((8, 8), bool)
+    t[2:5, 2:5] = True
+    (tmp_path / "p").mkdir()
+    for i in range(3):
+        Image.fromarray(t.astype(np.uint8) * 255, mode="L").save(tmp_path / "p" / f"{i}.png")
+    with pytest.raises(ConfigError, match=r"the same folder for the person's and the object's masks"):
+        M.read_binary_masks(tmp_path / "p", tmp_path / "p" / ".." / "p")
+    with pytest.raises(ConfigError, match=r"0.png: label value 255 is neither .*: binary masks \(one object per "
+                                          r"file\)\? give --person-masks DIR and --object-masks DIR"):
+        M.read_masks(tmp_path / "p", [1], [2])

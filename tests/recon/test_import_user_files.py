@@ -72,3 +72,25 @@ def test_a_whole_pose_in_body_pose_is_refused(tmp_path):
     np.savez(tmp_path / "p.npz", global_orient=_aa(rng, 2, 1), body_pose=_aa(rng, 2, 24), transl=np.zeros((2, 3)))
     with pytest.raises(ConfigError, match=r"p\.npz: field 'body_pose' has 24 joints .*belongs in 'poses'"):
         load_smpl(tmp_path / "p.npz")
+
+
+@pytest.mark.parametrize("width", [72, 156, 165])
+def test_whole_pose_vectors_keep_smpl_hands_apart(tmp_path, width):
+    # SMPL (72): joints 22, 23 (the hands) from the vector; SMPL+H (156) / SMPL-X (165): the values after joint
+    # 21 are fingers / jaw / eyes, so SMPL's hands stay identity (they took the jaw and an eye, or two fingers)
+    rng = np.random.default_rng(5)
+    p = rng.uniform(-0.6, 0.6, (3, width))
+    np.savez(tmp_path / "p.npz", poses=p, trans=np.zeros((3, 3)))
+    R = load_smpl(tmp_path / "p.npz")["rotations"]
+    want = _matrices(p[:, 66:72])[:, :2] if width == 72 else np.tile(np.eye(3), (3, 2, 1, 1))
+    np.testing.assert_allclose(R[:, 22:24], want, atol=1e-9)
+
+
+def test_json_frame_missing_a_field_is_named(tmp_path):
+    import json
+
+    frames = [{"global_orient": [0, 0, 0], "body_pose": [0] * 69, "transl": [0, 0, 1]} for _ in range(3)]
+    del frames[1]["transl"]
+    (tmp_path / "p.json").write_text(json.dumps(frames))
+    with pytest.raises(ConfigError, match=r"p\.json: frame 1 lacks field 'transl'"):
+        load_smpl(tmp_path / "p.json")

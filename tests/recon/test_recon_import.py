@@ -209,10 +209,27 @@ def test_retarget_random_poses(tmp_path):
         assert np.abs(got - want).max() < 1e-9, name
 
 
-def test_object_from_the_mesh(user, imported):
+@pytest.mark.parametrize("units", ["m", "mm"])
+def test_object_from_the_mesh(user, imported, units, tmp_path):
     """The voxelised mesh, sampled as ``recon fit`` samples it, lies in the true box (the generator's, mapped
     through both cameras): >= 90 % of its particles inside, volume within one voxel layer of 0.24 x 0.20 x
-    0.12 m. A mesh read in the wrong frame (no camera -> world) or with swapped axes lands elsewhere."""
+    0.12 m. A mesh read in the wrong frame (no camera -> world) or with swapped axes lands elsewhere. The same
+    mesh written in millimetres and imported with --mesh-units mm gives that too; without the option it is
+    refused in one line that names it (240 m wide). Mutants: the unit ignored (refused), mm scaled as cm (the
+    object 10x too large: volume check)."""
+    if units == "mm":
+        import trimesh
+
+        m = trimesh.load(user["dir"] / "object.obj", force="mesh")
+        m.vertices = np.asarray(m.vertices) * 1000.0
+        m.export(tmp_path / "object_mm.obj")
+        args = list(user["args"])
+        args[args.index("--object-mesh") + 1] = tmp_path / "object_mm.obj"
+        r = cli(*args, "--out", tmp_path / "d0")
+        assert r.exit_code == 2 and "give --mesh-units mm or cm" in r.output, r.output
+        r = cli(*args, "--mesh-units", "mm", "--out", tmp_path / "d")
+        assert r.exit_code == 0, r.output
+        imported = tmp_path / "d"
     meta = json.loads((imported / "scene.json").read_text())
     c = meta["camera"]
     X, vol = object_points(meta, 0.015)
@@ -250,12 +267,23 @@ def test_check_passes_and_fit_predict_run(user, imported, tmp_path):
     bg = np.asarray(json.loads((imported / "scene.json").read_text())["background"])
     empty = 10 * np.log10(1 / np.mean((rgb[1] - bg) ** 2))
     assert rep["methods"]["physics"]["recon"]["psnr"] > empty + 3.0, (rep["methods"]["physics"]["recon"], empty)
-    r = cli("recon", "predict", tmp_path / "run", "--poses", imported / "poses.npz", "--out", tmp_path / "p.mp4")
+    r = cli("recon", "predict", tmp_path / "run", "--poses", imported / "poses.npz", "--out", tmp_path / "p.mp4",
+            "--frames", tmp_path / "p.npz")
     assert r.exit_code == 0, (r.output, r.exception)
     import av
 
     with av.open(str(tmp_path / "p.mp4")) as v:
         assert sum(1 for _ in v.decode(video=0)) == 3
+    # the user's SMPL file of those frames (the source frames the import kept) predicts the same frames: the
+    # parameters retargeted in the imported scene's world (mutant: the camera pose left out: the body elsewhere)
+    src = json.loads((imported / "scene.json").read_text())["import"]["source_indices"][2:]
+    with np.load(user["dir"] / "smpl.npz") as z:
+        np.savez(tmp_path / "smpl_dyn.npz", **{k: z[k][src] for k in z.files})
+    r = cli("recon", "predict", tmp_path / "run", "--poses", tmp_path / "smpl_dyn.npz", "--out", tmp_path / "q.mp4",
+            "--frames", tmp_path / "q.npz")
+    assert r.exit_code == 0, (r.output, r.exception)
+    with np.load(tmp_path / "p.npz") as a, np.load(tmp_path / "q.npz") as b:
+        assert a["rgb"].max() <= 1 and np.abs(a["rgb"] - b["rgb"]).max() < 1e-6 and a["rgb"].std() > 0.01
 
 
 def _copy(src: Path, dst: Path) -> Path:
@@ -286,9 +314,26 @@ def test_check_reports_problems(imported, tmp_path):
     assert any("spin/mask/0001.png: mask coverage 0.0000: empty" in ln for ln in lines), lines
     assert sum("pose jitter: bone forearm.R" in ln for ln in lines) == 2, lines  # into and out of frame 2
     # the turned forearm leaves the MPM domain in frame 2 (the upper arm does from frame 0 in this import)
-    assert any("bones reaching the object (upperarm.R, forearm.R) leave the MPM domain" in ln and
-               "from frame(s) 0, 2 of the dynamic clip" in ln for ln in lines), lines
+    assert any("bones reaching the object leave the MPM domain, a 0.48 m cube at [-0.24, -0.24, 0.0] "
+               "(upperarm.R from frame 0, forearm.R from frame 2 of the dynamic clip)" in ln for ln in lines), lines
     assert any("camera.width/height 48x32 px, but 17 images are 32x32 px" in ln for ln in lines), lines
+
+
+def test_check_reports_a_root_jump(imported, tmp_path):
+    """The body's root moved 0.5 m in frame 3 of the dynamic clip (a tracker's swap to another person): at the
+    import's 30 fps that is 15 m/s into and out of frame 3, two problems; the unchanged import's fastest root
+    motion is reported and passes. Reference: 0.5 m x 30 fps by hand. Mutants: the step not scaled by the frame
+    rate (0.5 "m/s" passes), the root translation ignored."""
+    r = cli("recon", "check", imported, "--json")
+    assert r.exit_code == 0 and json.loads(r.stdout)["clips"]["dynamic"]["max_root_speed_m_s"] < 5, r.output
+    d = _copy(imported, tmp_path / "d")
+    p = dict(np.load(d / "poses.npz"))
+    p["root_translation"][3, 0] += 0.5
+    np.savez(d / "poses.npz", **p)
+    r = cli("recon", "check", d)
+    lines = [ln for ln in err_lines(r) if "the body's root moves" in ln]
+    assert r.exit_code == 2 and len(lines) == 2, r.output
+    assert "moves 50.0 cm between frames 2 and 3 (15.0 m/s at 30 fps, above 5)" in lines[0], lines
 
 
 TINY_FIT = ("[train]\npd_hold = false\nkp = 3000.0\nkd = 110.0\nsurface_layer = 0.0\nappearance_iters = 20\n"
@@ -319,7 +364,7 @@ def test_no_spin_clip_domain_hint_then_fit(user, tmp_path):
     d = imp(0.48, tmp_path / "small")
     r = cli("recon", "check", d)
     lines = [ln for ln in err_lines(r) if ln.startswith("error: ")]
-    assert r.exit_code == 2 and len(lines) == 1 and "leave the MPM domain (a 0.48 m cube" in lines[0], r.output
+    assert r.exit_code == 2 and len(lines) == 1 and "leave the MPM domain, a 0.48 m cube" in lines[0], r.output
     assert "bones reaching the object: upperarm.R, forearm.R" in r.stderr + r.stdout, r.output
     hint = float(re.search(r"--domain-size ([0-9.]+) or more", lines[0]).group(1))
     r = cli("recon", "fit", d, "--out", tmp_path / "run0", "-c", cfg)
@@ -334,6 +379,43 @@ def test_no_spin_clip_domain_hint_then_fit(user, tmp_path):
     assert r.exit_code == 0, (r.output, r.exception)
     rep = json.loads(r.stdout)
     assert rep["history_final"]["finetune"] is None and np.isfinite(rep["methods"]["physics"]["recon"]["psnr"])
+
+
+def test_amass_sequence_at_its_own_rate(user, imported, tmp_path):
+    """The clip's SMPL parameters as an AMASS file (``poses`` (F, 72), ``trans``) at 120 fps, twice the video's
+    60 (each pose held for two mocap frames, ``mocap_framerate`` 120): the import takes the pose nearest in time to
+    each kept frame and writes the poses of the per-frame import. Mutants: the rate ignored (refused as a count
+    mismatch), the pose index not scaled by the rates (the body a frame behind). A sequence shorter than the
+    video is refused in one line naming both durations."""
+    with np.load(user["dir"] / "smpl.npz") as z:
+        poses = np.concatenate([z["global_orient"], z["body_pose"]], 1)
+        trans = z["transl"]
+    np.savez(tmp_path / "amass.npz", poses=np.repeat(poses, 2, 0), trans=np.repeat(trans, 2, 0),
+             mocap_framerate=np.array(120.0))
+    args = list(user["args"])
+    args[args.index("--poses") + 1] = tmp_path / "amass.npz"
+    r = cli(*args, "--out", tmp_path / "d")
+    assert r.exit_code == 0, (r.output, r.exception)
+    for name in ("poses.npz", "spin_poses.npz"):
+        with np.load(tmp_path / "d" / name) as a, np.load(imported / name) as b:
+            np.testing.assert_allclose(a["rotations"], b["rotations"], atol=1e-9)
+            np.testing.assert_allclose(a["root_translation"], b["root_translation"], atol=1e-9)
+    np.savez(tmp_path / "short.npz", poses=poses[:10], trans=trans[:10], mocap_framerate=np.array(120.0))
+    args[args.index("--poses") + 1] = tmp_path / "short.npz"
+    r = cli(*args, "--out", tmp_path / "e")
+    assert r.exit_code == 2 and "10 poses at 120 fps (mocap_framerate) cover 0.08 s" in r.output, r.output
+
+
+def test_floor_kinds_reach_the_scene(user, tmp_path):
+    """--floor sticky / slip / separate becomes the ground wall of the MPM scene (the object's support; slip: it
+    slides, v.n = 0); another word is refused in one line. Mutant caught: slip refused by the CLI (it was)."""
+    for kind in ("slip", "separate"):
+        r = cli(*user["args"], "--floor", kind, "--out", tmp_path / kind)
+        assert r.exit_code == 0, r.output
+        assert json.loads((tmp_path / kind / "scene.json").read_text())["sim"]["walls"]["z_min"] == kind
+    r = cli(*user["args"], "--floor", "glue", "--out", tmp_path / "glue")
+    assert r.exit_code == 2 and err_lines(r) == ["error: --floor must be sticky, slip or separate, got 'glue'"]
+    assert not (tmp_path / "glue").exists()
 
 
 def _snapshot(root: Path) -> dict:
@@ -422,7 +504,7 @@ def test_more_bad_inputs_refused(user, tmp_path):
     _refused(user, tmp_path, {}, "--grid-resolution must be an integer in [2, 256], got 100000",
              ["--grid-resolution", "100000"])
     _refused(user, tmp_path, {"--domain-size": 0}, "--domain-size must be a positive length [m], got 0.0")
-    _refused(user, tmp_path, {"--domain-size": 0.01}, "--domain-size 0.01 m must exceed the object's extent")
+    _refused(user, tmp_path, {"--domain-size": 0.01}, "--domain-size 0.01 m: give at least 0.285 m (1.05 x the object's extent")
     _refused(user, tmp_path, {}, "--background must be 3 numbers in [0, 1] (RGB), got [2.0, 2.0, 2.0]",
              ["--background", "2,2,2"])
     _refused(user, tmp_path, {}, "--pelvis-offset must be finite numbers", ["--pelvis-offset", "nan,0,0"])

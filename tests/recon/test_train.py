@@ -228,6 +228,10 @@ def test_eval_and_predict_refuse_damaged_or_foreign_inputs(fitted, tiny_scene, t
     np.savez(tmp_path / "noroot.npz", rotations=p["rotations"])
     refused(["recon", "predict", run, "--poses", tmp_path / "noroot.npz", "--out", tmp_path / "v.mp4"],
             "noroot.npz: missing array 'root_translation' (F, 3)")
+    # SMPL parameters need an imported scene's camera; this model was fitted on a synthetic scene
+    np.savez(tmp_path / "smpl.npz", global_orient=np.zeros((3, 3)), body_pose=np.zeros((3, 69)), transl=np.zeros((3, 3)))
+    refused(["recon", "predict", run, "--poses", tmp_path / "smpl.npz", "--out", tmp_path / "v.mp4"],
+            "smpl.npz: SMPL parameters need a model fitted on a `recon import` DATA_DIR")
     assert not (tmp_path / "v.mp4").exists()
 
 
