@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import pytest
 from PIL import Image
-from test_recon_import import _snapshot, cli, err_lines, imported, user  # noqa: F401 - fixtures reused here
+from test_recon_import import _snapshot, cli, err_lines, imported, spin_views, user  # noqa: F401 - fixtures reused here
 
 from physar.errors import ConfigError
 from physar.mpm.io import mp4_encoder
@@ -299,27 +299,13 @@ def test_visual_hull_from_binary_object_masks(user, tmp_path):  # noqa: F811
     the true box (>= 97 % of a 1 cm lattice of it shrunk by half a voxel) and not much more (1.0-1.6 x its
     volume). Mutant caught: the person and object folders swapped where import_video passes them (the hull of
     the hands' ring misses the box)."""
-    from physar.recon.pointrender import render_spheres
-    from physar.recon.scene import look_at, object_points, union_lattice
+    from physar.recon.scene import union_lattice
 
     rng = np.random.default_rng(4)
     meta, R0, t0 = user["meta"], user["R"], user["t"]
     lo, hi = (np.array(v) for v in meta["object"]["boxes"][0])
-    X, _ = object_points(meta, 0.005)
-    c0 = 0.5 * (lo + hi)
-    frames, masks, Rs, ts = [], [], [], []
-    for k in range(8):
-        az, el = np.radians(10 + 45 * k), np.radians(35 if k % 2 else 5)
-        eye = c0 + 0.75 * np.array([np.sin(az) * np.cos(el), -np.cos(az) * np.cos(el), np.sin(el)])
-        c = look_at(eye, c0, 35, 64, 64)
-        K = np.array([[c["fx"], 0, c["cx"]], [0, c["fy"], c["cy"]], [0, 0, 1.0]])
-        Ri, ti = np.array(c["R"]), np.array(c["t"])
-        rgb, m = render_spheres(X, np.full((len(X), 3), 0.8), 0.004, K, Ri, ti, 64, 64)
-        frames.append((rgb * 255 + 0.5).astype(np.uint8))
-        ring = (cv2.dilate(m.astype(np.uint8), np.ones((13, 13), np.uint8)) > 0) & ~m
-        masks.append((ring, m))
-        Rs.append(Ri @ R0.T)
-        ts.append(ti - Ri @ R0.T @ t0)
+    frames, ms, rings, Rs, ts = spin_views(user)
+    masks = [(ring & ~m, m) for m, ring in zip(ms, rings)]
     up2 = lambda a: np.repeat(np.repeat(a, 2, 0), 2, 1)
     ns = user["ns"]
     for f, m in zip(user["rgb"][ns:], user["mask"][ns:]):

@@ -651,6 +651,34 @@ def test_35mm_focal_keeps_the_diagonal_field_of_view():
     assert (c.cx, c.cy) == (2015.5, 1511.5)
 
 
+def spin_views(user, n: int = 8, size: int = 64):
+    """``n`` views of the tiny scene's object box from a camera circling it (azimuths 45 deg apart, elevations 35
+    / 5 deg alternating, 0.75 m away, 35 deg lens), drawn by the sphere renderer: frames (uint8), object masks,
+    rings of 6 px around them (the person's hands), and each view's pose from the reference (dynamic-clip)
+    camera: R_i, t_i lists."""
+    from physar.recon.pointrender import render_spheres
+    from physar.recon.scene import look_at
+
+    meta, R0, t0 = user["meta"], user["R"], user["t"]
+    lo, hi = (np.array(v) for v in meta["object"]["boxes"][0])
+    X, _ = object_points(meta, 0.005)
+    c0 = 0.5 * (lo + hi)
+    frames, masks, rings, Rs, ts = [], [], [], [], []
+    for k in range(n):
+        az, el = np.radians(10 + 45 * k), np.radians(35 if k % 2 else 5)
+        eye = c0 + 0.75 * np.array([np.sin(az) * np.cos(el), -np.cos(az) * np.cos(el), np.sin(el)])
+        c = look_at(eye, c0, 35, size, size)
+        K = np.array([[c["fx"], 0, c["cx"]], [0, c["fy"], c["cy"]], [0, 0, 1.0]])
+        Ri, ti = np.array(c["R"]), np.array(c["t"])
+        rgb, m = render_spheres(X, np.full((len(X), 3), 0.8), 0.004, K, Ri, ti, size, size)
+        frames.append((rgb * 255 + 0.5).astype(np.uint8))
+        masks.append(m)
+        rings.append(cv2.dilate(m.astype(np.uint8), np.ones((13, 13), np.uint8)) > 0)
+        Rs.append(Ri @ R0.T)
+        ts.append(ti - Ri @ R0.T @ t0)
+    return frames, masks, rings, Rs, ts
+
+
 @pytest.mark.parametrize("size", [64, 32])
 def test_visual_hull_from_moving_spin_cameras(user, tmp_path, size):
     """No mesh: the spin clip is 8 views of the object from a camera circling it (azimuths 45 deg apart,
@@ -664,26 +692,12 @@ def test_visual_hull_from_moving_spin_cameras(user, tmp_path, size):
     cell is within 25 % of 2 x the box's largest side / 16 (the hull exceeds the box): a coarse pass that
     dilates every mask by the radius of the voxel nearest the camera (capped at 64 px: the whole of a small
     image) carved too little, and the cell came out 32-45 % above."""
-    from physar.recon.pointrender import render_spheres
-    from physar.recon.scene import look_at, union_lattice
+    from physar.recon.scene import union_lattice
 
     meta, R0, t0 = user["meta"], user["R"], user["t"]
     lo, hi = (np.array(v) for v in meta["object"]["boxes"][0])
-    X, _ = object_points(meta, 0.005)
-    c0 = 0.5 * (lo + hi)
-    frames, labels, Rs, ts = [], [], [], []
-    for k in range(8):
-        az, el = np.radians(10 + 45 * k), np.radians(35 if k % 2 else 5)
-        eye = c0 + 0.75 * np.array([np.sin(az) * np.cos(el), -np.cos(az) * np.cos(el), np.sin(el)])
-        c = look_at(eye, c0, 35, 64, 64)
-        K = np.array([[c["fx"], 0, c["cx"]], [0, c["fy"], c["cy"]], [0, 0, 1.0]])
-        Ri, ti = np.array(c["R"]), np.array(c["t"])
-        rgb, m = render_spheres(X, np.full((len(X), 3), 0.8), 0.004, K, Ri, ti, 64, 64)
-        frames.append((rgb * 255 + 0.5).astype(np.uint8))
-        ring = cv2.dilate(m.astype(np.uint8), np.ones((13, 13), np.uint8)) > 0
-        labels.append(np.where(m, 2, np.where(ring, 1, 0)))  # the person's hands around the object: person label
-        Rs.append(Ri @ R0.T)  # reference (dynamic-clip) camera -> view i
-        ts.append(ti - Ri @ R0.T @ t0)
+    frames, ms, rings, Rs, ts = spin_views(user)
+    labels = [np.where(m, 2, np.where(ring, 1, 0)) for m, ring in zip(ms, rings)]  # the hands: person label
     up2 = lambda a: np.repeat(np.repeat(a, 2, 0), 2, 1)
     ns = user["ns"]
     for f, m in zip(user["rgb"][ns:], user["mask"][ns:]):
