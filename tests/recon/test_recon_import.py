@@ -28,7 +28,7 @@ from physar.cli.recon import register
 from physar.mpm.io import mp4_encoder
 from physar.recon import importer as I
 from physar.recon.io import read_pngs, write_mp4
-from physar.recon.scene import object_points
+from physar.recon.scene import object_points, union_lattice
 from physar.skinning import procedural_humanoid
 
 PARENTS = [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21]
@@ -651,6 +651,26 @@ def test_35mm_focal_keeps_the_diagonal_field_of_view():
     assert (c.cx, c.cy) == (2015.5, 1511.5)
 
 
+def hull_holds_the_box(user, d: dict) -> float:
+    """Asserts that the imported scene ``d``'s object boxes hold >= 97 % of a 1 cm lattice of the true box shrunk
+    by half a voxel (a voxel is kept when its centre is in the hull: points deeper than that are in a kept
+    voxel; generator world -> camera -> imported world), and 1.0-1.6 x its volume; returns the MPM cell."""
+    R0, t0 = user["R"], user["t"]
+    lo, hi = (np.array(v) for v in user["meta"]["object"]["boxes"][0])
+    boxes = [(np.array(a), np.array(b)) for a, b in d["object"]["boxes"]]
+    cell = d["sim"]["size"] / d["sim"]["resolution"]
+    T, _ = union_lattice([(lo + cell / 2, hi - cell / 2)], 0.01)
+    Tw = (T @ R0.T + t0 - np.array(d["camera"]["t"])) @ np.array(d["camera"]["R"])
+    covered = np.zeros(len(Tw), dtype=bool)
+    for a, b in boxes:
+        covered |= np.all((Tw >= a - 1e-9) & (Tw <= b + 1e-9), axis=1)
+    vol = sum(float(np.prod(b - a)) for a, b in boxes)
+    true = float(np.prod(hi - lo))
+    assert covered.mean() >= 0.97, covered.mean()
+    assert 1.0 * true <= vol <= 1.6 * true, (vol, true)
+    return cell
+
+
 def spin_views(user, n: int = 8, size: int = 64):
     """``n`` views of the tiny scene's object box from a camera circling it (azimuths 45 deg apart, elevations 35
     / 5 deg alternating, 0.75 m away, 35 deg lens), drawn by the sphere renderer: frames (uint8), object masks,
@@ -692,10 +712,9 @@ def test_visual_hull_from_moving_spin_cameras(user, tmp_path, size):
     cell is within 25 % of 2 x the box's largest side / 16 (the hull exceeds the box): a coarse pass that
     dilates every mask by the radius of the voxel nearest the camera (capped at 64 px: the whole of a small
     image) carved too little, and the cell came out 32-45 % above."""
-    from physar.recon.scene import union_lattice
 
-    meta, R0, t0 = user["meta"], user["R"], user["t"]
-    lo, hi = (np.array(v) for v in meta["object"]["boxes"][0])
+    R0 = user["R"]
+    lo, hi = (np.array(v) for v in user["meta"]["object"]["boxes"][0])
     frames, ms, rings, Rs, ts = spin_views(user)
     labels = [np.where(m, 2, np.where(ring, 1, 0)) for m, ring in zip(ms, rings)]  # the hands: person label
     up2 = lambda a: np.repeat(np.repeat(a, 2, 0), 2, 1)
@@ -720,19 +739,7 @@ def test_visual_hull_from_moving_spin_cameras(user, tmp_path, size):
     d = json.loads((out / "scene.json").read_text())
     assert d["object"]["kind"] == "visual_hull" and not (out / "spin").exists()
     assert len(np.load(out / "poses.npz")["rotations"]) == 5
-    boxes = [(np.array(a), np.array(b)) for a, b in d["object"]["boxes"]]
-    cell = d["sim"]["size"] / d["sim"]["resolution"]
-    # the true box shrunk by half a voxel (a voxel is kept when its centre is in the hull: points deeper than
-    # that are in a kept voxel), generator world -> camera -> imported world
-    T, _ = union_lattice([(lo + cell / 2, hi - cell / 2)], 0.01)
-    Tw = (T @ R0.T + t0 - np.array(d["camera"]["t"])) @ np.array(d["camera"]["R"])
-    covered = np.zeros(len(Tw), dtype=bool)
-    for a, b in boxes:
-        covered |= np.all((Tw >= a - 1e-9) & (Tw <= b + 1e-9), axis=1)
-    vol = sum(float(np.prod(b - a)) for a, b in boxes)
-    true = float(np.prod(hi - lo))
-    assert covered.mean() >= 0.97, covered.mean()
-    assert 1.0 * true <= vol <= 1.6 * true, (vol, true)
+    cell = hull_holds_the_box(user, d)
     assert cell <= 1.25 * 2 * (hi - lo).max() / 16, (cell, (hi - lo).max())
     r = cli("recon", "check", out)
     assert r.exit_code == 0, r.output
