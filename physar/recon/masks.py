@@ -210,6 +210,20 @@ def _numbers(files) -> set[int] | None:
     return set(nums) if nums and None not in nums and len(set(nums)) == len(nums) else None
 
 
+def _shared(files) -> str:
+    """``"; 00001.png and 00001_1.png carry the same frame number 1 (...)"``: the first two files whose names
+    carry one frame number (two masks of a frame, e.g. one per object), or empty."""
+    seen: dict[int, Path] = {}
+    for p in files:
+        n = frame_number(p)
+        if n is not None and n in seen:
+            return (f"; {seen[n].name} and {Path(p).name} carry the same frame number {n} (one mask per frame "
+                    "here: several objects per frame go in one label PNG, or in --person-masks / --object-masks)")
+        if n is not None:
+            seen[n] = Path(p)
+    return ""
+
+
 def number_ranges(nums, cap: int = 6) -> str:
     """``[3, 12, 13, 14, 20]`` -> ``"3, 12-14, 20"``; after ``cap`` runs ``", ... (N in all)"``."""
     runs: list[list[int]] = []
@@ -243,7 +257,7 @@ def missing_frames(files: list[Path], n_frames: int) -> str:
     one."""
     nums = _numbers(files)
     if nums is None:
-        return ""
+        return _shared(files)
     first = min(nums)
     want = set(range(first, first + n_frames))
     parts = []

@@ -341,3 +341,10 @@ def test_same_folder_twice_and_binary_masks_as_labels(tmp_path):
     with pytest.raises(ConfigError, match=r"0.png: label value 255 is neither .*: binary masks \(one object per "
                                           r"file\)\? give --person-masks DIR and --object-masks DIR"):
         M.read_masks(tmp_path / "p", [1], [2])
+
+
+def test_two_masks_of_one_frame_are_named():
+    # 00001.png and 00001_1.png (a second object's mask of frame 1): the count mismatch names them. Mutant: the
+    # clause left empty when two names share a number
+    files = [Path(f"{n}.png") for n in ("00000", "00001", "00001_1", "00002")]
+    assert M.missing_frames(files, 3).startswith("; 00001.png and 00001_1.png carry the same frame number 1")
