@@ -15,7 +15,7 @@ Inputs and conventions:
 
   - *label PNGs* (``masks``; DAVIS / XMem / Cutie / SAM 2): 0 = background, one integer id per tracked object,
     as palette PNGs (the indices), grey PNGs (the values), or RGB(A) PNGs coloured with the DAVIS / PASCAL VOC
-    palette (:data:`VOC_PALETTE`: label :math:`k` has the colour of :math:`k`'s bits interleaved,
+    palette (:data:`physar.recon.masks.VOC_PALETTE`: label :math:`k` has the colour of :math:`k`'s bits interleaved,
     1 = (128, 0, 0), 2 = (0, 128, 0), 3 = (128, 128, 0); each colour is mapped back to its label, a colour off
     the palette is refused naming it and its pixel count; alpha ignored). ``person_labels`` and ``object_labels`` name the ids
     of the person and of the object (default 1 and 2); ``ignore_labels`` are treated as background; any other
@@ -865,7 +865,7 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path | 
                  object_mesh: str | Path | None = None, spin_cameras: str | Path | None = None,
                  opts: ImportOptions | None = None) -> dict:
     """Write a DATA_DIR for ``physar recon fit`` from a video, masks (``masks``: label PNGs, or ``person_masks`` and
-    ``object_masks``: binary PNGs, :func:`check_mask_inputs`), a pose file, a camera and an object mesh (module
+    ``object_masks``: binary PNGs, :func:`physar.recon.masks.check_mask_inputs`), a pose file, a camera and an object mesh (module
     docstring). Everything is read and checked before anything is written; the folder appears
     whole (``physar.output.atomic_folder``). Returns a summary."""
     o = opts or ImportOptions()
