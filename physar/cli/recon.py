@@ -225,7 +225,8 @@ def import_cmd(
     spin_cameras: Path | None = typer.Option(None, "--spin-cameras", help="instead of --object-mesh: camera poses "  # noqa: B008
                                              "of the spin frames (R (S, 3, 3), t (S, 3); .npz or .json) for a "
                                              "visual hull of the object"),
-    camera: Path | None = typer.Option(None, "--camera", help="camera TOML from `physar calibrate`"),  # noqa: B008
+    camera: Path | None = typer.Option(None, "--camera", help="camera TOML from `physar calibrate`, or a JSON of "  # noqa: B008
+                                       "intrinsics (fx, fy, cx, cy, width, height; K; nerfstudio's transforms.json)"),
     focal_px: float | None = typer.Option(None, "--focal-px", help="focal length \\[px of the video] (no --camera)"),
     focal_35mm: float | None = typer.Option(None, "--focal-35mm", help="35 mm-equivalent focal length \\[mm] "
                                             "(EXIF FocalLengthIn35mmFilm; no --camera)"),
@@ -324,7 +325,7 @@ def check_cmd(
     data_dir: Path = typer.Argument(..., help="DATA_DIR to check"),  # noqa: B008 - typer idiom
     max_jump_deg: float = typer.Option(30.0, "--max-jump-deg", help="pose jitter: largest joint turn per frame"),
     max_root_speed: float = typer.Option(5.0, "--max-root-speed", help="pose jitter: largest speed of the body's "
-                                         "root \[m/s]"),
+                                         "root \\[m/s]"),
     json_out: bool = typer.Option(False, "--json", help="print the findings as JSON"),
 ) -> None:
     """Report what is missing or inconsistent in a DATA_DIR (frame counts, mask coverage, pose jitter, camera vs

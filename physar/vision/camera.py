@@ -347,10 +347,12 @@ class Camera:
 
     @classmethod
     def load(cls, path) -> Camera:
-        """Read a camera TOML written by :meth:`save` (or by hand); errors name the file and field."""
+        """Read a camera TOML written by :meth:`save` (or by hand), or a JSON of intrinsics as other tools write
+        them (:func:`camera_from_json`); errors name the file and field."""
         path = Path(path)
         try:
-            data = tomllib.loads(path.read_text())
+            text = path.read_text()
+            data = {"camera": camera_from_json(path, text)} if path.suffix.lower() == ".json" else tomllib.loads(text)
         except FileNotFoundError:
             raise ConfigError(f"{path}: camera file not found") from None
         except (OSError, UnicodeDecodeError) as e:
@@ -392,6 +394,74 @@ class Camera:
         if why:
             raise ConfigError(f"{path}: [camera] {why}: is it the calibration of this camera?")
         return c
+
+
+def camera_from_json(path: Path, text: str) -> dict:
+    r"""The ``[camera]`` table (width, height, matrix, distortion) of a JSON file of intrinsics, in one of the
+    layouts other tools write:
+
+    * ``fx``, ``fy``, ``cx``, ``cy``, ``width``, ``height`` (optional ``distortion``: OpenCV's k1, k2, p1, p2,
+      k3 ...): OpenCV's convention (pixel centres at integers), as physar's TOML;
+    * ``K`` / ``camera_matrix`` / ``matrix`` (3x3, or OpenCV FileStorage's ``{"rows": 3, "cols": 3, "data":
+      [...]}``) with ``width``/``height`` (or ``image_width``/``image_height``) and optional ``distortion`` /
+      ``dist_coeffs`` / ``distortion_coefficients``: OpenCV's convention;
+    * nerfstudio's ``transforms.json`` (phone capture apps, COLMAP exports): ``fl_x``, ``fl_y``, ``cx``, ``cy``,
+      ``w``, ``h``, optional ``k1``, ``k2``, ``k3``, ``p1``, ``p2``, in COLMAP's convention (the first pixel's
+      centre at (0.5, 0.5)): :math:`c_{\mathrm{OpenCV}} = c - 1/2`."""
+    import json
+
+    try:
+        d = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise ConfigError(f"{path}: not valid JSON ({' '.join(str(e).split())[:100]})") from None
+    if not isinstance(d, dict):
+        raise ConfigError(f"{path}: a camera JSON must be an object of intrinsics")
+
+    def num(*keys):
+        for k in keys:
+            if k in d:
+                v = d[k]
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise ConfigError(f"{path}: field '{k}' must be a number, got {v!r}")
+                return v
+        return None
+
+    def size(*keys):
+        v = num(*keys)
+        if v is None or v != int(v) or v <= 0:
+            raise ConfigError(f"{path}: field '{keys[0]}' must be the image {keys[0]} in px (a positive integer), "
+                              f"got {v!r}")
+        return int(v)
+
+    if "fl_x" in d:   # nerfstudio / COLMAP: pixel-corner convention
+        fx, fy, cx, cy = num("fl_x"), num("fl_y", "fl_x"), num("cx"), num("cy")
+        if cx is None or cy is None:
+            raise ConfigError(f"{path}: nerfstudio intrinsics need cx and cy")
+        dist = [num(k) or 0.0 for k in ("k1", "k2", "p1", "p2")] + ([num("k3")] if "k3" in d else [])
+        return {"width": size("w"), "height": size("h"), "matrix": [[fx, 0.0, cx - 0.5], [0.0, fy, cy - 0.5],
+                                                                   [0.0, 0.0, 1.0]],
+                "distortion": dist if any(dist) else []}
+    width, height = size("width", "image_width"), size("height", "image_height")
+    dist = next((d[k] for k in ("distortion", "dist_coeffs", "distortion_coefficients", "dist") if k in d), [])
+    if isinstance(dist, dict):
+        dist = dist.get("data", [])
+    dist = np.asarray(dist, dtype=object).ravel().tolist()
+    mk = next((k for k in ("K", "camera_matrix", "matrix", "intrinsics") if k in d), None)
+    if mk is not None:
+        K = d[mk]
+        if isinstance(K, dict):
+            K = K.get("data")
+        try:
+            K = np.asarray(K, dtype=float).reshape(3, 3).tolist()
+        except (TypeError, ValueError):
+            raise ConfigError(f"{path}: field '{mk}' must be a 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]") from None
+        return {"width": width, "height": height, "matrix": K, "distortion": dist}
+    fx, fy, cx, cy = num("fx"), num("fy", "fx"), num("cx"), num("cy")
+    if None in (fx, cx, cy):
+        raise ConfigError(f"{path}: no intrinsics found: give fx, fy, cx, cy, width, height (OpenCV convention), "
+                          "K with width/height, or nerfstudio's fl_x, fl_y, cx, cy, w, h")
+    return {"width": width, "height": height, "matrix": [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]],
+            "distortion": dist}
 
 
 _atomic_write_text = atomic_write_text  # the name physar.cli.ar imports
