@@ -1209,7 +1209,7 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
                 problems.append(f"{sj}: no bone of the body comes within {dx:.3f} m of the object in the dynamic clip "
                                 "(poses, camera or object placement wrong?)")
             elif reach:  # the bones `recon fit` simulates: those whose particles stay in the MPM domain
-                bones, leaving = S.simulated_bones(body, meta, rot, rt, dx, dx)
+                bones, leaving = S.simulated_bones(body, meta, rot, rt, dx, dx, reaching=reach)
                 info["simulated_bones"], info["kinematic_bones"] = bones, list(leaving)
                 if not bones:
                     problems.append(f"{sj}: " + S.domain_problem(body, meta, leaving, rot, rt, dx))

@@ -227,15 +227,12 @@ def reaching_bones(body: Body, rotations: np.ndarray, root: np.ndarray, boxes, m
     return [name for name, dk in zip(body.skeleton.names, d.tolist()) if dk <= margin]
 
 
-def frame_leaving_domain(body: Body, bone: str, rotations: np.ndarray, root: np.ndarray, sim: dict,
-                         h: float) -> int | None:
-    """The first frame in which a particle of ``bone`` (its rest lattice at spacing ``h``, skinned by Eq. 1) lies
-    outside the MPM domain ``sim`` (origin, size), or None when the bone stays inside over the whole sequence (or
-    has no particle). A reaching bone that leaves the domain cannot be simulated and stays kinematic."""
-    P = body_points(body, [bone], h)
-    if len(P) == 0:
-        return None
-    x = skin_sequence(body, P, rotations, root)[0] - np.asarray(sim["origin"], dtype=np.float64)
+def frame_leaving_domain(body: Body, points: np.ndarray, rotations: np.ndarray, root: np.ndarray,
+                         sim: dict) -> int | None:
+    """The first frame in which one of the rest ``points`` (N, 3) (a bone's particles), skinned by Eq. 1, lies
+    outside the MPM domain ``sim`` (origin, size), or None when they stay inside over the whole sequence. A
+    reaching bone that leaves the domain cannot be simulated and stays kinematic."""
+    x = skin_sequence(body, points, rotations, root)[0] - np.asarray(sim["origin"], dtype=np.float64)
     out = np.flatnonzero(~np.all((x >= 0) & (x <= sim["size"]), axis=(1, 2)))
     return int(out[0]) if len(out) else None
 
@@ -255,19 +252,24 @@ def domain_side_holding(body: Body, bones: list[str], rotations: np.ndarray, roo
 
 
 def simulated_bones(body: Body, meta: dict, rotations: np.ndarray, root: np.ndarray, margin: float,
-                    h: float) -> tuple[list[str], dict[str, int]]:
+                    h: float, reaching: list[str] | None = None) -> tuple[list[str], dict[str, int]]:
     """The bones a reconstruction simulates and actuates: those ``meta`` lists plus every bone whose LBS impact
-    reaches the object within ``margin`` (:func:`reaching_bones`) and whose particles (spacing ``h``) stay in the
-    MPM domain over the clip, in skeleton order; and {reaching bone left kinematic: the first frame it leaves the
-    domain}."""
+    reaches the object within ``margin`` (:func:`reaching_bones`, or ``reaching`` when the caller has them) and
+    whose particles (spacing ``h``) stay in the MPM domain over the clip, in skeleton order; and {reaching bone
+    left kinematic: the first frame it leaves the domain}."""
     listed = list(meta["body"].get("simulated_bones", []))
     sim, reach, leaving = meta["sim"], [], {}
-    for b in reaching_bones(body, rotations, root, object_boxes(meta), margin):
-        f = None if b in listed else frame_leaving_domain(body, b, rotations, root, sim, h)
-        if f is not None:
-            leaving[b] = f
-        elif b in listed or len(body_points(body, [b], h)):
+    if reaching is None:
+        reaching = reaching_bones(body, rotations, root, object_boxes(meta), margin)
+    for b in reaching:
+        P = body_points(body, [b], h) if b not in listed else None
+        if P is not None and len(P) == 0:   # no particle of it at this spacing: nothing to simulate
+            continue
+        f = None if P is None else frame_leaving_domain(body, P, rotations, root, sim)
+        if f is None:
             reach.append(b)
+        else:
+            leaving[b] = f
     return [b for b in body.skeleton.names if b in listed or b in reach], leaving
 
 
