@@ -406,6 +406,24 @@ def test_amass_sequence_at_its_own_rate(user, imported, tmp_path):
     assert r.exit_code == 2 and "10 poses at 120 fps (mocap_framerate) cover 0.08 s" in r.output, r.output
 
 
+def test_smpl_poses_for_predict_use_the_import_settings(user, tmp_path):
+    """SMPL parameters handed to `recon predict` are retargeted as the import did: with the import's camera and
+    its --pelvis-offset (here 1, -2, 3 cm), they give the DATA_DIR's poses of the same frames. Mutants: the
+    pelvis offset not kept in scene.json or not applied (the root 3.7 cm off), the camera pose left out."""
+    from physar.recon.scene import load_body
+
+    r = cli(*user["args"], "--pelvis-offset", "0.01,-0.02,0.03", "--out", tmp_path / "d")
+    assert r.exit_code == 0, r.output
+    meta = json.loads((tmp_path / "d" / "scene.json").read_text())
+    src = meta["import"]["source_indices"][meta["import"]["spin_frames"]:]
+    with np.load(user["dir"] / "smpl.npz") as z:
+        np.savez(tmp_path / "smpl_dyn.npz", **{k: z[k][src] for k in z.files})
+    rot, root = I.retarget_to_scene(tmp_path / "smpl_dyn.npz", meta, load_body(meta))
+    with np.load(tmp_path / "d" / "poses.npz") as p:
+        np.testing.assert_allclose(rot, p["rotations"], atol=1e-9)
+        np.testing.assert_allclose(root, p["root_translation"], atol=1e-9)
+
+
 def test_floor_kinds_reach_the_scene(user, tmp_path):
     """--floor sticky / slip / separate becomes the ground wall of the MPM scene (the object's support; slip: it
     slides, v.n = 0); another word is refused in one line. Mutant caught: slip refused by the CLI (it was)."""
