@@ -21,7 +21,8 @@ def _load(path: Path, role: str = "input"):
     A file holding tetrahedra (.vtu/.msh/.mesh/.xdmf volume mesh) gives the tet mesh's whole boundary surface
     (:func:`physar.geometry.mesh.boundary_surface`: outward, compact vertex numbering, no unused points), never
     the tagged triangle blocks the file may also hold (a patch of the boundary), with one PhysarWarning naming
-    the file. ``role`` is "input" (the output is then a surface mesh) or "reference" (a --reference volume file
+    the file. Those blocks' tags and names stay on the boundary faces they cover (-1 elsewhere), so a surface
+    format that stores them (.vtu, .msh, .xdmf) writes them to the output. ``role`` is "input" (the output is then a surface mesh) or "reference" (a --reference volume file
     gets the same surface, so its faces match those of the same tet mesh given as the input)."""
     from physar.geometry.io import read_mesh
     from physar.geometry.mesh import TetMesh, TriMesh, boundary_surface
@@ -39,7 +40,7 @@ def _load(path: Path, role: str = "input"):
                if role == "input" else "it is compared as the reference surface")
         warnings.warn(f"{path}: holds a volume mesh ({m.n_cells} tetrahedra); its boundary surface "
                       f"({surf.n_faces} triangles) is used and {use}", PhysarWarning, stacklevel=2)
-        return TriMesh(surf.points, surf.faces, name=m.name), None
+        return TriMesh(surf.points, surf.faces, name=m.name, face_tags=surf.face_tags, tag_names=surf.tag_names), None
     if not isinstance(m, TriMesh):
         raise PhysarError(f"{path}: expected a triangle surface mesh")
     return m, None

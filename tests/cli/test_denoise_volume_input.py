@@ -101,7 +101,8 @@ def test_denoise_volume_file_uses_the_whole_boundary(tmp_path, suffix):
                             "--no-render"])
     assert r.exit_code == 0, r.output
     warn = _warnings(r.output)
-    assert len(warn) == 1, r.output
+    assert len(warn) == 1 + (suffix != ".vtu"), r.output  # + ".ply stores no region tags" for the tagged ones
+    assert suffix == ".vtu" or "stores no region tags" in warn[1]
     assert str(f) in warn[0] and f"boundary surface ({N_FACES} triangles)" in warn[0]
     assert "output is a surface mesh" in warn[0]
     _check_box_surface(out, exact=False)
@@ -115,7 +116,8 @@ def test_noise_volume_file_gives_the_box_surface(tmp_path, suffix):
     r = runner.invoke(app, ["noise", str(f), "--out", str(out), "--sigma", "0"])
     assert r.exit_code == 0, r.output
     warn = _warnings(r.output)
-    assert len(warn) == 1 and str(f) in warn[0] and f"({N_FACES} triangles)" in warn[0], r.output
+    assert len(warn) == 1 + (suffix != ".vtu") and str(f) in warn[0], r.output  # + .off's "no region tags"
+    assert f"({N_FACES} triangles)" in warn[0]
     _check_box_surface(out, exact=True)
 
 
@@ -156,3 +158,31 @@ def test_surface_input_unchanged(tmp_path, suffix):
     back = meshio.read(out)
     np.testing.assert_array_equal(back.cells[0].data, s.faces)
     np.testing.assert_allclose(back.points, pts)
+
+
+
+# The tagged end faces of a volume file stay tagged on the noised (sigma 0: exact positions) and denoised surface
+# (reference: the hand-built box, whose 'fixed' faces lie at x = 0 and 'load' faces at x = A, 2 * 2 * NY * NZ
+# each; the rest untagged). The denoiser keeps the faces and their order, so its tags are compared face by face.
+# mutants caught: the TriMesh of _load built without face_tags (no tag array written); fixed/load swapped (the x
+# test); the tags of the file's triangle block taken in its own order (not the boundary's).
+@pytest.mark.parametrize("suffix", [".msh", ".mesh"])
+def test_volume_file_keeps_the_surface_tags(tmp_path, suffix):
+    from physar.geometry.io import read_mesh
+
+    f = _volume_file(tmp_path, suffix)
+    exact, den = tmp_path / "exact.vtu", tmp_path / "den.vtu"
+    r = runner.invoke(app, ["noise", str(f), "--out", str(exact), "--sigma", "0"])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["denoise", str(f), "--out", str(den), "--method", "laplacian", "--iterations", "1",
+                            "--no-render"])
+    assert r.exit_code == 0, r.output
+    ex, dn = read_mesh(exact, kind="tri"), read_mesh(den, kind="tri")
+    x = ex.points[ex.faces][..., 0]
+    want = np.where(np.isclose(x, 0).all(axis=1), 2, np.where(np.isclose(x, A).all(axis=1), 3, -1))
+    assert (want == 2).sum() == (want == 3).sum() == 2 * NY * NZ
+    np.testing.assert_array_equal(np.asarray(ex.face_tags), want)
+    np.testing.assert_array_equal(dn.faces, ex.faces)
+    np.testing.assert_array_equal(np.asarray(dn.face_tags), want)
+    if suffix == ".msh":  # Medit .mesh keeps the numbers only
+        assert dict(dn.tag_names) == {"fixed": (2, 2), "load": (3, 2)}
