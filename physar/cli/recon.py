@@ -214,8 +214,9 @@ def import_cmd(
     person_masks: Path | None = typer.Option(None, "--person-masks", help="instead of --masks: folder of the "  # noqa: B008
                                              "person's binary PNGs, one per frame (SAM/SAM 2 style; 0/255 or 0/1, "
                                              "edges cut at half intensity)"),
-    object_masks: Path | None = typer.Option(None, "--object-masks", help="with --person-masks: folder of the "  # noqa: B008
-                                             "object's binary PNGs, one per frame"),
+    object_masks: list[Path] | None = typer.Option(None, "--object-masks", help="with --person-masks: folder of "  # noqa: B008
+                                                   "the object's binary PNGs, one per frame; repeat it for an "
+                                                   "object segmented in parts (one folder each: their union)"),
     poses: Path = typer.Option(..., "--poses", help="SMPL/SMPL-X parameters (.npz without pickles, or .json): "  # noqa: B008
                                "global_orient, body_pose (axis-angle), betas, transl, camera coordinates"),
     object_mesh: Path | None = typer.Option(None, "--object-mesh", help="closed surface mesh of the object "  # noqa: B008
@@ -266,8 +267,9 @@ def import_cmd(
     from physar.recon.masks import check_mask_inputs
 
     check_input(video, "video")
+    object_masks = list(object_masks or []) or None
     for folder, what in ((masks, "masks folder"), (person_masks, "person masks folder"),
-                         (object_masks, "object masks folder")):
+                         *((f, "object masks folder") for f in object_masks or [])):
         if folder is not None:
             check_input(folder, what, folder=True)
     check_mask_inputs(masks, person_masks, object_masks)

@@ -20,9 +20,9 @@ Inputs and conventions:
     the palette is refused naming it and its pixel count; alpha ignored). ``person_labels`` and ``object_labels`` name the ids
     of the person and of the object (default 1 and 2); ``ignore_labels`` are treated as background; any other
     value is refused, and so are label sets that share a value or use 0.
-  - *per-object binary PNGs* (``person_masks``, ``object_masks``: two folders, as SAM / SAM 2 /
-    Track-Anything save one mask per object; the same number of files, paired in frame order; not the same
-    folder twice): grey, palette (by the palette's colours) or RGB (the largest colour channel; with alpha, the
+  - *per-object binary PNGs* (``person_masks``, ``object_masks``: a folder each, as SAM / SAM 2 /
+    Track-Anything save one mask per object; ``object_masks`` may be several folders, an object tracked in parts,
+    whose union is the object; the same number of files, paired in frame order; no folder given twice): grey, palette (by the palette's colours) or RGB (the largest colour channel; with alpha, the
     smaller of that and the alpha), foreground :math:`v \ge s/2` with :math:`s` = 1 for a folder of 0/1 files
     (its largest value 1), else 255 (8-bit) or 65535 (16-bit): anti-aliased or lossy edges are cut at half
     intensity. :math:`P` = the person's foreground, :math:`O` = the object's.
@@ -118,6 +118,7 @@ import math
 import warnings
 import zipfile
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -130,7 +131,13 @@ from physar.errors import ConfigError, PhysarError, PhysarWarning
 from physar.output import atomic_folder, check_folder, check_memory, own_names
 from physar.recon import scene as S
 from physar.recon.io import imread
-from physar.recon.masks import check_mask_inputs, missing_frames, read_binary_masks, read_masks
+from physar.recon.masks import (
+    check_mask_inputs,
+    missing_frames,
+    object_folders,
+    read_binary_masks,
+    read_masks,
+)
 from physar.skinning import (
     SMPL_JOINTS,
     SMPL_PARENTS,
@@ -859,17 +866,25 @@ def _count_match(n: int, n_src: int, idx: np.ndarray, what: str, where, video, f
                       f"frame count mismatch{lack}")
 
 
+def _folder_names(object_masks) -> str | list[str] | None:
+    """``scene.json``'s record of the object mask folders: None, one path, or a list of several."""
+    objs = [str(f) for f in object_folders(object_masks)]
+    return None if not objs else objs[0] if len(objs) == 1 else objs
+
+
 def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path | None = None, poses: str | Path,
-                 person_masks: str | Path | None = None, object_masks: str | Path | None = None,
+                 person_masks: str | Path | None = None,
+                 object_masks: str | Path | Sequence[str | Path] | None = None,
                  intrinsics: Intrinsics | None = None, focal_px: float | None = None, focal_35mm: float | None = None,
                  object_mesh: str | Path | None = None, spin_cameras: str | Path | None = None,
                  opts: ImportOptions | None = None) -> dict:
     """Write a DATA_DIR for ``physar recon fit`` from a video, masks (``masks``: label PNGs, or ``person_masks`` and
-    ``object_masks``: binary PNGs, :func:`physar.recon.masks.check_mask_inputs`), a pose file, a camera and an object mesh (module
+    ``object_masks``: binary PNGs, one object folder or several, :func:`physar.recon.masks.check_mask_inputs`), a pose file, a camera and an object mesh (module
     docstring). Everything is read and checked before anything is written; the folder appears
     whole (``physar.output.atomic_folder``). Returns a summary."""
     o = opts or ImportOptions()
-    out = check_folder(out_dir, own=DATA_DIR_FILES, inputs=[video, masks, person_masks, object_masks, poses,
+    out = check_folder(out_dir, own=DATA_DIR_FILES, inputs=[video, masks, person_masks, *object_folders(object_masks),
+                                                               poses,
                                                                object_mesh, spin_cameras],
                        kind="DATA_DIR")
     if o.floor not in ("sticky", "slip", "separate"):
@@ -1037,7 +1052,7 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path | 
                    "source_variable_rate": bool(clip.variable),
                    "source_size": [W0, H0], "source_indices": idx.tolist(), "masks": None if masks is None else str(masks),
                    "person_masks": None if person_masks is None else str(person_masks),
-                   "object_masks": None if object_masks is None else str(object_masks), "poses": str(poses),
+                   "object_masks": _folder_names(object_masks), "poses": str(poses),
                    "object_mesh": None if object_mesh is None else str(object_mesh),
                    "spin_cameras": None if spin_cameras is None else str(spin_cameras), "up_camera": [float(v) for v in o.up],
                    "spin_frames": int(o.spin_frames), "pelvis_offset": [float(v) for v in o.pelvis_offset]},

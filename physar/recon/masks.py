@@ -157,43 +157,70 @@ def read_masks(folder: str | Path, person_labels, object_labels, ignore_labels=(
     return files, out
 
 
-def read_binary_masks(person_folder: str | Path, object_folder: str | Path, keep=None,
+def object_folders(object_folder) -> list[Path]:
+    """The object's mask folders as a list: one folder (a path), or several (a sequence: one per part or per
+    object, as SAM / SAM 2 save one folder per tracked object); [] for None or an empty sequence."""
+    if object_folder is None:
+        return []
+    if isinstance(object_folder, (str, Path)):
+        return [Path(object_folder)]
+    return [Path(f) for f in object_folder]
+
+
+def read_binary_masks(person_folder: str | Path, object_folder, keep=None,
                       prepare=None) -> tuple[list[Path], dict]:
     r"""Per-object binary mask PNGs as SAM / SAM 2 / Track-Anything write them: one folder for the person, one for
-    the object, one PNG per frame each (:func:`read_binary_png`), paired in frame order
-    (:func:`physar.media.frame_order`). Returns the person folder's files and, for the files whose index
-    ``keep(i, n)`` accepts, {i: (foreground :math:`P \cup O`, object :math:`O`)} as float32 (H, W) in {0, 1}
-    (through ``prepare`` when given), as :func:`read_masks` does; one full intensity per folder
-    (:func:`binary_scale` of its largest value). One error line for the same folder twice, folders of different
-    counts (naming the frame numbers one lacks), masks of one frame of different sizes, or a person or object
-    empty in every frame."""
-    folders = {"person": Path(person_folder), "object": Path(object_folder)}
-    if folders["person"].resolve() == folders["object"].resolve():
-        raise ConfigError(f"{folders['object']}: the same folder for the person's and the object's masks (give each "
-                          "its own)")
+    the object or one per object part (``object_folder``: a path or a sequence of paths, :func:`object_folders`),
+    one PNG per frame each (:func:`read_binary_png`), paired in frame order (:func:`physar.media.frame_order`).
+    Returns the person folder's files and, for the files whose index ``keep(i, n)`` accepts, {i: (foreground
+    :math:`P \cup O`, object :math:`O`)} as float32 (H, W) in {0, 1} (through ``prepare`` when given), as
+    :func:`read_masks` does; :math:`O` is the union of the object folders' foregrounds (as ``--object-labels 2,3``
+    is for label PNGs). One full intensity per folder (:func:`binary_scale` of its largest value). One error line
+    for a folder given twice, folders of different counts (naming the frame numbers one lacks), masks of one
+    frame of different sizes, or a person or object folder empty in every frame."""
+    objs = object_folders(object_folder)
+    if not objs:
+        raise ConfigError("no object masks folder given (--object-masks DIR)")
+    folders = {"person": Path(person_folder)}
+    for j, f in enumerate(objs):
+        folders["object" if len(objs) == 1 else f"object {j + 1}"] = f
+    seen: dict[Path, str] = {}
+    for k, f in folders.items():
+        r = f.resolve()
+        if r in seen:
+            raise ConfigError(f"{f}: the same folder for the {seen[r]}'s and the {k}'s masks (give each its own)")
+        seen[r] = k
     files = {k: _png_files(f, f"{k} masks") for k, f in folders.items()}
-    fp, fo = files["person"], files["object"]
+    fp = files["person"]
     # one full intensity per folder: a 0/255 series whose empty frame holds a few 1s (soft-mask rounding) is not
     # a 0/1 mask there
     scale = {k: binary_scale(max(int(binary_values(f).max(initial=0)) for f in fs)) for k, fs in files.items()}
-    if len(fp) != len(fo):
-        lack = _lacking(fp, fo)
-        raise ConfigError(f"{folders['object']}: {len(fo)} object masks for {len(fp)} person masks "
-                          f"({folders['person']}): frame count mismatch{lack}")
+    okeys = [k for k in folders if k != "person"]
+    for k in okeys:
+        if len(files[k]) != len(fp):
+            lack = _lacking(fp, files[k])
+            raise ConfigError(f"{folders[k]}: {len(files[k])} {k} masks for {len(fp)} person masks "
+                              f"({folders['person']}): frame count mismatch{lack}")
     out = {}
-    found = {"person": False, "object": False}
-    for i, (p, q) in enumerate(zip(fp, fo)):
-        mp, mo = read_binary_png(p, scale["person"]), read_binary_png(q, scale["object"])
-        if mp.shape != mo.shape:
-            raise ConfigError(f"{q}: object mask {mo.shape[1]}x{mo.shape[0]} px, but the person mask {p.name} of "
-                              f"the same frame is {mp.shape[1]}x{mp.shape[0]} px")
+    found = dict.fromkeys(folders, False)
+    for i, p in enumerate(fp):
+        mp = read_binary_png(p, scale["person"])
         found["person"] |= bool(mp.any())
-        found["object"] |= bool(mo.any())
+        mo = np.zeros_like(mp)
+        for k in okeys:
+            q = files[k][i]
+            mk = read_binary_png(q, scale[k])
+            if mk.shape != mp.shape:
+                raise ConfigError(f"{q}: {k} mask {mk.shape[1]}x{mk.shape[0]} px, but the person mask {p.name} of "
+                                  f"the same frame is {mp.shape[1]}x{mp.shape[0]} px")
+            found[k] |= bool(mk.any())
+            mo |= mk
         if keep is None or keep(i, len(fp)):
             m, o = (mp | mo).astype(np.float32), mo.astype(np.float32)
+            q = files[okeys[0]][i]
             out[i] = (prepare(p, m), prepare(q, o)) if prepare is not None else (m, o)
-    for what, seen in found.items():
-        if not seen:
+    for what, ok in found.items():
+        if not ok:
             raise ConfigError(f"{folders[what]}: the {what} masks are empty (all background) in all {len(fp)} files")
     return fp, out
 
@@ -270,21 +297,24 @@ def missing_frames(files: list[Path], n_frames: int) -> str:
 
 def check_mask_inputs(masks, person_masks, object_masks) -> None:
     """One ConfigError line unless the masks are given one way: ``masks`` (label PNGs) alone, or both
-    ``person_masks`` and ``object_masks`` (binary PNGs); each given folder must exist."""
-    binary = person_masks is not None or object_masks is not None
+    ``person_masks`` and ``object_masks`` (binary PNGs; ``object_masks`` one folder or several,
+    :func:`object_folders`); each given folder must exist."""
+    objs = object_folders(object_masks)
+    binary = person_masks is not None or bool(objs)
     if masks is not None and binary:
         raise ConfigError("give the masks one way: --masks DIR (label PNGs) or --person-masks DIR and --object-masks "
                           "DIR (binary PNGs), not both")
     if masks is None and not binary:
         raise ConfigError("give the masks: --masks DIR (label PNGs), or --person-masks DIR and --object-masks DIR "
                           "(binary PNGs, one folder per object)")
-    if binary and (person_masks is None or object_masks is None):
-        have, lack = ("--person-masks", "--object-masks") if object_masks is None else ("--object-masks", "--person-masks")
+    if binary and (person_masks is None or not objs):
+        have, lack = ("--person-masks", "--object-masks") if not objs else ("--object-masks", "--person-masks")
         raise ConfigError(f"{have} needs {lack} DIR too (one binary PNG per frame for each of person and object)")
-    for folder, what in ((masks, "masks"), (person_masks, "person masks"), (object_masks, "object masks")):
+    for folder, what in ((masks, "masks"), (person_masks, "person masks"), *((f, "object masks") for f in objs)):
         if folder is not None and not Path(folder).is_dir():
             raise ConfigError(f"{folder}: {what} folder not found")
 
 
-__all__ = ["VOC_PALETTE", "binary_scale", "binary_values", "check_mask_inputs", "frame_number", "missing_frames", "number_ranges", "palette_labels",
+__all__ = ["VOC_PALETTE", "binary_scale", "binary_values", "check_mask_inputs", "frame_number", "missing_frames", "number_ranges", "object_folders",
+           "palette_labels",
            "read_binary_masks", "read_binary_png", "read_label_png", "read_masks", "voc_palette"]

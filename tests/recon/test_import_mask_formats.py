@@ -133,6 +133,46 @@ def test_binary_folder_problems(tmp_path):
         M.read_binary_masks(tmp_path / "blank", tmp_path / "object")
 
 
+
+def test_object_in_several_folders_is_their_union(tmp_path):
+    # a pillow and a bag as SAM 2 saves them, one folder each (the bag empty in the first 4 frames: it enters
+    # later), and a third folder that repeats one: the object is the union drawn here, frame by frame; each
+    # folder's count, emptiness and repetition checked in one line naming it. Mutants caught: only the first
+    # object folder read (the bag missing), the second folder's count unchecked (zip stops early: no error), the
+    # emptiness checked on the union only (the blank folder passes)
+    rng = np.random.default_rng(4)
+    H, W = 16, 20
+    for name in ("person", "pillow", "bag", "blank", "short"):
+        (tmp_path / name).mkdir()
+    truth = []
+    for i in range(8):
+        p, a, b = (np.zeros((H, W), bool) for _ in range(3))
+        p[2:6, i:i + 4] = True
+        a[8:12, 2:9] = True
+        if i >= 4:
+            b[10:15, 10 + i:14 + i] = True
+        save_mask(tmp_path / "person" / f"{i:02d}.png", p, "grey", rng)
+        save_mask(tmp_path / "pillow" / f"{i:02d}.png", a, "01", rng)
+        save_mask(tmp_path / "bag" / f"{i:02d}.png", b, "grey", rng)
+        save_mask(tmp_path / "blank" / f"{i:02d}.png", np.zeros((H, W), bool), "grey", rng)
+        if i != 6:
+            save_mask(tmp_path / "short" / f"{i:02d}.png", b, "grey", rng)
+        truth.append((p | a | b, a | b))
+    person = tmp_path / "person"
+    _, masks = M.read_binary_masks(person, [tmp_path / "pillow", tmp_path / "bag"])
+    for i, (fg, obj) in enumerate(truth):
+        assert np.array_equal(masks[i][0] > 0.5, fg), i
+        assert np.array_equal(masks[i][1] > 0.5, obj), i
+    with pytest.raises(ConfigError, match=r"short: 7 object 2 masks for 8 person masks .*no mask for frames 6"):
+        M.read_binary_masks(person, [tmp_path / "pillow", tmp_path / "short"])
+    with pytest.raises(ConfigError, match=r"blank: the object 2 masks are empty \(all background\) in all 8 files"):
+        M.read_binary_masks(person, [tmp_path / "pillow", tmp_path / "blank"])
+    with pytest.raises(ConfigError, match=r"pillow: the same folder for the object 1's and the object 3's masks"):
+        M.read_binary_masks(person, [tmp_path / "pillow", tmp_path / "bag", tmp_path / "pillow"])
+    with pytest.raises(ConfigError, match=r"person: the same folder for the person's and the object's masks"):
+        M.read_binary_masks(person, person)
+
+
 def test_rgb_davis_colours_read_as_their_labels(tmp_path):
     # every colour of the typed-in table, in random places, and the same labels saved as RGBA. Mutants caught:
     # the palette's bit order reversed (label 1 would be (1, 0, 0): (128, 0, 0) is refused), red and blue swapped
@@ -227,6 +267,36 @@ def test_import_binary_folders_writes_the_label_import(user, imported, tmp_path)
     assert np.array_equal(m > 0.5, user["mask"])
     meta = json.loads((out / "scene.json").read_text())["import"]
     assert (meta["masks"], meta["person_masks"], meta["object_masks"]) == (None, str(person), str(obj))
+
+
+
+@needs_mp4
+def test_import_object_split_over_two_folders(user, imported, tmp_path):  # noqa: F811
+    """The object's binary masks split into its left and right halves (two --object-masks folders, as a
+    segmenter that tracks two parts writes them): the DATA_DIR's masks equal the label-PNG import's, and
+    scene.json records both folders. Mutant caught: only the first --object-masks folder read (half the object
+    missing from every mask)."""
+    person, obj = _binary_folders(user, tmp_path)
+    left, right = tmp_path / "left", tmp_path / "right"
+    left.mkdir()
+    right.mkdir()
+    for f in sorted(obj.iterdir()):
+        m = np.asarray(Image.open(f))
+        cols = np.flatnonzero(m.max(axis=0) > m.max() / 2)
+        cut = (cols.min() + cols.max() + 1) // 2 if len(cols) else m.shape[1] // 2
+        a, b = m.copy(), m.copy()
+        a[:, cut:], b[:, :cut] = 0, 0
+        Image.fromarray(a).save(left / f.name)
+        Image.fromarray(b).save(right / f.name)
+    args = _binary_args(user, person, left)
+    i = args.index("--object-masks")
+    args[i + 2:i + 2] = ["--object-masks", right]
+    out = tmp_path / "data"
+    r = cli(*args, "--out", out)
+    assert r.exit_code == 0, (r.output, r.exception)
+    assert np.array_equal(_frames(out, "mask", True), _frames(imported, "mask", True))
+    meta = json.loads((out / "scene.json").read_text())["import"]
+    assert meta["object_masks"] == [str(left), str(right)]
 
 
 @needs_mp4
