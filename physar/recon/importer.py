@@ -134,6 +134,7 @@ from physar.recon.io import imread
 from physar.recon.masks import (
     check_mask_inputs,
     missing_frames,
+    number_ranges,
     object_folders,
     read_binary_masks,
     read_masks,
@@ -872,6 +873,15 @@ def _folder_names(object_masks) -> str | list[str] | None:
     return None if not objs else objs[0] if len(objs) == 1 else objs
 
 
+def _mask_pixels(mdict: dict, midx, n_out: int) -> dict:
+    """Per output frame (spin frames first), the pixels of the object's mask and of the person's outside it (the
+    DATA_DIR keeps their union only): ``recon check`` names the frames where either is empty (a segmenter that
+    lost one)."""
+    obj = [int((mdict[midx[k]][1] > 0).sum()) for k in range(n_out)]
+    person = [int(((mdict[midx[k]][0] > 0) & ~(mdict[midx[k]][1] > 0)).sum()) for k in range(n_out)]
+    return {"object": obj, "person": person}
+
+
 def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path | None = None, poses: str | Path,
                  person_masks: str | Path | None = None,
                  object_masks: str | Path | Sequence[str | Path] | None = None,
@@ -1055,7 +1065,8 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path | 
                    "object_masks": _folder_names(object_masks), "poses": str(poses),
                    "object_mesh": None if object_mesh is None else str(object_mesh),
                    "spin_cameras": None if spin_cameras is None else str(spin_cameras), "up_camera": [float(v) for v in o.up],
-                   "spin_frames": int(o.spin_frames), "pelvis_offset": [float(v) for v in o.pelvis_offset]},
+                   "spin_frames": int(o.spin_frames), "pelvis_offset": [float(v) for v in o.pelvis_offset],
+                   "mask_pixels": _mask_pixels(mdict, midx, n_out)},
     }
     # ---- images: the background outside the masks set to the renderer's constant colour
     bg = (np.clip(np.asarray(o.background, dtype=np.float64), 0, 1) * 255 + 0.5).astype(np.uint8)
@@ -1084,6 +1095,31 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path | 
 
 
 # ----------------------------------------------------------------------------------------------- check
+def _lost_masks(meta: dict, sj: Path) -> list[str]:
+    """One problem line per label and clip whose mask is empty in some frames, from the import's per-frame pixel
+    counts (``import.mask_pixels``; none for a DATA_DIR written otherwise): the object in any frame, the person
+    in the dynamic clip (whose poses draw the body there)."""
+    imp = meta.get("import") if isinstance(meta.get("import"), dict) else {}
+    px, sp = imp.get("mask_pixels"), imp.get("spin_frames", 0)
+    if not isinstance(px, dict) or not isinstance(sp, int):
+        return []
+    out = []
+    for label in ("object", "person"):
+        n = px.get(label)
+        if not isinstance(n, list):
+            continue
+        n = np.asarray(n)
+        for clip, sl in (("spin", slice(0, sp)), ("dynamic", slice(sp, None))):
+            if label == "person" and clip == "spin":
+                continue
+            empty = np.flatnonzero(n[sl] == 0)
+            if len(empty):
+                out.append(f"{sj}: the {label}'s mask is empty in {len(empty)} of {len(n[sl])} {clip} frames "
+                           f"({number_ranges(empty.tolist())}): a segmenter that lost the {label}? those frames are "
+                           f"fitted as if it were hidden (mend the masks, or cut the clip)")
+    return out
+
+
 def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage: float = 0.001,
                   max_coverage: float = 0.99, max_root_speed: float = 5.0) -> dict:
     r"""Problems of a DATA_DIR, one line each (empty list: fine), and what was found: missing files; frame counts of
@@ -1091,7 +1127,8 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
     pose jitter (a bone's local rotation turning by more than ``max_jump_deg`` between frames:
     :math:`\arccos((\operatorname{tr}(L_{f}^\top L_{f+1}) - 1)/2)`, or the body's root moving faster than
     ``max_root_speed`` m/s: :math:`\|t_{f+1} - t_f\| \cdot` fps); camera intrinsics against the image size
-    (size equal, principal point inside, :math:`0.1 W < f_x < 20 W`); whether a bone reaches the object."""
+    (size equal, principal point inside, :math:`0.1 W < f_x < 20 W`); whether a bone reaches the object; frames
+    where the segmenter lost the object or the person (:func:`_lost_masks`, from an import's mask pixels)."""
     root = Path(data_dir)
     if not (math.isfinite(max_jump_deg) and 0 < max_jump_deg <= 180):
         raise ConfigError(f"--max-jump-deg must be in (0, 180] degrees, got {max_jump_deg}")
@@ -1193,6 +1230,7 @@ def check_dataset(data_dir: str | Path, max_jump_deg: float = 30.0, min_coverage
                     problems.append(f"{pfile}: pose jitter: the body's root moves {100 * step[f]:.1f} cm between "
                                     f"frames {f} and {f + 1} ({step[f] * fps:.1f} m/s at {fps:g} fps, above "
                                     f"{max_root_speed:g})")
+    problems += _lost_masks(meta, sj)
     for wh, files in off.items():
         problems.append(f"{sj}: camera.width/height {cam.get('width')}x{cam.get('height')} px, but {len(files)} "
                         f"images are {wh} px (first: {files[0]})")

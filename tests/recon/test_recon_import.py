@@ -28,6 +28,7 @@ from physar.cli.recon import register
 from physar.mpm.io import mp4_encoder
 from physar.recon import importer as I
 from physar.recon.io import read_pngs, write_mp4
+from physar.recon.masks import read_label_png
 from physar.recon.scene import object_points, union_lattice
 from physar.skinning import procedural_humanoid
 
@@ -334,6 +335,35 @@ def test_check_reports_a_root_jump(imported, tmp_path):
     lines = [ln for ln in err_lines(r) if "the body's root moves" in ln]
     assert r.exit_code == 2 and len(lines) == 2, r.output
     assert "moves 50.0 cm between frames 2 and 3 (15.0 m/s at 30 fps, above 5)" in lines[0], lines
+
+
+
+def test_check_names_frames_where_a_segmenter_lost_a_label(user, tmp_path):
+    """The user's label PNGs with the object erased in source frames 12-13 and the person in 14-17 (a segmenter
+    that lost them): imported at 30 fps (output frame k = source frame 2k; 4 spin frames first), `recon check`
+    names dynamic frame 2 for the object and 3-4 for the person, one line each, and the unchanged import none
+    (the object and the person are in every frame of the generator's clip). Reference: the frames erased here,
+    mapped by hand. Mutants: the person counted with the object's pixels (never empty), the spin offset not
+    taken off (frames 6, 7-8 named), the check skipped."""
+    import shutil
+
+    masks = tmp_path / "masks"
+    shutil.copytree(user["dir"] / "masks", masks)
+    for n, label in ((12, 2), (13, 2), (14, 1), (15, 1), (16, 1), (17, 1)):
+        f = masks / f"frame_{n:05d}.png"
+        lab = read_label_png(f).astype(np.uint8)
+        assert (lab == label).any()
+        lab[lab == label] = 0
+        label_png(f, lab)
+    args = list(user["args"])
+    args[args.index("--masks") + 1] = masks
+    r = cli(*args, "--out", tmp_path / "d")
+    assert r.exit_code == 0, (r.output, r.exception)
+    r = cli("recon", "check", tmp_path / "d")
+    lines = [ln for ln in err_lines(r) if "mask is empty" in ln]
+    assert r.exit_code == 2 and len(lines) == 2, r.output
+    assert "the object's mask is empty in 1 of 5 dynamic frames (2): a segmenter that lost the object?" in lines[0]
+    assert "the person's mask is empty in 2 of 5 dynamic frames (3-4)" in lines[1]
 
 
 TINY_FIT = ("[train]\npd_hold = false\nkp = 3000.0\nkd = 110.0\nsurface_layer = 0.0\nappearance_iters = 20\n"
@@ -739,7 +769,9 @@ def test_visual_hull_from_moving_spin_cameras(user, tmp_path, size):
     ns = user["ns"]
     for f, m in zip(user["rgb"][ns:], user["mask"][ns:]):
         frames.append(up2((f * 255 + 0.5).astype(np.uint8)))
-        labels.append(up2(np.where(m, 1, 0)))
+        lab = np.where(m, 1, 0)
+        lab[16:][lab[16:] > 0] = 2  # the object below row 16, as the `user` fixture labels it
+        labels.append(up2(lab))
     assert write_mp4(tmp_path / "v.mp4", frames, 30.0)
     (tmp_path / "m").mkdir()
     for i, lab in enumerate(labels):
