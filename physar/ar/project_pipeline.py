@@ -123,9 +123,11 @@ class ProjectFrame:
     at_bound: tuple = ()
 
 
-def _grey_levels_only(path) -> bool | None:
+def _grey_levels_only(path, max_frames: int = 60) -> bool | None:
     """Whether a video file holds grey levels only: a grey pixel format, or (a monochrome camera's H.264) colour
-    planes within 3 levels of neutral (128) all over its first frame; None when it cannot be read here."""
+    planes within 3 levels of neutral (128) all over its first frame with texture (luma standard deviation of 4
+    levels or more; a black, white or faded-in start has neutral colour planes in any video); None when it cannot
+    be read here or no frame of the first ``max_frames`` has texture."""
     import av
 
     try:
@@ -133,12 +135,16 @@ def _grey_levels_only(path) -> bool | None:
             s = c.streams.video[0]
             if (s.codec_context.pix_fmt or "").startswith("gray"):
                 return True
-            f = next(c.decode(s))
-            if f.format.name not in ("yuv420p", "yuvj420p", "yuv422p", "yuvj422p", "yuv444p", "yuvj444p"):
-                return False
-            uv = [np.frombuffer(p, np.uint8).reshape(p.height, p.line_size)[:, :p.width] for p in f.planes[1:3]]
-            return all(int(np.abs(x.astype(np.int16) - 128).max()) <= 3 for x in uv)
-    except (av.FFmpegError, OSError, ValueError, IndexError, AttributeError, StopIteration):
+            for i, f in enumerate(c.decode(s)):
+                if f.format.name not in ("yuv420p", "yuvj420p", "yuv422p", "yuvj422p", "yuv444p", "yuvj444p"):
+                    return False
+                pl = [np.frombuffer(p, np.uint8).reshape(p.height, p.line_size)[:, :p.width] for p in f.planes[:3]]
+                if pl[0].std() >= 4.0:
+                    return all(int(np.abs(x.astype(np.int16) - 128).max()) <= 3 for x in pl[1:])
+                if i + 1 >= max_frames:
+                    break
+            return None
+    except (av.FFmpegError, OSError, ValueError, IndexError, AttributeError):
         return None  # the reader names what is wrong with the file
 
 

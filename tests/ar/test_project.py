@@ -410,6 +410,45 @@ def test_coloured_dots_in_a_grey_video_are_warned_about(project_dir, clip, tmp_p
     assert not [x for x in w if "grey levels" in str(x.message)]
 
 
+
+def _copy_after_black(src, dst, n_black, n, grey=False):
+    """``n_black`` black frames, then the first ``n`` frames of ``src`` (grey levels when ``grey``), as H.264
+    yuv420p: a clip that fades in, or a camera whose lens cap came off."""
+    import av
+
+    frames = list(zip(range(n), VideoReader(src)))
+    with av.open(str(dst), "w") as out:
+        s = out.add_stream("libx264", rate=30)
+        s.pix_fmt = "yuv420p"
+        s.width, s.height = frames[0][1].shape[1], frames[0][1].shape[0]
+        for bgr in [frames[0][1] * 0] * n_black + [b for _, b in frames]:
+            rgb = cv2.cvtColor(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY), cv2.COLOR_GRAY2RGB) if grey else bgr[..., ::-1]
+            for p in s.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb24")):
+                out.mux(p)
+        for p in s.encode():
+            out.mux(p)
+
+
+def test_grey_check_looks_past_black_frames(project_dir, clip, tmp_path):
+    # A colour clip that starts with 5 black frames (neutral colour planes, as in any video): no grey-levels
+    # warning; the same clip in grey levels after the black frames: the warning. Reference: how the clips were
+    # made here. mutant caught: the first frame judged, texture or not (the colour clip warns).
+    import warnings
+
+    from physar.errors import PhysarWarning
+
+    project = load_project(project_dir / "project.toml")
+    colour, grey = tmp_path / "fade.mp4", tmp_path / "fade_grey.mp4"
+    _copy_after_black(clip / "video.mp4", colour, 5, 2)
+    _copy_after_black(clip / "video.mp4", grey, 5, 2, grey=True)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        ProjectPipeline(project, overlay=False).run(colour, max_frames=1)
+    assert not [x for x in w if "grey levels" in str(x.message)]
+    with pytest.warns(PhysarWarning, match=r"grey levels only"):
+        ProjectPipeline(project, overlay=False).run(grey, max_frames=1)
+
+
 def test_residuals_are_nan_behind_the_camera_with_and_without_distortion(project_dir):
     # The joint solve's projection (vectorised, without distortion) and Camera.project (with it) agree: a dot
     # in front of the camera gives the same pixel both ways, one behind it gives NaN both ways (the
