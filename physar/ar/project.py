@@ -57,6 +57,10 @@ class ModelSection(_Strict):
 
 class CameraSection(_Strict):
     file: Str = Field(..., description="camera file written by `physar calibrate` (TOML)")
+    scale: Float = Field(1.0, gt=0, le=16, description="image scale of the videos against the calibration [-]: a "
+                         "video recorded in the calibrated mode and resized by this factor (0.5: 1280x720 -> "
+                         "640x360, same field of view) is read with the camera scaled alike "
+                         "(fx, fy times scale; cx, cy as (c + 0.5) scale - 0.5)")
 
 
 class MarkerSection(_Strict):
@@ -470,6 +474,8 @@ def load_project(path, progress=None, build: bool = True) -> ARProject:
         camera = Camera.load(cam_path)
     except ConfigError as e:
         raise ConfigError(f"{source}: [camera] file: {e}") from None
+    if cfg.camera.scale != 1.0:
+        camera = camera.scaled(cfg.camera.scale)
     board = None
     if cfg.marker:      # (ids and dictionary checked by parse_project)
         board = MarkerBoard([m.id for m in cfg.marker], np.stack([m.corners() for m in cfg.marker]),
@@ -568,6 +574,7 @@ file = "model.npz"         # the built reduced model (written on first use, rebu
 
 [camera]
 file = "camera.toml"       # `physar calibrate board_*.png -o camera.toml` (print the board with --print-board)
+# scale = 0.5              # videos resized from the calibrated mode (1280x720 -> 640x360): camera scaled alike
 
 [[marker]]                 # one table per ArUco marker (any number, on any face); print them with
 id = 0                     # `physar ar print-markers project.toml -o markers.pdf`

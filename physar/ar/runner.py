@@ -113,7 +113,9 @@ def _loop(process, camera, reader, source, out_video, out_csv, fps, crf, csv_hea
     name = getattr(reader, "path", None) or getattr(reader, "name", None) or source
     if (w, h) != (None, None) and (w, h) != camera.size:
         turned = f" as displayed (stored turned {reader.rotation} deg)" if getattr(reader, "rotation", 0) else ""
-        raise ConfigError(f"{name}: video is {w}x{h}{turned} but the camera is for {camera.width}x{camera.height}")
+        hint = camera.size_hint(w, h) if hasattr(camera, "size_hint") else ""
+        raise ConfigError(f"{name}: video is {w}x{h}{turned} but the camera is for {camera.width}x{camera.height}"
+                          + hint)
     live = bool(getattr(reader, "live", False))
     fps = fps or getattr(reader, "fps", 30.0)
     total = getattr(reader, "frames_hint", 0)

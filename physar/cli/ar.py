@@ -135,7 +135,8 @@ def _open(spec: str, cam, what: str):
     src = open_source(spec, width=cam.width, height=cam.height, convert="opencv")
     if (src.width, src.height) != cam.size:
         src.close()  # stops the decoding thread first: left running, it aborted the interpreter at exit
-        raise ConfigError(f"{spec} is {src.width}x{src.height} but {what} is for {cam.width}x{cam.height}")
+        raise ConfigError(f"{spec} is {src.width}x{src.height} but {what} is for {cam.width}x{cam.height}"
+                          + cam.size_hint(src.width, src.height))
     return src
 
 
@@ -155,7 +156,8 @@ def _run_project(project_path, spec, out, csv_out, field, max_frames, preset, cr
     if field is not None:
         project.config.overlay.field = field
     pipe = ProjectPipeline(project)      # built before the source opens: a live source drops frames meanwhile
-    src = _open(spec, project.camera, f"{project_path} [camera] file")
+    sc = project.config.camera.scale
+    src = _open(spec, project.camera, f"{project_path} [camera] file" + (f" scaled by {sc:g}" if sc != 1 else ""))
     try:
         summary = pipe.run(src, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf,
                            keep_results=False)  # running statistics only: bounded memory on a live source

@@ -224,6 +224,23 @@ class Camera:
         K[:2, 2] = (K[:2, 2] + 0.5) * factor - 0.5
         return Camera(K, self.dist, round(self.width * factor), round(self.height * factor))
 
+    def size_hint(self, width: int, height: int) -> str:
+        """What to do about frames of ``width`` x ``height`` px for this camera of another size: ``; ...`` text
+        (a video of the same aspect ratio is often the calibrated mode resized: :meth:`scaled` gives its camera,
+        or a calibration at that size does; another aspect ratio is another crop of the sensor)."""
+        if (width, height) == self.size:
+            return ""
+        if (width, height) == (self.height, self.width):
+            return ("; the video is turned 90 deg against the calibration (portrait vs landscape): calibrate with "
+                    "the camera held as it was for this video")
+        f = width / self.width
+        if abs(height - self.height * f) <= 1:
+            return (f"; calibrate at {width}x{height} (`physar calibrate` on frames of this video mode), or, if "
+                    f"this video is the calibrated mode resized (same field of view), scale the camera by {f:g} "
+                    f"(an AR project's [camera] scale = {f:g})")
+        return (f"; the aspect ratio differs ({width / height:.3f} vs {self.width / self.height:.3f}: another crop of "
+                f"the sensor): calibrate at {width}x{height} (`physar calibrate` on frames of this video mode)")
+
     @property
     def fx(self) -> float:
         return float(self.K[0, 0])

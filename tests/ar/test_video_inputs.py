@@ -58,7 +58,8 @@ def test_rotated_phone_clip_runs_upright_against_a_portrait_camera(tmp_path):
     with pytest.raises(ConfigError) as e:
         run_video(process, Camera.from_fov(W, H, 60), clip, handle_signals=False)
     assert str(e.value) == (f"{clip}: video is 32x64 as displayed (stored turned 90 deg) but the camera is for "
-                            "64x32")
+                            "64x32; the video is turned 90 deg against the calibration (portrait vs landscape): "
+                            "calibrate with the camera held as it was for this video")
     live = open_source(str(clip), live=True)  # a file replayed as live goes through the same decoding
     try:
         assert (live.width, live.height) == (H, W)
