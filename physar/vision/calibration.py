@@ -202,8 +202,9 @@ def calibration_warnings(cam: Camera, rms_px: float) -> list[str]:
       by more than ``MAX_RADIAL_CHANGE`` = 50 % (a factor f outside 0.5..1.5). This judges the coefficients by
       their effect where there are pixels: a large high-order term is harmless at small r, while k3 =
       -82,498 at r_c = 0.6 turns the corners inside out;
-    * a principal point outside the image;
-    * what :meth:`Camera.load` refuses (:meth:`Camera.distortion_problem`, tangential terms included).
+    * what :meth:`Camera.load` refuses: a principal point outside the image or pixels far from square
+      (:meth:`Camera.intrinsics_problem`), a distortion that folds the image (:meth:`Camera.distortion_problem`,
+      tangential terms included).
     """
     out = []
     if not rms_px <= MAX_RMS_PX:
@@ -211,8 +212,9 @@ def calibration_warnings(cam: Camera, rms_px: float) -> list[str]:
                    "(--squares, --square, --marker, --dictionary) and use sharper views from more angles")
     K, w, h = cam.K, cam.width, cam.height
     cx, cy = K[0, 2], K[1, 2]
-    if not (0 <= cx <= w and 0 <= cy <= h):
-        out.append(f"principal point ({cx:.1f}, {cy:.1f}) px lies outside the {w}x{h} image")
+    bad_k = cam.intrinsics_problem()  # what Camera.load refuses of the intrinsics
+    if bad_k:
+        out.append(f"{bad_k}: the camera file will be refused when loaded; recalibrate with more views")
     k = np.zeros(8)
     d = np.asarray(cam.dist, float).ravel()
     for i, j in enumerate((0, 1, 4, 5, 6, 7)):  # k1 k2 (p1 p2) k3 k4 k5 k6 in OpenCV's order

@@ -259,6 +259,21 @@ class Camera:
         return (f"Camera({self.width}x{self.height}, fx={self.fx:.1f}, fy={self.fy:.1f}, cx={self.K[0, 2]:.1f}, "
                 f"cy={self.K[1, 2]:.1f}, dist={'none' if dist is None else '[' + dist + ']'})")
 
+    def intrinsics_problem(self, max_aspect: float = 4.0) -> str | None:
+        """Why these intrinsics cannot be a calibration of a camera of this image size (None: they can): the
+        principal point outside the image (pixel centres at 0 .. W - 1, so cx in [-0.5, W - 0.5], cy likewise),
+        or pixels more than ``max_aspect`` times taller than wide or wider than tall (fx / fy; anamorphic lenses
+        squeeze up to 2)."""
+        cx, cy = float(self.K[0, 2]), float(self.K[1, 2])
+        for name, c, n in (("cx", cx, self.width), ("cy", cy, self.height)):
+            if not -0.5 <= c <= n - 0.5:
+                return (f"principal point {name} = {c:g} px lies outside the {self.width}x{self.height} image "
+                        f"(0 .. {n - 1} px)")
+        r = self.fx / self.fy
+        if not 1 / max_aspect <= r <= max_aspect:
+            return f"fx = {self.fx:g} px and fy = {self.fy:g} px differ {max(r, 1 / r):.3g}-fold (pixels are about square)"
+        return None
+
     def distortion_problem(self, min_inside: float = 0.5, n: int = 200) -> str | None:
         r"""Why the distortion cannot describe a lens over this image, or None.
 
@@ -407,7 +422,7 @@ class Camera:
             c = cls(K, d, cam["width"], cam["height"])
         except ConfigError as e:
             raise ConfigError(f"{path}: {e}") from None
-        why = c.distortion_problem()
+        why = c.intrinsics_problem() or c.distortion_problem()
         if why:
             raise ConfigError(f"{path}: [camera] {why}: is it the calibration of this camera?")
         return c
