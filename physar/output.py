@@ -58,14 +58,16 @@ def _cannot_write(folder: Path) -> str | None:
 
 
 def check_destination(path, *, inputs: Iterable = (), suffixes: Iterable[str] | None = None,
-                      kind: str = "file") -> Path:
+                      kind: str = "file", replaces=None) -> Path:
     """Check that ``path`` can be written as a ``kind`` (e.g. "video", "CSV"); returns it as a Path.
 
     Raises ConfigError (one line naming ``path``) when: it is empty or an existing folder; ``suffixes`` is
     given and its suffix (case-insensitive) is not one of them; its nearest existing ancestor folder is not a
     writable folder (so the parent can neither be used nor created; probed, see :func:`_cannot_write`); it is
     the same file as one of ``inputs``
-    (None entries ignored). Nothing is created.
+    (None entries ignored); ``replaces`` is given (a function of the existing file's path: whether it is an
+    earlier output of this kind) and the existing file is not one (a user's file at that path is never
+    replaced by another kind of output). Nothing is created.
     """
     if path is None or str(path) == "":
         raise ConfigError(f"{kind} destination path is empty")
@@ -95,7 +97,25 @@ def check_destination(path, *, inputs: Iterable = (), suffixes: Iterable[str] | 
                 else p.absolute().resolve() == q.absolute().resolve())
         if same:
             raise ConfigError(f"{path}: {kind} destination is the same file as the input {inp}")
+    if replaces is not None and p.is_file() and not replaces(p):
+        raise ConfigError(f"{path}: exists and is not an earlier {kind} (physar replaces only its own outputs): "
+                          "give a new path, or move that file away first")
     return p
+
+
+def csv_header_starts(*columns: str):
+    """A ``replaces`` test for :func:`check_destination`: whether a file's first line starts with these CSV
+    columns (an earlier output of a writer with that header)."""
+    want = ",".join(columns)
+
+    def test(path: Path) -> bool:
+        try:
+            with open(path, encoding="utf-8", errors="replace") as f:
+                return f.readline(4096).startswith(want)
+        except OSError:
+            return False
+
+    return test
 
 
 def _umask() -> int:

@@ -456,26 +456,39 @@ def load_model(cfg: ProjectConfig, source: str, progress=None, build: bool = Tru
     return rom
 
 
+def _camera(cfg, source: str):
+    from physar.vision.camera import Camera
+
+    cam_path = _file(cfg._base_dir, cfg.camera.file)
+    try:
+        camera = Camera.load(cam_path)
+    except ConfigError as e:
+        raise ConfigError(f"{source}: [camera] file: {e}") from None
+    return camera.scaled(cfg.camera.scale) if cfg.camera.scale != 1.0 else camera
+
+
+def project_camera(path) -> tuple:
+    """(camera, scale) of the AR project file ``path``: its ``[camera]`` file scaled by ``[camera] scale``, read
+    without the model, so that a video's size can be checked against it before a model is built."""
+    path = Path(path)
+    cfg = parse_project(read_project_toml(path), str(path))
+    cfg._base_dir = path.resolve().parent
+    return _camera(cfg, str(path)), cfg.camera.scale
+
+
 def load_project(path, progress=None, build: bool = True) -> ARProject:
     """Read, validate and resolve an AR project file (model built if needed, see :func:`load_model`).
 
     Checks beyond the schema, each one clear line: the camera file, every marker id within its dictionary,
     every dot on the model's surface (within ``[dots] tol``), ``[overlay] show`` naming the model's
     parameters. The camera's resolution is checked against the video when a source is opened."""
-    from physar.vision.camera import Camera
     from physar.vision.markers import MarkerBoard
 
     path = Path(path)
     source = str(path)
     cfg = parse_project(read_project_toml(path), source)
     cfg._base_dir = path.resolve().parent
-    cam_path = _file(cfg._base_dir, cfg.camera.file)
-    try:
-        camera = Camera.load(cam_path)
-    except ConfigError as e:
-        raise ConfigError(f"{source}: [camera] file: {e}") from None
-    if cfg.camera.scale != 1.0:
-        camera = camera.scaled(cfg.camera.scale)
+    camera = _camera(cfg, source)
     board = None
     if cfg.marker:      # (ids and dictionary checked by parse_project)
         board = MarkerBoard([m.id for m in cfg.marker], np.stack([m.corners() for m in cfg.marker]),
@@ -609,4 +622,4 @@ exaggeration = 1.0
 '''
 
 
-__all__ = ["ARProject", "ProjectConfig", "load_model", "load_project"]  # TEMPLATE: `physar ar init`
+__all__ = ["ARProject", "ProjectConfig", "load_model", "load_project", "project_camera"]  # TEMPLATE: `physar ar init`

@@ -147,17 +147,24 @@ def _run_project(project_path, spec, out, csv_out, field, max_frames, preset, cr
 
     if field is not None and field not in FIELDS:
         raise ConfigError(f"--field must be one of {', '.join(FIELDS)}, got {field!r}")
-    from physar.output import check_destination
+    from physar.output import check_destination, csv_header_starts
 
-    for path, suf, kind in ((out, [".mp4"], "augmented video"), (csv_out, [".csv"], "estimates CSV")):
+    for path, suf, kind, ours in ((out, [".mp4"], "augmented video", None),
+                                  (csv_out, [".csv"], "estimates CSV", csv_header_starts("frame", "time_s", "status"))):
         if path is not None:
-            check_destination(path, inputs=[project_path, spec], suffixes=suf, kind=kind)
+            check_destination(path, inputs=[project_path, spec], suffixes=suf, kind=kind, replaces=ours)
+    from physar.ar.project import project_camera
+    from physar.ar.sources import is_url
+
+    cam, sc = project_camera(project_path)
+    what = f"{project_path} [camera] file" + (f" scaled by {sc:g}" if sc != 1 else "")
+    if not is_url(spec) and not spec.isdigit() and Path(spec).is_file():
+        _open(spec, cam, what).close()  # a video file's size checked before the model is (re)built
     project = load_project(project_path, progress=_bar("model"))
     if field is not None:
         project.config.overlay.field = field
     pipe = ProjectPipeline(project)      # built before the source opens: a live source drops frames meanwhile
-    sc = project.config.camera.scale
-    src = _open(spec, project.camera, f"{project_path} [camera] file" + (f" scaled by {sc:g}" if sc != 1 else ""))
+    src = _open(spec, project.camera, what)
     try:
         summary = pipe.run(src, out, csv_out, progress=_bar("AR"), max_frames=max_frames, preset=preset, crf=crf,
                            keep_results=False)  # running statistics only: bounded memory on a live source
@@ -200,9 +207,12 @@ def ar_serve(
     cert, key = (Path(tls[0]), Path(tls[1])) if tls[0] else (None, None)
     if self_signed and cert is not None:
         raise ConfigError("give either --tls CERT KEY or --self-signed, not both")
-    for path, suf, kind in ((out, [".mp4"], "augmented video"), (csv_out, [".csv"], "estimates CSV")):
+    from physar.output import csv_header_starts
+
+    for path, suf, kind, ours in ((out, [".mp4"], "augmented video", None),
+                                  (csv_out, [".csv"], "estimates CSV", csv_header_starts("frame", "time_s", "status"))):
         if path is not None:
-            check_destination(path, inputs=[project], suffixes=suf, kind=kind)
+            check_destination(path, inputs=[project], suffixes=suf, kind=kind, replaces=ours)
     ctx, fingerprint = None, None
     if cert is not None:
         ctx = tls_context(cert, key)

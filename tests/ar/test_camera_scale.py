@@ -70,3 +70,31 @@ def test_bad_scale_is_one_line(tmp_path, bad):
     proj = _project(tmp_path, bad)
     r = runner.invoke(app, ["ar", "run", str(proj), str(tmp_path / "none.mp4"), "--out", str(tmp_path / "o.mp4")])
     assert r.exit_code == 2 and "scale" in r.output and "Traceback" not in r.output, r.output
+
+
+# mutant caught: the video opened only after load_project (the model is rebuilt first: model.npz written)
+def test_video_size_checked_before_the_model_is_built(tmp_path):
+    proj = _project(tmp_path, None)
+    (proj.parent / "model.npz").unlink()  # the next run would build it
+    v = _video(tmp_path / "half.mp4", 640, 360)
+    r = runner.invoke(app, ["ar", "run", str(proj), str(v), "--out", str(tmp_path / "o.mp4")])
+    assert r.exit_code == 2 and "is 640x360 but" in r.output, r.output
+    assert not (proj.parent / "model.npz").exists()
+
+
+# An existing CSV at --csv is replaced only when it is an earlier estimates CSV (its header starts frame, time_s,
+# status): a synthetic clip's truth.csv (frame, time_s, s_true, ...) or any other file is refused, untouched.
+# mutants caught: the replaces test not passed by ar run (truth.csv accepted: the size error comes instead), the
+# header test always false (an earlier estimates CSV refused)
+def test_csv_over_another_file_refused(tmp_path):
+    proj = _project(tmp_path, None)
+    v = _video(tmp_path / "half.mp4", 640, 360)
+    truth = tmp_path / "truth.csv"
+    truth.write_text("frame,time_s,s_true,rx\n0,0.0,0.1,0.0\n")
+    r = runner.invoke(app, ["ar", "run", str(proj), str(v), "--csv", str(truth)])
+    assert r.exit_code == 2 and "truth.csv: exists and is not an earlier estimates CSV" in r.output, r.output
+    assert truth.read_text() == "frame,time_s,s_true,rx\n0,0.0,0.1,0.0\n"
+    est = tmp_path / "est.csv"
+    est.write_text("frame,time_s,status,s_est\n0,0.0,lost,nan\n")
+    r = runner.invoke(app, ["ar", "run", str(proj), str(v), "--csv", str(est)])
+    assert r.exit_code == 2 and "is 640x360 but" in r.output, r.output  # got past the destination check
