@@ -58,6 +58,9 @@ column of :meth:`ProjectPipeline.run`'s CSV): the solve clips the parameters to 
 estimate that stays there says the true value is probably outside the box (or in other units)."""
 
 PINNED_FRACTION = 0.25
+#: a parameter whose standard deviation averages more than this fraction of its range over the tracked frames
+#: is reported as poorly observed (2 sd then span 5 x the 1 % tolerance `physar synth score` judges by)
+WEAK_STD_FRACTION = 0.025
 """Fraction of the tracked frames at one bound of a parameter from which :meth:`ProjectPipeline.run` warns
 (once, at the end of the run). A value that truly dwells at a range end a quarter of the time also warns."""
 
@@ -710,7 +713,8 @@ class ProjectPipeline:
         estimate was at a bound of the model's range in a tracked frame, the bound it was at most often, in how
         many of the tracked frames). A parameter at one bound in at least :data:`PINNED_FRACTION` of the
         tracked frames gives one PhysarWarning at the end (all such parameters in one line)."""
-        tally = {"tracked": 0, "markers": 0, "bounds": {}}
+        tally = {"tracked": 0, "markers": 0, "bounds": {}, "std_sum": np.zeros(len(self.names)),
+                 "std_n": np.zeros(len(self.names))}
 
         def step(k, item, draw):
             frame, luma = item
@@ -720,6 +724,10 @@ class ProjectPipeline:
                 tally["tracked"] += 1
                 for key in r.at_bound:
                     tally["bounds"][key] = tally["bounds"].get(key, 0) + 1
+                sd = np.asarray(r.std, float)
+                ok = np.isfinite(sd)
+                tally["std_sum"][ok] += sd[ok]
+                tally["std_n"] += ok
             return img, r
 
         def frames(reader):
@@ -739,8 +747,37 @@ class ProjectPipeline:
             cv2.setNumThreads(prev)
         summary["marker_frames"] = tally["markers"]
         summary["at_bound"] = self._pinned(tally["tracked"], tally["bounds"])
-        self._warn_pinned(summary["at_bound"])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_std = tally["std_sum"] / tally["std_n"]
+        summary["std_mean"] = {n: float(v) for n, v in zip(self.names, mean_std)}
+        weak = self._weak(mean_std)
+        self._warn_pinned(summary["at_bound"], weak)
+        self._warn_weak(weak)
         return summary
+
+    def _weak(self, mean_std: np.ndarray) -> dict:
+        """{name: mean std / range width} of each parameter whose standard deviation averages more than
+        :data:`WEAK_STD_FRACTION` of its range over the tracked frames."""
+        width = np.asarray(self.hi, float) - np.asarray(self.lo, float)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            frac = mean_std / width
+        return {n: float(f) for n, f in zip(self.names, frac) if np.isfinite(f) and f > WEAK_STD_FRACTION}
+
+    def _warn_weak(self, weak: dict) -> None:
+        """One PhysarWarning naming each poorly observed parameter (:meth:`_weak`) and what makes it observable."""
+        if not weak:
+            return
+        params = {p["name"]: p for p in self.project.parameters()}
+        parts = []
+        for name, f in weak.items():
+            j = self.names.index(name)
+            unit = params.get(name, {}).get("unit") or ""
+            parts.append(f"{name} is poorly observed: its standard deviation averages {f * (self.hi[j] - self.lo[j]):.3g}"
+                         f"{' ' + unit if unit else ''}, {100 * f:.1f} % of its range, over the tracked frames")
+        warnings.warn(PhysarWarning(
+            f"{self.project.source}: " + "; ".join(parts) + ": the dots move too few pixels for it to be told "
+            "apart (estimates near a bound, wide swings); bring the camera closer or record at a higher "
+            "resolution, put dots where the object moves most, or use a larger load"), stacklevel=3)
 
     def _pinned(self, tracked: int, bounds: dict) -> dict:
         """The summary's ``at_bound`` entry from the tracked frames' count and {(name, side): frames}."""
@@ -752,9 +789,10 @@ class ProjectPipeline:
                              "frames": int(k), "tracked": int(tracked), "fraction": k / tracked}
         return out
 
-    def _warn_pinned(self, at_bound: dict) -> None:
+    def _warn_pinned(self, at_bound: dict, weak: dict | None = None) -> None:
         """One PhysarWarning naming each parameter at one bound in at least :data:`PINNED_FRACTION` of the tracked
-        frames, the bound, the fraction and the model file's field that sets the range."""
+        frames, the bound, the fraction and the model file's field that sets the range; for a poorly observed
+        one (``weak``, :meth:`_weak`) that as the first cause."""
         params = {p["name"]: p for p in self.project.parameters()}
         cfg = self.project.config
         where = cfg.model.config or cfg.model.file or "the model"
@@ -767,10 +805,15 @@ class ProjectPipeline:
             lo, hi = self.lo[self.names.index(name)], self.hi[self.names.index(name)]
             field = (f"`path`, {hi - lo:g} {unit} long".rstrip() if p.get("kind") == "load_position"
                      else f"`range` = [{lo:g}, {hi:g}]")
-            parts.append(f"{name} pinned at its {b['bound']} bound {b['value']:g}{' ' + unit if unit else ''} in "
-                         f"{100 * b['fraction']:.0f} % of the tracked frames ({b['frames']} of {b['tracked']}): "
-                         f"unless the object truly stays there, the true value is probably outside the model's "
-                         f"range ({where} [[parameter]] {name} {field}) or in other units")
+            head = (f"{name} pinned at its {b['bound']} bound {b['value']:g}{' ' + unit if unit else ''} in "
+                    f"{100 * b['fraction']:.0f} % of the tracked frames ({b['frames']} of {b['tracked']}): ")
+            if name in (weak or {}):
+                parts.append(head + f"it is poorly observed ({100 * weak[name]:.1f} % of its range as standard "
+                             f"deviation, see below), which pulls estimates to a bound; else the true value may be "
+                             f"outside the model's range ({where} [[parameter]] {name} {field}) or in other units")
+            else:
+                parts.append(head + f"unless the object truly stays there, the true value is probably outside the "
+                             f"model's range ({where} [[parameter]] {name} {field}) or in other units")
         if parts:
             warnings.warn(PhysarWarning(f"{self.project.source}: " + "; ".join(parts)), stacklevel=3)
 

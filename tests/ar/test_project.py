@@ -411,6 +411,43 @@ def test_coloured_dots_in_a_grey_video_are_warned_about(project_dir, clip, tmp_p
 
 
 
+
+def test_poorly_observed_parameter_is_warned_about(project_dir, clip, tmp_path, monkeypatch):
+    # The run's mean standard deviation per parameter (summary std_mean) is the mean of the CSV's s_std over the
+    # tracking rows (computed here from the written file); with the limit set just below the measured fraction
+    # of the range one "poorly observed" warning names s and what to do, just above it none. The cantilever's
+    # own fraction is about 0.5 % (well under the 2.5 % default: no warning on the example).
+    # mutants caught: the std summed over lost rows too (NaN mean), the fraction taken of the upper bound instead
+    # of the range width (the warning's percentage), the comparison reversed
+    import csv
+    import warnings
+
+    import physar.ar.project_pipeline as PP
+    from physar.errors import PhysarWarning
+
+    project = load_project(project_dir / "project.toml")
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        summ = ProjectPipeline(project, overlay=False).run(clip / "video.mp4", out_csv=tmp_path / "e.csv",
+                                                          max_frames=30)
+    assert not [x for x in w if "poorly observed" in str(x.message)]
+    rows = [r for r in csv.DictReader(open(tmp_path / "e.csv")) if r["status"] == "tracking"]
+    want = np.mean([float(r["s_std"]) for r in rows])
+    assert summ["std_mean"]["s"] == pytest.approx(want, rel=1e-4)  # the CSV rounds to 6 digits
+    lo, hi = project.rom.ranges[0]
+    frac = want / (hi - lo)
+    assert 0.001 < frac < PP.WEAK_STD_FRACTION
+    monkeypatch.setattr(PP, "WEAK_STD_FRACTION", 0.98 * frac)
+    with pytest.warns(PhysarWarning, match=rf"s is poorly observed: its standard deviation averages "
+                                           rf"{want:.3g} m, {100 * frac:.1f} % of its range.*bring the camera closer"):
+        ProjectPipeline(project, overlay=False).run(clip / "video.mp4", max_frames=30)
+    monkeypatch.setattr(PP, "WEAK_STD_FRACTION", 1.02 * frac)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        ProjectPipeline(project, overlay=False).run(clip / "video.mp4", max_frames=30)
+    assert not [x for x in w if "poorly observed" in str(x.message)]
+
+
 def _copy_after_black(src, dst, n_black, n, grey=False):
     """``n_black`` black frames, then the first ``n`` frames of ``src`` (grey levels when ``grey``), as H.264
     yuv420p: a clip that fades in, or a camera whose lens cap came off."""
