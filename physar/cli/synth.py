@@ -111,6 +111,14 @@ def score(
         ranges = {n: tuple(map(float, r)) for n, r in zip(rom.names, rom.ranges)}
     res = _score(read_columns(truth, "truth file"), read_columns(estimates, "estimates file"), ranges, tol,
                  source=str(estimates), truth_source=str(truth))
+    if res["truth_frames"] != res["estimate_frames"]:
+        import warnings
+
+        from physar.errors import PhysarWarning
+
+        warnings.warn(PhysarWarning(
+            f"{estimates}: {res['estimate_frames']} frames, {truth}: {res['truth_frames']}: only the first "
+            f"{res['frames']} are scored (a run stopped early, --max-frames, or another clip)"), stacklevel=1)
     if json_out:
         print_json(res)
         return

@@ -83,7 +83,9 @@ def _fmt(v) -> str:
 
 def _same_frames(truth: dict, est: dict, n: int, truth_source: str, source: str) -> None:
     """Rows are compared by position: when both files number their frames, the first ``n`` must agree (an
-    estimates file that skipped a frame would otherwise be scored against the wrong truth rows)."""
+    estimates file that skipped a frame would otherwise be scored against the wrong truth rows); when both give
+    times, the first ``n`` must agree within half the truth's frame interval (a video that dropped frames is
+    numbered anew by the pipeline, but its timestamps keep the gaps)."""
     if "frame" not in truth or "frame" not in est:
         return
     t, e = truth["frame"][:n], est["frame"][:n]
@@ -95,6 +97,15 @@ def _same_frames(truth: dict, est: dict, n: int, truth_source: str, source: str)
         i = differ[0]
         raise ConfigError(f"{source}: row {i + 2}, column frame: frame {_fmt(e[i])} where {truth_source} has frame "
                           f"{_fmt(t[i])}; the files must list the same frames in the same order")
+    if "time_s" in truth and "time_s" in est and n > 1:
+        tt, te = (np.asarray(x["time_s"][:n], float) for x in (truth, est))
+        dt = float(np.median(np.diff(tt))) if n > 1 else 0.0
+        off = np.flatnonzero(np.abs(te - tt) > 0.5 * dt) if dt > 0 else np.zeros(0, int)
+        if off.size:
+            i = off[0]
+            raise ConfigError(f"{source}: row {i + 2}, column time_s: {te[i]:.4g} s where {truth_source} has "
+                              f"{tt[i]:.4g} s (more than half a frame apart): the estimates are not of this clip's "
+                              "frames (another clip, or a video that dropped or added frames)")
 
 
 def _hold_lost(e: np.ndarray, status: np.ndarray) -> np.ndarray:
@@ -140,7 +151,8 @@ def score(truth: dict, est: dict, ranges: dict[str, tuple[float, float]] | None 
     judged = ~occ & ~after & ~rest
     # a row before the first frame with an estimate of its own carries the pipeline's starting value
     estimated = np.cumsum(np.isin(status, ("tracking", "rest"))) > 0
-    out = {"frames": int(n), "judged": int(judged.sum()), "at_rest": int(rest.sum()), "tol": tol, "parameters": {}}
+    out = {"frames": int(n), "judged": int(judged.sum()), "at_rest": int(rest.sum()), "tol": tol, "parameters": {},
+           "truth_frames": len(truth[f"{names[0]}_true"]), "estimate_frames": len(est[f"{names[0]}_est"])}
     spans = {}
     for name in names:
         t = np.asarray(truth[f"{name}_true"], float)[:n]

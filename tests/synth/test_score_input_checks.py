@@ -33,6 +33,10 @@ def _score(tmp_path, truth, est):
     (TRUTH, EST.replace("2,0.2,tracking", "1,0.2,tracking"), "e.csv: row 4, column frame: frame 1 again"),
     # mutant: rows compared by position whatever their frames (estimates that skipped frame 1)
     (TRUTH, EST.replace("1,0.1,tracking,0.4\n", ""), "e.csv: row 3, column frame: frame 2 where t.csv has frame 1"),
+    # a video that dropped frame 1: the pipeline numbers its frames 0, 1 but frame 1 is at 0.2 s (mutant: times
+    # not compared: frame 2's estimate scored against frame 1's truth)
+    (TRUTH, "frame,time_s,status,s_est\n0,0.0,tracking,0.2\n1,0.2,tracking,0.6\n",
+     "e.csv: row 3, column time_s: 0.2 s where t.csv has 0.1 s (more than half a frame apart)"),
     # mutant: max(hi - lo, 1e-300) kept (every frame "within 1e-302")
     (TRUTH.replace("0.4", "0.2").replace("0.6", "0.2"), EST, "t.csv: column s_true is constant (0.2)"),
 ])
@@ -69,3 +73,15 @@ def test_a_parameter_held_constant_is_reported_the_others_scored(tmp_path, monke
     assert "s: 3/3 judged frames within 0.004 (max 0.003 at frame 2" in r.output, r.output
     assert "P: not judged: its truth is constant (1), which gives no range for the tolerance; give --project" \
         in r.output, r.output
+
+
+def test_fewer_estimate_rows_are_said(tmp_path, monkeypatch):
+    # estimates of the first 2 of 3 frames (a run stopped early): scored, with one warning naming both counts;
+    # equal counts give none. mutant caught: the counts not compared (no warning)
+    monkeypatch.chdir(tmp_path)
+    r = _score(tmp_path, TRUTH, EST.rsplit("2,0.2", 1)[0])
+    assert r.exit_code == 0, r.output
+    warn = [ln for ln in r.output.splitlines() if ln.startswith("warning:")]
+    assert len(warn) == 1 and "e.csv: 2 frames, t.csv: 3: only the first 2 are scored" in warn[0], r.output
+    r = _score(tmp_path, TRUTH, EST)
+    assert r.exit_code == 0 and "warning:" not in r.output, r.output
