@@ -70,7 +70,8 @@ def _close_bars() -> None:
 
 def user_errors(fn: Callable) -> Callable:
     """Decorator: a PhysarError (bad input) prints `error: <message>` to stderr and exits with code 2; a
-    PhysarWarning (a result to doubt, e.g. a poor calibration) prints one `warning: <message>` line."""
+    PhysarWarning (a result to doubt, e.g. a poor calibration) prints one `warning: <message>` line; an
+    interrupt (Ctrl-C, SIGTERM) that the command does not handle itself prints one `interrupted` line, exit 130."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
@@ -83,6 +84,12 @@ def user_errors(fn: Callable) -> Callable:
                 _close_bars()
                 typer.echo(f"error: {exc}", err=True)
                 raise typer.Exit(code=2) from None
+            except KeyboardInterrupt as exc:  # a command without its own stop: say so (typer would exit silently)
+                _close_bars()
+                how = str(exc).removeprefix("second ") or "SIGINT"
+                typer.echo(f"interrupted ({how}): outputs not yet complete were not written (every output is "
+                           "written whole or not at all)", err=True)
+                raise typer.Exit(code=130) from None
 
     return wrapper
 

@@ -155,7 +155,14 @@ def info(
         from physar.rom.config import load_rom_config
         from physar.rom.quality import discretisation_error
 
-        chk = discretisation_error(load_rom_config(check), rom, points=check_points, source=str(check))
+        from tqdm import tqdm
+
+        log(f"checking {model_file} against full solves of {check} on a twice finer mesh at {check_points} "
+            "parameter points (8x the elements: minutes for a large model)")
+        with tqdm(total=check_points, desc="check solves", unit="point", file=sys.stderr, leave=False,
+                  disable=None if not json_out else True) as bar:
+            chk = discretisation_error(load_rom_config(check), rom, points=check_points, source=str(check),
+                                       progress=lambda k, n: bar.update(k - bar.n))
         d["check"] = chk.summary()
     if json_out:
         print_json(d)
