@@ -120,17 +120,22 @@ def simulate(
     check_toml(config, "problem file")
     check_fps(fps, "--fps")
     csv_path = energy_csv or out.with_suffix(".csv")
-    check_destination(out, inputs=[config], suffixes=[".xdmf"], kind="trajectory")
-    check_destination(out.with_suffix(".h5"), inputs=[config], kind="trajectory data")
-    check_destination(csv_path, inputs=[config, out, out.with_suffix(".h5")], suffixes=[".csv"],
+    cfg = load_dynamics_config(config)
+    mesh_in = []  # the input mesh (and an XDMF's .h5) is never replaced by an output
+    if cfg.mesh.file:
+        m = config.parent / cfg.mesh.file
+        mesh_in = [m, m.with_suffix(".h5")] if m.suffix.lower() in (".xdmf", ".xmf") else [m]
+    check_destination(out, inputs=[config, *mesh_in], suffixes=[".xdmf"], kind="trajectory")
+    check_destination(out.with_suffix(".h5"), inputs=[config, *mesh_in], kind="trajectory data")
+    check_destination(csv_path, inputs=[config, *mesh_in, out, out.with_suffix(".h5")], suffixes=[".csv"],
                       kind="energy CSV")
     if video is not None:
-        check_destination(video, inputs=[config, out, csv_path], suffixes=[".mp4"], kind="video")
+        check_destination(video, inputs=[config, *mesh_in, out, csv_path], suffixes=[".mp4"], kind="video")
     if plot is not None:
-        check_destination(plot, inputs=[config, out, csv_path, video], suffixes=[".png"], kind="energy plot")
+        check_destination(plot, inputs=[config, *mesh_in, out, csv_path, video], suffixes=[".png"],
+                          kind="energy plot")
     if not (0 < energy_warn < float("inf")):
         raise ConfigError(f"--energy-warn must be a finite fraction > 0, got {energy_warn}")
-    cfg = load_dynamics_config(config)
     failure = None
     try:
         sim = build_simulation(cfg)

@@ -229,9 +229,11 @@ def _diverged(state: State, energy: dict, size: float, growth: float = 0.0, step
         return "the solution is no longer finite"
     if not all(np.isfinite(v) for v in energy.values()):
         return "the energy is no longer finite"
-    umax = float(np.abs(state.q).max()) if state.q.size else 0.0
+    q3 = state.q.reshape(-1, 3) if state.q.size % 3 == 0 else state.q[:, None]
+    umax = float(np.abs(q3 - q3.mean(axis=0)).max()) if state.q.size else 0.0  # apart from a rigid translation
     if umax > RUNAWAY * size:
-        return f"a displacement reached {umax:.3g} m, more than {RUNAWAY:g} times the body's size ({size:.3g} m)"
+        return (f"a displacement apart from the body's mean translation reached {umax:.3g} m, more than "
+                f"{RUNAWAY:g} times the body's size ({size:.3g} m)")
     if step >= RUNAWAY_FROM and growth > RUNAWAY_ENERGY:
         return (f"the total energy grew by {100 * growth:.0f} % of the largest energy term (runaway energy, "
                 f"limit {100 * RUNAWAY_ENERGY:.0f} %)")
@@ -244,8 +246,10 @@ def run_simulation(sim: Simulation, progress: Callable[[int, int], None] | None 
 
     ``stop()`` is polled after every step: when it returns True the run ends there (``trajectory.
     interrupted``). A step whose state is not finite, whose energy is not finite, whose displacement ran
-    away (``RUNAWAY``) or whose total energy ran away (``RUNAWAY_ENERGY``) raises :class:`SimulationDiverged` carrying the trajectory up to the step before it,
-    with its last state recorded as a frame, so that what is written from it is valid.
+    away (``RUNAWAY``: apart from the body's mean translation, so a long free fall is not a divergence) or whose
+    total energy ran away (``RUNAWAY_ENERGY``) raises :class:`SimulationDiverged` carrying the trajectory up to the
+    step before it, with its last state recorded as a frame, so that what is written from it is valid; so does a
+    step that fails (a SolverError: Newton did not converge), naming the step.
     """
     d = sim.config.dynamics
     space = sim.problem.space
@@ -269,8 +273,16 @@ def run_simulation(sim: Simulation, progress: Callable[[int, int], None] | None 
     e0 = model.energy(state.q, state.v)
     record(0, state, e0)
     scale = max(abs(e0["kinetic"]), abs(e0["elastic"]), abs(e0["potential"]))
+    fix = "reduce [dynamics] h" + ("" if getattr(integ, "implicit", True) else " or use an implicit method")
     for k in range(1, d.steps + 1):
-        prev, state = state, integ.step(model, state, d.h)
+        prev = state
+        try:
+            state = integ.step(model, state, d.h)
+        except SolverError as exc:  # e.g. Newton did not converge: the steps before it are kept, as for a divergence
+            if traj.times[-1] != prev.t:
+                frame(prev)
+            raise SimulationDiverged(f"{integ.name} failed at step {k} (t = {prev.t + d.h:.4g} s): "
+                                     f"{str(exc).removeprefix(integ.name + ': ')}", traj) from None
         with np.errstate(all="ignore"):
             e = model.energy(state.q, state.v)
             scale = max(scale, abs(e["kinetic"]), abs(e["elastic"]), abs(e["potential"]))
@@ -279,8 +291,8 @@ def run_simulation(sim: Simulation, progress: Callable[[int, int], None] | None 
         if why is not None:
             if traj.times[-1] != prev.t:
                 frame(prev)
-            raise SimulationDiverged(f"{integ.name} diverged at step {k} (t = {state.t:.4g} s): {why}; reduce "
-                                     "[dynamics] h or use an implicit method", traj)
+            raise SimulationDiverged(f"{integ.name} diverged at step {k} (t = {state.t:.4g} s): {why}; {fix}",
+                                     traj)
         record(k, state, e)
         if progress:
             progress(k, d.steps)
