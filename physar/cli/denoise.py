@@ -27,12 +27,13 @@ def _load(path: Path, role: str = "input"):
     from physar.geometry.io import read_mesh
     from physar.geometry.mesh import TetMesh, TriMesh, boundary_surface
     from physar.geometry.pointcloud import read_ply
+    from physar.geometry.quality import oriented
 
     if path.suffix.lower() == ".ply":
         pts, faces = read_ply(path)
         if faces is None:
             return None, pts
-        return TriMesh(pts, faces, name=str(path)), None
+        return oriented(TriMesh(pts, faces, name=str(path)), str(path)), None
     m = read_mesh(path, kind="auto")  # tetrahedra first: their boundary, not the file's tagged triangles
     if isinstance(m, TetMesh):
         surf = boundary_surface(m).mesh
@@ -43,7 +44,7 @@ def _load(path: Path, role: str = "input"):
         return TriMesh(surf.points, surf.faces, name=m.name, face_tags=surf.face_tags, tag_names=surf.tag_names), None
     if not isinstance(m, TriMesh):
         raise PhysarError(f"{path}: expected a triangle surface mesh")
-    return m, None
+    return oriented(m, str(path)), None
 
 
 _NORMALS = ("nx", "ny", "nz")

@@ -312,6 +312,12 @@ def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
         mesh = read_mesh(p, kind="auto")
         check_length_units(mesh.points, f"[mesh] file {p}", _SCALE_HINT)
         if isinstance(mesh, TriMesh):
+            from physar.geometry.quality import oriented
+
+            try:
+                mesh = oriented(mesh, f"[mesh] file {p}")
+            except MeshError as exc:
+                raise ConfigError(str(exc)) from None
             check_mesh_size(section.size, mesh.points, p.name)
             try:
                 return tetrahedralize(mesh, size=section.size, source=f"[mesh] file {p.name}",

@@ -291,6 +291,8 @@ def _read_obj(path: Path):
     """Positions and faces of a Wavefront OBJ (``v`` and ``f`` lines; ``f`` entries ``v``, ``v/vt``, ``v//vn`` or
     ``v/vt/vn``, negative indices counted back from the last vertex read; texture coordinates and normals are
     ignored). Polygons become one ``polygon<k>`` block per size. Bad lines are one MeshError naming the line.
+    Vertices repeated at one position (per-face or seam copies of exporters) are merged into one, numbered in
+    the order of their first ``v`` line.
     Groups (``g`` and ``o`` lines; ``g`` alone is the group ``default``) are region tags 1, 2, ... in the order
     of their first line, with their names (cell_data ``cell_tags``, field_data ``{name: [tag, 2]}``; faces before
     the first group get -1); a file without groups has no tags."""
@@ -330,14 +332,27 @@ def _read_obj(path: Path):
     if bad is not None:
         raise MeshError(f"{path}: line {bad[1]} ({bad[2]!r}): a face refers to vertex {bad[0] + 1}, the file has "
                         f"{n} vertices")
+    # vertices at one position (exporters repeat them per face or per texture seam) are one vertex: else every
+    # face is its own patch (noise tears the surface apart, a normal filter sees no neighbours); the first
+    # occurrence's order is kept, and a file without repeats keeps its numbering
+    xyz = np.asarray(pts, float)
+    _, first, inv = np.unique(xyz, axis=0, return_index=True, return_inverse=True)
+    remap = None
+    if len(first) < len(xyz):
+        order = np.argsort(first)                      # unique rows in order of first occurrence
+        rank = np.empty_like(order)
+        rank[order] = np.arange(len(order))
+        remap = rank[inv.ravel()]
+        xyz = xyz[np.sort(first)]
     cells, tags = [], []
     for k, rows in sorted(polys.items()):
-        cells.append(("triangle" if k == 3 else "quad" if k == 4 else "polygon", np.asarray([r for r, _ in rows],
-                                                                                            np.int64)))
+        conn = np.asarray([r for r, _ in rows], np.int64)
+        cells.append(("triangle" if k == 3 else "quad" if k == 4 else "polygon",
+                      remap[conn] if remap is not None else conn))
         tags.append(np.asarray([g for _, g in rows], np.int64))
     if not groups:
-        return meshio.Mesh(np.asarray(pts, float), cells)
-    return meshio.Mesh(np.asarray(pts, float), cells, cell_data={"cell_tags": tags},
+        return meshio.Mesh(xyz, cells)
+    return meshio.Mesh(xyz, cells, cell_data={"cell_tags": tags},
                        field_data={name: np.array([tag, 2]) for name, tag in groups.items()})
 
 
