@@ -103,6 +103,18 @@ def check_destination(path, *, inputs: Iterable = (), suffixes: Iterable[str] | 
     return p
 
 
+def png_by_physar(path: Path) -> bool:
+    """A ``replaces`` test for :func:`check_destination`: whether a PNG was written by :func:`save_figure` (its
+    ``Software`` text chunk reads ``physar``)."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as im:
+            return str(im.info.get("Software", "")).startswith("physar")
+    except (OSError, ValueError, SyntaxError):  # not an image PIL reads (UnidentifiedImageError is an OSError)
+        return False
+
+
 def csv_header_starts(*columns: str):
     """A ``replaces`` test for :func:`check_destination`: whether a file's first line starts with these CSV
     columns (an earlier output of a writer with that header)."""
@@ -149,7 +161,7 @@ def atomic_path(path, *, companions: bool = False) -> Iterator[Path]:
             files = sorted(tmpdir.iterdir(), key=lambda f: f.name == path.name)
             for f in files:
                 os.chmod(f, 0o666 & ~_umask())
-                os.replace(f, path.parent / f.name)
+                _replace(f, path.parent / f.name)
         finally:
             shutil.rmtree(tmpdir, ignore_errors=True)
         return
@@ -158,10 +170,20 @@ def atomic_path(path, *, companions: bool = False) -> Iterator[Path]:
     os.chmod(tmp, 0o666 & ~_umask())
     try:
         yield Path(tmp)
-        os.replace(tmp, path)
+        _replace(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
+
+
+def _replace(src, dst) -> None:
+    """``os.replace`` whose failure (a read-only or immutable file in the way, another user's file in a sticky
+    folder) is one ConfigError line naming the destination."""
+    try:
+        os.replace(src, dst)
+    except OSError as e:
+        raise ConfigError(f"{dst}: cannot be replaced ({e.strerror or e}): the file in its place is protected "
+                          "(read-only, immutable or another user's); write elsewhere or remove it first") from None
 
 
 def atomic_write_text(path, text: str) -> None:
@@ -212,9 +234,12 @@ def save_figure(fig, path, dpi: int = 110, **kwargs) -> Path:
     import matplotlib.pyplot as plt
 
     path = Path(path)
+    fmt = path.suffix.lstrip(".").lower() or "png"
+    if fmt == "png":  # marked as physar's: a later run may replace it (png_by_physar), never a user's picture
+        kwargs = {**kwargs, "metadata": {**kwargs.get("metadata", {}), "Software": "physar"}}
     try:
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".").lower() or "png", **kwargs)
+            fig.savefig(tmp, dpi=dpi, format=fmt, **kwargs)
     finally:
         plt.close(fig)
     return path

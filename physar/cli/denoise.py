@@ -316,7 +316,11 @@ def register(app: typer.Typer) -> None:
         _check_out(out, inp, cloud=False, reference=reference)
         png = None if no_render else (render or out.with_suffix(".png"))
         if png is not None:
-            check_destination(png, inputs=[inp, out, reference], suffixes=[".png"], kind="picture")
+            from physar.output import png_by_physar
+
+            # the default picture (OUT.png, not named by the user) never replaces a picture physar did not draw
+            check_destination(png, inputs=[inp, out, reference], suffixes=[".png"], kind="picture",
+                              replaces=None if render else png_by_physar)
         mesh, pts = _load(inp)
         ref = None
         if reference is not None:

@@ -127,8 +127,11 @@ def simulate(
         mesh_in = [m, m.with_suffix(".h5")] if m.suffix.lower() in (".xdmf", ".xmf") else [m]
     check_destination(out, inputs=[config, *mesh_in], suffixes=[".xdmf"], kind="trajectory")
     check_destination(out.with_suffix(".h5"), inputs=[config, *mesh_in], kind="trajectory data")
+    from physar.output import csv_header_starts
+
+    # the default energy CSV (OUT.csv, not named by the user) never replaces a CSV that is not an earlier one
     check_destination(csv_path, inputs=[config, *mesh_in, out, out.with_suffix(".h5")], suffixes=[".csv"],
-                      kind="energy CSV")
+                      kind="energy CSV", replaces=None if energy_csv else csv_header_starts("step", "t", "kinetic"))
     if video is not None:
         check_destination(video, inputs=[config, *mesh_in, out, csv_path], suffixes=[".mp4"], kind="video")
     if plot is not None:
