@@ -74,9 +74,13 @@ def build(
     if given and cfg.rom.method != "pgd_nonintrusive":  # silently ignored otherwise
         raise PhysarError(f"{' and '.join(given)}: only for [rom] method = \"pgd_nonintrusive\" (its snapshot "
                           f"solves); {config} has method = {cfg.rom.method!r}")
-    bar = tqdm(desc=f"rom build ({cfg.rom.method})", file=sys.stderr, unit="mode" if cfg.rom.method == "pgd" else "solve")
+    bars: list = []  # drawn at the first progress report: checks and warnings of the set-up print before it
 
     def progress(done: int, total: int) -> None:
+        if not bars:
+            bars.append(tqdm(desc=f"rom build ({cfg.rom.method})", file=sys.stderr,
+                             unit="mode" if cfg.rom.method == "pgd" else "solve"))
+        bar = bars[0]
         if total and bar.total != total:
             bar.total = total
         bar.n = done
@@ -85,11 +89,13 @@ def build(
     try:
         rom, space, _ = build_rom(cfg, progress, str(config), workers=workers, scheduler=scheduler)
     except PhysarError as exc:
-        bar.close()
+        for b in bars:
+            b.close()
         if str(exc).startswith(str(config)):
             raise
         raise type(exc)(f"{config}: {exc}") from None
-    bar.close()
+    for b in bars:
+        b.close()
     rom.save(out, space=space)
     summary = _info(rom)
     summary["output"] = str(out)
@@ -152,14 +158,13 @@ def info(
     rom = SeparatedModel.load(model_file)
     d = _info(rom)
     if check is not None:
+        from tqdm import tqdm
+
         from physar.rom.config import load_rom_config
         from physar.rom.quality import discretisation_error
 
-        from tqdm import tqdm
-
-        log(f"checking {model_file} against full solves of {check} on a twice finer mesh at {check_points} "
-            "parameter points (8x the elements: minutes for a large model)")
-        with tqdm(total=check_points, desc="check solves", unit="point", file=sys.stderr, leave=False,
+        with tqdm(total=check_points, desc="check: full solves on a twice finer mesh", unit="point",
+                  file=sys.stderr, leave=False,
                   disable=None if not json_out else True) as bar:
             chk = discretisation_error(load_rom_config(check), rom, points=check_points, source=str(check),
                                        progress=lambda k, n: bar.update(k - bar.n))

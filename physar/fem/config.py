@@ -320,10 +320,12 @@ def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
                 raise ConfigError(str(exc)) from None
             check_mesh_size(section.size, mesh.points, p.name)
             try:
-                return tetrahedralize(mesh, size=section.size, source=f"[mesh] file {p.name}",
-                                      max_elements=section.max_elements)
+                tet = tetrahedralize(mesh, size=section.size, source=f"[mesh] file {p.name}",
+                                     max_elements=section.max_elements)
             except MeshError as exc:
                 raise ConfigError(str(exc)) from None
+            _warn_coarse(tet, mesh, section, p)
+            return tet
         if section.size is not None:
             raise ConfigError(f"[mesh] size = {section.size}: {p.name} is already a volume mesh (size applies "
                               "to a surface file that is tetrahedralised)")
@@ -331,6 +333,26 @@ def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
     mesh = box_mesh(section.box, section.cells)
     check_length_units(mesh.points, f"[mesh] box = {list(section.box)}")
     return mesh
+
+
+def _warn_coarse(tet: TetMesh, surface: TriMesh, section: MeshSection, path: Path) -> None:
+    """One PhysarWarning when a surface file tetrahedralised at the default size kept under half of its
+    vertices on the boundary: [[fix]] and [[load]] then select among far fewer nodes than the file shows (a
+    plane that held 32 of the file's vertices may hold 2), which a user cannot see from the file."""
+    if section.size is not None:
+        return
+    nb = len(tet.boundary().node_map)
+    if nb >= 0.5 * surface.n_points:
+        return
+    from physar.geometry.tetra import default_size
+
+    e = surface.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    edge = float(np.linalg.norm(surface.points[e[:, 0]] - surface.points[e[:, 1]], axis=1).mean())
+    warnings.warn(PhysarWarning(
+        f"[mesh] file {path}: tetrahedralised at the default size {default_size(surface):.3g} m (half its smallest "
+        f"extent): the volume mesh has {nb} boundary nodes for the file's {surface.n_points} vertices, and "
+        f"[[fix]] / [[load]] select among those; set [mesh] size (the file's mean edge is {edge:.3g} m) to keep "
+        "its detail"), stacklevel=3)
 
 
 def _miss_hint(space, sel: dict) -> str:

@@ -33,6 +33,45 @@ def check_surface(mesh: TriMesh) -> None:
             f"{mesh.name}: non-manifold edge ({a}, {b}) is shared by {int(counts[bad][0])} faces "
             f"({int(bad.sum())} non-manifold edges in all)"
         )
+    fans = vertex_fans(mesh)
+    if (fans > 1).any():
+        v = int(np.flatnonzero(fans > 1)[0])
+        raise MeshError(f"{mesh.name}: non-manifold vertex {v} at {np.round(mesh.points[v], 6).tolist()}: its faces form "
+                        f"{int(fans[v])} fans that meet only there ({int((fans > 1).sum())} such vertices in all; "
+                        "two parts touching at a point): mend the mesh, or give each part its own vertex")
+
+
+def vertex_fans(mesh: TriMesh) -> np.ndarray:
+    """Per vertex, the number of fans its faces form: groups of faces around it connected through edges at it
+    (1 on a manifold surface, 0 for an unused vertex; 2 where two parts touch at a single point, a bow tie).
+    Faces meet through edges with at most two faces (non-manifold edges are :func:`check_surface`'s)."""
+    from scipy.sparse.csgraph import connected_components
+
+    f = np.asarray(mesh.faces, np.int64)
+    m, n = len(f), mesh.n_points
+    if m == 0:
+        return np.zeros(n, np.int64)
+    # half-edge j of face i runs from corner j to corner (j + 1) % 3; sort the undirected keys to pair them
+    fi = np.repeat(np.arange(m), 3)
+    va, vb = f.ravel(), f[:, [1, 2, 0]].ravel()
+    key = np.minimum(va, vb) * np.int64(n) + np.maximum(va, vb)
+    o = np.argsort(key, kind="stable")
+    ks = key[o]
+    pr = np.flatnonzero(ks[1:] == ks[:-1])
+    pr = pr[(pr + 2 >= len(ks)) | (ks[np.minimum(pr + 2, len(ks) - 1)] != ks[pr])]  # exactly two faces
+    h1, h2 = o[pr], o[pr + 1]
+    wedge = lambda face, vert: face * 3 + np.argmax(f[face] == vert[:, None], axis=1)
+    rows, cols = [], []
+    for end in (va, vb):
+        v = end[h1]
+        rows.append(wedge(fi[h1], v))
+        cols.append(wedge(fi[h2], v))
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    g = sparse.coo_matrix((np.ones(len(r)), (r, c)), shape=(3 * m, 3 * m))
+    ncomp, comp = connected_components(g, directed=False)
+    vert_of = np.zeros(ncomp, np.int64)
+    vert_of[comp] = f.ravel()
+    return np.bincount(vert_of, minlength=n)
 
 
 def orient_faces(mesh: TriMesh) -> tuple[TriMesh, int]:
