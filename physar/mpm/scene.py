@@ -69,7 +69,7 @@ Vec3 = tuple[float, float, float]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)  # inf gravity or a NaN velocity: refused on reading
 
     @field_validator("*", mode="before")
     @classmethod
@@ -249,7 +249,8 @@ def sample_body(body: Body, dx: float, base_dir: Path | None = None) -> tuple[np
     A box is filled with a lattice centred in it (spacing
     :math:`(\max - \min) / \operatorname{round}((\max - \min)\, n / dx)` per axis), so its centroid and second
     moments are exact for every sampling; spheres and meshes use the lattice of spacing :math:`dx / n` aligned
-    with the grid.
+    with the grid, the shape's volume (:math:`4 \pi r^3 / 3`, the closed mesh's) shared among the points
+    inside, so that the body's mass is its density times its volume.
     """
     h = dx / round(body.particles_per_cell ** (1 / 3))
     if body.shape == "box":
@@ -261,10 +262,19 @@ def sample_body(body: Body, dx: float, base_dir: Path | None = None) -> tuple[np
     if body.shape == "sphere":
         c, r = np.asarray(body.center), body.radius
         pts = _lattice(c - r, c + r, h)
-        return pts[np.sum((pts - c) ** 2, axis=1) <= r * r], h**3
+        pts = pts[np.sum((pts - c) ** 2, axis=1) <= r * r]
+        return pts, _share(4.0 / 3.0 * np.pi * r**3, len(pts), h)
     mesh = _load_mesh(body, base_dir)
     pts = _lattice(mesh.bounds[0], mesh.bounds[1], h)
-    return pts[mesh.contains(pts)], h**3
+    pts = pts[mesh.contains(pts)]
+    return pts, _share(abs(float(mesh.volume)), len(pts), h)
+
+
+def _share(volume: float, n: int, h: float) -> float:
+    """Each of ``n`` particles' volume so that they add up to the shape's ``volume`` (its mass is then density x
+    volume, whatever the lattice cuts at the surface: a grid-aligned lattice over a 0.2 x 0.2 x 0.1 m box mesh
+    held 18 % too little); :math:`h^3` when there are none (refused by the caller)."""
+    return volume / n if n and volume > 0 and np.isfinite(volume) else h**3
 
 
 def _load_mesh(body: Body, base_dir: Path | None):
@@ -280,6 +290,9 @@ def _load_mesh(body: Body, base_dir: Path | None):
         mesh = trimesh.load(path, force="mesh")
     except Exception as exc:  # noqa: BLE001 - any reader failure is a user error about this file
         raise ConfigError(f"body.file '{path}' could not be read as a surface mesh: {exc}") from None
+    if len(getattr(mesh, "faces", ())) == 0:
+        raise ConfigError(f"body.file '{path}' holds no triangles: an empty or corrupt file, or not a surface mesh "
+                          "(STL, OBJ, PLY, OFF)")
     if not mesh.is_watertight:
         raise ConfigError(f"body.file '{path}' is not a closed (watertight) surface; cannot sample its inside")
     return mesh
@@ -357,8 +370,12 @@ def check_scene_memory(scene: Scene, base_dir: Path | None = None, particles_per
         else:
             lo, hi = _load_mesh(body, base_dir).bounds
         if np.any(lo < 0) or np.any(hi > scene.grid.size):
+            ext = float(np.max(hi - lo))
+            units = (f"; a mesh in millimetres? its extent is {ext:g} m against a {scene.grid.size:g} m domain: "
+                     "write it in metres (scale by 0.001)" if body.shape == "mesh" and ext > 20 * scene.grid.size
+                     else "")
             raise ConfigError(f"{source}: body[{b_id}] extends outside the domain [0, {scene.grid.size}]^3 "
-                              f"(its bounds {np.round(lo, 6).tolist()} - {np.round(hi, 6).tolist()})")
+                              f"(its bounds {np.round(lo, 6).tolist()} - {np.round(hi, 6).tolist()}){units}")
     total, lattice = 0, 0
     for body in scene.body:
         if particles_per_cell is not None:
