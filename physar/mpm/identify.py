@@ -101,6 +101,11 @@ class _Moments:
         return torch.stack(cs), torch.stack(ss)
 
 
+#: the target's frame 0 may put a body's centre at most this many grid cells from the scene's (a finer or
+#: shifted sampling of the same body: well under one cell)
+START_CELLS = 2.0
+
+
 def target_moments(frames: list[dict], n_bodies: int, n_frames: int):
     """Centres c* (F+1, nb, 3) and changes of the lattice-corrected covariances since frame 0, D* (F+1, nb, 3, 3),
     of the target's frames 0..n_frames (one particle set: the same particles in every frame)."""
@@ -181,6 +186,14 @@ def identify(model: MPMModel, x0: np.ndarray, v0: np.ndarray, frames: int, targe
     nb = int(model.body.max()) + 1
     tc, td = target_moments(target, nb, frames)
     moments = _Moments(x0, model.body, nb)
+    c0 = moments(torch.as_tensor(x0))[0].detach().numpy()
+    off = np.linalg.norm(tc[0].numpy() - c0, axis=1)
+    if (off > START_CELLS * model.dx).any():  # another scene's run: every E would fit it equally badly
+        b = int(np.argmax(off))
+        raise ConfigError(f"target frame 0: body {b}'s centre {np.round(tc[0][b].numpy(), 4).tolist()} m is "
+                          f"{off[b]:.3g} m ({off[b] / model.dx:.1f} cells) from the scene's "
+                          f"{np.round(c0[b], 4).tolist()} m: the target is not a run of this scene (its bodies must "
+                          "start where the scene puts them)")
     body = torch.as_tensor(model.body, dtype=torch.long)
     scan_factor = None
     if scan_octaves > 0:

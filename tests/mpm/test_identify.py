@@ -133,3 +133,18 @@ def test_target_of_changing_particle_sets_is_refused():
     frames = [{"x": x, "body": np.zeros(8, int)}, {"x": x[:6], "body": np.zeros(6, int)}]
     with pytest.raises(ConfigError, match="particle counts"):
         target_moments(frames, 1, 1)
+
+
+def test_target_of_another_scene_is_refused():
+    """A target whose bodies start elsewhere (here the bar's run shifted 0.3 m, 4.8 cells, along z: another
+    scene's run) is refused naming the body and the distance, before any simulation; the bar's own run at a
+    denser sampling (centre within round-off) is accepted by the test above. Review: a free-fall sphere's run fitted
+    to a resting block's scene gave E = 596,832 Pa, exit 0. Mutant caught: the frame-0 check removed."""
+    from physar.errors import ConfigError
+
+    model, x0, v0 = _bar_frames(8, 2.5e4, 2)
+    shifted = x0 + np.array([0.0, 0.0, 0.3])
+    target = [{"x": shifted, "body": model.body}] * 3
+    with pytest.raises(ConfigError, match=r"target frame 0: body 0's centre .* is 0.3 m \(4.8 cells\) from the "
+                                          r"scene's"):
+        identify(model, x0, v0, 2, target, iterations=1)
