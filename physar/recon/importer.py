@@ -927,6 +927,11 @@ def import_video(video: str | Path, out_dir: str | Path, *, masks: str | Path | 
             raise ConfigError(f"camera: calibrated for {cam.width}x{cam.height} px, the video is {W0}x{H0} (another "
                               "aspect ratio): calibrate at the video's size")
         s0 = W0 / cam.width  # a calibration at another size of the same aspect: rescale to the video's
+        if (cam.width, cam.height) != (W0, H0):
+            warnings.warn(PhysarWarning(
+                f"camera: calibrated for {cam.width}x{cam.height} px, the video is {W0}x{H0}: rescaled by {s0:.4g} "
+                "(taken as the calibrated mode resized, same field of view; calibrate at the video's size if it "
+                "is another crop of the sensor)"), stacklevel=2)
         cam = Intrinsics(cam.fx * s0, cam.fy * s0, (cam.cx + 0.5) * s0 - 0.5, (cam.cy + 0.5) * s0 - 0.5, W0, H0,
                          cam.dist)
         W, H = parse_size(o.size, W0, H0)

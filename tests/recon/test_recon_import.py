@@ -167,6 +167,32 @@ def test_camera_rescaled_in_closed_form(user, imported):
     assert (cam["width"], cam["height"]) == (32, 32)
 
 
+
+def test_camera_of_another_size_is_rescaled_with_a_warning(user, tmp_path):
+    """The same calibration written for 128x128 px (the 64 px one in the pixel-centre convention scaled by 2:
+    fx 2x, c' = (c + 1/2) 2 - 1/2) gives the generator's 32 px camera again, and one warning names both sizes and
+    the factor 0.5 (review: a 640x480 camera on a 64x48 video was rescaled x0.1 without a word). Mutant caught:
+    the warning removed."""
+    import tomllib
+
+    cam = tomllib.loads((user["dir"] / "camera.toml").read_text())["camera"]
+    K = np.array(cam["matrix"])
+    K2 = K.copy()
+    K2[:2, :2] *= 2
+    K2[:2, 2] = (K[:2, 2] + 0.5) * 2 - 0.5
+    (tmp_path / "cam128.toml").write_text(f"[camera]\nwidth = 128\nheight = 128\nmatrix = {K2.tolist()!r}\n"
+                                          "distortion = [0.0, 0.0, 0.0, 0.0, 0.0]\n")
+    args = list(user["args"])
+    args[args.index("--camera") + 1] = tmp_path / "cam128.toml"
+    r = cli(*args, "--out", tmp_path / "d")
+    assert r.exit_code == 0, (r.output, r.exception)
+    warn = [ln for ln in err_lines(r) if "calibrated for" in ln]
+    assert len(warn) == 1 and "calibrated for 128x128 px, the video is 64x64: rescaled by 0.5" in warn[0], warn
+    got = json.loads((tmp_path / "d" / "scene.json").read_text())["camera"]
+    for k in ("fx", "fy", "cx", "cy"):
+        assert got[k] == pytest.approx(user["meta"]["camera"][k], abs=1e-9), k
+
+
 def test_imported_poses_reproduce_the_source_joints(user, imported):
     """Forward kinematics of the retargeted poses puts every bone head and tail where the generator's poses put it
     (camera coordinates; 1e-6 m). Mutants caught: axis-angle read as its transpose (the spin's yaw turns the other
