@@ -122,6 +122,8 @@ def predict_cmd(
 
     if method not in PREDICT_METHODS:
         raise ConfigError(f"--method {method!r} is unknown; use one of {', '.join(PREDICT_METHODS)}")
+    if not run_dir.exists():
+        raise ConfigError(f"{run_dir}: RUN_DIR not found (the folder `physar recon fit --out` wrote)")
     model_file = run_dir / "model.npz" if run_dir.is_dir() else run_dir
     check_destination(out, inputs=[model_file, poses], suffixes=[".mp4"], kind="video")
     if frames_npz is not None:

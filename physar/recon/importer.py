@@ -435,7 +435,9 @@ def _load_pose_file(path: Path, what: str = "pose file") -> dict:
     except ConfigError:
         raise
     except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:
-        raise ConfigError(f"{path}: not a readable .npz or .json file ({' '.join(str(e).split())[:100]})") from None
+        why = ("neither a zip of arrays nor a .npy array: numpy could only unpickle it, which is refused"
+               if "pickle" in str(e) else ' '.join(str(e).split())[:100])
+        raise ConfigError(f"{path}: not a readable .npz or .json file ({why})") from None
 
 
 def _rotations(a: np.ndarray, n_joints: int | None, path: Path, field: str) -> np.ndarray:
@@ -513,6 +515,9 @@ def load_smpl(path: str | Path) -> dict:
         be = np.asarray(d["betas"])
         if be.dtype.kind not in "fiu" or not np.all(np.isfinite(be.astype(np.float64))):
             raise ConfigError(f"{path}: field 'betas' must hold finite numbers")
+        if be.ndim > 2 or (be.ndim == 2 and len(be) not in (1, F)) or not 1 <= (be.shape[-1] if be.ndim else 0) <= 400:
+            raise ConfigError(f"{path}: field 'betas' has shape {be.shape}: shape coefficients are (B,), (1, B) or "
+                              f"({F}, B) with B <= 400 (10 for SMPL, 10-300 for SMPL-X)")
     R = np.tile(np.eye(3), (F, len(SMPL_JOINTS), 1, 1))
     R[:, :1] = g
     nb = min(b.shape[1], len(SMPL_JOINTS) - 1)

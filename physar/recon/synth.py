@@ -297,6 +297,13 @@ def load_section_config(path: str | Path | None, section: str, model, overrides:
             raw = tomllib.loads(p.read_text())
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"{p}: invalid TOML: {exc}") from None
+        tables = [k for k, v in raw.items() if isinstance(v, dict)]
+        if tables and "synth" not in raw and "train" not in raw:  # a misspelt [trian]: not top-level keys
+            import difflib
+
+            near = difflib.get_close_matches(tables[0], ["synth", "train"], n=1)
+            raise ConfigError(f"{p}: unknown table [{tables[0]}]" + (f"; did you mean [{near[0]}]?" if near else
+                                                                     f" (a recon config has [{section}])"))
         if "synth" in raw or "train" in raw:
             table = raw.get(section, {})
             if not isinstance(table, dict):

@@ -268,7 +268,8 @@ def load_dataset(path: str | Path, with_truth: bool = True) -> Dataset:
     root = Path(path)
     sj = root / "scene.json"
     if not sj.exists():
-        raise ConfigError(f"'{root}' is not a recon DATA_DIR: missing scene.json")
+        raise ConfigError(f"'{root}': DATA_DIR not found" if not Path(root).exists() else
+                          f"'{root}' is not a recon DATA_DIR: missing scene.json")
     try:
         meta = json.loads(sj.read_text())
     except json.JSONDecodeError as exc:

@@ -94,3 +94,24 @@ def test_json_frame_missing_a_field_is_named(tmp_path):
     (tmp_path / "p.json").write_text(json.dumps(frames))
     with pytest.raises(ConfigError, match=r"p\.json: frame 1 lacks field 'transl'"):
         load_smpl(tmp_path / "p.json")
+
+
+# betas of a shape no model has (review: (3, 3, 3) imported silently) and a text file saved as .npz (numpy's
+# message advised unpickling "if you trust the file") are one line each; (10,), (1, 10) and (F, 16) pass.
+# mutants caught: the betas shape unchecked, numpy's pickle message passed through
+def test_betas_shape_and_text_npz(tmp_path):
+    from physar.errors import ConfigError
+
+    F = 4
+    base = {"global_orient": np.zeros((F, 3)), "body_pose": np.zeros((F, 69)), "transl": np.zeros((F, 3))}
+    for betas in (np.zeros(10), np.zeros((1, 10)), np.zeros((F, 16))):
+        np.savez(tmp_path / "ok.npz", **base, betas=betas)
+        assert load_smpl(tmp_path / "ok.npz")["rotations"].shape[0] == F
+    for bad in (np.zeros((3, 3, 3)), np.zeros((F + 1, 10)), np.zeros((F, 0))):
+        np.savez(tmp_path / "b.npz", **base, betas=bad)
+        with pytest.raises(ConfigError, match=r"b.npz: field 'betas' has shape"):
+            load_smpl(tmp_path / "b.npz")
+    (tmp_path / "t.npz").write_text("global_orient 0 0 0\n")
+    with pytest.raises(ConfigError) as e:
+        load_smpl(tmp_path / "t.npz")
+    assert "numpy could only unpickle it, which is refused" in str(e.value) and "trust" not in str(e.value)
