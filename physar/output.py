@@ -130,6 +130,35 @@ def csv_header_starts(*columns: str):
     return test
 
 
+@contextlib.contextmanager
+def native_stderr_without(*drop: str) -> Iterator[None]:
+    """Inside the block, what native code writes to file descriptor 2 is held back and, at the end, written to
+    stderr without the lines containing any of ``drop`` (e.g. Warp's "Could not find or load the NVIDIA CUDA
+    driver" on every CPU-only run, printed by its C library whatever ``wp.config.quiet`` says). Other lines pass."""
+    import sys
+    import tempfile
+
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no descriptor 2 here: nothing to filter
+        yield
+        return
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            held.seek(0)
+            text = held.read().decode("utf-8", errors="replace")
+            keep = "".join(ln for ln in text.splitlines(keepends=True) if not any(d in ln for d in drop))
+            if keep:
+                sys.stderr.write(keep)
+                sys.stderr.flush()
+
+
 def _umask() -> int:
     """The process umask (read from /proc on Linux, else by setting and restoring it)."""
     with contextlib.suppress(OSError, ValueError):

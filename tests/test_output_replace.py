@@ -62,3 +62,15 @@ def test_default_side_outputs_keep_users_files(tmp_path):
     for _ in range(2):
         r = run(app, ["simulate", str(cfg), "--out", str(tmp_path / "notes.xdmf")])
         assert r.exit_code == 0, r.output
+
+
+# What native code writes to descriptor 2 inside native_stderr_without passes except the dropped lines (Warp's
+# CUDA-driver line on every CPU-only run; review). mutant caught: nothing filtered (both lines out)
+def test_native_stderr_filter(capfd):
+    from physar.output import native_stderr_without
+
+    with native_stderr_without("Could not find or load the NVIDIA CUDA driver"):
+        os.write(2, b"Warp CUDA warning: Could not find or load the NVIDIA CUDA driver. GPU off.\n")
+        os.write(2, b"a real problem\n")
+    err = capfd.readouterr().err
+    assert "a real problem" in err and "NVIDIA CUDA driver" not in err, err

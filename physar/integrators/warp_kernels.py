@@ -29,9 +29,12 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from physar.output import native_stderr_without
+
 wp.config.quiet = True  # warp < 1.10
 wp.config.log_level = 30  # warp >= 1.10: no banner on stdout
-wp.init()
+with native_stderr_without("Could not find or load the NVIDIA CUDA driver"):  # a CPU-only machine: no noise
+    wp.init()
 
 _f = wp.float64
 DEVICE = "cpu"  # the default device of WarpCorotatedP1

@@ -55,10 +55,12 @@ from physar.mpm.constitutive import (
     singular_values,
     snow_project,
 )
+from physar.output import native_stderr_without
 
 wp.config.quiet = True  # warp < 1.10
 wp.config.log_level = 30  # warp >= 1.10: no init banner or module-load lines on stdout (keeps --json clean)
-wp.init()
+with native_stderr_without("Could not find or load the NVIDIA CUDA driver"):  # a CPU-only machine: no noise
+    wp.init()
 
 _f = wp.float64
 
