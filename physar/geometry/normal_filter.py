@@ -159,6 +159,10 @@ EPS_FD = 0.1  # finite-difference step of the divergence probe, in units of the 
 CHECKPOINTS = (1, 2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 25, 30, 40, 50, 65, 80, 100)
 COARSE = (1, 3, 6, 12, 25, 50, 100)  # search "coarse": about x2 apart, a subset of CHECKPOINTS (odd first: k, k+1 share the re-run)
 SEARCHES = ("coarse", "exhaustive")
+#: when the input itself scores lowest on a mesh of at most RECHECK_MAX_POINTS vertices, the input and the best
+#: filter are scored again over RECHECK_PROBES more probes (the mean decides): one probe scatters on small meshes
+RECHECK_PROBES = 8
+RECHECK_MAX_POINTS = 50_000
 
 
 def noise_scale(mesh: TriMesh) -> float:
@@ -463,7 +467,7 @@ def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None =
             if info is not None:
                 info.setdefault("risk", []).append((sr, k, risk))
             if risk < best["risk"]:
-                best.update(risk=risk, q=qk)
+                best.update(risk=risk, q=qk, sr=sr, k=k)
                 if info is not None:
                     info.update(sigma_r=sr, normal_iterations=k)
             return risk
@@ -506,6 +510,22 @@ def normal_filter_denoise(mesh: TriMesh, settings: NormalFilterSettings | None =
             known = {k: (r, state) for k, r, state in seen[lowest:]}
             walk(sr, [c for c in counts if c > lo_k], st.patience, lo_state, known, lo_r)
         risk0 = sure_tilt(tilt, q0, q0, yp, ap, eps, sigma)  # the input itself, f(y) = y (module doc)
+        if not best["risk"] < risk0 and "k" in best and len(q0) <= RECHECK_MAX_POINTS:
+            # one probe's divergence estimate scatters on a small mesh (a 337-vertex open cap: the input's
+            # estimate 2.6e-4 below the best filter's 2.9e-4, with 11.9 deg of normal noise left): the two
+            # compared again over RECHECK_PROBES more probes, the mean deciding
+            r0, r1 = [risk0], [best["risk"]]
+            sr, k = best["sr"], best["k"]
+            for j in range(1, RECHECK_PROBES + 1):
+                pb = np.random.default_rng(j).standard_normal(q0.shape)
+                apb, ypb = tilt(pb), q0 + eps * pb
+                nfb, ab, cb = _face_geometry(ypb, mesh.faces)
+                qb = reconstruct(ypb, Bilateral(pat, ab, cb).run(nfb, sr, k, st.guided), k, sr)
+                r0.append(sure_tilt(tilt, q0, q0, ypb, apb, eps, sigma))
+                r1.append(sure_tilt(tilt, q0, best["q"], qb, apb, eps, sigma))
+            risk0, best["risk"] = float(np.mean(r0)), float(np.mean(r1))
+            if info is not None:
+                info["recheck"] = {"identity": r0, "best": r1}
         if info is not None:
             info["risk_identity"] = risk0
         if not best["risk"] < risk0:
