@@ -641,6 +641,9 @@ def write_mesh(
         warnings.warn(f"{path}: {path.suffix} stores region numbers, not names: the regions {lost} are written as "
                       "numbers only (refer to them by number, or write .vtu, .xdmf or .msh to keep the names)",
                       PhysarWarning, stacklevel=2)
+    if suffix == ".msh":  # both gmsh tags on every block (0: none), else meshio warns on stderr twice per write
+        phys = cd.get("gmsh:physical") or [np.zeros(len(c[1]), np.int64) for c in cells]
+        cd = {**cd, "gmsh:physical": phys, "gmsh:geometrical": cd.get("gmsh:geometrical") or [p.copy() for p in phys]}
     m = meshio.Mesh(mesh.points, cells, point_data=pd, cell_data=cd, field_data=field_data)
     with atomic_path(path, companions=suffix in (".xdmf", ".xmf")) as tmp:
         opts = {".stl": {"binary": True},  # binary STL: compact, standard
