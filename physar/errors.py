@@ -57,7 +57,7 @@ def format_validation_error(exc, source: str, model=None, section: str | None = 
     if kind == "missing":
         return f"{source}: missing key {loc[-1]!r} in [{table}]"
     if kind == "literal_error":
-        return f"{source}: {where} = {e.get('input')!r} is not allowed; {e['msg'].lower()}"
+        return f"{source}: {where} = {e.get('input')!r} is not allowed; {e['msg'][:1].lower() + e['msg'][1:]}"
     msg = e["msg"].removeprefix("Value error, ").removeprefix("Assertion failed, ")
     if kind in ("value_error", "assertion_error"):
         return f"{source}: [{where}] {msg}"

@@ -93,3 +93,17 @@ def test_config_solver_linear():
     with pytest.raises(ConfigError) as exc:
         parse_config({**base, "solver": {"linear": "gpu"}}, "beam.toml")
     assert str(exc.value).startswith("beam.toml: solver.linear = 'gpu' is not allowed") and "\n" not in str(exc.value)
+
+
+def test_literal_choices_keep_their_case(tmp_path):
+    # the allowed values as the file must spell them (review: "input should be 'p1' or 'p2'" for P1/P2);
+    # mutant caught: the whole message lower-cased
+    from physar.errors import ConfigError
+    from physar.fem.config import load_config
+
+    p = tmp_path / "p3.toml"
+    p.write_text('[mesh]\nbox = [1, 0.1, 0.1]\ncells = [4, 1, 1]\n[material]\nmodel = "linear"\nE = 1e9\n'
+                 'nu = 0.3\n[fem]\nelement = "P3"\n')
+    with pytest.raises(ConfigError) as e:
+        load_config(p)
+    assert str(e.value).endswith("fem.element = 'P3' is not allowed; input should be 'P1' or 'P2'"), str(e.value)
