@@ -98,8 +98,8 @@ def check_destination(path, *, inputs: Iterable = (), suffixes: Iterable[str] | 
         if same:
             raise ConfigError(f"{path}: {kind} destination is the same file as the input {inp}")
     if replaces is not None and p.is_file() and not replaces(p):
-        raise ConfigError(f"{path}: exists and is not an earlier {kind} (physar replaces only its own outputs): "
-                          "give a new path, or move that file away first")
+        raise ConfigError(f"{path}: exists and does not look like an earlier {kind} of this command (physar "
+                          "replaces only its own outputs): give a new path, or move that file away first")
     return p
 
 
@@ -122,6 +122,8 @@ def csv_header_starts(*columns: str):
 
     def test(path: Path) -> bool:
         try:
+            if path.stat().st_size == 0:  # an empty file (touch, mktemp): nothing to lose
+                return True
             with open(path, encoding="utf-8", errors="replace") as f:
                 return f.readline(4096).startswith(want)
         except OSError:
@@ -141,7 +143,7 @@ def native_stderr_without(*drop: str) -> Iterator[None]:
     try:
         sys.stderr.flush()
         saved = os.dup(2)
-    except (OSError, ValueError):  # no descriptor 2 here: nothing to filter
+    except (OSError, ValueError, AttributeError):  # no descriptor 2 (or sys.stderr None): nothing to filter
         yield
         return
     with tempfile.TemporaryFile() as held:
@@ -154,7 +156,7 @@ def native_stderr_without(*drop: str) -> Iterator[None]:
             held.seek(0)
             text = held.read().decode("utf-8", errors="replace")
             keep = "".join(ln for ln in text.splitlines(keepends=True) if not any(d in ln for d in drop))
-            if keep:
+            if keep and sys.stderr is not None:
                 sys.stderr.write(keep)
                 sys.stderr.flush()
 

@@ -319,7 +319,8 @@ def register(app: typer.Typer) -> None:
             from physar.output import png_by_physar
 
             # the default picture (OUT.png, not named by the user) never replaces a picture physar did not draw
-            check_destination(png, inputs=[inp, out, reference], suffixes=[".png"], kind="picture",
+            check_destination(png, inputs=[inp, out, reference], suffixes=[".png"],
+                              kind="picture (--render PATH or --no-render to choose)",
                               replaces=None if render else png_by_physar)
         mesh, pts = _load(inp)
         ref = None

@@ -291,8 +291,8 @@ def _read_obj(path: Path):
     """Positions and faces of a Wavefront OBJ (``v`` and ``f`` lines; ``f`` entries ``v``, ``v/vt``, ``v//vn`` or
     ``v/vt/vn``, negative indices counted back from the last vertex read; texture coordinates and normals are
     ignored). Polygons become one ``polygon<k>`` block per size. Bad lines are one MeshError naming the line.
-    Vertices repeated at one position (per-face or seam copies of exporters) are merged into one, numbered in
-    the order of their first ``v`` line.
+    Vertices repeated at one position (per-face or seam copies of exporters) are merged into one
+    (:func:`_merge_obj_vertices`).
     Groups (``g`` and ``o`` lines; ``g`` alone is the group ``default``) are region tags 1, 2, ... in the order
     of their first line, with their names (cell_data ``cell_tags``, field_data ``{name: [tag, 2]}``; faces before
     the first group get -1); a file without groups has no tags."""
@@ -332,28 +332,63 @@ def _read_obj(path: Path):
     if bad is not None:
         raise MeshError(f"{path}: line {bad[1]} ({bad[2]!r}): a face refers to vertex {bad[0] + 1}, the file has "
                         f"{n} vertices")
-    # vertices at one position (exporters repeat them per face or per texture seam) are one vertex: else every
-    # face is its own patch (noise tears the surface apart, a normal filter sees no neighbours); the first
-    # occurrence's order is kept, and a file without repeats keeps its numbering
-    xyz = np.asarray(pts, float)
-    _, first, inv = np.unique(xyz, axis=0, return_index=True, return_inverse=True)
-    remap = None
-    if len(first) < len(xyz):
-        order = np.argsort(first)                      # unique rows in order of first occurrence
-        rank = np.empty_like(order)
-        rank[order] = np.arange(len(order))
-        remap = rank[inv.ravel()]
-        xyz = xyz[np.sort(first)]
+    xyz, faces = _merge_obj_vertices(path, np.asarray(pts, float), [(r, g) for rows in polys.values() for r, g in rows])
+    by_size: dict[int, list] = {}
+    for r, g in faces:
+        by_size.setdefault(len(r), []).append((r, g))
     cells, tags = [], []
-    for k, rows in sorted(polys.items()):
-        conn = np.asarray([r for r, _ in rows], np.int64)
+    for k, rows in sorted(by_size.items()):
         cells.append(("triangle" if k == 3 else "quad" if k == 4 else "polygon",
-                      remap[conn] if remap is not None else conn))
+                      np.asarray([r for r, _ in rows], np.int64)))
         tags.append(np.asarray([g for _, g in rows], np.int64))
     if not groups:
         return meshio.Mesh(xyz, cells)
     return meshio.Mesh(xyz, cells, cell_data={"cell_tags": tags},
                        field_data={name: np.array([tag, 2]) for name, tag in groups.items()})
+
+
+def _merge_obj_vertices(path: Path, xyz: np.ndarray, faces: list) -> tuple[np.ndarray, list]:
+    """Vertices of an OBJ at one position merged into one (exporters repeat them per face, or per texture seam:
+    without it each face is its own patch, and noise tears the surface apart), numbered in the order of their
+    first ``v`` line (a file without repeats keeps its numbering). A polygon that loses corners to the merge keeps
+    the others (a UV sphere's pole quad becomes a triangle); one left with fewer than 3 (zero area) is dropped,
+    with one PhysarWarning. The merge is not made when it would join separate parts into a non-manifold edge or
+    vertex (two objects touching at a corner or along an edge: each keeps its own vertices, as in the file)."""
+    _, first, inv = np.unique(xyz, axis=0, return_index=True, return_inverse=True)
+    if len(first) == len(xyz):
+        return xyz, faces
+    order = np.argsort(first)                      # unique rows in order of first occurrence
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    remap = rank[inv.ravel()]
+    merged, dropped = [], 0
+    for r, g in faces:
+        q = [int(remap[v]) for v in r]
+        q = [v for i, v in enumerate(q) if v != q[i - 1]] if len(set(q)) > 1 else q[:1]  # cyclic repeats out
+        if len(q) >= 3:
+            merged.append((q, g))
+        else:
+            dropped += 1
+    if _joins_parts(merged, len(first)) and not _joins_parts(faces, len(xyz)):
+        return xyz, faces
+    if dropped:
+        warnings.warn(f"{path}: {dropped} faces collapsed to a line or a point once the vertices repeated at one "
+                      "position were merged (zero area): dropped", PhysarWarning, stacklevel=4)
+    return xyz[np.sort(first)], merged
+
+
+def _joins_parts(faces: list, n: int) -> bool:
+    """Whether the polygons (fan-triangulated) have a non-manifold edge or vertex."""
+    from physar.geometry.mesh import TriMesh
+    from physar.geometry.quality import vertex_fans
+
+    tri = np.asarray([(r[0], r[i], r[i + 1]) for r, _ in faces for i in range(1, len(r) - 1)], np.int64)
+    if not len(tri):
+        return False
+    e = np.sort(tri[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    if (np.unique(e[:, 0] * np.int64(n) + e[:, 1], return_counts=True)[1] > 2).any():
+        return True
+    return bool((vertex_fans(TriMesh(np.zeros((n, 3)), tri)) > 1).any())
 
 
 def _read_ascii_stl(path: Path):

@@ -76,11 +76,12 @@ def vertex_fans(mesh: TriMesh) -> np.ndarray:
 
 def orient_faces(mesh: TriMesh) -> tuple[TriMesh, int]:
     """``(mesh with consistent winding, faces turned)``: neighbouring faces traverse their shared edge in
-    opposite directions (each connected patch turned by a breadth-first walk over its manifold edges); a closed
-    patch is then made outward (positive enclosed volume), an open one keeps the winding of most of its faces.
-    MeshError for a non-orientable surface (a Moebius strip: no winding agrees across every edge). Faces keep
-    their order and vertices; a turned face has its last two vertices swapped. Meshes with non-manifold edges
-    are returned as they are (:func:`check_surface` refuses them)."""
+    opposite directions. Each connected part is walked breadth-first over its manifold edges (one walk for all
+    parts) and then keeps the winding of most of its faces (a part that already agrees is left as it is: an
+    inward cavity shell of a hollow solid stays inward). MeshError for a non-orientable surface (a Moebius
+    strip: no winding agrees across every edge). Faces keep their order and vertices; a turned face has its last
+    two vertices swapped. Meshes with non-manifold edges are returned as they are (:func:`check_surface` refuses
+    them)."""
     from scipy.sparse.csgraph import breadth_first_order, connected_components
 
     f = np.asarray(mesh.faces, np.int64)
@@ -100,44 +101,39 @@ def orient_faces(mesh: TriMesh) -> tuple[TriMesh, int]:
     same = d[a, 0] == d[b, 0]                                   # traversed in the same direction: disagree
     adj = sparse.coo_matrix((np.ones(2 * len(fa)), (np.r_[fa, fb], np.r_[fb, fa])), shape=(m, m)).tocsr()
     ncomp, comp = connected_components(adj, directed=False)
+    roots = np.unique(comp, return_index=True)[1]
+    # one breadth-first walk over every part: a virtual node m joined to each part's first face
+    rows = np.r_[fa, fb, np.full(len(roots), m), roots]
+    cols = np.r_[fb, fa, roots, np.full(len(roots), m)]
+    forest = sparse.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(m + 1, m + 1)).tocsr()
+    seq, pred = breadth_first_order(forest, m, directed=False, return_predecessors=True)
     lo, hi = np.minimum(fa, fb), np.maximum(fa, fb)
     pk = lo * np.int64(m) + hi
     po = np.argsort(pk)
     pk, psame = pk[po], same[po]
-    flip = np.zeros(m, bool)
-    for c in range(ncomp):
-        root = int(np.flatnonzero(comp == c)[0])
-        seq, pred = breadth_first_order(adj, root, directed=False, return_predecessors=True)
-        if len(seq) < 2:
-            continue
-        v = seq[1:]
-        u = pred[v]
-        t = np.searchsorted(pk, np.minimum(u, v) * np.int64(m) + np.maximum(u, v))
-        turn_vs_pred = psame[t].tolist()
-        fl = flip  # parents come before their children in breadth-first order
-        for vi, ui, p in zip(v.tolist(), u.tolist(), turn_vs_pred):
-            fl[vi] = fl[ui] ^ p
+    v = seq[1:]
+    u = pred[v]
+    tree = u != m
+    turn = np.zeros(len(v), bool)
+    t = np.searchsorted(pk, np.minimum(u[tree], v[tree]) * np.int64(m) + np.maximum(u[tree], v[tree]))
+    turn[tree] = psame[t]
+    flip = np.zeros(m + 1, bool)
+    for vi, ui, p in zip(v.tolist(), u.tolist(), turn.tolist()):  # parents come before their children
+        flip[vi] = flip[ui] ^ p
+    flip = flip[:m]
     bad = np.flatnonzero(same ^ (flip[fa] != flip[fb]))
     if bad.size:
         raise MeshError(f"{mesh.name}: the surface is not orientable (no winding of its faces agrees across "
                         f"every edge: faces {int(fa[bad[0]])} and {int(fb[bad[0]])}, a Moebius-like band)")
+    size = np.bincount(comp, minlength=ncomp)
+    minority = 2 * np.bincount(comp, weights=flip, minlength=ncomp) > size  # the walk's start was the minority
+    flip ^= minority[comp]
+    k = int(flip.sum())
+    if k == 0:
+        return mesh, 0
     g = f.copy()
     g[flip] = g[flip][:, [0, 2, 1]]
-    x = mesh.points
-    kf = key.reshape(-1, 3)
-    for c in range(ncomp):
-        sel = comp == c
-        closed = bool((np.unique(kf[sel].ravel(), return_counts=True)[1] == 2).all())
-        if closed:
-            t = x[g[sel]]
-            turn = np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() < 0
-        else:
-            turn = 2 * int(flip[sel].sum()) > int(sel.sum())
-        if turn:
-            g[sel] = g[sel][:, [0, 2, 1]]
-            flip[sel] = ~flip[sel]
-    k = int(flip.sum())
-    return (mesh if k == 0 else TriMesh(x, g, name=mesh.name, face_tags=mesh.face_tags, tag_names=mesh.tag_names)), k
+    return TriMesh(mesh.points, g, name=mesh.name, face_tags=mesh.face_tags, tag_names=mesh.tag_names), k
 
 
 def oriented(mesh: TriMesh, source: str | None = None) -> TriMesh:
@@ -151,8 +147,7 @@ def oriented(mesh: TriMesh, source: str | None = None) -> TriMesh:
     out, k = orient_faces(mesh)
     if k:
         warnings.warn(PhysarWarning(f"{source or mesh.name}: {k} of {mesh.n_faces} faces were wound against their "
-                                    "neighbours (or the closed surface inward): turned so that all agree, outward"),
-                      stacklevel=2)
+                                    "neighbours: turned to agree with the rest of their part"), stacklevel=2)
     return out
 
 

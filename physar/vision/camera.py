@@ -230,7 +230,8 @@ class Camera:
         or a calibration at that size does; another aspect ratio is another crop of the sensor)."""
         if (width, height) == self.size:
             return ""
-        if (width, height) == (self.height, self.width):
+        if abs(width / height - self.height / self.width) <= 0.01 * width / height and \
+                (width > height) != (self.width > self.height):
             return ("; the video is turned 90 deg against the calibration (portrait vs landscape): calibrate with "
                     "the camera held as it was for this video")
         f = width / self.width

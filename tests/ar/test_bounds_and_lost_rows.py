@@ -87,7 +87,9 @@ def test_estimate_pinned_at_a_bound_is_flagged_and_warned_once(weak_project, liv
     assert len(at_end) == len(tracked), [row["s_est"] for row in tracked]
     assert all(row["at_bound"] == "s:upper" for row in at_end)
     warn = re.findall(r"warning: [^\n]*", r.output)
-    assert len(warn) == 1, r.output
+    # the pinned line, and (the 20 N model moves the dots 10 x less than the clip's 200 N: its s is poorly
+    # observed, standard deviation 72 % of the range) the poorly-observed line, each once
+    assert len(warn) == 2 and "s is poorly observed" in warn[1], r.output
     pct = round(100 * len(at_end) / len(tracked))
     assert f"s pinned at its upper bound 0.5 m in {pct} % of the tracked frames ({len(at_end)} of {len(tracked)})" \
         in warn[0], warn[0]

@@ -92,9 +92,24 @@ def test_csv_over_another_file_refused(tmp_path):
     truth = tmp_path / "truth.csv"
     truth.write_text("frame,time_s,s_true,rx\n0,0.0,0.1,0.0\n")
     r = runner.invoke(app, ["ar", "run", str(proj), str(v), "--csv", str(truth)])
-    assert r.exit_code == 2 and "truth.csv: exists and is not an earlier estimates CSV" in r.output, r.output
+    assert r.exit_code == 2 and "truth.csv: exists and does not look like an earlier estimates CSV" in r.output, r.output
     assert truth.read_text() == "frame,time_s,s_true,rx\n0,0.0,0.1,0.0\n"
     est = tmp_path / "est.csv"
     est.write_text("frame,time_s,status,s_est\n0,0.0,lost,nan\n")
     r = runner.invoke(app, ["ar", "run", str(proj), str(v), "--csv", str(est)])
     assert r.exit_code == 2 and "is 640x360 but" in r.output, r.output  # got past the destination check
+
+
+# an empty file (touch, mktemp) at --csv is replaced (review); a portrait video of another size than the
+# landscape calibration is named as turned, not as another crop (review: 360x640 against 1280x720)
+def test_empty_csv_and_turned_resized_video(tmp_path):
+    proj = _project(tmp_path, None)
+    v = _video(tmp_path / "half.mp4", 640, 360)
+    (tmp_path / "e.csv").write_text("")
+    r = runner.invoke(app, ["ar", "run", str(proj), str(v), "--csv", str(tmp_path / "e.csv")])
+    assert r.exit_code == 2 and "is 640x360 but" in r.output, r.output  # past the destination check
+    from physar.vision.camera import Camera
+
+    cam = Camera.from_fov(1280, 720, 60)
+    assert "turned 90 deg" in cam.size_hint(360, 640) and "turned 90 deg" in cam.size_hint(720, 1280)
+    assert "aspect ratio differs" in cam.size_hint(480, 480)
