@@ -312,18 +312,12 @@ def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
         mesh = read_mesh(p, kind="auto")
         check_length_units(mesh.points, f"[mesh] file {p}", _SCALE_HINT)
         if isinstance(mesh, TriMesh):
-            from physar.geometry.quality import oriented
-
-            try:
-                mesh = oriented(mesh, f"[mesh] file {p}")
-            except MeshError as exc:
-                raise ConfigError(str(exc)) from None
             check_mesh_size(section.size, mesh.points, p.name)
             try:
                 tet = tetrahedralize(mesh, size=section.size, source=f"[mesh] file {p.name}",
                                      max_elements=section.max_elements)
             except MeshError as exc:
-                raise ConfigError(str(exc)) from None
+                tet = _mesh_oriented(mesh, section, p, exc)
             _warn_coarse(tet, mesh, section, p)
             return tet
         if section.size is not None:
@@ -333,6 +327,26 @@ def build_mesh(section: MeshSection, base_dir: Path | None = None) -> TetMesh:
     mesh = box_mesh(section.box, section.cells)
     check_length_units(mesh.points, f"[mesh] box = {list(section.box)}")
     return mesh
+
+
+def _mesh_oriented(mesh: TriMesh, section: MeshSection, path: Path, exc: MeshError) -> TetMesh:
+    """gmsh could not mesh the surface as given (``exc``): when its faces are wound against their neighbours, mesh
+    it again with them turned to agree (:func:`physar.geometry.quality.oriented`, one warning); else, or if that
+    fails too, the first error as one ConfigError line. gmsh meshes most surfaces of mixed winding as they are
+    (the file is then used unchanged, so its tetrahedra do not depend on this repair)."""
+    from physar.geometry.quality import orient_faces, oriented
+
+    try:
+        turned = orient_faces(mesh)[1]
+    except MeshError:
+        turned = 0
+    if not turned:
+        raise ConfigError(str(exc)) from None
+    try:
+        return tetrahedralize(oriented(mesh, f"[mesh] file {path}"), size=section.size,
+                              source=f"[mesh] file {path.name}", max_elements=section.max_elements)
+    except MeshError:
+        raise ConfigError(str(exc)) from None
 
 
 def _warn_coarse(tet: TetMesh, surface: TriMesh, section: MeshSection, path: Path) -> None:

@@ -77,8 +77,8 @@ def vertex_fans(mesh: TriMesh) -> np.ndarray:
 def orient_faces(mesh: TriMesh) -> tuple[TriMesh, int]:
     """``(mesh with consistent winding, faces turned)``: neighbouring faces traverse their shared edge in
     opposite directions. Each connected part is walked breadth-first over its manifold edges (one walk for all
-    parts) and then keeps the winding of most of its faces (a part that already agrees is left as it is: an
-    inward cavity shell of a hollow solid stays inward). MeshError for a non-orientable surface (a Moebius
+    parts) and keeps the winding of most of its faces (a part that already agrees is left as it is: an inward
+    cavity shell of a hollow solid stays inward). MeshError for a non-orientable surface (a Moebius
     strip: no winding agrees across every edge). Faces keep their order and vertices; a turned face has its last
     two vertices swapped. Meshes with non-manifold edges are returned as they are (:func:`check_surface` refuses
     them)."""
