@@ -39,6 +39,40 @@ for _name in TOPICS:
     importlib.import_module(f"physar.cli.{_name}").register(app)
 
 
+def _reflow(doc: str | None) -> str | None:
+    """A command docstring with each paragraph's lines joined (typer keeps the line breaks of the paragraphs
+    after the first, so a docstring wrapped at 120 columns printed "A run" alone on a line); lines that start a
+    list item ("- ", "* ", "1. ") keep their break."""
+    import inspect
+    import re
+
+    if not doc:
+        return doc
+    paras = inspect.cleandoc(doc).split("\n\n")
+    out = []
+    for p in paras:
+        lines = p.split("\n")
+        joined = [lines[0]]
+        for ln in lines[1:]:
+            if re.match(r"\s*([-*]|\d+\.)\s", ln):
+                joined.append(ln)
+            else:
+                joined[-1] = joined[-1].rstrip() + " " + ln.strip()
+        out.append("\n".join(joined))
+    return "\n\n".join(out)
+
+
+def _reflow_all(t: typer.Typer) -> None:
+    for c in t.registered_commands:
+        if c.help is None and c.callback is not None and c.callback.__doc__:
+            c.help = _reflow(c.callback.__doc__)
+    for g in t.registered_groups:
+        _reflow_all(g.typer_instance)
+
+
+_reflow_all(app)
+
+
 def main() -> None:  # console-script entry point
     """Run the CLI. A usage error (a missing argument, an option value of the wrong type, an unknown option)
     is one line naming the command, exit 2, like every other bad input."""

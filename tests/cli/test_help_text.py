@@ -62,3 +62,23 @@ def test_every_bracketed_word_of_a_parameter_help_is_shown(path):
         words |= {" ".join(w.split()) for w in re.findall(r"\[+[a-z_][^\[\]]*\]+", text.replace("\\[", "["))}
     missing = [w for w in sorted(words) if w not in out]
     assert not missing, f"{missing} missing from `physar {' '.join(path)} --help`"
+
+
+def test_command_help_paragraphs_are_not_broken_mid_sentence():
+    # typer prints the line breaks of a docstring's later paragraphs as they are: `physar simulate --help` showed
+    # "A run" alone on a line (review). Every command's help keeps no break before a lower-case word inside a
+    # paragraph. mutant caught: the reflow of main.py removed (simulate, synth render, ... fail)
+    import inspect
+    import re
+
+    from physar.cli.main import app
+
+    def walk(t, path=()):
+        for c in t.registered_commands:
+            yield (*path, c.name or c.callback.__name__), c.help or inspect.cleandoc(c.callback.__doc__ or "")
+        for g in t.registered_groups:
+            yield from walk(g.typer_instance, (*path, g.name))
+
+    broken = [(" ".join(p), m.group(0)) for p, h in walk(app) if h
+              for m in [re.search(r"[^\n]\n[a-z(]", h)] if m]
+    assert not broken, broken
