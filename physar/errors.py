@@ -52,8 +52,9 @@ def format_validation_error(exc, source: str, model=None, section: str | None = 
         hint = f" (allowed: {', '.join(allowed)})" if allowed else ""
         return f"{source}: unknown key {loc[-1]!r} in [{table}]{hint}"
     if kind == "missing" and e["loc"] and isinstance(e["loc"][-1], int):  # a tuple given too few values
-        return (f"{source}: [{'.'.join(loc[:-1])}] expected at least {e['loc'][-1] + 1} values, got "
-                f"{e.get('input')!r}")
+        n = _tuple_length(model, inner[:-1]) if model is not None else None
+        want = f"{n}" if n else f"at least {e['loc'][-1] + 1}"
+        return f"{source}: [{'.'.join(loc[:-1])}] expected {want} values, got {e.get('input')!r}"
     if kind == "missing":
         return f"{source}: missing key {loc[-1]!r} in [{table}]"
     if kind == "literal_error":
@@ -79,6 +80,32 @@ def _allowed_keys(model, path: list[str]) -> list[str]:
             return []
         cur = cand[0]
     return list(cur.model_fields)
+
+
+def _tuple_length(model, path: list[str]) -> int | None:
+    """The length of the fixed-size tuple at ``path`` of ``model`` (a field ``Vec3``, or an item of a
+    ``list[Vec3]`` field: 3), None if it is not one."""
+    ann = model
+    for p in path:
+        if p.isdigit():  # an item of a list (or of a tuple of tuples)
+            args = [a for a in getattr(ann, "__args__", ()) if a is not Ellipsis]
+            if getattr(ann, "__origin__", None) in (list, tuple) and args:
+                ann = args[min(int(p), len(args) - 1)] if getattr(ann, "__origin__", None) is tuple else args[0]
+                continue
+            cand = [a for a in _type_args(ann) if getattr(a, "__origin__", None) in (list, tuple)]
+            if not cand:
+                return None
+            ann = next(a for a in cand[0].__args__ if a is not Ellipsis)
+            continue
+        models = [a for a in (ann, *_type_args(ann)) if isinstance(a, type) and hasattr(a, "model_fields")]
+        if not models or p not in models[0].model_fields:
+            return None
+        ann = models[0].model_fields[p].annotation
+    for a in (ann, *getattr(ann, "__args__", ())):
+        args = getattr(a, "__args__", ())
+        if getattr(a, "__origin__", None) is tuple and args and Ellipsis not in args:
+            return len(args)
+    return None
 
 
 def _type_args(ann) -> tuple:

@@ -122,12 +122,12 @@ def predict_cmd(
 
     if method not in PREDICT_METHODS:
         raise ConfigError(f"--method {method!r} is unknown; use one of {', '.join(PREDICT_METHODS)}")
-    if not run_dir.exists():
-        raise ConfigError(f"{run_dir}: RUN_DIR not found (the folder `physar recon fit --out` wrote)")
     model_file = run_dir / "model.npz" if run_dir.is_dir() else run_dir
     check_destination(out, inputs=[model_file, poses], suffixes=[".mp4"], kind="video")
     if frames_npz is not None:
         check_destination(frames_npz, inputs=[model_file, poses, out], suffixes=[".npz"], kind="frames file")
+    if not run_dir.exists():
+        raise ConfigError(f"{run_dir}: RUN_DIR not found (the folder `physar recon fit --out` wrote)")
     if mp4_encoder() is None:
         raise PhysarError(f"{out}: PyAV offers no MP4 encoder (libx264 or mpeg4); install a PyAV wheel with one")
     rec = Reconstruction.load(run_dir)

@@ -42,7 +42,7 @@ CASES = [
     (_second("size = 0.04", "size = 0.04\ncolour = 1"), "unknown key 'colour' in [[marker]] id 7 (allowed: id,"),
     (_second("size = 0.04\n", ""), "missing key 'size' in [[marker]] id 7"),
     (_second("up = [0, 0, 1]", "up = [0, 1, 1]"), "[[marker]] id 7: up [0.0, 1.0, 1.0] must be perpendicular"),
-    (_second("center = [0.3, -0.001, 0.05]", "center = [0.3, 0.05]"), "[[marker]] id 7: center: expected at least 3"),
+    (_second("center = [0.3, -0.001, 0.05]", "center = [0.3, 0.05]"), "[[marker]] id 7: center: expected 3 values, got [0.3, 0.05]"),
     (_second("id = 7", "id = 77"), "[[marker]] id 77 is outside DICT_4X4_50 (ids 0-49)"),
     (_second("id = 7", "id = 0"), "[[marker]] id 0 is given twice"),
     (_second('dictionary = "DICT_4X4_50"', 'dictionary = "DICT_5X5_50"'),

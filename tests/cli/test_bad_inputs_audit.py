@@ -13,7 +13,7 @@ test_bad_inputs*.py, signals in ar run and rom build included;
   a traceback after the work (``fem solve``, ``mesh box``, ``mpm run``): ``physar.output`` also checks for a
   read-only mount and probes the folder with a temporary file (the folder's times put back);
 * a point given two coordinates (``[dots] points``, an mpm ``velocity``) was reported as "missing key '2' in
-  [dots.points]": now "[dots.points.0] expected at least 3 values, got [0.02, 0.0]"
+  [dots.points]": now "[dots.points.0] expected 3 values, got [0.02, 0.0]"
   (``physar.errors.format_validation_error``);
 * ``fem solve -o`` a symbolic link to the problem's own ``[mesh] file`` replaced the link with the result
   (``mesh convert`` already refused it as the same file): the mesh file is now an input of the destination
@@ -148,4 +148,4 @@ def test_vector_with_too_few_values(tmp_path):
     (tmp_path / "s.toml").write_text(text.replace("velocity = [0.3, 0, 0.5]", "velocity = [0.3, 0]"))
     before = snapshot(tmp_path)
     assert_refused(invoke("mpm", "run", tmp_path / "s.toml", "-o", tmp_path / "o"),
-                   "s.toml: [body.0.velocity] expected at least 3 values, got [0.3, 0]", before, tmp_path)
+                   "s.toml: [body.0.velocity] expected 3 values, got [0.3, 0]", before, tmp_path)
