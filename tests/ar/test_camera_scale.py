@@ -75,7 +75,7 @@ def test_bad_scale_is_one_line(tmp_path, bad):
 # mutant caught: the video opened only after load_project (the model is rebuilt first: model.npz written)
 def test_video_size_checked_before_the_model_is_built(tmp_path):
     proj = _project(tmp_path, None)
-    (proj.parent / "model.npz").unlink()  # the next run would build it
+    (proj.parent / "model.npz").unlink(missing_ok=True)  # the next run would build it (a fresh clone has none)
     v = _video(tmp_path / "half.mp4", 640, 360)
     r = runner.invoke(app, ["ar", "run", str(proj), str(v), "--out", str(tmp_path / "o.mp4")])
     assert r.exit_code == 2 and "is 640x360 but" in r.output, r.output

@@ -84,7 +84,7 @@ def test_cli_predict_eval_and_errors(fitted, tiny_scene, tmp_path):
     rep = json.loads(r.stdout.strip().splitlines()[-1])
     assert set(rep["methods"]) == {"physics", "lbs", "4dgs", "spflow"}
     r = CliRunner().invoke(app, ["recon", "fit", str(tmp_path / "nope"), "--out", str(tmp_path / "o")])
-    assert r.exit_code == 2 and "scene.json" in r.output
+    assert r.exit_code == 2 and "nope': DATA_DIR not found" in r.output
 
 
 def test_physics_only_variant_reuses_stages(fitted, tiny_scene, tmp_path):
