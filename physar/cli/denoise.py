@@ -51,6 +51,26 @@ _NORMALS = ("nx", "ny", "nz")
 _POINT_DATA_FORMATS = {".ply", ".vtu", ".vtk", ".xdmf", ".xmf"}  # surface formats meshio writes point_data to
 
 
+def _split(mesh, path: Path):
+    """``(mesh, source)``: vertices where parts of ``mesh`` touch at a single point split, one copy per part
+    (:func:`physar.geometry.quality.split_fans`), with one PhysarWarning naming the file; ``source`` maps the
+    output vertices to the file's (for the per-vertex properties)."""
+    from physar.geometry.quality import split_fans
+
+    out, src = split_fans(mesh)
+    if out is not mesh:
+        k = len(np.unique(src[mesh.n_points:]))
+        warnings.warn(f"{path}: {k} vertices where parts of the surface touch at a single point (non-manifold) were "
+                      f"split, one copy per part ({out.n_points - mesh.n_points} copies added)", PhysarWarning,
+                      stacklevel=2)
+    return out, src
+
+
+def _fields(path: Path, n_file: int, source: np.ndarray) -> dict:
+    """:func:`_ply_vertex_fields` of the file's ``n_file`` vertices, taken for the vertices ``source`` names."""
+    return {k: v[source] for k, v in _ply_vertex_fields(path, n_file).items()}
+
+
 def _ply_vertex_fields(path: Path, n_points: int) -> dict:
     """The per-vertex properties of a PLY of ``n_points`` vertices other than x, y, z, in file order: {name: (n,)
     array in the file's type} (colours red/green/blue/alpha, texture coordinates, labels, normals nx/ny/nz, ...);
@@ -323,11 +343,16 @@ def register(app: typer.Typer) -> None:
                               kind="picture (--render PATH or --no-render to choose)",
                               replaces=None if render else png_by_physar)
         mesh, pts = _load(inp)
+        if mesh is not None:
+            n_file = mesh.n_points
+            mesh, src = _split(mesh, inp)
         ref = None
         if reference is not None:
             if mesh is None:
                 raise PhysarError(f"{inp}: --reference needs a surface mesh (faces), got a point cloud")
             ref, _ = _load(reference, role="reference")
+            if ref is not None:
+                ref, _ = _split(ref, reference)
             if ref is None or ref.faces.shape != mesh.faces.shape or not np.array_equal(ref.faces, mesh.faces):
                 raise PhysarError(f"{reference}: --reference must have the same faces as {inp} (the clean copy "
                                   f"of the noisy mesh)")
@@ -348,7 +373,7 @@ def register(app: typer.Typer) -> None:
             if mesh is not None:
                 res = denoise(mesh, method, iterations, progress=prog, **params)
                 moved = np.linalg.norm(res.points - mesh.points, axis=1)
-                _save(out, res, None, _output_fields(_ply_vertex_fields(inp, mesh.n_points), mesh, res, out))
+                _save(out, res, None, _output_fields(_fields(inp, n_file, src), mesh, res, out))
                 n = mesh.n_points
             else:
                 q = denoise_points(pts, method, iterations, k=k, progress=prog, **params)
@@ -417,8 +442,10 @@ def register(app: typer.Typer) -> None:
         mesh, _ = _load(inp)
         if mesh is None:
             raise PhysarError(f"{inp}: `noise` needs a surface mesh (faces), got a point cloud")
+        n_file = mesh.n_points
+        mesh, src = _split(mesh, inp)
         noisy = add_noise(mesh, sigma, seed, direction)
-        _save(out, noisy, None, _output_fields(_ply_vertex_fields(inp, mesh.n_points), mesh, noisy, out))
+        _save(out, noisy, None, _output_fields(_fields(inp, n_file, src), mesh, noisy, out))
         summary = {"input": str(inp), "output": str(out), "sigma_m": sigma * mean_edge_length(mesh),
                    "seed": seed, "direction": direction}
         if json_out:

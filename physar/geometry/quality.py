@@ -45,12 +45,22 @@ def vertex_fans(mesh: TriMesh) -> np.ndarray:
     """Per vertex, the number of fans its faces form: groups of faces around it connected through edges at it
     (1 on a manifold surface, 0 for an unused vertex; 2 where two parts touch at a single point, a bow tie).
     Faces meet through edges with at most two faces (non-manifold edges are :func:`check_surface`'s)."""
+    f = np.asarray(mesh.faces, np.int64)
+    if len(f) == 0:
+        return np.zeros(mesh.n_points, np.int64)
+    comp = _corner_fans(mesh)
+    vert_of = np.zeros(comp.max() + 1, np.int64)
+    vert_of[comp] = f.ravel()
+    return np.bincount(vert_of, minlength=mesh.n_points)
+
+
+def _corner_fans(mesh: TriMesh) -> np.ndarray:
+    """The fan label of each face corner (face * 3 + corner): corners at one vertex joined through the edges
+    at it that have exactly two faces."""
     from scipy.sparse.csgraph import connected_components
 
     f = np.asarray(mesh.faces, np.int64)
     m, n = len(f), mesh.n_points
-    if m == 0:
-        return np.zeros(n, np.int64)
     # half-edge j of face i runs from corner j to corner (j + 1) % 3; sort the undirected keys to pair them
     fi = np.repeat(np.arange(m), 3)
     va, vb = f.ravel(), f[:, [1, 2, 0]].ravel()
@@ -68,10 +78,41 @@ def vertex_fans(mesh: TriMesh) -> np.ndarray:
         cols.append(wedge(fi[h2], v))
     r, c = np.concatenate(rows), np.concatenate(cols)
     g = sparse.coo_matrix((np.ones(len(r)), (r, c)), shape=(3 * m, 3 * m))
-    ncomp, comp = connected_components(g, directed=False)
-    vert_of = np.zeros(ncomp, np.int64)
-    vert_of[comp] = f.ravel()
-    return np.bincount(vert_of, minlength=n)
+    return connected_components(g, directed=False)[1]
+
+
+def split_fans(mesh: TriMesh) -> tuple[TriMesh, np.ndarray]:
+    """``(mesh, source)``: every vertex whose faces form several fans (:func:`vertex_fans`, parts touching at a
+    point) gets one copy per extra fan, at the same position, so that each part has its own vertex, as MeshLab's
+    "split non-manifold vertices" does; ``source[i]`` is the input vertex of output vertex ``i`` (the identity
+    when nothing was split, and the mesh returned as it is, as it is for a mesh with a non-manifold edge).
+    Faces keep their order."""
+    n = mesh.n_points
+    if mesh.n_faces == 0 or not (vertex_fans(mesh) > 1).any():
+        return mesh, np.arange(n)
+    e = np.sort(np.asarray(mesh.faces)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    if (np.unique(e[:, 0] * np.int64(n) + e[:, 1], return_counts=True)[1] > 2).any():
+        return mesh, np.arange(n)  # a non-manifold edge: not a touching point (check_surface refuses it)
+    comp = _corner_fans(mesh)
+    f = np.asarray(mesh.faces, np.int64).ravel()
+    order = np.argsort(comp, kind="stable")
+    uc, start = np.unique(comp[order], return_index=True)
+    vert = f[order[start]]                           # each fan's vertex
+    keep = np.zeros(len(uc), bool)                   # the first fan of each vertex keeps it, the others get copies
+    seen = set()
+    for i, v in enumerate(vert.tolist()):
+        if v not in seen:
+            seen.add(v)
+            keep[i] = True
+    new_id = np.where(keep, vert, 0)
+    extra = np.flatnonzero(~keep)
+    new_id[extra] = n + np.arange(len(extra))
+    fan_id = np.empty(comp.max() + 1, np.int64)
+    fan_id[uc] = new_id
+    g = fan_id[comp].reshape(-1, 3)
+    source = np.r_[np.arange(n), vert[extra]]
+    pts = mesh.points[source]
+    return TriMesh(pts, g, name=mesh.name, face_tags=mesh.face_tags, tag_names=mesh.tag_names), source
 
 
 def orient_faces(mesh: TriMesh) -> tuple[TriMesh, int]:
