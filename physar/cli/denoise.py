@@ -303,7 +303,7 @@ def register(app: typer.Typer) -> None:
         render: Annotated[Path | None, typer.Option(
             "--render", help="before/after shaded picture (PNG; default: --out with suffix .png)")] = None,
         no_render: bool = typer.Option(False, "--no-render", help="write no picture"),
-        k: int = typer.Option(10, "--k", help="neighbours for point clouds"),
+        k: int = typer.Option(None, "--k", help="neighbours for point clouds (default 10)"),
         json_out: bool = typer.Option(False, "--json", help="print a JSON summary on stdout"),
     ) -> None:
         """Denoise a surface mesh or point cloud (seed 001 §3.2.1 AL/MSAL, or the two-stage default).
@@ -344,8 +344,12 @@ def register(app: typer.Typer) -> None:
                               replaces=None if render else png_by_physar)
         mesh, pts = _load(inp)
         if mesh is not None:
+            if k is not None:  # silently unused before
+                raise PhysarError(f"--k {k}: neighbours of a point cloud; {inp} is a surface mesh, whose "
+                                  "neighbours are its edges (drop --k)")
             n_file = mesh.n_points
             mesh, src = _split(mesh, inp)
+        k = 10 if k is None else k
         ref = None
         if reference is not None:
             if mesh is None:

@@ -26,6 +26,8 @@ def _parse_hw(hw: list[str] | None, extra: list[str]) -> list[float]:
             try:
                 x = float(part)
             except ValueError:
+                if part.startswith("--"):  # the extra arguments after --hw 1 2 hold an unknown option
+                    raise ConfigError(f"physar damping: no such option {part} (see physar damping --help)") from None
                 raise ConfigError(f"--hw: {part!r} is not a number") from None
             if not 0 < x < float("inf"):
                 raise ConfigError(f"--hw values must be finite and > 0, got {x}")

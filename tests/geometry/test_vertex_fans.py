@@ -88,3 +88,13 @@ def test_split_copies_keep_the_vertex_colours(tmp_path):
     corner = int(np.flatnonzero(np.all(np.isclose(x, 0.5), axis=1))[0])
     np.testing.assert_array_equal(got[:15], rgb)
     np.testing.assert_array_equal(got[15], rgb[corner])
+
+
+def test_k_on_a_surface_is_refused(tmp_path):
+    # --k (neighbours of a point cloud) given for a surface was silently unused (review); one line, exit 2, no
+    # output. mutant caught: the check removed (exit 0)
+    trimesh.creation.icosphere(subdivisions=1).export(tmp_path / "s.ply")
+    r = CliRunner().invoke(app, ["denoise", str(tmp_path / "s.ply"), "--out", str(tmp_path / "d.ply"), "--k", "5"])
+    errors = [ln for ln in r.output.splitlines() if ln.startswith("error:")]
+    assert r.exit_code == 2 and len(errors) == 1 and "--k 5: neighbours of a point cloud" in errors[0], r.output
+    assert not (tmp_path / "d.ply").exists()
