@@ -358,10 +358,10 @@ def _warn_coarse(tet: TetMesh, surface: TriMesh, section: MeshSection, path: Pat
     nb = len(tet.boundary().node_map)
     if nb >= 0.5 * surface.n_points:
         return
+    from physar.geometry.quality import mean_edge_length
     from physar.geometry.tetra import default_size
 
-    e = surface.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    edge = float(np.linalg.norm(surface.points[e[:, 0]] - surface.points[e[:, 1]], axis=1).mean())
+    edge = mean_edge_length(surface)
     warnings.warn(PhysarWarning(
         f"[mesh] file {path}: tetrahedralised at the default size {default_size(surface):.3g} m (half its smallest "
         f"extent): the volume mesh has {nb} boundary nodes for the file's {surface.n_points} vertices, and "

@@ -88,13 +88,17 @@ def split_fans(mesh: TriMesh) -> tuple[TriMesh, np.ndarray]:
     when nothing was split, and the mesh returned as it is, as it is for a mesh with a non-manifold edge).
     Faces keep their order."""
     n = mesh.n_points
-    if mesh.n_faces == 0 or not (vertex_fans(mesh) > 1).any():
+    if mesh.n_faces == 0:
+        return mesh, np.arange(n)
+    comp = _corner_fans(mesh)  # once: the fan count and the split both come from it
+    f = np.asarray(mesh.faces, np.int64).ravel()
+    vert_of = np.zeros(comp.max() + 1, np.int64)
+    vert_of[comp] = f
+    if not (np.bincount(vert_of, minlength=n) > 1).any():
         return mesh, np.arange(n)
     e = np.sort(np.asarray(mesh.faces)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     if (np.unique(e[:, 0] * np.int64(n) + e[:, 1], return_counts=True)[1] > 2).any():
         return mesh, np.arange(n)  # a non-manifold edge: not a touching point (check_surface refuses it)
-    comp = _corner_fans(mesh)
-    f = np.asarray(mesh.faces, np.int64).ravel()
     order = np.argsort(comp, kind="stable")
     uc, start = np.unique(comp[order], return_index=True)
     vert = f[order[start]]                           # each fan's vertex
