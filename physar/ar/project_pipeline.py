@@ -58,11 +58,11 @@ column of :meth:`ProjectPipeline.run`'s CSV): the solve clips the parameters to 
 estimate that stays there says the true value is probably outside the box (or in other units)."""
 
 PINNED_FRACTION = 0.25
+"""Fraction of the tracked frames at one bound of a parameter from which :meth:`ProjectPipeline.run` warns
+(once, at the end of the run). A value that truly dwells at a range end a quarter of the time also warns."""
 #: a parameter whose standard deviation averages more than this fraction of its range over the tracked frames
 #: is reported as poorly observed (2 sd then span 5 x the 1 % tolerance `physar synth score` judges by)
 WEAK_STD_FRACTION = 0.025
-"""Fraction of the tracked frames at one bound of a parameter from which :meth:`ProjectPipeline.run` warns
-(once, at the end of the run). A value that truly dwells at a range end a quarter of the time also warns."""
 
 
 LOW_BITS_PER_PIXEL = 0.15
