@@ -89,15 +89,19 @@ def damping(
 @user_errors
 def simulate(
     config: Path = typer.Argument(..., help="problem file (TOML): the fem tables plus \\[dynamics]"),  # noqa: B008 - typer idiom
-    out: Path = typer.Option(..., "--out", "-o", help="trajectory (.xdmf + .h5) with displacement, velocity"),  # noqa: B008 - typer idiom
+    out: Path = typer.Option(..., "--out", "-o", help="trajectory (.xdmf + .h5): displacement \\[m], velocity \\[m/s], region tags cell_tags"),  # noqa: B008 - typer idiom
     video: Path | None = typer.Option(None, "--video", help="MP4 of the deformed surface (H.264)"),  # noqa: B008 - typer idiom
-    energy_csv: Path | None = typer.Option(None, "--energy", help="energy per step CSV (default: OUT with .csv)"),  # noqa: B008 - typer idiom
+    energy_csv: Path | None = typer.Option(None, "--energy", help="energy per step CSV: step, time_s, kinetic_J, elastic_J, potential_J, total_J, newton_iterations (default: OUT with .csv)"),  # noqa: B008 - typer idiom
     fps: float = typer.Option(30.0, "--fps", help="video frame rate"),
     plot: Path | None = typer.Option(None, "--plot", help="PNG of kinetic, elastic, potential (gravity, loads) and total energy against time"),  # noqa: B008 - typer idiom
     energy_warn: float = typer.Option(0.05, "--energy-warn", help="warn when the total energy grows by more than this fraction of the largest energy term"),
     json_out: bool = typer.Option(False, "--json", help="print a run summary as JSON"),
 ) -> None:
     """Integrate M q'' = f_els + f_dmp + f_ext in time and write the trajectory, energies and a video.
+
+    The XDMF holds per frame the vertex arrays displacement \\[m] and velocity \\[m/s] and the tetrahedra's region
+    tags cell_tags with their names (as the VTU of fem solve); the energy CSV's header carries the units:
+    step, time_s, kinetic_J, elastic_J, potential_J, total_J, newton_iterations.
 
     Ctrl-C or SIGTERM stops after the current step: the steps done so far are written (exit 130). A run
     that diverges (non-finite state, runaway displacement, or total energy grown by more than 90 % of the
@@ -129,11 +133,14 @@ def simulate(
         mesh_in = [m, m.with_suffix(".h5")] if m.suffix.lower() in (".xdmf", ".xmf") else [m]
     check_destination(out, inputs=[config, *mesh_in], suffixes=[".xdmf"], kind="trajectory")
     check_destination(out.with_suffix(".h5"), inputs=[config, *mesh_in], kind="trajectory data")
+    from physar.integrators.config import ENERGY_COLUMNS, ENERGY_COLUMNS_V1
     from physar.output import csv_header_starts
 
     # the default energy CSV (OUT.csv, not named by the user) never replaces a CSV that is not an earlier one
+    # (of this version, units in the header, or of an earlier one, without)
+    ours, older = csv_header_starts(*list(ENERGY_COLUMNS.values())[:3]), csv_header_starts(*ENERGY_COLUMNS_V1[:3])
     check_destination(csv_path, inputs=[config, *mesh_in, out, out.with_suffix(".h5")], suffixes=[".csv"],
-                      kind="energy CSV", replaces=None if energy_csv else csv_header_starts("step", "t", "kinetic"))
+                      kind="energy CSV", replaces=None if energy_csv else lambda p: ours(p) or older(p))
     if video is not None:
         check_destination(video, inputs=[config, *mesh_in, out, csv_path], suffixes=[".mp4"], kind="video")
     if plot is not None:

@@ -44,14 +44,19 @@ def convert(
     """Convert a tetrahedral or triangle mesh between formats (validated on the way).
 
     Region tags and physical-group names are kept in .msh, .vtu and .xdmf;
-    .mesh and .vtk keep the tag numbers only (one warning names the regions)."""
+    .mesh and .vtk keep the tag numbers only (one warning names the regions).
+    A surface with degenerate faces (a vertex repeated in a face, or zero area) is refused in one line
+    naming their counts, as denoise and fem refuse it; so is a tetrahedral mesh with a degenerate element."""
     from physar.cli._common import output_path, warn_positional
     from physar.geometry.io import SURFACE_FORMATS, VOLUME_FORMATS
+    from physar.geometry.mesh import TriMesh, check_faces
     from physar.output import check_destination
 
     dst = output_path(dst_opt, dst_arg, "physar mesh convert IN --out OUT")
     check_destination(dst, inputs=[src], suffixes=sorted(VOLUME_FORMATS | SURFACE_FORMATS), kind="mesh")
     m = read_mesh(src)
+    if isinstance(m, TriMesh):
+        check_faces(m, str(src))
     write_mesh(dst, m)
     log(f"wrote {dst}")
     warn_positional(dst_arg, dst_opt, "mesh convert")

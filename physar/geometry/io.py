@@ -587,22 +587,30 @@ def _vtu_add_names(path: Path, names: Mapping[str, tuple[int, int]]) -> None:
     path.write_bytes(data[:at] + f"\n<FieldData>\n{arrays}</FieldData>".encode() + data[at:])
 
 
+def xdmf_names_element(names: Mapping[str, tuple[int, int]]):
+    """The region names ({name: (tag, dim)}) as an XDMF ``<Information>`` element (xml.etree) whose text is
+    ``<main><map key="name" dim="dim">tag</map>...</main>``: the layout meshio's XDMF reader reads into
+    ``field_data`` (and its own writers leave out); a Grid holds it as its first child."""
+    import xml.etree.ElementTree as ET
+
+    main = ET.Element("main")
+    for n, (i, d) in names.items():
+        ET.SubElement(main, "map", key=str(n), dim=str(int(d))).text = str(int(i))
+    info = ET.Element("Information", Name="Information", Value=str(len(names)))
+    info.text = ET.tostring(main, encoding="unicode")
+    return info
+
+
 def _xdmf_add_names(path: Path, names: Mapping[str, tuple[int, int]]) -> None:
-    """Add the region names to an XDMF file meshio wrote, in the layout meshio's XDMF reader reads into
-    ``field_data`` (and its own writer leaves out): an ``<Information>`` element of the Grid whose text is
-    ``<main><map key="name" dim="dim">tag</map>...</main>``."""
+    """Add the region names to an XDMF file meshio wrote: :func:`xdmf_names_element` as the first child of
+    its Grid."""
     import xml.etree.ElementTree as ET
 
     tree = ET.parse(path)
     grid = tree.getroot().find("Domain/Grid")
     if grid is None:
         raise MeshError(f"{path}: cannot store the region names (no Domain/Grid element written)")
-    main = ET.Element("main")
-    for n, (i, d) in names.items():
-        ET.SubElement(main, "map", key=str(n), dim=str(int(d))).text = str(int(i))
-    info = ET.Element("Information", Name="Information", Value=str(len(names)))
-    info.text = ET.tostring(main, encoding="unicode")
-    grid.insert(0, info)
+    grid.insert(0, xdmf_names_element(names))
     tree.write(path, encoding="utf-8", xml_declaration=False)
 
 

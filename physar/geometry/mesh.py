@@ -163,6 +163,11 @@ class TetMesh:
         return text + ")"
 
 
+def _repeats_vertex(faces: np.ndarray) -> np.ndarray:
+    """(m,) bool: faces (m, 3) that hold one vertex index twice or more."""
+    return (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+
+
 def _check_face_tags(tags, n_faces: int, name: str) -> np.ndarray | None:
     """`tags` as a read-only int64 array (n_faces,), or None; anything else is one MeshError line."""
     if tags is None:
@@ -230,6 +235,13 @@ class TriMesh:
     def face_areas(self) -> np.ndarray:
         return 0.5 * np.linalg.norm(self.face_normals(normalize=False), axis=1)
 
+    def degenerate_faces(self, rel_tol: float = 1e-12) -> np.ndarray:
+        """(m,) bool: faces that repeat a vertex index, or whose area is at most `rel_tol` times the mean face
+        area (collinear corners; the rule :class:`TetMesh` applies to tetrahedron volumes)."""
+        rep = _repeats_vertex(self.faces)
+        area = self.face_areas()
+        return rep | (area <= rel_tol * area.mean()) if len(rep) else rep
+
     def with_points(self, points: np.ndarray) -> TriMesh:
         """The same faces (and face tags) on new `points` (n, 3)."""
         return TriMesh(points, self.faces, name=self.name, face_tags=self.face_tags, tag_names=self.tag_names)
@@ -244,6 +256,26 @@ class TriMesh:
             more = f", ... ({len(names)} in all)" if len(names) > 6 else ""
             text += f", regions {', '.join(names[:6])}{more}"
         return text + ")"
+
+
+def check_faces(mesh: TriMesh, source: str | None = None) -> None:
+    """Refuse a surface with degenerate faces (:meth:`TriMesh.degenerate_faces`: a vertex index repeated in a
+    face, or zero area) in one MeshError line naming `source` (default: the mesh's name), how many faces of each
+    kind and the first of each; the surface commands refuse them too (``denoise`` and the tetrahedralisation of
+    ``fem`` stop at a face that repeats a vertex, gmsh at overlapping facets)."""
+    bad = mesh.degenerate_faces()
+    if not bad.any():
+        return
+    f = mesh.faces
+    rep = _repeats_vertex(f)
+    parts = []
+    for mask, what in ((rep, "repeating a vertex index"), (bad & ~rep, "of zero area")):
+        if mask.any():
+            e = int(np.flatnonzero(mask)[0])
+            parts.append(f"{int(mask.sum())} {what} (e.g. face {e}, vertices {f[e].tolist()}, numbered from 0)")
+    n = int(bad.sum())
+    raise MeshError(f"{source or mesh.name}: {_plural(n, 'degenerate face')} of {mesh.n_faces}: {'; '.join(parts)}; "
+                    f"remove {'it' if n == 1 else 'them'} first (e.g. MeshLab's Remove Zero Area Faces)")
 
 
 @dataclass(frozen=True, repr=False)

@@ -305,13 +305,28 @@ def run_simulation(sim: Simulation, progress: Callable[[int, int], None] | None 
 
 
 def write_xdmf(path: str | Path, sim: Simulation, traj: Trajectory) -> Path:
-    """XDMF time series (meshio, with its .h5): reference mesh, per-frame displacement and velocity."""
+    """XDMF time series (meshio, with its .h5): the reference mesh and, per frame, ``displacement`` [m] and
+    ``velocity`` [m/s] at the vertices (n, 3), and the region tags of the tetrahedra, as in the VTU of
+    ``physar fem solve`` (:func:`physar.geometry.write_mesh`): ``cell_tags`` (m,) integers (0 where the mesh has
+    no tetrahedron tags) on every frame, so a viewer (ParaView's Threshold) selects regions at any time, stored
+    once in the .h5 and referenced by each frame, and the region names ({name: (tag, dim)}) in an
+    ``<Information>`` element of the mesh grid (:func:`physar.geometry.io.xdmf_names_element`). Array names
+    carry no units (the ParaView and physar convention: SI units as stated here)."""
+    import copy
+
     import meshio
+
+    from physar.geometry.io import xdmf_names_element
 
     path = Path(path)
     if path.suffix.lower() != ".xdmf":
         raise ConfigError(f"trajectory output must end in .xdmf, got {path.name}")
     mesh = sim.problem.space.mesh
+    tags = mesh.tags
+    cell_data = None
+    if tags is not None:
+        cell_tags = tags.cell_tags if tags.cell_tags is not None else np.zeros(mesh.n_cells, np.int64)
+        cell_data = {"cell_tags": [np.asarray(cell_tags, np.int64)]}
     # meshio's TimeSeriesWriter opens its .h5 relative to the working directory: write from inside
     # the temporary folder (single-threaded CLI use)
     with (
@@ -320,22 +335,37 @@ def write_xdmf(path: str | Path, sim: Simulation, traj: Trajectory) -> Path:
         meshio.xdmf.TimeSeriesWriter(tmp.name) as w,
     ):
         w.write_points_cells(mesh.points, [("tetra", mesh.cells)])
+        if tags is not None and tags.names:
+            w.domain[-1].insert(0, xdmf_names_element(tags.names))  # the mesh grid write_points_cells added
+        shared = None  # the cell_tags Attribute of the first frame, whose .h5 data every frame references
         for t, u, v in zip(traj.times, traj.u, traj.v):
-            w.write_data(t, point_data={"displacement": u, "velocity": v.astype(np.float64)})
+            w.write_data(t, point_data={"displacement": u, "velocity": v.astype(np.float64)},
+                         cell_data=cell_data if shared is None else None)
+            if cell_data is not None and shared is None:
+                shared = w.collection[-1].find("Attribute[@Name='cell_tags']")
+            elif shared is not None:
+                w.collection[-1].append(copy.deepcopy(shared))
     return path
 
 
-ENERGY_COLUMNS = ["step", "t", "kinetic", "elastic", "potential", "total", "newton_iterations"]
+# CSV columns of the energy per step, units in the names (as the AR estimates' ``time_s``): the keys of
+# ``Trajectory.energy`` rows -> the header
+ENERGY_COLUMNS = {"step": "step", "t": "time_s", "kinetic": "kinetic_J", "elastic": "elastic_J",
+                  "potential": "potential_J", "total": "total_J", "newton_iterations": "newton_iterations"}
+# the header before the units were added (an earlier energy CSV that a new run may replace)
+ENERGY_COLUMNS_V1 = ("step", "t", "kinetic", "elastic", "potential", "total", "newton_iterations")
 
 
 def write_energy_csv(path: str | Path, traj: Trajectory) -> Path:
-    """One row per step: step, t (s), kinetic, elastic, potential, total energy (J), Newton iterations."""
+    """One row per step, header ``step, time_s, kinetic_J, elastic_J, potential_J, total_J, newton_iterations``:
+    the step, its time [s], the kinetic, elastic, potential (gravity, loads, ground) and total energy [J] and
+    the Newton iterations of the step (0 for step 0 and explicit steppers); floats to 17 significant digits."""
     path = Path(path)
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=ENERGY_COLUMNS)
-        w.writeheader()
+        w = csv.writer(fh)
+        w.writerow(ENERGY_COLUMNS.values())
         for row in traj.energy:
-            w.writerow({k: (f"{row[k]:.17g}" if isinstance(row[k], float) else row[k]) for k in ENERGY_COLUMNS})
+            w.writerow([f"{row[k]:.17g}" if isinstance(row[k], float) else row[k] for k in ENERGY_COLUMNS])
     return path
 
 

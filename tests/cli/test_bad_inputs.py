@@ -378,7 +378,7 @@ def test_symplectic_euler_divergence_stops_with_valid_files(ws):
     assert not [p for p in ws.iterdir() if p.name.startswith(".")]  # no temporary left
     with open(ws / "t.csv") as fh:
         rows = list(csv.DictReader(fh))
-    assert 1 <= len(rows) < 21 and all(np.isfinite(float(x["total"])) for x in rows)
+    assert 1 <= len(rows) < 21 and all(np.isfinite(float(x["total_J"])) for x in rows)
     with meshio.xdmf.TimeSeriesReader(ws / "t.xdmf") as rd:
         rd.read_points_cells()
         assert rd.num_steps >= 1

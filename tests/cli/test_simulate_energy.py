@@ -50,8 +50,8 @@ def run(tmp_path, method, h, steps, *extra):
 
 
 def growth(rows):
-    tot = np.array([r["total"] for r in rows])
-    scale = max(max(abs(r["kinetic"]), abs(r["elastic"]), abs(r["potential"])) for r in rows)
+    tot = np.array([r["total_J"] for r in rows])
+    scale = max(max(abs(r["kinetic_J"]), abs(r["elastic_J"]), abs(r["potential_J"])) for r in rows)
     return float((tot - tot[0]).max() / scale)
 
 

@@ -86,7 +86,7 @@ def test_simulate_writes_xdmf_csv_video(app, tmp_path, drop_config):
     assert t == pytest.approx(0.12)
     with open(tmp_path / "traj.csv") as fh:
         rows = list(csv.DictReader(fh))
-    assert len(rows) == 13 and float(rows[0]["kinetic"]) == 0.0
+    assert len(rows) == 13 and float(rows[0]["kinetic_J"]) == 0.0
     assert video.stat().st_size > 1000
     import av
 
