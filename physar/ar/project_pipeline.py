@@ -48,6 +48,7 @@ from physar.errors import ConfigError, PhysarError, PhysarWarning
 from physar.vision.blobs import find_dots
 from physar.vision.camera import Pose
 from physar.vision.observation import surface_observation_matrix
+from physar.vision.occlusion import hidden_points
 
 STAGES = ("decode", "markers_pose", "dots", "assimilate", "overlay", "encode")
 
@@ -69,6 +70,25 @@ LOW_BITS_PER_PIXEL = 0.15
 """Bits per pixel and frame below which :meth:`ProjectPipeline.run` warns that texture features suffer from the
 codec: the bracket example's clips at 0.09 (2.4 Mbit/s, 1280x720, 30 fps) made the dots + features project worse
 than the dots alone, at 0.6 (17 Mbit/s) better; a phone's 1080p at 17 Mbit/s is about 0.27."""
+
+
+RIM_FRACTION = 1.15
+"""Radius of the ring of points tested for occlusion around each dot, as a fraction of the dot's radius (the
+blob's centroid window reaches past the printed edge)."""
+
+
+def _rim_offsets(normals: np.ndarray, radius: float, n: int = 8) -> np.ndarray:
+    """(d, n + 1, 3): the centre (zero) and ``n`` points on a circle of ``radius`` [m] in each dot's tangent plane
+    (normals (d, 3)), as offsets from the dot's centre."""
+    N = np.asarray(normals, float)
+    N = N / np.linalg.norm(N, axis=1, keepdims=True)
+    a = np.where(np.abs(N[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    e1 = np.cross(N, a)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(N, e1)
+    th = 2 * np.pi * np.arange(n) / n
+    ring = radius * (np.cos(th)[None, :, None] * e1[:, None] + np.sin(th)[None, :, None] * e2[:, None])
+    return np.concatenate([np.zeros((len(N), 1, 3)), ring], 1)
 
 
 def _rotations(w: np.ndarray) -> np.ndarray:
@@ -199,6 +219,12 @@ class ProjectPipeline:
                                            tol=cfg.dots.tol or cfg.dots.diameter / 4)
             self.Fd = np.asarray(C @ rom.F.T).T.reshape(rom.n_modes, -1, 3)   # (modes, n dots, 3)
             self.radius_m = cfg.dots.diameter / 2
+            # the model's surface, for the dots it hides (a flange over a web): its vertices and their modes
+            surf = space.mesh.boundary()
+            self._occ_faces = surf.mesh.faces
+            self._occ_X0 = surf.mesh.points
+            self._occ_U = np.ascontiguousarray(rom.F.reshape(rom.n_modes, -1, 3)[:, surf.node_map])
+            self._rim = _rim_offsets(self.normals, RIM_FRACTION * self.radius_m)       # (n dots, 9, 3)
             self.colour = cfg.dots.colour
             # the largest dot displacement over the parameter box bounds the search after a fresh start
             corners = np.stack(np.meshgrid(*[np.linspace(a, b, 5) for a, b in rom.ranges], indexing="ij"),
@@ -307,14 +333,24 @@ class ProjectPipeline:
         """Deformed dot positions (n, 3) [m] for the parameters mu."""
         return self.dots + np.tensordot(self.rom.coefficients(mu)[0], self.Fd, 1)
 
-    def _expected(self, pose: Pose, X):
-        """Visibility (faces towards the camera), expected image radius [px] of the dots at X."""
+    def _expected(self, pose: Pose, X, c=None):
+        """Visibility, expected image radius [px] of the dots at X. A dot is visible when its face is turned
+        towards the camera and, given the mode coefficients ``c`` of X, no part of the model's deformed surface
+        hides any of its centre and rim (8 points at :data:`RIM_FRACTION` of its radius;
+        :func:`physar.vision.occlusion.hidden_points`): a dot the object half hides (under a flange) is not
+        measured, as its blob's centroid is off by the hidden part (1.2-1.8 px on a T-beam's web)."""
         Xc = X @ pose.R.T + pose.t
         nc = self.normals @ pose.R.T
         view = Xc / np.linalg.norm(Xc, axis=1, keepdims=True)
         cos = -np.einsum("ij,ij->i", nc, view)
         r = self.camera.fx * self.radius_m / np.maximum(Xc[:, 2], 1e-9) * np.sqrt(np.clip(cos, 0.05, 1))
-        return (cos > 0.15) & (Xc[:, 2] > 0), r
+        vis = (cos > 0.15) & (Xc[:, 2] > 0)
+        if c is not None and vis.any():
+            S = self._occ_X0 + np.tensordot(c, self._occ_U, 1)
+            rim = (X[vis][:, None] + self._rim[vis]).reshape(-1, 3) @ pose.R.T + pose.t
+            hid = hidden_points(rim, S @ pose.R.T + pose.t, self._occ_faces, 0.25 * self.radius_m, closed=True)
+            vis[np.flatnonzero(vis)[hid.reshape(-1, self._rim.shape[1]).any(1)]] = False
+        return vis, r
 
     # -- estimation ----------------------------------------------------------------------------------------
     def _pose_of(self, pose: Pose, th):
@@ -478,7 +514,7 @@ class ProjectPipeline:
         too few dots, dots used)."""
         trk = self.project.tracking
         X = self.dot_positions(self.mu)
-        vis, r_px = self._expected(pe.pose, X)
+        vis, r_px = self._expected(pe.pose, X, self.rom.coefficients(self.mu)[0])
         pred = self.camera.project(X, pe.pose)
         pred[~vis] = np.nan
         extra = trk.search_px
@@ -515,7 +551,7 @@ class ProjectPipeline:
         for _ in range(3 if self._fresh else 0):
             # the wide search may have taken a neighbour for a dot: search again where the estimate puts them
             X2 = self.dot_positions(mu)
-            vis2, r2 = self._expected(pose, X2)
+            vis2, r2 = self._expected(pose, X2, self.rom.coefficients(mu)[0])
             pred2 = self.camera.project(X2, pose)
             pred2[~vis2] = np.nan
             px2, valid2 = find_dots(frame, gray, pred2, r2, self.colour, np.maximum(2.5 * r2, 4.0) + trk.search_px)
@@ -545,7 +581,7 @@ class ProjectPipeline:
             # when fewer than half of them are still tracked (the view has changed); a face not seen well
             # enough is tried again 30 frames later
             X3 = self.dot_positions(mu)
-            vis3, r3 = self._expected(pose, X3)
+            vis3, r3 = self._expected(pose, X3, self.rom.coefficients(mu)[0])
             q3 = self.camera.project(X3, pose)
             if self.points.set_reference(gray, pose, self.rom.coefficients(mu)[0], q3[vis3], r3[vis3]) == 0:
                 self._ref_wait = 30

@@ -71,7 +71,11 @@ def test_bracket_load_position_along_the_curved_path(bracket, clip, tmp_path):
     # encodes a different clip); on such a clip ArUco missed marker 4 on the periodic re-detection frame 30 and
     # that frame's pose from 4 markers was 1.36 mm off, until a marker missed there is tracked as on other frames
     assert s["judged"] == 48 and s["within"] == 48 and s["max_error"] <= 0.01 * 0.1278, s
-    assert s["median_error"] <= 0.005 * 0.1278, s
+    # median 0.65-0.67 mm (0.51-0.53 %) since the marker corners are the intersections of their edge lines (0.43 mm
+    # with OpenCV's sub-pixel corners, whose 0.15-0.22 px pull into each marker happened to cancel the model's
+    # bias here: with the true camera pose the dots and the model alone give s +0.30 mm on this clip;
+    # benchmarks/RESULTS.md, "Marker corners from their edges")
+    assert s["median_error"] <= 0.006 * 0.1278, s
     # the sideways offset is weakly observable (plate twist): within 2.5 mm of its 4 mm (measured 4.5-6 mm);
     # catches the offset direction flipped in the model or the truth (the estimate would sit near -3 mm)
     o = read_columns(tmp_path / "est.csv")["o_est"]
@@ -80,7 +84,10 @@ def test_bracket_load_position_along_the_curved_path(bracket, clip, tmp_path):
 
 def test_bracket_dots_and_texture_features(bracket_dir, clip, tmp_path):
     """The example's dots + natural features project (``project_features.toml``: the arm's top-face texture as
-    rows of the same solve) on the same clip: every frame within 1 % of the path (measured max 1.00 mm), the
+    rows of the same solve) on the same clip: every frame within 1.1 % of the path and all but one within 1 %
+    (measured max 1.35 mm = 1.05 % at one frame, mean 0.59 mm, with the marker corners of their edge lines;
+    1.03 mm, mean 0.46 mm, with OpenCV's sub-pixel corners, whose inward pull cancelled part of the model's
+    bias; the offset's mean error is 1.44 mm against 2.11 mm), the
     features in use from the second frame on (80 chosen, at least 40 kept on every later frame), the CSV's
     features column. Catches: features placed at the wrong material points or their displacement's sign
     flipped (a bias of millimetres in s), features never chosen or all rejected, weights that let the features
@@ -96,7 +103,7 @@ def test_bracket_dots_and_texture_features(bracket_dir, clip, tmp_path):
     res = score(read_columns(clip / "truth.csv"), est, ranges)
     s = res["parameters"]["s"]
     assert res["tracking"] == res["frames"] == 48
-    assert s["judged"] == 48 and s["within"] == 48 and s["max_error"] <= 0.01 * 0.1278, s
+    assert s["judged"] == 48 and s["within"] >= 47 and s["max_error"] <= 0.011 * 0.1278, s
     assert est["features"][0] == 0 and np.min(est["features"][2:]) >= 40, est["features"]
     # the features are rows of the solve, not only tracked: the weakly seen offset (the arm's twist) is known
     # better with them (measured median std 1.5 mm against 2.4 mm with the dots alone on this clip). Catches
@@ -128,7 +135,10 @@ def test_first_frame_at_half_size_finds_its_dots(bracket, tmp_path):
     """The first frame searches the dots far from their predicted pixels (the load may be anywhere); at 640x360
     the bracket's dots are 11-17 px apart, so that wide search takes a neighbouring dot for four of the 17 dots
     and the solve settles 32-45 mm short of the truth. The dots searched again where that estimate puts them,
-    and solved again, give the truth's position (measured 0.6-0.9 mm). The example's scenario (its camera,
+    and solved again, give the truth's position within 2 % of the path (measured 0.6-0.9 mm with OpenCV's
+    sub-pixel marker corners, 2.04 mm with the corners of the marker edges: at 640x360 the first frames of this
+    seed sit 1.5-2.0 mm high, of seeds 1 and 2 within 0.8 mm, and the edge corners move s by about +0.5 mm
+    on all three; benchmarks/RESULTS.md, "Marker corners from their edges"). The example's scenario (its camera,
     texture, light) at half size, 0.3 s, truth on the STL meshed at 5 mm and refined 2x. Catches: no second
     search, a second search still with the wide radius, a second search whose solve is not kept."""
     base = load_scenario(EXAMPLE / "scenario.toml", bracket)
@@ -140,7 +150,7 @@ def test_first_frame_at_half_size_finds_its_dots(bracket, tmp_path):
     assert p.camera.width == 640
     ProjectPipeline(p, overlay=False).run(tmp_path / "clip" / "video.mp4", out_csv=tmp_path / "est.csv")
     est, truth = read_columns(tmp_path / "est.csv"), read_columns(tmp_path / "clip" / "truth.csv")
-    assert abs(est["s_est"][0] - truth["s_true"][0]) <= 0.01 * 0.1278, (est["s_est"][0], truth["s_true"][0])
+    assert abs(est["s_est"][0] - truth["s_true"][0]) <= 0.02 * 0.1278, (est["s_est"][0], truth["s_true"][0])
 
 
 def test_texture_features_land_where_the_truth_moves_them(bracket_dir, clip):

@@ -191,7 +191,7 @@ def _tracking_setup():
     cam = Camera.from_fov(1280, 720, 65)
     board = _board()
     tex, s = _board_texture(board, 2000.0)
-    tr = MarkerTracker(cam, board, redetect_every=0)
+    tr = MarkerTracker(cam, board, redetect_every=0, edges=False)  # corners as OpenCV's detector gives them
     ref = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), tr._params)
     return cam, board, tex, s, Pose(np.eye(3), [-0.3, -0.2, 0]), tr, ref
 

@@ -1,0 +1,99 @@
+"""The T-beam example (examples/ar/tbeam: dots on a web under a flange): which dots the project pipeline
+searches in a frame, against trimesh's ray casting of the example's STL surface (an independent surface and
+ray caster): a dot is searched only when the camera sees its face and all of it (centre and rim)."""
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from physar.ar.project import load_project
+from physar.ar.project_pipeline import RIM_FRACTION, ProjectPipeline
+from physar.vision.camera import Pose
+
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "ar" / "tbeam"
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory):
+    d = tmp_path_factory.mktemp("tbeam")
+    for f in ("project.toml", "rom.toml", "tbeam.stl"):
+        shutil.copy(EXAMPLE / f, d / f)
+    shutil.copy(EXAMPLE.parents[1] / "camera_720p.toml", d / "camera.toml")
+    (d / "project.toml").write_text((d / "project.toml").read_text().replace("../../camera_720p.toml",
+                                                                             "camera.toml"))
+    return ProjectPipeline(load_project(d / "project.toml"), overlay=False)
+
+
+def _eye(elevation, azimuth=-60.0, distance=0.45, target=(0.15, 0.0, 0.01)):
+    a, e = np.radians(azimuth), np.radians(elevation)
+    return np.asarray(target) + distance * np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+
+
+def _seen(mesh, pose, X, normals, radius, eps):
+    """Reference: the dot's face turned towards the camera (as the pipeline's cos > 0.15) and no hit of the rays
+    from the camera centre to its centre and 8 rim points nearer than the point by more than eps."""
+    centre = pose.inverse().t
+    view = X - centre
+    cos = -np.einsum("ij,ij->i", normals, view / np.linalg.norm(view, axis=1, keepdims=True))
+    ray = trimesh.ray.ray_triangle.RayMeshIntersector(mesh)
+    out = cos > 0.15
+    for k in np.flatnonzero(out):
+        n = normals[k]
+        e1 = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n, e1)
+        th = np.arange(8) * np.pi / 4
+        P = np.vstack([X[k], X[k] + radius * (np.cos(th)[:, None] * e1 + np.sin(th)[:, None] * e2)])
+        d = P - centre
+        dist = np.linalg.norm(d, axis=1)
+        loc, idx, _ = ray.intersects_location(np.tile(centre, (len(P), 1)), d / dist[:, None], multiple_hits=True)
+        depth = pose.apply(loc)[:, 2] if len(loc) else np.zeros(0)
+        pz = pose.apply(P)[:, 2]
+        out[k] = not np.any(depth < pz[idx] - eps)
+    return out
+
+
+@pytest.mark.parametrize("elevation", [35.0, 12.0, 3.0, -8.0])
+def test_dots_hidden_by_the_flange_are_not_searched(pipeline, elevation):
+    """At rest, seen from above the beam's side as in the example's scenario (35 deg: the flange hides the top
+    of every web dot, their centres still in view), lower (12 and 3 deg: the flange's top face turned away) and
+    from below the flange (-8 deg): the dots the pipeline searches are those the reference sees. Catches: no
+    occlusion test, the centre only (the web dots under the flange searched at 35 deg: their blobs' centroids
+    were 1.2-1.8 px off in the reviewer's clip), the surface taken in the world frame instead of the camera's."""
+    pl = pipeline
+    mesh = trimesh.load(EXAMPLE / "tbeam.stl")
+    pose = Pose.look_at(_eye(elevation), [0.15, 0.0, 0.02])
+    c = np.zeros(pl.rom.n_modes)
+    got, _ = pl._expected(pose, pl.dots, c)
+    ref = _seen(mesh, pose, pl.dots, pl.normals, RIM_FRACTION * pl.radius_m, 0.25 * pl.radius_m)
+    web = np.abs(pl.dots[:, 1] + 0.0025) < 1e-9
+    assert got.tolist() == ref.tolist(), (elevation, np.flatnonzero(got != ref))
+    if elevation == 35.0:
+        assert not got[web].any() and got[~web].all()
+    if elevation == -8.0:
+        assert got[web].all() and not got[~web].any()
+
+
+def test_hidden_dots_follow_the_deformed_surface(pipeline):
+    """Load at the tip (tip 4 mm down): seen from above, the flange's dots on the deformed surface are searched
+    (the rest surface would hide those near the tip: they lie inside its flange), the web's are not; from a
+    tenth of the load's ray casting on the model's deformed surface by trimesh. Catches: the rest surface used
+    with deformed dots, the mode coefficients ignored."""
+    pl = pipeline
+    mu = np.array([pl.hi[0]])
+    c = pl.rom.coefficients(mu)[0]
+    X = pl.dot_positions(mu)
+    assert (X - pl.dots)[:, 2].min() < -3e-3                              # the tip dots move 3+ mm down
+    surf = pl.rom.space().mesh.boundary()
+    S = surf.mesh.points + np.tensordot(c, pl._occ_U, 1)
+    mesh = trimesh.Trimesh(S, surf.mesh.faces, process=False)
+    pose = Pose.look_at(_eye(40.0), [0.15, 0.0, 0.02])
+    got, _ = pl._expected(pose, X, c)
+    ref = _seen(mesh, pose, X, pl.normals, RIM_FRACTION * pl.radius_m, 0.25 * pl.radius_m)
+    assert got.tolist() == ref.tolist(), np.flatnonzero(got != ref)
+    top = pl.dots[:, 2] > 0.034
+    assert got[top].all() and not got[~top].any()
+    rest, _ = pl._expected(pose, X, np.zeros_like(c))                  # the mutant: the rest surface
+    assert not rest[top].all()
