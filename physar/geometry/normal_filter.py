@@ -61,10 +61,14 @@ Stein 1981, Monte-Carlo form of Ramani, Blu & Unser, IEEE TIP 2008) of the face-
 (:math:`x` the unknown clean mesh, :math:`m` faces, :math:`n_f` the face normals of a lightly smoothed
 :math:`y`, fixed; :math:`A(q - x)` is what tilts a face, hence its normal error). It assumes i.i.d. isotropic
 noise of std :math:`\sigma` per coordinate, :math:`\sigma` = :data:`SURE_NOISE_FACTOR` :math:`\cdot\,\sigma_e /`
-:data:`MAD_RATIO` from :func:`noise_scale` (one-ring heights minus a local quadric fit, so curvature is not
-counted as noise; :math:`\sigma_e \approx 0.29 \sigma_n` for random-direction noise on remeshed spheres, tori,
-boxes and cylinders, 0.31-0.33 on pymeshlab's bone and airplane; the factor 1.0 was the best of 0.85, 0.92
-and 1.0 there, `benchmarks/bench_denoise.py --calibrate`, none of them a benchmark mesh). One probe :math:`b`
+:data:`MAD_RATIO` from :func:`noise_scale` (heights of the one ring and the vertex minus a local quadric fit,
+each residual divided by its own standard deviation, so neither curvature nor the fit's degrees of freedom
+bias it: :math:`\sigma_e \approx 0.95 \sigma_n` for random-direction noise, :math:`\sigma_n` the std of its
+normal component, on remeshed spheres, tori, boxes and cylinders, pymeshlab's bone and airplane and on 162- to
+10242-vertex icospheres; :math:`\sigma_n` for Gaussian noise. The factor 1.0 was the best of 0.85, 0.92 and 1.0
+there, `benchmarks/bench_denoise.py --calibrate`, none of them a benchmark mesh, with the estimate before
+2026-11-29, which read 1.06 :math:`\sigma_n` on average there where the present one reads 1.00; hence the
+factor 1.05 now). One probe :math:`b`
 (seeded) for all :math:`(k, \sigma_r)`, so the comparison between them is not blurred by sampling; the
 finite-difference step :math:`\varepsilon` = :data:`EPS_FD` :math:`\sigma = 0.1 \sigma` (a smaller one,
 :math:`0.01 \sigma`, made the estimate jump between neighbouring :math:`k` where the filter is far from linear:
@@ -107,7 +111,7 @@ kept, rightly for the face-tilt risk (true 2.5e-7 m² for the input, 3.9e-7 m² 
 3.8e-7) though the mean face-normal angle would have gone from 1.14 to 0.73 degrees.
 
 Unlike the discrepancy principle (``rule="discrepancy"``: the first :math:`k` whose residual
-:math:`\operatorname{rms}_i((\hat q_i - x_i) \cdot n_i)` reaches ``discrepancy`` :math:`\cdot\, \sigma_e / 0.29`,
+:math:`\operatorname{rms}_i((\hat q_i - x_i) \cdot n_i)` reaches ``discrepancy`` :math:`\cdot\, \sigma_e /` :data:`MAD_RATIO`,
 the default before SURE), SURE weighs the noise removed against the shape removed, so it stops early on
 detailed scans and late on flat CAD faces. Each evaluation reconstructs twice (:math:`y` and the probe).
 Everything is vectorised (scipy.sparse, np.take): a filter pass evaluates each symmetric pair of faces once,
@@ -148,13 +152,21 @@ class NormalFilterSettings:
     patience: int = 3  # rule "sure": stop after this many checkpoints in a row without a lower risk
 
 
-# σ_e / σ_n of :func:`noise_scale` for i.i.d. random-direction vertex noise; bench_denoise.py --calibrate.
-MAD_RATIO = 0.29
+# σ_e / σ_n of :func:`noise_scale` for the literature's i.i.d. random-direction vertex noise, whose normal
+# component s·t·u_z is not Gaussian: 1.4826 median |Σ_k v_k ε_k| / σ_n for the residual contrast v of a regular
+# valence-6 ring (v = ±1/√6), 0.953 by Monte Carlo (2e6 draws); measured 0.92-1.05 on the calibration meshes of
+# bench_denoise.py --calibrate at 0.1-0.3 ē. 1 for Gaussian noise (then σ_e / MAD_RATIO reads 1.05 σ_n).
+MAD_RATIO = 0.95
+# noise_scale: points whose residual keeps less than this fraction of the noise variance (1 - H_kk) are left out
+MIN_RESIDUAL_FRACTION = 0.05
 RULES = ("sure", "discrepancy")
 # rule "sure": the noise std it assumes, as a fraction of σ_e / MAD_RATIO; bench_denoise.py --calibrate on the
 # calibration meshes: 1.0 has the lowest geometric mean (1.04) and worst case (1.23) of error / oracle error
-# over their 14 cases (0.92: 1.07 / 1.47; 0.85: 1.41 / 2.86).
-SURE_NOISE_FACTOR = 1.0
+# over their 14 cases (0.92: 1.07 / 1.47; 0.85: 1.41 / 2.86), with the estimate before 2026-11-29, which read
+# 1.06 σ_n on average on those meshes at 0.2-0.3 ē (the present one 1.00): 1.05 assumes the same noise as then
+# (the default's choices on 9 calibration and benchmark meshes at 0.2 and 0.3 ē as before in 17 of 18 cases;
+# 1.0: 13 of 18, the cylinder at 0.3 ē 1.40 instead of 0.97 deg; 1.1: 16 of 18), benchmarks/RESULTS.md.
+SURE_NOISE_FACTOR = 1.05
 EPS_FD = 0.1  # finite-difference step of the divergence probe, in units of the noise std
 CHECKPOINTS = (1, 2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 25, 30, 40, 50, 65, 80, 100)
 COARSE = (1, 3, 6, 12, 25, 50, 100)  # search "coarse": about x2 apart, a subset of CHECKPOINTS (odd first: k, k+1 share the re-run)
@@ -166,22 +178,50 @@ RECHECK_MAX_POINTS = 50_000
 
 
 def noise_scale(mesh: TriMesh) -> float:
-    r""":math:`\sigma_e` (m): robust scale of the one-ring heights left after a local quadric fit (module doc).
+    r""":math:`\sigma_e` (m): robust scale of the noise along the surface normal, from the residuals of a local
+    quadric fit over every vertex's one ring and the vertex itself, each divided by its own standard deviation.
 
-    Per vertex :math:`i` with unit normal :math:`n_i` and tangent axes :math:`(t_1, t_2)`:
+    Per vertex :math:`i` with unit normal :math:`n_i`, tangent axes :math:`(t_1, t_2)` and ring rms radius
+    :math:`\rho_i`, the points :math:`k \in \{i\} \cup N(i)` (the vertex itself at :math:`\xi = \eta = h = 0`)
+    give
 
     .. math::
 
-        h_{ij} = (q_j - q_i) \cdot n_i \approx c_0 + a x^2 + b x y + c y^2, \qquad
-        (x, y) = ((q_j - q_i) \cdot t_1,\ (q_j - q_i) \cdot t_2)
+        h_k = (q_k - q_i) \cdot n_i \approx \Phi_k \beta, \qquad
+        \Phi_k = (1,\ \xi,\ \eta,\ \xi^2,\ \xi \eta,\ \eta^2), \qquad
+        (\xi, \eta) = ((q_k - q_i) \cdot t_1,\ (q_k - q_i) \cdot t_2) / \rho_i,
 
-    scaled by the ring's rms edge length, fitted by least squares (batched 4 x 4 normal equations);
-    :math:`\sigma_e = 1.4826 \operatorname{median} |r_{ij}|` over the residuals of vertices with at least 6
-    neighbours (all vertices if there are none). :math:`c_0` absorbs the vertex's own noise and the quadric the
-    surface's curvature, so :math:`\sigma_e` measures the neighbours' noise, not shape (the seed's ring-median MAD,
-    :func:`physar.geometry.denoise.noise_scales`, also picks up curvature that varies within a ring).
+    fitted by least squares (batched 6 x 6 normal equations). The constant absorbs the vertex's own noise, the
+    linear terms any tilt of the estimated normal :math:`n_i` (a first-order rotation of the frame adds
+    :math:`a \xi + b \eta` to every height), the quadratic ones the curvature. With i.i.d. noise of std
+    :math:`\sigma_n` along the normal the residual is, to first order, :math:`r = (I - H) \varepsilon` with the hat
+    matrix :math:`H = \Phi (\Phi^\top \Phi)^{-1} \Phi^\top`, so :math:`\operatorname{Var} r_k = \sigma_n^2
+    (1 - H_{kk})` (the degrees-of-freedom correction :math:`n / (n - p)` of least squares, point by point) and
+
+    .. math::
+
+        \sigma_e = 1.4826 \operatorname{median}_{k:\ 1 - H_{kk} \ge 0.05} \frac{|r_k|}{\sqrt{1 - H_{kk}}}
+
+    over all vertices is :math:`\sigma_n` for Gaussian noise; for the literature's random-direction noise, whose
+    normal component :math:`s\, t\, u_z` is not Gaussian, it is :data:`MAD_RATIO` :math:`\sigma_n`. Points with
+    :math:`1 - H_{kk} <` :data:`MIN_RESIDUAL_FRACTION` (0.05) are left out: they carry almost no residual (a
+    vertex of valence 5 has as many points as terms). Where none is left (no vertex of valence 6 or more: a cube,
+    an icosahedron) noise cannot be told from shape and :math:`\sigma_e = 0` (no measurable noise; a plane fit
+    instead read the corners of a noisy 8-vertex cube as 10 times its noise). A ridge of
+    :math:`10^{-12} \operatorname{tr}(\Phi^\top \Phi)` keeps such fits solvable. Left: shape beyond a quadric
+    within one ring (a coarse torus at 0.02 ē reads 3 times the noise), and the tangential part of isotropic
+    noise moving :math:`(\xi, \eta)` along the sloped surface (+10 % on a 162-vertex sphere, +3 % on a
+    642-vertex one).
+
+    The estimate before 2026-11-29 fitted :math:`(1, \xi^2, \xi\eta, \eta^2)` to the ring alone and divided by a
+    calibrated 0.29: it read 0.65 :math:`\sigma_n` on a 162-vertex icosphere with noise along the normals and
+    0.93 on a 10242-vertex one. A valence-6 ring has 6 heights for its 4 terms and the 2 that the normal's tilt
+    absorbs, so what was left depended on the geometry; on a nearly regular ring :math:`\xi^2 + \eta^2` is
+    nearly constant, and on a curved surface the noise's own displacement of the neighbours along the ring's
+    radius made up much of that column's variation, so the fit followed part of the noise (the same fit with
+    :math:`(\xi, \eta)` of the clean mesh: 0.83; benchmarks/RESULTS.md, "Noise scale on coarse meshes").
     """
-    from physar.geometry.denoise import SurfaceOps, directed_edges
+    from physar.geometry.denoise import MAD, SurfaceOps, directed_edges
     from physar.geometry.quality import vertex_normals_arrays
 
     ops = SurfaceOps.from_mesh(mesh)
@@ -195,20 +235,36 @@ def noise_scale(mesh: TriMesh) -> float:
     d = q[dst] - q[src]
     x, y, h = (np.einsum("ij,ij->i", d, b[src]) for b in (t1, t2, n))
     deg = np.bincount(src, minlength=npts)
-    s = np.sqrt(np.bincount(src, weights=x * x + y * y, minlength=npts) / np.maximum(deg, 1))[src]
-    s = np.where(s > 0, s, 1.0)
-    phi = np.stack([np.ones_like(x), (x / s) ** 2, (x / s) * (y / s), (y / s) ** 2], axis=1)
-    lhs = np.empty((npts, 4, 4))
-    rhs = np.empty((npts, 4))
-    for u in range(4):  # the 4 x 4 normal equations of every vertex at once (loops over terms, not vertices)
-        rhs[:, u] = np.bincount(src, weights=phi[:, u] * h, minlength=npts)
-        for v in range(u, 4):
-            lhs[:, u, v] = lhs[:, v, u] = np.bincount(src, weights=phi[:, u] * phi[:, v], minlength=npts)
-    lhs += 1e-9 * np.eye(4)
-    beta = np.linalg.solve(lhs, rhs[..., None])[..., 0]
-    r = h - np.einsum("ij,ij->i", phi, beta[src])
-    use = deg[src] >= 6
-    return 1.4826 * float(np.median(np.abs(r[use] if use.any() else r)))
+    rho = np.sqrt(np.bincount(src, weights=x * x + y * y, minlength=npts) / np.maximum(deg, 1))
+    rho = np.where(rho > 0, rho, 1.0)
+    grp = np.concatenate([src, np.arange(npts)])  # the ring's points, then every vertex itself at the origin
+    zero = np.zeros(npts)
+    x, y, h = np.concatenate([x, zero]) / rho[grp], np.concatenate([y, zero]) / rho[grp], np.concatenate([h, zero])
+    u = _standardised_residuals(np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], axis=1), h, grp, npts)
+    return MAD * float(np.median(np.abs(u))) if len(u) else 0.0
+
+
+def _standardised_residuals(phi: np.ndarray, h: np.ndarray, grp: np.ndarray, npts: int) -> np.ndarray:
+    r""":math:`r_k / \sqrt{1 - H_{kk}}` of the least-squares fits :math:`h \approx \Phi \beta` of every group
+    (rows with ``grp == i``), for the rows with :math:`1 - H_{kk} \ge` :data:`MIN_RESIDUAL_FRACTION`
+    (:func:`noise_scale`)."""
+    p = phi.shape[1]
+    lhs = np.empty((npts, p, p))
+    rhs = np.empty((npts, p))
+    for u in range(p):  # the p x p normal equations of every group at once (loops over terms, not vertices)
+        rhs[:, u] = np.bincount(grp, weights=phi[:, u] * h, minlength=npts)
+        for v in range(u, p):
+            lhs[:, u, v] = lhs[:, v, u] = np.bincount(grp, weights=phi[:, u] * phi[:, v], minlength=npts)
+    # a relative 1e-12 ridge keeps groups with fewer points than terms solvable (their leverages then ~1)
+    inv = np.linalg.inv(lhs + 1e-12 * np.trace(lhs, axis1=1, axis2=2)[:, None, None] * np.eye(p))
+    del lhs
+    r = h - np.einsum("ij,ij->i", phi, np.einsum("nij,nj->ni", inv, rhs)[grp])
+    free = np.ones_like(h)
+    for u in range(p):  # H_kk = Φ_k (ΦᵀΦ)⁻¹ Φ_kᵀ, one term pair at a time (no (rows, p, p) array)
+        for v in range(u, p):
+            free -= (1.0 if u == v else 2.0) * phi[:, u] * phi[:, v] * inv[grp, u, v]
+    keep = free >= MIN_RESIDUAL_FRACTION
+    return r[keep] / np.sqrt(free[keep])
 
 
 def _face_graph(mesh: TriMesh) -> sparse.csr_matrix:
