@@ -31,7 +31,7 @@ class PhysarWarning(UserWarning):
     reprojection error); the CLI prints it as one ``warning:`` line on stderr."""
 
 
-def format_validation_error(exc, source: str, model=None, section: str | None = None) -> str:
+def format_validation_error(exc, source: str, model=None, section: str | None = None, data=None) -> str:
     """One line naming the file, the table/key and the problem of a pydantic ``ValidationError``.
 
     ``source`` is the file (or a name for the input); ``model`` the validated pydantic model class (for
@@ -40,9 +40,17 @@ def format_validation_error(exc, source: str, model=None, section: str | None = 
     model-level validator (``@model_validator``) names its table, e.g.
     ``run.toml: [train] nu_min (0.45) must be < nu_max (0.4)``; one of the file's top level names
     ``[top level]``. Shared by the config loaders of every layer (pydantic is duck-typed here).
+
+    A table of an array of tables (``[[parameter]]``, ``[[load]]``, ``[[marker]]``...) is named as the file
+    names it, by its ``name`` (``[[parameter]] 's'``), else its integer ``id`` (``[[marker]] id 7``), else its
+    position (``[[load]] table 2``, 1-based; :func:`table_label`), read from ``data`` (the validated dict), e.g.
+    ``rom.toml: [[parameter]] 's': radius: Input should be greater than 0 (got -1)``.
     """
     e = exc.errors()[0]
     inner = [str(p) for p in e["loc"]]
+    aot = _array_table(e["loc"], data)
+    if aot is not None:
+        return _format_in_table(e, source, model, inner, aot, data, section)
     loc = ([section] if section else []) + inner
     where = ".".join(loc) if loc else "top level"
     table = ".".join(p for p in loc[:-1] if not p.isdigit()) or "top level"
@@ -63,6 +71,72 @@ def format_validation_error(exc, source: str, model=None, section: str | None = 
     if kind in ("value_error", "assertion_error"):
         return f"{source}: [{where}] {msg}"
     return f"{source}: {where}: {msg} (got {e.get('input')!r})"
+
+
+def table_label(data, path) -> str:
+    """How messages name the table at ``path`` (keys and list indices, ending with the index) of an array of
+    tables in ``data``: ``[[key]] 'name'``, ``[[key]] id N`` or ``[[key]] table K`` (1-based)."""
+    item = data
+    for p in path:
+        try:
+            item = item[p]
+        except (KeyError, IndexError, TypeError):
+            item = None
+            break
+    key = ".".join(str(p) for p in path[:-1] if not isinstance(p, int))
+    if isinstance(item, dict):
+        name, ident = item.get("name"), item.get("id")
+        if isinstance(name, str) and name:
+            return f"[[{key}]] {name!r}"
+        if isinstance(ident, int) and not isinstance(ident, bool):
+            return f"[[{key}]] id {ident}"
+    return f"[[{key}]] table {int(path[-1]) + 1}"
+
+
+def _array_table(loc, data) -> int | None:
+    """Index in ``loc`` of the last list index that selects a table (a dict in ``data``), None if none."""
+    if data is None:
+        return None
+    item, found = data, None
+    for j, p in enumerate(loc):
+        try:
+            item = item[p]
+        except (KeyError, IndexError, TypeError):
+            break
+        if isinstance(p, int) and isinstance(item, dict):
+            found = j
+    return found
+
+
+def _format_in_table(e, source: str, model, inner: list[str], j: int, data, section: str | None = None) -> str:
+    """The message of :func:`format_validation_error` for an error inside the array-of-tables item ``loc[:j+1]``
+    (``section``: the table ``data`` came from)."""
+    label = table_label(data, list(e["loc"][:j + 1]))
+    if section:
+        label = label.replace("[[", f"[[{section}.", 1)
+    tail = inner[j + 1:]
+    kind = e["type"]
+    if kind == "extra_forbidden":
+        allowed = _allowed_keys(model, inner[:-1]) if model is not None else []
+        hint = f" (allowed: {', '.join(allowed)})" if allowed else ""
+        within = label + "".join(f".{t}" for t in tail[:-1])
+        return f"{source}: unknown key {tail[-1]!r} in {within}{hint}"
+    if kind == "missing" and e["loc"] and isinstance(e["loc"][-1], int):
+        n = _tuple_length(model, inner[:-1]) if model is not None else None
+        want = f"{n}" if n else f"at least {e['loc'][-1] + 1}"
+        return f"{source}: {label}: {'.'.join(tail[:-1])}: expected {want} values, got {e.get('input')!r}"
+    if kind == "missing":
+        within = label + "".join(f".{t}" for t in tail[:-1])
+        return f"{source}: missing key {tail[-1]!r} in {within}"
+    key = ".".join(tail)
+    if kind == "literal_error":
+        return f"{source}: {label}: {key} = {e.get('input')!r} is not allowed; {e['msg'][:1].lower() + e['msg'][1:]}"
+    msg = e["msg"].removeprefix("Value error, ").removeprefix("Assertion failed, ")
+    named = key and msg.startswith((f"{tail[-1]} ", f"{tail[-1]}:"))   # the message names its key itself
+    head = f"{source}: {label}: " + (f"{key}: " if key and not named else "")
+    if kind in ("value_error", "assertion_error"):
+        return head + msg
+    return head + f"{msg} (got {e.get('input')!r})"
 
 
 def _allowed_keys(model, path: list[str]) -> list[str]:

@@ -353,7 +353,7 @@ def parse_project(data: dict, source: str) -> ProjectConfig:
     try:
         cfg = ProjectConfig.model_validate(data)
     except ValidationError as exc:
-        msg = format_validation_error(exc, source, ProjectConfig)
+        msg = format_validation_error(exc, source, ProjectConfig, data=data)
         loc = exc.errors()[0]["loc"]
         if len(loc) >= 2 and loc[0] == "marker" and isinstance(loc[1], int):
             msg = _name_marker(msg, loc, marker_name(data.get("marker"), loc[1]))

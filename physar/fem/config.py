@@ -131,7 +131,7 @@ class _Selector(_Strict):
             raise ValueError("tol applies to points (a plane takes its own tol)")
 
     def _what(self) -> str:
-        return f"a {self.type} load" if hasattr(self, "type") else "[[fix]]"
+        return f"a {self.type} load" if hasattr(self, "type") else "a fix"
 
     def selector(self) -> dict:
         plane = None if self.plane is None else (self.plane.point, self.plane.normal)
@@ -246,7 +246,7 @@ def parse_config(data: dict, source: str = "config", model: type[BaseModel] = Fe
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(format_validation_error(exc, source, model)) from None
+        raise ConfigError(format_validation_error(exc, source, model, data=data)) from None
 
 
 def load_config(path: str | Path, model: type[BaseModel] = FemConfig):

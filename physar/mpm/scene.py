@@ -340,7 +340,7 @@ def parse_scene(data: dict, name: str = "scene") -> Scene:
     try:
         return Scene.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(format_validation_error(exc, name, Scene)) from None
+        raise ConfigError(format_validation_error(exc, name, Scene, data=data)) from None
 
 
 # Peak host memory per particle of a forward run (measured 1.40 kB per particle, the grid included, for 262,144

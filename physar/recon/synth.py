@@ -316,7 +316,8 @@ def load_section_config(path: str | Path | None, section: str, model, overrides:
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(format_validation_error(exc, str(path or section + " config"), model, section)) from None
+        raise ConfigError(format_validation_error(exc, str(path or section + " config"), model, section,
+                                                  data=data)) from None
 
 
 def load_synth_config(path: str | Path | None, overrides: dict | None = None) -> SynthConfig:

@@ -25,7 +25,7 @@ def test_model_level_error_names_its_table():
 def test_model_level_error_in_an_array_of_tables_names_the_entry():
     load = [{"type": "point", "total": [0, 0, -1.0], "point": [1.0, 0.05, 0.1], "radius": 0.01},
             {"type": "traction", "total": [0, 0, -1.0]}]
-    assert _error({**BASE, "load": load}) == "beam.toml: [load.1] a traction load needs one of box, region, points, plane"
+    assert _error({**BASE, "load": load}) == "beam.toml: [[load]] table 2: a traction load needs one of box, region, points, plane"
 
 
 def test_model_level_error_of_the_whole_file_names_the_top_level():

@@ -99,10 +99,10 @@ def test_missing_region_and_empty_selection_errors(tmp_path):
                "fix": [{"region": "clamp"}]}
     with pytest.raises(ConfigError, match=r"region 'clamp' not in mesh \(available: none"):
         build_problem(parse_config(box_cfg, "b.toml"))
-    with pytest.raises(ConfigError, match=r"^b.toml: \[fix.0\] give exactly one of box, region, points, plane "
+    with pytest.raises(ConfigError, match=r"^b.toml: \[\[fix\]\] table 1: give exactly one of box, region, points, plane "
                                           r"\(got box, region\)"):
         parse_config({**box_cfg, "fix": [{"region": 1, "box": [[0, 0, 0], [0, W, H]]}]}, "b.toml")
-    with pytest.raises(ConfigError, match=r"^b.toml: \[fix.0\] \[\[fix\]\] needs one of box, region, points, plane"):
+    with pytest.raises(ConfigError, match=r"^b.toml: \[\[fix\]\] table 1: a fix needs one of box, region, points, plane"):
         parse_config({**box_cfg, "fix": [{"components": ["x"]}]}, "b.toml")
 
 

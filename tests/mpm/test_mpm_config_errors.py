@@ -19,22 +19,22 @@ def _error(data) -> str:
 
 def test_model_level_body_error_names_the_table(tmp_path):
     assert _error({"body": [BODY, {"shape": "sphere", "center": [0.5, 0.5, 0.2]}]}) == \
-        "drop.toml: [body.1] a sphere body needs 'center' and 'radius'"
+        "drop.toml: [[body]] table 2: a sphere body needs 'center' and 'radius'"
     p = tmp_path / "scene.toml"
     p.write_text('[[body]]\nshape = "box"\nmin = [0.5, 0.4, 0.4]\nmax = [0.4, 0.6, 0.6]\n')
     with pytest.raises(ConfigError) as e:
         load_scene(p)
-    assert str(e.value) == (f"{p}: [body.0] box min (0.5, 0.4, 0.4) must be below max (0.4, 0.6, 0.6) "
+    assert str(e.value) == (f"{p}: [[body]] table 1: box min (0.5, 0.4, 0.4) must be below max (0.4, 0.6, 0.6) "
                             "in every coordinate")
 
 
 def test_model_level_collider_error_names_the_table():
     col = {"shape": "capsule", "center": [0.5, 0.5, 0.1]}
-    assert _error({"body": [BODY], "collider": [col]}) == "drop.toml: [collider.0] a capsule collider needs 'radius'"
+    assert _error({"body": [BODY], "collider": [col]}) == "drop.toml: [[collider]] table 1: a capsule collider needs 'radius'"
 
 
 def test_key_errors_name_the_key():
-    assert _error({"body": [{**BODY, "E": -1.0}]}).startswith("drop.toml: body.0.E: Input should be greater than 0")
+    assert _error({"body": [{**BODY, "E": -1.0}]}).startswith("drop.toml: [[body]] table 1: E: Input should be greater than 0")
     assert _error({"grid": {"size": 1.0, "res": 8}, "body": [BODY]}) == \
         "drop.toml: unknown key 'res' in [grid] (allowed: size, resolution)"
 
@@ -46,7 +46,7 @@ def test_non_finite_numbers_refused():
     assert _error({"gravity": {"g": [0.0, 0.0, float("inf")]}, "body": [BODY]}) == \
         "drop.toml: gravity.g.2: Input should be a finite number (got inf)"
     assert _error({"body": [{**BODY, "velocity": [float("nan"), 0.0, 0.0]}]}).startswith(
-        "drop.toml: body.0.velocity.0: Input should be a finite number")
+        "drop.toml: [[body]] table 1: velocity.0: Input should be a finite number")
 
 
 # A mesh file that holds no triangles (corrupt or empty) is named as such, not as "not closed"; a mesh 200 x the

@@ -149,11 +149,11 @@ def test_cli_rom_eval_at_the_configured_magnitude_equals_fem_solve(tmp_path):
 
 
 @pytest.mark.parametrize("old, new, says", [
-    ("range = [500, 1500]", "range = [-1500, -500]", ("[parameter.1] range = [-1500.0, -500.0] N: a load_magnitude "
+    ("range = [500, 1500]", "range = [-1500, -500]", ("[[parameter]] 'P': range = [-1500.0, -500.0] N: a load_magnitude "
                                                       "is |load| >= 0")),
     ("range = [500, 1500]", "range = [0.5, 2.0]", ("[[parameter]] 'P': range = [0.5, 2.0] N does not contain "
                                                    "|load| = 1000 N")),
-    (f"load = [0, 0, {LOAD}]", "load = [0, 0, 0]", "[parameter.0] load = [0.0, 0.0, 0.0] N has zero magnitude"),
+    (f"load = [0, 0, {LOAD}]", "load = [0, 0, 0]", "[[parameter]] 's': load = [0.0, 0.0, 0.0] N has zero magnitude"),
 ])
 def test_refused_in_one_line_naming_file_field_value(tmp_path, old, new, says):
     """Mutants: each refusal removed (a negative range flipped the load upwards; [0.5, 2] with a 1000 N load

@@ -294,13 +294,13 @@ POS = {"name": "s", "kind": "load_position", "path": [[0, 0.05, 0.1], [1, 0.05, 
 
 
 @pytest.mark.parametrize("change, message", [
-    ({"points": 1e7}, (r"t.toml: \[parameter.0.points\] points = 10000000.0 is not an integer from 3 to 2001 "
+    ({"points": 1e7}, (r"t.toml: \[\[parameter\]\] 'theta': points = 10000000.0 is not an integer from 3 to 2001 "
                       r"\(the grid of parameter 'theta'\)")),
     ({"points": 10**7}, r"points = 10000000 is not an integer from 3 to 2001"),
     ({"points": 60.0}, r"points = 60.0 is not an integer"),
     ({"points": 2}, r"points = 2 is not an integer from 3"),
     ({"points": True}, r"points = True is not an integer"),
-    ({"axis": None}, r"\[parameter.0\] a rotation parameter needs axis"),
+    ({"axis": None}, r"\[\[parameter\]\] 'theta': a rotation parameter needs axis"),
     ({"plane": None}, "a rotation parameter needs exactly one of box, region, at, plane"),
     ({"box": [[0, 0, 0], [1, 1, 1]]}, "exactly one of box, region, at, plane .*got box, plane"),
     ({"direction": [1, 0, 0]}, "direction does not apply to a rotation parameter"),

@@ -88,7 +88,7 @@ def test_rom_config_takes_a_polyline():
     par = {"name": "s", "kind": "load_position", "load": [0, 0, -1.0], "radius": 0.05}
     cfg = parse_config({**base, "parameter": [{**par, "path": PATH}]}, "r.toml", RomConfig)
     assert len(cfg.parameter[0].path) == 3
-    with pytest.raises(ConfigError, match=r"^r.toml: \[parameter.0\] path segment 1 \(points 1 and 2\) has zero length"):
+    with pytest.raises(ConfigError, match=r"^r.toml: \[\[parameter\]\] 's': path segment 1 \(points 1 and 2\) has zero length"):
         parse_config({**base, "parameter": [{**par, "path": PATH[:2] + [PATH[1]]}]}, "r.toml", RomConfig)
-    with pytest.raises(ConfigError, match=r"r.toml: parameter.0.path"):
+    with pytest.raises(ConfigError, match=r"r.toml: \[\[parameter\]\] 's': path"):
         parse_config({**base, "parameter": [{**par, "path": PATH[:1]}]}, "r.toml", RomConfig)
