@@ -244,7 +244,7 @@ class TrackingSection(_Strict):
     min_dots: Int = Field(3, ge=1, description="fewest dots seen to assimilate a frame (else the estimate is held)")
     search_px: Float = Field(0.0, ge=0, description="extra search radius around each predicted dot [px] "
                                                     "(0: from the dot's size in the image)")
-    joint_pose: Bool = Field(True, description="refine the camera pose together with the parameters")
+    joint_pose: Bool = Field(True, description="refine the camera pose together with the parameters (false: the pose held at the markers'; its uncertainty still enters the parameters' std)")
     filter: Literal["imm", "none"] = Field("imm", description="temporal filter of the estimates")
 
 

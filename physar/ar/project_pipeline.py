@@ -427,17 +427,18 @@ class ProjectPipeline:
             Fp = np.concatenate([Fp, self.points.Fp[:, fvalid]], 1)
             tgt = np.concatenate([tgt, fpx[fvalid]])
             sig = np.r_[sig, np.full(n_f, fsig)]
-        Xc = img_c = None
+        Xc = img_c = Xc_all = img_all = None
         sc = max(float(np.nan_to_num(pe.reprojection_px, nan=0.0)), trk.corner_sigma_px)
         npose = 0
-        if trk.joint_pose and pe.image_corners is not None and pe.ids:
+        if pe.image_corners is not None and pe.ids:
             idx = [k for k in (self.board.index(i) for i in pe.ids) if k is not None]
-            img_c = np.asarray(pe.image_corners, float).reshape(-1, 2)
-            if idx and img_c.shape[0] == 4 * len(idx):
-                Xc = self.board.corners[idx].reshape(-1, 3)
-                npose = 6
+            img_all = np.asarray(pe.image_corners, float).reshape(-1, 2)
+            if idx and img_all.shape[0] == 4 * len(idx):
+                Xc_all = self.board.corners[idx].reshape(-1, 3)
             else:
-                img_c = None
+                img_all = None
+        if trk.joint_pose and Xc_all is not None:
+            Xc, img_c, npose = Xc_all, img_all, 6
         p = self.lo.size
         rng = self.hi - self.lo
         th = np.zeros(6 + p)
@@ -485,6 +486,13 @@ class ProjectPipeline:
             th, r, cost = tn, rn, rn @ rn
             if done:
                 break
+        if npose == 0 and Xc_all is not None:
+            # the pose held at the markers' (joint_pose = false): its uncertainty, from the same corners, still
+            # enters mu's std, so the covariance is the joint one (the pose's increments about the markers' pose)
+            Xc, img_c = Xc_all, img_all
+            free = np.r_[np.arange(6), 6 + np.arange(p)]
+            r = res(th)
+            cost = r @ r
         J = jac(th, r)
         dof = max(r.size - free.size, 1)
         try:

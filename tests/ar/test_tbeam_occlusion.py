@@ -97,3 +97,40 @@ def test_hidden_dots_follow_the_deformed_surface(pipeline):
     assert got[top].all() and not got[~top].any()
     rest, _ = pl._expected(pose, X, np.zeros_like(c))                  # the mutant: the rest surface
     assert not rest[top].all()
+
+
+@pytest.mark.parametrize("joint", [True, False])
+def test_reported_std_covers_the_pose_uncertainty(pipeline, monkeypatch, joint):
+    """Monte Carlo (200 frames of exact dot and marker-corner pixels plus Gaussian noise of the project's
+    dot_sigma_px and corner_sigma_px, the pose from the noisy corners by OpenCV's solvePnP): the std the solve
+    reports matches the spread of its estimates within 15 %, with the pose refined together with s and with
+    ``joint_pose = false`` (the pose held at the markers'). Catches: the held pose's own uncertainty left out of
+    s's std (reported 3.13 mm against a spread of 4.52 mm, 31 % too small)."""
+    import cv2
+
+    from physar.vision.markers import PoseEstimate
+
+    pl = pipeline
+    monkeypatch.setattr(pl.project.tracking, "joint_pose", joint)
+    trk = pl.project.tracking
+    pose = Pose.look_at(_eye(35.0), [0.15, 0.0, 0.02])
+    mu = np.array([0.15])
+    X = pl.dot_positions(mu)
+    vis, _ = pl._expected(pose, X, pl.rom.coefficients(mu)[0])
+    q = pl.camera.project(X, pose)
+    C = pl.board.corners.reshape(-1, 3)
+    qc = pl.camera.project(C, pose)
+    K, dist = pl.camera.to_opencv()
+    rng = np.random.default_rng(0)
+    est, std = [], []
+    for _ in range(200):
+        c = qc + rng.normal(0, trk.corner_sigma_px, qc.shape)
+        _, rv, tv = cv2.solvePnP(C, c, K, dist, flags=cv2.SOLVEPNP_SQPNP)
+        rv, tv = cv2.solvePnPRefineLM(C, c, K, dist, rv, tv)
+        pe = PoseEstimate(Pose.from_rvec(rv.ravel(), tv.ravel()), "measured", len(pl.board.ids),
+                          trk.corner_sigma_px, [int(i) for i in pl.board.ids], c)
+        m, s, *_ = pl._solve(pe, q + rng.normal(0, trk.dot_sigma_px, q.shape), vis, mu)
+        est.append(m[0])
+        std.append(s[0])
+    ratio = np.mean(std) / np.std(est)
+    assert 0.85 < ratio < 1.15, (ratio, np.mean(std), np.std(est))
