@@ -47,7 +47,7 @@ from physar.assimilation.filters import IMMFilter
 from physar.errors import ConfigError, PhysarError, PhysarWarning
 from physar.vision.blobs import find_dots
 from physar.vision.camera import Pose
-from physar.vision.observation import surface_observation_matrix
+from physar.vision.observation import closest_on_triangles, surface_observation_matrix
 from physar.vision.occlusion import hidden_points
 
 STAGES = ("decode", "markers_pose", "dots", "assimilate", "overlay", "encode")
@@ -224,7 +224,14 @@ class ProjectPipeline:
             self._occ_faces = surf.mesh.faces
             self._occ_X0 = surf.mesh.points
             self._occ_U = np.ascontiguousarray(rom.F.reshape(rom.n_modes, -1, 3)[:, surf.node_map])
-            self._rim = _rim_offsets(self.normals, RIM_FRACTION * self.radius_m)       # (n dots, 9, 3)
+            # the test points: centre and rim on the surface (a dot the file places up to [dots] tol inside it
+            # would be hidden by its own face), moving with the dot
+            tri = surf.mesh.points[surf.mesh.faces]
+            f_near, lam, _ = closest_on_triangles(self.dots, tri)
+            snap = np.einsum("ij,ijk->ik", lam, tri[f_near]) - self.dots
+            self._rim = snap[:, None] + _rim_offsets(self.normals, RIM_FRACTION * self.radius_m)   # (n dots, 9, 3)
+            self._n_hidden = 0      # frames with too few dots because the object hid them (statistics)
+            self._facing = 0        # dots turned towards the camera in the last _expected
             self.colour = cfg.dots.colour
             # the largest dot displacement over the parameter box bounds the search after a fresh start
             corners = np.stack(np.meshgrid(*[np.linspace(a, b, 5) for a, b in rom.ranges], indexing="ij"),
@@ -345,6 +352,7 @@ class ProjectPipeline:
         cos = -np.einsum("ij,ij->i", nc, view)
         r = self.camera.fx * self.radius_m / np.maximum(Xc[:, 2], 1e-9) * np.sqrt(np.clip(cos, 0.05, 1))
         vis = (cos > 0.15) & (Xc[:, 2] > 0)
+        self._facing = int(vis.sum())
         if c is not None and vis.any():
             S = self._occ_X0 + np.tensordot(c, self._occ_U, 1)
             rim = (X[vis][:, None] + self._rim[vis]).reshape(-1, 3) @ pose.R.T + pose.t
@@ -540,6 +548,8 @@ class ProjectPipeline:
         t2 = time.perf_counter()
         st["dots"] = (t2 - t1) * 1e3
         if n_dots < trk.min_dots:
+            if self._facing >= trk.min_dots > int(vis.sum()):
+                self._n_hidden += 1         # the dots turned towards the camera, but the object hides them
             return None, n_dots
         start = self.mu
         if self._fresh:
@@ -757,6 +767,8 @@ class ProjectPipeline:
         estimate was at a bound of the model's range in a tracked frame, the bound it was at most often, in how
         many of the tracked frames). A parameter at one bound in at least :data:`PINNED_FRACTION` of the
         tracked frames gives one PhysarWarning at the end (all such parameters in one line)."""
+        if self.use_dots:
+            self._n_hidden = 0
         tally = {"tracked": 0, "markers": 0, "bounds": {}, "std_sum": np.zeros(len(self.names)),
                  "std_n": np.zeros(len(self.names))}
 
@@ -790,6 +802,13 @@ class ProjectPipeline:
         finally:
             cv2.setNumThreads(prev)
         summary["marker_frames"] = tally["markers"]
+        summary["hidden_frames"] = self._n_hidden if self.use_dots else 0
+        if summary["hidden_frames"]:
+            warnings.warn(PhysarWarning(
+                f"{self.project.source}: in {summary['hidden_frames']} of {summary['frames']} frames the object "
+                f"itself hid the dots (fewer than [tracking] min_dots = {self.project.tracking.min_dots} seen "
+                "whole): those frames hold the last estimate; film from a side where the dots are in view, or put "
+                "dots on the faces the camera sees"), stacklevel=2)
         summary["at_bound"] = self._pinned(tally["tracked"], tally["bounds"])
         with np.errstate(invalid="ignore", divide="ignore"):
             mean_std = tally["std_sum"] / tally["std_n"]

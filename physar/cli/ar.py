@@ -115,14 +115,17 @@ def ar_run(
     counts = summary.get("status_counts", {})
     if summary["frames"] and not counts.get("tracking", 0):
         unseen = dictionary is not None and summary.get("marker_frames", 1) == 0
+        hidden = summary.get("hidden_frames", 0)
         log(f"warning: no frame was tracked ({', '.join(f'{v} {k}' for k, v in sorted(counts.items()))}): "
             + (f"no marker of the project was found in any frame: check [[marker]] dictionary = \"{dictionary}\" "
                "(the ArUco dictionary of the printed markers; `physar ar print-markers` prints the project's) and "
                "each [[marker]] id and size (m); " if unseen and counts.get("lost", 0) else
                "no pose from the markers: check each [[marker]] id, size (m), center, normal and up against the "
                "printed markers; " if counts.get("lost", 0) else "")
+            + (f"the object itself hid the dots in {hidden} frames: film from a side where they are in view; "
+               if hidden else "")
             + ("too few dots or features found: check [dots] colour, diameter and points, [tracking] min_dots"
-               if counts.get("hold", 0) else "").rstrip("; "))
+               if counts.get("hold", 0) > hidden else "").rstrip("; "))
     if summary.get("interrupted"):
         raise typer.Exit(code=130)  # Ctrl-C / SIGTERM: the outputs up to the last frame are complete
 

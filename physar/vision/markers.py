@@ -159,8 +159,9 @@ def refine_corners_by_edges(gray, corners: np.ndarray, cells: int, K=None, dist=
     pulls it inside the marker, by 0.1-0.25 px on a rendered 960 x 540 clip (the markers then look smaller and the
     pose is biased). Here each edge between two corners is sampled by profiles across it, from 15 % to 85 % of
     its length (away from the rounded corners), over :math:`\pm h`, :math:`h = \min(4, 0.35\,c)` px
-    (:math:`c` the border cell's side, ``cells`` cells per side including the border, so the profile stays in the
-    black border and the white margin). The step of each profile is where it crosses
+    (:math:`c` the border cell's width across that edge, the mean length of the two edges beside it over
+    ``cells``, the cells per side including the border, so the profile stays in the black border and the white
+    margin, also on the short edges of a foreshortened marker). The step of each profile is where it crosses
     :math:`(I_{in} + I_{out}) / 2` (the means of its two ends), linearly interpolated; a profile with no single
     crossing or a contrast under 20 grey levels is skipped. A line is fitted to each edge's step points (total
     least squares after undistorting them with ``K``, ``dist`` when given: the edges are straight only without
@@ -177,14 +178,17 @@ def refine_corners_by_edges(gray, corners: np.ndarray, cells: int, K=None, dist=
     a, b = c, np.roll(c, -1, axis=1)                                     # (m, 4, 2) edge k: corner k -> k + 1
     length = np.linalg.norm(b - a, axis=2)                               # (m, 4)
     cell = length.mean(1) / cells                                        # (m,)
-    half = np.clip(0.35 * cell, 1.0, 4.0)
+    # the border cell across edge k is as wide as the two edges beside it / cells (foreshortened views: the
+    # mean cell would reach into the data bits across the short edges)
+    across = (np.roll(length, 1, axis=1) + np.roll(length, -1, axis=1)) / (2 * cells)   # (m, 4)
+    half = np.clip(0.35 * across, 1.0, 4.0)
     n_s = int(np.clip(length.mean() / 2, 8, 32))
     s = np.linspace(0.15, 0.85, n_s)
     o = np.linspace(-1.0, 1.0, 17)                                       # offsets / half
     d = (b - a) / np.maximum(length, 1e-9)[..., None]
     nrm = np.stack([-d[..., 1], d[..., 0]], -1)
     P = a[:, :, None] + s[None, None, :, None] * (b - a)[:, :, None]    # (m, 4, n_s, 2)
-    off = o[None, None, None, :] * half[:, None, None, None]             # (m, 1, 1, 17)
+    off = o[None, None, None, :] * half[:, :, None, None]                # (m, 4, 1, 17)
     S = P[..., None, :] + off[..., None] * nrm[:, :, None, None, :]      # (m, 4, n_s, 17, 2)
     v = cv2.remap(g, S[..., 0].reshape(-1, 17).astype(np.float32), S[..., 1].reshape(-1, 17).astype(np.float32),
                   cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan).reshape(S.shape[:-1])
@@ -196,7 +200,7 @@ def refine_corners_by_edges(gray, corners: np.ndarray, cells: int, K=None, dist=
     v0 = np.take_along_axis(v, j[..., None], -1)[..., 0]
     v1 = np.take_along_axis(v, j[..., None] + 1, -1)[..., 0]
     f = np.where(v1 != v0, (mid - v0) / np.where(v1 != v0, v1 - v0, 1.0), 0.5)
-    t = (o[j] + f * (o[1] - o[0])) * half[:, None, None]                 # step offset along the normal [px]
+    t = (o[j] + f * (o[1] - o[0])) * half[:, :, None]                    # step offset along the normal [px]
     Q = P + t[..., None] * nrm[:, :, None, :]                            # (m, 4, n_s, 2) step points
     undistort = K is not None and dist is not None and np.any(np.asarray(dist) != 0)
     if undistort:

@@ -29,21 +29,22 @@ def hidden_points(points, vertices, faces, eps: float, closed: bool = False) -> 
         return out
     ok = np.flatnonzero(~out)
     d = P[ok, :2] / P[ok, 2:3]                                    # (k', 2) normalised image points
-    T = V[F]                                                      # (f, 3, 3)
-    keep = np.all(T[..., 2] > 1e-9, axis=1)                      # a triangle crossing the camera plane is skipped
-    if closed:                                                    # turned towards the camera: n . V0 < 0
-        n = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
-        keep &= np.einsum("ij,ij->i", n, T[:, 0]) < 0
-    T = T[keep]
-    if len(T) == 0:
-        return out
-    t2 = T[..., :2] / T[..., 2:3]                                 # (f, 3, 2)
+    front_v = V[:, 2] > 1e-9
+    v2 = V[:, :2] / np.where(front_v, V[:, 2], 1.0)[:, None]      # vertices' normalised image points
+    keep = front_v[F].all(1)                                      # a triangle crossing the camera plane is skipped
+    t2 = v2[F]                                                    # (f, 3, 2)
+    if closed:   # turned towards the camera: n . V0 = z0 z1 z2 (2-D signed area of the image triangle) < 0
+        e1, e2 = t2[:, 1] - t2[:, 0], t2[:, 2] - t2[:, 0]
+        keep &= e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
     lo, hi = t2.min(1), t2.max(1)
-    near = np.all((hi >= d.min(0)) & (lo <= d.max(0)), axis=1)     # boxes overlapping the points' box
-    T, t2, lo, hi = T[near], t2[near], lo[near], hi[near]
-    if len(T) == 0:
+    keep &= np.all((hi >= d.min(0)) & (lo <= d.max(0)), axis=1)   # boxes overlapping the points' box
+    sel = np.flatnonzero(keep)
+    if len(sel) == 0:
         return out
-    ip, it = _box_pairs(d, lo, hi)
+    T, t2, lo, hi = V[F[sel]], t2[sel], lo[sel], hi[sel]          # (f', 3, 3) ...
+    # boxes clipped to the points' box (a triangle near the camera plane spans a huge image box that would
+    # set the grid's extent); a point inside a clipped box is inside the box
+    ip, it = _box_pairs(d, np.maximum(lo, d.min(0)), np.minimum(hi, d.max(0)))
     a, b, c = t2[it, 0], t2[it, 1], t2[it, 2]
     v0, v1, q = b - a, c - a, d[ip] - a
     den = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]

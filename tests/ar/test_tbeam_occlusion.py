@@ -2,6 +2,7 @@
 searches in a frame, against trimesh's ray casting of the example's STL surface (an independent surface and
 ray caster): a dot is searched only when the camera sees its face and all of it (centre and rim)."""
 import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -134,3 +135,71 @@ def test_reported_std_covers_the_pose_uncertainty(pipeline, monkeypatch, joint):
         std.append(s[0])
     ratio = np.mean(std) / np.std(est)
     assert 0.85 < ratio < 1.15, (ratio, np.mean(std), np.std(est))
+
+
+def test_a_dot_placed_inside_the_surface_is_still_searched(pipeline, tmp_path):
+    """The flange's first five dots written 0.6 mm inside it (the file allows [dots] tol = diameter / 4 = 1 mm):
+    they are searched where the same dots on the face are (35 deg from above, and straight down), since the
+    test points are their closest points on the surface. Catches: the points tested where the file puts them
+    (the dots' own face hides them: never searched)."""
+    for f in ("rom.toml", "tbeam.stl"):
+        shutil.copy(EXAMPLE / f, tmp_path / f)
+    shutil.copy(EXAMPLE.parents[1] / "camera_720p.toml", tmp_path / "camera.toml")
+    text = (EXAMPLE / "project.toml").read_text().replace("../../camera_720p.toml", "camera.toml")
+    inside = text.replace("[[0.06, -0.012, 0.035], [0.12, -0.012, 0.035], [0.18, -0.012, 0.035], [0.24, -0.012, 0.035],\n"
+                          "          [0.29, -0.012, 0.035],",
+                          "[[0.06, -0.012, 0.0344], [0.12, -0.012, 0.0344], [0.18, -0.012, 0.0344], "
+                          "[0.24, -0.012, 0.0344],\n          [0.29, -0.012, 0.0344],")
+    assert inside != text
+    (tmp_path / "project.toml").write_text(inside)
+    pl = ProjectPipeline(load_project(tmp_path / "project.toml"), overlay=False)
+    c = np.zeros(pl.rom.n_modes)
+    for eye in (_eye(35.0), [0.15, -0.001, 0.5]):
+        pose = Pose.look_at(eye, [0.15, 0.0, 0.02])
+        got, _ = pl._expected(pose, pl.dots, c)
+        ref, _ = pipeline._expected(pose, pipeline.dots, c)
+        assert got.tolist() == ref.tolist(), (eye, got, ref)
+        assert got[:5].all()
+
+
+def test_frames_where_the_object_hides_the_dots_are_counted_and_named(tmp_path, monkeypatch):
+    """A project with only the web's six dots, filmed from above (35 deg): every dot faces the camera but the
+    flange hides it, so each frame holds; the run's summary counts those frames and one warning says the
+    object itself hid the dots (the CLI's "no frame was tracked" line otherwise blamed the [dots] settings).
+    Seen from below the flange (-8 deg) the same frames are not counted. Catches: frames hidden by the object
+    not counted, a frame whose dots are in view but not found counted as hidden."""
+    import av
+
+    from physar.vision.markers import PoseEstimate
+
+    for f in ("rom.toml", "tbeam.stl"):
+        shutil.copy(EXAMPLE / f, tmp_path / f)
+    shutil.copy(EXAMPLE.parents[1] / "camera_720p.toml", tmp_path / "camera.toml")
+    text = (EXAMPLE / "project.toml").read_text().replace("../../camera_720p.toml", "camera.toml")
+    start = text.index("points = [[0.06")
+    end = text.index("[0.05, -0.0025, 0.015]")
+    (tmp_path / "project.toml").write_text(text[:start] + "points = [" + text[end:])
+    video = tmp_path / "grey.mp4"
+    with av.open(str(video), "w") as out:
+        s = out.add_stream("libx264", rate=30)
+        s.width, s.height, s.pix_fmt = 1280, 720, "yuv420p"
+        for _ in range(4):
+            for pkt in s.encode(av.VideoFrame.from_ndarray(np.full((720, 1280, 3), 128, np.uint8), format="bgr24")):
+                out.mux(pkt)
+        for pkt in s.encode():
+            out.mux(pkt)
+    counts = {}
+    for elevation in (35.0, -8.0):
+        pl = ProjectPipeline(load_project(tmp_path / "project.toml"), overlay=False)
+        assert len(pl.dots) == 6
+        pe = PoseEstimate(Pose.look_at(_eye(elevation), [0.15, 0.0, 0.02]), "measured", 4, 0.1)
+        monkeypatch.setattr(pl.registration, "update", lambda gray, pe=pe: pe)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            summary = pl.run(video)
+        counts[elevation] = summary["hidden_frames"]
+        named = [str(w.message) for w in caught if "the object itself hid the dots" in str(w.message)]
+        assert len(named) == (1 if elevation == 35.0 else 0), named
+        if named:
+            assert named[0].startswith(f"{tmp_path / 'project.toml'}: in 4 of 4 frames"), named[0]
+    assert counts == {35.0: 4, -8.0: 0}
