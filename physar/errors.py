@@ -56,13 +56,10 @@ def format_validation_error(exc, source: str, model=None, section: str | None = 
     table = ".".join(p for p in loc[:-1] if not p.isdigit()) or "top level"
     kind = e["type"]
     if kind == "extra_forbidden":
-        allowed = _allowed_keys(model, inner[:-1]) if model is not None else []
-        hint = f" (allowed: {', '.join(allowed)})" if allowed else ""
-        return f"{source}: unknown key {loc[-1]!r} in [{table}]{hint}"
+        return f"{source}: unknown key {loc[-1]!r} in [{table}]{_allowed_hint(model, inner[:-1])}"
     if kind == "missing" and e["loc"] and isinstance(e["loc"][-1], int):  # a tuple given too few values
-        n = _tuple_length(model, inner[:-1]) if model is not None else None
-        want = f"{n}" if n else f"at least {e['loc'][-1] + 1}"
-        return f"{source}: [{'.'.join(loc[:-1])}] expected {want} values, got {e.get('input')!r}"
+        return (f"{source}: [{'.'.join(loc[:-1])}] expected {_values_wanted(model, e, inner)} values, "
+                f"got {e.get('input')!r}")
     if kind == "missing":
         return f"{source}: missing key {loc[-1]!r} in [{table}]"
     if kind == "literal_error":
@@ -116,17 +113,13 @@ def _format_in_table(e, source: str, model, inner: list[str], j: int, data, sect
         label = label.replace("[[", f"[[{section}.", 1)
     tail = inner[j + 1:]
     kind = e["type"]
+    within = label + "".join(f".{t}" for t in tail[:-1])          # the (sub)table holding the key
     if kind == "extra_forbidden":
-        allowed = _allowed_keys(model, inner[:-1]) if model is not None else []
-        hint = f" (allowed: {', '.join(allowed)})" if allowed else ""
-        within = label + "".join(f".{t}" for t in tail[:-1])
-        return f"{source}: unknown key {tail[-1]!r} in {within}{hint}"
+        return f"{source}: unknown key {tail[-1]!r} in {within}{_allowed_hint(model, inner[:-1])}"
     if kind == "missing" and e["loc"] and isinstance(e["loc"][-1], int):
-        n = _tuple_length(model, inner[:-1]) if model is not None else None
-        want = f"{n}" if n else f"at least {e['loc'][-1] + 1}"
-        return f"{source}: {label}: {'.'.join(tail[:-1])}: expected {want} values, got {e.get('input')!r}"
+        return (f"{source}: {label}: {'.'.join(tail[:-1])}: expected {_values_wanted(model, e, inner)} values, "
+                f"got {e.get('input')!r}")
     if kind == "missing":
-        within = label + "".join(f".{t}" for t in tail[:-1])
         return f"{source}: missing key {tail[-1]!r} in {within}"
     key = ".".join(tail)
     if kind == "literal_error":
@@ -137,6 +130,18 @@ def _format_in_table(e, source: str, model, inner: list[str], j: int, data, sect
     if kind in ("value_error", "assertion_error"):
         return head + msg
     return head + f"{msg} (got {e.get('input')!r})"
+
+
+def _allowed_hint(model, path: list[str]) -> str:
+    """`` (allowed: a, b, ...)`` for the table at ``path`` of ``model``, or ""."""
+    allowed = _allowed_keys(model, path) if model is not None else []
+    return f" (allowed: {', '.join(allowed)})" if allowed else ""
+
+
+def _values_wanted(model, e, inner: list[str]) -> str:
+    """How many values the tuple of a ``missing`` error at a tuple index wants: "3", else "at least k"."""
+    n = _tuple_length(model, inner[:-1]) if model is not None else None
+    return f"{n}" if n else f"at least {e['loc'][-1] + 1}"
 
 
 def _allowed_keys(model, path: list[str]) -> list[str]:

@@ -338,7 +338,12 @@ class ProjectPipeline:
     # -- geometry ------------------------------------------------------------------------------------------
     def dot_positions(self, mu) -> np.ndarray:
         """Deformed dot positions (n, 3) [m] for the parameters mu."""
-        return self.dots + np.tensordot(self.rom.coefficients(mu)[0], self.Fd, 1)
+        return self._dots_at(mu)[0]
+
+    def _dots_at(self, mu) -> tuple[np.ndarray, np.ndarray]:
+        """(deformed dot positions (n, 3) [m], mode coefficients (modes,)) for the parameters mu."""
+        c = self.rom.coefficients(mu)[0]
+        return self.dots + np.tensordot(c, self.Fd, 1), c
 
     def _expected(self, pose: Pose, X, c=None):
         """Visibility, expected image radius [px] of the dots at X. A dot is visible when its face is turned
@@ -529,8 +534,8 @@ class ProjectPipeline:
         features, re-search of the box on a jump. -> ((mu, std, pose, rms px, features used) or None when
         too few dots, dots used)."""
         trk = self.project.tracking
-        X = self.dot_positions(self.mu)
-        vis, r_px = self._expected(pe.pose, X, self.rom.coefficients(self.mu)[0])
+        X, c0 = self._dots_at(self.mu)
+        vis, r_px = self._expected(pe.pose, X, c0)
         pred = self.camera.project(X, pe.pose)
         pred[~vis] = np.nan
         extra = trk.search_px
@@ -542,7 +547,7 @@ class ProjectPipeline:
         n_dots = int(valid.sum())
         feat = None
         if self.points is not None and self.points.ready and not self._fresh:
-            fpx, fvalid = self.points.track(gray, pe.pose, self.rom.coefficients(self.mu)[0])
+            fpx, fvalid = self.points.track(gray, pe.pose, c0)
             if fvalid.sum() >= 3:
                 feat = (fpx, fvalid, self._fsig.sigma(trk.dot_sigma_px))
         t2 = time.perf_counter()
@@ -568,8 +573,8 @@ class ProjectPipeline:
             mu, std, pose, rms, rms_f = self._solve(pe, px, valid, mu, feat=feat)
         for _ in range(3 if self._fresh else 0):
             # the wide search may have taken a neighbour for a dot: search again where the estimate puts them
-            X2 = self.dot_positions(mu)
-            vis2, r2 = self._expected(pose, X2, self.rom.coefficients(mu)[0])
+            X2, c2 = self._dots_at(mu)
+            vis2, r2 = self._expected(pose, X2, c2)
             pred2 = self.camera.project(X2, pose)
             pred2[~vis2] = np.nan
             px2, valid2 = find_dots(frame, gray, pred2, r2, self.colour, np.maximum(2.5 * r2, 4.0) + trk.search_px)
@@ -598,10 +603,10 @@ class ProjectPipeline:
             # choose the features in this frame (placed on the surface the dots' estimate gives), or again
             # when fewer than half of them are still tracked (the view has changed); a face not seen well
             # enough is tried again 30 frames later
-            X3 = self.dot_positions(mu)
-            vis3, r3 = self._expected(pose, X3, self.rom.coefficients(mu)[0])
+            X3, c3 = self._dots_at(mu)
+            vis3, r3 = self._expected(pose, X3, c3)
             q3 = self.camera.project(X3, pose)
-            if self.points.set_reference(gray, pose, self.rom.coefficients(mu)[0], q3[vis3], r3[vis3]) == 0:
+            if self.points.set_reference(gray, pose, c3, q3[vis3], r3[vis3]) == 0:
                 self._ref_wait = 30
             self._fsig.reset()
         return (mu, std, pose, rms, n_feat), n_dots

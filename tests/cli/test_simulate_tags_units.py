@@ -107,13 +107,18 @@ def test_xdmf_time_series_keeps_region_tags(tmp_path):
     assert _tags_by_cell(vtu.points, [(vtu.cells[0].data, vtu.cell_data["cell_tags"][0])]) == want
 
 
-# a mesh without tags (a [mesh] box) gets none, as its VTU. mutant caught: zeros written for an untagged mesh
-def test_xdmf_without_tags_has_no_cell_data(tmp_path):
+def _free_cube(tmp_path, steps: int, out: str) -> None:
+    """`physar simulate` of a 0.1 m cube (one cell, no tags) falling freely, midpoint rule, h = 0.1 s."""
     cfg = tmp_path / "sim.toml"
     cfg.write_text(PROBLEM.format(mesh="box = [0.1, 0.1, 0.1]\ncells = [1, 1, 1]", fix="", method="midpoint",
-                                  h=0.1, steps=1))
-    r = runner.invoke(app, ["simulate", str(cfg), "--out", str(tmp_path / "b.xdmf")])
+                                  h=0.1, steps=steps))
+    r = runner.invoke(app, ["simulate", str(cfg), "--out", str(tmp_path / out)])
     assert r.exit_code == 0, r.output
+
+
+# a mesh without tags (a [mesh] box) gets none, as its VTU. mutant caught: zeros written for an untagged mesh
+def test_xdmf_without_tags_has_no_cell_data(tmp_path):
+    _free_cube(tmp_path, 1, "b.xdmf")
     with meshio.xdmf.TimeSeriesReader(tmp_path / "b.xdmf") as rd:
         rd.read_points_cells()
         assert all(rd.read_data(k)[2] == {} for k in range(rd.num_steps))
@@ -122,11 +127,7 @@ def test_xdmf_without_tags_has_no_cell_data(tmp_path):
 # mutants caught: the old header (no units: KeyError on time_s); kinetic and potential columns swapped (the closed
 # form's signs differ); time written as the step number
 def test_energy_csv_header_has_units(tmp_path):
-    cfg = tmp_path / "sim.toml"
-    cfg.write_text(PROBLEM.format(mesh="box = [0.1, 0.1, 0.1]\ncells = [1, 1, 1]", fix="", method="midpoint",
-                                  h=0.1, steps=3))
-    r = runner.invoke(app, ["simulate", str(cfg), "--out", str(tmp_path / "f.xdmf")])
-    assert r.exit_code == 0, r.output
+    _free_cube(tmp_path, 3, "f.xdmf")
     with open(tmp_path / "f.csv", newline="") as fh:
         reader = csv.DictReader(fh)
         rows = list(reader)

@@ -8,22 +8,14 @@ mutant caught: no recheck (RECHECK_PROBES = 0: 19.6 deg stays)."""
 
 from __future__ import annotations
 
-import numpy as np
-import trimesh
+from _shapes import hemisphere  # tests/_shapes.py
 
 from physar.geometry.denoise import denoise
-from physar.geometry.mesh import TriMesh
 from physar.geometry.quality import add_noise, normal_angle_error
 
 
 def test_small_open_cap_is_denoised():
-    ico = trimesh.creation.icosphere(subdivisions=3)
-    x, f = np.asarray(ico.vertices), np.asarray(ico.faces)
-    cap = f[x[f].mean(axis=1)[:, 2] > 0]
-    used = np.unique(cap)
-    remap = np.full(len(x), -1)
-    remap[used] = np.arange(len(used))
-    clean = TriMesh(x[used], remap[cap])
+    clean = hemisphere()
     noisy = add_noise(clean, 0.2, seed=2)
     before = normal_angle_error(noisy, clean)
     after = normal_angle_error(denoise(noisy), clean)

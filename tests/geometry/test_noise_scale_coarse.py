@@ -22,6 +22,7 @@ import sys
 import numpy as np
 import pytest
 import trimesh
+from _shapes import hemisphere  # tests/_shapes.py
 
 from physar.geometry import normal_filter as NF
 from physar.geometry.mesh import TriMesh
@@ -33,17 +34,6 @@ SEEDS = range(5)
 def icosphere(level: int) -> TriMesh:
     t = trimesh.creation.icosphere(subdivisions=level)  # unit sphere: the exact normal is the position
     return TriMesh(np.asarray(t.vertices), np.asarray(t.faces), name=f"icosphere{level}")
-
-
-def hemisphere() -> TriMesh:
-    """Open cap: the faces of the 642-vertex icosphere above z = 0 (337 vertices)."""
-    t = trimesh.creation.icosphere(subdivisions=3)
-    x, f = np.asarray(t.vertices), np.asarray(t.faces)
-    cap = f[x[f].mean(axis=1)[:, 2] > 0]
-    used = np.unique(cap)
-    remap = np.full(len(x), -1)
-    remap[used] = np.arange(len(used))
-    return TriMesh(x[used], remap[cap], name="hemisphere")
 
 
 def plane(n: int) -> TriMesh:
