@@ -189,6 +189,7 @@ def atomic_path(path, *, companions: bool = False) -> Iterator[Path]:
         tmpdir = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
         try:
             yield tmpdir / path.name
+            _interrupted_before_commit()
             files = sorted(tmpdir.iterdir(), key=lambda f: f.name == path.name)
             for f in files:
                 os.chmod(f, 0o666 & ~_umask())
@@ -201,6 +202,7 @@ def atomic_path(path, *, companions: bool = False) -> Iterator[Path]:
     os.chmod(tmp, 0o666 & ~_umask())
     try:
         yield Path(tmp)
+        _interrupted_before_commit()
         _replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -337,6 +339,7 @@ def atomic_folder(path, *, own: Callable[[str], bool] | None = None) -> Iterator
     os.chmod(tmp, 0o777 & ~_umask())
     try:
         yield tmp
+        _interrupted_before_commit()
         if path.exists():
             check_folder(path, own=own)
             old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
@@ -442,21 +445,47 @@ def signal_guard(signals=(signal.SIGINT, signal.SIGTERM)) -> SignalGuard:
     return SignalGuard(signals)
 
 
+_INTERRUPTS: list[str] = []  # signals raised as KeyboardInterrupt under sigterm_as_interrupt, not yet acted on
+
+
 def _raise_interrupt(signum, frame):
-    raise KeyboardInterrupt(signal.Signals(signum).name)
+    name = signal.Signals(signum).name
+    _INTERRUPTS.append(name)
+    raise KeyboardInterrupt(name)
+
+
+def _interrupted_before_commit() -> None:
+    """Raise KeyboardInterrupt when a signal of :func:`sigterm_as_interrupt` was raised but did not stop the
+    work: Python drops an exception raised inside a ``__del__`` (e.g. a Warp array's, freed by the collector)
+    with "Exception ignored in", so the command ran on. Called before an output takes its place, so that an
+    interrupted command still writes nothing (seen: SIGTERM during ``recon synth`` left a complete DATA_DIR,
+    exit 0)."""
+    if _INTERRUPTS:
+        name = _INTERRUPTS[-1]
+        _INTERRUPTS.clear()
+        raise KeyboardInterrupt(name)
 
 
 @contextlib.contextmanager
 def sigterm_as_interrupt() -> Iterator[None]:
     """Inside the block SIGTERM raises KeyboardInterrupt (as Ctrl-C does), so that ``finally`` blocks, and
     with them :func:`atomic_path`'s cleanup, run instead of the process dying with its temporaries on disk.
-    Only from the main thread and only where SIGTERM has its default action; restored on exit."""
+    Ctrl-C (SIGINT with Python's default handler) goes through the same handler, which also remembers the
+    signal for ``_interrupted_before_commit``. Only from the main thread and only where SIGTERM has its
+    default action; restored on exit."""
     if threading.current_thread() is not threading.main_thread() or \
             signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
         yield
         return
+    sigint = signal.getsignal(signal.SIGINT) is signal.default_int_handler
     signal.signal(signal.SIGTERM, _raise_interrupt)
+    if sigint:
+        signal.signal(signal.SIGINT, _raise_interrupt)
+    _INTERRUPTS.clear()
     try:
         yield
     finally:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        if sigint:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+        _INTERRUPTS.clear()
