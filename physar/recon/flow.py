@@ -28,6 +28,13 @@ r"""Structure-preserving 3-D flow of seed 002 §4.4 (Eq. 9): the losses of the p
   ARAP (the hidden particles) asks for more.
 
 :func:`sp_flow_prior` is the weighted sum of the three geometric terms that the image loss is added to.
+
+The positions :math:`x'_n` it gives are the target of the Eq. 10 term
+:math:`\lambda_\text{3Dflow} \lVert x_{n} - x'_{n} \rVert_1` of the physics stage (:func:`flow_target_loss`).
+Only part of :math:`x'_n` is measured: the motion across the rays of the particles the optical flow saw; the
+rest is ARAP's extrapolation (hidden particles, about 90 % on the C-pillow) and the ray term's prior (depth).
+``TrainConfig.flow_target`` chooses what the physics stage compares: every coordinate of every particle (the
+seed), the visible particles, or their motion across the rays ("observed", physar's default).
 """
 
 from __future__ import annotations
@@ -131,6 +138,24 @@ def sp_flow_prior(x: torch.Tensor, x_prev: torch.Tensor, flow: torch.Tensor, vis
     return out
 
 
+def flow_target_loss(x: torch.Tensor, target: torch.Tensor, sel: torch.Tensor | None = None,
+                     centre: torch.Tensor | None = None) -> torch.Tensor:
+    r"""The Eq. 10 3-D flow term without its weight (m): :math:`\operatorname{mean} |x_n - x'_n|` over the
+    coordinates of the particles ``sel`` (all when None). With the camera centre (world, (3,)) given, only the
+    part of :math:`x_n - x'_n` across the ray from the centre through :math:`x'_n` is compared,
+    :math:`d - (d \cdot r) r`: the Eq. 9 target observes depth only through :math:`L_\text{ray}`'s prior."""
+    if sel is not None:
+        if not bool(sel.any()):
+            return torch.zeros((), dtype=x.dtype)
+        x, target = x[sel], target[sel]
+    d = x - target
+    if centre is not None:
+        r = target - centre
+        r = (r / torch.linalg.vector_norm(r, dim=1, keepdim=True)).detach()
+        d = d - (d * r).sum(1, keepdim=True) * r
+    return d.abs().mean()
+
+
 def polar_rotation(S: torch.Tensor) -> torch.Tensor:
     r"""Rotation part (:math:`\det = +1`) of the polar decomposition of :math:`S` (..., 3, 3)."""
     U, _, Vh = torch.linalg.svd(S)
@@ -154,4 +179,4 @@ def arap_energy(x: torch.Tensor, X: torch.Tensor, pairs: torch.Tensor) -> torch.
     return 0.5 * ((r_i**2).sum(1) + (r_j**2).sum(1)).mean()
 
 
-__all__ = ["arap_energy", "dis_flow", "flow_loss", "polar_rotation", "ray_motion", "sp_flow_prior"]
+__all__ = ["arap_energy", "dis_flow", "flow_loss", "flow_target_loss", "polar_rotation", "ray_motion", "sp_flow_prior"]

@@ -209,6 +209,12 @@ class TrainConfig(BaseModel):
     lambda_mask: float = Field(1.0, ge=0, description="weight of the mean L1 mask loss (Eq. 10, also Eq. 5 and "
                                                       "Eq. 9) [-]")
     lambda_flow: float = Field(20.0, ge=0, description="3-D flow term of Eq. 10 (vs the Eq. 9 flow), 1/m")
+    flow_target: Literal["all", "visible", "observed"] = Field(
+        "observed", description="which part of the Eq. 9 flow the Eq. 10 term compares: observed (the particles "
+        "visible in the previous frame, whose motion into this one the optical flow saw, and only their motion "
+        "across the camera rays; physar's default) | visible (those particles, every coordinate) | all (every "
+        "coordinate of every object particle, as the seed writes Eq. 10). The rest of the Eq. 9 flow is ARAP's "
+        "extrapolation and the ray term's prior, less accurate than the simulator (benchmarks/RESULTS.md, issue 17)")
     lambda_omega: float = Field(1.0e-5, ge=0, description="Eq. 11 weight of |omega| (per-pixel mean losses: keep "
                                                           "it small) [-]")
     residual: bool = Field(False, description="neural residual laws E_theta, P_theta with latents (Eq. 8)")
@@ -903,6 +909,29 @@ def _spin_psnr(rig: Rig, app: Appearance, sk: dict, physics_F: bool) -> float:
     return float(np.mean(vals))
 
 
+def _visible_at(rig: Rig, app: Appearance, kin: dict, f: int, x: torch.Tensor, K, Rc, tc) -> torch.Tensor:
+    """Object particles x (frame f's positions) visible in frame f: rendered with the body of that frame
+    (:func:`physar.recon.flow.visible`, tolerance one grid cell)."""
+    from physar.recon.flow import project, visible
+
+    with torch.no_grad():
+        r = render_scene(rig, app, x, None, kin["ref"][f], kin["A_h"][f], kin["xb"][f], kin["A_b"][f])
+    uv, z = project(x, K, Rc, tc)
+    return visible(uv, z, r.depth.double(), r.alpha.double(), tol=rig.h)
+
+
+def _flow_selection(rig: Rig, app: Appearance, kin: dict, spflow: list, target: str) -> dict:
+    """Per observed frame f >= 1, the (particles, camera centre) that the Eq. 10 flow term compares
+    (``TrainConfig.flow_target``): all -> (None, None); visible -> the particles of x'_{f-1} visible in frame
+    f - 1 (those whose motion into frame f the Eq. 9 optical-flow term saw); observed -> the same and the camera
+    centre, so that only the motion across the rays is compared."""
+    if target == "all":
+        return {f: (None, None) for f in range(len(spflow))}
+    K, Rc, tc = (torch.as_tensor(a) for a in S.camera_matrices(rig.meta))
+    centre = -(Rc.T @ tc) if target == "observed" else None
+    return {f: (_visible_at(rig, app, kin, f - 1, spflow[f - 1], K, Rc, tc), centre) for f in range(1, len(spflow))}
+
+
 def _fit_positions(rig: Rig, app: Appearance, kin: dict, f: int, rgb_f, mask_f, x0: torch.Tensor, iters: int,
                    lr: float, prior: Callable[[torch.Tensor], torch.Tensor]) -> tuple[torch.Tensor, float]:
     """Object positions of frame f by Adam from ``x0``: image loss (RGB + mask) of the frame rendered with F from
@@ -1025,17 +1054,13 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
 
     # ---- stage 2b: structure-preserving 3-D flow, RGB + DIS optical flow + ARAP (Eq. 9) + motion along the rays
     if st.stage == "spflow":
-        from physar.recon.flow import dis_flow, project, sp_flow_prior, visible
+        from physar.recon.flow import dis_flow, sp_flow_prior
 
         K, Rc, tc = (torch.as_tensor(a) for a in S.camera_matrices(rig.meta))
         for f in range(len(st.spflow), ds.n_obs):
             xp = st.spflow[-1]
             x0 = 2 * xp - st.spflow[-2] if len(st.spflow) >= 2 else xp  # warm start: constant velocity
-            with torch.no_grad():
-                r0 = render_scene(rig, app, xp, None, kin["ref"][f - 1],
-                                  kin["A_h"][f - 1], kin["xb"][f - 1], kin["A_b"][f - 1])
-            uv, z = project(xp, K, Rc, tc)
-            vis = visible(uv, z, r0.depth.double(), r0.alpha.double(), tol=rig.h)
+            vis = _visible_at(rig, app, kin, f - 1, xp, K, Rc, tc)
             of = torch.as_tensor(dis_flow(ds.rgb[f - 1], ds.rgb[f]), dtype=torch.float64)
             x, loss = _fit_positions(
                 rig, app, kin, f, rgb[f], mask[f], x0, cfg.spflow_iters, cfg.flow_lr,
@@ -1068,6 +1093,9 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
         if st.opt_state is not None:
             _load_optimiser(opt, st.opt_state, run / "checkpoint.pt")
         lo_E, hi_E = math.log(cfg.E_min), math.log(cfg.E_max)
+        from physar.recon.flow import flow_target_loss
+
+        flow_sel = _flow_selection(rig, app, kin, st.spflow, cfg.flow_target) if cfg.lambda_flow > 0 else {}
         while st.iteration < cfg.physics_iters:
             it = st.iteration
             W = min(ds.n_obs, cfg.window_start + it // cfg.window_grow_every)
@@ -1080,7 +1108,7 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
                 res = render_scene(rig, app, xo, Fo, xh, Fh, kin["xb"][f], kin["A_b"][f])
                 lf = image_loss(res, rgb[f], mask[f], cfg)
                 if cfg.lambda_flow > 0 and f < len(st.spflow):
-                    lf = lf + cfg.lambda_flow * (xo - st.spflow[f]).abs().mean()
+                    lf = lf + cfg.lambda_flow * flow_target_loss(xo, st.spflow[f], *flow_sel[f])
                 per.append(float(lf.detach()))
                 total = total + wts[f] * lf / (W - 1)
             loss = total + physics_regulariser(st.phys, rig, torch.cat([Fo, Fh]))

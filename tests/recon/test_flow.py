@@ -11,6 +11,7 @@ from physar.recon.flow import (
     arap_energy,
     dis_flow,
     flow_loss,
+    flow_target_loss,
     polar_rotation,
     project,
     ray_motion,
@@ -176,3 +177,31 @@ def test_sp_flow_prior_keeps_the_unobserved_depth():
     assert shift == pytest.approx(1.0, abs=0.2)
     # without the ray term the lattice approaches the camera (measured: -3.9 mm; with it -0.15 mm)
     assert float((solve(0.0)[:, 2] - X[:, 2]).mean()) < -2.5e-3
+
+
+def test_flow_target_loss_compares_the_chosen_particles_across_the_rays():
+    """Closed forms of the Eq. 10 term's variants (TrainConfig.flow_target): all particles, mean |d| over the
+    coordinates; a selection, only its rows; with the camera centre, only the part of d across the ray through the
+    target.  A particle moved 4 mm along its ray and another moved 3 mm across it: all -> the mean of |d| over the
+    six coordinates; across the rays -> 3 mm spread over the across direction only.  Catches the mutants 'the
+    selection ignored', 'along-ray part kept' (or subtracted twice: a sign flip), 'rays from the world origin'."""
+    c = torch.tensor([0.3, -0.2, -2.0], dtype=torch.float64)
+    tgt = torch.tensor([[0.1, 0.05, 0.2], [-0.05, 0.1, 0.15], [0.0, 0.0, 0.1]], dtype=torch.float64)
+    r = (tgt - c) / torch.linalg.vector_norm(tgt - c, dim=1, keepdim=True)
+    across = torch.linalg.cross(r[1], torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
+    across = across / torch.linalg.vector_norm(across)
+    x = tgt.clone()
+    x[0] += 0.004 * r[0]
+    x[1] += 0.003 * across
+    x[2] += torch.tensor([0.01, -0.02, 0.03], dtype=torch.float64)
+    d = x - tgt
+    assert float(flow_target_loss(x, tgt)) == pytest.approx(float(d.abs().sum()) / 9, rel=1e-12)
+    sel = torch.tensor([True, True, False])
+    assert float(flow_target_loss(x, tgt, sel)) == pytest.approx(float(d[:2].abs().sum()) / 6, rel=1e-12)
+    got = float(flow_target_loss(x, tgt, sel, c))
+    assert got == pytest.approx(0.003 * float(across.abs().sum()) / 6, rel=1e-9)
+    assert float(flow_target_loss(x, tgt, torch.zeros(3, dtype=torch.bool), c)) == 0.0
+    # the gradient: nothing pulls the first particle along its ray
+    xg = x.clone().requires_grad_(True)
+    flow_target_loss(xg, tgt, sel, c).backward()
+    assert abs(float(xg.grad[0] @ r[0])) < 1e-12 and float(xg.grad[2].abs().sum()) == 0.0

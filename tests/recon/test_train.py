@@ -362,3 +362,49 @@ def test_damaged_checkpoint_refused_before_anything_is_written(fitted, tiny_scen
     r.mkdir()
     torch.save(phys_at(good), r / "checkpoint.pt")
     assert fit(tiny_scene, r, cfg)["material"]
+
+
+def test_flow_target_selects_the_particles_the_flow_saw(fitted, tiny_scene, tmp_path):
+    """TrainConfig.flow_target (the Eq. 10 term's part of the Eq. 9 flow): 'visible' keeps, per frame f, the
+    particles of x'_{f-1} on the camera's side of the object (checked against a z-buffer of the particles
+    themselves: none selected lies more than two particle spacings behind the front-most particle of its pixel,
+    and they are fewer than 80 % of the particles);
+    'observed' adds the camera centre (look_at's eye: R c + t = 0); a physics step with either runs.  Mutants
+    caught: the selection ignored (every particle), the centre taken at the world origin."""
+    import torch
+
+    from physar.recon import scene as S
+    from physar.recon.flow import project
+    from physar.recon.train import _flow_selection
+
+    run, cfg, _ = fitted
+    rc = Reconstruction.load(run)
+    ds_kin = rc.kinematics(*_poses(tiny_scene))
+    sel = _flow_selection(rc.rig, rc.app, ds_kin, rc.spflow, "observed")
+    assert set(sel) == set(range(1, len(rc.spflow)))
+    K, R, t = (torch.as_tensor(a) for a in S.camera_matrices(rc.rig.meta))
+    h = rc.rig.h
+    for f, (vis, centre) in sel.items():
+        assert float(torch.linalg.vector_norm(R @ centre + t)) < 1e-9 and float(centre.norm()) > 0.1
+        x = torch.as_tensor(rc.spflow[f - 1])
+        uv, z = project(x, K, R, t)
+        pix = (uv[:, 1].long() * 10_000 + uv[:, 0].long()).numpy()
+        zmin = {}
+        for p, d in zip(pix, z.numpy()):
+            zmin[p] = min(zmin.get(p, np.inf), d)
+        front = np.array([zmin[p] for p in pix])
+        v = vis.numpy()
+        assert 0 < v.sum() < 0.8 * len(v)
+        assert np.all(z.numpy()[v] <= front[v] + 2 * h)
+    assert _flow_selection(rc.rig, rc.app, ds_kin, rc.spflow, "all")[1] == (None, None)
+    for target in ("visible", "observed"):
+        rep = fit(tiny_scene, tmp_path / target, cfg.model_copy(update={"lambda_flow": 20.0, "flow_target": target,
+                                                                       "physics_iters": 1}), reuse=run)
+        assert math.isfinite(rep["history_final"]["physics"])
+
+
+def _poses(scene):
+    from physar.recon.train import load_dataset
+
+    ds = load_dataset(scene)
+    return ds.rotations, ds.root_t
