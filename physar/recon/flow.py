@@ -143,7 +143,9 @@ def flow_target_loss(x: torch.Tensor, target: torch.Tensor, sel: torch.Tensor | 
     r"""The Eq. 10 3-D flow term without its weight (m): :math:`\operatorname{mean} |x_n - x'_n|` over the
     coordinates of the particles ``sel`` (all when None). With the camera centre (world, (3,)) given, only the
     part of :math:`x_n - x'_n` across the ray from the centre through :math:`x'_n` is compared,
-    :math:`d - (d \cdot r) r`: the Eq. 9 target observes depth only through :math:`L_\text{ray}`'s prior."""
+    :math:`d - (d \cdot r) r`: the Eq. 9 target observes depth only through :math:`L_\text{ray}`'s prior.  The
+    L1 norm is over the world coordinates, as in the seed's Eq. 10, so its weight per unit length depends on the
+    direction: 1 to :math:`\sqrt{3}` for a vector in 3-D, up to :math:`\sqrt{3}` also for one across a ray."""
     if sel is not None:
         if not bool(sel.any()):
             return torch.zeros((), dtype=x.dtype)

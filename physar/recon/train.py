@@ -836,14 +836,17 @@ def _state_from(d: dict, rig: Rig, p: Path) -> FitState:
 
 def _with_pre_option_defaults(config: dict) -> dict:
     """A stored configuration with the options added since filled in as the run behaved: render_deformation
-    "state" (the seed's rule, the only one before the option), learn_omega true."""
-    return {"render_deformation": "state", "learn_omega": True, **config}
+    "state" (the seed's rule, the only one before the option), learn_omega true, flow_target "all" (the seed's
+    Eq. 10, the only form before the option)."""
+    return {"render_deformation": "state", "learn_omega": True, "flow_target": "all", **config}
 
 
 def _without_devices(config: dict) -> dict:
-    """A configuration without the device fields: results do not depend on them (CUDA matches the CPU to 2e-13,
-    benchmarks/RESULTS.md "Gaussians and MPM on CUDA"), so a run may resume, or a model load, on another device."""
-    return {k: v for k, v in config.items() if k not in _DEVICE_FIELDS}
+    """A configuration without the fields its results do not depend on: the devices (CUDA matches the CPU to
+    2e-13, benchmarks/RESULTS.md "Gaussians and MPM on CUDA"), so a run may resume, or a model load, on another
+    device; and flow_target when the 3-D flow term is off (lambda_flow = 0)."""
+    drop = _DEVICE_FIELDS + (("flow_target",) if config.get("lambda_flow") == 0 else ())
+    return {k: v for k, v in config.items() if k not in drop}
 
 
 def _load_checkpoint(run_dir: Path, cfg: TrainConfig, data_hash: str) -> dict | None:
@@ -921,8 +924,8 @@ def _visible_at(rig: Rig, app: Appearance, kin: dict, f: int, x: torch.Tensor, K
 
 
 def _flow_selection(rig: Rig, app: Appearance, kin: dict, spflow: list, target: str) -> dict:
-    """Per observed frame f >= 1, the (particles, camera centre) that the Eq. 10 flow term compares
-    (``TrainConfig.flow_target``): all -> (None, None); visible -> the particles of x'_{f-1} visible in frame
+    """Per frame f of the Eq. 9 flow (from 1; from 0 for all), the (particles, camera centre) that the Eq. 10 flow
+    term compares (``TrainConfig.flow_target``): all -> (None, None); visible -> the particles of x'_{f-1} visible in frame
     f - 1 (those whose motion into frame f the Eq. 9 optical-flow term saw); observed -> the same and the camera
     centre, so that only the motion across the rays is compared."""
     if target == "all":
@@ -1096,6 +1099,12 @@ def fit(data_dir: str | Path, run_dir: str | Path, cfg: TrainConfig | None = Non
         from physar.recon.flow import flow_target_loss
 
         flow_sel = _flow_selection(rig, app, kin, st.spflow, cfg.flow_target) if cfg.lambda_flow > 0 else {}
+        counts = [int(v.sum()) for f, (v, _) in sorted(flow_sel.items()) if v is not None]
+        if counts:
+            st.info["flow_target_particles"] = counts  # per observed frame 1.., in the report's "canonical"
+            if not any(counts):
+                warnings.warn(f"flow_target = {cfg.flow_target!r}: no object particle is visible in any observed "
+                              "frame, so the 3-D flow term (lambda_flow) compares nothing", PhysarWarning, stacklevel=2)
         while st.iteration < cfg.physics_iters:
             it = st.iteration
             W = min(ds.n_obs, cfg.window_start + it // cfg.window_grow_every)

@@ -189,3 +189,33 @@ def test_a_model_from_before_render_deformation_renders_as_it_was_fitted(refit_r
     arrays["config_json"] = np.array(json.dumps(conf))
     np.savez(tmp_path / "model.npz", **arrays)
     assert Reconstruction.load(tmp_path / "model.npz").rig.cfg.render_deformation == "state"
+
+
+def test_a_checkpoint_from_before_flow_target_resumes(refit_run, tmp_path):
+    """A checkpoint whose configuration has no flow_target (made before the option): with the 3-D flow term off
+    (lambda_flow = 0) the option changes nothing and it resumes under today's default; with the term on it ran the
+    seed's form and resumes only with flow_target = "all"; a model.npz without it loads as "all". Mutants caught:
+    the old form not filled in (every old checkpoint refused), flow_target compared when the term is off."""
+    import json
+
+    from physar.errors import ConfigError
+    from physar.recon.train import _load_checkpoint
+
+    run, cfg = refit_run
+    d = torch.load(run / "checkpoint.pt", weights_only=True)
+    del d["config"]["flow_target"]
+    torch.save(d, tmp_path / "checkpoint.pt")
+    assert _load_checkpoint(tmp_path, cfg, d["data_hash"])
+    d["config"]["lambda_flow"] = 20.0
+    torch.save(d, tmp_path / "checkpoint.pt")
+    on = cfg.model_copy(update={"lambda_flow": 20.0})
+    assert _load_checkpoint(tmp_path, on.model_copy(update={"flow_target": "all"}), d["data_hash"])
+    with pytest.raises(ConfigError, match="another configuration"):
+        _load_checkpoint(tmp_path, on, d["data_hash"])
+    with np.load(run / "model.npz", allow_pickle=False) as z:
+        arrays = dict(z)
+    conf = json.loads(str(arrays["config_json"]))
+    del conf["flow_target"]
+    arrays["config_json"] = np.array(json.dumps(conf))
+    np.savez(tmp_path / "model.npz", **arrays)
+    assert Reconstruction.load(tmp_path / "model.npz").rig.cfg.flow_target == "all"

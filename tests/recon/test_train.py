@@ -364,23 +364,25 @@ def test_damaged_checkpoint_refused_before_anything_is_written(fitted, tiny_scen
     assert fit(tiny_scene, r, cfg)["material"]
 
 
-def test_flow_target_selects_the_particles_the_flow_saw(fitted, tiny_scene, tmp_path):
-    """TrainConfig.flow_target (the Eq. 10 term's part of the Eq. 9 flow): 'visible' keeps, per frame f, the
-    particles of x'_{f-1} on the camera's side of the object (checked against a z-buffer of the particles
-    themselves: none selected lies more than two particle spacings behind the front-most particle of its pixel,
-    and they are fewer than 80 % of the particles);
-    'observed' adds the camera centre (look_at's eye: R c + t = 0); a physics step with either runs.  Mutants
-    caught: the selection ignored (every particle), the centre taken at the world origin."""
+def test_flow_target_selects_the_particles_the_flow_saw(fitted, tiny_scene, tmp_path, monkeypatch):
+    """TrainConfig.flow_target (the Eq. 10 term's part of the Eq. 9 flow): per frame f, the particles of x'_{f-1}
+    visible in frame f - 1.  Checked against a z-buffer of the particles themselves (none selected lies more than two
+    particle spacings behind the front-most particle of its pixel; fewer than 80 % selected) and on a target whose
+    frame 1 is moved 50 m aside (out of the image): frame 2's selection is then empty, frame 1's is not.  'observed'
+    adds the camera centre (R c + t = 0), 'visible' none, 'all' no selection; fit's physics stage passes each
+    frame's (selection, centre) with that frame's target.  Mutants caught: the selection ignored, x'_f seen in frame
+    f (off by one frame), the centre at the world origin, the option not reaching the physics loss."""
     import torch
 
+    import physar.recon.flow as flow_mod
     from physar.recon import scene as S
     from physar.recon.flow import project
     from physar.recon.train import _flow_selection
 
     run, cfg, _ = fitted
     rc = Reconstruction.load(run)
-    ds_kin = rc.kinematics(*_poses(tiny_scene))
-    sel = _flow_selection(rc.rig, rc.app, ds_kin, rc.spflow, "observed")
+    kin = rc.kinematics(*_poses(tiny_scene))
+    sel = _flow_selection(rc.rig, rc.app, kin, rc.spflow, "observed")
     assert set(sel) == set(range(1, len(rc.spflow)))
     K, R, t = (torch.as_tensor(a) for a in S.camera_matrices(rc.rig.meta))
     h = rc.rig.h
@@ -396,11 +398,31 @@ def test_flow_target_selects_the_particles_the_flow_saw(fitted, tiny_scene, tmp_
         v = vis.numpy()
         assert 0 < v.sum() < 0.8 * len(v)
         assert np.all(z.numpy()[v] <= front[v] + 2 * h)
-    assert _flow_selection(rc.rig, rc.app, ds_kin, rc.spflow, "all")[1] == (None, None)
-    for target in ("visible", "observed"):
-        rep = fit(tiny_scene, tmp_path / target, cfg.model_copy(update={"lambda_flow": 20.0, "flow_target": target,
-                                                                       "physics_iters": 1}), reuse=run)
-        assert math.isfinite(rep["history_final"]["physics"])
+    away = [torch.as_tensor(x) for x in rc.spflow]
+    away[1] = away[1] + torch.tensor([50.0, 0.0, 0.0], dtype=away[1].dtype)
+    moved = _flow_selection(rc.rig, rc.app, kin, away, "visible")
+    assert bool(moved[1][0].any()) and not bool(moved[2][0].any()) and moved[1][1] is None
+    assert _flow_selection(rc.rig, rc.app, kin, rc.spflow, "all")[1] == (None, None)
+    calls = []
+    real = flow_mod.flow_target_loss
+
+    def spy(x, target, sel=None, centre=None):
+        calls.append((target.clone(), sel, centre))
+        return real(x, target, sel, centre)
+
+    monkeypatch.setattr(flow_mod, "flow_target_loss", spy)
+    for target in ("all", "visible", "observed"):
+        calls.clear()
+        upd = {"lambda_flow": 20.0, "flow_target": target, "physics_iters": 1}
+        rep = fit(tiny_scene, tmp_path / target, cfg.model_copy(update=upd), reuse=run)
+        assert math.isfinite(rep["history_final"]["physics"]) and calls
+        for tg, s_, c_ in calls:
+            f = next(k for k in range(len(rc.spflow)) if torch.equal(tg, torch.as_tensor(rc.spflow[k])))
+            assert f >= 1
+            if target == "all":
+                assert s_ is None and c_ is None
+            else:
+                assert torch.equal(s_, sel[f][0]) and (c_ is None) == (target == "visible")
 
 
 def _poses(scene):
