@@ -178,17 +178,9 @@ def test_mismatched_refit_is_one_line(refit_run, tmp_path):
 def test_a_model_from_before_render_deformation_renders_as_it_was_fitted(refit_run, tmp_path):
     """A model.npz whose configuration has no render_deformation (fitted before the option, with the seed's
     deformed Gaussians) loads with "state", not with today's default "none"; one that has it keeps it."""
-    import json
-
     run, _ = refit_run
     assert Reconstruction.load(run).rig.cfg.render_deformation == "none"
-    with np.load(run / "model.npz", allow_pickle=False) as d:
-        arrays = dict(d)
-    conf = json.loads(str(arrays["config_json"]))
-    del conf["render_deformation"]
-    arrays["config_json"] = np.array(json.dumps(conf))
-    np.savez(tmp_path / "model.npz", **arrays)
-    assert Reconstruction.load(tmp_path / "model.npz").rig.cfg.render_deformation == "state"
+    assert _model_without(run, "render_deformation", tmp_path).rig.cfg.render_deformation == "state"
 
 
 def test_a_checkpoint_from_before_flow_target_resumes(refit_run, tmp_path):
@@ -196,8 +188,6 @@ def test_a_checkpoint_from_before_flow_target_resumes(refit_run, tmp_path):
     (lambda_flow = 0) the option changes nothing and it resumes under today's default; with the term on it ran the
     seed's form and resumes only with flow_target = "all"; a model.npz without it loads as "all". Mutants caught:
     the old form not filled in (every old checkpoint refused), flow_target compared when the term is off."""
-    import json
-
     from physar.errors import ConfigError
     from physar.recon.train import _load_checkpoint
 
@@ -212,10 +202,18 @@ def test_a_checkpoint_from_before_flow_target_resumes(refit_run, tmp_path):
     assert _load_checkpoint(tmp_path, on.model_copy(update={"flow_target": "all"}), d["data_hash"])
     with pytest.raises(ConfigError, match="another configuration"):
         _load_checkpoint(tmp_path, on, d["data_hash"])
+    assert _model_without(run, "flow_target", tmp_path).rig.cfg.flow_target == "all"
+
+
+def _model_without(run, key, tmp_path):
+    """RUN/model.npz copied to tmp_path with ``key`` removed from its stored configuration (a model from before that
+    option), loaded."""
+    import json
+
     with np.load(run / "model.npz", allow_pickle=False) as z:
         arrays = dict(z)
     conf = json.loads(str(arrays["config_json"]))
-    del conf["flow_target"]
+    del conf[key]
     arrays["config_json"] = np.array(json.dumps(conf))
     np.savez(tmp_path / "model.npz", **arrays)
-    assert Reconstruction.load(tmp_path / "model.npz").rig.cfg.flow_target == "all"
+    return Reconstruction.load(tmp_path / "model.npz")
