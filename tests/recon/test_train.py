@@ -430,3 +430,25 @@ def _poses(scene):
 
     ds = load_dataset(scene)
     return ds.rotations, ds.root_t
+
+
+def test_flow_term_with_nothing_visible_warns(fitted, tiny_scene, tmp_path, monkeypatch):
+    """When no object particle is visible in any observed frame, the 'observed' flow term compares nothing: fit says
+    so in one warning and the report counts 0 particles per frame. Mutant caught: the counts not recorded (or the
+    warning dropped)."""
+    import torch
+
+    import physar.recon.train as train_mod
+    from physar.errors import PhysarWarning
+
+    run, cfg, _ = fitted
+    real = train_mod._flow_selection
+
+    def none_visible(rig, app, kin, spflow, target):
+        return {f: (torch.zeros_like(v), c) for f, (v, c) in real(rig, app, kin, spflow, target).items()}
+
+    monkeypatch.setattr(train_mod, "_flow_selection", none_visible)
+    with pytest.warns(PhysarWarning, match="no object particle is visible"):
+        rep = fit(tiny_scene, tmp_path / "r", cfg.model_copy(update={"lambda_flow": 20.0, "physics_iters": 1}),
+                  reuse=run)
+    assert rep["canonical"]["flow_target_particles"] == [0] * (len(Reconstruction.load(run).spflow) - 1)
