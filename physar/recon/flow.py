@@ -121,9 +121,15 @@ def flow_loss(x_prev: torch.Tensor, x_new: torch.Tensor, flow: torch.Tensor, vis
 def ray_motion(x_prev: torch.Tensor, x_new: torch.Tensor, centre: torch.Tensor) -> torch.Tensor:
     r""":math:`L_\text{ray}` (m^2): mean over particles of the squared component of :math:`x_\text{new} -
     x_\text{prev}` along the unit ray from the camera centre (world, (3,)) through :math:`x_\text{prev}`."""
-    ray = x_prev - centre
-    ray = ray / torch.linalg.vector_norm(ray, dim=1, keepdim=True)
-    return (((x_new - x_prev) * ray.detach()).sum(1) ** 2).mean()
+    ray = _unit_rays(x_prev, centre)
+    return (((x_new - x_prev) * ray).sum(1) ** 2).mean()
+
+
+def _unit_rays(points: torch.Tensor, centre: torch.Tensor) -> torch.Tensor:
+    """Unit rays (N, 3) from the camera centre (3,) through ``points`` (N, 3), detached (held fixed when
+    differentiating)."""
+    ray = (points - centre).detach()
+    return ray / torch.linalg.vector_norm(ray, dim=1, keepdim=True)
 
 
 def sp_flow_prior(x: torch.Tensor, x_prev: torch.Tensor, flow: torch.Tensor, vis: torch.Tensor, K, R, t,
@@ -152,8 +158,7 @@ def flow_target_loss(x: torch.Tensor, target: torch.Tensor, sel: torch.Tensor | 
         x, target = x[sel], target[sel]
     d = x - target
     if centre is not None:
-        r = target - centre
-        r = (r / torch.linalg.vector_norm(r, dim=1, keepdim=True)).detach()
+        r = _unit_rays(target, centre)
         d = d - (d * r).sum(1, keepdim=True) * r
     return d.abs().mean()
 

@@ -841,7 +841,7 @@ def _with_pre_option_defaults(config: dict) -> dict:
     return {"render_deformation": "state", "learn_omega": True, "flow_target": "all", **config}
 
 
-def _without_devices(config: dict) -> dict:
+def _result_fields(config: dict) -> dict:
     """A configuration without the fields its results do not depend on: the devices (CUDA matches the CPU to
     2e-13, benchmarks/RESULTS.md "Gaussians and MPM on CUDA"), so a run may resume, or a model load, on another
     device; and flow_target when the 3-D flow term is off (lambda_flow = 0)."""
@@ -856,7 +856,7 @@ def _load_checkpoint(run_dir: Path, cfg: TrainConfig, data_hash: str) -> dict | 
     if not p.exists():
         return None
     d = _read_checkpoint(p)
-    if _without_devices(_with_pre_option_defaults(d["config"])) != _without_devices(cfg.model_dump()):
+    if _result_fields(_with_pre_option_defaults(d["config"])) != _result_fields(cfg.model_dump()):
         raise ConfigError(f"{p}: checkpoint was made with another configuration; use a new --out folder "
                           "or --restart")
     if d.get("data_hash") != data_hash:

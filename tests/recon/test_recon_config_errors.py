@@ -69,7 +69,7 @@ def test_device_fields_do_not_block_loading_or_resuming(tmp_path):
     import torch
 
     from physar.errors import PhysarWarning
-    from physar.recon.train import TrainConfig, _usable_devices, _without_devices
+    from physar.recon.train import TrainConfig, _result_fields, _usable_devices
 
     n = torch.cuda.device_count() if torch.cuda.is_available() else 0
     cfg = TrainConfig(render_device=f"cuda:{n}", mpm_device=f"cuda:{n}", seed=3)
@@ -78,8 +78,8 @@ def test_device_fields_do_not_block_loading_or_resuming(tmp_path):
         usable = _usable_devices(cfg)
     assert (usable.render_device, usable.mpm_device, usable.seed) == ("cpu", "cpu", 3)
     assert len(w) == 1 and issubclass(w[0].category, PhysarWarning) and "using the CPU" in str(w[0].message)
-    assert _without_devices(cfg.model_dump()) == _without_devices(TrainConfig(seed=3).model_dump())
-    assert _without_devices(cfg.model_dump()) != _without_devices(TrainConfig(seed=4).model_dump())
+    assert _result_fields(cfg.model_dump()) == _result_fields(TrainConfig(seed=3).model_dump())
+    assert _result_fields(cfg.model_dump()) != _result_fields(TrainConfig(seed=4).model_dump())
 
 
 # Review messages: a misspelt [trian] named as a table with the near name (was "unknown key 'trian' in [train]"),
