@@ -32,8 +32,9 @@ Ground truth:
   reconstruction's expert law is fixed-corotated and elastic;
 * dynamics: MLS-MPM (:class:`physar.mpm.MPMSolver`) on a FINER particle set (``gt_particles_per_cell``,
   default 8 per cell) than the reconstruction uses, with gravity; the forearm is a set of MPM particles
-  actuated by the gated PD controller (Eq. 6-7, :math:`\omega = 1` inside the forearm, 0 on the object)
-  towards its LBS trajectory; the rest of the body follows LBS kinematically;
+  actuated by the gated PD controller (Eq. 6-7, :math:`\omega = 1` inside the forearm, 0 on the object and,
+  with ``soft_layer`` > 0, on the forearm's passive soft tissue within that depth of its surface:
+  :func:`soft_tissue_gate`) towards its LBS trajectory; the rest of the body follows LBS kinematically;
 * images: the z-buffered sphere renderer of :mod:`physar.recon.pointrender` (not the Gaussian rasteriser),
   one static camera, ``fps`` frames per second, foreground masks.
 
@@ -71,6 +72,7 @@ from typing import Annotated, Literal
 
 import cv2
 import numpy as np
+import torch
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from physar.errors import ConfigError, format_validation_error, refuse_coercion
@@ -216,6 +218,9 @@ class SynthConfig(BaseModel):
     density: float = Field(200.0, gt=0, description="density of the object [kg/m^3]")
     human_E: float = Field(1.0e4, gt=0, description="Young's modulus of the simulated forearm [Pa]")
     human_density: float = Field(1000.0, gt=0, description="density of the simulated forearm [kg/m^3]")
+    soft_layer: float = Field(0.0, ge=0, description="depth of the body's soft tissue [m]: simulated body "
+                              "particles within it of the body's surface are passive (omega = 0, moved by "
+                              "elasticity and contact only, seed §4.2); 0: the whole simulated forearm is driven")
     kp: float = Field(3.0e3, ge=0, description="PD gain (mass-scaled) [1/s^2]")
     kd: float = Field(110.0, ge=0, description="PD gain, 1/s")
     press_obs: float | None = Field(None, ge=0, description="forearm travel at the end of the observation part "
@@ -552,7 +557,7 @@ def simulate_clip(cfg: SynthConfig, meta: dict, body, poses: dict, progress=None
     v0 = np.r_[np.zeros((no, 3)), vref[0]]
     solver = MPMSolver(model)
     st, scratch = model.state(x0, v0), model.state(x0, v0)
-    omega = np.r_[np.zeros(no), np.ones(nh)]
+    omega = np.r_[np.zeros(no), soft_tissue_gate(body, Xh, cfg.soft_layer)]
     xs = [x0]
     for f in range(len(rot) - 1):
         ctrl = Control(omega, np.r_[np.zeros((no, 3)), ref[f] - origin], np.r_[np.zeros((no, 3)), vref[f]],
@@ -565,6 +570,22 @@ def simulate_clip(cfg: SynthConfig, meta: dict, body, poses: dict, progress=None
     _check_in_domain(meta, f"the {cfg.object}", xs[:, :no])
     return {"xo": xs[:, :no], "xh": xs[:, no:], "Xo": Xo, "E": E, "fiber": fib, "fiber_E": fib_E, "part": part,
             "h": h, "mass": vol_o * cfg.density * no}
+
+
+def soft_tissue_gate(body, Xh: np.ndarray, depth: float) -> np.ndarray:
+    r"""Gate :math:`g_i` of the truth's body particles (rest points ``Xh``, (Nh, 3)): 1 where the gated PD
+    controller drives the particle towards its LBS target, 0 on a passive layer of soft tissue within ``depth``
+    (m) of the body's rest surface, which only elasticity and contact move (seed §4.2, Eq. 7: real flesh is not
+    driven by the skeleton at its surface). ``depth`` = 0: every particle is driven (a rigid-surfaced body)."""
+    if depth <= 0:
+        return np.ones(len(Xh))
+    d = body.signed_distance(torch.as_tensor(Xh)).numpy()
+    gate = (d < -depth).astype(np.float64)
+    if not gate.any():
+        raise ConfigError(f"synth.soft_layer = {depth:g} m: every simulated body particle lies within it of the "
+                          f"body's surface (the deepest is {float(-d.min()):.4f} m deep), so nothing would drive "
+                          "the body; lower soft_layer")
+    return gate
 
 
 def sim_walls(floor: str = "sticky") -> dict:

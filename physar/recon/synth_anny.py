@@ -35,7 +35,10 @@ Scene (``[synth]`` of a TOML such as ``examples/recon_anny_cpillow.toml``; :clas
 * **Truth dynamics**: :func:`physar.recon.synth.simulate_clip` on ``gt_particles_per_cell`` particles per cell
   (finer than the reconstruction's); the simulated bones are those whose skinned vertices come within one grid
   cell of the object in the clip and whose lattice stays in the MPM domain (the rule of the reconstruction's
-  :class:`physar.recon.train.Rig`), actuated by the gated PD controller towards their LBS trajectory.
+  :class:`physar.recon.train.Rig`), actuated by the gated PD controller towards their LBS trajectory; with
+  ``soft_layer`` > 0 the particles within that depth of the body's surface are passive soft tissue
+  (:func:`physar.recon.synth.soft_tissue_gate`, :math:`\omega = 0`, seed §4.2), so the skin gives under the
+  contact as flesh does.
 * **Images**: :func:`physar.recon.pointrender.render_spheres` (z-buffered shaded spheres, not Gaussians) of the
   fine object particles on the object's surface layer, the simulated body particles and samples of anny's skinned
   surface (area-uniform, ``body_spacing`` apart on average); a second flat-shaded pass gives per-pixel labels
@@ -150,6 +153,9 @@ class AnnySceneConfig(BaseModel):
     density: float = Field(200.0, gt=0, description="object density [kg/m^3]")
     human_E: float = Field(1.0e4, gt=0, description="Young's modulus of the simulated body [Pa]")
     human_density: float = Field(1000.0, gt=0, description="density of the simulated body [kg/m^3]")
+    soft_layer: float = Field(0.0, ge=0, description="depth of the body's soft tissue [m]: simulated body "
+                              "particles within it of the body's surface are passive (omega = 0, moved by "
+                              "elasticity and contact only, seed §4.2); 0: the whole simulated body is driven")
     kp: float = Field(3.0e3, ge=0, description="PD gain of the truth [1/s^2]")
     kd: float = Field(110.0, ge=0, description="PD gain of the truth [1/s]")
     domain_size: float = Field(0.6, gt=0, description="MPM domain side [m]")

@@ -203,3 +203,69 @@ def test_pillow_fibres_stiffen_along_x_only():
     (ax, ay), (ix, iy) = growth[cfg.fiber_E], growth[0.0]
     assert ix > 0.005 and ax < 0.6 * ix  # measured 3.6 vs 10.6 mm
     assert 0.8 < ay / iy < 1.25  # measured 15.8 vs 15.1 mm
+
+
+# ------------------------------------------------------------------------------------------- soft tissue
+def _capsule_depth(body, X: np.ndarray) -> np.ndarray:
+    """Depth (m) of points below the capsule figure's surface, written out here: max over the capsules of
+    r - |x - nearest point of the bone's segment| (positive inside)."""
+    a, b, r = (t.numpy() for t in (body.heads, body.tails, body.radii))
+    act = r > 0
+    a, b, r = a[act], b[act], r[act]
+    ab = b - a
+    s = np.clip(np.einsum("nkj,kj->nk", X[:, None] - a, ab) / np.einsum("kj,kj->k", ab, ab), 0, 1)
+    return (r - np.linalg.norm(X[:, None] - (a + s[..., None] * ab), axis=-1)).max(1)
+
+
+def test_soft_tissue_gate_drives_only_deeper_than_the_layer():
+    """A point rho from the forearm's axis at mid-length lies r - rho below the surface: with soft_layer d it is
+    driven (gate 1) iff rho < r - d, passive on the layer. Mutants caught: the layer driven and the interior
+    passive (sign), the depth ignored, the distance measured to the axis instead of the surface; depth 0 drives
+    every particle; a layer deeper than the body is one ConfigError naming the field."""
+    body = S.humanoid(1.7)
+    i = body.skeleton.index("forearm.R")
+    a, b, r = body.heads[i].numpy(), body.tails[i].numpy(), float(body.radii[i])
+    axis = (b - a) / np.linalg.norm(b - a)
+    n = np.cross(axis, [0.0, 0.0, 1.0])
+    n /= np.linalg.norm(n)
+    rho = np.linspace(0.0, 0.95 * r, 20)
+    X = 0.5 * (a + b) + rho[:, None] * n
+    for d in (0.008, 0.02):
+        g = Y.soft_tissue_gate(body, X, d)
+        np.testing.assert_array_equal(g, (rho < r - d).astype(float))
+        assert 0 < g.sum() < len(g)
+    np.testing.assert_array_equal(Y.soft_tissue_gate(body, X, 0.0), np.ones(len(X)))
+    with pytest.raises(ConfigError, match=r"synth\.soft_layer = 0\.05 m.*deepest is 0\.04"):
+        Y.soft_tissue_gate(body, X, 0.05)
+    with pytest.raises(ValueError, match="soft_layer"):
+        tiny("cpillow", soft_layer=-0.01)
+
+
+def test_soft_layer_reaches_the_truths_controller(monkeypatch):
+    """``soft_layer`` = d makes the truth's gated PD controller drive only the forearm particles deeper than d
+    (depth written out in this test from the capsules), the same gate in every frame, none on the object; 0 drives
+    them all. Mutants caught: soft_layer not passed to the controller, the gate applied to the object, the layer
+    driven and the core passive."""
+    seen = []
+
+    class Spy(Y.Control):
+        def __init__(self, omega, *args, **kw):
+            seen.append(np.asarray(omega, dtype=np.float64).copy())
+            super().__init__(omega, *args, **kw)
+
+    monkeypatch.setattr(Y, "Control", Spy)
+    cfg = SynthConfig(**{**TINY, "frames": 5, "n_obs": 3}, **SCENES["cpillow"], gt_particles_per_cell=8)
+    meta = Y.scene_meta(cfg)
+    body = S.humanoid(cfg.height)
+    poses = Y.clip_poses(cfg, body)[""]
+    h = meta["sim"]["size"] / meta["sim"]["resolution"] / 2
+    Xh = S.body_points(body, meta["body"]["simulated_bones"], h)
+    layer = _capsule_depth(body, Xh) <= 0.01
+    assert 0.1 < layer.mean() < 0.9
+    for d in (0.0, 0.01):
+        seen.clear()
+        out = Y.simulate_clip(cfg.model_copy(update={"soft_layer": d}), meta, body, poses)
+        no = out["xo"].shape[1]
+        om = seen[0]
+        assert all(np.array_equal(o, om) for o in seen) and np.all(om[:no] == 0)
+        np.testing.assert_array_equal(om[no:], np.ones(len(Xh)) if d == 0 else (~layer).astype(float))
