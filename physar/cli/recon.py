@@ -49,6 +49,7 @@ def synth(
     """Generate a synthetic scene (fine MPM ground truth, heterogeneous and anisotropic): the humanoid presses a
     pillow, squeezes a C-shaped pillow or lifts a bag (see examples/recon_pillow|cpillow|bag.toml)."""
     from physar.cli._common import check_toml, output_path, warn_positional, whole_folder
+    from physar.errors import ConfigError
     from physar.recon.synth import check_data_dir, generate, load_synth_config
 
     out = output_path(out_opt, out_arg, "physar recon synth --out DATA_DIR [-c CONFIG]")
@@ -59,6 +60,10 @@ def synth(
     progress, bars = _bars(json_out or None)
     try:
         generate(out, cfg, lambda i, n: progress("simulate", i, n, 0.0))
+    except ConfigError as e:  # a [synth] value refused against the scene's geometry: name the file too
+        if config is not None and str(e).startswith("synth."):
+            raise ConfigError(f"{config}: {e}") from None
+        raise
     finally:
         _close(bars)
     summary = {"data_dir": str(out), "object": cfg.object, "action": cfg.action, "frames": cfg.frames, "n_obs": cfg.n_obs, "novel_frames": cfg.novel_frames,

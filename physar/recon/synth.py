@@ -33,7 +33,7 @@ Ground truth:
 * dynamics: MLS-MPM (:class:`physar.mpm.MPMSolver`) on a FINER particle set (``gt_particles_per_cell``,
   default 8 per cell) than the reconstruction uses, with gravity; the forearm is a set of MPM particles
   actuated by the gated PD controller (Eq. 6-7, :math:`\omega = 1` inside the forearm, 0 on the object and,
-  with ``soft_layer`` > 0, on the forearm's passive soft tissue within that depth of its surface:
+  with ``soft_layer`` > 0, on a passive layer within that depth of the body's rest surface:
   :func:`soft_tissue_gate`) towards its LBS trajectory; the rest of the body follows LBS kinematically;
 * images: the z-buffered sphere renderer of :mod:`physar.recon.pointrender` (not the Gaussian rasteriser),
   one static camera, ``fps`` frames per second, foreground masks.
@@ -218,9 +218,10 @@ class SynthConfig(BaseModel):
     density: float = Field(200.0, gt=0, description="density of the object [kg/m^3]")
     human_E: float = Field(1.0e4, gt=0, description="Young's modulus of the simulated forearm [Pa]")
     human_density: float = Field(1000.0, gt=0, description="density of the simulated forearm [kg/m^3]")
-    soft_layer: float = Field(0.0, ge=0, description="depth of the body's soft tissue [m]: simulated body "
-                              "particles within it of the body's surface are passive (omega = 0, moved by "
-                              "elasticity and contact only, seed §4.2); 0: the whole simulated forearm is driven")
+    soft_layer: float = Field(0.0, ge=0, description="passive layer of the simulated body [m]: particles within "
+                              "soft_layer of the body's rest surface get no PD force (omega = 0; moved by "
+                              "elasticity and contact only, soft_tissue_gate); 0: the whole simulated forearm is "
+                              "driven")
     kp: float = Field(3.0e3, ge=0, description="PD gain (mass-scaled) [1/s^2]")
     kd: float = Field(110.0, ge=0, description="PD gain, 1/s")
     press_obs: float | None = Field(None, ge=0, description="forearm travel at the end of the observation part "
@@ -573,18 +574,22 @@ def simulate_clip(cfg: SynthConfig, meta: dict, body, poses: dict, progress=None
 
 
 def soft_tissue_gate(body, Xh: np.ndarray, depth: float) -> np.ndarray:
-    r"""Gate :math:`g_i` of the truth's body particles (rest points ``Xh``, (Nh, 3)): 1 where the gated PD
-    controller drives the particle towards its LBS target, 0 on a passive layer of soft tissue within ``depth``
-    (m) of the body's rest surface, which only elasticity and contact move (seed §4.2, Eq. 7: real flesh is not
-    driven by the skeleton at its surface). ``depth`` = 0: every particle is driven (a rigid-surfaced body)."""
+    r"""Gate of the truth's simulated body particles, :math:`g_i = [\varphi(X_i) < -\delta]` with
+    :math:`\varphi` = ``body.signed_distance`` (m, negative inside; for the capsule figure
+    :math:`\min_k(|X - \text{segment}_k| - r_k)`) at the rest points ``Xh`` (Nh, 3) and :math:`\delta` =
+    ``depth`` (m). The PD force of seed Eq. 7 is multiplied by it: 1 drives the particle towards its LBS target,
+    0 leaves a passive layer under the rest surface that only elasticity (``human_E``) and contact move. Seed
+    §4.2 keeps the PD force off the "exterior human surface" because the LBS reference is "imperfect, especially
+    for non-rigid regions"; a truth with such a layer gives the reconstruction's own omega = 0 layer
+    (``[train] surface_layer``) something to match. ``depth`` = 0: every particle is driven."""
     if depth <= 0:
         return np.ones(len(Xh))
     d = body.signed_distance(torch.as_tensor(Xh)).numpy()
     gate = (d < -depth).astype(np.float64)
     if not gate.any():
-        raise ConfigError(f"synth.soft_layer = {depth:g} m: every simulated body particle lies within it of the "
-                          f"body's surface (the deepest is {float(-d.min()):.4f} m deep), so nothing would drive "
-                          "the body; lower soft_layer")
+        raise ConfigError(f"synth.soft_layer = {depth:g} m: every simulated body particle lies within soft_layer "
+                          f"of the body's rest surface (the deepest is {float(-d.min()):.4f} m deep), so nothing "
+                          "would drive the body; lower soft_layer")
     return gate
 
 
@@ -650,6 +655,9 @@ def generate(out_dir: str | Path, cfg: SynthConfig | None = None,
     body = S.humanoid(cfg.height)
     meta = scene_meta(cfg)
     clips = clip_poses(cfg, body)
+    h = meta["sim"]["size"] / meta["sim"]["resolution"] / round(cfg.gt_particles_per_cell ** (1 / 3))
+    soft_tissue_gate(body, S.body_points(body, meta["body"]["simulated_bones"], h), cfg.soft_layer)  # refused now,
+    # not after the spin clip's render
     with atomic_folder(out, own=DATA_DIR_FILES) as tmp:
         (tmp / "scene.json").write_text(json.dumps(meta, indent=1))
         total = cfg.frames + cfg.novel_frames - 2

@@ -36,9 +36,9 @@ Scene (``[synth]`` of a TOML such as ``examples/recon_anny_cpillow.toml``; :clas
   (finer than the reconstruction's); the simulated bones are those whose skinned vertices come within one grid
   cell of the object in the clip and whose lattice stays in the MPM domain (the rule of the reconstruction's
   :class:`physar.recon.train.Rig`), actuated by the gated PD controller towards their LBS trajectory; with
-  ``soft_layer`` > 0 the particles within that depth of the body's surface are passive soft tissue
-  (:func:`physar.recon.synth.soft_tissue_gate`, :math:`\omega = 0`, seed §4.2), so the skin gives under the
-  contact as flesh does.
+  ``soft_layer`` > 0 the particles within that depth of the body's rest surface get no PD force
+  (:func:`physar.recon.synth.soft_tissue_gate`, :math:`\omega = 0`, seed §4.2): a passive layer that only
+  elasticity and contact move.
 * **Images**: :func:`physar.recon.pointrender.render_spheres` (z-buffered shaded spheres, not Gaussians) of the
   fine object particles on the object's surface layer, the simulated body particles and samples of anny's skinned
   surface (area-uniform, ``body_spacing`` apart on average); a second flat-shaded pass gives per-pixel labels
@@ -95,6 +95,7 @@ from physar.recon.synth import (
     load_section_config,
     sim_walls,
     simulate_clip,
+    soft_tissue_gate,
 )
 from physar.skinning import SMPL_JOINTS, SMPL_PARENTS, SMPL_TO_BODY, load_body
 
@@ -153,9 +154,10 @@ class AnnySceneConfig(BaseModel):
     density: float = Field(200.0, gt=0, description="object density [kg/m^3]")
     human_E: float = Field(1.0e4, gt=0, description="Young's modulus of the simulated body [Pa]")
     human_density: float = Field(1000.0, gt=0, description="density of the simulated body [kg/m^3]")
-    soft_layer: float = Field(0.0, ge=0, description="depth of the body's soft tissue [m]: simulated body "
-                              "particles within it of the body's surface are passive (omega = 0, moved by "
-                              "elasticity and contact only, seed §4.2); 0: the whole simulated body is driven")
+    soft_layer: float = Field(0.0, ge=0, description="passive layer of the simulated body [m]: particles within "
+                              "soft_layer of the body's rest surface get no PD force (omega = 0; moved by "
+                              "elasticity and contact only, physar.recon.synth.soft_tissue_gate); 0: the whole "
+                              "simulated body is driven")
     kp: float = Field(3.0e3, ge=0, description="PD gain of the truth [1/s^2]")
     kd: float = Field(110.0, ge=0, description="PD gain of the truth [1/s]")
     domain_size: float = Field(0.6, gt=0, description="MPM domain side [m]")
@@ -541,6 +543,7 @@ def generate_anny(out_dir, cfg: AnnySceneConfig | None = None,
     meta["body"]["simulated_bones"] = simulated_bones(body, meta, [poses[""], poses["novel"]], h)
     if not meta["body"]["simulated_bones"]:
         raise ConfigError("no bone of anny reaches the object: check elbow_out / elbow_forward / gap")
+    soft_tissue_gate(body, S.body_points(body, meta["body"]["simulated_bones"], h), cfg.soft_layer)  # refused now
     Xb = surface_samples(body, cfg.body_spacing, meta["body"]["simulated_bones"], cfg.seed)
     bare = np.isin(body.owner(torch.as_tensor(Xb)).numpy(), arm_bone_ids(body))  # hands and forearms: skin
     col_b = np.where(bare[:, None], SKIN, SLEEVE)

@@ -363,6 +363,15 @@ def test_recon_synth_replaces_only_its_own_previous_scene(ws, data):
     assert_refused(invoke("recon", "synth", "-o", old, "-c", cfg), "mine.txt", before, ws)
 
 
+def test_recon_synth_refuses_a_soft_layer_deeper_than_the_body(ws):
+    # mutant: the check left to the dynamic clip (spin clip rendered first), or the file not named
+    cfg = ws / "soft.toml"
+    cfg.write_text((EXAMPLES / "recon_tiny.toml").read_text().replace("[synth]\n", "[synth]\nsoft_layer = 0.2\n", 1))
+    before = snapshot(ws)
+    r = invoke("recon", "synth", "-o", ws / "scene", "-c", cfg)
+    assert_refused(r, "soft.toml: synth.soft_layer = 0.2 m", before, ws)
+
+
 # ------------------------------------------------------------------------------------------------ divergence
 def test_symplectic_euler_divergence_stops_with_valid_files(ws):
     # mutant: only NaN checked (the runaway trajectory, 1e216 J, written with exit 0), or nothing written

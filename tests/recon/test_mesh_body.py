@@ -192,3 +192,20 @@ def test_body_selection_in_scene_json(anny):
             S.load_body({"body": body}, "data/scene.json")
         msg = str(e.value)
         assert "\n" not in msg and msg.startswith("data/scene.json") and frag in msg, msg
+
+
+def test_soft_tissue_gate_on_the_mesh_body(anny):
+    """The truth's passive layer (physar.recon.synth.soft_tissue_gate) on anny's forearm lattice: a particle is
+    driven iff trimesh's distance from it to the closed mesh exceeds the layer's depth (the lattice is of points
+    inside the mesh: test_lattice_volume_of_anny_matches_the_mesh_volume). Mutants caught: layer and core
+    swapped, depth ignored."""
+    from physar.recon.synth import soft_tissue_gate
+
+    X = S.body_points(anny, ["lowerarm01.L", "lowerarm02.L", "wrist.L"], 0.008)
+    m = trimesh.Trimesh(anny.vertices.numpy(), anny.faces.numpy(), process=False)
+    depth = trimesh.proximity.closest_point(m, X)[1]
+    for d in (0.004, 0.01):
+        g = soft_tissue_gate(anny, X, d)
+        clear = np.abs(depth - d) > 1e-6  # trimesh ~1e-8 m
+        np.testing.assert_array_equal(g[clear], (depth[clear] > d).astype(float))
+        assert 0.1 < g.mean() < 0.9

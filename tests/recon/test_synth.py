@@ -245,7 +245,7 @@ def test_soft_layer_reaches_the_truths_controller(monkeypatch):
     """``soft_layer`` = d makes the truth's gated PD controller drive only the forearm particles deeper than d
     (depth written out in this test from the capsules), the same gate in every frame, none on the object; 0 drives
     them all. Mutants caught: soft_layer not passed to the controller, the gate applied to the object, the layer
-    driven and the core passive."""
+    driven and the core passive, the gate taken at the first frame's posed points instead of the rest points."""
     seen = []
 
     class Spy(Y.Control):
@@ -262,6 +262,9 @@ def test_soft_layer_reaches_the_truths_controller(monkeypatch):
     Xh = S.body_points(body, meta["body"]["simulated_bones"], h)
     layer = _capsule_depth(body, Xh) <= 0.01
     assert 0.1 < layer.mean() < 0.9
+    shift = np.array([0.0, 0.0, 0.012])  # the clip's first pose off the rest pose: the gate is of the rest points
+    poses = {**poses, "root_translation": poses["root_translation"] + shift}
+    assert np.any((_capsule_depth(body, Xh + shift) <= 0.01) != layer)
     for d in (0.0, 0.01):
         seen.clear()
         out = Y.simulate_clip(cfg.model_copy(update={"soft_layer": d}), meta, body, poses)
