@@ -12,11 +12,22 @@ added to the output of the first hidden layer.  The last layer is zero-initialis
 is meaningful):
 
 * :math:`\mathcal{E}_\theta`: Cauchy stress residual
-  :math:`\sigma_\theta = s_\sigma \operatorname{sym}(\operatorname{reshape}(\mathrm{out}, 3, 3))` (Pa),
-  :math:`s_\sigma` = ``stress_scale``; it enters the MPM force as the Kirchhoff stress :math:`J \sigma_\theta`
-  (symmetric, so angular momentum stays conserved);
+  :math:`\sigma_\theta = s_\sigma J^{-1} F \operatorname{sym}(O) F^\top` (Pa), :math:`O` =
+  reshape(out, 3, 3), :math:`s_\sigma` = ``stress_scale``: the network gives a second Piola-Kirchhoff stress
+  in the material frame, pushed forward; it enters the MPM force as the Kirchhoff stress
+  :math:`J \sigma_\theta = s_\sigma F \operatorname{sym}(O) F^\top` (symmetric, so angular momentum stays
+  conserved);
 * :math:`\mathcal{P}_\theta`: deformation-gradient residual
-  :math:`s_F \operatorname{reshape}(\mathrm{out}, 3, 3)` (dimensionless), :math:`s_F` = ``F_scale``.
+  :math:`s_F\, F_\text{trial} \operatorname{sym}(O)` (dimensionless), :math:`s_F` = ``F_scale``: a flow in
+  the material frame, the form of an isotropic return map (:math:`F = F_\text{trial} V e^{\Delta\epsilon}
+  V^\top`).
+
+Both are frame-indifferent, as NCLaw's "physics-aware" modules that seed §4.3 builds on: the features are
+invariant under a rotation :math:`Q` of the deformed state (:math:`F \to QF`), and the outputs turn with it,
+:math:`\sigma_\theta(QF) = Q \sigma_\theta(F) Q^\top`, :math:`\mathcal{P}_\theta(QF) = Q
+\mathcal{P}_\theta(F)`. (``objective=False`` keeps physar's form before 2026-11-29, :math:`s_\sigma
+\operatorname{sym}(O)` and :math:`s_F O` in the world frame, which a rigid rotation of the deformed body
+does not turn: only for models fitted with it.) Near :math:`F = I` the two forms agree to first order.
 
 The singular values come from Warp's ``svd3`` (finite gradients at :math:`F = I`, unlike
 ``torch.linalg.svd``).
@@ -96,8 +107,10 @@ class NeuralResidual(nn.Module):
     """The pair (E_theta, P_theta) of Eq. (8); either may be disabled (None)."""
 
     def __init__(self, elastic: bool = True, plastic: bool = True, latent_dim: int = 64,
-                 stress_scale: float = 1.0e4, F_scale: float = 1.0e-3, eps: float = 1.0e-3, rest_free: bool = False):
+                 stress_scale: float = 1.0e4, F_scale: float = 1.0e-3, eps: float = 1.0e-3, rest_free: bool = False,
+                 objective: bool = True):
         super().__init__()
+        self.objective = bool(objective)  # outputs in the material frame, pushed forward by F (module docstring)
         self.eps = float(eps)  # Eq. 12 threshold on the unit network output
         self.rest_free = bool(rest_free)  # O(F) - O(I): no residual on undeformed material
         self.elastic = ResidualMLP(latent_dim, latent_dim, stress_scale) if elastic else None
@@ -105,13 +118,20 @@ class NeuralResidual(nn.Module):
         self.latent_dim = latent_dim
 
     def stress(self, F, sv, l_e, truncate: bool = False):
-        """Cauchy residual sigma_theta (N, 3, 3), symmetrised, Pa; ``truncate``: Eq. 12 (inference)."""
+        """Cauchy residual sigma_theta (N, 3, 3), Pa (module docstring); ``truncate``: Eq. 12 (inference)."""
         out = self.elastic(invariant_features(F, sv), l_e, self.eps if truncate else None, self.rest_free)
-        return 0.5 * (out + out.transpose(1, 2))
+        out = 0.5 * (out + out.transpose(1, 2))
+        if not self.objective:
+            return out
+        return F @ out @ F.transpose(1, 2) / torch.linalg.det(F)[:, None, None]
 
     def deformation(self, F_trial, sv, l_p, truncate: bool = False):
-        """Residual added to the projected deformation gradient, (N, 3, 3); ``truncate``: Eq. 12 (inference)."""
-        return self.plastic(invariant_features(F_trial, sv), l_p, self.eps if truncate else None, self.rest_free)
+        """Residual added to the projected deformation gradient, (N, 3, 3) (module docstring); ``truncate``:
+        Eq. 12 (inference)."""
+        out = self.plastic(invariant_features(F_trial, sv), l_p, self.eps if truncate else None, self.rest_free)
+        if not self.objective:
+            return out
+        return F_trial @ (0.5 * (out + out.transpose(1, 2)))
 
 
 def regulariser(nets: NeuralResidual | None, omega: torch.Tensor | None, F=None, l_e=None, F_trial=None, l_p=None,

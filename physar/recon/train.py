@@ -223,6 +223,9 @@ class TrainConfig(BaseModel):
     residual_rest_free: bool = Field(False, description="with residual: subtract each network's output at F = I "
                                      "(same latent), so the residual laws neither stress undeformed material nor "
                                      "drift its F (physar's option, not in the seed)")
+    residual_objective: bool = Field(True, description="with residual: frame-indifferent residual laws (material-"
+                                     "frame outputs pushed forward by F, physar.mpm.neural); false: physar's world-"
+                                     "frame form before 2026-11-29 (models fitted before the option load with it)")
     latent_dim: int = Field(16, ge=1, le=MAX_LATENT_DIM, description="size of each particle's latents l_e, l_p (Eq. 8)")
     render_deformation: Literal["none", "state", "positions"] = Field(
         "none", description="deformation gradient that shapes the object's Gaussians whenever the object is "
@@ -598,7 +601,7 @@ class Physics:
 
             torch.manual_seed(cfg.seed)
             nets = NeuralResidual(elastic=True, plastic=cfg.residual_plastic, latent_dim=cfg.latent_dim,
-                                  rest_free=cfg.residual_rest_free)
+                                  rest_free=cfg.residual_rest_free, objective=cfg.residual_objective)
             if cfg.latents:  # small random latents break the symmetry between particles
                 g = torch.Generator().manual_seed(cfg.seed)
                 l_e = 0.1 * torch.randn(rig.no + rig.nh, cfg.latent_dim, dtype=torch.float64, generator=g)
@@ -837,15 +840,18 @@ def _state_from(d: dict, rig: Rig, p: Path) -> FitState:
 def _with_pre_option_defaults(config: dict) -> dict:
     """A stored configuration with the options added since filled in as the run behaved: render_deformation
     "state" (the seed's rule, the only one before the option), learn_omega true, flow_target "all" (the seed's
-    Eq. 10, the only form before the option)."""
-    return {"render_deformation": "state", "learn_omega": True, "flow_target": "all", **config}
+    Eq. 10, the only form before the option), residual_objective false (the world-frame residual laws)."""
+    return {"render_deformation": "state", "learn_omega": True, "flow_target": "all", "residual_objective": False,
+            **config}
 
 
 def _result_fields(config: dict) -> dict:
     """A configuration without the fields its results do not depend on: the devices (CUDA matches the CPU to
     2e-13, benchmarks/RESULTS.md "Gaussians and MPM on CUDA"), so a run may resume, or a model load, on another
-    device; and flow_target when the 3-D flow term is off (lambda_flow = 0)."""
-    drop = _DEVICE_FIELDS + (("flow_target",) if config.get("lambda_flow") == 0 else ())
+    device; flow_target when the 3-D flow term is off (lambda_flow = 0), and residual_objective without the
+    residual laws."""
+    drop = (_DEVICE_FIELDS + (("flow_target",) if config.get("lambda_flow") == 0 else ())
+            + (("residual_objective",) if not config.get("residual") else ()))
     return {k: v for k, v in config.items() if k not in drop}
 
 

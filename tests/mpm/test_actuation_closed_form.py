@@ -5,7 +5,8 @@ References are closed forms, not physar: one free particle under a constant forc
 x_T = x_0 + T dt v_0 + dt^2 f/m T (T + 1)/2 for the symplectic update of the G2P step), the exact momentum
 balance of P2G/G2P for a few particles (sum_p m_p v_p changes by T dt sum_p f_p), and the APIC affine
 velocity of one particle after one substep, C' = -(4 dt V / (m dx^2)) tau (quadratic B-splines: sum_i w_i
-(x_i - x_p)(x_i - x_p)^T = dx^2/4 I), with tau = J (sigma_expert + sigma_theta) written out below.
+(x_i - x_p)(x_i - x_p)^T = dx^2/4 I), with tau = J (sigma_expert + sigma_theta) written out below; the
+residual laws' frame indifference against a rotation applied by hand.
 """
 
 import numpy as np
@@ -104,7 +105,7 @@ def test_held_pd_force_momentum_balance_of_a_few_particles():
     far[omega == 0] += 0.3  # references of gated-off particles must not matter
     for xr in (x_ref, far):
         p = Params(E=t(model.E), nu=t(model.nu), omega=t(omega), x_ref=t(xr), v_ref=t(v_ref), kp=KP, kd=KD)
-        _, (x, v, C, F, _) = simulate(model, t(x0), t(v0), p, 1, F0=t(F0))
+        _, (_, v, _, F, _) = simulate(model, t(x0), t(v0), p, 1, F0=t(F0))
         mom = (m[:, None] * v.numpy()).sum(0)
         np.testing.assert_allclose(mom, p_exp, rtol=1e-10, atol=1e-12)
     assert np.abs(F.numpy() - F0).max() > 1e-5  # the elastic stress did act (internal forces sum to zero)
@@ -127,10 +128,11 @@ def _expert_tau(F0, E, nu):
     return np.diag(2 * mu * (s - 1) * s + la * (J - 1) * J), J
 
 
-def _bias_net(b_e, b_p, stress_scale=50.0, F_scale=1e-3):
+def _bias_net(b_e, b_p, stress_scale=50.0, F_scale=1e-3, objective=True):
     """Residual networks whose output is the constant bias (last layer weights zero): sigma_theta =
-    stress_scale sym(b_e), P_theta = F_scale b_p."""
-    nets = NeuralResidual(latent_dim=8, stress_scale=stress_scale, F_scale=F_scale)
+    stress_scale F sym(b_e) F^T / J, P_theta = F_scale F_trial sym(b_p) (objective=False: stress_scale sym(b_e),
+    F_scale b_p)."""
+    nets = NeuralResidual(latent_dim=8, stress_scale=stress_scale, F_scale=F_scale, objective=objective)
     with torch.no_grad():
         nets.elastic.l3.bias.copy_(torch.tensor(np.ravel(b_e), dtype=torch.float64))
         nets.plastic.l3.bias.copy_(torch.tensor(np.ravel(b_p), dtype=torch.float64))
@@ -141,25 +143,40 @@ B_E = np.array([[0.3, -0.8, 0.1], [0.2, -0.4, 0.5], [0.6, 0.0, 0.9]])  # not sym
 B_P = np.array([[0.5, 0.1, -0.2], [0.0, -0.7, 0.3], [0.4, 0.2, 0.1]])
 
 
-def test_residual_stress_and_plastic_residual_in_one_substep():
+def _sym(a):
+    return 0.5 * (a + a.T)
+
+
+@pytest.mark.parametrize("objective", [True, False])
+def test_residual_stress_and_plastic_residual_in_one_substep(objective):
     """sigma = E(F, E, nu) + E_theta, F = P(F_trial) + P_theta (seed Eq. 8, identity plasticity P): C after one
-    substep equals -(4 dt V/(m dx^2)) J (sigma_expert + sigma_theta) and F = (I + dt C) F_0 + P_theta.
-    Mutants caught: sign of the residual stress flipped, residual dropped, the J factor of tau = J sigma
-    dropped, the symmetrisation dropped, sign of the plastic residual flipped or the plastic residual dropped."""
-    F0 = np.diag([1.10, 0.95, 1.03])
+    substep equals -(4 dt V/(m dx^2)) J (sigma_expert + sigma_theta) and F = F_trial + P_theta, F_trial =
+    (I + dt C) F_0, with J sigma_theta = s F_0 sym(b_e) F_0^T and P_theta = s_F F_trial sym(b_p) (objective) or
+    J s sym(b_e) and s_F b_p (the world-frame form kept for old models). Mutants caught: sign of the residual
+    stress flipped, residual dropped, the J factor of tau = J sigma dropped, the symmetrisation dropped, the
+    push-forward by F dropped, sign of the plastic residual flipped or the plastic residual dropped, F_0 in
+    place of F_trial."""
+    F0 = np.diag([1.10, 0.95, 1.03]) + np.array([[0, 0.04, 0], [0, 0, -0.03], [0.02, 0, 0]])  # not diagonal
+    F0 = np.diag([1.10, 0.95, 1.03]) if not objective else F0
     model, (x, v, C, F, Jp) = _one_particle(F0)
-    nets = _bias_net(B_E, B_P)
+    nets = _bias_net(B_E, B_P, objective=objective)
     p = Params(E=torch.tensor(model.E), nu=torch.tensor(model.nu))
     _, _, C1, F1, _ = substep(model, x, v, C, F, Jp, p, nets=nets)
-    tau_ex, J = _expert_tau(F0, model.E[0], model.nu[0])
-    sig_th = 50.0 * 0.5 * (B_E + B_E.T)
     c = -4 * model.dt * model.volume[0] / (model.mass[0] * model.dx**2)
-    C_exp = c * (tau_ex + J * sig_th)
+    if objective:  # the expert stress from the substep without residuals (its closed form is checked below)
+        _, _, C_ex, _, _ = substep(model, x, v, C, F, Jp, p)
+        tau_th = 50.0 * F0 @ _sym(B_E) @ F0.T
+        C_exp = C_ex.detach().numpy()[0] + c * tau_th
+    else:
+        tau_ex, J = _expert_tau(F0, model.E[0], model.nu[0])
+        tau_th = J * 50.0 * _sym(B_E)
+        C_exp = c * (tau_ex + tau_th)
     np.testing.assert_allclose(C1.detach().numpy()[0], C_exp, rtol=1e-9, atol=1e-12)
-    F_exp = (np.eye(3) + model.dt * C_exp) @ F0 + 1e-3 * B_P
+    Ft = (np.eye(3) + model.dt * C_exp) @ F0
+    F_exp = Ft + 1e-3 * (Ft @ _sym(B_P) if objective else B_P)
     np.testing.assert_allclose(F1.detach().numpy()[0], F_exp, rtol=1e-12, atol=1e-14)
     # the residual is not negligible here (a dropped residual would fail the checks above)
-    assert np.abs(c * J * sig_th).max() > 0.05 * np.abs(c * tau_ex).max()
+    assert np.abs(c * tau_th).max() > 0.05 * np.abs(C_exp).max()
 
 
 def test_eq12_truncation_zeroes_small_outputs_at_inference():
@@ -168,17 +185,18 @@ def test_eq12_truncation_zeroes_small_outputs_at_inference():
     F0 = np.diag([1.10, 0.95, 1.03])
     model, (x, v, C, F, Jp) = _one_particle(F0)
     p = Params(E=torch.tensor(model.E), nu=torch.tensor(model.nu))
-    tau_ex, J = _expert_tau(F0, model.E[0], model.nu[0])
+    tau_ex, _ = _expert_tau(F0, model.E[0], model.nu[0])
     c = -4 * model.dt * model.volume[0] / (model.mass[0] * model.dx**2)
     for norm, kept in ((0.9e-3, False), (1.1e-3, True)):
         b_e, b_p = B_E / np.linalg.norm(B_E) * norm, B_P / np.linalg.norm(B_P) * norm
         nets = _bias_net(b_e, b_p, stress_scale=5.0e4, F_scale=10.0)
-        sig_th = 5.0e4 * 0.5 * (b_e + b_e.T)
+        tau_th = 5.0e4 * F0 @ _sym(b_e) @ F0.T
         for truncate in (False, True):
             _, _, C1, F1, _ = substep(model, x, v, C, F, Jp, p, nets=nets, truncate=truncate)
             on = kept or not truncate
-            C_exp = c * (tau_ex + (J * sig_th if on else 0.0))
-            F_exp = (np.eye(3) + model.dt * C_exp) @ F0 + (10.0 * b_p if on else 0.0)
+            C_exp = c * (tau_ex + (tau_th if on else 0.0))
+            Ft = (np.eye(3) + model.dt * C_exp) @ F0
+            F_exp = Ft + (10.0 * Ft @ _sym(b_p) if on else 0.0)
             np.testing.assert_allclose(C1.detach().numpy()[0], C_exp, rtol=1e-9, atol=1e-12)
             np.testing.assert_allclose(F1.detach().numpy()[0], F_exp, rtol=1e-12, atol=1e-14)
 
@@ -200,11 +218,12 @@ def test_regulariser_is_eq11_by_hand(with_plastic):
     omega = torch.tensor([0.0, 0.5, 1.0, 1.5, 0.2], dtype=torch.float64)
     # the latents enter the hidden layer, not the output (last layer weights are zero): outputs stay the biases
     r = regulariser(nets, omega, F=F, l_e=l_e, F_trial=F, l_p=l_p, lam_law=10.0, lam_omega=0.1, lam_feat=1.0)
-    sig = 2.0 * 0.5 * (B_E + B_E.T)
+    F1 = np.diag([1.1, 0.9, 1.0])
+    sig = 2.0 * F1 @ _sym(B_E) @ F1 / np.linalg.det(F1)  # the Cauchy residual, objective form
     exp = 10.0 * np.sqrt(n) * np.linalg.norm(sig) + 0.1 * np.linalg.norm(omega.numpy())
     exp += np.linalg.norm(l_e.numpy())
     if with_plastic:
-        exp += 10.0 * np.sqrt(n) * np.linalg.norm(3.0 * B_P) + np.linalg.norm(l_p.numpy())
+        exp += 10.0 * np.sqrt(n) * np.linalg.norm(3.0 * F1 @ _sym(B_P)) + np.linalg.norm(l_p.numpy())
     assert float(r.detach()) == pytest.approx(exp, rel=1e-12)
 
 
@@ -240,9 +259,42 @@ def test_rest_free_residual_leaves_undeformed_material_alone():
     sv = torch.tensor([[1.10, 0.95, 1.03]], dtype=torch.float64)
     I, one = torch.eye(3, dtype=torch.float64)[None], torch.ones(1, 3, dtype=torch.float64)
     with torch.no_grad():
-        np.testing.assert_allclose(rf.stress(Fd, sv, l_e), plain.stress(Fd, sv, l_e) - plain.stress(I, one, l_e),
+        J = torch.linalg.det(Fd)[:, None, None]  # the value at I is pushed forward by F like the rest
+        np.testing.assert_allclose(rf.stress(Fd, sv, l_e),
+                                   plain.stress(Fd, sv, l_e) - Fd @ plain.stress(I, one, l_e) @ Fd.mT / J,
                                    rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(rf.deformation(Fd, sv, l_p),
-                                   plain.deformation(Fd, sv, l_p) - plain.deformation(I, one, l_p), rtol=1e-12,
+                                   plain.deformation(Fd, sv, l_p) - Fd @ plain.deformation(I, one, l_p), rtol=1e-12,
                                    atol=1e-15)
         assert torch.linalg.matrix_norm(plain.stress(I, one, l_e)).item() > 1.0  # the subtracted part matters
+
+
+def _rotation(axis, angle):
+    k = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def test_residual_laws_are_frame_indifferent():
+    """Turning a deformed particle rigidly (F -> Q F, Q a rotation written out by Rodrigues' formula) turns the
+    residual laws' outputs with it: sigma_theta(QF) = Q sigma_theta(F) Q^T and P_theta(QF) = Q P_theta(F), for
+    random networks and latents (NCLaw's physics-aware modules, which seed §4.3 builds on). Mutants caught: the
+    world-frame form physar had before 2026-11-29 (kept as objective=False: fails here, checked), the
+    push-forward by F^T dropped on either side."""
+    g = torch.Generator().manual_seed(5)
+    l_e = 0.3 * torch.randn(4, 8, dtype=torch.float64, generator=g)
+    l_p = 0.3 * torch.randn(4, 8, dtype=torch.float64, generator=g)
+    rng = np.random.default_rng(0)
+    F = torch.tensor(np.eye(3) + 0.15 * rng.standard_normal((4, 3, 3)))
+    Q = torch.tensor(_rotation([0.3, -0.5, 0.8], 0.9))
+    sv = torch.linalg.svdvals
+    with torch.no_grad():
+        for objective, holds in ((True, True), (False, False)):
+            nets = _random_net(False)
+            nets.objective = objective
+            s, s_rot = nets.stress(F, sv(F), l_e), nets.stress(Q @ F, sv(Q @ F), l_e)
+            d, d_rot = nets.deformation(F, sv(F), l_p), nets.deformation(Q @ F, sv(Q @ F), l_p)
+            ok_s = torch.allclose(s_rot, Q @ s @ Q.T, rtol=1e-9, atol=1e-9 * float(s.abs().max()))
+            ok_d = torch.allclose(d_rot, Q @ d, rtol=1e-9, atol=1e-9 * float(d.abs().max()))
+            assert (ok_s, ok_d) == (holds, holds), (objective, ok_s, ok_d)
+            assert float(s.abs().max()) > 1.0 and float(d.abs().max()) > 1e-4  # not trivially zero

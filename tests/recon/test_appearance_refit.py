@@ -205,6 +205,27 @@ def test_a_checkpoint_from_before_flow_target_resumes(refit_run, tmp_path):
     assert _model_without(run, "flow_target", tmp_path).rig.cfg.flow_target == "all"
 
 
+def test_a_checkpoint_from_before_residual_objective_resumes(refit_run, tmp_path):
+    """A checkpoint without residual_objective (made before the option): without residual laws it changes nothing
+    and the run resumes under today's default; with them it ran the world-frame form and resumes only with
+    residual_objective = false. Mutants caught: the old form not filled in (old checkpoints refused or resumed
+    with the other law), the option compared when there are no residual laws."""
+    from physar.errors import ConfigError
+    from physar.recon.train import _load_checkpoint
+
+    run, cfg = refit_run
+    d = torch.load(run / "checkpoint.pt", weights_only=True)
+    del d["config"]["residual_objective"]
+    torch.save(d, tmp_path / "checkpoint.pt")
+    assert _load_checkpoint(tmp_path, cfg, d["data_hash"])
+    d["config"]["residual"] = True
+    torch.save(d, tmp_path / "checkpoint.pt")
+    on = cfg.model_copy(update={"residual": True})
+    assert _load_checkpoint(tmp_path, on.model_copy(update={"residual_objective": False}), d["data_hash"])
+    with pytest.raises(ConfigError, match="another configuration"):
+        _load_checkpoint(tmp_path, on, d["data_hash"])
+
+
 def _model_without(run, key, tmp_path):
     """RUN/model.npz copied to tmp_path with ``key`` removed from its stored configuration (a model from before that
     option), loaded."""

@@ -104,7 +104,9 @@ def test_physics_only_variant_reuses_stages(fitted, tiny_scene, tmp_path):
 
 def test_rest_free_option_reaches_the_residual_laws(fitted, tiny_scene, tmp_path):
     """[train] residual_rest_free builds (and reloads) residual laws that vanish at F = I for every particle's
-    latent (issue 17). Mutant caught: the option not passed to NeuralResidual (or lost when a model is loaded)."""
+    latent (issue 17); residual_objective reaches them too, and a model from before that option loads with the
+    world-frame form it was fitted with. Mutants caught: either option not passed to NeuralResidual (or lost when
+    a model is loaded), the old form not filled in for old models."""
     import torch
 
     run, cfg, _ = fitted
@@ -112,7 +114,15 @@ def test_rest_free_option_reaches_the_residual_laws(fitted, tiny_scene, tmp_path
            "lambda_law": 0.0}
     fit(tiny_scene, tmp_path / "rf", cfg.model_copy(update=upd), reuse=run)
     ph = Reconstruction.load(tmp_path / "rf").phys
-    assert ph.nets.rest_free
+    assert ph.nets.rest_free and ph.nets.objective
+    # a model fitted before residual_objective (no such key in its configuration) loads with the world-frame laws
+    with np.load(tmp_path / "rf" / "model.npz", allow_pickle=False) as z:
+        arrays = dict(z)
+    conf = json.loads(str(arrays["config_json"]))
+    del conf["residual_objective"]
+    arrays["config_json"] = np.array(json.dumps(conf))
+    np.savez(tmp_path / "old.npz", **arrays)
+    assert not Reconstruction.load(tmp_path / "old.npz").phys.nets.objective
     n = ph.l_e.shape[0]
     I, one = torch.eye(3, dtype=torch.float64).repeat(n, 1, 1), torch.ones(n, 3, dtype=torch.float64)
     with torch.no_grad():
