@@ -19,15 +19,19 @@ is meaningful):
   conserved);
 * :math:`\mathcal{P}_\theta`: deformation-gradient residual
   :math:`s_F\, F_\text{trial} \operatorname{sym}(O)` (dimensionless), :math:`s_F` = ``F_scale``: a flow in
-  the material frame, the form of an isotropic return map (:math:`F = F_\text{trial} V e^{\Delta\epsilon}
-  V^\top`).
+  the material frame (below), added to the expert return map's :math:`\mathcal{P}(F_\text{trial})`.
 
-Both are frame-indifferent, as NCLaw's "physics-aware" modules that seed §4.3 builds on: the features are
-invariant under a rotation :math:`Q` of the deformed state (:math:`F \to QF`), and the outputs turn with it,
-:math:`\sigma_\theta(QF) = Q \sigma_\theta(F) Q^\top`, :math:`\mathcal{P}_\theta(QF) = Q
-\mathcal{P}_\theta(F)`. (``objective=False`` keeps physar's form before 2026-11-29, :math:`s_\sigma
-\operatorname{sym}(O)` and :math:`s_F O` in the world frame, which a rigid rotation of the deformed body
-does not turn: only for models fitted with it.) Near :math:`F = I` the two forms agree to first order.
+Both are frame-indifferent: the features are invariant under a rotation :math:`Q` of the deformed state
+(:math:`F \to QF`) and the outputs turn with it, :math:`\sigma_\theta(QF) = Q \sigma_\theta(F) Q^\top`,
+:math:`\mathcal{P}_\theta(QF) = Q \mathcal{P}_\theta(F)`. Seed §4.3 calls its modules "physics-aware" and
+takes NCLaw's architecture (App. A.2); NCLaw's public code turns its outputs with the polar rotation
+:math:`R` (:math:`P = R \operatorname{sym}(O)`, :math:`\Delta F = \alpha R \operatorname{sym}(O)`); the push-
+forward by :math:`F` here is physar's choice (no SVD gradients, and a symmetric Kirchhoff stress). The plastic
+form generalises, to first order, an isotropic return map :math:`F = F_\text{trial} V e^{\Delta\epsilon}
+V^\top`. ``objective=False`` keeps physar's form before 2026-11-29 (:math:`s_\sigma \operatorname{sym}(O)`
+and :math:`s_F O` in the world frame, which a rigid rotation of the deformed body does not turn), only for
+models fitted with it; the two forms differ already at first order about :math:`F = I` unless
+:math:`O(I) = 0` and :math:`O` is symmetric.
 
 The singular values come from Warp's ``svd3`` (finite gradients at :math:`F = I`, unlike
 ``torch.linalg.svd``).
@@ -117,13 +121,21 @@ class NeuralResidual(nn.Module):
         self.plastic = ResidualMLP(latent_dim, latent_dim, F_scale) if plastic else None
         self.latent_dim = latent_dim
 
-    def stress(self, F, sv, l_e, truncate: bool = False):
-        """Cauchy residual sigma_theta (N, 3, 3), Pa (module docstring); ``truncate``: Eq. 12 (inference)."""
+    def kirchhoff(self, F, sv, l_e, truncate: bool = False):
+        """Kirchhoff residual J sigma_theta (N, 3, 3), Pa (module docstring): s F sym(O) F^T, or J s sym(O) for
+        the world-frame form; ``truncate``: Eq. 12 (inference). No division by J (finite for any F)."""
         out = self.elastic(invariant_features(F, sv), l_e, self.eps if truncate else None, self.rest_free)
         out = 0.5 * (out + out.transpose(1, 2))
         if not self.objective:
-            return out
-        return F @ out @ F.transpose(1, 2) / torch.linalg.det(F)[:, None, None]
+            return torch.linalg.det(F)[:, None, None] * out
+        return F @ out @ F.transpose(1, 2)
+
+    def stress(self, F, sv, l_e, truncate: bool = False):
+        """Cauchy residual sigma_theta = kirchhoff / J (N, 3, 3), Pa; ``truncate``: Eq. 12 (inference)."""
+        if not self.objective:  # sym(O) itself, without a J / J round trip
+            out = self.elastic(invariant_features(F, sv), l_e, self.eps if truncate else None, self.rest_free)
+            return 0.5 * (out + out.transpose(1, 2))
+        return self.kirchhoff(F, sv, l_e, truncate) / torch.linalg.det(F)[:, None, None]
 
     def deformation(self, F_trial, sv, l_p, truncate: bool = False):
         """Residual added to the projected deformation gradient, (N, 3, 3) (module docstring); ``truncate``:

@@ -234,8 +234,7 @@ def substep(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref=None, v_ref=None,
     (tau,) = _WarpOp.apply(_stress_op, model, F, Jp, p.E, p.nu, _fiber_E(model, p))
     if nets is not None and nets.elastic is not None:
         (sv,) = _WarpOp.apply(_sv_op, model, F)
-        J = torch.linalg.det(F)
-        tau = tau + J[:, None, None] * nets.stress(F, sv, p.l_e, truncate=truncate)
+        tau = tau + nets.kirchhoff(F, sv, p.l_e, truncate=truncate)
     if f_hold is not None or p.omega is None or x_ref is None:
         omega, x_ref, v_ref = z(n), z(n, 3), z(n, 3)
         kp = kd = 0.0

@@ -862,8 +862,11 @@ def _load_checkpoint(run_dir: Path, cfg: TrainConfig, data_hash: str) -> dict | 
     if not p.exists():
         return None
     d = _read_checkpoint(p)
-    if _result_fields(_with_pre_option_defaults(d["config"])) != _result_fields(cfg.model_dump()):
-        raise ConfigError(f"{p}: checkpoint was made with another configuration; use a new --out folder "
+    old, new = _result_fields(_with_pre_option_defaults(d["config"])), _result_fields(cfg.model_dump())
+    if old != new:
+        diff = ", ".join(f"{k} = {old.get(k, '(none)')!r} there, {new.get(k, '(none)')!r} now"
+                         for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k))
+        raise ConfigError(f"{p}: checkpoint was made with another configuration ({diff}); use a new --out folder "
                           "or --restart")
     if d.get("data_hash") != data_hash:
         raise ConfigError(f"{p}: checkpoint was made from another DATA_DIR (or its files changed); use a new "

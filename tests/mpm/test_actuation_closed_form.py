@@ -179,6 +179,30 @@ def test_residual_stress_and_plastic_residual_in_one_substep(objective):
     assert np.abs(c * tau_th).max() > 0.05 * np.abs(C_exp).max()
 
 
+def test_plastic_residual_acts_on_the_trial_state_after_a_return_map():
+    """With an expert return map that changes F (Hencky + von Mises, a yield stress far below the stress here),
+    Eq. 8 gives F = P(F_trial) + s_F F_trial sym(b_p): the residual is taken of F_trial, not of the projected
+    F. P(F_trial) is the same substep's F without residual laws (the elastic residual is zero, so F_trial is
+    unchanged). Mutant caught: the residual evaluated on P(F_trial)."""
+    from physar.mpm.constitutive import ELASTIC_HENCKY, PLASTIC_VON_MISES
+
+    F0 = np.diag([1.10, 0.95, 1.03]) + np.array([[0, 0.04, 0], [0, 0, -0.03], [0.02, 0, 0]])
+    model = _model(1, T=1, mass=0.2, E=2.0e3, dt=1.0e-4)
+    model = MPMModel(**{**{k: getattr(model, k) for k in ("size", "resolution", "dt", "substeps", "mass", "volume",
+                                                         "E", "nu", "body", "gravity")},
+                        "elastic": np.array([ELASTIC_HENCKY]), "plastic": np.array([PLASTIC_VON_MISES]),
+                        "plastic_params": np.array([[5.0, 0.0, 0.0, 0.0]])})
+    _, (x, v, C, F, Jp) = _one_particle(F0)
+    p = Params(E=torch.tensor(model.E), nu=torch.tensor(model.nu))
+    _, _, C0, P0, _ = substep(model, x, v, C, F, Jp, p)
+    _, _, C1, F1, _ = substep(model, x, v, C, F, Jp, p, nets=_bias_net(np.zeros((3, 3)), B_P, F_scale=0.05))
+    np.testing.assert_allclose(C1.detach().numpy(), C0.detach().numpy(), rtol=0, atol=0)
+    Ft = (np.eye(3) + model.dt * C0.detach().numpy()[0]) @ F0
+    P = P0.detach().numpy()[0]
+    assert np.abs(P - Ft).max() > 1e-3  # the return map is active
+    np.testing.assert_allclose(F1.detach().numpy()[0], P + 0.05 * Ft @ _sym(B_P), rtol=1e-10, atol=1e-12)
+
+
 def test_eq12_truncation_zeroes_small_outputs_at_inference():
     """Seed Eq. 12: O = 0 where ||O||_Fro < eps (1e-3), only when truncating (inference).  Mutants caught:
     truncation never applied, applied to every output, or applied during training."""
