@@ -13,13 +13,13 @@ simulator is the part the Eq. 10 term should compare.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 import torch
+from diag_per_frame import load_run  # a sibling script: benchmarks/ is on sys.path when run
 
 from physar.recon import scene as S
-from physar.recon.train import Reconstruction, _visible_at, cell_average_truth, load_dataset, simulate_clip
+from physar.recon.train import _visible_at, simulate_clip
 
 
 def errors(x: np.ndarray, X: np.ndarray, gt: np.ndarray, gt0: np.ndarray, ray: np.ndarray, m: np.ndarray):
@@ -34,11 +34,7 @@ def main() -> None:
     ap.add_argument("--out", required=True, help="OUT of bench_recon_pillow.py (OUT/user/data, OUT/RUN)")
     ap.add_argument("--run", required=True, help="RUN_DIR under OUT whose physics and Eq. 9 target are scored")
     a = ap.parse_args()
-    ds = load_dataset(Path(a.out) / "user" / "data")
-    rc = Reconstruction.load(Path(a.out) / a.run)
-    rig = rc.rig
-    gt = cell_average_truth(rig, ds.truth)
-    kin = rc.kinematics(ds.rotations, ds.root_t)
+    ds, rc, rig, gt, kin = load_run(a.out, a.run)
     K, R, t = (torch.as_tensor(v) for v in S.camera_matrices(rig.meta))
     centre = (-(R.T @ t)).numpy()
     sim = {f: xo.numpy() for f, xo, *_ in simulate_clip(rig, rc.phys, kin, ds.n_obs, grad=False)}

@@ -16,17 +16,22 @@ import numpy as np
 from physar.recon.train import Reconstruction, cell_average_truth, load_dataset, simulate_clip
 
 
+def load_run(out: Path, run: str, ds=None):
+    """(dataset, Reconstruction, rig, truth averaged onto the rig's object particles, kinematics) of OUT/RUN,
+    OUT/user/data read once (``ds``) for several runs."""
+    ds = ds or load_dataset(Path(out) / "user" / "data")
+    rc = Reconstruction.load(Path(out) / run)
+    return ds, rc, rc.rig, cell_average_truth(rc.rig, ds.truth), rc.kinematics(ds.rotations, ds.root_t)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="OUT of bench_recon_pillow.py (OUT/user/data, OUT/RUN)")
     ap.add_argument("--runs", required=True, help="comma-separated RUN_DIR names under OUT")
     a = ap.parse_args()
-    ds = load_dataset(Path(a.out) / "user" / "data")
+    ds = None
     for run in a.runs.split(","):
-        rc = Reconstruction.load(Path(a.out) / run)
-        rig = rc.rig
-        gt = cell_average_truth(rig, ds.truth)
-        kin = rc.kinematics(ds.rotations, ds.root_t)
+        ds, rc, rig, gt, kin = load_run(a.out, run, ds)
         n = len(gt)
         sim = {f: xo.numpy() for f, xo, *_ in simulate_clip(rig, rc.phys, kin, n, grad=False)}
         top = rig.Xo[:, 2] > np.percentile(rig.Xo[:, 2], 70)
