@@ -328,6 +328,7 @@ def main() -> None:
           f"{scfg.novel_frames} frames; truth {scfg.gt_particles_per_cell}/cell"
           f"{f', fibres {scfg.fiber_E:g} Pa' if scfg.fiber_E > 0 else ', no fibres'}"
           f"{f', von Mises ({scfg.yield_stress:g} Pa)' if scfg.yield_stress > 0 else ', elastic'}"
+          f"{f', passive body layer {1e3 * scfg.soft_layer:g} mm' if scfg.soft_layer > 0 else ''}"
           f", recon {tcfg.particles_per_cell}/cell")
     print(f"times: generate {t_gen:.0f} s, export+import+check {t_imp:.0f} s, fit+eval {t_fit:.0f} s (train "
           f"{rep['train_seconds']:.0f} s); load average at the end {os.getloadavg()[0]:.2f}\n")
