@@ -24,14 +24,15 @@ from physar.vision.camera import Camera
 W, H = 96, 64
 
 SCRIPT = textwrap.dedent("""
-    import json, signal, sys, time
+    import json, os, signal, sys, time
     from dataclasses import dataclass, field
     import numpy as np
     from physar.ar.runner import run_video
+    from physar.output import stop_requested
     from physar.vision.camera import Camera
 
     signal.signal(signal.SIGINT, signal.default_int_handler)  # not ignored even if the test runner ignores it
-    out, progress, delay = sys.argv[1], sys.argv[2], float(sys.argv[3])
+    out, progress, delay, hold = sys.argv[1], sys.argv[2], float(sys.argv[3]), int(sys.argv[4])
     W, H = 96, 64
 
     @dataclass
@@ -48,7 +49,11 @@ SCRIPT = textwrap.dedent("""
     def process(k, img, draw):
         with open(progress + ".started", "w") as fh:  # frame k has begun its (slow) work
             fh.write(str(k + 1))
-        time.sleep(delay)
+        t = time.monotonic()  # frame `hold` works for up to 60 s, the others for `delay`
+        while time.monotonic() - t < (60.0 if k == hold else delay):
+            time.sleep(0.02)  # short sleeps: the main thread runs a pending Python handler promptly
+            if stop_requested() and not os.path.exists(progress + ".stopped"):
+                open(progress + ".stopped", "w").close()  # the guard has seen a signal
         with open(progress, "w") as fh:
             fh.write(str(k + 1))
         return img, R("tracking", 1.0)
@@ -67,12 +72,13 @@ def _frame(k):
     return img
 
 
-def _start(tmp_path, delay):
+def _start(tmp_path, delay, hold=-1):
     out = tmp_path / "out"
     out.mkdir()
     progress = tmp_path / "progress.txt"
     env = dict(os.environ, PYTHONPATH=os.getcwd())
-    p = subprocess.Popen([sys.executable, "-c", SCRIPT, str(out), str(progress), str(delay)], env=env,
+    p = subprocess.Popen([sys.executable, "-c", SCRIPT, str(out), str(progress), str(delay), str(hold)],
+                         env=env,
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     return p, out, progress
 
@@ -133,15 +139,18 @@ def test_signal_finalises_outputs(tmp_path, sig):
 
 
 def test_second_signal_aborts_without_outputs(tmp_path):
-    # mutant caught: a second Ctrl-C ignored (the run would finish and write) or leaving temporaries behind
-    # both signals go inside frame 1's 3 s of work: the first only asks the loop to stop after that frame, the
-    # second aborts it. (Signalling as soon as frame 0 is done raced with frame 0's own end-of-frame check: a
-    # first signal landing there stopped the loop at once, and it finished cleanly before the second came.)
-    p, out, progress = _start(tmp_path, 3.0)
+    # mutant caught: a second Ctrl-C ignored (frame 1 would end after its 60 s and the run stop cleanly, rc 130)
+    # or leaving temporaries behind. The second signal is sent only once the guard has seen the first: a
+    # process-directed signal may land on another thread (the encoder's) while the main thread sleeps, and
+    # Python runs one handler for two signals still pending then (the child returned 130 once on 2026-11-29).
+    p, out, progress = _start(tmp_path, 0.1, hold=1)
     _wait_rows(p, progress, 1, started=2)
     p.send_signal(signal.SIGINT)
-    time.sleep(1.0)  # still inside frame 1's 3 s; 0.2 s let the two signals coalesce once in a fresh clone
-    # (a pending SIGINT is not queued twice: the child returned 130, a clean stop, on 2026-11-29)
+    stopped = progress.with_name(progress.name + ".stopped")
+    t = time.monotonic()
+    while not stopped.exists() and p.poll() is None and time.monotonic() - t < 60.0:  # a cap against a hang
+        time.sleep(0.02)
+    assert stopped.exists(), "the first SIGINT did not reach the guard"
     p.send_signal(signal.SIGINT)
     p.communicate(timeout=120)
     assert p.returncode not in (0, 130)
