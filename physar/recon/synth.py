@@ -522,10 +522,11 @@ def spin_poses(body, cfg: SynthConfig) -> dict:
 
 
 def simulate_clip(cfg: SynthConfig, meta: dict, body, poses: dict, progress=None, offset: int = 0,
-                  total: int = 0) -> dict:
+                  total: int = 0, gate: np.ndarray | None = None) -> dict:
     """Fine ground-truth MPM run of one clip.  Returns world positions of the object ("xo", (F, No, 3)) and of the
     simulated forearm ("xh", (F, Nh, 3)), the object's rest points "Xo", fields "E", "fiber", "fiber_E", "part"
-    and the particle spacing "h"."""
+    and the particle spacing "h".  ``gate`` (Nh,): :func:`soft_tissue_gate` of the body points, when the caller
+    has it already (computed here otherwise)."""
     sim = meta["sim"]
     origin = np.asarray(sim["origin"])
     dx = sim["size"] / sim["resolution"]
@@ -558,7 +559,11 @@ def simulate_clip(cfg: SynthConfig, meta: dict, body, poses: dict, progress=None
     v0 = np.r_[np.zeros((no, 3)), vref[0]]
     solver = MPMSolver(model)
     st, scratch = model.state(x0, v0), model.state(x0, v0)
-    omega = np.r_[np.zeros(no), soft_tissue_gate(body, Xh, cfg.soft_layer)]
+    if gate is None:
+        gate = soft_tissue_gate(body, Xh, cfg.soft_layer)
+    elif len(gate) != nh:
+        raise ValueError(f"simulate_clip: gate has {len(gate)} entries for {nh} body particles")
+    omega = np.r_[np.zeros(no), gate]
     xs = [x0]
     for f in range(len(rot) - 1):
         ctrl = Control(omega, np.r_[np.zeros((no, 3)), ref[f] - origin], np.r_[np.zeros((no, 3)), vref[f]],
@@ -656,8 +661,8 @@ def generate(out_dir: str | Path, cfg: SynthConfig | None = None,
     meta = scene_meta(cfg)
     clips = clip_poses(cfg, body)
     h = meta["sim"]["size"] / meta["sim"]["resolution"] / round(cfg.gt_particles_per_cell ** (1 / 3))
-    soft_tissue_gate(body, S.body_points(body, meta["body"]["simulated_bones"], h), cfg.soft_layer)  # refused now,
-    # not after the spin clip's render
+    gate = soft_tissue_gate(body, S.body_points(body, meta["body"]["simulated_bones"], h), cfg.soft_layer)  # a bad
+    # layer is refused now, not after the spin clip's render
     with atomic_folder(out, own=DATA_DIR_FILES) as tmp:
         (tmp / "scene.json").write_text(json.dumps(meta, indent=1))
         total = cfg.frames + cfg.novel_frames - 2
@@ -674,7 +679,7 @@ def generate(out_dir: str | Path, cfg: SynthConfig | None = None,
                          tmp / "spin")
         for name, poses in clips.items():
             np.savez(tmp / (f"{name}_poses.npz" if name else "poses.npz"), **poses)
-            r = simulate_clip(cfg, meta, body, poses, progress, offset, total)
+            r = simulate_clip(cfg, meta, body, poses, progress, offset, total, gate=gate)
             xo = r["xo"]
             offset += len(xo) - 1
             frames = _render_clip(cfg, meta, body, poses, xo, r["xh"], r["Xo"], r["h"], tmp / name if name else tmp)

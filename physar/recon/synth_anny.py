@@ -543,7 +543,8 @@ def generate_anny(out_dir, cfg: AnnySceneConfig | None = None,
     meta["body"]["simulated_bones"] = simulated_bones(body, meta, [poses[""], poses["novel"]], h)
     if not meta["body"]["simulated_bones"]:
         raise ConfigError("no bone of anny reaches the object: check elbow_out / elbow_forward / gap")
-    soft_tissue_gate(body, S.body_points(body, meta["body"]["simulated_bones"], h), cfg.soft_layer)  # refused now
+    gate = soft_tissue_gate(body, S.body_points(body, meta["body"]["simulated_bones"], h), cfg.soft_layer)  # a bad
+    # layer is refused now, before anything is rendered
     Xb = surface_samples(body, cfg.body_spacing, meta["body"]["simulated_bones"], cfg.seed)
     bare = np.isin(body.owner(torch.as_tensor(Xb)).numpy(), arm_bone_ids(body))  # hands and forearms: skin
     col_b = np.where(bare[:, None], SKIN, SLEEVE)
@@ -563,7 +564,8 @@ def generate_anny(out_dir, cfg: AnnySceneConfig | None = None,
                 xh = S.skin_sequence(body, Xh, p["rotations"], p["root_translation"])[0]
                 xo = np.broadcast_to(Xo, (len(xh), *Xo.shape))
             else:
-                r = simulate_clip(cfg, meta, body, p, lambda i, n, key=key: prog(key, i, n), 0, len(p["rotations"]) - 1)
+                r = simulate_clip(cfg, meta, body, p, lambda i, n, key=key: prog(key, i, n), 0, len(p["rotations"]) - 1,
+                                  gate=gate)
                 xo, xh, Xo = r["xo"], r["xh"], r["Xo"]
                 truth[f"{key}_max_displacement"] = np.linalg.norm(xo - xo[:1], axis=2).max(1)
                 truth[f"{key}_mean_displacement"] = np.linalg.norm(xo - xo[:1], axis=2).mean(1)

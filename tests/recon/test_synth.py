@@ -241,7 +241,7 @@ def test_soft_tissue_gate_drives_only_deeper_than_the_layer():
         tiny("cpillow", soft_layer=-0.01)
 
 
-def test_soft_layer_reaches_the_truths_controller(monkeypatch):
+def test_soft_layer_reaches_the_truths_controller(monkeypatch, tmp_path):
     """``soft_layer`` = d makes the truth's gated PD controller drive only the forearm particles deeper than d
     (depth written out in this test from the capsules), the same gate in every frame, none on the object; 0 drives
     them all. Mutants caught: soft_layer not passed to the controller, the gate applied to the object, the layer
@@ -272,3 +272,7 @@ def test_soft_layer_reaches_the_truths_controller(monkeypatch):
         om = seen[0]
         assert all(np.array_equal(o, om) for o in seen) and np.all(om[:no] == 0)
         np.testing.assert_array_equal(om[no:], np.ones(len(Xh)) if d == 0 else (~layer).astype(float))
+    # generate() computes the gate once and hands it to every clip: the same gate as above
+    seen.clear()
+    Y.generate(tmp_path / "scene", cfg.model_copy(update={"soft_layer": 0.01, "spin_frames": 0}))
+    assert seen and all(np.array_equal(o[-len(Xh):], (~layer).astype(float)) for o in seen)
