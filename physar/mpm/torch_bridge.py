@@ -170,6 +170,8 @@ class Params:
     :math:`k_p, k_d` = kp, kd.
     ``hold``: that force is evaluated once per frame on the frame's initial state and held over its substeps
     (seed Alg. 2, the default); ``False``: recomputed on every substep's state.
+    ``residual_on``: indices (M,) of the particles the neural residuals of Eq. (8) act on (``None``: all); the
+    others keep their expert laws, and their rows of l_e, l_p are not read.
     """
 
     E: torch.Tensor
@@ -183,6 +185,7 @@ class Params:
     kd: float = 2.0e1
     fiber_E: torch.Tensor | None = None
     hold: bool = True
+    residual_on: torch.Tensor | None = None
 
     def __repr__(self) -> str:
         """One line: particles, E [Pa] and nu ranges, which optional fields are set (latents by shape), gains, and
@@ -193,14 +196,14 @@ class Params:
             text = f"{lo:.4g}" if lo == hi else f"{lo:.4g}..{hi:.4g}"
             return f"{text} {unit}" if unit else text
 
-        names = ("E", "nu", "omega", "x_ref", "v_ref", "l_e", "l_p", "fiber_E")
+        names = ("E", "nu", "omega", "x_ref", "v_ref", "l_e", "l_p", "fiber_E", "residual_on")
         parts = [f"{len(self.E)} particles", f"E {span(self.E, 'Pa')}", f"nu {span(self.nu)}"]
         for name in names[2:]:
             v = getattr(self, name)
             if v is None:
                 continue
             parts.append(f"{name} (callable)" if callable(v) and not isinstance(v, torch.Tensor)
-                         else f"{name} {tuple(v.shape)}" if name in ("l_e", "l_p") else name)
+                         else f"{name} {tuple(v.shape)}" if name in ("l_e", "l_p", "residual_on") else name)
         grad = [n for n in names if isinstance(getattr(self, n), torch.Tensor) and getattr(self, n).requires_grad]
         parts += [f"kp={float(self.kp):g} 1/s^2", f"kd={float(self.kd):g} 1/s",
                   "held over a frame" if self.hold else "per substep", f"grad {', '.join(grad) or 'none'}"]
@@ -232,9 +235,13 @@ def substep(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref=None, v_ref=None,
     n = model.n_particles
     z = lambda *sh: torch.zeros(*sh, dtype=torch.float64, device=x.device)
     (tau,) = _WarpOp.apply(_stress_op, model, F, Jp, p.E, p.nu, _fiber_E(model, p))
+    on = p.residual_on
     if nets is not None and nets.elastic is not None:
         (sv,) = _WarpOp.apply(_sv_op, model, F)
-        tau = tau + nets.kirchhoff(F, sv, p.l_e, truncate=truncate)
+        if on is None:
+            tau = tau + nets.kirchhoff(F, sv, p.l_e, truncate=truncate)
+        else:
+            tau = tau.index_add(0, on, nets.kirchhoff(F[on], sv[on], _rows(p.l_e, on), truncate=truncate))
     if f_hold is not None or p.omega is None or x_ref is None:
         omega, x_ref, v_ref = z(n), z(n, 3), z(n, 3)
         kp = kd = 0.0
@@ -246,8 +253,16 @@ def substep(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref=None, v_ref=None,
     F, Jp = _WarpOp.apply(_plastic_op, model, Ft, Jp, p.E, p.nu)
     if nets is not None and nets.plastic is not None:
         (svt,) = _WarpOp.apply(_sv_op, model, Ft)
-        F = F + nets.deformation(Ft, svt, p.l_p, truncate=truncate)
+        if on is None:
+            F = F + nets.deformation(Ft, svt, p.l_p, truncate=truncate)
+        else:
+            F = F.index_add(0, on, nets.deformation(Ft[on], svt[on], _rows(p.l_p, on), truncate=truncate))
     return x, v, C, F, Jp
+
+
+def _rows(latent, on):
+    """The latents (N, d) of the particles ``on``, or a latent (d,) shared by all (or None), as given."""
+    return latent[on] if latent is not None and latent.dim() == 2 else latent
 
 
 def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralResidual | None = None,
@@ -338,6 +353,13 @@ def _check_inputs(model: MPMModel, state: dict, p: Params) -> None:
         if not callable(a):
             _check_shape(n, f"params.{k}", k, a)
     h = lambda a: torch.as_tensor(a).detach().cpu().numpy()
+    if p.residual_on is not None:
+        on = h(p.residual_on)
+        if on.ndim != 1 or on.dtype.kind not in "iu" or (on.size and (on.min() < 0 or on.max() >= n)) \
+                or np.unique(on).size != on.size:
+            raise ConfigError(f"simulate: params.residual_on must be distinct particle indices in [0, {n}), got "
+                              f"shape {on.shape}, dtype {on.dtype}"
+                              + (f", range {on.min()}..{on.max()}" if on.size and on.dtype.kind in "iu" else ""))
     check_material(h(p.E), h(p.nu), "simulate: params.")
     if p.fiber_E is not None:
         ef = h(p.fiber_E)

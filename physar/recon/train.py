@@ -226,6 +226,9 @@ class TrainConfig(BaseModel):
     residual_objective: bool = Field(True, description="with residual: frame-indifferent residual laws (material-"
                                      "frame outputs pushed forward by F, physar.mpm.neural); false: physar's world-"
                                      "frame form before 2026-11-29 (models fitted before the option load with it)")
+    residual_on: Literal["all", "object"] = Field(
+        "all", description="with residual: the particles the residual laws act on: all (object and body, the "
+        "form before the option) | object (the body keeps its expert law; latents for the object only)")
     latent_dim: int = Field(16, ge=1, le=MAX_LATENT_DIM, description="size of each particle's latents l_e, l_p (Eq. 8)")
     render_deformation: Literal["none", "state", "positions"] = Field(
         "none", description="deformation gradient that shapes the object's Gaussians whenever the object is "
@@ -604,9 +607,10 @@ class Physics:
                                   rest_free=cfg.residual_rest_free, objective=cfg.residual_objective)
             if cfg.latents:  # small random latents break the symmetry between particles
                 g = torch.Generator().manual_seed(cfg.seed)
-                l_e = 0.1 * torch.randn(rig.no + rig.nh, cfg.latent_dim, dtype=torch.float64, generator=g)
+                n = rig.no + (rig.nh if cfg.residual_on == "all" else 0)
+                l_e = 0.1 * torch.randn(n, cfg.latent_dim, dtype=torch.float64, generator=g)
                 if cfg.residual_plastic:
-                    l_p = 0.1 * torch.randn(rig.no + rig.nh, cfg.latent_dim, dtype=torch.float64, generator=g)
+                    l_p = 0.1 * torch.randn(n, cfg.latent_dim, dtype=torch.float64, generator=g)
         nl = None
         if cfg.learn_nu:  # nu = nu_min + (nu_max - nu_min) sigmoid(z) on the same material grid as log E
             nu0 = rig.meta["object"]["nu"] if cfg.nu_init is None else cfg.nu_init
@@ -651,10 +655,17 @@ class Physics:
         return torch.cat([torch.zeros(rig.no, dtype=torch.float64), rig.gate * 2 * torch.sigmoid(self.omega_logit)])
 
     def params(self, rig: Rig) -> tb.Params:
+        """Per-particle parameters of the simulator; with ``residual_on = "object"`` the residual laws act on the
+        object particles only (the body's latent rows are zeros, never read)."""
         E = torch.cat([self.E_object(rig), self.E_human(rig)])
         nu = torch.cat([self.nu_object(rig), rig.nu[rig.no:]])
-        return tb.Params(E=E, nu=nu, omega=self.omega(rig), l_e=self.l_e, l_p=self.l_p, kp=rig.kp, kd=rig.kd,
-                         hold=rig.cfg.pd_hold)
+        l_e, l_p, on = self.l_e, self.l_p, None
+        if self.nets is not None and rig.cfg.residual_on == "object":
+            on = torch.arange(rig.no)
+            pad = lambda l: l if l is None else torch.cat([l, l.new_zeros(rig.nh, l.shape[1])])
+            l_e, l_p = pad(l_e), pad(l_p)
+        return tb.Params(E=E, nu=nu, omega=self.omega(rig), l_e=l_e, l_p=l_p, kp=rig.kp, kd=rig.kd,
+                         hold=rig.cfg.pd_hold, residual_on=on)
 
 
 def object_deformation(rig: Rig, x: torch.Tensor, F: torch.Tensor | None) -> torch.Tensor:
@@ -840,18 +851,19 @@ def _state_from(d: dict, rig: Rig, p: Path) -> FitState:
 def _with_pre_option_defaults(config: dict) -> dict:
     """A stored configuration with the options added since filled in as the run behaved: render_deformation
     "state" (the seed's rule, the only one before the option), learn_omega true, flow_target "all" (the seed's
-    Eq. 10, the only form before the option), residual_objective false (the world-frame residual laws)."""
+    Eq. 10, the only form before the option), residual_objective false (the world-frame residual laws),
+    residual_on "all"."""
     return {"render_deformation": "state", "learn_omega": True, "flow_target": "all", "residual_objective": False,
-            **config}
+            "residual_on": "all", **config}
 
 
 def _result_fields(config: dict) -> dict:
     """A configuration without the fields its results do not depend on: the devices (CUDA matches the CPU to
     2e-13, benchmarks/RESULTS.md "Gaussians and MPM on CUDA"), so a run may resume, or a model load, on another
-    device; flow_target when the 3-D flow term is off (lambda_flow = 0), and residual_objective without the
-    residual laws."""
+    device; flow_target when the 3-D flow term is off (lambda_flow = 0), and residual_objective and
+    residual_on without the residual laws."""
     drop = (_DEVICE_FIELDS + (("flow_target",) if config.get("lambda_flow") == 0 else ())
-            + (("residual_objective",) if not config.get("residual") else ()))
+            + (("residual_objective", "residual_on") if not config.get("residual") else ()))
     return {k: v for k, v in config.items() if k not in drop}
 
 
@@ -1236,10 +1248,12 @@ def physics_regulariser(phys: Physics, rig: Rig, F: torch.Tensor) -> torch.Tenso
     :func:`physar.mpm.neural.regulariser`, with the weights of the configuration: the residuals evaluated at
     the deformation gradients :math:`F` (No + Nh, 3, 3) of the last simulated frame (physar's choice:
     :math:`F` also stands for :math:`F_\text{trial}`, which lives inside a substep), :math:`\omega` of all
-    particles."""
+    particles; with ``residual_on = "object"`` the residuals at the object's F only."""
     from physar.mpm.neural import regulariser
 
     cfg = rig.cfg
+    if cfg.residual_on == "object":
+        F = F[:rig.no]
     return regulariser(phys.nets, phys.omega(rig), F=F, l_e=phys.l_e, F_trial=F, l_p=phys.l_p,
                        lam_law=cfg.lambda_law, lam_omega=cfg.lambda_omega, lam_feat=cfg.lambda_feat)
 

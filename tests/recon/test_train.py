@@ -131,6 +131,45 @@ def test_rest_free_option_reaches_the_residual_laws(fitted, tiny_scene, tmp_path
         assert torch.linalg.matrix_norm(ph.nets.deformation(I, one, ph.l_p)).max() < 1e-12
 
 
+def test_residual_on_object_keeps_the_body_to_its_expert_law(fitted, tiny_scene, tmp_path):
+    """[train] residual_on = "object": latents for the object particles only, the simulator told to apply the
+    residual laws to those (Params.residual_on, whose effect tests/mpm/test_actuation_closed_form.py checks), and
+    the Eq. 11 term evaluated on the object's F only; a model from before the option loads with "all". Mutants
+    caught: the option not passed to the simulator (residual_on None), latents still sized for the body, the
+    regulariser still over the body's F, old models loaded as "object"."""
+    import torch
+
+    from physar.recon.train import physics_regulariser
+
+    run, cfg, _ = fitted
+    upd = {"residual": True, "latents": True, "residual_on": "object", "physics_iters": 1}
+    fit(tiny_scene, tmp_path / "ro", cfg.model_copy(update=upd), reuse=run)
+    rec = Reconstruction.load(tmp_path / "ro")
+    ph, rig = rec.phys, rec.rig
+    assert ph.l_e.shape == (rig.no, cfg.latent_dim) and ph.l_p.shape == (rig.no, cfg.latent_dim)
+    p = ph.params(rig)
+    assert torch.equal(p.residual_on, torch.arange(rig.no)) and p.l_e.shape[0] == rig.no + rig.nh
+    # the regulariser does not see the body: a body F far from I changes nothing, an object F does
+    F = torch.eye(3, dtype=torch.float64).repeat(rig.no + rig.nh, 1, 1)
+    G = F.clone()
+    G[rig.no:] *= 1.5
+    with torch.no_grad():
+        r0, r_body = physics_regulariser(ph, rig, F), physics_regulariser(ph, rig, G)
+        G[:rig.no] *= 1.5
+        r_obj = physics_regulariser(ph, rig, G)
+    assert float(r_body) == float(r0) and abs(float(r_obj) - float(r0)) > 1e-6 * abs(float(r0))
+    with np.load(tmp_path / "ro" / "model.npz", allow_pickle=False) as z:
+        arrays = dict(z)
+    conf = json.loads(str(arrays["config_json"]))
+    del conf["residual_on"]
+    conf["latents"] = False  # a model from before stored the body's latents too; here: none
+    arrays.pop("l_e"), arrays.pop("l_p")
+    arrays["config_json"] = np.array(json.dumps(conf))
+    np.savez(tmp_path / "old.npz", **arrays)
+    old = Reconstruction.load(tmp_path / "old.npz")
+    assert old.rig.cfg.residual_on == "all" and old.phys.params(old.rig).residual_on is None
+
+
 def test_learn_omega_false_keeps_omega_and_learns_E(fitted, tiny_scene, tmp_path):
     """[train] learn_omega = false leaves the body's omega logits out of the optimiser (issue 17: which learned
     parameter drives the E drift). Against the initial value omega_init / 2 in logit form (Eq. 7: omega =
