@@ -21,7 +21,7 @@ returned on the device of the caller's tensors, so CPU callers get CPU tensors f
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -170,8 +170,9 @@ class Params:
     :math:`k_p, k_d` = kp, kd.
     ``hold``: that force is evaluated once per frame on the frame's initial state and held over its substeps
     (seed Alg. 2, the default); ``False``: recomputed on every substep's state.
-    ``residual_on``: indices (M,) of the particles the neural residuals of Eq. (8) act on (``None``: all); the
-    others keep their expert laws, and their rows of l_e, l_p are not read.
+    ``residual_on``: int32/int64 indices (M,) of the particles the neural residuals of Eq. (8) act on
+    (``None``: all); the others keep their expert laws. l_e, l_p keep one row per particle (N, latent); the rows
+    of the others are not read.
     """
 
     E: torch.Tensor
@@ -235,7 +236,7 @@ def substep(model: MPMModel, x, v, C, F, Jp, p: Params, x_ref=None, v_ref=None,
     n = model.n_particles
     z = lambda *sh: torch.zeros(*sh, dtype=torch.float64, device=x.device)
     (tau,) = _WarpOp.apply(_stress_op, model, F, Jp, p.E, p.nu, _fiber_E(model, p))
-    on = p.residual_on
+    on = None if p.residual_on is None else torch.as_tensor(p.residual_on, dtype=torch.long, device=x.device)
     if nets is not None and nets.elastic is not None:
         (sv,) = _WarpOp.apply(_sv_op, model, F)
         if on is None:
@@ -288,6 +289,8 @@ def simulate(model: MPMModel, x0, v0, params: Params, frames: int, nets: NeuralR
     F = torch.eye(3, dtype=torch.float64, device=dev).repeat(n, 1, 1) if F0 is None else t(F0)
     Jp = torch.ones(n, dtype=torch.float64, device=dev) if Jp0 is None else t(Jp0)
     _check_inputs(model, {"x0": x, "v0": v, "C0": C, "F0": F, "Jp0": Jp}, params)
+    if params.residual_on is not None:  # once, on the state's device (index_add needs its indices there)
+        params = replace(params, residual_on=torch.as_tensor(params.residual_on, dtype=torch.long, device=dev))
     xs = [x]
     use_fused = fused and (nets is None or (nets.elastic is None and nets.plastic is None))
     for f in range(frames):
@@ -354,12 +357,7 @@ def _check_inputs(model: MPMModel, state: dict, p: Params) -> None:
             _check_shape(n, f"params.{k}", k, a)
     h = lambda a: torch.as_tensor(a).detach().cpu().numpy()
     if p.residual_on is not None:
-        on = h(p.residual_on)
-        if on.ndim != 1 or on.dtype.kind not in "iu" or (on.size and (on.min() < 0 or on.max() >= n)) \
-                or np.unique(on).size != on.size:
-            raise ConfigError(f"simulate: params.residual_on must be distinct particle indices in [0, {n}), got "
-                              f"shape {on.shape}, dtype {on.dtype}"
-                              + (f", range {on.min()}..{on.max()}" if on.size and on.dtype.kind in "iu" else ""))
+        _check_indices(h(p.residual_on), n)
     check_material(h(p.E), h(p.nu), "simulate: params.")
     if p.fiber_E is not None:
         ef = h(p.fiber_E)
@@ -367,6 +365,21 @@ def _check_inputs(model: MPMModel, state: dict, p: Params) -> None:
         if bad.any():
             i = int(bad.argmax())
             raise ConfigError(f"simulate: params.fiber_E[{i}] = {ef[i]:g} Pa: must be a finite number >= 0")
+
+
+def _check_indices(on: np.ndarray, n: int) -> None:
+    """A :class:`ConfigError` naming what is wrong unless ``on`` (``Params.residual_on``) holds distinct int32 /
+    int64 particle indices in [0, n) along one axis."""
+    why = (f"has shape {on.shape}, not (M,)" if on.ndim != 1
+           else f"has dtype {on.dtype}, not int32 or int64" if on.dtype not in (np.int32, np.int64) else None)
+    if why is None and on.size:
+        bad = (on < 0) | (on >= n)
+        uniq, counts = np.unique(on, return_counts=True)
+        why = (f"holds index {on[bad.argmax()]}, outside [0, {n})" if bad.any()
+               else f"holds index {uniq[counts.argmax()]} {counts.max()} times" if counts.max() > 1 else None)
+    if why is not None:
+        raise ConfigError(f"simulate: params.residual_on {why} (distinct indices of the particles the residual laws "
+                          "act on)")
 
 
 def _check(model: MPMModel, x, v, F, f: int):

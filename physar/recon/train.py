@@ -84,7 +84,8 @@ Progress = Callable[[str, int, int, float], None]
 
 
 MAX_MATERIAL_NODES = 4096  # train.material_grid: nodes in all (16^3); each is a column of a dense (N, G) matrix
-MAX_LATENT_DIM = 1024  # train.latent_dim (the seed: 16); the latents are two (N, latent_dim) float64 arrays
+MAX_LATENT_DIM = 1024  # train.latent_dim (the seed: 64, App. A.2); the latents are two (N, latent_dim) float64
+# arrays (N: the particles the residual laws act on, residual_on)
 
 
 class TrainConfig(BaseModel):
@@ -228,7 +229,8 @@ class TrainConfig(BaseModel):
                                      "frame form before 2026-11-29 (models fitted before the option load with it)")
     residual_on: Literal["all", "object"] = Field(
         "all", description="with residual: the particles the residual laws act on: all (object and body, the "
-        "form before the option) | object (the body keeps its expert law; latents for the object only)")
+        "form before the option) | object (the body keeps its expert law; latents, and the Eq. 11 law term, for "
+        "the object only)")
     latent_dim: int = Field(16, ge=1, le=MAX_LATENT_DIM, description="size of each particle's latents l_e, l_p (Eq. 8)")
     render_deformation: Literal["none", "state", "positions"] = Field(
         "none", description="deformation gradient that shapes the object's Gaussians whenever the object is "
@@ -581,7 +583,8 @@ def image_loss(res, rgb_gt: torch.Tensor, mask_gt: torch.Tensor, cfg: TrainConfi
 @dataclass
 class Physics:
     r"""Learned physical parameters: :math:`\log E` of the object (No,), :math:`\omega` logits of the body
-    (Nh,), optional neural residual with latents."""
+    (Nh,), optional neural residual with latents l_e, l_p (No + Nh, latent), or (No, latent) with
+    ``residual_on = "object"``."""
 
     log_E: torch.Tensor
     omega_logit: torch.Tensor

@@ -144,16 +144,23 @@ def test_second_signal_aborts_without_outputs(tmp_path):
     # process-directed signal may land on another thread (the encoder's) while the main thread sleeps, and
     # Python runs one handler for two signals still pending then (the child returned 130 once on 2026-11-29).
     p, out, progress = _start(tmp_path, 0.1, hold=1)
-    _wait_rows(p, progress, 1, started=2)
-    p.send_signal(signal.SIGINT)
-    stopped = progress.with_name(progress.name + ".stopped")
-    t = time.monotonic()
-    while not stopped.exists() and p.poll() is None and time.monotonic() - t < 60.0:  # a cap against a hang
-        time.sleep(0.02)
-    assert stopped.exists(), "the first SIGINT did not reach the guard"
-    p.send_signal(signal.SIGINT)
-    p.communicate(timeout=120)
-    assert p.returncode not in (0, 130)
+    try:
+        _wait_rows(p, progress, 1, started=2)
+        p.send_signal(signal.SIGINT)
+        stopped = progress.with_name(progress.name + ".stopped")
+        t = time.monotonic()
+        while not stopped.exists() and p.poll() is None and time.monotonic() - t < 60.0:  # a cap against a hang
+            time.sleep(0.02)
+        if not stopped.exists():
+            pytest.fail(f"the first SIGINT did not reach the guard (rc {p.poll()}): {p.stderr.read()[-2000:]}")
+        p.send_signal(signal.SIGINT)
+        _, stderr = p.communicate(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    # the abort: KeyboardInterrupt out of the main module, which CPython turns into death by SIGINT
+    assert p.returncode == -signal.SIGINT and "KeyboardInterrupt: second SIGINT" in stderr, (p.returncode, stderr)
     assert os.listdir(out) == []
 
 

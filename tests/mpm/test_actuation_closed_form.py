@@ -326,11 +326,19 @@ def test_residual_laws_are_frame_indifferent():
 
 def test_residual_on_a_subset_leaves_the_others_to_the_expert_law():
     """``Params.residual_on``: the residual laws act on the listed particles only. Three particles in cells far
-    apart (no shared grid node) with distinct latents and deformed F, residuals on particles [2, 0]: particles 2
-    and 0 end the substep as with the residuals on every particle (each with its own latent row), particle 1 as
-    with the expert law alone (no networks). Mutants caught: the subset ignored (particle 1 changes), the latent
-    rows taken in order 0, 1 instead of by index (particles 2 and 0 change), the residual added to the wrong rows."""
+    apart (no shared grid node) with distinct latents and deformed F, Hencky + von Mises with an active return
+    map, residuals on particles [2, 0]: particles 2 and 0 end the substep as with the residuals on every particle
+    (each with its own latent row), particle 1 as with the expert law alone (no networks); NumPy indices through
+    simulate() give the same. Mutants caught: the subset ignored (particle 1 changes), the latent rows taken in
+    order 0, 1 instead of by index (particles 2 and 0 change), the residual added to the wrong rows, the plastic
+    residual of the subset taken of the projected F instead of F_trial."""
+    from physar.mpm.constitutive import ELASTIC_HENCKY, PLASTIC_VON_MISES
+
     model = _model(3, T=1, mass=0.2, E=2.0e3, dt=1.0e-4, res=16)
+    model = MPMModel(**{**{k: getattr(model, k) for k in ("size", "resolution", "dt", "substeps", "mass", "volume",
+                                                         "E", "nu", "body", "gravity")},
+                        "elastic": np.full(3, ELASTIC_HENCKY), "plastic": np.full(3, PLASTIC_VON_MISES),
+                        "plastic_params": np.tile([5.0, 0.0, 0.0, 0.0], (3, 1))})
     t = lambda a: torch.tensor(a, dtype=torch.float64)
     x = t([[0.21, 0.23, 0.22], [0.52, 0.46, 0.51], [0.78, 0.76, 0.77]])  # B-spline stencils 2 nodes apart
     rng = np.random.default_rng(1)
@@ -347,6 +355,10 @@ def test_residual_on_a_subset_leaves_the_others_to_the_expert_law():
         _, _, C_sub, F_sub, _ = run(torch.tensor([2, 0]), nets)
         _, _, C_all, F_all, _ = run(None, nets)
         _, _, C_ex, F_ex, _ = run(None, None)
+        p = Params(E=t(model.E), nu=t(model.nu), l_e=l_e, l_p=l_p, residual_on=np.array([2, 0]))
+        _, (_, _, C_np, F_np, _) = simulate(model, x, z(3, 3), p, 1, nets=nets, F0=F)
+    np.testing.assert_allclose(F_np.numpy(), F_sub.numpy(), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(C_np.numpy(), C_sub.numpy(), rtol=1e-12, atol=1e-12)
     for i, (C_ref, F_ref) in enumerate(((C_all, F_all), (C_ex, F_ex), (C_all, F_all))):
         np.testing.assert_allclose(C_sub[i].numpy(), C_ref[i].numpy(), rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(F_sub[i].numpy(), F_ref[i].numpy(), rtol=1e-12, atol=1e-14)
@@ -355,14 +367,18 @@ def test_residual_on_a_subset_leaves_the_others_to_the_expert_law():
     assert float((F_all - F_ex).abs().max()) > 1e-5
 
 
-@pytest.mark.parametrize("on", [[0, 0], [3], [-1], [[0]]])
-def test_residual_on_refuses_bad_indices(on):
-    """A repeated, out-of-range or non-1-D ``residual_on`` is one ConfigError naming the field."""
+@pytest.mark.parametrize("on, why", [([0, 0], "index 0 2 times"), ([3], "index 3, outside"),
+                                     ([-1], "index -1, outside"), ([[0]], "shape"),
+                                     (torch.tensor([0], dtype=torch.uint8), "dtype uint8"),
+                                     (torch.tensor([0.0]), "dtype float32")])
+def test_residual_on_refuses_bad_indices(on, why):
+    """A repeated, out-of-range, non-1-D or non-integer ``residual_on`` is one ConfigError naming the field and
+    what is wrong (uint8 would be read by torch as a mask)."""
     from physar.errors import ConfigError
 
     model = _model(3, T=1)
     t = lambda a: torch.tensor(a, dtype=torch.float64)
     x = t([[0.21, 0.23, 0.22], [0.52, 0.46, 0.51], [0.78, 0.76, 0.77]])
-    p = Params(E=t(model.E), nu=t(model.nu), residual_on=torch.tensor(on))
-    with pytest.raises(ConfigError, match="params.residual_on"):
+    p = Params(E=t(model.E), nu=t(model.nu), residual_on=torch.as_tensor(on))
+    with pytest.raises(ConfigError, match=f"params.residual_on .*{why}"):
         simulate(model, x, torch.zeros(3, 3, dtype=torch.float64), p, 1, nets=_random_net(False))

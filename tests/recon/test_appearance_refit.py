@@ -226,6 +226,27 @@ def test_a_checkpoint_from_before_residual_objective_resumes(refit_run, tmp_path
         _load_checkpoint(tmp_path, on, d["data_hash"])
 
 
+def test_a_checkpoint_compares_residual_on_only_with_residual_laws(refit_run, tmp_path):
+    """residual_on (where the residual laws act) is compared on resume only when there are residual laws: a
+    checkpoint without them and without the key resumes; one with them made under "all" is refused under
+    "object" and resumes under "all", also when it predates the option. Mutants caught: residual_on always
+    dropped from the comparison (a run would resume under the other law), or never (old checkpoints refused)."""
+    from physar.errors import ConfigError
+    from physar.recon.train import _load_checkpoint
+
+    run, cfg = refit_run
+    d = torch.load(run / "checkpoint.pt", weights_only=True)
+    del d["config"]["residual_on"]
+    torch.save(d, tmp_path / "checkpoint.pt")
+    assert _load_checkpoint(tmp_path, cfg.model_copy(update={"residual_on": "object"}), d["data_hash"])
+    d["config"]["residual"] = True
+    torch.save(d, tmp_path / "checkpoint.pt")
+    on = cfg.model_copy(update={"residual": True})
+    assert _load_checkpoint(tmp_path, on, d["data_hash"])
+    with pytest.raises(ConfigError, match=r"another configuration \(residual_on = 'all' there, 'object' now\)"):
+        _load_checkpoint(tmp_path, on.model_copy(update={"residual_on": "object"}), d["data_hash"])
+
+
 def _model_without(run, key, tmp_path):
     """RUN/model.npz copied to tmp_path with ``key`` removed from its stored configuration (a model from before that
     option), loaded."""

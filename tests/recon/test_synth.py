@@ -274,5 +274,11 @@ def test_soft_layer_reaches_the_truths_controller(monkeypatch, tmp_path):
         np.testing.assert_array_equal(om[no:], np.ones(len(Xh)) if d == 0 else (~layer).astype(float))
     # generate() computes the gate once and hands it to every clip: the same gate as above
     seen.clear()
+    calls = []
+    gate = Y.soft_tissue_gate
+    monkeypatch.setattr(Y, "soft_tissue_gate", lambda *a: calls.append(1) or gate(*a))
     Y.generate(tmp_path / "scene", cfg.model_copy(update={"soft_layer": 0.01, "spin_frames": 0}))
     assert seen and all(np.array_equal(o[-len(Xh):], (~layer).astype(float)) for o in seen)
+    assert len(calls) == 1 and len(seen) > len(Y.clip_poses(cfg, body)[""]["rotations"])  # two clips, one gate
+    with pytest.raises(ValueError, match=f"gate has 3 entries for {len(Xh)} body particles"):
+        Y.simulate_clip(cfg, meta, body, poses, gate=np.ones(3))

@@ -134,12 +134,13 @@ def test_rest_free_option_reaches_the_residual_laws(fitted, tiny_scene, tmp_path
 def test_residual_on_object_keeps_the_body_to_its_expert_law(fitted, tiny_scene, tmp_path):
     """[train] residual_on = "object": latents for the object particles only, the simulator told to apply the
     residual laws to those (Params.residual_on, whose effect tests/mpm/test_actuation_closed_form.py checks), and
-    the Eq. 11 term evaluated on the object's F only; a model from before the option loads with "all". Mutants
-    caught: the option not passed to the simulator (residual_on None), latents still sized for the body, the
-    regulariser still over the body's F, old models loaded as "object"."""
+    the Eq. 11 term evaluated on the object's F only, the latents still learned from the data term; a model from
+    before the option loads with "all". Mutants caught: the option not passed to the simulator (residual_on
+    None), latents still sized for the body, the regulariser still over the body's F, the latents detached from
+    the simulation (no gradient)."""
     import torch
 
-    from physar.recon.train import physics_regulariser
+    from physar.recon.train import load_dataset, physics_regulariser, simulate_clip
 
     run, cfg, _ = fitted
     upd = {"residual": True, "latents": True, "residual_on": "object", "physics_iters": 1}
@@ -158,6 +159,12 @@ def test_residual_on_object_keeps_the_body_to_its_expert_law(fitted, tiny_scene,
         G[:rig.no] *= 1.5
         r_obj = physics_regulariser(ph, rig, G)
     assert float(r_body) == float(r0) and abs(float(r_obj) - float(r0)) > 1e-6 * abs(float(r0))
+    ds = load_dataset(tiny_scene)
+    ph.l_e.requires_grad_(True)
+    ph.l_p.requires_grad_(True)
+    (_, xo, *_), = simulate_clip(rig, ph, rec.kinematics(ds.rotations, ds.root_t), 2)
+    xo.square().sum().backward()
+    assert float(ph.l_e.grad.abs().max()) > 0 and float(ph.l_p.grad.abs().max()) > 0
     with np.load(tmp_path / "ro" / "model.npz", allow_pickle=False) as z:
         arrays = dict(z)
     conf = json.loads(str(arrays["config_json"]))
