@@ -80,7 +80,8 @@ def identifiability(data_dir: Path, tcfg, scales=(0.25, 0.5, 0.7, 1.4, 2.0, 4.0)
 
 def oracle_E(data_dir: Path, tcfg, grid, iters: int = 15, lr: float = 0.1,
              targets: np.ndarray | None = None, from_poses: bool = False, residual: bool = False,
-             frames: str = "observed", displacement: bool = False) -> list[tuple[int, float, dict]]:
+             frames: str = "observed", displacement: bool = False,
+             fitted: list | None = None) -> list[tuple[int, float, dict]]:
     """Learn log E from the true 3-D object trajectories (see the module docstring), or from ``targets``
     (F, No, 3) such as a run's Eq. 9 flow; per Adam step k = 1..iters, (k, L1 loss mm, material_error), both
     evaluated at the parameters *before* step k (k = 1: the initial guess).
@@ -92,7 +93,8 @@ def oracle_E(data_dir: Path, tcfg, grid, iters: int = 15, lr: float = 0.1,
     ``frames``: "observed" or "all" (observed + predicted frames of the clip); ``displacement``: fit the true
     displacement added to the reconstruction's rest positions, X + (truth_f - truth_0), instead of the
     cell-averaged true positions, whose offset at rest (the fine truth resampled onto the reconstruction's
-    particles: the 3-D error floor) the L1 loss would otherwise keep trying to close through E."""
+    particles: the 3-D error floor) the L1 loss would otherwise keep trying to close through E; ``fitted``: a
+    list that receives (rig, Physics after the last step, kinematics)."""
     import math
 
     from physar.recon.train import Reconstruction, material_error, physics_regulariser
@@ -129,6 +131,8 @@ def oracle_E(data_dir: Path, tcfg, grid, iters: int = 15, lr: float = 0.1,
         opt.step()
         with torch.no_grad():
             ph.log_E.clamp_(math.log(tcfg.E_min), math.log(tcfg.E_max))
+    if fitted is not None:
+        fitted.append((rig, ph, kin))
     return rows
 
 

@@ -308,12 +308,14 @@ def train(a) -> None:
                 from physar.mpm.neural import invariant_features
                 from physar.mpm.torch_bridge import _sv_op, _WarpOp
 
+                Fr = Fall.detach()[:rig.no] if cfg.residual_on == "object" else Fall.detach()  # where it acts
                 (sv,) = _WarpOp.apply(_sv_op, rig.model, Fall.detach())
+                sv = sv[:len(Fr)]
                 el = ph.nets.elastic
-                h = el.l1(invariant_features(Fall.detach(), sv)) + (ph.l_e if ph.l_e is not None else 0)
+                h = el.l1(invariant_features(Fr, sv)) + (ph.l_e if ph.l_e is not None else 0)
                 raw = el.l3(el.act(el.l2(el.act(h)))).reshape(-1, 3, 3)
                 on = torch.linalg.matrix_norm(raw)
-                sig = ph.nets.stress(Fall.detach(), sv, ph.l_e)
+                sig = ph.nets.stress(Fr, sv, ph.l_e)
                 row.update({"w3_mean_abs": float(ph.nets.elastic.l3.weight.abs().mean()),
                             "sigma_theta_obj_mean_Pa": float(torch.linalg.matrix_norm(sig[:rig.no]).mean()),
                             "frac_truncated": float((on < ph.nets.eps).double().mean()),
