@@ -121,20 +121,23 @@ class NeuralResidual(nn.Module):
         self.plastic = ResidualMLP(latent_dim, latent_dim, F_scale) if plastic else None
         self.latent_dim = latent_dim
 
+    def _sym_elastic(self, F, sv, l_e, truncate: bool):
+        """s sym(O) (N, 3, 3), Pa: the elastic network's output at F, symmetrised; ``truncate``: Eq. 12."""
+        out = self.elastic(invariant_features(F, sv), l_e, self.eps if truncate else None, self.rest_free)
+        return 0.5 * (out + out.transpose(1, 2))
+
     def kirchhoff(self, F, sv, l_e, truncate: bool = False):
         """Kirchhoff residual J sigma_theta (N, 3, 3), Pa (module docstring): s F sym(O) F^T, or J s sym(O) for
         the world-frame form; ``truncate``: Eq. 12 (inference). No division by J (finite for any F)."""
-        out = self.elastic(invariant_features(F, sv), l_e, self.eps if truncate else None, self.rest_free)
-        out = 0.5 * (out + out.transpose(1, 2))
+        out = self._sym_elastic(F, sv, l_e, truncate)
         if not self.objective:
             return torch.linalg.det(F)[:, None, None] * out
         return F @ out @ F.transpose(1, 2)
 
     def stress(self, F, sv, l_e, truncate: bool = False):
         """Cauchy residual sigma_theta = kirchhoff / J (N, 3, 3), Pa; ``truncate``: Eq. 12 (inference)."""
-        if not self.objective:  # sym(O) itself, without a J / J round trip
-            out = self.elastic(invariant_features(F, sv), l_e, self.eps if truncate else None, self.rest_free)
-            return 0.5 * (out + out.transpose(1, 2))
+        if not self.objective:  # s sym(O) itself, without a J / J round trip
+            return self._sym_elastic(F, sv, l_e, truncate)
         return self.kirchhoff(F, sv, l_e, truncate) / torch.linalg.det(F)[:, None, None]
 
     def deformation(self, F_trial, sv, l_p, truncate: bool = False):
